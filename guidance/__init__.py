@@ -1,0 +1,1 @@
+"""tt.guidance: rewards, Zeroth-Order search and Dynamics Self-Guidance."""

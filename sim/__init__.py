@@ -1,0 +1,1 @@
+"""tt.sim: design spaces, target motions, rollouts and the MuJoCo + mink oracle."""

@@ -1,0 +1,260 @@
+"""Design spaces: procedural grammars whose designs are discrete + continuous choices.
+
+A design is a list of discrete choices (indices into option tuples) and a list of
+continuous choices; which parameters exist depends on earlier discrete choices (a 7-DoF
+ViperX has more link lengths than a 5-DoF one). A design space turns a design into MJCF
+text, and MJCF is the one source of truth for the robot afterwards.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import mujoco
+import numpy as np
+
+
+class DesignError(ValueError):
+    """A design that does not belong to its space; the message names the field."""
+
+
+@dataclass(frozen=True)
+class DiscreteParam:
+    """One discrete choice: its name and the options it picks from."""
+
+    name: str
+    options: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ContinuousParam:
+    """One continuous choice with inclusive bounds, in SI units (m, rad)."""
+
+    name: str
+    low: float
+    high: float
+    unit: str = "m"
+
+
+@dataclass(frozen=True)
+class Design:
+    """One robot design of a space.
+
+    discrete: option indices, one per `DesignSpace.discrete_params(discrete)` entry.
+    continuous: values, one per `DesignSpace.continuous_params(discrete)` entry.
+    """
+
+    space: str
+    discrete: tuple[int, ...]
+    continuous: tuple[float, ...]
+
+
+class DesignSpace(ABC):
+    """A procedural robot grammar.
+
+    Subclasses define the parameters, a nominal design and `to_mjcf`. Sampling, validation
+    and the JSON form are shared.
+    """
+
+    name: str = ""
+    #: True when the robot needs contact physics (a floor, feet); such designs cannot run
+    #: on the contact-free `warp` rollout backend.
+    has_contacts: bool = False
+    #: Number of end effectors; their sites are named ``ee_0``, ``ee_1``, ...
+    ee_count: int = 1
+
+    @abstractmethod
+    def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
+        """The discrete parameters given (a prefix of) the discrete choices.
+
+        Later parameters may depend on earlier choices; the result must be a function of
+        the choices it depends on, and of those only.
+        """
+
+    @abstractmethod
+    def continuous_params(self, discrete: Sequence[int]) -> tuple[ContinuousParam, ...]:
+        """The continuous parameters for complete discrete choices."""
+
+    @abstractmethod
+    def nominal(self) -> Design:
+        """The unmodified robot the grammar grows from."""
+
+    @abstractmethod
+    def _mjcf(self, discrete: tuple[int, ...], values: dict[str, float], options: dict[str, str]) -> str:
+        """MJCF text for a validated design (options by name, values by name)."""
+
+    # ---------------------------------------------------------------- shared machinery
+    def ee_sites(self) -> tuple[str, ...]:
+        """Site names of the end effectors, in the order motions address them."""
+        return tuple(f"ee_{i}" for i in range(self.ee_count))
+
+    def sample(self, n: int, seed: int) -> list[Design]:
+        """`n` designs, discrete choices uniform over options, continuous uniform in bounds."""
+        if n < 0:
+            raise ValueError(f"n must be >= 0, got {n}")
+        rng = np.random.default_rng(seed)
+        designs = []
+        for _ in range(n):
+            discrete: list[int] = []
+            while True:
+                params = self.discrete_params(discrete)
+                if len(discrete) == len(params):
+                    break
+                discrete.append(int(rng.integers(len(params[len(discrete)].options))))
+            cparams = self.continuous_params(discrete)
+            values = tuple(float(rng.uniform(p.low, p.high)) for p in cparams)
+            designs.append(Design(self.name, tuple(discrete), values))
+        return designs
+
+    def validate(self, design: Design) -> None:
+        """Raise `DesignError` naming the first field that is out of range or malformed."""
+        if not isinstance(design, Design):
+            raise DesignError(f"expected a Design, got {type(design).__name__}")
+        if design.space != self.name:
+            raise DesignError(f"design.space is {design.space!r}, this space is {self.name!r}")
+        dparams = self.discrete_params(design.discrete)
+        if len(design.discrete) != len(dparams):
+            raise DesignError(
+                f"design has {len(design.discrete)} discrete choices, space {self.name!r} expects "
+                f"{len(dparams)}: {[p.name for p in dparams]}"
+            )
+        for i, (p, v) in enumerate(zip(dparams, design.discrete)):
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or not 0 <= v < len(p.options):
+                raise DesignError(
+                    f"discrete[{i}] ({p.name!r}) = {v!r}; valid: an index in 0..{len(p.options) - 1} "
+                    f"for options {list(p.options)}"
+                )
+            # A choice may change the parameters after it; re-read with this prefix.
+            dparams_now = self.discrete_params(design.discrete[: i + 1])
+            if dparams_now[: i + 1] != dparams[: i + 1]:
+                raise DesignError(f"discrete choices are inconsistent at {p.name!r}")
+        cparams = self.continuous_params(design.discrete)
+        if len(design.continuous) != len(cparams):
+            raise DesignError(
+                f"design has {len(design.continuous)} continuous choices, space {self.name!r} expects "
+                f"{len(cparams)} for these discrete choices: {[p.name for p in cparams]}"
+            )
+        for i, (p, v) in enumerate(zip(cparams, design.continuous)):
+            if not isinstance(v, (float, int, np.floating)) or isinstance(v, bool) or not math.isfinite(v):
+                raise DesignError(f"continuous[{i}] ({p.name!r}) = {v!r} is not a finite number")
+            # Tolerate float round-off at the bounds (values that came through float32).
+            tol = 1e-9 * max(1.0, abs(p.high - p.low))
+            if not p.low - tol <= v <= p.high + tol:
+                raise DesignError(
+                    f"continuous[{i}] ({p.name!r}) = {v!r} {p.unit} is outside [{p.low}, {p.high}] {p.unit}"
+                )
+
+    def to_mjcf(self, design: Design) -> str:
+        """MJCF text of a design that `mujoco.MjModel.from_xml_string` loads."""
+        self.validate(design)
+        dparams = self.discrete_params(design.discrete)
+        options = {p.name: p.options[i] for p, i in zip(dparams, design.discrete)}
+        cparams = self.continuous_params(design.discrete)
+        values = {p.name: float(v) for p, v in zip(cparams, design.continuous)}
+        return self._mjcf(tuple(int(i) for i in design.discrete), values, options)
+
+    def model(self, design: Design) -> mujoco.MjModel:
+        """The compiled MuJoCo model of a design."""
+        return mujoco.MjModel.from_xml_string(self.to_mjcf(design))
+
+    # ---------------------------------------------------------------- JSON
+    def to_dict(self, design: Design) -> dict:
+        """JSON-ready form: choices by name, so files stay readable and diffable."""
+        self.validate(design)
+        dparams = self.discrete_params(design.discrete)
+        cparams = self.continuous_params(design.discrete)
+        return {
+            "space": self.name,
+            "discrete": {p.name: p.options[i] for p, i in zip(dparams, design.discrete)},
+            "continuous": {p.name: float(v) for p, v in zip(cparams, design.continuous)},
+        }
+
+    def from_dict(self, data: dict) -> Design:
+        """Inverse of `to_dict`; raises `DesignError` naming a missing or unknown field."""
+        if not isinstance(data, dict):
+            raise DesignError(f"a design must be a JSON object, got {type(data).__name__}")
+        if data.get("space") != self.name:
+            raise DesignError(f"field 'space' is {data.get('space')!r}, expected {self.name!r}")
+        dnamed = data.get("discrete")
+        cnamed = data.get("continuous")
+        if not isinstance(dnamed, dict) or not isinstance(cnamed, dict):
+            raise DesignError("fields 'discrete' and 'continuous' must be JSON objects")
+        discrete: list[int] = []
+        while True:
+            params = self.discrete_params(discrete)
+            if len(discrete) == len(params):
+                break
+            p = params[len(discrete)]
+            if p.name not in dnamed:
+                raise DesignError(f"discrete field {p.name!r} is missing; options: {list(p.options)}")
+            option = str(dnamed[p.name])
+            if option not in p.options:
+                raise DesignError(f"discrete field {p.name!r} = {option!r}; valid options: {list(p.options)}")
+            discrete.append(p.options.index(option))
+        extra = set(dnamed) - {p.name for p in params}
+        if extra:
+            raise DesignError(f"unknown discrete fields {sorted(extra)} for space {self.name!r}")
+        cparams = self.continuous_params(discrete)
+        extra = set(cnamed) - {p.name for p in cparams}
+        if extra:
+            raise DesignError(f"unknown continuous fields {sorted(extra)} for these discrete choices")
+        values = []
+        for p in cparams:
+            if p.name not in cnamed:
+                raise DesignError(f"continuous field {p.name!r} is missing ([{p.low}, {p.high}] {p.unit})")
+            v = cnamed[p.name]
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                raise DesignError(f"continuous field {p.name!r} = {v!r} is not a number")
+            values.append(float(v))
+        design = Design(self.name, tuple(discrete), tuple(values))
+        self.validate(design)
+        return design
+
+
+def save_designs(designs: Sequence[Design], path: str | Path) -> None:
+    """Write designs to a JSON file: ``{"designs": [...]}``."""
+    from tt.sim.designs import get_space
+
+    out = [get_space(d.space).to_dict(d) for d in designs]
+    Path(path).write_text(json.dumps({"designs": out}, indent=1))
+
+
+def load_designs(spec: str | Path) -> list[Design]:
+    """Read designs from ``designs.json`` or one of them with ``designs.json#i``."""
+    from tt.sim.designs import get_space
+
+    spec = str(spec)
+    index = None
+    if "#" in spec:
+        spec, idx = spec.rsplit("#", 1)
+        try:
+            index = int(idx)
+        except ValueError:
+            raise DesignError(f"design index {idx!r} after '#' is not an integer") from None
+    path = Path(spec)
+    if not path.exists():
+        raise FileNotFoundError(f"design file {path} does not exist")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise DesignError(f"{path} is not valid JSON: {e}") from None
+    items = data["designs"] if isinstance(data, dict) and "designs" in data else data
+    if isinstance(items, dict):
+        items = [items]
+    if not isinstance(items, list):
+        raise DesignError(f"{path}: expected a list of designs or {{'designs': [...]}}")
+    if index is not None:
+        if not -len(items) <= index < len(items):
+            raise DesignError(f"design index {index} out of range: {path} holds {len(items)} designs")
+        items = [items[index]]
+    designs = []
+    for k, item in enumerate(items):
+        if not isinstance(item, dict) or "space" not in item:
+            raise DesignError(f"{path}: design {k} has no 'space' field")
+        designs.append(get_space(item["space"]).from_dict(item))
+    return designs
