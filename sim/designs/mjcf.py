@@ -6,13 +6,16 @@ derives body masses and inertias from the geometry, so they always follow the sh
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Sequence
 
+import mujoco
 import numpy as np
 
-#: Effective density of links [kg/m^3]: aluminium tubes with motors, averaged over the
-#: solid primitive volume; puts the nominal ViperX near its real 3.6 kg.
-LINK_DENSITY = 1000.0
+#: Effective density of links [kg/m^3]: hollow aluminium tubes with motors, averaged over
+#: the solid primitive volume. Chosen so that random ViperX designs weigh 3.2 kg on average,
+#: as the paper's Random row reports (its mass target is 3.2 kg as well).
+LINK_DENSITY = 620.0
 
 
 @dataclass(frozen=True)
@@ -124,3 +127,80 @@ def axis_angle_quat(axis, angle: float) -> np.ndarray:
     axis = np.asarray(axis, dtype=float)
     axis = axis / np.linalg.norm(axis)
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def servo(name: str, axis, range: tuple[float, float], kp: float, force: float, armature: float,
+          *, kind: str = "hinge", damping: float = 0.1) -> JointSpec:
+    """A joint with a position servo whose derivative gain is critical for the rotor alone.
+
+    kv = 2 sqrt(kp armature): the servo never rings on its own reflected inertia; the
+    link inertia on top only slows it. Units as in `JointSpec` (N and m for slides).
+    """
+    kv = 2.0 * np.sqrt(kp * armature)
+    return JointSpec(name, tuple(float(a) for a in axis), (float(range[0]), float(range[1])), kp=float(kp),
+                     kv=float(round(kv, 4)), force=float(force), armature=float(armature),
+                     damping=float(damping), kind=kind)
+
+
+# Mirror images through the world XZ plane (y -> -y), for left/right symmetric robots.
+# A mirrored body frame is R' = M R M with M = diag(1, -1, 1), a proper rotation, so a
+# mirrored chain stays an ordinary MJCF chain: local offsets map by M, slide axes (true
+# vectors) by M, and hinge axes (pseudovectors) by -M. The same joint values then give the
+# mirrored pose: p' = M p and R' = M R M for every body and site.
+_MIRROR = np.array([1.0, -1.0, 1.0])
+
+
+def mirror_joint_xz(joint: JointSpec) -> JointSpec:
+    """The joint of the mirror-image chain: same range and gains, mirrored axis."""
+    axis = _MIRROR * np.asarray(joint.axis, dtype=float)
+    if joint.kind == "hinge":
+        axis = -axis
+    return replace(joint, axis=tuple(float(a) + 0.0 for a in axis))
+
+
+def mirror_segment_xz(segment: Segment) -> Segment:
+    """The segment of the mirror-image chain."""
+    return replace(segment, vector=tuple(float(v) + 0.0 for v in _MIRROR * np.asarray(segment.vector, dtype=float)))
+
+
+def mirror_quat_xz(quat) -> np.ndarray:
+    """Quaternion (w, x, y, z) of the mirrored frame M R M: (w, -x, y, -z)."""
+    w, x, y, z = np.asarray(quat, dtype=float)
+    return np.array([w, -x, y, -z]) + 0.0
+
+
+def stiffen_for_gravity(model: mujoco.MjModel, joints: dict[str, JointSpec], ee_sites: Sequence[str],
+                        sag: float) -> dict[str, JointSpec]:
+    """Raise servo stiffness so the home posture sags at most `sag` [m] at the end effectors.
+
+    A position servo holding gravity torque tau_j deflects by tau_j / kp_j, which moves an
+    end effector by about |J_j| tau_j / kp_j (J_j: column j of its position Jacobian). With
+    a_j = |tau_j| max_site |J_j| at ``model.qpos0``, the stiffnesses that meet
+    ``sum_j a_j / kp_j <= sag`` with the least total stiffness are kp_j = sqrt(a_j) S / sag,
+    S = sum_k sqrt(a_k); each joint gets the larger of that and its own kp. kv follows
+    `servo`'s rule; the force limit is raised to twice the home torque where it is lower,
+    so every design holds its home posture with margin to move.
+
+    joints: the specs to adjust, keyed by the model's joint name (other joints keep their
+    gains and take no share of the budget). Returns the adjusted specs under the same keys.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)  # qpos0, zero velocity: qfrc_bias is the gravity load
+    jacs = []
+    for site in ee_sites:
+        jacp = np.zeros((3, model.nv))
+        mujoco.mj_jacSite(model, data, jacp, None, model.site(site).id)
+        jacs.append(jacp)
+    load, lever = {}, {}
+    for name in joints:
+        dof = int(model.jnt_dofadr[model.joint(name).id])
+        load[name] = abs(float(data.qfrc_bias[dof]))
+        lever[name] = max(float(np.linalg.norm(j[:, dof])) for j in jacs)
+    roots = {n: np.sqrt(load[n] * lever[n]) for n in joints}
+    total = sum(roots.values())
+    out = {}
+    for name, spec in joints.items():
+        kp = max(spec.kp, roots[name] * total / sag)
+        out[name] = replace(spec, kp=float(kp), kv=float(round(2.0 * np.sqrt(kp * spec.armature), 4)),
+                            force=float(max(spec.force, 2.0 * load[name])))
+    return out

@@ -1,0 +1,109 @@
+"""The optimizer interface every design method in tt shares.
+
+A `Problem` is a design space, one or more target motions, a reward, a budget and a seed.
+An `Optimizer` turns a problem into a `Result` with ``optimize(problem)``; the learned
+methods (Zeroth-Order, Dynamics Self-Guidance) implement the same interface, so
+`tt optimize` and the benchmarks treat every method alike.
+
+Budget: the number of candidate designs whose rollouts the method may run, per motion.
+A method that needs no rollouts (a learned sampler) reads it as its sample count.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from tt.sim.designs import Design, get_space
+from tt.sim.motions.base import Motion
+
+#: Rollout backends an optimizer may evaluate candidates with.
+BACKENDS = ("warp", "mjwarp", "newton", "mujoco")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One design optimization problem.
+
+    space: design space name. motions: target motions (all with one dt and the space's
+    end-effector count). reward: reward name (`tt.guidance.rewards.REWARDS`). budget:
+    candidate designs per motion. seed: random seed. backend: rollout backend used to
+    evaluate candidates in batches. device: Warp/torch device, None for the default.
+    """
+
+    space: str
+    motions: tuple[Motion, ...]
+    reward: str
+    budget: int
+    seed: int = 0
+    backend: str = "warp"
+    device: str | None = None
+
+    def __post_init__(self) -> None:
+        from tt.guidance.rewards import get_reward
+
+        sp = get_space(self.space)  # raises on an unknown space, listing valid ones
+        get_reward(self.reward, self.space)  # raises on an unknown reward
+        object.__setattr__(self, "motions", tuple(self.motions))
+        if not self.motions:
+            raise ValueError("Problem.motions is empty; give at least one target motion")
+        for m in self.motions:
+            if not isinstance(m, Motion):
+                raise ValueError(f"Problem.motions holds a {type(m).__name__}; expected tt Motion objects")
+            if m.arms != sp.ee_count:
+                raise ValueError(
+                    f"motion {m.name!r} has {m.arms} end effector(s); space {self.space!r} has {sp.ee_count}"
+                )
+        dts = {round(m.dt, 9) for m in self.motions}
+        if len(dts) > 1:
+            raise ValueError(f"motions have different rates (dt {sorted(dts)} s); resample them to one rate")
+        if not isinstance(self.budget, (int, np.integer)) or self.budget < 1:
+            raise ValueError(f"Problem.budget = {self.budget!r}; must be an integer >= 1")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown backend {self.backend!r}; valid: {list(BACKENDS)}")
+
+    @property
+    def design_space(self):
+        return get_space(self.space)
+
+
+@dataclass
+class Result:
+    """What an optimizer returns.
+
+    best: the chosen design. best_reward: its objective (mean reward over the motions, as
+    the optimizer measured it). designs / rewards: every candidate evaluated and its
+    objective, (n,). seconds: wall time of `optimize`. rollouts: rollouts run (candidates
+    x motions). history: best objective after each generation / batch.
+    """
+
+    method: str
+    best: Design
+    best_reward: float
+    designs: list[Design]
+    rewards: np.ndarray
+    seconds: float
+    rollouts: int
+    history: list[float] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+class Optimizer(ABC):
+    """A design optimizer: ``result = optimizer.optimize(problem)``."""
+
+    name: str = ""
+
+    @abstractmethod
+    def optimize(self, problem: Problem) -> Result:
+        """Search the problem's design space within its budget."""
+
+
+def best_of(designs: Sequence[Design], rewards: np.ndarray) -> tuple[Design, float]:
+    """The design with the highest objective (first on ties) and that objective."""
+    rewards = np.asarray(rewards, dtype=np.float64)
+    finite = np.where(np.isfinite(rewards), rewards, -np.inf)
+    i = int(np.argmax(finite))
+    return designs[i], float(rewards[i])
