@@ -58,8 +58,11 @@ class Motion:
             )
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise MotionError(f"motion {self.name!r}: dt must be a positive number of seconds, got {self.dt}")
+        # Quaternions already unit to rounding are kept bit for bit, so that saving and
+        # reloading a motion reproduces it exactly (renormalising is not idempotent).
+        unit = (np.abs(norms - 1.0) <= 1e-12)[..., None]
         object.__setattr__(self, "pos", pos)
-        object.__setattr__(self, "quat", quat / norms[..., None])
+        object.__setattr__(self, "quat", np.where(unit, quat, quat / norms[..., None]))
 
     @property
     def steps(self) -> int:
@@ -75,3 +78,101 @@ class Motion:
     def duration(self) -> float:
         """Length in seconds."""
         return self.steps * self.dt
+
+
+# ------------------------------------------------------------------ quaternion helpers
+# (w, x, y, z), Hamilton convention, batched over any leading dimensions; float64 numpy.
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product a ⊗ b of quaternions, shapes (..., 4) broadcast together."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate (the inverse of a unit quaternion), shape (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors v (..., 3) rotated by unit quaternions q (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def quat_from_rotvec(rotvec: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) from rotation vectors (axis * angle [rad]), shape (..., 3)."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    # sin(angle/2)/angle written with np.sinc stays exact as angle -> 0.
+    half_sinc = 0.5 * np.sinc(angle / (2.0 * np.pi))
+    return np.concatenate([np.cos(angle / 2.0), rotvec * half_sinc], axis=-1)
+
+
+def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3), angle in [0, pi] [rad], from unit quaternions (..., 4)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = np.where(q[..., :1] < 0.0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    # angle / s -> 2 / w as s -> 0 (w -> 1); both forms agree to rounding at s = 1e-8.
+    scale = np.where(s > 1e-8, angle / np.maximum(s, 1e-300), 2.0 / q[..., :1])
+    return q[..., 1:] * scale
+
+
+def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle [rad] from a to b, in [0, pi], shape (...)."""
+    d = np.abs(np.sum(np.asarray(a, dtype=np.float64) * np.asarray(b, dtype=np.float64), axis=-1))
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation along the shorter arc.
+
+    q0, q1: unit quaternions (..., 4); s: fractions in [0, 1], shape (...) broadcast with them.
+    """
+    q0 = np.asarray(q0, dtype=np.float64)
+    q1 = np.asarray(q1, dtype=np.float64)
+    s = np.asarray(s, dtype=np.float64)[..., None]
+    d = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(d < 0.0, -q1, q1)
+    d = np.abs(d)
+    theta = np.arccos(np.clip(d, -1.0, 1.0))
+    sin_t = np.sin(theta)
+    # Below ~1e-6 rad apart, normalised linear interpolation equals slerp to rounding.
+    near = sin_t < 1e-6
+    safe = np.where(near, 1.0, sin_t)
+    w0 = np.where(near, 1.0 - s, np.sin((1.0 - s) * theta) / safe)
+    w1 = np.where(near, s, np.sin(s * theta) / safe)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_continuous(q: np.ndarray) -> np.ndarray:
+    """Sign-flip samples of a trajectory (T, ..., 4) so consecutive quaternions have q_t · q_t-1 >= 0.
+
+    q and -q are the same rotation; a continuous sign makes a trajectory smooth as a curve in R^4.
+    """
+    q = np.array(q, dtype=np.float64, copy=True)
+    if q.shape[0] < 2:
+        return q
+    flips = np.sum(q[1:] * q[:-1], axis=-1) < 0.0
+    sign = np.concatenate([np.ones((1,) + flips.shape[1:]), np.where(np.cumsum(flips, axis=0) % 2 == 1, -1.0, 1.0)])
+    return q * sign[..., None]

@@ -1,0 +1,81 @@
+"""Target motions: the procedural skill library, motion files and SE(2) augmentation.
+
+``get_motion("toss")`` is the canonical toss, ``get_motion("toss", seed=7)`` (or
+``"toss:7"``) a variant; ``motion_set("train", arms=1)`` / ``motion_set("val", arms=1)``
+are the fixed splits; ``load_motion_file(path)`` reads ``.npz`` files and UMI zarr stores.
+"""
+
+from tt.sim.motions.base import MOTION_DT, MOTION_HZ, Motion, MotionError
+from tt.sim.motions.io import (
+    UMI_HZ,
+    UMI_TOOL_QUAT,
+    augment_motion,
+    augment_se2,
+    load_motion_file,
+    load_npz,
+    load_umi_zarr,
+    recenter,
+    resample,
+    resample_motion,
+    resolve_motion,
+    save_npz,
+    umi_episode_count,
+)
+from tt.sim.motions.library import (
+    BIMANUAL,
+    BIMANUAL_CENTER,
+    BIMANUAL_MOUNT_Y,
+    SINGLE_ARM,
+    SINGLE_ARM_CENTER,
+    SKILLS,
+    SPLITS,
+    TRAIN_SEEDS,
+    VAL_SEEDS,
+    MotionInfo,
+    Skill,
+    SkillParam,
+    Workspace,
+    get_motion,
+    list_motions,
+    motion_set,
+    split_of,
+    workspaces,
+)
+
+__all__ = [
+    "BIMANUAL",
+    "BIMANUAL_CENTER",
+    "BIMANUAL_MOUNT_Y",
+    "MOTION_DT",
+    "MOTION_HZ",
+    "Motion",
+    "MotionError",
+    "MotionInfo",
+    "SINGLE_ARM",
+    "SINGLE_ARM_CENTER",
+    "SKILLS",
+    "SPLITS",
+    "Skill",
+    "SkillParam",
+    "TRAIN_SEEDS",
+    "UMI_HZ",
+    "UMI_TOOL_QUAT",
+    "VAL_SEEDS",
+    "Workspace",
+    "augment_motion",
+    "augment_se2",
+    "get_motion",
+    "list_motions",
+    "load_motion_file",
+    "load_npz",
+    "load_umi_zarr",
+    "motion_set",
+    "recenter",
+    "resample",
+    "resample_motion",
+    "resolve_motion",
+    "save_npz",
+    "split_of",
+    "umi_episode_count",
+    "workspaces",
+]
