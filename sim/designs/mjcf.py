@@ -171,15 +171,15 @@ def mirror_quat_xz(quat) -> np.ndarray:
 
 def stiffen_for_gravity(model: mujoco.MjModel, joints: dict[str, JointSpec], ee_sites: Sequence[str],
                         sag: float) -> dict[str, JointSpec]:
-    """Raise servo stiffness so the home posture sags at most `sag` [m] at the end effectors.
+    """Raise servo stiffness where needed so the home posture sags at most `sag` [m].
 
     A position servo holding gravity torque tau_j deflects by tau_j / kp_j, which moves an
-    end effector by about |J_j| tau_j / kp_j (J_j: column j of its position Jacobian). With
-    a_j = |tau_j| max_site |J_j| at ``model.qpos0``, the stiffnesses that meet
-    ``sum_j a_j / kp_j <= sag`` with the least total stiffness are kp_j = sqrt(a_j) S / sag,
-    S = sum_k sqrt(a_k); each joint gets the larger of that and its own kp. kv follows
-    `servo`'s rule; the force limit is raised to twice the home torque where it is lower,
-    so every design holds its home posture with margin to move.
+    end effector by about s_j = a_j / kp_j with a_j = |tau_j| max_site |J_j| (J_j: column j
+    of the site's position Jacobian), all at ``model.qpos0``. If sum_j s_j exceeds `sag`,
+    the largest contributions are capped at a common level c with sum_j min(s_j, c) = sag
+    and those joints get kp_j = a_j / c; joints already stiff enough keep their gains. kv
+    follows `servo`'s rule; the force limit is raised to twice the home torque where it is
+    lower, so every design holds its home posture with margin to move.
 
     joints: the specs to adjust, keyed by the model's joint name (other joints keep their
     gains and take no share of the budget). Returns the adjusted specs under the same keys.
@@ -191,16 +191,24 @@ def stiffen_for_gravity(model: mujoco.MjModel, joints: dict[str, JointSpec], ee_
         jacp = np.zeros((3, model.nv))
         mujoco.mj_jacSite(model, data, jacp, None, model.site(site).id)
         jacs.append(jacp)
-    load, lever = {}, {}
-    for name in joints:
-        dof = int(model.jnt_dofadr[model.joint(name).id])
-        load[name] = abs(float(data.qfrc_bias[dof]))
-        lever[name] = max(float(np.linalg.norm(j[:, dof])) for j in jacs)
-    roots = {n: np.sqrt(load[n] * lever[n]) for n in joints}
-    total = sum(roots.values())
+    names = list(joints)
+    dofs = [int(model.jnt_dofadr[model.joint(n).id]) for n in names]
+    load = np.abs(data.qfrc_bias[dofs])
+    a = load * np.array([max(float(np.linalg.norm(j[:, d])) for j in jacs) for d in dofs])
+    s = a / np.array([joints[n].kp for n in names])
+    cap = np.inf
+    if s.sum() > sag:
+        # Water-filling: with contributions sorted high to low, the cap that leaves the
+        # k largest at c and the rest as they are is c = (sag - sum of the rest) / k.
+        order = np.sort(s)[::-1]
+        for k in range(1, len(order) + 1):
+            cap = (sag - order[k:].sum()) / k
+            if k == len(order) or cap >= order[k]:
+                break
     out = {}
-    for name, spec in joints.items():
-        kp = max(spec.kp, roots[name] * total / sag)
-        out[name] = replace(spec, kp=float(kp), kv=float(round(2.0 * np.sqrt(kp * spec.armature), 4)),
-                            force=float(max(spec.force, 2.0 * load[name])))
+    for n, load_n, a_n, s_n in zip(names, load, a, s):
+        spec = joints[n]
+        kp = spec.kp if s_n <= cap else float(a_n / cap)
+        out[n] = replace(spec, kp=float(kp), kv=float(round(2.0 * np.sqrt(kp * spec.armature), 4)),
+                         force=float(max(spec.force, 2.0 * load_n)))
     return out
