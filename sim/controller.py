@@ -47,6 +47,12 @@ class IKConfig:
         damping: mink's global damping ``lambda`` added to the Hessian diagonal [unitless].
         solver: qpsolvers backend for mink; with no inequality limits ``daqp`` solves the
             unconstrained problem exactly (one Cholesky solve).
+    Start
+        init_iterations: before the episode the robot is placed, kinematically, where this
+            many IK steps from the home posture ``qpos0`` toward the motion's first pose
+            lead (`DiffIKController.initial_q`). A robot that starts at home 0.5 m from the
+            first target would terminate at step 0; the paper's robots start at their
+            motion. 0 starts at ``qpos0``.
     Termination
         termination_pos_error: an arm episode ends at the first recorded step whose
             position error summed over end effectors exceeds this [m] (paper: 0.5 m).
@@ -91,8 +97,11 @@ class IKConfig:
     damping: float = 1e-3
     solver: str = "daqp"
     termination_pos_error: float = 0.5
+    init_iterations: int = 50
 
     def __post_init__(self) -> None:
+        if not isinstance(self.init_iterations, int) or self.init_iterations < 0:
+            raise ValueError(f"IKConfig.init_iterations = {self.init_iterations!r}; must be an integer >= 0")
         positive = {"control_dt": self.control_dt, "termination_pos_error": self.termination_pos_error}
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
@@ -237,6 +246,15 @@ class DiffIKController:
             q_cmd[self._limited_qpos], self._limited_range[:, 0], self._limited_range[:, 1]
         )
         return q_cmd
+
+
+    def initial_q(self, targets_pos: np.ndarray, targets_quat: np.ndarray) -> np.ndarray:
+        """Start posture: `IKConfig.init_iterations` IK steps from ``qpos0`` toward the targets,
+        each applied kinematically (q <- q_cmd). Returns (nq,) float64."""
+        q = self.model.qpos0.copy()
+        for _ in range(self.config.init_iterations):
+            q = self.step(q, targets_pos, targets_quat)
+        return q
 
 
 def ik_step(

@@ -7,7 +7,8 @@ are checked against, and what final designs are validated with.
 
 Per control step ``k`` (50 Hz) of one world:
 
-1. measured state: ``data.qpos`` (the home posture ``qpos0`` with zero velocity at k = 0);
+1. measured state: ``data.qpos``; at k = 0 the start posture ``controller.initial_q`` (IK
+   toward the motion's first pose from ``qpos0``, see `IKConfig.init_iterations`), at rest;
 2. IK target: motion pose ``min(k + lookahead_steps, T - 1)``; ``q_cmd = ik_step(...)``;
 3. ``data.ctrl[i] = q_cmd[qpos address of the joint actuator i drives]``, clipped to the
    actuator's ctrlrange where it is limited (so ``ctrl`` is what MuJoCo executes);
@@ -105,7 +106,7 @@ def _rollout_one(
     }
 
     data = mujoco.MjData(model)
-    data.qpos[:] = model.qpos0
+    data.qpos[:] = controller.initial_q(motion.pos[0], motion.quat[0])
     data.qvel[:] = 0.0
     mujoco.mj_forward(model, data)
     last = None

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from tt.sim.controller import IKConfig, ik_step
+from tt.sim.controller import DiffIKController, IKConfig, ik_step
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
 from tt.sim.validate import oracle_rollout
@@ -112,11 +112,29 @@ def test_records_belong_to_the_recorded_state(tracked, viperx):
         np.testing.assert_allclose(ep.act_vel[0, k].numpy(), data.qvel, atol=1e-6)
 
 
+def test_start_posture_is_ik_toward_the_first_pose(tracked, viperx):
+    """The episode starts where init_iterations IK steps from qpos0 lead, near the first target."""
+    motion, ep = tracked
+    model = viperx.model(viperx.nominal())
+    q_start = DiffIKController(model).initial_q(motion.pos[0], motion.quat[0])
+    q = model.qpos0.copy()
+    for _ in range(IKConfig().init_iterations):
+        q = ik_step(model, q, motion.pos[0], motion.quat[0])
+    np.testing.assert_allclose(q_start, q, atol=1e-12)
+    data = mujoco.MjData(model)
+    data.qpos[:] = q_start
+    mujoco.mj_kinematics(model, data)
+    # The posture task (weight 1e-4 toward qpos0) leaves a fixed point a few mm off.
+    assert np.linalg.norm(data.site_xpos[0] - motion.pos[0, 0]) < 5e-3
+    assert np.abs(q_start - model.qpos0).max() > 0.05  # it really moved
+
+
 def test_commands_come_from_ik_with_80ms_look_ahead(tracked, viperx):
     motion, ep = tracked
     model = viperx.model(viperx.nominal())
+    q_start = DiffIKController(model).initial_q(motion.pos[0], motion.quat[0])
     for k in (0, 60, motion.steps - 2):
-        q = model.qpos0 if k == 0 else ep.qpos[0, k - 1].double().numpy()
+        q = q_start if k == 0 else ep.qpos[0, k - 1].double().numpy()
         goal = min(k + 4, motion.steps - 1)
         q_cmd = ik_step(model, q, motion.pos[goal], motion.quat[goal])
         np.testing.assert_allclose(ep.ctrl[0, k].numpy(), q_cmd, atol=1e-4)

@@ -48,6 +48,100 @@ def designs(
     typer.echo(f"wrote {len(ds)} {space} designs to {out}/ (designs.json + {len(ds)} MJCF files)")
 
 
+def _motions(names: list[str] | None, files: list[Path] | None, space: str | None = None):
+    """Motions from library names (``toss``, ``toss:7``), files, or the validation split."""
+    from tt.sim.motions import MotionError, for_space, load_motion_file, resolve_motion
+
+    try:
+        motions = [resolve_motion(n) for n in names or []] + [load_motion_file(f) for f in files or []]
+        if space is not None:
+            motions = for_space(motions, space)
+    except (MotionError, FileNotFoundError, ValueError) as e:
+        _fail(str(e))
+    if not motions:
+        _fail("no motion given: use --motion NAME (see `tt motions`) or --motion-file FILE")
+    return motions
+
+
+@app.command()
+def motions(
+    name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
+    out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
+    arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
+) -> None:
+    """List the motion library, or export one motion to .npz."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from tt.sim.motions import MotionError, list_motions, resolve_motion, save_npz
+
+    if name is None:
+        table = Table(title="tt motion library (50 Hz)")
+        rows = [r.row() for r in list_motions(arms=arms)]
+        for key in ("name", "arms", "duration_s", "train", "val", "summary"):
+            table.add_column(key)
+        for r in rows:
+            table.add_row(*[str(r[k]) for k in ("name", "arms", "duration_s", "train", "val", "summary")])
+        Console().print(table)
+        return
+    try:
+        m = resolve_motion(name)
+    except MotionError as e:
+        _fail(str(e))
+    if out is None:
+        _fail("--name needs --out FILE.npz")
+    save_npz(m, out)
+    typer.echo(f"wrote {m.name}: {m.steps} steps, {m.arms} arm(s), {m.duration:.2f} s to {out}")
+
+
+@app.command()
+def validate(
+    design: str = typer.Option(..., help="designs.json or designs.json#i."),
+    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
+    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
+) -> None:
+    """Run the MuJoCo + mink oracle on designs and motions; print the metrics table."""
+    from rich.console import Console
+
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.report import columns_for, rich_table, summary_row
+    from tt.sim.designs import DesignError, get_space, load_designs
+
+    try:
+        designs = load_designs(design)
+    except (DesignError, FileNotFoundError) as e:
+        _fail(str(e))
+    spaces = {d.space for d in designs}
+    if space is not None and spaces != {space}:
+        _fail(f"--space {space} but the designs are from {sorted(spaces)}")
+    sp_name = designs[0].space
+    if len(spaces) > 1:
+        _fail(f"designs from several spaces in one call: {sorted(spaces)}")
+    if sp_name == "quadruped":
+        _fail("the quadruped needs the whole-body controller, which the oracle does not have yet")
+    ms = _motions(motion, motion_file, sp_name)
+    try:
+        ev = evaluate_designs(designs, ms, reward, backend="mujoco")
+    except ValueError as e:
+        _fail(str(e))
+    rows = []
+    for i, _ in enumerate(designs):
+        rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
+    if len(designs) > 1:
+        rows.append({"name": "mean", **summary_row(ev.metrics)})
+    Console().print(rich_table(rows, columns_for(reward), title=f"oracle (MuJoCo C + mink), {reward}, motions: {', '.join(m.name for m in ms)}"))
+    if json_out is not None:
+        sp = get_space(sp_name)
+        json_out.write_text(json.dumps({
+            "reward": reward, "motions": [m.name for m in ms],
+            "designs": [sp.to_dict(d) for d in designs], "metrics": rows,
+            "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
+        }, indent=1))
+
+
 def main() -> None:
     app()
 

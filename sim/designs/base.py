@@ -67,6 +67,9 @@ class DesignSpace(ABC):
     has_contacts: bool = False
     #: Number of end effectors; their sites are named ``ee_0``, ``ee_1``, ...
     ee_count: int = 1
+    #: Translation [m] that moves tt's library motions (authored for a table-top arm at the
+    #: origin) into this robot's workspace; see `tt.sim.motions.for_space`.
+    motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @abstractmethod
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:

@@ -14,7 +14,7 @@ Every loader resamples to `MOTION_DT` (linear in position, slerp in rotation) an
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Sequence, Any
 
 import numpy as np
 
@@ -348,6 +348,26 @@ def augment_motion(
     pos, quat = augment_se2(motion.pos, motion.quat, yaw, dx, dy)
     meta = dict(motion.meta, se2={"seed": int(seed), "yaw": yaw, "dx": float(dx), "dy": float(dy)})
     return Motion(f"{motion.name}+se2:{seed}", pos, quat, motion.dt, meta=meta)
+
+
+def for_space(motions: Sequence[Motion], space: str) -> list[Motion]:
+    """Library motions moved into the workspace of design space `space` (its `motion_offset`).
+
+    Motions are authored for table-top arms at the origin; a robot whose hands work at
+    counter height (the mobile bimanual) declares the translation that puts them there.
+    """
+    from tt.sim.designs import get_space
+
+    sp = get_space(space)
+    offset = np.asarray(sp.motion_offset, dtype=np.float64)
+    out = []
+    for m in motions:
+        if m.arms != sp.ee_count:
+            raise MotionError(f"motion {m.name!r} has {m.arms} end effector(s); space {space!r} has {sp.ee_count}")
+        if np.any(offset != 0.0):
+            m = Motion(m.name, m.pos + offset, m.quat, m.dt, meta=dict(m.meta, space_offset=offset.tolist()))
+        out.append(m)
+    return out
 
 
 def recenter(motion: Motion, center: tuple[float, float, float] | np.ndarray) -> Motion:
