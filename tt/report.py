@@ -7,19 +7,19 @@ from typing import Mapping, Sequence
 
 #: (key, header) of the columns every metrics table shows, in the paper's order.
 COLUMNS = (
-    ("pos_err", "pos err [cm]"),
-    ("orn_err", "orn err [deg]"),
-    ("survival_pct", "survival [%]"),
+    ("pos_err", "pos err (cm)"),
+    ("orn_err", "orn err (deg)"),
+    ("survival_pct", "survival (%)"),
     ("reward", "reward"),
 )
 
 #: The reward-specific metric each reward reports (paper appendix).
 REWARD_METRIC = {
     "tracking": None,
-    "tracking_torque": ("torque", "torque [N m]"),
-    "tracking_velocity": ("velocity", "velocity [rad/s]"),
-    "tracking_size": ("size", "size [m]"),
-    "tracking_weight": ("mass", "mass [kg]"),
+    "tracking_torque": ("torque", "torque (N m)"),
+    "tracking_velocity": ("velocity", "velocity (rad/s)"),
+    "tracking_size": ("size", "size (m)"),
+    "tracking_weight": ("mass", "mass (kg)"),
 }
 
 
