@@ -1,23 +1,28 @@
-"""Quadruped manipulator: a dog-sized four-legged base with a ViperX-like arm on its back.
+"""Quadruped manipulator: a dog-sized four-legged base with a 6-DoF arm on its back.
 
 Discrete choices (paper, appendix "Procedural Generation"; 7 binary choices, 128 combinations):
   arm_mount: fixed | rail  (rail: the arm base slides along the back on an actuated slide joint)
   leg_fl, leg_fr, leg_rl, leg_rr: serial | linkage  (each leg independently)
   knee_front, knee_back: forward | backward  (shared within the front and within the back pair)
 Continuous choices (the same for every discrete choice):
-  arm_dlen_upper, arm_dlen_forearm: length change [m] of the arm's upper arm (nominal 0.30 m)
-      and forearm (nominal 0.30 m: 0.10 m before the forearm roll + 0.20 m after it; the change
+  arm_dlen_upper, arm_dlen_forearm: length change [m] of the arm's upper arm (nominal 0.25 m)
+      and forearm (nominal 0.25 m: 0.10 m before the forearm roll + 0.15 m after it; the change
       goes to the part after the roll) in [-0.10, +0.40]
   arm_mount_x: x of the arm base on the back, from the torso centre [m] in [-0.20, +0.20]
   body_length: length [m] of the torso's middle section, between the two hip blocks, in
       [0.10, 0.50]. Each hip block is HIP_BLOCK_LENGTH long with its pair of hips at its centre,
       so the torso is body_length + 2 HIP_BLOCK_LENGTH long and the hips stand
       body_length + HIP_BLOCK_LENGTH apart.
-  thigh_length, calf_length: leg link lengths [m] in [0.20, 0.60], shared by all four legs so
-      every leg reaches the same standing height (the paper constrains left and right links
-      equal; sharing front and back too keeps every design able to stand level)
-  leg_yaw_fl, leg_yaw_fr, leg_yaw_rl, leg_yaw_rr: rotation [rad] of each hip mount about the
-      vertical in [-0.7, 0.7]
+  thigh_length, calf_length: leg link lengths [m] in [0.10, 0.30] each, so the leg (thigh +
+      calf) spans the paper's 20-60 cm with a Go2-sized 0.40 m leg at the nominal design. Read
+      per link, 20-60 cm would make 1.2 m legs and put the paper's quadruped size target
+      (6.5 m of geometry) below almost every design; with these ranges it sits near the
+      median. Both are shared by all four legs so every leg reaches the same standing height
+      (the paper constrains left and right links equal; sharing front and back too keeps every
+      design able to stand level).
+  leg_yaw_fl, leg_yaw_fr, leg_yaw_rl, leg_yaw_rr: rotation [rad] of each hip mount, and with
+      it the whole leg (abduction axis, sagittal plane, lateral hip offset), about the vertical
+      in [-0.7, 0.7]
   battery_x: x of the battery box's centre from the torso centre [m] in [-0.20, +0.20]
 
 Legs have three actuated joints each: hip abduction (about the leg frame's x), hip flexion and a
@@ -59,34 +64,42 @@ LEGS = ("fl", "fr", "rl", "rr")
 ARM_DLEN_RANGE = (-0.10, 0.40)
 ARM_MOUNT_RANGE = (-0.20, 0.20)
 BODY_LENGTH_RANGE = (0.10, 0.50)
-LEG_LINK_RANGE = (0.20, 0.60)
+LEG_LINK_RANGE = (0.10, 0.30)
 LEG_YAW_RANGE = (-0.7, 0.7)
 BATTERY_RANGE = (-0.20, 0.20)
 
 # ---------------------------------------------------------------- geometry [m], densities [kg/m^3]
-#: Length of the front and rear torso blocks that hold the hips; 0.20 m keeps the battery box
-#: and the arm base on the torso over the whole battery_x / arm_mount_x ranges.
-HIP_BLOCK_LENGTH = 0.20
+#: Length of the front and rear torso blocks that hold the hips; with the battery box's half
+#: length it keeps the battery inside the torso over the whole battery_x range.
+HIP_BLOCK_LENGTH = 0.18
 TORSO_WIDTH = 0.20
 TORSO_HEIGHT = 0.10
-#: A hollow shell with electronics: ~3 kg for the nominal 0.6 m torso.
-TORSO_DENSITY = 250.0
-#: Battery box half sizes and the density of a lithium pack (~2.8 kg).
-BATTERY_HALF = (0.05, 0.07, 0.04)
+#: A hollow shell with electronics: ~3.9 kg for the nominal 0.56 m torso.
+TORSO_DENSITY = 350.0
+#: Battery box half sizes and the density of a lithium pack (~2.2 kg), laid across the torso.
+BATTERY_HALF = (0.03, 0.08, 0.045)
 BATTERY_DENSITY = 2500.0
 #: Lateral offset from the abduction axis to the leg's sagittal plane (outboard).
 HIP_OFFSET = 0.08
-MOTOR_RADIUS = 0.045
-THIGH_RADIUS = 0.025
-CALF_RADIUS = 0.018
-FOOT_RADIUS = 0.025
-#: Linkage: crank and calf-lever length, and the outboard offset of the linkage plane from
-#: the thigh so the rod runs beside the thigh.
-LEVER_LENGTH = 0.06
+#: Hip motor housings (cylinders: radius, half length) and the smaller knee motor of a serial leg.
+MOTOR_RADIUS = 0.04
+MOTOR_HALF_LENGTH = 0.03
+KNEE_MOTOR = (0.035, 0.025)
+THIGH_RADIUS = 0.02
+CALF_RADIUS = 0.015
+FOOT_RADIUS = 0.02
+#: Linkage: crank and calf-lever length (the crank is the knee motor's output disc, the rod
+#: pinned at its rim), and the outboard offset of the linkage plane from the thigh so the rod
+#: runs beside the thigh.
+LEVER_LENGTH = 0.04
 LINKAGE_OFFSET = 0.05
 ROD_RADIUS = 0.01
-#: Arm base plate (cylinder radius, half height) and the rail's end clearance.
+LEVER_RADIUS = 0.012
+#: Arm base plate (cylinder radius, half height); the rail (half width, half height), which
+#: stops RAIL_END short of the torso's ends, and the carriage's end clearance on it.
 ARM_PLATE = (0.06, 0.02)
+RAIL_HALF = (0.02, 0.01)
+RAIL_END = 0.02
 RAIL_MARGIN = 0.06
 
 #: Standing pose: hip-to-foot depth = |l1 - l2| + STANCE_FRACTION * (reachable span), which
@@ -94,27 +107,32 @@ RAIL_MARGIN = 0.06
 STANCE_FRACTION = 0.7
 
 # ---------------------------------------------------------------- joints and actuators
-#: Leg actuators: stiff position servos so a 10-25 kg robot stands with a few mm of sag;
-#: force limits like a large quadruped's (Spot/ANYmal class) knees.
+#: Leg actuators: stiff position servos so a 10-17 kg robot stands with a few mm of sag; force
+#: limits [N m] a little above a Unitree Go2's (23.7 hip, 45 knee) for the arm's extra load.
 LEG_KP = 500.0
-LEG_FORCE = {"hip_abd": 120.0, "hip_flex": 120.0, "knee": 180.0, "crank": 180.0}
+LEG_FORCE = {"hip_abd": 40.0, "hip_flex": 40.0, "knee": 60.0, "crank": 60.0}
 LEG_ARMATURE = 0.03
 LEG_DAMPING = 1.0
+#: Typical inertia [kg m^2] of a leg link about its joint, for the actuator damping.
+LEG_LINK_INERTIA = 0.02
 HIP_ABD_RANGE = (-0.8, 0.8)
 HIP_FLEX_RANGE = (-2.4, 2.4)
 CRANK_RANGE = (-2.6, 2.6)
 #: Knee range for the knee bending forward (positive pitch); backward knees mirror it. The
 #: straight leg is excluded: the parallelogram is singular there.
 KNEE_RANGE_FORWARD = (0.1, 2.8)
-#: Spring of the linkage's passive knee [N m/rad]; the equality's solref [s, -] is stiffer
-#: than the contact default so the loop does not visibly stretch under the robot's weight.
+#: Spring of the linkage's passive knee [N m/rad]; the equality's solref [s, -] and solimp are
+#: stiffer than MuJoCo's defaults so the loop stretches well under a millimetre standing.
 KNEE_SPRING = 30.0
 PASSIVE_DAMPING = 0.2
-LINKAGE_SOLREF = (0.005, 1.0)
+LINKAGE_SOLREF = (0.004, 1.0)
+LINKAGE_SOLIMP = (0.99, 0.999, 0.001)
 RAIL_KP, RAIL_FORCE, RAIL_ARMATURE = 3000.0, 300.0, 0.5
-#: The arm's force limits scale with its (upper arm + forearm) length squared: holding
-#: torque grows with link mass times lever arm.
-ARM_NOMINAL_REACH = 0.60
+#: The arm's nominal upper arm and forearm [m] (a WidowX-250-sized arm; the forearm is 0.10 m
+#: before the forearm roll and the rest after it). Its force limits scale with their sum
+#: squared: holding torque grows with link mass times lever arm.
+ARM_UPPER = 0.25
+ARM_FOREARM = 0.25
 FOOT_FRICTION = (1.0, 0.02, 0.01)
 
 
@@ -158,9 +176,11 @@ def _pitch(angle: float) -> np.ndarray:
     return axis_angle_quat((0, 1, 0), angle)
 
 
-def _joint_xml(pad: str, name: str, axis, rng, ref: float, *, armature: float, damping: float,
-               stiffness: float = 0.0, kind: str = "hinge", limited: bool = True) -> str:
-    rng_attr = f' range="{fmt(rng)}"' if limited else ' limited="false"'
+def _joint_xml(pad: str, name: str, axis, rng: tuple[float, float] | None, ref: float, *, armature: float,
+               damping: float, stiffness: float = 0.0, kind: str = "hinge") -> str:
+    """A joint element; `ref` is its angle in the pose the bodies are written in, and the rest
+    angle of its spring when `stiffness` [N m/rad] is set; `rng` None leaves it unlimited."""
+    rng_attr = f' range="{fmt(rng)}"' if rng is not None else ' limited="false"'
     spring = f' stiffness="{stiffness!r}" springref="{ref!r}"' if stiffness else ""
     ref_attr = f' ref="{ref!r}"' if ref else ""
     return (f'{pad}<joint name="{name}" type="{kind}" axis="{fmt(axis)}"{rng_attr}{ref_attr}{spring} '
@@ -169,9 +189,9 @@ def _joint_xml(pad: str, name: str, axis, rng, ref: float, *, armature: float, d
 
 def _leg_joint(leg: str, role: str, axis, rng) -> JointSpec:
     """The actuated joint `role` (hip_abd | hip_flex | knee | crank) of leg `leg`."""
-    # kv near critical damping of the servo on its own armature plus a light link, kept low
-    # enough for the explicit Euler step (actuator damping is not integrated implicitly).
-    kv = 2.0 * math.sqrt(LEG_KP * (LEG_ARMATURE + 0.02))
+    # kv near critical damping of the servo on its armature plus a light link, kept low enough
+    # for the explicit Euler step (actuator damping is not integrated implicitly).
+    kv = 2.0 * math.sqrt(LEG_KP * (LEG_ARMATURE + LEG_LINK_INERTIA))
     return JointSpec(f"{leg}_{role}", axis, rng, kp=LEG_KP, kv=round(kv, 4), force=LEG_FORCE[role],
                      armature=LEG_ARMATURE, damping=LEG_DAMPING)
 
@@ -197,11 +217,10 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
     lines = [
         f'{p}<body name="{name}_hip" pos="{fmt(hip_pos)}" quat="{fmt(axis_angle_quat((0, 0, 1), yaw))}">',
         _joint_xml(p + "  ", abd.name, abd.axis, abd.range, 0.0, armature=abd.armature, damping=abd.damping),
-        f'{p}  <geom name="{name}_hip_motor" type="cylinder" size="{MOTOR_RADIUS!r} 0.04" zaxis="1 0 0" rgba="0.15 0.15 0.15 1"/>',
-        f'{p}  <geom name="{name}_hip_link" type="capsule" fromto="0 0 0 0 {side * HIP_OFFSET!r} 0" size="0.03" rgba="0.55 0.6 0.7 1"/>',
+        f'{p}  <geom name="{name}_hip_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="1 0 0" rgba="0.15 0.15 0.15 1"/>',
         f'{p}  <body name="{name}_thigh" pos="0 {side * HIP_OFFSET!r} 0" quat="{fmt(_pitch(pose.hip_flex))}">',
         _joint_xml(p + "    ", flex.name, flex.axis, flex.range, pose.hip_flex, armature=flex.armature, damping=flex.damping),
-        f'{p}    <geom name="{name}_thigh_motor" type="cylinder" size="{MOTOR_RADIUS!r} 0.03" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
+        f'{p}    <geom name="{name}_thigh_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
         f'{p}    <geom name="{name}_thigh" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" size="{THIGH_RADIUS!r}" rgba="0.55 0.6 0.7 1"/>',
         f'{p}    <body name="{name}_calf" pos="0 0 {-thigh!r}" quat="{fmt(_pitch(pose.knee))}">',
     ]
@@ -216,14 +235,14 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
         lines += [
             _joint_xml(q, knee_joint.name, knee_joint.axis, knee_range, pose.knee,
                        armature=knee_joint.armature, damping=knee_joint.damping),
-            f'{q}<geom name="{name}_knee_motor" type="cylinder" size="0.035 0.025" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
+            f'{q}<geom name="{name}_knee_motor" type="cylinder" size="{KNEE_MOTOR[0]!r} {KNEE_MOTOR[1]!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
         ]
     else:
         lever_end = (0.0, side * LINKAGE_OFFSET, LEVER_LENGTH)
         lines += [
             _joint_xml(q, f"{name}_knee", (0.0, 1.0, 0.0), knee_range, pose.knee, armature=0.0,
                        damping=PASSIVE_DAMPING, stiffness=KNEE_SPRING),
-            f'{q}<geom name="{name}_calf_lever" type="capsule" fromto="0 0 0 {fmt(lever_end)}" size="0.012" rgba="0.8 0.6 0.2 1"/>',
+            f'{q}<geom name="{name}_calf_lever" type="capsule" fromto="0 0 0 {fmt(lever_end)}" size="{LEVER_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
             f'{q}<site name="{name}_calf_pin" pos="{fmt(lever_end)}" size="0.01"/>',
         ]
     lines += [
@@ -246,30 +265,36 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
             f'{p}  <body name="{name}_crank" pos="0 {y!r} 0" quat="{fmt(_pitch(pose.calf_pitch))}">',
             _joint_xml(p + "    ", crank.name, crank.axis, crank.range, pose.calf_pitch,
                        armature=crank.armature, damping=crank.damping),
-            f'{p}    <geom name="{name}_crank_motor" type="cylinder" size="{MOTOR_RADIUS!r} 0.02" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
-            f'{p}    <geom name="{name}_crank" type="capsule" fromto="0 0 0 0 0 {LEVER_LENGTH!r}" size="0.012" rgba="0.8 0.6 0.2 1"/>',
+            f'{p}    <geom name="{name}_crank_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
             f'{p}    <body name="{name}_rod" pos="0 0 {LEVER_LENGTH!r}" quat="{fmt(_pitch(rod_ref))}">',
-            _joint_xml(p + "      ", f"{name}_rod", (0.0, 1.0, 0.0), (0.0, 0.0), rod_ref, armature=0.0,
-                       damping=PASSIVE_DAMPING, limited=False),
+            _joint_xml(p + "      ", f"{name}_rod", (0.0, 1.0, 0.0), None, rod_ref, armature=0.0,
+                       damping=PASSIVE_DAMPING),
             f'{p}      <geom name="{name}_rod" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" size="{ROD_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
             f'{p}      <site name="{name}_rod_pin" pos="0 0 {-thigh!r}" size="0.01"/>',
             f"{p}    </body>",
             f"{p}  </body>",
         ]
         equality = (f'    <connect name="{name}_linkage" site1="{name}_rod_pin" site2="{name}_calf_pin" '
-                     f'solref="{fmt(LINKAGE_SOLREF)}"/>')
+                     f'solref="{fmt(LINKAGE_SOLREF)}" solimp="{fmt(LINKAGE_SOLIMP)}"/>')
     lines.append(f"{p}</body>")
     return _Leg("\n".join(lines), actuated, home_qpos, home_ctrl, equality)
 
 
 def _arm(dlen_upper: float, dlen_forearm: float) -> tuple[list[JointSpec], list]:
-    """The 6-DoF ViperX-like arm with the upper arm and forearm changed; force limits scaled
-    with reach squared so longer arms can still hold themselves up."""
+    """The 6-DoF arm (ViperX joints, WidowX-250 link lengths) with the upper arm and forearm
+    changed by `dlen_upper`, `dlen_forearm` [m]; force limits scale with reach squared so longer
+    arms can still hold themselves up."""
     names = _ARM_JOINTS["6"]
-    dlens = [dlen_upper if n == "shoulder" else dlen_forearm if n == "forearm_roll" else 0.0 for n in names]
     axes = [_ARM_ROLES[n][0] for n in names[2:]]
+    # arm_parts lengthens the ViperX's segments; shift them to this arm's nominal lengths.
+    _, viperx = arm_parts("6", axes, [0.0] * len(names))
+    length = {n: float(np.linalg.norm(s.vector)) for n, s in zip(names, viperx)}
+    upper = ARM_UPPER - length["shoulder"] + dlen_upper
+    fore = ARM_FOREARM - length["elbow"] - length["forearm_roll"] + dlen_forearm
+    dlens = [upper if n == "shoulder" else fore if n == "forearm_roll" else 0.0 for n in names]
     joints, segments = arm_parts("6", axes, dlens)
-    scale = max(1.0, ((ARM_NOMINAL_REACH + dlen_upper + dlen_forearm) / ARM_NOMINAL_REACH) ** 2)
+    reach = ARM_UPPER + ARM_FOREARM
+    scale = max(1.0, ((reach + dlen_upper + dlen_forearm) / reach) ** 2)
     joints = [replace(j, name=f"arm_{j.name}", force=j.force * scale) for j in joints]
     return joints, segments
 
@@ -302,9 +327,9 @@ class QuadrupedSpace(DesignSpace):
         )
 
     def nominal(self) -> Design:
-        """Fixed arm, serial legs with backward knees (a Go2-like dog with a ViperX arm)."""
+        """Fixed arm, serial legs with backward knees: a Go2-sized dog with a WidowX-sized arm."""
         discrete = (0, 0, 0, 0, 0, KNEE_DIRECTIONS.index("backward"), KNEE_DIRECTIONS.index("backward"))
-        values = {"body_length": 0.20, "thigh_length": 0.30, "calf_length": 0.30}
+        values = {"body_length": 0.20, "thigh_length": 0.20, "calf_length": 0.20}
         return Design(self.name, discrete, tuple(values.get(p.name, 0.0) for p in self.continuous_params(discrete)))
 
     def standing_height(self, design: Design) -> float:
@@ -339,9 +364,10 @@ class QuadrupedSpace(DesignSpace):
                              kv=round(2.0 * math.sqrt(RAIL_KP * 5.0), 4), force=RAIL_FORCE,
                              armature=RAIL_ARMATURE, damping=5.0, kind="slide")
             arm_actuated.insert(0, rail)
-            rail_geom = (f'\n      <geom name="rail" type="box" size="{0.5 * torso_length - 0.02!r} 0.02 0.01" '
-                         f'pos="0 0 {top + 0.01!r}" rgba="0.3 0.3 0.3 1"/>')
-            mount_z = top + 0.02 + 2 * plate_h
+            rail_size = (0.5 * torso_length - RAIL_END, *RAIL_HALF)
+            rail_geom = (f'\n      <geom name="rail" type="box" size="{fmt(rail_size)}" '
+                         f'pos="0 0 {top + RAIL_HALF[1]!r}" rgba="0.3 0.3 0.3 1"/>')
+            mount_z = top + 2 * RAIL_HALF[1] + 2 * plate_h
             mount_open = (f'      <body name="arm_mount" pos="{mount_x!r} 0 {mount_z!r}">\n'
                           + _joint_xml("        ", rail.name, rail.axis, rail.range, 0.0, armature=rail.armature,
                                        damping=rail.damping, kind="slide") + "\n")
