@@ -200,6 +200,24 @@ def optimize(
         }, indent=1))
 
 
+@app.command()
+def view(
+    source: str = typer.Argument(..., help="designs.json[#i] or an episode file episode.npz[#w]."),
+    motion: Optional[str] = typer.Option(None, help="Target motion to draw: library name or file."),
+    html: Optional[Path] = typer.Option(None, help="Write one self-contained offline HTML file."),
+    serve: bool = typer.Option(False, help="Start a live meshcat server and print its URL."),
+    png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium."),
+    time: Optional[float] = typer.Option(None, help="Animation time [s] the HTML opens paused at."),
+) -> None:
+    """Show designs or rollouts in meshcat, live or as standalone HTML."""
+    from tt.viz.cli import view_cmd
+
+    try:
+        view_cmd(source, motion=motion, html=html, serve=serve, png=png, time=time, echo=typer.echo)
+    except (ValueError, FileNotFoundError, RuntimeError) as e:
+        _fail(str(e))
+
+
 def _space_ok(space: str) -> bool:
     from tt.sim.designs import SPACE_NAMES
 
