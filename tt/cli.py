@@ -218,6 +218,33 @@ def view(
         _fail(str(e))
 
 
+@app.command()
+def train(
+    data: Path = typer.Option(..., help="Episode token file written by `tt generate`."),
+    task: str = typer.Option("robot", help="robot | control | both."),
+    size: str = typer.Option("small", help="tiny | small | large."),
+    out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
+    steps: int = typer.Option(10_000, help="Optimizer steps."),
+    batch_size: int = typer.Option(64, help="Episodes per batch."),
+    lr: Optional[float] = typer.Option(None, help="Peak learning rate (default: the paper's for the size)."),
+    device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
+    seed: int = typer.Option(0, help="Random seed."),
+    checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
+    resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
+) -> None:
+    """Train the diffusion transformer on RoboToken episodes."""
+    from tt.dit.cli import train_cmd
+    from tt.tokens.schema import SchemaVersionError
+
+    try:
+        result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
+                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume)
+    except (ValueError, FileNotFoundError, SchemaVersionError) as e:
+        _fail(str(e))
+    final = float(result.losses[-1]) if len(result.losses) else float("nan")
+    typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
+
+
 def _space_ok(space: str) -> bool:
     from tt.sim.designs import SPACE_NAMES
 

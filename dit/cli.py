@@ -1,0 +1,40 @@
+"""Plain-argument entry points for the ``tt`` command line (the typer app wires them)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tt.dit.train import TrainConfig, TrainResult, train
+
+
+def train_cmd(data: str | Path, *, task: str = "robot", size: str = "small", out: str | Path = "runs/dit",
+              steps: int = 10_000, batch_size: int = 64, lr: float | None = None, device: str | None = None,
+              seed: int = 0, checkpoint_every: int = 1000, resume: bool = True, progress: bool = True) -> TrainResult:
+    """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
+
+    data: episode token file (`tt.dit.data.EpisodeTokens.save`); task: robot | control |
+    both; size: tiny | small | large; out: run folder (checkpoints, loss.csv, loss.png);
+    lr: None for the paper's value of the size; device: None for the default device;
+    resume: continue from the run folder's latest checkpoint if it has one.
+    Raises ValueError (bad arguments, mismatched run folder), FileNotFoundError and
+    `tt.tokens.schema.SchemaVersionError`.
+    """
+    from tqdm import tqdm
+
+    config = TrainConfig(data=str(data), out=str(out), task=task, size=size, steps=steps, batch_size=batch_size,
+                         lr=lr, device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume)
+    bar = tqdm(total=steps, desc=f"train {size} {task}", unit="step", disable=not progress, dynamic_ncols=True)
+    state = {"first": True}
+
+    def on_step(step: int, loss: float) -> None:
+        if state["first"]:
+            bar.update(step - 1 - bar.n)  # a resumed run starts past 0
+            state["first"] = False
+        bar.update(1)
+        if step % 10 == 0 or step == steps:
+            bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
+
+    try:
+        return train(config, on_step=on_step)
+    finally:
+        bar.close()

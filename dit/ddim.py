@@ -1,0 +1,137 @@
+"""DDIM with a cosine noise schedule and epsilon prediction (Song et al. 2021; Nichol & Dhariwal 2021).
+
+Schedule. With T training steps, f(u) = cos^2(((u + s) / (1 + s)) pi / 2), s = 0.008,
+beta_i = min(1 - f((i + 1) / T) / f(i / T), 0.999) and alpha_bar_t = prod_{i <= t} (1 - beta_i)
+for t = 0 .. T-1 (the "squaredcos_cap_v2" schedule of the paper's DDIM). Away from the cap,
+the product telescopes: alpha_bar_t = f((t + 1) / T) / f(0), so the same noise level sits
+at the same fraction (t + 1) / T whatever T is; `model_time` hands the model that fraction,
+which lets one network serve the 100-step motion-to-robot and the 5-step control process.
+
+Forward process: x_t = sqrt(alpha_bar_t) x0 + sqrt(1 - alpha_bar_t) eps.
+
+Reverse step from t to t' < t (t' = -1 means the end, alpha_bar_{-1} = 1):
+  x0_hat  = (x_t - sqrt(1 - alpha_bar_t) eps) / sqrt(alpha_bar_t), clipped to +-clip_x0
+  sigma   = eta sqrt((1 - alpha_bar_t') / (1 - alpha_bar_t)) sqrt(1 - alpha_bar_t / alpha_bar_t')
+  x_t'    = sqrt(alpha_bar_t') x0_hat + sqrt(1 - alpha_bar_t' - sigma^2) eps + sigma z
+The direction term uses the model's eps, not one recomputed from the clipped x0_hat.
+eta = 0 is deterministic DDIM, eta = 1 has the DDPM posterior variance.
+
+Guidance (classifier-guided DDIM, Dhariwal & Nichol 2021): to ascend a reward R, shift
+eps_hat = eps - sqrt(1 - alpha_bar_t) s grad R (`guided_eps`) and step with eps_hat.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+#: Offset s of the cosine schedule.
+COSINE_OFFSET = 0.008
+#: Largest beta, so the last steps stay invertible.
+MAX_BETA = 0.999
+
+
+def cosine_alpha_bar(u: torch.Tensor, s: float = COSINE_OFFSET) -> torch.Tensor:
+    """f(u) = cos^2(((u + s) / (1 + s)) pi / 2) for u in [0, 1]."""
+    return torch.cos((u + s) / (1.0 + s) * (math.pi / 2)) ** 2
+
+
+class CosineDDIM:
+    """Cosine-schedule DDIM over ``train_steps`` discrete noise levels.
+
+    train_steps: T (100 for motion-to-robot, 5 for control in the paper); clip_x0: clip of
+    the predicted clean sample in normalised units (1.0: the data range), None for none.
+    alpha_bars: (T,) float64, alpha_bar_t for t = 0 .. T-1.
+    """
+
+    def __init__(self, train_steps: int, *, clip_x0: float | None = 1.0):
+        if train_steps < 1:
+            raise ValueError(f"train_steps must be >= 1, got {train_steps}")
+        if clip_x0 is not None and clip_x0 <= 0:
+            raise ValueError(f"clip_x0 must be positive or None, got {clip_x0}")
+        self.train_steps = int(train_steps)
+        self.clip_x0 = clip_x0
+        u = torch.arange(self.train_steps + 1, dtype=torch.float64) / self.train_steps
+        f = cosine_alpha_bar(u)
+        self.betas = (1.0 - f[1:] / f[:-1]).clamp(max=MAX_BETA)
+        self.alpha_bars = torch.cumprod(1.0 - self.betas, dim=0)
+
+    def __repr__(self) -> str:
+        return f"CosineDDIM(train_steps={self.train_steps}, clip_x0={self.clip_x0})"
+
+    # ------------------------------------------------------------ schedule lookups
+    def alpha_bar(self, t: torch.Tensor | int) -> torch.Tensor:
+        """alpha_bar_t as float64; t = -1 gives 1 (the clean end). t: int or long tensor (B,)."""
+        t = torch.as_tensor(t, dtype=torch.long)
+        if bool(((t < -1) | (t >= self.train_steps)).any()):
+            raise ValueError(f"diffusion step {t.tolist()} outside -1 .. {self.train_steps - 1}")
+        padded = torch.cat([torch.ones(1, dtype=torch.float64), self.alpha_bars])
+        return padded[t.cpu() + 1]
+
+    def _coef(self, values: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+        """Per-sample coefficients (B,) or a scalar, shaped to broadcast against `like` (B, ...)."""
+        values = values.to(device=like.device, dtype=like.dtype)
+        if values.ndim == 0:
+            return values
+        return values.reshape(values.shape[0], *([1] * (like.ndim - 1)))
+
+    def model_time(self, t: torch.Tensor | int) -> torch.Tensor:
+        """The noise level as the fraction (t + 1) / T in (0, 1], float32 (shape of t)."""
+        return (torch.as_tensor(t, dtype=torch.float32) + 1.0) / self.train_steps
+
+    def timesteps(self, num_steps: int | None = None) -> list[int]:
+        """Sampling steps, descending, evenly spaced from 0 ("leading" spacing): T // n apart."""
+        n = self.train_steps if num_steps is None else int(num_steps)
+        if not 1 <= n <= self.train_steps:
+            raise ValueError(f"num_steps must be in 1 .. {self.train_steps}, got {num_steps}")
+        ratio = self.train_steps // n
+        return [i * ratio for i in range(n - 1, -1, -1)]
+
+    def sample_train_steps(self, n: int, generator: torch.Generator | None = None, device=None) -> torch.Tensor:
+        """Uniform training steps (n,) long in 0 .. T-1."""
+        return torch.randint(0, self.train_steps, (n,), generator=generator, device=device)
+
+    # ------------------------------------------------------------ closed forms
+    def add_noise(self, x0: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int) -> torch.Tensor:
+        """x_t = sqrt(alpha_bar_t) x0 + sqrt(1 - alpha_bar_t) eps; t int or (B,)."""
+        ab = self.alpha_bar(t)
+        return self._coef(ab.sqrt(), x0) * x0 + self._coef((1 - ab).sqrt(), x0) * eps
+
+    def predict_x0(self, x_t: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, *, clip: bool = True) -> torch.Tensor:
+        """x0_hat = (x_t - sqrt(1 - alpha_bar_t) eps) / sqrt(alpha_bar_t), clipped to +-clip_x0 when `clip`."""
+        ab = self.alpha_bar(t)
+        x0 = (x_t - self._coef((1 - ab).sqrt(), x_t) * eps) / self._coef(ab.sqrt(), x_t)
+        if clip and self.clip_x0 is not None:
+            x0 = x0.clamp(-self.clip_x0, self.clip_x0)
+        return x0
+
+    def predict_eps(self, x_t: torch.Tensor, x0: torch.Tensor, t: torch.Tensor | int) -> torch.Tensor:
+        """eps = (x_t - sqrt(alpha_bar_t) x0) / sqrt(1 - alpha_bar_t)."""
+        ab = self.alpha_bar(t)
+        return (x_t - self._coef(ab.sqrt(), x_t) * x0) / self._coef((1 - ab).sqrt(), x_t)
+
+    def sigma(self, t: int, t_prev: int, eta: float) -> float:
+        """DDIM noise scale of the step t -> t_prev (see the module docstring)."""
+        ab, ab_prev = float(self.alpha_bar(t)), float(self.alpha_bar(t_prev))
+        return eta * math.sqrt((1 - ab_prev) / (1 - ab)) * math.sqrt(1 - ab / ab_prev)
+
+    def guided_eps(self, eps: torch.Tensor, grad: torch.Tensor, scale: float, t: int) -> torch.Tensor:
+        """eps_hat = eps - sqrt(1 - alpha_bar_t) scale grad, the eps that ascends a reward with gradient `grad`."""
+        return eps - math.sqrt(1.0 - float(self.alpha_bar(t))) * scale * grad
+
+    def step(self, x_t: torch.Tensor, eps: torch.Tensor, t: int, t_prev: int, *, eta: float = 0.0,
+             noise: torch.Tensor | None = None, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """One reverse step t -> t_prev; returns (x_prev, x0_hat). `noise` (shape of x_t) or a
+        `generator` supplies z when eta > 0."""
+        if not -1 <= t_prev < t:
+            raise ValueError(f"a reverse step needs -1 <= t_prev < t, got t={t}, t_prev={t_prev}")
+        ab_prev = float(self.alpha_bar(t_prev))
+        x0 = self.predict_x0(x_t, eps, t)
+        sig = self.sigma(t, t_prev, eta)
+        x_prev = math.sqrt(ab_prev) * x0 + math.sqrt(max(1.0 - ab_prev - sig**2, 0.0)) * eps
+        if sig > 0:
+            if noise is None:
+                noise = torch.randn(x_t.shape, generator=generator, device=x_t.device, dtype=x_t.dtype)
+            x_prev = x_prev + sig * noise
+        return x_prev, x0

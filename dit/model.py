@@ -1,0 +1,226 @@
+"""The diffusion transformer over RoboTokens (paper §2.2, appendix "Transformer Transformer").
+
+One sequence per sample: every token type of the `Layout`, padded to its length and
+concatenated in layout order. A token's input vector is
+
+    in_proj[type](value) + type_embed[type] + noised_embed[noised] + sum_k id_embed[kind_k](id_k)
+
+a type-specific linear projection of its (normalised, possibly noised) value plus learned
+embeddings of its token type, of whether it is being denoised or is clean conditioning
+(this flag is how one network tells the tasks apart, "the task as a mask"), and of each
+of its IDs (link, joint, joint order, actuator, free link, track link, time step). ID
+tables are shared across types, so a joint token's link ID and a link token's own ID
+land on the same embedding. A stack of DiT blocks with adaLN-Zero conditioning on the
+diffusion time follows, then a per-type output head (adaLN-modulated LayerNorm and a
+linear map) predicts each token's noise epsilon.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Iterable, Mapping
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from tt.dit.layout import Layout, Role
+
+
+@dataclass(frozen=True)
+class DiTConfig:
+    """Backbone size. hidden: token width; depth: DiT blocks; heads: attention heads;
+    mlp_ratio: MLP width / hidden; freq_dim: sinusoidal features of the diffusion time."""
+
+    hidden: int = 256
+    depth: int = 8
+    heads: int = 4
+    mlp_ratio: float = 4.0
+    freq_dim: int = 256
+
+    def __post_init__(self) -> None:
+        if self.hidden % self.heads:
+            raise ValueError(f"hidden {self.hidden} must be a multiple of heads {self.heads}")
+        if self.depth < 1 or self.freq_dim < 2 or self.freq_dim % 2:
+            raise ValueError(f"depth must be >= 1 and freq_dim even >= 2, got depth={self.depth}, freq_dim={self.freq_dim}")
+
+
+#: Size variants: the paper's small (256 hidden, 8 layers, 4 heads) and large (512, 12, 8)
+#: models, and a tiny one for tests.
+DIT_CONFIGS: dict[str, DiTConfig] = {
+    "tiny": DiTConfig(hidden=64, depth=2, heads=4, freq_dim=64),
+    "small": DiTConfig(hidden=256, depth=8, heads=4),
+    "large": DiTConfig(hidden=512, depth=12, heads=8),
+}
+
+
+def get_config(size: str) -> DiTConfig:
+    if size not in DIT_CONFIGS:
+        raise ValueError(f"model size {size!r} does not exist; sizes: {list(DIT_CONFIGS)}")
+    return DIT_CONFIGS[size]
+
+
+def modulate(x: torch.Tensor, shift: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """adaLN: x (B, N, H) scaled and shifted per sample by (B, H) vectors."""
+    return x * (1 + scale.unsqueeze(1)) + shift.unsqueeze(1)
+
+
+class TimestepEmbedder(nn.Module):
+    """Diffusion time u in (0, 1] (B,) -> (B, H): sinusoids of 1000 u, then a 2-layer MLP."""
+
+    def __init__(self, hidden: int, freq_dim: int):
+        super().__init__()
+        self.freq_dim = freq_dim
+        self.mlp = nn.Sequential(nn.Linear(freq_dim, hidden), nn.SiLU(), nn.Linear(hidden, hidden))
+
+    def forward(self, u: torch.Tensor) -> torch.Tensor:
+        half = self.freq_dim // 2
+        freqs = torch.exp(-math.log(10000.0) * torch.arange(half, device=u.device, dtype=torch.float32) / half)
+        # 1000 u puts the T-step noise levels on the integer grid the frequencies were made for.
+        args = 1000.0 * u.float().unsqueeze(1) * freqs  # (B, half)
+        feats = torch.cat([torch.cos(args), torch.sin(args)], dim=1)  # (B, freq_dim)
+        return self.mlp(feats.to(self.mlp[0].weight.dtype))  # (B, H)
+
+
+class Attention(nn.Module):
+    """Multi-head self-attention with an optional key mask (True = may be attended to)."""
+
+    def __init__(self, hidden: int, heads: int):
+        super().__init__()
+        self.heads = heads
+        self.qkv = nn.Linear(hidden, 3 * hidden)
+        self.proj = nn.Linear(hidden, hidden)
+
+    def forward(self, x: torch.Tensor, key_mask: torch.Tensor | None) -> torch.Tensor:
+        b, n, h = x.shape
+        q, k, v = self.qkv(x).reshape(b, n, 3, self.heads, h // self.heads).permute(2, 0, 3, 1, 4)  # 3 x (B, heads, N, h/heads)
+        mask = None if key_mask is None else key_mask[:, None, None, :]  # (B, 1, 1, N)
+        y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)  # (B, heads, N, h/heads)
+        return self.proj(y.transpose(1, 2).reshape(b, n, h))  # (B, N, H)
+
+
+class DiTBlock(nn.Module):
+    """Pre-norm transformer block whose norms are modulated (shift, scale, gate) by the condition."""
+
+    def __init__(self, hidden: int, heads: int, mlp_ratio: float):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
+        self.attn = Attention(hidden, heads)
+        self.norm2 = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
+        width = int(hidden * mlp_ratio)
+        self.mlp = nn.Sequential(nn.Linear(hidden, width), nn.GELU(approximate="tanh"), nn.Linear(width, hidden))
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 6 * hidden))
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor, key_mask: torch.Tensor | None) -> torch.Tensor:
+        shift1, scale1, gate1, shift2, scale2, gate2 = self.ada(c).chunk(6, dim=1)  # 6 x (B, H)
+        x = x + gate1.unsqueeze(1) * self.attn(modulate(self.norm1(x), shift1, scale1), key_mask)  # (B, N, H)
+        x = x + gate2.unsqueeze(1) * self.mlp(modulate(self.norm2(x), shift2, scale2))  # (B, N, H)
+        return x
+
+
+class OutputHead(nn.Module):
+    """Per-type output: adaLN-modulated LayerNorm, then a linear map to the token width."""
+
+    def __init__(self, hidden: int, dim: int):
+        super().__init__()
+        self.norm = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 2 * hidden))
+        self.linear = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        shift, scale = self.ada(c).chunk(2, dim=1)  # 2 x (B, H)
+        return self.linear(modulate(self.norm(x), shift, scale))  # (B, L, D)
+
+
+class RoboDiT(nn.Module):
+    """Diffusion transformer over the token types of `layout` (see the module docstring).
+
+    Output heads exist for every type that some task diffuses (all roles but condition).
+    """
+
+    def __init__(self, layout: Layout, config: DiTConfig):
+        super().__init__()
+        self.layout = layout
+        self.config = config
+        h = config.hidden
+        self.in_proj = nn.ModuleDict({s.name: nn.Linear(s.dim, h) for s in layout.specs})
+        kinds = sorted({k for s in layout.specs for k in s.ids})
+        self.id_embed = nn.ModuleDict({k: nn.Embedding(layout.id_sizes[k], h) for k in kinds})
+        self.type_embed = nn.Embedding(len(layout.specs), h)
+        self.noised_embed = nn.Embedding(2, h)
+        self.time_embed = TimestepEmbedder(h, config.freq_dim)
+        self.blocks = nn.ModuleList([DiTBlock(h, config.heads, config.mlp_ratio) for _ in range(config.depth)])
+        self.heads = nn.ModuleDict({s.name: OutputHead(h, s.dim) for s in layout.specs if s.role is not Role.CONDITION})
+        self.register_buffer(
+            "_type_index",
+            torch.cat([torch.full((s.length,), i, dtype=torch.long) for i, s in enumerate(layout.specs)]),
+            persistent=False,
+        )
+        self.initialize_weights()
+
+    def initialize_weights(self) -> None:
+        """Xavier linears, N(0, 0.02) embeddings, and adaLN-Zero: every block's modulation and
+        every head start at zero, so each block is the identity and every prediction 0 at init."""
+        for m in self.modules():
+            if isinstance(m, nn.Linear):
+                nn.init.xavier_uniform_(m.weight)
+                nn.init.zeros_(m.bias)
+            elif isinstance(m, nn.Embedding):
+                nn.init.normal_(m.weight, std=0.02)
+        for lin in self.time_embed.mlp:
+            if isinstance(lin, nn.Linear):
+                nn.init.normal_(lin.weight, std=0.02)
+        for block in self.blocks:
+            nn.init.zeros_(block.ada[-1].weight)
+            nn.init.zeros_(block.ada[-1].bias)
+        for head in self.heads.values():
+            nn.init.zeros_(head.ada[-1].weight)
+            nn.init.zeros_(head.ada[-1].bias)
+            nn.init.zeros_(head.linear.weight)
+            nn.init.zeros_(head.linear.bias)
+
+    def parameter_count(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def embed(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
+              noised: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """Token inputs (B, N, H) of the concatenated sequence."""
+        parts = []
+        for s in self.layout.specs:
+            x = self.in_proj[s.name](values[s.name])  # (B, L, H)
+            for k, kind in enumerate(s.ids):
+                x = x + self.id_embed[kind](ids[s.name][..., k])  # (B, L, H)
+            parts.append(x + self.noised_embed(noised[s.name].long()))  # (B, L, H)
+        return torch.cat(parts, dim=1) + self.type_embed(self._type_index)  # (B, N, H)
+
+    def forward(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
+                noised: Mapping[str, torch.Tensor], time: torch.Tensor, attend: torch.Tensor | None = None,
+                outputs: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
+        """Predicted noise per type.
+
+        values: type -> (B, L, D) normalised values, noised where `noised` is True;
+        ids: type -> (B, L, K) int64; noised: type -> (B, L) bool; time: (B,) diffusion
+        time in (0, 1] (`CosineDDIM.model_time`); attend: (B, N) bool, False for tokens no
+        token may attend to (masked padding), None to attend to all; outputs: types to
+        predict (default: every type with a head). Returns type -> eps (B, L, D).
+        """
+        x = self.embed(values, ids, noised)  # (B, N, H)
+        c = self.time_embed(time)  # (B, H)
+        for block in self.blocks:
+            x = block(x, c, attend)  # (B, N, H)
+        out, start = {}, 0
+        wanted = set(self.heads.keys() if outputs is None else outputs)
+        for s in self.layout.specs:
+            if s.name in wanted:
+                out[s.name] = self.heads[s.name](x[:, start:start + s.length], c)  # (B, L, D)
+            start += s.length
+        return out
+
+    def describe(self) -> dict:
+        """Layout and config, enough to rebuild the module (`from_description`)."""
+        return {"layout": self.layout.to_dict(), "config": asdict(self.config)}
+
+    @staticmethod
+    def from_description(d: Mapping) -> "RoboDiT":
+        return RoboDiT(Layout.from_dict(d["layout"]), DiTConfig(**d["config"]))

@@ -1,0 +1,125 @@
+"""DDIM sampling loop with a guidance hook.
+
+`sample` starts every token the task diffuses from Gaussian noise, keeps every other token
+(conditioning, masked padding) exactly at its given value, and runs the reverse DDIM
+steps. At each step it computes the model's eps and the predicted clean tokens x0_hat,
+then, when a `guide` is given, calls
+
+    guide(step, x_t, eps, x0_hat) -> eps'
+
+with dicts type -> (B, L, D) in normalised units. `step` counts from 0 (the noisiest);
+`t = timesteps[step]` and alpha_bar_t are available from the scheduler
+(`scheduler.timesteps(n)`, `scheduler.alpha_bar(t)`, `scheduler.guided_eps`). With
+``guide_grad=True`` (the default when guiding) x_t are leaf tensors that require grad and
+eps, x0_hat are built from them with autograd on, so a guide can differentiate a reward of
+x0_hat through the network: ``g = torch.autograd.grad(R(x0_hat), x_t)``, then return
+``scheduler.guided_eps(eps, g, s, t)`` (Dynamics Self-Guidance). The guide may return a
+subset of types; eps' replaces eps only on guided tokens (``guided``: which types, or
+per-type (B, L) masks; default all diffused types) and never on tokens that are not
+diffused. x0_hat is clipped to the data range (+-1), as the step uses it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Mapping
+
+import torch
+
+from tt.dit.ddim import CosineDDIM
+from tt.dit.layout import TokenTensors
+from tt.dit.model import RoboDiT
+from tt.dit.tasks import TaskSpec, output_types, task_masks
+
+#: guide(step, x_t, eps, x0_hat) -> eps' (dicts type -> (B, L, D)).
+GuideFn = Callable[[int, dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor]], Mapping[str, torch.Tensor]]
+
+
+@dataclass
+class SampleResult:
+    """tokens: final normalised tokens (ids and mask as given); updated: type -> (B, L) bool,
+    the tokens that were diffused; x0_history: per step, the predicted clean tokens
+    (detached), when requested."""
+
+    tokens: TokenTensors
+    updated: dict[str, torch.Tensor]
+    x0_history: list[dict[str, torch.Tensor]] | None = None
+
+
+def _guided_masks(guided, updated: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    if guided is None:
+        return updated
+    if isinstance(guided, Mapping):
+        unknown = [k for k in guided if k not in updated]
+        if unknown:
+            raise ValueError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
+        return {k: updated[k] & guided[k].to(updated[k].device) for k in guided}
+    names = list(guided)
+    unknown = [k for k in names if k not in updated]
+    if unknown:
+        raise ValueError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
+    return {k: updated[k] for k in names}
+
+
+def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: CosineDDIM | None = None,
+           num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
+           guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
+           guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False) -> SampleResult:
+    """Denoise the tokens `task` diffuses, conditioned on the others.
+
+    model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
+    conditioning values are set (values of diffused tokens are ignored); scheduler: defaults
+    to ``CosineDDIM(task.diffusion_steps)``; num_steps: sampling steps (default all T);
+    eta: DDIM noise (0 deterministic, 1 DDPM-like; the paper uses 1 for self-guidance);
+    generator: on the tokens' device, for the initial noise and eta > 0; guide, guided,
+    guide_grad: see the module docstring; keep_x0: record x0_hat per step; bf16: autocast
+    the network to bfloat16 (CUDA only).
+    """
+    layout = model.layout
+    tokens.check(layout)
+    scheduler = CosineDDIM(task.diffusion_steps) if scheduler is None else scheduler
+    if scheduler.train_steps != task.diffusion_steps:
+        raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+    if eta < 0:
+        raise ValueError(f"eta must be >= 0, got {eta}")
+    device = tokens.device
+    b = len(tokens)
+    masks = task_masks(task, layout, tokens)
+    wanted = output_types(task, layout)
+    updated = {n: masks.noised[n] & masks.visible[n] for n in wanted}
+    guided_masks = _guided_masks(guided, updated) if guide is not None else {}
+    x = {}
+    for s in layout.specs:
+        v = tokens.values[s.name]
+        if s.name in updated:
+            noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
+            x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float())
+        else:
+            x[s.name] = v.float()
+    steps = scheduler.timesteps(num_steps)
+    history = [] if keep_x0 else None
+    use_grad = guide is not None and guide_grad
+    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=bf16 and device.type == "cuda")
+    for i, t in enumerate(steps):
+        t_prev = steps[i + 1] if i + 1 < len(steps) else -1
+        time = torch.full((b,), float(scheduler.model_time(t)), device=device)
+        x_in = {n: (v.detach().requires_grad_(n in updated) if use_grad else v) for n, v in x.items()}
+        with torch.set_grad_enabled(use_grad), autocast:
+            eps = {n: e.float() for n, e in model(x_in, tokens.ids, masks.noised, time, masks.attend, outputs=wanted).items()}
+        with torch.set_grad_enabled(use_grad):
+            x0 = {n: scheduler.predict_x0(x_in[n], eps[n], t) for n in wanted}
+            if guide is not None:
+                new = guide(i, x_in, eps, x0)
+                for n, e in new.items():
+                    if n not in guided_masks:
+                        continue
+                    if e.shape != eps[n].shape:
+                        raise ValueError(f"guide returned eps of shape {tuple(e.shape)} for {n!r}, expected {tuple(eps[n].shape)}")
+                    eps[n] = torch.where(guided_masks[n].unsqueeze(-1), e, eps[n])
+        if history is not None:
+            history.append({n: v.detach() for n, v in x0.items()})
+        for n in wanted:
+            x_prev, _ = scheduler.step(x[n].detach(), eps[n].detach(), t, t_prev, eta=eta, generator=generator)
+            x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, x[n].detach())
+    out = TokenTensors({n: x[n].detach().to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
+    return SampleResult(out, updated, history)

@@ -1,0 +1,210 @@
+"""The two masked diffusion tasks and the training objective.
+
+``robot`` (motion-to-robot): condition on target poses; diffuse every embodiment,
+dynamics and action token, padding included: padding tokens are targets at PAD_VALUE
+that the model learns to produce (the detokenizer detects them), and nothing is masked in
+attention. Windows are 8 random steps of an episode.
+
+``control`` (cross-embodiment control): condition on the embodiment, the current state
+(dynamics tokens of the window's earliest step) and the targets of 8 consecutive steps; diffuse the
+actions of all 8 steps. The states of the later steps are diffused too (extra supervision
+that costs no inference input; ``future_states=False`` leaves them out instead). Padding
+tokens are masked out of attention and loss.
+
+A unified model trains both: each sample carries its own noise mask (fed to the model as
+the noised-flag embedding), attention mask and diffusion time, so one forward pass
+serves a batch that mixes the tasks.
+
+Objective: epsilon prediction. For each type, the elementwise loss (Huber with delta 1,
+as in the authors' configuration, or MSE) between predicted and true noise, averaged
+over the diffused entries of that type; the total is the sum over types, so each type
+weighs the same whatever its token count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+import torch.nn.functional as F
+
+from tt.dit.ddim import CosineDDIM
+from tt.dit.layout import Layout, Role, TokenTensors
+from tt.dit.model import RoboDiT
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """name: "robot" or "control"; diffusion_steps: T of its DDIM process; window: how the
+    8 steps of a training window are drawn ("random" or "consecutive"); future_states
+    (control): diffuse the states after step 0 (True) or leave them out (False)."""
+
+    name: str
+    diffusion_steps: int
+    window: str
+    future_states: bool = True
+
+    def __post_init__(self) -> None:
+        if self.name not in ("robot", "control"):
+            raise ValueError(f"task {self.name!r} does not exist; tasks: robot, control")
+        if self.window not in ("random", "consecutive"):
+            raise ValueError(f"task {self.name!r}: window {self.window!r} is not 'random' or 'consecutive'")
+        if self.diffusion_steps < 1:
+            raise ValueError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
+
+
+#: The paper's tasks: 100 DDIM steps for motion-to-robot, 5 for control.
+ROBOT = TaskSpec("robot", 100, "random")
+CONTROL = TaskSpec("control", 5, "consecutive")
+TASKS = {"robot": ROBOT, "control": CONTROL}
+
+
+def get_task(name: str) -> TaskSpec:
+    if name not in TASKS:
+        raise ValueError(f"task {name!r} does not exist; tasks: {list(TASKS)}")
+    return TASKS[name]
+
+
+@dataclass
+class TaskMasks:
+    """Which tokens a task diffuses and which the model may see, for B sequences.
+
+    noised: type -> (B, L) bool, tokens to denoise (all others stay at their given value);
+    visible: type -> (B, L) bool, tokens that take part (False: masked out of attention and loss);
+    attend: (B, N) bool over the concatenated sequence, or None when every token is visible.
+    """
+
+    noised: dict[str, torch.Tensor]
+    visible: dict[str, torch.Tensor]
+    attend: torch.Tensor | None
+
+    def loss_mask(self, name: str) -> torch.Tensor:
+        return self.noised[name] & self.visible[name]
+
+    def attend_full(self, layout: Layout) -> torch.Tensor:
+        """`attend`, materialised as (B, N) even when every token is visible."""
+        if self.attend is not None:
+            return self.attend
+        return torch.cat([self.visible[n] for n in layout.names], dim=1)
+
+
+def window_start(layout: Layout, tokens: TokenTensors) -> torch.Tensor:
+    """Earliest time ID of each sequence's real per-step tokens, (B,) long (0 if it has none).
+
+    Time IDs may be absolute control steps (`tt.tokens.episodes`) or window-relative; the
+    control task's current step is this earliest one either way.
+    """
+    big = torch.iinfo(torch.long).max
+    start = None
+    for s in layout.specs:
+        if s.per_step:
+            t = tokens.ids[s.name][..., s.time_index].masked_fill(~tokens.mask[s.name], big).amin(dim=1)  # (B,)
+            start = t if start is None else torch.minimum(start, t)
+    if start is None:
+        return torch.zeros(len(tokens), dtype=torch.long, device=tokens.device)
+    return torch.where(start == big, torch.zeros_like(start), start)
+
+
+def task_masks(task: TaskSpec, layout: Layout, tokens: TokenTensors) -> TaskMasks:
+    """Noise and visibility masks of `task` for `tokens` (time IDs and padding masks are read)."""
+    noised, visible = {}, {}
+    start = window_start(layout, tokens) if task.name == "control" else None
+    for s in layout.specs:
+        real = tokens.mask[s.name]
+        if task.name == "robot":
+            noised[s.name] = torch.full_like(real, s.role is not Role.CONDITION)
+            visible[s.name] = torch.ones_like(real)
+            continue
+        if s.role in (Role.EMBODIMENT, Role.CONDITION):
+            noised[s.name] = torch.zeros_like(real)
+            visible[s.name] = real
+        elif s.role is Role.ACTION:
+            noised[s.name] = real.clone()
+            visible[s.name] = real
+        else:
+            current = tokens.ids[s.name][..., s.time_index] == start[:, None]
+            noised[s.name] = real & ~current if task.future_states else torch.zeros_like(real)
+            visible[s.name] = real & (current | task.future_states)
+    attend = None if task.name == "robot" else torch.cat([visible[n] for n in layout.names], dim=1)
+    return TaskMasks(noised, visible, attend)
+
+
+def output_types(task: TaskSpec, layout: Layout) -> tuple[str, ...]:
+    """Types whose noise the model must predict for `task`."""
+    if task.name == "robot":
+        return layout.names_with(Role.EMBODIMENT, Role.DYNAMICS, Role.ACTION)
+    if task.future_states:
+        return layout.names_with(Role.DYNAMICS, Role.ACTION)
+    return layout.names_with(Role.ACTION)
+
+
+@dataclass
+class NoisedInputs:
+    """One task's share of a training batch: model inputs and regression targets."""
+
+    values: dict[str, torch.Tensor]  # type -> (B, L, D), noised where masks.noised
+    ids: dict[str, torch.Tensor]  # type -> (B, L, K)
+    eps: dict[str, torch.Tensor]  # type -> (B, L, D), the noise added (0 where not noised)
+    masks: TaskMasks
+    time: torch.Tensor  # (B,) model time in (0, 1]
+
+
+def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenTensors,
+                 generator: torch.Generator | None = None) -> NoisedInputs:
+    """Draw a diffusion step per sample and noise the tokens `task` diffuses.
+
+    tokens: normalised values (padding at PAD_VALUE); generator: on the tokens' device.
+    """
+    if scheduler.train_steps != task.diffusion_steps:
+        raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+    b, device = len(tokens), tokens.device
+    masks = task_masks(task, layout, tokens)
+    t = scheduler.sample_train_steps(b, generator, device=device)
+    values, eps = {}, {}
+    for s in layout.specs:
+        x0 = tokens.values[s.name]
+        noise = torch.randn(x0.shape, generator=generator, device=device, dtype=x0.dtype)
+        m = masks.noised[s.name].unsqueeze(-1)
+        values[s.name] = torch.where(m, scheduler.add_noise(x0, noise, t), x0)
+        eps[s.name] = torch.where(m, noise, torch.zeros_like(noise))
+    return NoisedInputs(values, dict(tokens.ids), eps, masks, scheduler.model_time(t).to(device))
+
+
+def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    if kind == "huber":
+        return F.huber_loss(pred, target, reduction="none", delta=1.0)
+    if kind == "mse":
+        return (pred - target) ** 2
+    raise ValueError(f"loss {kind!r} does not exist; losses: huber, mse")
+
+
+def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *,
+                   loss: str = "huber") -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Loss over one forward pass of all `parts` (one per task) stacked along the batch.
+
+    Returns (total, per-type loss terms, detached 0-d tensors).
+    """
+    layout = model.layout
+    names = layout.names
+    values = {n: torch.cat([p.values[n] for _, p in parts]) for n in names}
+    noised = {n: torch.cat([p.masks.noised[n] for _, p in parts]) for n in names}
+    time = torch.cat([p.time for _, p in parts])
+    if all(p.masks.attend is None for _, p in parts):
+        attend = None
+    else:
+        attend = torch.cat([p.masks.attend_full(layout) for _, p in parts])
+    ids = {n: torch.cat([p.ids[n] for _, p in parts]) for n in names}
+    wanted = sorted({n for task, _ in parts for n in output_types(task, layout)}, key=names.index)
+    pred = model(values, ids, noised, time, attend, outputs=wanted)
+    total = torch.zeros((), device=time.device)
+    per_type = {}
+    for n in wanted:
+        target = torch.cat([p.eps[n] for _, p in parts])
+        lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)
+        err = _elementwise(loss, pred[n].float(), target.float()).mean(-1)  # (B, L)
+        count = lmask.sum()
+        term = (err * lmask).sum() / count.clamp_min(1)
+        per_type[n] = term
+        total = total + term
+    return total, {k: v.detach() for k, v in per_type.items()}

@@ -1,0 +1,283 @@
+"""Training loop: AdamW, warm-up + cosine learning rate, gradient clipping, EMA, checkpoints.
+
+Defaults follow the paper's Table "Model Hyperparameters": lr 5e-3 (1e-4 for the large
+model, as its appendix says), 500 warm-up steps, batch 64, weight decay 0, EMA power 0.75,
+windows of 8 steps; gradients are clipped at norm 1 (the authors' configuration).
+
+Learning rate of the k-th optimizer step (k = 0, 1, ...), with W warm-up and K total steps:
+lr (k + 1) / W for k < W, then lr (1 + cos(pi (k - W) / (K - W))) / 2.
+
+Every `checkpoint_every` steps and at the end, the run folder gets a checkpoint
+(`tt.dit.checkpoint`), ``loss.csv`` and ``loss.png``. With ``resume`` (default) a run
+folder that has checkpoints continues from its latest one; resuming reproduces the
+uninterrupted run exactly on the same device (data and noise generator states are
+checkpointed).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from tt.dit.checkpoint import (
+    checkpoint_path,
+    latest_checkpoint,
+    list_checkpoints,
+    load_checkpoint,
+    save_checkpoint,
+)
+from tt.dit.data import EpisodeTokens
+from tt.dit.ddim import CosineDDIM
+from tt.dit.ema import EMA
+from tt.dit.layout import LayoutError
+from tt.dit.model import RoboDiT, get_config
+from tt.dit.normalization import Normalizer
+from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
+
+log = logging.getLogger(__name__)
+
+#: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
+DEFAULT_LR = {"tiny": 5e-3, "small": 5e-3, "large": 1e-4}
+
+
+@dataclass
+class TrainConfig:
+    """One training run.
+
+    data: episode token file (`EpisodeTokens.save`); out: run folder; task: "robot",
+    "control" or "both" (a unified model; each batch is half robot, half control
+    windows); size: "tiny", "small" or "large"; steps: total optimizer steps; lr: None
+    for `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of
+    each task's DDIM process; future_states: the control task also diffuses the states
+    after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
+    device: None for `tt.device.default_device()`; keep_checkpoints: how many of the
+    newest checkpoints to keep.
+    """
+
+    data: str = ""
+    out: str = "runs/dit"
+    task: str = "robot"
+    size: str = "small"
+    steps: int = 10_000
+    batch_size: int = 64
+    lr: float | None = None
+    warmup_steps: int = 500
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    ema_power: float = 0.75
+    ema_max_decay: float = 0.9999
+    window: int = 8
+    robot_diffusion_steps: int = 100
+    control_diffusion_steps: int = 5
+    future_states: bool = True
+    loss: str = "huber"
+    checkpoint_every: int = 1000
+    keep_checkpoints: int = 3
+    seed: int = 0
+    device: str | None = None
+    bf16: bool = True
+    resume: bool = True
+
+    def __post_init__(self) -> None:
+        if self.task not in ("robot", "control", "both"):
+            raise ValueError(f"task {self.task!r} does not exist; tasks: robot, control, both")
+        get_config(self.size)
+        if self.loss not in ("huber", "mse"):
+            raise ValueError(f"loss {self.loss!r} does not exist; losses: huber, mse")
+        for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.task == "both" and self.batch_size < 2:
+            raise ValueError(f"task 'both' needs batch_size >= 2, got {self.batch_size}")
+        if self.warmup_steps < 0 or self.grad_clip <= 0 or self.weight_decay < 0:
+            raise ValueError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
+                             f"{self.grad_clip}, {self.weight_decay}")
+
+    @property
+    def learning_rate(self) -> float:
+        return DEFAULT_LR[self.size] if self.lr is None else self.lr
+
+    def tasks(self) -> list[tuple[TaskSpec, int]]:
+        """(task, windows per batch) of each task trained."""
+        robot = TaskSpec("robot", self.robot_diffusion_steps, "random")
+        control = TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states)
+        if self.task == "robot":
+            return [(robot, self.batch_size)]
+        if self.task == "control":
+            return [(control, self.batch_size)]
+        half = self.batch_size // 2
+        return [(robot, half), (control, self.batch_size - half)]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "TrainConfig":
+        names = {f.name for f in fields(TrainConfig)}
+        return TrainConfig(**{k: v for k, v in d.items() if k in names})
+
+
+@dataclass
+class TrainResult:
+    """step: optimizer steps taken in total; losses: (step,) training loss per step;
+    checkpoint: the last checkpoint written; parameters: network parameter count."""
+
+    step: int
+    losses: torch.Tensor
+    checkpoint: Path
+    parameters: int
+
+
+def lr_factor(k: int, warmup: int, total: int) -> float:
+    """Learning-rate multiplier of optimizer step k (see the module docstring)."""
+    if k < warmup:
+        return (k + 1) / warmup
+    span = max(total - warmup, 1)
+    return 0.5 * (1.0 + math.cos(math.pi * min(k - warmup, span) / span))
+
+
+def write_loss_curve(losses: torch.Tensor, folder: str | Path) -> Path:
+    """``loss.csv`` (step, loss) and ``loss.png`` (per-step loss and a 1 %-of-run moving average)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    y = losses.double().numpy()
+    steps = range(1, len(y) + 1)
+    (folder / "loss.csv").write_text("step,loss\n" + "".join(f"{s},{v:.6g}\n" for s, v in zip(steps, y)))
+    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=120)
+    ax.plot(list(steps), y, lw=0.5, alpha=0.4, label="per step")
+    w = max(1, len(y) // 100)
+    if len(y) >= 2 * w > 2:
+        kernel = torch.ones(w, dtype=torch.float64) / w
+        smooth = torch.nn.functional.conv1d(torch.from_numpy(y)[None, None], kernel[None, None]).flatten().numpy()
+        ax.plot(list(range(w, len(y) + 1)), smooth, lw=1.5, label=f"mean of {w}")
+    ax.set_xlabel("optimizer step")
+    ax.set_ylabel("diffusion loss")
+    if (y > 0).all():
+        ax.set_yscale("log")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    path = folder / "loss.png"
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def _resolve_device(device: str | None) -> torch.device:
+    if device is None:
+        from tt.device import default_device
+
+        device = default_device()
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} requested but torch sees no CUDA device; use 'cpu'")
+    return torch.device(device)
+
+
+def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
+          on_step: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Train (or resume) a DiT; see the module docstring.
+
+    episodes: training data in memory (else loaded from ``config.data``); on_step: called
+    after every optimizer step with (step, loss), e.g. to drive a progress bar.
+    """
+    device = _resolve_device(config.device)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if episodes is None:
+        if not config.data:
+            raise ValueError("TrainConfig.data is empty: give an episode token file (or pass episodes=)")
+        episodes = EpisodeTokens.load(config.data)
+    layout = episodes.layout(config.window)
+    resume_from = latest_checkpoint(out) if config.resume else None
+
+    if resume_from is not None:
+        state = load_checkpoint(resume_from)
+        model = RoboDiT.from_description(state["model"])
+        if model.layout != layout:
+            raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
+        if model.config != get_config(config.size):
+            raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r}")
+        model.load_state_dict(state["state_dict"])
+        normalizer = Normalizer.from_state_dict(state["normalizer"])
+    else:
+        state = None
+        with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
+            torch.manual_seed(config.seed)
+            model = RoboDiT(layout, get_config(config.size))
+        normalizer = episodes.fit_normalizer()
+    normalizer.check(layout)
+    model.to(device).train()
+    optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    ema = EMA(model, power=config.ema_power, max_decay=config.ema_max_decay)
+    data_gen = torch.Generator().manual_seed(config.seed)
+    noise_gen = torch.Generator(device=device).manual_seed(config.seed + 1)
+    step, losses = 0, []
+    if state is not None:
+        optimizer.load_state_dict(state["optimizer"])
+        ema.load_state_dict(state["ema"])
+        data_gen.set_state(state["rng"]["data"])
+        noise_gen.set_state(state["rng"]["noise"])
+        step = int(state["step"])
+        losses = state["losses"].tolist()
+        log.info("resumed %s at step %d", resume_from, step)
+    del state
+
+    tasks = config.tasks()
+    schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
+    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=config.bf16 and device.type == "cuda")
+    log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
+             config.size, model.parameter_count(), device, config.task, step, config.steps)
+    last = latest_checkpoint(out)
+    while step < config.steps:
+        parts = []
+        for task, n in tasks:
+            raw = episodes.sample(n, config.window, task.window, data_gen)
+            raw.check(layout)
+            tokens = normalizer.normalize(raw).to(device)
+            parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen)))
+        for g in optimizer.param_groups:
+            g["lr"] = config.learning_rate * lr_factor(step, config.warmup_steps, config.steps)
+        with autocast:
+            loss, per_type = diffusion_loss(model, parts, loss=config.loss)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
+        optimizer.step()
+        ema.update(model)
+        step += 1
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            terms = {k: float(v) for k, v in per_type.items()}
+            raise FloatingPointError(f"training loss is {value} at step {step}; per type: {terms}")
+        losses.append(value)
+        if step % config.checkpoint_every == 0 or step == config.steps:
+            last = checkpoint_path(out, step)
+            save_checkpoint(last, {
+                "schema_version": layout.schema_version,
+                "model": model.describe(),
+                "state_dict": model.state_dict(),
+                "ema": ema.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "normalizer": normalizer.state_dict(),
+                "train_config": config.to_dict(),
+                "step": step,
+                "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
+                "losses": torch.tensor(losses, dtype=torch.float32),
+            })
+            for old in list_checkpoints(out)[:-config.keep_checkpoints]:
+                old.unlink()
+            write_loss_curve(torch.tensor(losses), out)
+        if on_step is not None:
+            on_step(step, value)
+    if last is None:
+        raise ValueError(f"run {out} has nothing to do: it is at step {step} and config.steps is {config.steps}")
+    return TrainResult(step, torch.tensor(losses, dtype=torch.float32), last, model.parameter_count())

@@ -1,0 +1,160 @@
+"""Training data of the DiT: episode windows, files, normalisation, and the bridge from
+`tt.tokens` (tokenizer + episode tokens of a ViperX batch)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tt.dit.data import EpisodeTokens
+from tt.dit.layout import PAD_VALUE, LayoutError, TokenTensors
+from tt.dit.normalization import Normalizer
+from tt.dit.tasks import CONTROL, task_masks
+from tt.dit.toy import toy_episodes
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    return toy_episodes(episodes=12, steps=20, seed=0)
+
+
+def test_windows(episodes):
+    g = torch.Generator().manual_seed(0)
+    idx = torch.arange(len(episodes))
+    steps = episodes.window_steps(idx, 8, "random", g)
+    assert bool((steps[:, 1:] > steps[:, :-1]).all()) and int(steps.max()) < 20
+    cons = episodes.window_steps(idx, 8, "consecutive", g)
+    assert bool((cons[:, 1:] - cons[:, :-1] == 1).all()) and int(cons.max()) < 20
+    window = episodes.window(idx, steps)
+    layout = episodes.layout(8)
+    window.check(layout)
+    # Time IDs are episode steps; window step k holds episode step steps[k], entity by entity.
+    time = window.ids["state"][..., layout["state"].time_index].reshape(len(idx), 8, -1)
+    assert torch.equal(time, steps[:, :, None].expand_as(time))
+    per_step = layout["state"].per_step
+    e, k = 3, 5
+    assert torch.equal(window.values["state"][e, k * per_step:(k + 1) * per_step], episodes.step_values["state"][e, steps[e, k]])
+    assert torch.equal(window.values["body"], episodes.static_values["body"])
+    short = toy_episodes(episodes=2, steps=6)
+    with pytest.raises(LayoutError, match="fewer than the window's 8"):
+        short.sample(2, 8, "random")
+
+
+def test_control_current_step_is_window_start(episodes):
+    layout = episodes.layout(8)
+    idx = torch.arange(len(episodes))
+    steps = episodes.window_steps(idx, 8, "consecutive", torch.Generator().manual_seed(1))
+    window = episodes.window(idx, steps)
+    masks = task_masks(CONTROL, layout, window)
+    time = window.ids["state"][..., layout["state"].time_index]
+    clean = window.mask["state"] & ~masks.noised["state"]
+    assert torch.equal(clean, window.mask["state"] & (time == steps[:, :1]))
+
+
+def test_file_round_trip(tmp_path, episodes):
+    path = tmp_path / "episodes.npz"
+    episodes.save(path)
+    again = EpisodeTokens.load(path)
+    assert again.layout(8) == episodes.layout(8)
+    for group in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask"):
+        for k, v in getattr(episodes, group).items():
+            assert torch.equal(getattr(again, group)[k], v), f"{group}/{k}"
+    assert torch.equal(again.lengths, episodes.lengths)
+    np.savez(tmp_path / "other.npz", x=np.zeros(2))
+    with pytest.raises(ValueError, match="not an episode token file"):
+        EpisodeTokens.load(tmp_path / "other.npz")
+
+
+def test_concatenate_pads_to_longest():
+    a = toy_episodes(episodes=3, steps=10, seed=1)
+    b = toy_episodes(episodes=2, steps=14, seed=2)
+    for name in ("body", "hinge"):  # make b's robots one token shorter than a's
+        for group in ("static_values", "static_ids", "static_mask"):
+            getattr(b, group)[name] = getattr(b, group)[name][:, :-1].clone()
+    both = EpisodeTokens.concatenate([a, b])
+    assert len(both) == 5 and both.max_steps == 14
+    assert torch.equal(both.lengths, torch.tensor([10, 10, 10, 14, 14]))
+    assert torch.equal(both.static_values["body"][:3], a.static_values["body"])
+    assert not bool(both.static_mask["body"][3:, -1].any())
+    assert torch.equal(both.step_values["state"][3:], b.step_values["state"])
+    assert torch.equal(both.step_values["state"][:3, :10], a.step_values["state"])
+    assert both.layout(8)["body"].length == a.layout(8)["body"].length
+    both.sample(4, 8, "random", torch.Generator().manual_seed(0)).check(both.layout(8))
+
+
+def test_normalizer(episodes):
+    norm = episodes.fit_normalizer()
+    tokens = episodes.sample(6, 8, "random", torch.Generator().manual_seed(2))
+    n = norm.normalize(tokens)
+    for name, v in n.values.items():
+        real = tokens.mask[name]
+        assert bool((v[~real] == PAD_VALUE).all())
+        assert float(v[real].min()) >= -1 - 1e-6 and float(v[real].max()) <= 1 + 1e-6
+        torch.testing.assert_close(norm.denormalize_values(name, v)[real], tokens.values[name][real], rtol=0, atol=1e-5)
+    # A constant feature maps to 0, and comes back.
+    const = Normalizer({"a": torch.tensor([2.0, 0.0])}, {"a": torch.tensor([2.0, 4.0])})
+    y = const.normalize_values("a", torch.tensor([[2.0, 1.0]]))
+    torch.testing.assert_close(y, torch.tensor([[0.0, -0.5]]))
+    torch.testing.assert_close(const.denormalize_values("a", y), torch.tensor([[2.0, 1.0]]))
+    again = Normalizer.from_state_dict(norm.state_dict())
+    torch.testing.assert_close(again.normalize(tokens).values["state"], n.values["state"], rtol=0, atol=0)
+
+
+def test_from_tokens_package():
+    """Embodiment tokens from the tokenizer and per-step tokens from `episode_tokens` of a
+    3-world ViperX batch become EpisodeTokens whose windows are the episode's values, and
+    whose statistics are the tokens package's."""
+    from tt.sim.designs import get_space
+    from tt.sim.episode import Episode
+    from tt.tokens.batch import TokenBatch
+    from tt.tokens.episodes import episode_tokens
+    from tt.tokens.normalize import Normalizer as SchemaNormalizer
+    from tt.tokens.tokenize import tokenize_models
+
+    space = get_space("viperx")
+    models = [space.model(d) for d in space.sample(3, 1)]
+    emb = tokenize_models(models)
+    w, t = 3, 12
+    g = torch.Generator().manual_seed(0)
+    nq, nu = max(m.nq for m in models), max(m.nu for m in models)
+    quat = torch.nn.functional.normalize(torch.randn(w, t, 1, 4, generator=g), dim=-1)
+
+    def r(*shape):
+        return torch.randn(*shape, generator=g)
+
+    episode = Episode(qpos=r(w, t, nq), qvel=r(w, t, nq), ctrl=r(w, t, nu), action=r(w, t, nu), act_force=r(w, t, nu),
+                      act_vel=r(w, t, nu), ee_pos=r(w, t, 1, 3), ee_quat=quat, target_pos=r(w, t, 1, 3), target_quat=quat,
+                      alive=torch.ones(w, t, dtype=torch.bool), fallen=torch.zeros(w, t, dtype=torch.bool),
+                      design_index=torch.arange(w), motion_index=torch.zeros(w, dtype=torch.long), dt=0.02)
+    dynamics = episode_tokens(episode, emb.index, step_index=torch.arange(t)[None].expand(w, t))
+    data = EpisodeTokens.from_token_batches(emb.tokens, dynamics, torch.tensor([12, 10, 9]))
+    layout = data.layout(8)
+    assert layout.schema_version == emb.tokens.version
+    idx = torch.arange(3)
+    steps = data.window_steps(idx, 8, "consecutive", torch.Generator().manual_seed(3))
+    window = data.window(idx, steps)
+    window.check(layout)
+    assert int(steps[2].max()) < 9  # inside the third episode's 9 executed steps
+    # Control tokens of world 1 at its window's third step are the episode's actions there.
+    n_act = layout["control"].per_step
+    real = window.mask["control"][1, 2 * n_act:3 * n_act]
+    got = window.values["control"][1, 2 * n_act:3 * n_act, 0][real]
+    torch.testing.assert_close(got, episode.action[1, steps[1, 2], : int(real.sum())])
+    # Statistics agree with tt.tokens' own normaliser on the same tokens.
+    ours = data.fit_normalizer()
+    flat = {k: v.reshape(v.shape[0], -1, v.shape[-1]) for k, v in data.step_values.items()}
+    valid = torch.arange(t)[None, :] < data.lengths[:, None]
+    mask = {k: (valid[:, :, None] & data.step_mask[k][:, None, :]).reshape(3, -1) for k in flat}
+    batch = TokenBatch({**{k: v.numpy() for k, v in flat.items()}, **{k: v.numpy() for k, v in data.static_values.items()}},
+                       {**{k: np.zeros((*v.shape[:2], 2), np.int64) for k, v in flat.items()},
+                        **{k: v.numpy() for k, v in data.static_ids.items()}},
+                       {**{k: v.numpy() for k, v in mask.items()}, **{k: v.numpy() for k, v in data.static_mask.items()}})
+    theirs = SchemaNormalizer.fit(batch)
+    for k in theirs.low:
+        np.testing.assert_allclose(ours.low[k].numpy(), theirs.low[k], rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(ours.high[k].numpy(), theirs.high[k], rtol=1e-6, atol=1e-6)
+    tokens = TokenTensors(window.values, window.ids, window.mask)
+    back = ours.to_schema_normalizer().normalize(TokenBatch(tokens.values, tokens.ids, tokens.mask))
+    for k, v in ours.normalize(tokens).values.items():
+        torch.testing.assert_close(v, back.values[k].float(), rtol=0, atol=1e-5)
