@@ -245,6 +245,31 @@ def train(
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
 
 
+@app.command()
+def demo(
+    space: str = typer.Option("viperx", help="Design space."),
+    motion: str = typer.Option("toss", help="Target motion (library name or file)."),
+    reward: str = typer.Option("tracking", help="Reward name."),
+    budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
+    seed: int = typer.Option(0, help="Random seed."),
+    out: Path = typer.Option(Path("tt_demo"), help="Folder for demo.json and demo.html."),
+    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
+) -> None:
+    """The main job: co-design a robot for a motion with every method; validate; show the winners."""
+    from rich.console import Console
+
+    from tt.demo import DemoConfig, run_demo
+    from tt.report import columns_for, rich_table
+
+    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, seed=seed, out=out, device=device)
+    try:
+        rows = run_demo(config, echo=typer.echo)
+    except ValueError as e:
+        _fail(str(e))
+    extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")]
+    Console().print(rich_table(rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"))
+
+
 def _space_ok(space: str) -> bool:
     from tt.sim.designs import SPACE_NAMES
 
