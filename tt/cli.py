@@ -120,8 +120,6 @@ def validate(
     sp_name = designs[0].space
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {sorted(spaces)}")
-    if sp_name == "quadruped":
-        _fail("the quadruped needs the whole-body controller, which the oracle does not have yet")
     ms = _motions(motion, motion_file, sp_name)
     try:
         ev = evaluate_designs(designs, ms, reward, backend="mujoco")

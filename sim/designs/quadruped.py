@@ -299,12 +299,22 @@ def _arm(dlen_upper: float, dlen_forearm: float) -> tuple[list[JointSpec], list]
     return joints, segments
 
 
+#: Height [m] of the nominal design's arm mount (the top of its arm plate) above the floor when
+#: standing: torso centre at the standing height of 0.20 m legs, plus half the torso, plus the plate.
+NOMINAL_ARM_MOUNT_Z = round(stance_depth(0.20, 0.20) + FOOT_RADIUS + 0.5 * TORSO_HEIGHT + 2 * ARM_PLATE[1], 9)
+
+
 class QuadrupedSpace(DesignSpace):
     """The quadruped manipulator design space."""
 
     name = "quadruped"
     has_contacts = True
     ee_count = 1
+    # Library single-arm motions are authored for an arm standing at the world origin; lifted by
+    # the nominal arm mount's height (0.39 m) they put that mount where the nominal quadruped's
+    # is, so they run in front of and above the body at standing height. The quadruped's arm is
+    # 0.1 m shorter than the library's ViperX; its base (moved by the legs) covers the difference.
+    motion_offset = (0.0, 0.0, NOMINAL_ARM_MOUNT_Z)
 
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
         return (
