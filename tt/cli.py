@@ -268,6 +268,37 @@ def demo(
     Console().print(rich_table(rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"))
 
 
+@app.command()
+def tokenize(
+    path: str = typer.Argument(..., help="MJCF .xml, URDF, or designs.json[#i]."),
+    as_json: bool = typer.Option(False, "--json", help="Print the counts as JSON."),
+    out: Optional[Path] = typer.Option(None, help="Save the tokens to this .npz file."),
+) -> None:
+    """Tokenize robots into RoboTokens; print counts per token type and the MJCF text size."""
+    from tt.tokens.cli import TokenCommandError, tokenize_cmd
+
+    try:
+        typer.echo(tokenize_cmd(path, as_json=as_json, out=None if out is None else str(out)))
+    except (TokenCommandError, FileNotFoundError, ValueError) as e:
+        _fail(str(e))
+
+
+@app.command()
+def detokenize(
+    path: Path = typer.Argument(..., help="Tokens .npz (from `tt tokenize --out`)."),
+    out: Path = typer.Option(..., help="Write the robot's MJCF here."),
+    index: int = typer.Option(0, help="Which robot of the file."),
+    space: Optional[str] = typer.Option(None, help="Also fit the design choices of this space (writes OUT.design.json)."),
+) -> None:
+    """Turn RoboTokens back into MJCF (and, for tt's spaces, design choices)."""
+    from tt.tokens.cli import TokenCommandError, detokenize_cmd
+
+    try:
+        typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space))
+    except (TokenCommandError, FileNotFoundError, ValueError) as e:
+        _fail(str(e))
+
+
 def _space_ok(space: str) -> bool:
     from tt.sim.designs import SPACE_NAMES
 

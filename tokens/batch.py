@@ -1,0 +1,167 @@
+"""`TokenBatch`: RoboTokens of N robots (or N episode samples) as padded fixed-width arrays."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, check_version
+
+
+@dataclass
+class TokenBatch:
+    """Tokens of N samples, per token type (numpy arrays or torch tensors, not mixed).
+
+    values[type]: encoded tokens (N, L_type, SCHEMA[type].width), float
+    ids[type]: positional-embedding IDs (N, L_type, len(SCHEMA[type].ids)), int64
+    mask[type]: True where a token is real, False for padding, (N, L_type) bool
+    version: schema version the tokens were written with
+
+    Types absent from the dicts have no tokens in this batch. Padding tokens hold zeros.
+    """
+
+    values: dict
+    ids: dict
+    mask: dict
+    version: int = SCHEMA_VERSION
+
+    def __post_init__(self) -> None:
+        for name, v in self.values.items():
+            t = SCHEMA[name]
+            if v.shape[-1] != t.width:
+                raise ValueError(f"values[{name!r}] has width {v.shape[-1]}, schema v{SCHEMA_VERSION} says {t.width}")
+            if name not in self.ids or name not in self.mask:
+                raise ValueError(f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, mask={name in self.mask}")
+            if tuple(self.ids[name].shape) != (*v.shape[:2], len(t.ids)):
+                raise ValueError(f"ids[{name!r}] has shape {tuple(self.ids[name].shape)}, expected {(*v.shape[:2], len(t.ids))}")
+            if tuple(self.mask[name].shape) != tuple(v.shape[:2]):
+                raise ValueError(f"mask[{name!r}] has shape {tuple(self.mask[name].shape)}, expected {tuple(v.shape[:2])}")
+
+    @property
+    def types(self) -> tuple[str, ...]:
+        """Token types present, in schema order."""
+        return tuple(n for n in SCHEMA.names() if n in self.values)
+
+    def __len__(self) -> int:
+        for v in self.values.values():
+            return int(v.shape[0])
+        return 0
+
+    def counts(self) -> dict[str, np.ndarray]:
+        """Real tokens per type and sample: type -> (N,) int."""
+        return {n: np.asarray(_np(self.mask[n]).sum(1)) for n in self.types}
+
+    def total(self) -> np.ndarray:
+        """Real tokens per sample over all types, (N,)."""
+        out = np.zeros(len(self), dtype=np.int64)
+        for c in self.counts().values():
+            out += c
+        return out
+
+    def select(self, index) -> "TokenBatch":
+        """Samples at `index` (int, slice or index array); an int keeps the leading axis."""
+        if isinstance(index, (int, np.integer)):
+            index = slice(int(index), int(index) + 1)
+        return TokenBatch({n: self.values[n][index] for n in self.types}, {n: self.ids[n][index] for n in self.types},
+                          {n: self.mask[n][index] for n in self.types}, self.version)
+
+    def subset(self, types: Sequence[str]) -> "TokenBatch":
+        """Only the token types in `types` (those present)."""
+        keep = [n for n in self.types if n in types]
+        return TokenBatch({n: self.values[n] for n in keep}, {n: self.ids[n] for n in keep}, {n: self.mask[n] for n in keep}, self.version)
+
+    def merge(self, other: "TokenBatch") -> "TokenBatch":
+        """Token types of both batches (same N); a type present in both is an error."""
+        if len(self) != len(other) and self.values and other.values:
+            raise ValueError(f"cannot merge batches of {len(self)} and {len(other)} samples")
+        both = set(self.types) & set(other.types)
+        if both:
+            raise ValueError(f"both batches hold token types {sorted(both)}")
+        check_version(other.version, "merged batch")
+        return TokenBatch({**self.values, **other.values}, {**self.ids, **other.ids}, {**self.mask, **other.mask}, self.version)
+
+    def to_torch(self, device: str = "cpu", dtype: torch.dtype = torch.float32) -> "TokenBatch":
+        """Torch tensors on `device` (values in `dtype`)."""
+        def t(x, dt):
+            return x.to(device=device, dtype=dt) if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), device=device, dtype=dt)
+        return TokenBatch({n: t(self.values[n], dtype) for n in self.types}, {n: t(self.ids[n], torch.int64) for n in self.types},
+                          {n: t(self.mask[n], torch.bool) for n in self.types}, self.version)
+
+    def to_numpy(self, dtype=np.float32) -> "TokenBatch":
+        """Numpy arrays on the host (values in `dtype`)."""
+        return TokenBatch({n: _np(self.values[n]).astype(dtype) for n in self.types}, {n: _np(self.ids[n]).astype(np.int64) for n in self.types},
+                          {n: _np(self.mask[n]).astype(bool) for n in self.types}, self.version)
+
+    def pad_to(self, lengths: dict[str, int]) -> "TokenBatch":
+        """Pad (never truncate) each type to ``lengths[type]`` tokens; absent types become empty
+        arrays of that length when named in `lengths`. Raises naming a type that is too long."""
+        values, ids, mask = {}, {}, {}
+        n = len(self)
+        for name in SCHEMA.names():
+            if name not in lengths and name not in self.values:
+                continue
+            t = SCHEMA[name]
+            cur = self.values[name].shape[1] if name in self.values else 0
+            want = lengths.get(name, cur)
+            if cur > want:
+                raise ValueError(f"token type {name!r} has {cur} tokens, more than the requested length {want}")
+            v = _np(self.values[name]) if name in self.values else np.zeros((n, 0, t.width), np.float32)
+            i = _np(self.ids[name]) if name in self.ids else np.zeros((n, 0, len(t.ids)), np.int64)
+            m = _np(self.mask[name]) if name in self.mask else np.zeros((n, 0), bool)
+            values[name] = np.concatenate([v, np.zeros((n, want - cur, t.width), v.dtype)], 1)
+            ids[name] = np.concatenate([i, np.zeros((n, want - cur, len(t.ids)), i.dtype)], 1)
+            mask[name] = np.concatenate([m, np.zeros((n, want - cur), bool)], 1)
+        return TokenBatch(values, ids, mask, self.version)
+
+    @staticmethod
+    def concatenate(batches: Sequence["TokenBatch"]) -> "TokenBatch":
+        """Stack batches along N, padding every type to the longest (numpy)."""
+        if not batches:
+            raise ValueError("concatenate needs at least one TokenBatch")
+        for b in batches:
+            check_version(b.version, "a concatenated batch")
+        names = [n for n in SCHEMA.names() if any(n in b.values for b in batches)]
+        lengths = {n: max(b.values[n].shape[1] if n in b.values else 0 for b in batches) for n in names}
+        padded = [b.pad_to(lengths) for b in batches]
+        return TokenBatch({n: np.concatenate([p.values[n] for p in padded]) for n in names},
+                          {n: np.concatenate([p.ids[n] for p in padded]) for n in names},
+                          {n: np.concatenate([p.mask[n] for p in padded]) for n in names})
+
+    # ---------------------------------------------------------------- files
+    def save(self, path: str | Path) -> None:
+        """Write an ``.npz`` with the arrays, the schema version and the schema description."""
+        arrays = {"schema_version": np.array(self.version), "schema": np.array(json.dumps(SCHEMA.to_dict()))}
+        for n in self.types:
+            arrays[f"{n}/values"] = _np(self.values[n]).astype(np.float32)
+            arrays[f"{n}/ids"] = _np(self.ids[n]).astype(np.int64)
+            arrays[f"{n}/mask"] = _np(self.mask[n]).astype(bool)
+        np.savez_compressed(Path(path), **arrays)
+
+    @staticmethod
+    def load(path: str | Path) -> "TokenBatch":
+        """Read a file written by `save`; raises `SchemaVersionError` for another schema version."""
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"token file {path} does not exist")
+        with np.load(path, allow_pickle=False) as f:
+            if "schema_version" not in f:
+                raise ValueError(f"{path} is not a RoboToken file (no 'schema_version' entry)")
+            version = int(f["schema_version"])
+            check_version(version, str(path))
+            names = sorted({k.split("/")[0] for k in f.files if "/" in k})
+            unknown = [n for n in names if n not in SCHEMA.names()]
+            if unknown:
+                raise ValueError(f"{path} holds unknown token types {unknown}; schema v{SCHEMA_VERSION} has {list(SCHEMA.names())}")
+            return TokenBatch({n: f[f"{n}/values"] for n in names}, {n: f[f"{n}/ids"] for n in names},
+                              {n: f[f"{n}/mask"] for n in names}, version)
+
+
+def _np(x) -> np.ndarray:
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy()
+    return np.asarray(x)
