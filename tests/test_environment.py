@@ -30,6 +30,6 @@ def test_simulator_stack_imports_together_at_pinned_versions():
     # newton 1.8 declares mujoco~=3.17 and mujoco-warp~=3.17: the pins must agree with it.
     assert mujoco.__version__.startswith("3.17") and version("mujoco-warp").startswith("3.17")
     assert torch.__version__.startswith("2.13")
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
     assert "cpu" in [str(d) for d in wp.get_devices()]

@@ -24,6 +24,11 @@ def _fail(message: str) -> None:
 @app.callback()
 def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at INFO level.")) -> None:
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if not verbose:
+        # Warp prints its banner and each module load to stdout; the CLI's output is its tables.
+        import warp as wp
+
+        wp.config.log_level = wp.LOG_WARNING
 
 
 @app.command()
@@ -163,9 +168,17 @@ def optimize(
     sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
     backend: str = typer.Option("warp", help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="zeroth/dgs: DiT checkpoint file or run folder."),
+    samples: Optional[int] = typer.Option(None, help="zeroth/dgs: candidates to sample (default: --budget)."),
+    num_steps: int = typer.Option(100, help="zeroth/dgs: DDIM steps."),
+    scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
+    sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
 ) -> None:
-    """Optimize a design for motions and a reward; validate the winner on the oracle."""
+    """Optimize a design for motions and a reward; validate the winner on the oracle.
+
+    Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
+    diffusion model's Zeroth-Order search and Dynamics Self-Guidance; need --checkpoint)."""
     from rich.console import Console
 
     from tt.baselines import Problem, get_optimizer
@@ -174,14 +187,25 @@ def optimize(
 
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     try:
-        options = {"popsize": popsize, "generations": generations, "sequential": sequential} if method == "cmaes" else {}
+        options: dict = {}
+        if method == "cmaes":
+            options = {"popsize": popsize, "generations": generations, "sequential": sequential}
+        elif method in ("zeroth", "dgs"):
+            if checkpoint is None:
+                raise ValueError(f"--method {method} needs --checkpoint (a run folder of `tt train`)")
+            options = {"checkpoint": str(checkpoint), "samples": samples, "num_steps": num_steps}
+            if method == "dgs":
+                options.update(scale=scale, sim_grad_weight=sim_grad_weight)
         opt = get_optimizer(method, **options)
         problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
         if method == "cmaes":
             opt.plan(problem)  # a budget below one population fails here, before any work
     except (DesignError, ValueError) as e:
         _fail(str(e))
-    result = opt.optimize(problem)
+    try:
+        result = opt.optimize(problem)
+    except (ValueError, FileNotFoundError) as e:
+        _fail(str(e))
     sp = get_space(space)
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds

@@ -7,7 +7,7 @@ def default_device() -> str:
     """``"cuda"`` when Warp sees a CUDA device, else ``"cpu"``."""
     import warp as wp
 
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
     return "cuda" if wp.is_cuda_available() else "cpu"
 
@@ -18,7 +18,7 @@ def resolve_device(device: str | None) -> str:
 
     if device is None:
         return default_device()
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
     names = [str(d) for d in wp.get_devices()]
     aliases = {"cuda": "cuda:0"}

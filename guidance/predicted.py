@@ -1,0 +1,344 @@
+"""What the model is asked for a motion, and the reward of what it predicts.
+
+The motion-to-robot query. For one motion, a sequence holds the target poses of S control
+steps (the layout's window, 8 in the paper) as conditioning tokens, and every embodiment,
+dynamics and action slot of the layout to be diffused. IDs are positional: embodiment
+slot i of a type is entity i (types with a joint-order ID hold two slots per entity:
+entity i // 2, order i % 2); per-step slot j of a step is entity j at that step's time
+ID. The robot does not exist yet, so every slot gets the ID a real token in that slot
+would have; the model's padding prediction (every value at PAD_VALUE) says which slots
+the robot does not use.
+
+Which steps. ``"even"`` (default) takes the midpoints of S equal strata of the motion,
+``floor((k + 1/2) T / S)`` for k < S: every candidate is judged on the same steps, and
+the steps cover the whole motion. ``"random"`` draws S distinct steps uniformly per
+sequence, as training windows are drawn (`tt.tokens.episodes.sample_steps`).
+
+The predicted reward. From the predicted clean tokens x0 (normalised; `sample`'s x0_hat
+or its final tokens): denormalise (`tt.dit.Normalizer`, differentiable), then
+
+* track-link observations -> end-effector poses at the S steps: position as is; the 9
+  rotation values are projected onto SO(3) by Gram-Schmidt on the first two columns (no
+  SVD, so gradients stay finite), then turned into a quaternion;
+* actuator observations -> actuator force and velocity; slots the predicted robot does not
+  use (its actuator token, or failing that the observation itself, is padding) count 0;
+* link tokens -> size and mass (`token_size`, `token_mass`, the formulas of
+  `tt.guidance.rewards.robot_size` / `robot_mass` on token values).
+
+These fill a `RewardInputs` of S steps, evaluated by `tt.guidance.rewards.evaluate`, the
+one definition of each reward. The S steps are a sample of the motion's T steps, so the
+episode reward is estimated as (T / S) x the S-step reward: each counted step stands for
+T / S steps of the motion, and the embodiment penalty, S alpha excess over S steps, scales
+to T alpha excess, exactly the full episode's penalty. Termination applies to the
+subsample (the first of the S steps whose summed position error exceeds the threshold
+ends the count). Falls are not predicted (no token says the robot fell).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import numpy as np
+import torch
+
+from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
+from tt.dit.normalization import Normalizer
+from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
+from tt.sim.motions.base import Motion
+from tt.tokens.encodings import decode_binary, decode_log
+from tt.tokens.normalize import is_padding
+from tt.tokens.schema import GEOM_TYPES, SCHEMA
+
+#: Ways to choose a query's control steps (see the module docstring).
+PLACEMENTS = ("even", "random")
+
+_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = (
+    GEOM_TYPES.index(n) for n in ("sphere", "capsule", "ellipsoid", "cylinder", "box")
+)
+
+
+# ------------------------------------------------------------------------------ steps
+def query_steps(motion_steps: int, window: int, count: int, *, placement: str = "even",
+                generator: torch.Generator | None = None) -> torch.Tensor:
+    """Control steps of `count` sequences of one motion, (count, window) long, ascending.
+
+    motion_steps: T of the motion; window: S steps per sequence; placement: "even" or
+    "random"; generator: CPU generator for "random".
+    """
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement {placement!r} is not one of {list(PLACEMENTS)}")
+    if motion_steps < 1 or window < 1:
+        raise ValueError(f"a query needs motion_steps >= 1 and window >= 1, got {motion_steps} and {window}")
+    if placement == "even":
+        k = torch.arange(window, dtype=torch.float64)
+        steps = torch.floor((k + 0.5) * motion_steps / window).long().clamp(max=motion_steps - 1)
+        return steps[None].expand(count, window).clone()
+    from tt.tokens.episodes import sample_steps
+
+    steps, _ = sample_steps(torch.full((count,), motion_steps, dtype=torch.long), window, "random", generator,
+                            horizon=motion_steps)
+    return steps
+
+
+# ------------------------------------------------------------------------------ query
+@dataclass
+class RobotQuery:
+    """B motion-to-robot sequences of one motion.
+
+    tokens: normalised tokens, conditioning set, diffused slots at 0 (the sampler replaces
+        them with noise); steps: (B, S) control steps of each sequence's window;
+    motion_steps: T, the motion's length in steps; target_pos (B, S, A, 3) [m] and
+    target_quat (B, S, A, 4) (w, x, y, z): the targets at those steps, float32.
+    """
+
+    tokens: TokenTensors
+    steps: torch.Tensor
+    motion_steps: int
+    target_pos: torch.Tensor
+    target_quat: torch.Tensor
+
+    @property
+    def track_count(self) -> int:
+        return int(self.target_pos.shape[2])
+
+
+def _entity_ids(spec: TokenSpec, slots: int, id_sizes) -> list[torch.Tensor]:
+    """Positional IDs (slots,) per ID kind except time (see the module docstring)."""
+    pos = torch.arange(slots)
+    paired = "order" in spec.ids
+    cols = []
+    for kind in spec.ids:
+        if kind == "time":
+            cols.append(torch.zeros_like(pos))
+        elif kind == "order":
+            cols.append(pos % 2)
+        else:
+            cols.append((pos // 2 if paired else pos).clamp(max=id_sizes[kind] - 1))
+    return cols
+
+
+def _rotation_matrix(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) (w, x, y, z) -> rotation matrices (..., 3, 3)."""
+    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], -1).reshape(*q.shape[:-1], 3, 3)
+
+
+def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: int, *, placement: str = "even",
+                generator: torch.Generator | None = None, device: str | torch.device = "cpu") -> RobotQuery:
+    """`count` motion-to-robot sequences conditioned on `motion` (see the module docstring).
+
+    layout: the model's layout (RoboToken schema types, with ``target_pose``); normalizer:
+    the model's; generator: CPU generator for ``placement="random"``.
+    Raises LayoutError when the layout cannot hold the motion (no target tokens, fewer
+    track slots than end effectors, a motion longer than the time-ID table).
+    """
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    if "target_pose" not in layout:
+        raise LayoutError(f"the model's layout has no target_pose tokens to condition on; types: {list(layout.names)}")
+    target_spec = layout["target_pose"]
+    arms = motion.arms
+    if target_spec.per_step < arms:
+        raise LayoutError(f"motion {motion.name!r} has {arms} end effectors, the model's layout "
+                          f"{target_spec.per_step} track slots")
+    time_rows = layout.id_sizes.get("time", 0)
+    if motion.steps > time_rows:
+        raise LayoutError(f"motion {motion.name!r} has {motion.steps} steps, the model's time IDs only {time_rows} rows")
+    S = layout.steps
+    steps = query_steps(motion.steps, S, count, placement=placement, generator=generator)  # (B, S)
+    pos = torch.as_tensor(motion.pos, dtype=torch.float64)[steps]  # (B, S, A, 3)
+    quat = torch.as_tensor(motion.quat, dtype=torch.float64)[steps]  # (B, S, A, 4)
+    values, ids, mask = {}, {}, {}
+    for spec in layout.specs:
+        per = spec.per_step if spec.role in STEP_ROLES else spec.length
+        cols = _entity_ids(spec, per, layout.id_sizes)
+        if spec.role in STEP_ROLES:
+            i = torch.stack(cols, -1)[None, None].expand(count, S, per, len(spec.ids)).clone()  # (B, S, P, K)
+            i[..., spec.time_index] = steps[:, :, None]
+            ids[spec.name] = i.reshape(count, S * per, -1)
+        else:
+            ids[spec.name] = torch.stack(cols, -1)[None].expand(count, per, len(spec.ids)).clone()
+        if spec.role is Role.CONDITION:
+            if spec.name != "target_pose":
+                raise LayoutError(f"conditioning type {spec.name!r} is not a target pose; this query fills target_pose only")
+            raw = np.zeros((count, S, per, spec.dim))
+            t = SCHEMA["target_pose"]
+            raw[:, :, :arms, t.slice("pos")] = pos.numpy()
+            raw[:, :, :arms, t.slice("rot")] = _rotation_matrix(quat.numpy()).reshape(count, S, arms, 9)
+            real = torch.zeros(count, S, per, dtype=torch.bool)
+            real[:, :, :arms] = True
+            real = real.reshape(count, S * per)
+            raw_t = torch.as_tensor(raw, dtype=torch.float32).reshape(count, S * per, spec.dim)
+            values[spec.name] = normalizer.normalize_values(spec.name, raw_t, real)
+            mask[spec.name] = real
+        else:
+            values[spec.name] = torch.zeros(count, spec.length, spec.dim)
+            mask[spec.name] = torch.ones(count, spec.length, dtype=torch.bool)
+    tokens = TokenTensors(values, ids, mask).to(device)
+    return RobotQuery(tokens, steps.to(device), int(motion.steps), pos.float().to(device), quat.float().to(device))
+
+
+# ------------------------------------------------------------------------------ geometry
+def orthonormalize(m: torch.Tensor) -> torch.Tensor:
+    """Nine values (..., 9) row-major -> rotation matrices (..., 3, 3) by Gram-Schmidt on the
+    first two columns (third = their cross product). Exact on rotations; differentiable
+    wherever the first two columns are independent (degenerate input gets a finite result)."""
+    r = m.reshape(*m.shape[:-1], 3, 3)
+    a, b = r[..., :, 0], r[..., :, 1]
+    e1 = a / torch.linalg.vector_norm(a, dim=-1, keepdim=True).clamp_min(1e-8)
+    b = b - (e1 * b).sum(-1, keepdim=True) * e1
+    e2 = b / torch.linalg.vector_norm(b, dim=-1, keepdim=True).clamp_min(1e-8)
+    e3 = torch.linalg.cross(e1, e2, dim=-1)
+    return torch.stack([e1, e2, e3], dim=-1)
+
+
+def matrix_to_quat(r: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) (w, x, y, z).
+
+    Each of the four classic formulas gives 4 q_i q from linear terms of R; the one with the
+    largest q_i^2 (at least 1/4 for a rotation) is used and normalised, so no square root
+    and no division by a small number enters the gradient.
+    """
+    r00, r01, r02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
+    r10, r11, r12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
+    r20, r21, r22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
+    cand = torch.stack([
+        torch.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
+        torch.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
+        torch.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
+        torch.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
+    ], -2)  # (..., 4 formulas, 4)
+    pick = torch.diagonal(cand, dim1=-2, dim2=-1).argmax(-1)  # (...)
+    q = torch.gather(cand, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
+    return q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def token_size(geom_code: torch.Tensor, size: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
+    """Robot size [m] from link tokens, (B,): the sum over real links of each geom's longest
+    dimension, as `tt.guidance.rewards.robot_size` measures a compiled model.
+
+    geom_code: (B, L) long (`tt.tokens.schema.GEOM_TYPES`; unknown codes count 0);
+    size: (B, L, 3) MuJoCo size convention [m] (negative values count 0); real: (B, L) bool.
+    """
+    s = size.clamp_min(0.0)
+    r, h = s[..., 0], s[..., 1]
+    longest = torch.zeros_like(r)
+    longest = torch.where(geom_code == _SPHERE, 2 * r, longest)
+    longest = torch.where(geom_code == _CAPSULE, 2 * (r + h), longest)
+    longest = torch.where(geom_code == _CYLINDER, 2 * torch.maximum(r, h), longest)
+    box_like = (geom_code == _BOX) | (geom_code == _ELLIPSOID)
+    longest = torch.where(box_like, 2 * s.amax(-1), longest)
+    return torch.where(real, longest, torch.zeros_like(longest)).sum(-1)
+
+
+def token_mass(mass: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
+    """Robot mass [kg] from link masses (B, L) [kg] of real links (B, L), (B,): the links
+    carry the whole body masses (`tt.tokens.inertia` splits each body over its links), so
+    their sum is `tt.guidance.rewards.robot_mass`."""
+    return torch.where(real, mass, torch.zeros_like(mass)).sum(-1)
+
+
+# ------------------------------------------------------------------------------ reward
+def _attr(name: str, raw: torch.Tensor, attr: str) -> torch.Tensor:
+    return raw[..., SCHEMA[name].slice(attr)]
+
+
+class PredictedReward:
+    """The reward of predicted tokens for one `RobotQuery` (see the module docstring).
+
+    layout, normalizer: the model's; cfg: the reward; query: the sequences x0 belongs to.
+    Calling it on x0 (type -> (B, L, D) normalised) returns the episode reward estimate,
+    (B,), differentiable in x0.
+    """
+
+    def __init__(self, layout: Layout, normalizer: Normalizer, cfg: RewardConfig, query: RobotQuery):
+        self.layout = layout
+        self.normalizer = normalizer
+        self.cfg = cfg
+        self.query = query
+        need = ["track_link_obs"]
+        if "act_force" in cfg.needs or "act_vel" in cfg.needs:
+            need.append("actuator_obs")
+        if "size" in cfg.needs or "mass" in cfg.needs:
+            need.append("link")
+        missing = [n for n in need if n not in layout]
+        if missing:
+            raise LayoutError(f"reward {cfg.name!r} reads predicted {missing}, which the model's layout lacks; "
+                              f"types: {list(layout.names)}")
+        if layout["track_link_obs"].per_step < query.track_count:
+            raise LayoutError(f"the layout has {layout['track_link_obs'].per_step} track-link slots per step, "
+                              f"the motion {query.track_count} end effectors")
+
+    @property
+    def scale(self) -> float:
+        """T / S: motion steps each predicted step stands for."""
+        return self.query.motion_steps / self.layout.steps
+
+    def _step_view(self, name: str, raw: torch.Tensor) -> torch.Tensor:
+        """(B, S * P, D) -> (B, S, P, D)."""
+        spec = self.layout[name]
+        return raw.reshape(raw.shape[0], self.layout.steps, spec.per_step, raw.shape[-1])
+
+    def inputs(self, x0: dict[str, torch.Tensor]) -> RewardInputs:
+        """`RewardInputs` of S steps from predicted tokens (all fields the layout allows)."""
+        norm, A = self.normalizer, self.query.track_count
+        track = self._step_view("track_link_obs", norm.denormalize_values("track_link_obs", x0["track_link_obs"]))[:, :, :A]
+        ee_pos = _attr("track_link_obs", track, "pos")  # (B, S, A, 3)
+        ee_quat = matrix_to_quat(orthonormalize(_attr("track_link_obs", track, "rot")))  # (B, S, A, 4)
+        fields = {}
+        if "actuator_obs" in self.layout:
+            obs = self._step_view("actuator_obs", norm.denormalize_values("actuator_obs", x0["actuator_obs"]))  # (B, S, P, 2)
+            p = obs.shape[2]
+            with torch.no_grad():
+                if "actuator" in self.layout and self.layout["actuator"].length >= p:
+                    used = ~is_padding(x0["actuator"][:, :p])[:, None, :]  # (B, 1, P)
+                else:
+                    used = ~is_padding(self._step_view("actuator_obs", x0["actuator_obs"]))  # (B, S, P)
+            zero = torch.zeros((), dtype=obs.dtype, device=obs.device)
+            fields["act_force"] = torch.where(used, _attr("actuator_obs", obs, "force")[..., 0], zero)
+            fields["act_vel"] = torch.where(used, _attr("actuator_obs", obs, "velocity")[..., 0], zero)
+        if "link" in self.layout:
+            link = norm.denormalize_values("link", x0["link"])  # (B, L, 35)
+            with torch.no_grad():
+                real = ~is_padding(x0["link"])
+                code = decode_binary(_attr("link", link, "geom_type"))
+            fields["size"] = token_size(code, _attr("link", link, "size"), real)
+            mass_attr = SCHEMA["link"].attribute("mass")
+            fields["mass"] = token_mass(decode_log(_attr("link", link, "mass")[..., 0], mass_attr.log_offset), real)
+        q = self.query
+        dtype = ee_pos.dtype
+        return RewardInputs(ee_pos=ee_pos, ee_quat=ee_quat, target_pos=q.target_pos.to(dtype),
+                            target_quat=q.target_quat.to(dtype), **{k: v.to(dtype) for k, v in fields.items()})
+
+    def __call__(self, x0: dict[str, torch.Tensor], *, guidance: bool = False) -> torch.Tensor:
+        """Episode reward estimate (T / S) x R_S, (B,); guidance: the guidance alphas."""
+        return self.scale * evaluate(self.inputs(x0), self.cfg, guidance=guidance).reward
+
+
+def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Predicted metrics of each sequence (`tt.guidance.rewards.metrics` on the S steps;
+    reward scaled to the motion length), detached, each (B,)."""
+    from tt.guidance.rewards import metrics
+
+    with torch.no_grad():
+        out = metrics(reward.inputs(x0), reward.cfg)
+        out["reward"] = out["reward"] * reward.scale
+    return out
+
+
+__all__ = [
+    "PLACEMENTS",
+    "PredictedReward",
+    "RobotQuery",
+    "build_query",
+    "matrix_to_quat",
+    "orthonormalize",
+    "predicted_metrics",
+    "query_steps",
+    "token_mass",
+    "token_size",
+]

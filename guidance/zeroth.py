@@ -1,0 +1,406 @@
+"""Zeroth-Order optimization: n parallel diffusion processes, ranked by the model's own prediction.
+
+For a problem (design space, motions, reward), `CandidateSampler` runs the trained DiT's
+motion-to-robot process for n candidates at once, conditioned on the target motions
+(`tt.guidance.predicted.build_query`; several motions are composed, `tt.guidance.compose`),
+and scores each candidate with the reward of its own predicted dynamics and embodiment
+tokens (`tt.guidance.predicted.PredictedReward`, the reported alphas): the objective is the
+mean over motions of the predicted episode reward. No simulator runs.
+
+Candidates are ranked by that objective and decoded to designs of the problem's space
+(`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
+choice of the space and the continuous choices fitted). A candidate that does not decode
+(no discrete choice has its token structure) is ranked last and counted. ``decode="best"``
+decodes in rank order until one succeeds, which is what `optimize` needs; ``"all"``
+decodes every candidate, for the full ranking.
+
+The same sampler with a guidance hook is Dynamics Self-Guidance (`tt.guidance.selfguide`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol, Sequence
+
+import numpy as np
+import torch
+
+from tt.baselines.problem import Optimizer, Problem, Result
+from tt.dit.checkpoint import TrainedModel, load_model
+from tt.dit.ddim import CosineDDIM
+from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
+from tt.dit.normalization import Normalizer
+from tt.dit.sampling import GuideFn, sample
+from tt.dit.tasks import ROBOT
+from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
+from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
+from tt.guidance.rewards import RewardConfig, get_reward
+from tt.sim.designs import Design, DesignSpace, get_space
+from tt.sim.motions.base import Motion
+
+log = logging.getLogger(__name__)
+
+#: Decoding policies (see the module docstring).
+DECODE_MODES = ("best", "all")
+
+
+# ------------------------------------------------------------------------------ config
+@dataclass(frozen=True)
+class SamplerConfig:
+    """How the learned optimizers sample.
+
+    checkpoint: checkpoint file or run folder (its latest checkpoint); None when the
+        optimizer is given a loaded model. samples: candidates n (None: the problem's
+        budget). num_steps: DDIM steps (None: all 100 of the motion-to-robot process).
+    eta: DDIM noise (0 deterministic). placement: the query's control steps, "even" or
+        "random" (`tt.guidance.predicted`). decode: "best" or "all". chunk: candidates per
+        sampling call (None: all n at once; lower it when n x motions sequences do not fit
+        in memory).
+    """
+
+    checkpoint: str | Path | None = None
+    samples: int | None = None
+    num_steps: int | None = None
+    eta: float = 0.0
+    placement: str = "even"
+    decode: str = "best"
+    chunk: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.samples is not None and self.samples < 1:
+            raise ValueError(f"samples = {self.samples}; must be >= 1")
+        if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
+            raise ValueError(f"num_steps = {self.num_steps}; must be in 1 .. {ROBOT.diffusion_steps}")
+        if not self.eta >= 0:
+            raise ValueError(f"eta = {self.eta}; must be >= 0")
+        if self.placement not in PLACEMENTS:
+            raise ValueError(f"placement = {self.placement!r}; valid: {list(PLACEMENTS)}")
+        if self.decode not in DECODE_MODES:
+            raise ValueError(f"decode = {self.decode!r}; valid: {list(DECODE_MODES)}")
+        if self.chunk is not None and self.chunk < 1:
+            raise ValueError(f"chunk = {self.chunk}; must be >= 1 or None")
+
+
+# ------------------------------------------------------------------------------ sampling
+@dataclass
+class GuideContext:
+    """What a guidance hook needs for one sampling call of n candidates over M motions.
+
+    objective(x0, guidance) -> (n, M): predicted episode reward of each candidate on each
+    motion from composed x0 (guidance: use the guidance alphas); scheduler, timesteps: the
+    DDIM schedule (``timesteps[step]`` is t); embodiment: the embodiment type names (shared
+    by the copies); layout: the composed layout; motions, queries: the motions and their
+    per-motion queries; split: composed dict -> per-motion dicts.
+    """
+
+    objective: Callable[[dict[str, torch.Tensor], bool], torch.Tensor]
+    scheduler: CosineDDIM
+    timesteps: list[int]
+    embodiment: tuple[str, ...]
+    layout: Layout
+    motions: tuple[Motion, ...]
+    queries: list
+    split: Callable[[dict[str, torch.Tensor]], list[dict[str, torch.Tensor]]]
+
+
+class Guidance(Protocol):
+    """A guidance method: builds the `sample` hook for one call; keeps its own statistics."""
+
+    def hook(self, ctx: GuideContext) -> GuideFn: ...
+
+    def summary(self) -> dict: ...
+
+
+@dataclass
+class Generation:
+    """n sampled candidates for M motions.
+
+    tokens: final composed tokens (normalised), n sequences; layout: the composed layout;
+    reward: (n, M) predicted episode reward per motion (reported alphas); objective: (n,)
+    its mean over motions; metrics: name -> (n, M) predicted metrics
+    (`tt.guidance.predicted.predicted_metrics`); seconds: sampling wall time.
+    """
+
+    tokens: TokenTensors
+    layout: Layout
+    reward: np.ndarray
+    objective: np.ndarray
+    metrics: dict[str, np.ndarray]
+    seconds: float
+
+
+class CandidateSampler:
+    """Samples and scores candidates of a trained model (see the module docstring).
+
+    trained: the model (EMA weights), its normaliser and layout; device: where to run.
+    """
+
+    def __init__(self, trained: TrainedModel, device: str | torch.device | None = None):
+        self.trained = trained
+        if device is None:
+            held = next(iter([*trained.model.parameters(), *trained.model.buffers()]), None)
+            device = held.device if held is not None else "cpu"
+        self.device = torch.device(device)
+        self.model = trained.model.to(self.device).eval()
+        trained.normalizer.check(trained.layout)
+
+    def _objective(self, rewards: list[PredictedReward], split) -> Callable[[dict[str, torch.Tensor], bool], torch.Tensor]:
+        def objective(x0: dict[str, torch.Tensor], guidance: bool = False) -> torch.Tensor:
+            parts = split(x0)
+            return torch.stack([r(p, guidance=guidance) for r, p in zip(rewards, parts)], dim=1)  # (n, M)
+        return objective
+
+    def run(self, motions: Sequence[Motion], cfg: RewardConfig, samples: int, *, seed: int = 0,
+            num_steps: int | None = None, eta: float = 0.0, placement: str = "even", chunk: int | None = None,
+            guidance: Guidance | None = None) -> Generation:
+        """n = `samples` candidates for `motions`, scored by reward `cfg`; `guidance` steers
+        the embodiment tokens (None: plain sampling, Zeroth-Order)."""
+        motions = tuple(motions)
+        if not motions:
+            raise ValueError("motions is empty; give at least one target motion")
+        layout, norm = self.trained.layout, self.trained.normalizer
+        M = len(motions)
+        composed = ComposedModel(self.model, M)
+        scheduler = CosineDDIM(ROBOT.diffusion_steps)
+        timesteps = scheduler.timesteps(num_steps)
+        embodiment = tuple(s.name for s in layout.specs if s.role not in STEP_ROLES)
+        generator = torch.Generator(device=self.device).manual_seed(int(seed))
+        placement_gen = torch.Generator().manual_seed(int(seed))
+        chunk = samples if chunk is None else min(int(chunk), samples)
+        start = time.perf_counter()
+
+        def split(values: dict[str, torch.Tensor]) -> list[dict[str, torch.Tensor]]:
+            return split_values(layout, values, M)
+
+        outs, rewards, metrics = [], [], []
+        for c0 in range(0, samples, chunk):
+            c = min(chunk, samples - c0)
+            queries = [build_query(layout, norm, m, c, placement=placement, generator=placement_gen, device=self.device)
+                       for m in motions]
+            tokens = compose_tokens(layout, [q.tokens for q in queries])
+            scorers = [PredictedReward(layout, norm, cfg, q) for q in queries]
+            hook = None
+            if guidance is not None:
+                ctx = GuideContext(self._objective(scorers, split), scheduler, timesteps, embodiment, composed.layout,
+                                   motions, queries, split)
+                hook = guidance.hook(ctx)
+            res = sample(composed, tokens, ROBOT, scheduler=scheduler, num_steps=num_steps, eta=eta, generator=generator,
+                         guide=hook, guided=embodiment if hook is not None else None)
+            parts = split_tokens(layout, res.tokens, M)
+            with torch.no_grad():
+                rewards.append(torch.stack([s(p.values) for s, p in zip(scorers, parts)], dim=1).cpu())
+                per = [predicted_metrics(s, p.values) for s, p in zip(scorers, parts)]
+                metrics.append({k: torch.stack([d[k] for d in per], dim=1).cpu() for k in per[0]})
+            outs.append(res.tokens)
+            log.info("sampled candidates %d..%d of %d", c0, c0 + c - 1, samples)
+        seconds = time.perf_counter() - start
+        reward = torch.cat(rewards).double().numpy()
+        return Generation(
+            tokens=TokenTensors.cat(outs) if len(outs) > 1 else outs[0],
+            layout=composed.layout,
+            reward=reward,
+            objective=reward.mean(axis=1),
+            metrics={k: torch.cat([m[k] for m in metrics]).double().numpy() for k in metrics[0]},
+            seconds=seconds,
+        )
+
+
+# ------------------------------------------------------------------------------ decoding
+@dataclass
+class Decoded:
+    """One candidate's decoding: design (None when it failed), error (why), residual (RMS
+    token mismatch of the fitted design, inf on failure)."""
+
+    design: Design | None
+    error: str | None = None
+    residual: float = float("inf")
+
+
+#: decoder(embodiment TokenBatch (encoded, padding detected), index) -> Decoded.
+Decoder = Callable[[object, int], Decoded]
+
+
+class DesignDecoder:
+    """Decodes embodiment tokens to designs of one space (`tt.tokens.design_from_tokens`),
+    keeping the space's candidate table between calls (ViperX: ~10 s to build).
+
+    table: a prebuilt `tt.tokens.CandidateTable` of `space` (None: every discrete choice,
+    built at the first call).
+    """
+
+    def __init__(self, space: DesignSpace, table=None):
+        if table is not None and table.space is not space:
+            raise ValueError(f"the candidate table is of space {table.space.name!r}, not {space.name!r}")
+        self.space = space
+        self._table = table
+
+    def __call__(self, tokens, index: int) -> Decoded:
+        from tt.tokens.design_fit import CandidateTable, design_from_tokens
+
+        if self._table is None:
+            self._table = CandidateTable(self.space)
+        try:
+            fit = design_from_tokens(tokens, index, self.space, table=self._table)
+        except Exception as e:  # a candidate's tokens may break the fit in any way; report, do not crash
+            return Decoded(None, f"decoding failed: {type(e).__name__}: {e}")
+        if fit.design is None:
+            return Decoded(None, f"no discrete choice of space {self.space.name!r} has this token structure")
+        return Decoded(fit.design, None, fit.residual)
+
+
+def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenTensors):
+    """The embodiment tokens of n candidates (normalised, `layout`'s types) as a numpy
+    `tt.tokens.TokenBatch` of encoded values, padding detected from the values (as the
+    detokenizer expects)."""
+    from tt.tokens.batch import TokenBatch
+
+    if layout.schema_version is None:
+        raise LayoutError("the model's layout is not a RoboToken schema layout; candidates cannot be decoded to designs")
+    names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
+    batch = TokenBatch({n: tokens.values[n].detach().float().cpu() for n in names},
+                       {n: tokens.ids[n].cpu() for n in names}, {n: tokens.mask[n].cpu() for n in names}, layout.schema_version)
+    return normalizer.to_schema_normalizer().unnormalize(batch, detect_padding=True, clip=True).to_numpy()
+
+
+@dataclass
+class Ranking:
+    """Candidates ranked: order (n,) candidate indices, best first (decoded or not yet tried
+    by predicted objective, failed decodes last); decoded: index -> `Decoded` for every
+    candidate tried; failures: how many failed."""
+
+    order: list[int]
+    decoded: dict[int, Decoded] = field(default_factory=dict)
+
+    @property
+    def failures(self) -> int:
+        return sum(d.design is None for d in self.decoded.values())
+
+    @property
+    def best(self) -> int | None:
+        """Best candidate that decoded, None if none did."""
+        for i in self.order:
+            d = self.decoded.get(i)
+            if d is not None and d.design is not None:
+                return i
+        return None
+
+
+def rank_candidates(objective: np.ndarray, batch, decoder: Decoder, *, decode: str = "best") -> Ranking:
+    """Rank by predicted objective (NaN last), decode, move failed decodes last (see module)."""
+    obj = np.where(np.isfinite(objective), objective, -np.inf)
+    order = [int(i) for i in np.argsort(-obj, kind="stable")]
+    decoded: dict[int, Decoded] = {}
+    for i in order:
+        decoded[i] = decoder(batch, i)
+        if decode == "best" and decoded[i].design is not None:
+            break
+    ok = [i for i in order if i not in decoded or decoded[i].design is not None]
+    failed = [i for i in order if i in decoded and decoded[i].design is None]
+    return Ranking(ok + failed, decoded)
+
+
+# ------------------------------------------------------------------------------ optimizer
+def resolve_model(trained: TrainedModel | None, checkpoint, device: str | None) -> TrainedModel:
+    """The given model, or the checkpoint's loaded on `device` (default: `tt.device.default_device()`)."""
+    if trained is not None:
+        return trained
+    if checkpoint is None:
+        raise ValueError("a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model")
+    from tt.device import default_device
+
+    return load_model(checkpoint, device=device or default_device())
+
+
+def learned_result(method: str, problem: Problem, gen: Generation, ranking: Ranking, seconds: float, *,
+                   rollouts: int = 0, history: list[float] | None = None, info: dict | None = None) -> Result:
+    """A `Result` of a learned optimizer: designs / rewards are the decoded candidates in rank
+    order with their predicted objectives; info holds the whole ranking."""
+    best = ranking.best
+    if best is None:
+        reasons = sorted({d.error for d in ranking.decoded.values() if d.error})
+        raise ValueError(f"none of the {len(gen.objective)} candidates decoded to a design of space {problem.space!r}: "
+                         f"{'; '.join(reasons)}")
+    done = [i for i in ranking.order if i in ranking.decoded and ranking.decoded[i].design is not None]
+    designs = [ranking.decoded[i].design for i in done]
+    rewards = gen.objective[done]
+    full = {
+        "samples": int(len(gen.objective)),
+        "ranking": ranking.order,
+        "predicted_objective": [float(v) for v in gen.objective],
+        "predicted_reward_per_motion": gen.reward.tolist(),
+        "predicted_metrics_best": {k: [float(x) for x in v[best]] for k, v in gen.metrics.items()},
+        "decoded": len(ranking.decoded),
+        "decode_failures": ranking.failures,
+        "decode_errors": {str(i): d.error for i, d in ranking.decoded.items() if d.error},
+        "residual_best": float(ranking.decoded[best].residual),
+        "best_candidate": int(best),
+        "sample_seconds": gen.seconds,
+    }
+    full.update(info or {})
+    return Result(method=method, best=ranking.decoded[best].design, best_reward=float(gen.objective[best]),
+                  designs=designs, rewards=np.asarray(rewards, dtype=np.float64), seconds=seconds, rollouts=rollouts,
+                  history=history if history is not None else [float(gen.objective[best])], info=full)
+
+
+class ZerothOrder(Optimizer):
+    """The paper's Zeroth-Order optimizer: best of n model samples, ranked by the model.
+
+    config: `SamplerConfig`; model: a loaded model (else ``config.checkpoint`` is loaded on
+    the problem's device at the first `optimize`); decoder: candidate decoder (default
+    `DesignDecoder` of the problem's space).
+    """
+
+    name = "zeroth"
+
+    def __init__(self, config: SamplerConfig = SamplerConfig(), *, model: TrainedModel | None = None,
+                 decoder: Decoder | None = None):
+        self.config = config
+        self._trained = model
+        self._decoder = decoder
+        self._decoders: dict[str, DesignDecoder] = {}
+
+    def _setup(self, problem: Problem) -> tuple[CandidateSampler, Decoder, RewardConfig, int]:
+        c = self.config
+        self._trained = resolve_model(self._trained, c.checkpoint, problem.device)
+        sampler = CandidateSampler(self._trained, problem.device)
+        if self._decoder is not None:
+            decoder = self._decoder
+        else:
+            decoder = self._decoders.setdefault(problem.space, DesignDecoder(get_space(problem.space)))
+        return sampler, decoder, get_reward(problem.reward, problem.space), c.samples or problem.budget
+
+    def _rank(self, gen: Generation, decoder: Decoder) -> Ranking:
+        batch = embodiment_batch(self._trained.layout, self._trained.normalizer, gen.tokens)
+        return rank_candidates(gen.objective, batch, decoder, decode=self.config.decode)
+
+    def optimize(self, problem: Problem) -> Result:
+        c = self.config
+        start = time.perf_counter()
+        sampler, decoder, cfg, n = self._setup(problem)
+        gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
+                          placement=c.placement, chunk=c.chunk)
+        ranking = self._rank(gen, decoder)
+        return learned_result(self.name, problem, gen, ranking, time.perf_counter() - start,
+                              info={"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement})
+
+
+__all__ = [
+    "DECODE_MODES",
+    "CandidateSampler",
+    "Decoded",
+    "Decoder",
+    "DesignDecoder",
+    "Generation",
+    "GuideContext",
+    "Guidance",
+    "Ranking",
+    "SamplerConfig",
+    "ZerothOrder",
+    "embodiment_batch",
+    "learned_result",
+    "rank_candidates",
+    "resolve_model",
+]
