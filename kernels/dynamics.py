@@ -1,0 +1,572 @@
+"""Joint-space dynamics of contact-free articulated trees, stepped like MuJoCo's Euler.
+
+One physics step of a world (all in thread-local memory, see `dynamics_funcs`):
+
+1. Kinematics (`tt.kernels.fk`), then each body's mass m, first moment h = m c and
+   rotational inertia J about a reference point (the first body's origin, which keeps
+   float32 lever arms short), and each dof's motion axis s = (w, v) there.
+2. Mass matrix by the composite-rigid-body algorithm, plus armature on the diagonal.
+3. Bias forces C(q, qd) qd + g(q) by recursive Newton-Euler with the base accelerating at -g.
+4. Passive forces: -damping qd - stiffness (q - springref).
+5. Actuators (MuJoCo's stateless affine actuators on joint transmissions):
+   ctrl clamped to ctrlrange, force = gain ctrl + b0 + b1 gear q + b2 gear qd clamped to
+   forcerange, joint force gear * force. A position actuator is gain = kp, b = (0, -kp, -kv).
+6. Joint limits as MuJoCo's soft constraints (solref / solimp): a limit row is active when
+   q is past its range; its force minimises MuJoCo's dual objective
+   1/2 f (A + R) f + f (J qacc_smooth - aref), f >= 0 (A = J M^-1 J^T), solved by
+   projected Gauss-Seidel (`TreeModel.limit_sweeps` sweeps), which for the one or two rows a
+   robot's limits produce at a time converges to the solution of MuJoCo's Newton solver.
+7. Euler with implicit joint damping, as MuJoCo integrates it:
+   qacc = (M + h D)^-1 (qfrc_smooth + qfrc_constraint); qd' = qd + h qacc; q' = q + h qd'.
+
+Matrices are factored as M = L^T D L in tree order (`tt.kernels.ltdl`, MuJoCo's
+`mj_factorI`), which has no fill-in, so branched trees (two arms) cost less than a dense
+Cholesky.
+"""
+
+import functools
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from tt.kernels.fk import kinematics_funcs
+from tt.kernels.ltdl import ltdl_funcs, ltdl_ops
+from tt.kernels.model import (
+    JOINT_HINGE,
+    MJ_MAXIMP,
+    MJ_MINIMP,
+    MJ_MINVAL,
+    MODULE_OPTIONS,
+    Topology,
+    TreeModel,
+    local_types,
+    module_name,
+)
+
+
+vec9 = wp.types.vector(length=9, dtype=wp.float32)
+
+
+@wp.func
+def _mat33(v: vec9) -> wp.mat33:
+    return wp.mat33(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8])
+
+
+@wp.func
+def _vec9(m: wp.mat33) -> vec9:
+    return vec9(m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1], m[2, 2])
+
+
+@wp.func
+def limit_impedance(pos: float, dmin: float, dmax: float, width: float, midpoint: float, power: float) -> float:
+    """MuJoCo's constraint impedance at violation `pos` for solimp (dmin, dmax, width, mid, power)."""
+    dmin = wp.clamp(dmin, MJ_MINIMP, MJ_MAXIMP)
+    dmax = wp.clamp(dmax, MJ_MINIMP, MJ_MAXIMP)
+    midpoint = wp.clamp(midpoint, MJ_MINIMP, MJ_MAXIMP)
+    power = wp.max(1.0, power)
+    if dmin == dmax or width <= MJ_MINVAL:
+        return 0.5 * (dmin + dmax)
+    x = wp.abs(pos) / width
+    if x >= 1.0:
+        return dmax
+    if x <= 0.0:
+        return dmin
+    y = float(0.0)
+    if x <= midpoint:
+        y = wp.pow(x, power) / wp.pow(midpoint, power - 1.0)
+    else:
+        y = 1.0 - wp.pow(1.0 - x, power) / wp.pow(1.0 - midpoint, power - 1.0)
+    return dmin + y * (dmax - dmin)
+
+
+@functools.cache
+def dynamics_funcs(topology: Topology) -> SimpleNamespace:
+    """Warp functions of one topology (see the module docstring for the algorithm).
+
+    step(mid, model fields..., q, qd, ctrl) -> (q', qd', act_force, act_vel, active_limits):
+        one Euler step of world-model entry `mid` from joint positions q and velocities qd
+        (NV,) under actuator commands ctrl (NU,); act_force [N m or N] and act_vel are the
+        actuator forces and velocities at the start of the step (MuJoCo's
+        actuator_force / actuator_velocity after mj_step); active_limits counts limit rows.
+    actuation(mid, act fields..., q, qd, ctrl) -> (joint forces, act_force, act_vel).
+    mass_matrix(...), bias_forces(...), factor(A) -> (L, D), solve(L, D, b): the stages.
+    """
+    T = local_types(topology)
+    K = kinematics_funcs(topology)
+    NB, NV, NU = topology.body_count, topology.dof_count, topology.actuator_count
+    PARENT = topology.body_parent
+    BDOF = topology.body_dof
+    DOF_BODY = topology.dof_body
+    DTYPE = topology.dof_type
+    ACT_DOF = topology.actuator_dof
+    _, _, _, PAIRS = ltdl_ops(topology.dof_parent)
+    LTDL = ltdl_funcs(topology.dof_parent, T.dof_mat, T.dof_vec)
+    factor = LTDL.factor
+    solve = LTDL.solve
+
+    @wp.func
+    def body_inertias(
+        mid: int,
+        body_mass: wp.array2d(dtype=float),
+        body_ipos: wp.array2d(dtype=wp.vec3),
+        body_iquat: wp.array2d(dtype=wp.vec4),
+        body_inertia: wp.array2d(dtype=wp.vec3),
+        xpos: T.body_vec3,
+        xquat: T.body_vec4,
+        ref: wp.vec3,
+    ):
+        # Per body: mass, first moment m c and rotational inertia about `ref`, world axes.
+        bm = T.body_scalar()
+        bh = T.body_vec3()
+        bJ = T.body_mat9()
+        for b in range(1, NB):
+            m = body_mass[mid, b]
+            R = wp.quat_to_matrix(wp.quat(xquat[b][1], xquat[b][2], xquat[b][3], xquat[b][0]))
+            iq = body_iquat[mid, b]
+            Ri = R @ wp.quat_to_matrix(wp.quat(iq[1], iq[2], iq[3], iq[0]))
+            c = xpos[b] + R @ body_ipos[mid, b] - ref
+            Ic = Ri @ wp.diag(body_inertia[mid, b]) @ wp.transpose(Ri)
+            J = Ic + m * (wp.dot(c, c) * wp.identity(n=3, dtype=float) - wp.outer(c, c))
+            bm[b] = m
+            bh[b] = m * c
+            bJ[b] = _vec9(J)
+        return bm, bh, bJ
+
+    @wp.func
+    def motion_subspace(axis: T.dof_vec3, anchor: T.dof_vec3, ref: wp.vec3):
+        # Spatial motion (angular w, linear v at `ref`) of each dof per unit velocity.
+        s_ang = T.dof_vec3()
+        s_lin = T.dof_vec3()
+        for d in range(NV):
+            if wp.static(DTYPE[d] == JOINT_HINGE):
+                s_ang[d] = axis[d]
+                s_lin[d] = wp.cross(anchor[d] - ref, axis[d])
+            else:
+                s_lin[d] = axis[d]
+        return s_ang, s_lin
+
+    @wp.func
+    def mass_matrix(bm: T.body_scalar, bh: T.body_vec3, bJ: T.body_mat9, s_ang: T.dof_vec3, s_lin: T.dof_vec3):
+        # Composite inertias, leaves to root; M[i, j] = s_j . (I_composite(body_i) s_i).
+        # The arguments are this function's own copies: accumulate the composites in them.
+        # (No second name for them: with differentiable component writes an alias would
+        # stop seeing the updates.)
+        for k in range(1, NB):
+            b = wp.static(NB - k)
+            p = wp.static(PARENT[NB - k])
+            if wp.static(PARENT[NB - k] > 0):
+                bm[p] = bm[p] + bm[b]
+                bh[p] = bh[p] + bh[b]
+                bJ[p] = bJ[p] + bJ[b]
+        # Momentum (L, P) of each dof's composite body moving at unit dof velocity.
+        FL = T.dof_vec3()
+        FP = T.dof_vec3()
+        for i in range(NV):
+            b = wp.static(DOF_BODY[i])
+            w = s_ang[i]
+            v = s_lin[i]
+            FL[i] = _mat33(bJ[b]) @ w + wp.cross(bh[b], v)
+            FP[i] = bm[b] * v + wp.cross(w, bh[b])
+        M = T.dof_mat()
+        for n in range(wp.static(len(PAIRS))):
+            i = wp.static(PAIRS[n][0])
+            j = wp.static(PAIRS[n][1])
+            M[i, j] = wp.dot(s_ang[j], FL[i]) + wp.dot(s_lin[j], FP[i])
+        return M
+
+    @wp.func
+    def bias_forces(
+        bm: T.body_scalar,
+        bh: T.body_vec3,
+        bJ: T.body_mat9,
+        s_ang: T.dof_vec3,
+        s_lin: T.dof_vec3,
+        qd: T.dof_vec,
+        gravity: wp.vec3,
+    ):
+        # RNEA with zero joint accelerations and the base accelerating at -g.
+        v_ang = T.body_vec3()
+        v_lin = T.body_vec3()
+        a_ang = T.body_vec3()
+        a_lin = T.body_vec3()
+        f_ang = T.body_vec3()
+        f_lin = T.body_vec3()
+        a_lin[0] = -gravity
+        for b in range(1, NB):
+            p = wp.static(PARENT[b])
+            w = v_ang[p]
+            v = v_lin[p]
+            aw = a_ang[p]
+            av = a_lin[p]
+            if wp.static(BDOF[b] >= 0):
+                d = wp.static(BDOF[b])
+                sw = s_ang[d]
+                sv = s_lin[d]
+                # d/dt of the dof's axis moving with the parent: (w, v) x s.
+                aw = aw + qd[d] * wp.cross(w, sw)
+                av = av + qd[d] * (wp.cross(w, sv) + wp.cross(v, sw))
+                w = w + qd[d] * sw
+                v = v + qd[d] * sv
+            v_ang[b] = w
+            v_lin[b] = v
+            a_ang[b] = aw
+            a_lin[b] = av
+            J = _mat33(bJ[b])
+            h = bh[b]
+            m = bm[b]
+            # f = I a + V x* (I V), I V = (J w + h x v, m v + w x h).
+            L = J @ w + wp.cross(h, v)
+            P = m * v + wp.cross(w, h)
+            f_ang[b] = J @ aw + wp.cross(h, av) + wp.cross(w, L) + wp.cross(v, P)
+            f_lin[b] = m * av + wp.cross(aw, h) + wp.cross(w, P)
+        for k in range(1, NB):
+            b = wp.static(NB - k)
+            p = wp.static(PARENT[NB - k])
+            if wp.static(PARENT[NB - k] > 0):
+                f_ang[p] = f_ang[p] + f_ang[b]
+                f_lin[p] = f_lin[p] + f_lin[b]
+        bias = T.dof_vec()
+        for d in range(NV):
+            b = wp.static(DOF_BODY[d])
+            bias[d] = wp.dot(s_ang[d], f_ang[b]) + wp.dot(s_lin[d], f_lin[b])
+        return bias
+
+    @wp.func
+    def actuation(
+        mid: int,
+        act_gain: wp.array2d(dtype=float),
+        act_bias: wp.array2d(dtype=wp.vec3),
+        act_gear: wp.array2d(dtype=float),
+        act_ctrlrange: wp.array2d(dtype=wp.vec2),
+        act_forcerange: wp.array2d(dtype=wp.vec2),
+        q: T.dof_vec,
+        qd: T.dof_vec,
+        ctrl: T.act_vec,
+    ):
+        # Joint forces of the actuators, and each actuator's force and velocity.
+        qfrc = T.dof_vec()
+        act_force = T.act_vec()
+        act_vel = T.act_vec()
+        for u in range(NU):
+            d = wp.static(ACT_DOF[u])
+            gear = act_gear[mid, u]
+            cr = act_ctrlrange[mid, u]
+            fr = act_forcerange[mid, u]
+            b = act_bias[mid, u]
+            vel = gear * qd[d]
+            c = wp.clamp(ctrl[u], cr[0], cr[1])
+            force = wp.clamp(act_gain[mid, u] * c + b[0] + b[1] * gear * q[d] + b[2] * vel, fr[0], fr[1])
+            act_force[u] = force
+            act_vel[u] = vel
+            qfrc[d] = qfrc[d] + gear * force
+        return qfrc, act_force, act_vel
+
+    @wp.func
+    def limit_forces(
+        mid: int,
+        dof_range: wp.array2d(dtype=wp.vec2),
+        dof_limit_kb: wp.array2d(dtype=wp.vec2),
+        dof_solimp: wp.array3d(dtype=float),
+        dof_invweight0: wp.array2d(dtype=float),
+        limit_sweeps: wp.array(dtype=wp.int32),
+        M: T.dof_mat,
+        q: T.dof_vec,
+        qd: T.dof_vec,
+        qfrc_smooth: T.dof_vec,
+    ):
+        # Joint-space force of the active limit rows (zero when none is active).
+        sign = T.dof_vec()
+        dist = T.dof_vec()
+        active = int(0)
+        for d in range(NV):
+            r = dof_range[mid, d]
+            lo = q[d] - r[0]
+            hi = r[1] - q[d]
+            if lo < 0.0 and lo <= hi:
+                sign[d] = 1.0
+                dist[d] = lo
+                active += 1
+            elif hi < 0.0:
+                sign[d] = -1.0
+                dist[d] = hi
+                active += 1
+        qfrc = T.dof_vec()
+        if active == 0:
+            return qfrc, active
+        Lm, Dm = factor(M)
+        acc0 = solve(Lm, Dm, qfrc_smooth)
+        # Columns of M^-1 for the active rows only. The loops over rows and sweeps are
+        # dynamic (their bounds come from arrays) so that only their bodies are unrolled.
+        nv = dof_range.shape[1]
+        Minv = T.dof_mat()
+        for d in range(nv):
+            if sign[d] != 0.0:
+                e = T.dof_vec()
+                e[d] = 1.0
+                col = solve(Lm, Dm, e)
+                for i in range(NV):
+                    Minv[i, d] = col[i]
+        # Row data: residual offset J acc0 - aref and regulariser R.
+        offset = T.dof_vec()
+        reg = T.dof_vec()
+        for d in range(NV):
+            if sign[d] != 0.0:
+                kb = dof_limit_kb[mid, d]
+                imp = limit_impedance(
+                    dist[d],
+                    dof_solimp[mid, d, 0],
+                    dof_solimp[mid, d, 1],
+                    dof_solimp[mid, d, 2],
+                    dof_solimp[mid, d, 3],
+                    dof_solimp[mid, d, 4],
+                )
+                vel = sign[d] * qd[d]
+                aref = -kb[1] * vel - kb[0] * imp * dist[d]
+                offset[d] = sign[d] * acc0[d] - aref
+                reg[d] = wp.max(MJ_MINVAL, (1.0 - imp) * dof_invweight0[mid, d] / imp)
+        f = T.dof_vec()
+        for sweep in range(limit_sweeps[mid % limit_sweeps.shape[0]]):
+            for d in range(NV):
+                if sign[d] != 0.0:
+                    res = offset[d] + reg[d] * f[d]
+                    for j in range(NV):
+                        res += sign[d] * sign[j] * Minv[d, j] * f[j]
+                    f[d] = wp.max(0.0, f[d] - res / (Minv[d, d] + reg[d]))
+        for d in range(NV):
+            qfrc[d] = sign[d] * f[d]
+        return qfrc, active
+
+    @wp.func
+    def step(
+        mid: int,
+        # Model:
+        body_pos: wp.array2d(dtype=wp.vec3),
+        body_quat: wp.array2d(dtype=wp.vec4),
+        body_mass: wp.array2d(dtype=float),
+        body_ipos: wp.array2d(dtype=wp.vec3),
+        body_iquat: wp.array2d(dtype=wp.vec4),
+        body_inertia: wp.array2d(dtype=wp.vec3),
+        dof_axis: wp.array2d(dtype=wp.vec3),
+        dof_pos: wp.array2d(dtype=wp.vec3),
+        dof_ref: wp.array2d(dtype=float),
+        dof_armature: wp.array2d(dtype=float),
+        dof_damping: wp.array2d(dtype=float),
+        dof_stiffness: wp.array2d(dtype=float),
+        dof_springref: wp.array2d(dtype=float),
+        dof_range: wp.array2d(dtype=wp.vec2),
+        dof_limit_kb: wp.array2d(dtype=wp.vec2),
+        dof_solimp: wp.array3d(dtype=float),
+        dof_invweight0: wp.array2d(dtype=float),
+        act_gain: wp.array2d(dtype=float),
+        act_bias: wp.array2d(dtype=wp.vec3),
+        act_gear: wp.array2d(dtype=float),
+        act_ctrlrange: wp.array2d(dtype=wp.vec2),
+        act_forcerange: wp.array2d(dtype=wp.vec2),
+        gravity: wp.array(dtype=wp.vec3),
+        timestep: wp.array(dtype=float),
+        limit_enabled: wp.array(dtype=wp.int32),
+        limit_sweeps: wp.array(dtype=wp.int32),
+        # In:
+        q: T.dof_vec,
+        qd: T.dof_vec,
+        ctrl: T.act_vec,
+    ):
+        h = timestep[mid % timestep.shape[0]]
+        xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+        ref = xpos[1]
+        bm, bh, bJ = body_inertias(mid, body_mass, body_ipos, body_iquat, body_inertia, xpos, xquat, ref)
+        s_ang, s_lin = motion_subspace(axis, anchor, ref)
+        M = mass_matrix(bm, bh, bJ, s_ang, s_lin)
+        for d in range(NV):
+            M[d, d] = M[d, d] + dof_armature[mid, d]
+        bias = bias_forces(bm, bh, bJ, s_ang, s_lin, qd, gravity[mid % gravity.shape[0]])
+        qfrc = T.dof_vec()
+        for d in range(NV):
+            qfrc[d] = -bias[d] - dof_damping[mid, d] * qd[d] - dof_stiffness[mid, d] * (q[d] - dof_springref[mid, d])
+        qfrc_act, act_force, act_vel = actuation(
+            mid, act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange, q, qd, ctrl
+        )
+        qfrc = qfrc + qfrc_act
+        active = int(0)
+        if limit_enabled[mid % limit_enabled.shape[0]] != 0:
+            qfrc_limit, active = limit_forces(
+                mid, dof_range, dof_limit_kb, dof_solimp, dof_invweight0, limit_sweeps, M, q, qd, qfrc
+            )
+            qfrc = qfrc + qfrc_limit
+        for d in range(NV):
+            M[d, d] = M[d, d] + h * dof_damping[mid, d]
+        L, D = factor(M)
+        qacc = solve(L, D, qfrc)
+        qd_new = qd + h * qacc
+        q_new = q + h * qd_new
+        return q_new, qd_new, act_force, act_vel, active
+
+    return SimpleNamespace(
+        body_inertias=body_inertias,
+        motion_subspace=motion_subspace,
+        mass_matrix=mass_matrix,
+        bias_forces=bias_forces,
+        factor=factor,
+        solve=solve,
+        actuation=actuation,
+        limit_forces=limit_forces,
+        step=step,
+    )
+
+
+def model_inputs(model: TreeModel) -> list:
+    """The model arrays `dynamics_funcs(...).step` reads, in its argument order."""
+    return [
+        model.body_pos,
+        model.body_quat,
+        model.body_mass,
+        model.body_ipos,
+        model.body_iquat,
+        model.body_inertia,
+        model.dof_axis,
+        model.dof_pos,
+        model.dof_ref,
+        model.dof_armature,
+        model.dof_damping,
+        model.dof_stiffness,
+        model.dof_springref,
+        model.dof_range,
+        model.dof_limit_kb,
+        model.dof_solimp,
+        model.dof_invweight0,
+        model.act_gain,
+        model.act_bias,
+        model.act_gear,
+        model.act_ctrlrange,
+        model.act_forcerange,
+        model.gravity,
+        model.timestep,
+        model.limit_enabled,
+        model.limit_sweeps,
+    ]
+
+
+def make_simulate_kernel(topology: Topology, module: str):
+    """The open-loop simulation kernel of one topology, registered in Warp module `module`."""
+    T = local_types(topology)
+    F = dynamics_funcs(topology)
+    NV, NU = topology.dof_count, topology.actuator_count
+
+    @wp.kernel(module=module)
+    def _simulate(
+        # Model:
+        body_pos: wp.array2d(dtype=wp.vec3),
+        body_quat: wp.array2d(dtype=wp.vec4),
+        body_mass: wp.array2d(dtype=float),
+        body_ipos: wp.array2d(dtype=wp.vec3),
+        body_iquat: wp.array2d(dtype=wp.vec4),
+        body_inertia: wp.array2d(dtype=wp.vec3),
+        dof_axis: wp.array2d(dtype=wp.vec3),
+        dof_pos: wp.array2d(dtype=wp.vec3),
+        dof_ref: wp.array2d(dtype=float),
+        dof_armature: wp.array2d(dtype=float),
+        dof_damping: wp.array2d(dtype=float),
+        dof_stiffness: wp.array2d(dtype=float),
+        dof_springref: wp.array2d(dtype=float),
+        dof_range: wp.array2d(dtype=wp.vec2),
+        dof_limit_kb: wp.array2d(dtype=wp.vec2),
+        dof_solimp: wp.array3d(dtype=float),
+        dof_invweight0: wp.array2d(dtype=float),
+        act_gain: wp.array2d(dtype=float),
+        act_bias: wp.array2d(dtype=wp.vec3),
+        act_gear: wp.array2d(dtype=float),
+        act_ctrlrange: wp.array2d(dtype=wp.vec2),
+        act_forcerange: wp.array2d(dtype=wp.vec2),
+        gravity: wp.array(dtype=wp.vec3),
+        timestep: wp.array(dtype=float),
+        limit_enabled: wp.array(dtype=wp.int32),
+        limit_sweeps: wp.array(dtype=wp.int32),
+        # Data in:
+        qpos_in: wp.array2d(dtype=float),
+        qvel_in: wp.array2d(dtype=float),
+        ctrl_in: wp.array3d(dtype=float),
+        # Data out:
+        qpos_out: wp.array3d(dtype=float),
+        qvel_out: wp.array3d(dtype=float),
+        act_force_out: wp.array3d(dtype=float),
+        limit_count_out: wp.array2d(dtype=wp.int32),
+    ):
+        worldid = wp.tid()
+        mid = worldid % body_pos.shape[0]
+        q = T.dof_vec()
+        qd = T.dof_vec()
+        for d in range(NV):
+            q[d] = qpos_in[worldid, d]
+            qd[d] = qvel_in[worldid, d]
+            qpos_out[worldid, 0, d] = q[d]
+            qvel_out[worldid, 0, d] = qd[d]
+        for s in range(ctrl_in.shape[1]):
+            ctrl = T.act_vec()
+            for u in range(NU):
+                ctrl[u] = ctrl_in[worldid, s, u]
+            q, qd, force, vel, active = F.step(
+                mid,
+                body_pos, body_quat, body_mass, body_ipos, body_iquat, body_inertia,
+                dof_axis, dof_pos, dof_ref, dof_armature, dof_damping, dof_stiffness, dof_springref,
+                dof_range, dof_limit_kb, dof_solimp, dof_invweight0,
+                act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange,
+                gravity, timestep, limit_enabled, limit_sweeps,
+                q, qd, ctrl,
+            )  # fmt: skip
+            for d in range(NV):
+                qpos_out[worldid, s + 1, d] = q[d]
+                qvel_out[worldid, s + 1, d] = qd[d]
+            for u in range(NU):
+                act_force_out[worldid, s, u] = force[u]
+            limit_count_out[worldid, s] = active
+
+    return _simulate
+
+
+@functools.cache
+def simulate_kernel(topology: Topology):
+    """The open-loop simulation kernel of a topology, in its own module."""
+    module = module_name(topology, "dynamics")
+    wp.set_module_options(MODULE_OPTIONS, module)
+    return make_simulate_kernel(topology, module)
+
+
+def simulate(
+    model: TreeModel,
+    qpos: wp.array,
+    qvel: wp.array,
+    ctrl: wp.array,
+    *,
+    device: str | None = None,
+) -> SimpleNamespace:
+    """Open-loop simulation of W worlds for S physics steps in one launch.
+
+    qpos, qvel: initial joint positions [rad or m] and velocities, (W, NV) float32.
+    ctrl: actuator commands per physics step, (W, S, NU) float32.
+    Returns a namespace of Warp arrays: qpos, qvel (W, S + 1, NV) (entry 0 is the initial
+    state), act_force (W, S, NU) [N m or N] at the start of each step, limit_count (W, S)
+    int32 active joint-limit rows per step.
+    """
+    topo = model.topology
+    device = device or model.device
+    W, NV, NU = qpos.shape[0], topo.dof_count, topo.actuator_count
+    if qpos.shape != (W, NV) or qvel.shape != (W, NV):
+        raise ValueError(f"qpos {qpos.shape} and qvel {qvel.shape} must both be (W, {NV})")
+    if ctrl.ndim != 3 or ctrl.shape[0] != W or ctrl.shape[2] != NU:
+        raise ValueError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, {NU})")
+    S = ctrl.shape[1]
+    out = SimpleNamespace(
+        qpos=wp.array(np.full((W, S + 1, NV), np.inf, np.float32), dtype=float, device=device),
+        qvel=wp.array(np.full((W, S + 1, NV), np.inf, np.float32), dtype=float, device=device),
+        act_force=wp.array(np.full((W, S, max(NU, 1)), np.inf, np.float32), dtype=float, device=device),
+        limit_count=wp.zeros((W, S), dtype=wp.int32, device=device),
+    )
+    wp.launch(
+        simulate_kernel(topo),
+        dim=W,
+        inputs=[*model_inputs(model), qpos, qvel, ctrl],
+        outputs=[out.qpos, out.qvel, out.act_force, out.limit_count],
+        device=device,
+    )
+    return out

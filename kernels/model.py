@@ -1,0 +1,540 @@
+"""Batched articulated trees: the Warp-side model that tt's kernels simulate.
+
+A `TreeModel` holds W worlds of one topology: a fixed-base kinematic tree of hinge and
+slide joints without contacts, built from MuJoCo models (the one source of truth for a
+robot). Everything that may differ between designs of one topology (link offsets, mount
+pose, joint axes, masses, gains) is a per-world array; the topology itself (which body
+hangs from which, joint types, which joints the actuators drive, which bodies carry the
+end-effector sites) is a `Topology`, and kernels are compiled once per topology with it
+unrolled into straight-line code.
+
+MuJoCo lets one body carry several joints, each expressed in the frame left by the joints
+before it. tt splits such a body into a chain of bodies with one joint each (the first
+keeps the body's offset, the last its mass and sites), which is the same kinematics, so
+every tree body here has at most one joint and dof i belongs to exactly one body.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import mujoco
+import numpy as np
+import warp as wp
+
+#: MuJoCo joint types that tt's kernels simulate.
+JOINT_SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
+JOINT_HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
+
+#: Stand-in for an unlimited range: float32 keeps it finite, so clamps and comparisons
+#: against it never produce inf - inf.
+UNLIMITED = 1.0e10
+
+
+@dataclass(frozen=True)
+class Topology:
+    """The structure shared by all worlds of a `TreeModel`; kernels are compiled per topology.
+
+    Tree bodies are numbered 0 (world) .. body_count - 1, parents before children.
+
+    body_parent: parent tree body of each body, (body_count,); the world's entry is 0.
+    body_dof: dof (= joint) index of each body, or -1 for a body welded to its parent, (body_count,).
+    dof_type: MuJoCo joint type of each dof, `JOINT_HINGE` or `JOINT_SLIDE`, (dof_count,).
+    actuator_dof: dof driven by each actuator, (actuator_count,).
+    ee_body: tree body carrying each end-effector site, (ee_count,).
+    """
+
+    body_parent: tuple[int, ...]
+    body_dof: tuple[int, ...]
+    dof_type: tuple[int, ...]
+    actuator_dof: tuple[int, ...]
+    ee_body: tuple[int, ...]
+
+    @property
+    def body_count(self) -> int:
+        return len(self.body_parent)
+
+    @property
+    def dof_count(self) -> int:
+        return len(self.dof_type)
+
+    @property
+    def actuator_count(self) -> int:
+        return len(self.actuator_dof)
+
+    @property
+    def ee_count(self) -> int:
+        return len(self.ee_body)
+
+    @property
+    def dof_body(self) -> tuple[int, ...]:
+        """Tree body of each dof, (dof_count,)."""
+        out = [0] * self.dof_count
+        for b, d in enumerate(self.body_dof):
+            if d >= 0:
+                out[d] = b
+        return tuple(out)
+
+    @property
+    def dof_parent(self) -> tuple[int, ...]:
+        """Nearest ancestor dof of each dof (-1 at a root), (dof_count,)."""
+        out = []
+        for b in self.dof_body:
+            b = self.body_parent[b]
+            while b != 0 and self.body_dof[b] < 0:
+                b = self.body_parent[b]
+            out.append(self.body_dof[b] if b != 0 else -1)
+        return tuple(out)
+
+    def body_path(self, body: int) -> tuple[int, ...]:
+        """Bodies from `body` up to (excluding) the world, deepest first."""
+        path = []
+        while body != 0:
+            path.append(body)
+            body = self.body_parent[body]
+        return tuple(path)
+
+    def dof_support(self, dof: int) -> tuple[int, ...]:
+        """Dofs whose motion moves dof `dof`'s body: itself and its ancestors, ascending."""
+        return self.body_support(self.dof_body[dof])
+
+    def body_support(self, body: int) -> tuple[int, ...]:
+        """Dofs whose motion moves `body` (the dofs on its path to the world), ascending."""
+        return tuple(sorted(self.body_dof[b] for b in self.body_path(body) if self.body_dof[b] >= 0))
+
+    @property
+    def digest(self) -> str:
+        """Short stable name of the topology (compiled kernels are cached under it)."""
+        text = repr((self.body_parent, self.body_dof, self.dof_type, self.actuator_dof, self.ee_body))
+        return hashlib.sha1(text.encode()).hexdigest()[:10]
+
+
+def topology_key(model: mujoco.MjModel, ee_sites: Sequence[str]) -> tuple:
+    """What must match for two MuJoCo models to share compiled kernels.
+
+    (body_parentid, jnt_type, jnt_bodyid, actuator joints, end-effector site bodies).
+    """
+    ee_bodies = tuple(int(model.site_bodyid[_site_id(model, s)]) for s in ee_sites)
+    return (
+        tuple(int(p) for p in model.body_parentid),
+        tuple(int(t) for t in model.jnt_type),
+        tuple(int(b) for b in model.jnt_bodyid),
+        tuple(int(j) for j in model.actuator_trnid[:, 0]),
+        ee_bodies,
+    )
+
+
+def _site_id(model: mujoco.MjModel, name: str) -> int:
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name)
+    if sid < 0:
+        names = [model.site(i).name for i in range(model.nsite)]
+        raise ValueError(f"end-effector site {name!r} is not in the model; its sites are {names}")
+    return sid
+
+
+def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
+    """Raise ValueError naming the first feature of `model` that tt's tree kernels lack."""
+    where = f"model {index}"
+    types = set(int(t) for t in model.jnt_type)
+    if not types <= {JOINT_HINGE, JOINT_SLIDE}:
+        raise ValueError(f"{where}: jnt_type {sorted(types)}; the warp tree kernels support hinge (3) and slide (2) joints only")
+    if model.nq != model.nv or model.nv != model.njnt:
+        raise ValueError(f"{where}: nq={model.nq}, nv={model.nv}, njnt={model.njnt} must be equal for a hinge/slide tree")
+    contact_disabled = bool(model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    collides = np.any((model.geom_contype[:, None] & model.geom_conaffinity[None, :]) != 0) or model.npair > 0
+    if collides and not contact_disabled:
+        raise ValueError(f"{where} has contacts (geom contype/conaffinity or contact pairs); the warp backend is contact-free")
+    if int(model.opt.integrator) != int(mujoco.mjtIntegrator.mjINT_EULER):
+        raise ValueError(f"{where}: integrator {mujoco.mjtIntegrator(model.opt.integrator).name}; only Euler is replicated")
+    for name, count in (("neq", model.neq), ("ntendon", model.ntendon), ("na", model.na)):
+        if count:
+            raise ValueError(f"{where}: {name} = {count}; equality constraints, tendons and actuator activations are not supported")
+    if np.any(model.dof_frictionloss != 0):
+        raise ValueError(f"{where}: dof_frictionloss is nonzero; friction loss is a constraint the tree kernels lack")
+    if np.any(model.jnt_actfrclimited):
+        raise ValueError(f"{where}: jnt_actfrclimited is set; joint-level actuator force limits are not supported")
+    if np.any(model.jnt_margin != 0):
+        raise ValueError(f"{where}: jnt_margin is nonzero; joint limits with margins are not supported")
+    if np.any(model.body_gravcomp != 0):
+        raise ValueError(f"{where}: body_gravcomp is nonzero; gravity compensation is not supported")
+    for i in range(model.nu):
+        if int(model.actuator_trntype[i]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            raise ValueError(f"{where}: actuator {i} transmission {model.actuator_trntype[i]}; only joint transmissions are supported")
+        if int(model.actuator_dyntype[i]) != int(mujoco.mjtDyn.mjDYN_NONE):
+            raise ValueError(f"{where}: actuator {i} has activation dynamics; only stateless actuators are supported")
+        if int(model.actuator_gaintype[i]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(model.actuator_biastype[i]) not in (
+            int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
+        ):
+            raise ValueError(f"{where}: actuator {i} gain/bias type; only fixed gain with affine or no bias is supported")
+
+
+@dataclass
+class _Split:
+    """Tree bodies of one MuJoCo model (see the module docstring)."""
+
+    parent: list[int]
+    dof: list[int]
+    head: list[int]  # MuJoCo body -> first tree body (carries the body offset)
+    tail: list[int]  # MuJoCo body -> last tree body (carries mass, children, sites)
+
+
+def _split(model: mujoco.MjModel) -> _Split:
+    parent, dof = [0], [-1]
+    head, tail = [0], [0]
+    for b in range(1, model.nbody):
+        up = tail[model.body_parentid[b]]
+        n = int(model.body_jntnum[b])
+        adr = int(model.body_jntadr[b])
+        first = len(parent)
+        if n == 0:
+            parent.append(up)
+            dof.append(-1)
+        for k in range(n):
+            parent.append(up if k == 0 else len(parent) - 1)
+            dof.append(int(model.jnt_dofadr[adr + k]))
+        head.append(first)
+        tail.append(len(parent) - 1)
+    return _Split(parent, dof, head, tail)
+
+
+def topology_of(model: mujoco.MjModel, ee_sites: Sequence[str]) -> Topology:
+    """The `Topology` of one MuJoCo model."""
+    split = _split(model)
+    return Topology(
+        body_parent=tuple(split.parent),
+        body_dof=tuple(split.dof),
+        dof_type=tuple(int(t) for t in model.jnt_type),
+        actuator_dof=tuple(int(model.jnt_dofadr[j]) for j in model.actuator_trnid[:, 0]),
+        ee_body=tuple(split.tail[model.site_bodyid[_site_id(model, s)]] for s in ee_sites),
+    )
+
+
+#: MuJoCo's bounds on constraint impedance and its smallest positive value.
+MJ_MINIMP, MJ_MAXIMP, MJ_MINVAL = 0.0001, 0.9999, 1e-15
+
+
+def _limit_kb(m: mujoco.MjModel) -> np.ndarray:
+    """(k, b) of each joint's limit constraint: aref = -b vel - k imp pos (MuJoCo's solref)."""
+    out = np.zeros((m.njnt, 2))
+    refsafe = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_REFSAFE)
+    for j in range(m.njnt):
+        timeconst, dampratio = m.jnt_solref[j]
+        dmax = float(np.clip(m.jnt_solimp[j, 1], MJ_MINIMP, MJ_MAXIMP))
+        if refsafe and timeconst > 0:
+            timeconst = max(timeconst, 2.0 * m.opt.timestep)
+        if timeconst <= 0:
+            k = -timeconst / max(MJ_MINVAL, dmax * dmax)
+        else:
+            k = 1.0 / max(MJ_MINVAL, dmax * dmax * timeconst * timeconst * dampratio * dampratio)
+        b = -dampratio / max(MJ_MINVAL, dmax) if dampratio <= 0 else 2.0 / max(MJ_MINVAL, dmax * timeconst)
+        out[j] = k, b
+    return out
+
+
+@dataclass
+class KinematicFields:
+    """The fields that kinematics and IK read, in one precision (see `TreeModel`)."""
+
+    body_pos: wp.array
+    body_quat: wp.array
+    dof_axis: wp.array
+    dof_pos: wp.array
+    dof_ref: wp.array
+    dof_range: wp.array
+    ee_pos: wp.array
+    ee_quat: wp.array
+
+
+@dataclass
+class TreeModel:
+    """W worlds of one `Topology`, as Warp arrays (float32).
+
+    Per-world fields have a leading dimension of 1 or W; kernels read entry
+    ``worldid % field.shape[0]``. Quaternions are (w, x, y, z) vec4, as in MuJoCo and tt's
+    motions and episodes (kernels convert to Warp's (x, y, z, w) internally). Shapes use
+    NB = topology.body_count (tree bodies, world included), NV = topology.dof_count,
+    NU = topology.actuator_count, NE = topology.ee_count.
+
+    topology: the shared structure (see `Topology`).
+    body_pos: body frame position in the parent frame [m], (W, NB) vec3.
+    body_quat: body frame orientation in the parent frame, (W, NB) vec4.
+    body_mass: body mass [kg], (W, NB) float.
+    body_ipos: center of mass in the body frame [m], (W, NB) vec3.
+    body_iquat: principal inertia frame in the body frame, (W, NB) vec4.
+    body_inertia: principal moments of inertia about the center of mass [kg m^2], (W, NB) vec3.
+    dof_axis: joint axis in the body frame (unit), (W, NV) vec3.
+    dof_pos: joint anchor in the body frame [m], (W, NV) vec3.
+    dof_ref: reference position qpos0 (hinge angle or slide offset at which the body sits
+        at its offset) [rad or m], (W, NV) float.
+    dof_armature: rotor inertia added to the mass matrix diagonal [kg m^2 or kg], (W, NV) float.
+    dof_damping: viscous joint damping [N m s/rad or N s/m], (W, NV) float.
+    dof_stiffness: joint spring stiffness [N m/rad or N/m], (W, NV) float.
+    dof_springref: spring rest position [rad or m], (W, NV) float.
+    dof_range: joint limits (lower, upper) [rad or m], +-UNLIMITED when unlimited, (W, NV) vec2.
+    dof_limit_kb: limit constraint reference stiffness k [1/s^2] and damping b [1/s] from
+        MuJoCo's solref (timeconst clamped to 2 timesteps, as refsafe does), (W, NV) vec2.
+    dof_solimp: limit constraint impedance (dmin, dmax, width [m or rad], midpoint, power), (W, NV, 5) float.
+    dof_invweight0: MuJoCo's inverse inertia of the dof at qpos0 (limit regularizer scale), (W, NV) float.
+    act_gain: actuator gain (force per unit ctrl), (W, NU) float.
+    act_bias: affine bias (b0, b1 per unit length, b2 per unit velocity), (W, NU) vec3.
+    act_gear: transmission gear (length = gear * q), (W, NU) float.
+    act_ctrlrange: ctrl clamp (lower, upper), +-UNLIMITED when not clamped, (W, NU) vec2.
+    act_forcerange: force clamp (lower, upper) [N m or N], +-UNLIMITED when unlimited, (W, NU) vec2.
+    ee_pos: end-effector site position in its body frame [m], (W, NE) vec3.
+    ee_quat: end-effector site orientation in its body frame, (W, NE) vec4.
+    gravity: gravitational acceleration [m/s^2], (W,) vec3.
+    timestep: physics timestep [s], (W,) float.
+    limit_enabled: 1 when joint-limit constraints are simulated (MuJoCo's limit flag), (W,) int32.
+    limit_sweeps: projected Gauss-Seidel sweeps of the joint-limit force solve (one is exact
+        for a single active limit), (1,) int32.
+    kinematics64: float64 copies of the kinematic fields (from the MuJoCo models, not from
+        the float32 fields) for the start posture, whose IK iteration amplifies round-off.
+    """
+
+    topology: Topology
+    body_pos: wp.array
+    body_quat: wp.array
+    body_mass: wp.array
+    body_ipos: wp.array
+    body_iquat: wp.array
+    body_inertia: wp.array
+    dof_axis: wp.array
+    dof_pos: wp.array
+    dof_ref: wp.array
+    dof_armature: wp.array
+    dof_damping: wp.array
+    dof_stiffness: wp.array
+    dof_springref: wp.array
+    dof_range: wp.array
+    dof_limit_kb: wp.array
+    dof_solimp: wp.array
+    dof_invweight0: wp.array
+    act_gain: wp.array
+    act_bias: wp.array
+    act_gear: wp.array
+    act_ctrlrange: wp.array
+    act_forcerange: wp.array
+    ee_pos: wp.array
+    ee_quat: wp.array
+    gravity: wp.array
+    timestep: wp.array
+    limit_enabled: wp.array
+    limit_sweeps: wp.array
+    kinematics64: KinematicFields | None = None
+    device: str = "cpu"
+    #: Host copies of the timesteps, for launch planning without a device round trip.
+    timestep_host: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def world_count(self) -> int:
+        """Number of distinct model entries (1 or W)."""
+        return self.body_pos.shape[0]
+
+
+def build_tree_model(
+    models: Sequence[mujoco.MjModel],
+    ee_sites: Sequence[str],
+    *,
+    device: str | None = None,
+    requires_grad: bool = False,
+    limit_sweeps: int = 24,
+) -> TreeModel:
+    """A `TreeModel` with one world per MuJoCo model; all must share one topology.
+
+    models: MuJoCo models of one topology (the same object may repeat).
+    ee_sites: site names of the end effectors, in the order motions address them.
+    requires_grad: allocate gradients on the continuous fields (for `wp.Tape`).
+    limit_sweeps: Gauss-Seidel sweeps of the joint-limit force solve.
+    Raises ValueError naming the first model whose topology or features do not fit.
+    """
+    from tt.device import resolve_device
+
+    device = resolve_device(device)
+    if len(models) == 0:
+        raise ValueError("models is empty; build_tree_model needs at least one MuJoCo model")
+    key0 = topology_key(models[0], ee_sites)
+    for i, m in enumerate(models):
+        check_supported(m, i)
+        if i and topology_key(m, ee_sites) != key0:
+            raise ValueError(
+                f"model {i} has a different topology from model 0 (body parents, joint types, "
+                f"joint bodies, actuator joints or end-effector bodies differ); group models by "
+                f"`topology_key` first"
+            )
+    topo = topology_of(models[0], ee_sites)
+    nb, nv, nu, ne = topo.body_count, topo.dof_count, topo.actuator_count, topo.ee_count
+    n = len(models)
+
+    body_pos = np.zeros((n, nb, 3))
+    body_quat = np.tile([1.0, 0.0, 0.0, 0.0], (n, nb, 1))
+    body_mass = np.zeros((n, nb))
+    body_ipos = np.zeros((n, nb, 3))
+    body_iquat = np.tile([1.0, 0.0, 0.0, 0.0], (n, nb, 1))
+    body_inertia = np.zeros((n, nb, 3))
+    dof_range = np.tile([-UNLIMITED, UNLIMITED], (n, nv, 1))
+    act_ctrlrange = np.tile([-UNLIMITED, UNLIMITED], (n, nu, 1))
+    act_forcerange = np.tile([-UNLIMITED, UNLIMITED], (n, nu, 1))
+    ee_pos = np.zeros((n, ne, 3))
+    ee_quat = np.zeros((n, ne, 4))
+    for i, m in enumerate(models):
+        split = _split(m)
+        head, tail = np.array(split.head), np.array(split.tail)
+        body_pos[i, head[1:]] = m.body_pos[1:]
+        body_quat[i, head[1:]] = m.body_quat[1:]
+        body_mass[i, tail[1:]] = m.body_mass[1:]
+        body_ipos[i, tail[1:]] = m.body_ipos[1:]
+        body_iquat[i, tail[1:]] = m.body_iquat[1:]
+        body_inertia[i, tail[1:]] = m.body_inertia[1:]
+        limited = m.jnt_limited.astype(bool)
+        dof_range[i, limited] = m.jnt_range[limited]
+        clamp = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
+        cl = m.actuator_ctrllimited.astype(bool) & clamp
+        act_ctrlrange[i, cl] = m.actuator_ctrlrange[cl]
+        fl = m.actuator_forcelimited.astype(bool)
+        act_forcerange[i, fl] = m.actuator_forcerange[fl]
+        for e, s in enumerate(ee_sites):
+            sid = _site_id(m, s)
+            ee_pos[i, e] = m.site_pos[sid]
+            ee_quat[i, e] = m.site_quat[sid]
+
+    def flag_off(m, bit) -> bool:
+        return bool(m.opt.disableflags & bit)
+
+    D = mujoco.mjtDisableBit
+    damping = np.stack([m.dof_damping * (not flag_off(m, D.mjDSBL_DAMPER)) for m in models])
+    stiffness = np.stack([m.jnt_stiffness * (not flag_off(m, D.mjDSBL_SPRING)) for m in models])
+    gravity = np.stack([m.opt.gravity * (not flag_off(m, D.mjDSBL_GRAVITY)) for m in models])
+    gain = np.stack([m.actuator_gainprm[:, 0] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
+    bias = np.stack([m.actuator_biasprm[:, :3] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
+    limit_enabled = np.array([0 if flag_off(m, D.mjDSBL_LIMIT) else 1 for m in models], dtype=np.int32)
+    for i, m in enumerate(models):
+        if flag_off(m, D.mjDSBL_EULERDAMP) and np.any(m.dof_damping > 0):
+            raise ValueError(f"model {i}: the eulerdamp flag is disabled; tt replicates Euler with implicit damping only")
+        if m.opt.timestep <= 0:
+            raise ValueError(f"model {i}: timestep {m.opt.timestep} must be positive")
+
+    def arr(x, dtype):
+        return wp.array(np.ascontiguousarray(x, dtype=np.float32), dtype=dtype, device=device, requires_grad=requires_grad)
+
+    def arr64(x, dtype):
+        return wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=dtype, device=device)
+
+    kinematics64 = KinematicFields(
+        body_pos=arr64(body_pos, wp.vec3d),
+        body_quat=arr64(body_quat, wp.types.vector(4, wp.float64)),
+        dof_axis=arr64(np.stack([m.jnt_axis for m in models]), wp.vec3d),
+        dof_pos=arr64(np.stack([m.jnt_pos for m in models]), wp.vec3d),
+        dof_ref=arr64(np.stack([m.qpos0 for m in models]), wp.float64),
+        dof_range=arr64(dof_range, wp.vec2d),
+        ee_pos=arr64(ee_pos, wp.vec3d),
+        ee_quat=arr64(ee_quat, wp.types.vector(4, wp.float64)),
+    )
+
+    return TreeModel(
+        topology=topo,
+        body_pos=arr(body_pos, wp.vec3),
+        body_quat=arr(body_quat, wp.vec4),
+        body_mass=arr(body_mass, float),
+        body_ipos=arr(body_ipos, wp.vec3),
+        body_iquat=arr(body_iquat, wp.vec4),
+        body_inertia=arr(body_inertia, wp.vec3),
+        dof_axis=arr(np.stack([m.jnt_axis for m in models]), wp.vec3),
+        dof_pos=arr(np.stack([m.jnt_pos for m in models]), wp.vec3),
+        dof_ref=arr(np.stack([m.qpos0 for m in models]), float),
+        dof_armature=arr(np.stack([m.dof_armature for m in models]), float),
+        dof_damping=arr(damping, float),
+        dof_stiffness=arr(stiffness, float),
+        dof_springref=arr(np.stack([m.qpos_spring for m in models]), float),
+        dof_range=arr(dof_range, wp.vec2),
+        dof_limit_kb=arr(np.stack([_limit_kb(m) for m in models]), wp.vec2),
+        dof_solimp=arr(np.stack([m.jnt_solimp for m in models]), float),
+        dof_invweight0=arr(np.stack([m.dof_invweight0 for m in models]), float),
+        act_gain=arr(gain, float),
+        act_bias=arr(bias, wp.vec3),
+        act_gear=arr(np.stack([m.actuator_gear[:, 0] for m in models]), float),
+        act_ctrlrange=arr(act_ctrlrange, wp.vec2),
+        act_forcerange=arr(act_forcerange, wp.vec2),
+        ee_pos=arr(ee_pos, wp.vec3),
+        ee_quat=arr(ee_quat, wp.vec4),
+        gravity=arr(gravity, wp.vec3),
+        timestep=arr(np.array([m.opt.timestep for m in models]), float),
+        limit_enabled=wp.array(limit_enabled, dtype=wp.int32, device=device),
+        limit_sweeps=wp.array([limit_sweeps], dtype=wp.int32, device=device),
+        kinematics64=kinematics64,
+        device=device,
+        timestep_host=np.array([m.opt.timestep for m in models]),
+    )
+
+
+@dataclass(frozen=True)
+class LocalTypes:
+    """Fixed-size Warp vector/matrix types for one topology's per-world working memory.
+
+    Kernels keep a world's whole state in these (registers or thread-local memory), so a
+    world's step needs no scratch arrays and its adjoint no overwritten global memory.
+    """
+
+    scalar: type  # wp.float32 or wp.float64
+    vec2: type
+    vec3: type
+    vec4: type
+    quat: type
+    mat33: type
+    body_vec3: type  # (NB, 3): one 3-vector per body
+    body_vec4: type  # (NB, 4): one quaternion (w, x, y, z) per body
+    body_mat9: type  # (NB, 9): one row-major 3x3 matrix per body
+    body_scalar: type  # (NB,)
+    dof_vec: type  # (NV,)
+    dof_vec3: type  # (NV, 3): one 3-vector per dof
+    dof_mat: type  # (NV, NV)
+    act_vec: type  # (NU,)
+    ee_jac: type  # (6, NV): one end effector's Jacobian (rows: 3 translation, 3 rotation)
+    ee_vec3: type  # (NE, 3): one 3-vector per end effector
+    ee_vec4: type  # (NE, 4): one quaternion (w, x, y, z) per end effector
+
+
+def local_types(topology: Topology, dtype=wp.float32) -> LocalTypes:
+    """See `_local_types` (one cache entry per precision, however `dtype` is passed)."""
+    return _local_types(topology, dtype)
+
+
+@functools.cache
+def _local_types(topology: Topology, dtype) -> LocalTypes:
+    """The `LocalTypes` of a topology in scalar type `dtype` (cached: one set of type objects)."""
+    nb, nv, nu = topology.body_count, topology.dof_count, max(topology.actuator_count, 1)
+    ne = max(topology.ee_count, 1)
+    f32 = dtype
+    return LocalTypes(
+        scalar=dtype,
+        vec2=wp.types.vector(2, dtype),
+        vec3=wp.types.vector(3, dtype),
+        vec4=wp.types.vector(4, dtype),
+        quat=wp.types.quaternion(dtype),
+        mat33=wp.types.matrix((3, 3), dtype),
+        body_vec3=wp.types.matrix(shape=(nb, 3), dtype=f32),
+        body_vec4=wp.types.matrix(shape=(nb, 4), dtype=f32),
+        body_mat9=wp.types.matrix(shape=(nb, 9), dtype=f32),
+        body_scalar=wp.types.vector(length=nb, dtype=f32),
+        dof_vec=wp.types.vector(length=nv, dtype=f32),
+        dof_vec3=wp.types.matrix(shape=(nv, 3), dtype=f32),
+        dof_mat=wp.types.matrix(shape=(nv, nv), dtype=f32),
+        act_vec=wp.types.vector(length=nu, dtype=f32),
+        ee_jac=wp.types.matrix(shape=(6, nv), dtype=f32),
+        ee_vec3=wp.types.matrix(shape=(ne, 3), dtype=f32),
+        ee_vec4=wp.types.matrix(shape=(ne, 4), dtype=f32),
+    )
+
+
+def module_name(topology: Topology, family: str) -> str:
+    """Warp module holding one family of a topology's kernels ("fk", "dynamics", "ik",
+    "rollout", "rollout_grad"): each compiles once per topology, on its first launch, and
+    a user of one family never waits for another's compile."""
+    return f"tt_tree_{topology.digest}_{family}"
+
+
+#: Module options of tt's per-topology kernels: loops over bodies and dofs are unrolled
+#: (robots have up to ~20 dofs), forward-only unless a differentiable kernel is built.
+MODULE_OPTIONS = {"max_unroll": 64, "enable_backward": False}

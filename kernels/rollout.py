@@ -1,0 +1,475 @@
+"""The fused rollout: controller and physics of one world in one thread, many steps a launch.
+
+Per world and control step t (the oracle's loop, `tt.sim.validate`, step for step):
+
+1. state (q, qd) at the start of the step; at t = 0 the oracle's start posture, at rest:
+   `IKConfig.init_iterations` kinematic IK steps from qpos0 toward the motion's first pose;
+2. IK target: the motion pose at min(t + lookahead, T_m - 1); q_cmd = DiffIK step
+   (`tt.kernels.ik`); ctrl = clip(q_cmd of each actuated joint, ctrlrange);
+3. `substeps` physics steps (`tt.kernels.dynamics`) with ctrl held;
+4. record q, qd, ctrl, actuator forces and velocities at the new state, end-effector
+   poses (`tt.kernels.fk`) and the target at index min(t, T_m - 1);
+5. termination: the step is alive while the position error summed over end effectors
+   stays within `threshold`; the first step past it keeps its record with alive False,
+   and every later step (also every step after the motion's last) repeats the last record
+   with alive False.
+
+All of a world's working memory is thread-local; the only memory it writes is its records
+(one time slice per step, never overwritten) and its physics state buffer. The state
+buffer has L slots, slot (s mod L) holding the state after physics step s: with L = 1 the
+state is updated in place (forward only, minimal memory); with L = T * substeps + 1 every
+physics step writes a fresh slot, so the kernel's adjoint (Warp replays each dynamic loop
+iteration from memory) is exact and gradients of any function of the records with respect
+to the model's continuous fields (link offsets `body_pos`, mount pose, masses, gains) can
+be taken with `wp.Tape`.
+
+Kernels are compiled once per `Topology` (`rollout_kernels`), the differentiable rollout in
+a separate module that is built only when first asked for (`grad_kernels`).
+"""
+
+import functools
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+import warp as wp
+
+from tt.kernels.dynamics import dynamics_funcs, model_inputs
+from tt.kernels.fk import kinematics_funcs
+from tt.kernels.ik import IKWeights, ik_funcs, ik_weights
+from tt.kernels.lie import wxyz
+from tt.kernels.model import MODULE_OPTIONS, Topology, TreeModel, local_types, module_name
+from tt.kernels.pose import position_error
+from tt.sim.controller import IKConfig
+
+
+def make_rollout_kernel(topology: Topology, module: str):
+    """The fused rollout kernel of one topology, registered in Warp module `module`."""
+    T = local_types(topology)
+    K = kinematics_funcs(topology)
+    Dyn = dynamics_funcs(topology)
+    IK = ik_funcs(topology)
+    NV, NU, NE = topology.dof_count, topology.actuator_count, topology.ee_count
+    ACT_DOF = topology.actuator_dof
+
+    @wp.kernel(module=module)
+    def _rollout(
+        # Model:
+        body_pos: wp.array2d(dtype=wp.vec3),
+        body_quat: wp.array2d(dtype=wp.vec4),
+        body_mass: wp.array2d(dtype=float),
+        body_ipos: wp.array2d(dtype=wp.vec3),
+        body_iquat: wp.array2d(dtype=wp.vec4),
+        body_inertia: wp.array2d(dtype=wp.vec3),
+        dof_axis: wp.array2d(dtype=wp.vec3),
+        dof_pos: wp.array2d(dtype=wp.vec3),
+        dof_ref: wp.array2d(dtype=float),
+        dof_armature: wp.array2d(dtype=float),
+        dof_damping: wp.array2d(dtype=float),
+        dof_stiffness: wp.array2d(dtype=float),
+        dof_springref: wp.array2d(dtype=float),
+        dof_range: wp.array2d(dtype=wp.vec2),
+        dof_limit_kb: wp.array2d(dtype=wp.vec2),
+        dof_solimp: wp.array3d(dtype=float),
+        dof_invweight0: wp.array2d(dtype=float),
+        act_gain: wp.array2d(dtype=float),
+        act_bias: wp.array2d(dtype=wp.vec3),
+        act_gear: wp.array2d(dtype=float),
+        act_ctrlrange: wp.array2d(dtype=wp.vec2),
+        act_forcerange: wp.array2d(dtype=wp.vec2),
+        gravity: wp.array(dtype=wp.vec3),
+        timestep: wp.array(dtype=float),
+        limit_enabled: wp.array(dtype=wp.int32),
+        limit_sweeps: wp.array(dtype=wp.int32),
+        ee_pos: wp.array2d(dtype=wp.vec3),
+        ee_quat: wp.array2d(dtype=wp.vec4),
+        # In:
+        weights: IKWeights,
+        lookahead: int,
+        substeps: int,
+        threshold: float,
+        t_begin: int,
+        t_end: int,
+        motion_pos_in: wp.array3d(dtype=wp.vec3),
+        motion_quat_in: wp.array3d(dtype=wp.vec4),
+        motion_steps_in: wp.array(dtype=wp.int32),
+        # Data in / out (physics state, slot s mod L after physics step s):
+        qpos_state: wp.array3d(dtype=float),
+        qvel_state: wp.array3d(dtype=float),
+        # Data out (records, (W, T, ...)):
+        qpos_out: wp.array3d(dtype=float),
+        qvel_out: wp.array3d(dtype=float),
+        ctrl_out: wp.array3d(dtype=float),
+        act_force_out: wp.array3d(dtype=float),
+        act_vel_out: wp.array3d(dtype=float),
+        ee_pos_out: wp.array3d(dtype=wp.vec3),
+        ee_quat_out: wp.array3d(dtype=wp.vec4),
+        target_pos_out: wp.array3d(dtype=wp.vec3),
+        target_quat_out: wp.array3d(dtype=wp.vec4),
+        alive_out: wp.array2d(dtype=wp.bool),
+    ):
+        worldid = wp.tid()
+        mid = worldid % body_pos.shape[0]
+        motionid = worldid % motion_pos_in.shape[0]
+        motion_steps = motion_steps_in[motionid]
+        slots = qpos_state.shape[1]
+        for t in range(t_begin, t_end):
+            record = wp.min(t, motion_steps - 1)
+            for e in range(NE):
+                target_pos_out[worldid, t, e] = motion_pos_in[motionid, record, e]
+                target_quat_out[worldid, t, e] = motion_quat_in[motionid, record, e]
+            stopped = t >= motion_steps
+            if t > 0:
+                if not alive_out[worldid, t - 1]:
+                    stopped = True
+            if stopped:
+                # Past termination or the motion's end: repeat the last record.
+                for d in range(NV):
+                    qpos_out[worldid, t, d] = qpos_out[worldid, t - 1, d]
+                    qvel_out[worldid, t, d] = qvel_out[worldid, t - 1, d]
+                for u in range(NU):
+                    ctrl_out[worldid, t, u] = ctrl_out[worldid, t - 1, u]
+                    act_force_out[worldid, t, u] = act_force_out[worldid, t - 1, u]
+                    act_vel_out[worldid, t, u] = act_vel_out[worldid, t - 1, u]
+                for e in range(NE):
+                    ee_pos_out[worldid, t, e] = ee_pos_out[worldid, t - 1, e]
+                    ee_quat_out[worldid, t, e] = ee_quat_out[worldid, t - 1, e]
+                alive_out[worldid, t] = False
+            else:
+                # Controller, at the state of the start of the step.
+                s0 = t * substeps
+                q = T.dof_vec()
+                for d in range(NV):
+                    q[d] = qpos_state[worldid, s0 % slots, d]
+                goal = wp.min(t + lookahead, motion_steps - 1)
+                tpos = T.ee_vec3()
+                tquat = T.ee_vec4()
+                for e in range(NE):
+                    tpos[e] = motion_pos_in[motionid, goal, e]
+                    tquat[e] = motion_quat_in[motionid, goal, e]
+                xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+                q_cmd = IK.command(
+                    mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights
+                )
+                ctrl = T.act_vec()
+                for u in range(NU):
+                    cr = act_ctrlrange[mid, u]
+                    ctrl[u] = wp.clamp(q_cmd[wp.static(ACT_DOF[u])], cr[0], cr[1])
+
+                # Physics, with the command held.
+                for k in range(substeps):
+                    s = s0 + k
+                    qk = T.dof_vec()
+                    qdk = T.dof_vec()
+                    for d in range(NV):
+                        qk[d] = qpos_state[worldid, s % slots, d]
+                        qdk[d] = qvel_state[worldid, s % slots, d]
+                    qn, qdn, force, vel, active = Dyn.step(
+                        mid,
+                        body_pos, body_quat, body_mass, body_ipos, body_iquat, body_inertia,
+                        dof_axis, dof_pos, dof_ref, dof_armature, dof_damping, dof_stiffness, dof_springref,
+                        dof_range, dof_limit_kb, dof_solimp, dof_invweight0,
+                        act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange,
+                        gravity, timestep, limit_enabled, limit_sweeps,
+                        qk, qdk, ctrl,
+                    )  # fmt: skip
+                    for d in range(NV):
+                        qpos_state[worldid, (s + 1) % slots, d] = qn[d]
+                        qvel_state[worldid, (s + 1) % slots, d] = qdn[d]
+
+                # Record the state after the step, with what belongs to it.
+                s1 = s0 + substeps
+                q1 = T.dof_vec()
+                qd1 = T.dof_vec()
+                for d in range(NV):
+                    q1[d] = qpos_state[worldid, s1 % slots, d]
+                    qd1[d] = qvel_state[worldid, s1 % slots, d]
+                    qpos_out[worldid, t, d] = q1[d]
+                    qvel_out[worldid, t, d] = qd1[d]
+                qfrc, force1, vel1 = Dyn.actuation(mid, act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange, q1, qd1, ctrl)
+                for u in range(NU):
+                    ctrl_out[worldid, t, u] = ctrl[u]
+                    act_force_out[worldid, t, u] = force1[u]
+                    act_vel_out[worldid, t, u] = vel1[u]
+                xpos1, xquat1, axis1, anchor1 = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q1)
+                error = float(0.0)
+                for e in range(NE):
+                    p, r = wp.static(K.site_pose[e])(xpos1, xquat1, ee_pos, ee_quat, mid)
+                    ee_pos_out[worldid, t, e] = p
+                    ee_quat_out[worldid, t, e] = wxyz(r)
+                    error += position_error(p, motion_pos_in[motionid, record, e])
+                # `<=` so that a NaN error (a diverged state) terminates like a large one.
+                alive_out[worldid, t] = error <= threshold
+
+    return _rollout
+
+
+def make_initial_posture_kernel(topology: Topology, module: str):
+    """The start-posture kernel of one topology (`IKConfig.init_iterations` kinematic IK
+    steps from qpos0 toward the motion's first pose), registered in module `module`.
+
+    It computes in float64 from float64 model fields and first poses: fifty IK steps toward
+    a pose the robot may not reach can wander chaotically (differences of 1e-7 rad grow to
+    radians), so float32 or float32-rounded inputs would end in a different posture from the
+    oracle's for a few percent of random designs.
+    """
+    S = wp.float64
+    T = local_types(topology, S)
+    K = kinematics_funcs(topology, S)
+    IK = ik_funcs(topology, S)
+    NV, NE = topology.dof_count, topology.ee_count
+
+    @wp.kernel(module=module)
+    def _initial_posture(
+        # Model (float64 kinematic fields):
+        body_pos: wp.array2d(dtype=T.vec3),
+        body_quat: wp.array2d(dtype=T.vec4),
+        dof_axis: wp.array2d(dtype=T.vec3),
+        dof_pos: wp.array2d(dtype=T.vec3),
+        dof_ref: wp.array2d(dtype=S),
+        dof_range: wp.array2d(dtype=T.vec2),
+        ee_pos: wp.array2d(dtype=T.vec3),
+        ee_quat: wp.array2d(dtype=T.vec4),
+        # In:
+        weights: IKWeights,
+        iterations: int,
+        motion_pos_in: wp.array2d(dtype=T.vec3),
+        motion_quat_in: wp.array2d(dtype=T.vec4),
+        # Data out (iterate i in slot i mod L, then the start state in slot 0):
+        q_iter: wp.array3d(dtype=wp.float64),
+        qpos_state_out: wp.array3d(dtype=float),
+    ):
+        worldid = wp.tid()
+        mid = worldid % body_pos.shape[0]
+        motionid = worldid % motion_pos_in.shape[0]
+        slots = q_iter.shape[1]
+        tpos = T.ee_vec3()
+        tquat = T.ee_vec4()
+        for e in range(NE):
+            tpos[e] = motion_pos_in[motionid, e]
+            tquat[e] = motion_quat_in[motionid, e]
+        for d in range(NV):
+            q_iter[worldid, 0, d] = dof_ref[mid, d]
+        for i in range(iterations):
+            q = T.dof_vec()
+            for d in range(NV):
+                q[d] = q_iter[worldid, i % slots, d]
+            xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+            q_cmd = IK.command(
+                mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights
+            )
+            for d in range(NV):
+                q_iter[worldid, (i + 1) % slots, d] = q_cmd[d]
+        for d in range(NV):
+            qpos_state_out[worldid, 0, d] = float(q_iter[worldid, iterations % slots, d])
+
+    return _initial_posture
+
+
+@functools.cache
+def rollout_kernels(topology: Topology) -> SimpleNamespace:
+    """The forward-only rollout kernels of a topology (start posture and rollout, one module)."""
+    module = module_name(topology, "rollout")
+    wp.set_module_options(MODULE_OPTIONS, module)
+    return SimpleNamespace(
+        module=module,
+        initial_posture=make_initial_posture_kernel(topology, module),
+        rollout=make_rollout_kernel(topology, module),
+    )
+
+
+@functools.cache
+def grad_kernels(topology: Topology) -> SimpleNamespace:
+    """The differentiable rollout of a topology (its own module, with adjoints).
+
+    Load it with `load_differentiable` before the first launch: the kernels overwrite
+    components of thread-local vectors and matrices, whose adjoints Warp gets right only
+    when the module is built with ``enable_vector_component_overwrites``.
+    """
+    module = module_name(topology, "rollout_grad")
+    wp.set_module_options({**MODULE_OPTIONS, "enable_backward": True}, module)
+    return SimpleNamespace(
+        module=module,
+        initial_posture=make_initial_posture_kernel(topology, module),
+        rollout=make_rollout_kernel(topology, module),
+    )
+
+
+def load_differentiable(topology: Topology, device: str) -> SimpleNamespace:
+    """`grad_kernels(topology)`, built and loaded on `device`.
+
+    Warp reads ``enable_vector_component_overwrites`` from its global config when it first
+    hashes a module (and keeps that hash), so the flag is set only around that point and
+    restored, leaving every other module as the user configured it.
+    """
+    kernels = grad_kernels(topology)
+    previous = wp.config.enable_vector_component_overwrites
+    wp.config.enable_vector_component_overwrites = True
+    try:
+        wp.load_module(kernels.module, device=device)
+    finally:
+        wp.config.enable_vector_component_overwrites = previous
+    return kernels
+
+
+@dataclass
+class RolloutArrays:
+    """Records of W worlds over T control steps, as Warp arrays (see `Episode` for meanings).
+
+    qpos, qvel: (W, T, NV) float; ctrl, act_force, act_vel: (W, T, NU) float;
+    ee_pos, target_pos: (W, T, NE) vec3; ee_quat, target_quat: (W, T, NE) vec4 (w, x, y, z);
+    alive: (W, T) bool; qpos_state, qvel_state: (W, L, NV) physics state buffer.
+    """
+
+    qpos: wp.array
+    qvel: wp.array
+    ctrl: wp.array
+    act_force: wp.array
+    act_vel: wp.array
+    ee_pos: wp.array
+    ee_quat: wp.array
+    target_pos: wp.array
+    target_quat: wp.array
+    alive: wp.array
+    qpos_state: wp.array
+    qvel_state: wp.array
+
+
+@dataclass
+class MotionArrays:
+    """M target motions padded to a common length T, on the device.
+
+    pos: (M, T, NE) vec3 [m]; quat: (M, T, NE) vec4 (w, x, y, z); steps: (M,) int32, each
+    motion's own length; first_pos, first_quat: the first poses in float64, (M, NE) (the
+    start posture is solved toward them in float64).
+    """
+
+    pos: wp.array
+    quat: wp.array
+    steps: wp.array
+    first_pos: wp.array
+    first_quat: wp.array
+
+    @property
+    def count(self) -> int:
+        return self.pos.shape[0]
+
+
+def motion_arrays(pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requires_grad: bool = False) -> MotionArrays:
+    """`MotionArrays` from padded host arrays pos (M, T, NE, 3), quat (M, T, NE, 4) and the
+    motions' lengths `steps` (M,)."""
+    pos = np.asarray(pos, dtype=np.float64)
+    quat = np.asarray(quat, dtype=np.float64)
+    return MotionArrays(
+        pos=wp.array(pos.astype(np.float32), dtype=wp.vec3, device=device, requires_grad=requires_grad),
+        quat=wp.array(quat.astype(np.float32), dtype=wp.vec4, device=device, requires_grad=requires_grad),
+        steps=wp.array(np.asarray(steps, dtype=np.int32), dtype=wp.int32, device=device),
+        first_pos=wp.array(np.ascontiguousarray(pos[:, 0]), dtype=wp.vec3d, device=device),
+        first_quat=wp.array(np.ascontiguousarray(quat[:, 0]), dtype=wp.types.vector(4, wp.float64), device=device),
+    )
+
+
+def rollout_tree(
+    model: TreeModel,
+    motions: MotionArrays,
+    world_count: int,
+    steps: int,
+    *,
+    config: IKConfig = IKConfig(),
+    differentiable: bool = False,
+    initial_qpos: np.ndarray | None = None,
+    chunk: int | None = None,
+    progress=None,
+    device: str | None = None,
+) -> RolloutArrays:
+    """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
+
+    World w runs model entry w % model.world_count on motion w % M (M = motions.count; with
+    one model entry per world and worlds design-major, world d * M + m is design d on
+    motion m). `motions` comes from `motion_arrays`.
+    differentiable: use the kernel with adjoints and a state slot per physics step, so the
+        call can be recorded on a `wp.Tape` (memory grows with W * steps * substeps).
+        Gradients flow through the controller and the physics from the start posture on;
+        the start posture itself (a float64 IK iteration on `model.kinematics64`, chaotic
+        for robots that cannot reach the first pose) is a constant for them.
+    initial_qpos: start postures (W, NV) [rad or m] to use instead of the start-posture kernel.
+    chunk: control steps per launch (None: all in one); progress: a callable taking the
+        number of control steps done after each launch (e.g. a tqdm bar's update).
+    """
+    topo = model.topology
+    device = device or model.device
+    dt = model.timestep_host
+    ratio = config.control_dt / dt
+    substeps = np.rint(ratio).astype(int)
+    if np.any(substeps < 1) or np.any(np.abs(ratio - substeps) > 1e-6 * ratio) or len(set(substeps.tolist())) != 1:
+        raise ValueError(
+            f"model timesteps {sorted(set(dt.tolist()))} s must all divide IKConfig.control_dt "
+            f"{config.control_dt} s into one whole number of physics steps"
+        )
+    substeps = int(substeps[0])
+    W, NV, NU, NE = world_count, topo.dof_count, max(topo.actuator_count, 1), topo.ee_count
+    if motions.pos.ndim != 3 or motions.pos.shape[2] != NE:
+        raise ValueError(f"motion pos has shape {motions.pos.shape}; expected (M, T, {NE}) for {NE} end effector(s)")
+    if steps < 1:
+        raise ValueError(f"steps = {steps}; a rollout needs at least one control step")
+    slots = steps * substeps + 1 if differentiable else 1
+
+    def zeros(shape, dtype, grad=differentiable):
+        return wp.zeros(shape, dtype=dtype, device=device, requires_grad=grad)
+
+    out = RolloutArrays(
+        qpos=zeros((W, steps, NV), float),
+        qvel=zeros((W, steps, NV), float),
+        ctrl=zeros((W, steps, NU), float),
+        act_force=zeros((W, steps, NU), float),
+        act_vel=zeros((W, steps, NU), float),
+        ee_pos=zeros((W, steps, NE), wp.vec3),
+        ee_quat=zeros((W, steps, NE), wp.vec4),
+        target_pos=zeros((W, steps, NE), wp.vec3),
+        target_quat=zeros((W, steps, NE), wp.vec4),
+        alive=zeros((W, steps), wp.bool, grad=False),
+        qpos_state=zeros((W, slots, NV), float),
+        qvel_state=zeros((W, slots, NV), float),
+    )
+    kernels = load_differentiable(topo, device) if differentiable else rollout_kernels(topo)
+    # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
+    iterations = int(config.init_iterations)
+    q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
+    if initial_qpos is not None:
+        start = np.zeros((W, slots, NV), np.float32)
+        start[:, 0] = initial_qpos
+        out.qpos_state.assign(start)
+    else:
+        k64 = model.kinematics64
+        wp.launch(
+            kernels.initial_posture,
+            dim=W,
+            inputs=[
+                k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
+                k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
+            ],  # fmt: skip
+            outputs=[q_iter, out.qpos_state],
+            device=device,
+        )
+    kernel = kernels.rollout
+    chunk = steps if chunk is None else max(1, int(chunk))
+    for t0 in range(0, steps, chunk):
+        t1 = min(steps, t0 + chunk)
+        wp.launch(
+            kernel,
+            dim=W,
+            inputs=[
+                *model_inputs(model), model.ee_pos, model.ee_quat,
+                ik_weights(config), config.lookahead_steps, substeps, float(config.termination_pos_error),
+                t0, t1, motions.pos, motions.quat, motions.steps,
+                out.qpos_state, out.qvel_state,
+            ],  # fmt: skip
+            outputs=[
+                out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
+                out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive,
+            ],  # fmt: skip
+            device=device,
+        )
+        if progress is not None:
+            progress(t1 - t0)
+    return out

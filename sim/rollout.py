@@ -1,0 +1,239 @@
+"""Batched closed-loop rollouts: every design on every motion, one Episode.
+
+`rollout(designs, motions)` runs W = D * M worlds, design-major (world ``d * M + m`` is
+design d on motion m), with the controller of `tt.sim.controller` (mink DiffIK with 80 ms
+look-ahead at 50 Hz) driving the design's position actuators. Backends:
+
+* ``"warp"`` (default): tt's fused Warp kernels (`tt.kernels.rollout`), contact-free
+  trees of hinge/slide joints. Designs are grouped by topology; each group is one batched
+  launch (per chunk of control steps). With a single group the Episode's tensors are
+  zero-copy torch views of the kernel's Warp arrays; with several groups (designs of
+  different DoF) the groups' records are copied into one zero-padded Episode.
+* ``"mujoco"``: the oracle, MuJoCo C + mink one world at a time (`tt.sim.validate`).
+
+The Episode's conventions (padding of joint fields to the widest design, repeated records
+after termination or past a motion's end) are the oracle's; see `tt.sim.validate`.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import mujoco
+import numpy as np
+import torch
+
+from tt.sim.controller import IKConfig, check_fixed_base, ee_site_names, model_name
+from tt.sim.designs import Design, get_space
+from tt.sim.episode import Episode
+from tt.sim.motions.base import Motion
+
+logger = logging.getLogger(__name__)
+
+#: Rollout backends by name.
+BACKENDS: tuple[str, ...] = ("warp", "mjwarp", "newton", "mujoco")
+
+#: Default control steps per kernel launch (1 s at 50 Hz): long enough that launch
+#: overhead is negligible, short enough for a live progress bar.
+DEFAULT_CHUNK = 50
+
+
+def _models(designs: Sequence[Design | mujoco.MjModel]) -> tuple[list[mujoco.MjModel], tuple[str, ...], str | None]:
+    """Compiled models, end-effector site names and design space name (None for raw models)."""
+    if len(designs) == 0:
+        raise ValueError("designs is empty; rollout needs at least one design")
+    spaces = {d.space for d in designs if isinstance(d, Design)}
+    if len(spaces) > 1:
+        raise ValueError(
+            f"designs mix design spaces {sorted(spaces)}; roll out one design space per call "
+            "(motions and rewards are per space)"
+        )
+    if spaces and any(not isinstance(d, Design) for d in designs):
+        raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
+    if spaces:
+        space = get_space(spaces.pop())
+        if space.has_contacts:
+            raise ValueError(
+                f"design space {space.name!r} has contacts (has_contacts=True); the 'warp' backend "
+                "simulates contact-free trees only, use backend='mujoco'"
+            )
+        return [space.model(d) for d in designs], space.ee_sites(), space.name
+    models = []
+    for i, m in enumerate(designs):
+        if not isinstance(m, mujoco.MjModel):
+            raise TypeError(f"designs[{i}] is a {type(m).__name__}; expected a tt Design or a mujoco.MjModel")
+        models.append(m)
+    sites = ee_site_names(models[0])
+    for i, m in enumerate(models):
+        if ee_site_names(m) != sites:
+            raise ValueError(f"designs[{i}] ({model_name(m)!r}) has end effectors {ee_site_names(m)}, designs[0] has {sites}")
+    return models, sites, None
+
+
+def _check_motions(motions: Sequence[Motion], config: IKConfig, arms: int) -> None:
+    if len(motions) == 0:
+        raise ValueError("motions is empty; rollout needs at least one motion")
+    for m, motion in enumerate(motions):
+        if not isinstance(motion, Motion):
+            raise TypeError(f"motions[{m}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
+    dts = sorted({float(motion.dt) for motion in motions})
+    if len(dts) > 1:
+        raise ValueError(f"motions have different dt {dts} s; resample them to one rate (tt uses 50 Hz)")
+    if abs(dts[0] - config.control_dt) > 1e-9:
+        raise ValueError(
+            f"motions have dt = {dts[0]} s but IKConfig.control_dt = {config.control_dt} s; "
+            "resample the motions or set control_dt to match"
+        )
+    for m, motion in enumerate(motions):
+        if motion.arms != arms:
+            raise ValueError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+
+
+def rollout(
+    designs: Sequence[Design | mujoco.MjModel],
+    motions: Sequence[Motion],
+    *,
+    backend: str = "warp",
+    device: str | None = None,
+    chunk: int | None = DEFAULT_CHUNK,
+    progress: bool = False,
+    config: IKConfig = IKConfig(),
+) -> Episode:
+    """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
+
+    designs: D designs of one design space (or MjModels with sites ee_0, ...).
+    motions: M motions sampled at ``config.control_dt`` with one arm per end effector.
+    backend: ``"warp"`` (tt's kernels), ``"mjwarp"`` (MuJoCo-Warp, contacts too, see
+        `tt.sim.mjwarp_backend`), ``"newton"`` (Newton Featherstone, see
+        `tt.sim.newton_backend`) or ``"mujoco"`` (the oracle).
+    device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None for `tt.device.default_device()`;
+        tensors of the Episode live there ("mujoco" always returns CPU tensors).
+    chunk: control steps per kernel launch (None: the whole episode in one launch).
+    progress: show a tqdm bar (control steps for "warp", worlds for "mujoco").
+    Raises ValueError for mixed design spaces, motions of different dt, an unknown device
+    or backend, and designs with contacts on "warp".
+    """
+    from tt.device import resolve_device
+
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown rollout backend {backend!r}; valid: {list(BACKENDS)}")
+    device = resolve_device(device)
+    if backend == "mjwarp":  # validates its own inputs: it also runs designs with contacts
+        from tt.sim.mjwarp_backend import mjwarp_rollout
+
+        return mjwarp_rollout(designs, motions, config=config, device=device, progress=progress)
+    if backend == "newton":
+        from tt.sim.newton_backend import newton_rollout
+
+        return newton_rollout(designs, motions, config=config, device=device, progress=progress)
+    models, sites, space = _models(designs)
+    _check_motions(motions, config, len(sites))
+    if backend == "mujoco":
+        from tt.sim.validate import oracle_rollout
+
+        return oracle_rollout(designs, motions, config=config, progress=progress)
+    return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress)
+
+
+def _rollout_warp(
+    models: list[mujoco.MjModel],
+    sites: tuple[str, ...],
+    motions: Sequence[Motion],
+    *,
+    config: IKConfig,
+    device: str,
+    chunk: int | None,
+    progress: bool,
+) -> Episode:
+    import warp as wp
+
+    from tt.kernels.model import build_tree_model, check_supported, topology_key
+    from tt.kernels.rollout import motion_arrays, rollout_tree
+
+    for i, m in enumerate(models):
+        check_fixed_base(m)
+        check_supported(m, i)
+    D, M = len(models), len(motions)
+    T = max(motion.steps for motion in motions)
+    A = len(sites)
+    pos = np.zeros((M, T, A, 3))
+    quat = np.zeros((M, T, A, 4))
+    for j, motion in enumerate(motions):
+        idx = np.minimum(np.arange(T), motion.steps - 1)
+        pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
+    marrays = motion_arrays(pos, quat, [motion.steps for motion in motions], device=device)
+
+    groups: dict[tuple, list[int]] = {}
+    for d, m in enumerate(models):
+        groups.setdefault(topology_key(m, sites), []).append(d)
+    logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", D, len(groups), M, T)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
+    results = []
+    for members in groups.values():
+        # One model entry per world (design-major), so world w reads entry w.
+        tree = build_tree_model([models[d] for d in members for _ in range(M)], sites, device=device)
+        arrays = rollout_tree(
+            tree, marrays, len(members) * M, T,
+            config=config, chunk=chunk, progress=bar.update if bar else None, device=device,
+        )  # fmt: skip
+        results.append((members, arrays))
+    if bar is not None:
+        bar.close()
+
+    design_index = torch.arange(D).repeat_interleave(M)
+    motion_index = torch.arange(M).repeat(D)
+    names = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos", "target_quat", "alive")
+    if len(results) == 1:
+        (members, arrays), = results
+        fields = {name: wp.to_torch(getattr(arrays, name)) for name in names}
+        nu = models[0].nu
+        if fields["ctrl"].shape[-1] != nu:  # a model without actuators keeps one padding column
+            for name in ("ctrl", "act_force", "act_vel"):
+                fields[name] = fields[name][..., :nu]
+    else:
+        # Several topologies: copy each group's records into one zero-padded Episode.
+        sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
+        nu = max(m.nu for m in models)
+        sizes.update(ctrl=nu, act_force=nu, act_vel=nu)
+        tdev = wp.device_to_torch(device)
+        fields = {}
+        for name in names:
+            first = wp.to_torch(getattr(results[0][1], name))
+            shape = (D * M, T) + (tuple(first.shape[2:]) if name not in sizes else (sizes[name],))
+            fields[name] = torch.zeros(shape, dtype=first.dtype, device=tdev)
+        for members, arrays in results:
+            worlds = torch.tensor([d * M + j for d in members for j in range(M)], device=tdev)
+            for name in names:
+                src = wp.to_torch(getattr(arrays, name))
+                if name in sizes:
+                    width = min(src.shape[-1], sizes[name])
+                    fields[name][worlds, :, :width] = src[..., :width]
+                else:
+                    fields[name][worlds] = src
+    tdev = fields["qpos"].device
+    return Episode(
+        qpos=fields["qpos"],
+        qvel=fields["qvel"],
+        ctrl=fields["ctrl"],
+        action=fields["ctrl"],
+        act_force=fields["act_force"],
+        act_vel=fields["act_vel"],
+        ee_pos=fields["ee_pos"],
+        ee_quat=fields["ee_quat"],
+        target_pos=fields["target_pos"],
+        target_quat=fields["target_quat"],
+        alive=fields["alive"],
+        fallen=torch.zeros((D * M, T), dtype=torch.bool, device=tdev),
+        design_index=design_index.to(tdev),
+        motion_index=motion_index.to(tdev),
+        dt=config.control_dt,
+    )
+
+
+__all__ = ["BACKENDS", "DEFAULT_CHUNK", "rollout"]
