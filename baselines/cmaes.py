@@ -1,10 +1,17 @@
 """CMA-ES over the continuous choices, for sampled discrete choices (the paper's baseline).
 
-Each restart draws one discrete choice (mount, DoF, axes, ...) and runs pycma on that
-choice's continuous parameters, normalised to [0, 1] with pycma's bound handling. In the
-batched mode all restarts advance in lock step and every generation's populations x all
-motions are one batched rollout. The sequential mode is the paper's: one candidate at a
-time, each motion rolled out on the MuJoCo + mink oracle.
+Each restart fixes one discrete choice (mount, DoF, joint axes, ...) and runs pycma on that
+choice's continuous parameters, normalised to [0, 1] with pycma's bound handling, starting
+from the continuous values of the design it was drawn with. The restarts' starting designs
+are either drawn at random (``screen=0``, the paper's way) or are the best designs, one per
+discrete choice, of a random batch that takes a share ``screen`` of the budget.
+
+Modes. Batched (default): all restarts advance in lock step and every generation's
+populations x all motions are one batched rollout on the problem's backend. Sequential
+(the paper's way, for comparison): one candidate at a time, its motions one after another
+on the MuJoCo + mink oracle. Every restart samples from its own random stream, so the order
+of evaluation does not change the candidates: both modes propose the same designs wherever
+the backends agree on the rewards.
 """
 
 from __future__ import annotations
@@ -13,11 +20,12 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from typing import NamedTuple, Sequence
 
 import cma
 import numpy as np
 
-from tt.baselines.evaluate import evaluate_designs
+from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 from tt.sim.designs import Design, DesignSpace
 
@@ -27,36 +35,84 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class CMAESConfig:
     """popsize: candidates per generation (paper: 5). generations: generations per restart
-    (paper's data biasing: 3). sigma0: initial step size in normalised units. sequential:
-    evaluate one candidate at a time on the oracle, as the paper did."""
+    (paper's data biasing: 3); the budget sets the number of restarts. sigma0: initial step
+    size in normalised units (the box is [0, 1] per parameter). screen: share of the budget,
+    in [0, 1), spent first on random designs evaluated as one batch; the restarts start from
+    the best of them (one per discrete choice). sequential: evaluate one candidate at a time
+    on the oracle, as the paper did."""
 
     popsize: int = 5
     generations: int = 3
     sigma0: float = 0.25
+    screen: float = 0.5
     sequential: bool = False
 
     def __post_init__(self) -> None:
-        if self.popsize < 2:
-            raise ValueError(f"CMAESConfig.popsize = {self.popsize}; CMA-ES needs at least 2")
-        if self.generations < 1:
-            raise ValueError(f"CMAESConfig.generations = {self.generations}; must be >= 1")
+        if not isinstance(self.popsize, int) or self.popsize < 2:
+            raise ValueError(f"CMAESConfig.popsize = {self.popsize!r}; CMA-ES needs an integer >= 2")
+        if not isinstance(self.generations, int) or self.generations < 1:
+            raise ValueError(f"CMAESConfig.generations = {self.generations!r}; must be an integer >= 1")
         if not 0 < self.sigma0 <= 1:
             raise ValueError(f"CMAESConfig.sigma0 = {self.sigma0}; must be in (0, 1]")
+        if not 0 <= self.screen < 1:
+            raise ValueError(f"CMAESConfig.screen = {self.screen}; must be in [0, 1)")
+
+
+class CMAESPlan(NamedTuple):
+    """How a budget is spent: `screen` random designs, then `restarts` x `generations` x popsize."""
+
+    restarts: int
+    generations: int
+    screen: int
+
+
+def _bounds(space: DesignSpace, discrete: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    params = space.continuous_params(discrete)
+    return np.array([p.low for p in params]), np.array([p.high for p in params])
 
 
 def _decode(space: DesignSpace, discrete: tuple[int, ...], x: np.ndarray) -> Design:
-    params = space.continuous_params(discrete)
-    lo = np.array([p.low for p in params])
-    hi = np.array([p.high for p in params])
+    lo, hi = _bounds(space, discrete)
     values = lo + np.clip(x, 0.0, 1.0) * (hi - lo)
     return Design(space.name, discrete, tuple(float(v) for v in values))
 
 
 def _encode(space: DesignSpace, design: Design) -> np.ndarray:
-    params = space.continuous_params(design.discrete)
-    lo = np.array([p.low for p in params])
-    hi = np.array([p.high for p in params])
-    return (np.asarray(design.continuous) - lo) / (hi - lo)
+    lo, hi = _bounds(space, design.discrete)
+    return np.clip((np.asarray(design.continuous) - lo) / (hi - lo), 0.0, 1.0)
+
+
+def _strategy(x0: np.ndarray, sigma0: float, popsize: int, rng: np.random.Generator) -> cma.CMAEvolutionStrategy:
+    # pycma's own seeding reseeds numpy's global generator; a private `randn` keeps each
+    # restart on its own stream and leaves the caller's global state alone.
+    opts = {
+        "bounds": [0.0, 1.0],
+        "popsize": popsize,
+        "randn": lambda *shape: rng.standard_normal(shape),
+        "seed": float("nan"),
+        "verbose": -9,
+    }
+    return cma.CMAEvolutionStrategy(list(x0), sigma0, opts)
+
+
+def _starts(designs: Sequence[Design], objective: np.ndarray, fallback: Sequence[Design], restarts: int) -> list[Design]:
+    """The best design of each discrete choice among `designs`, best first, `restarts` of them
+    (topped up from `fallback` when the batch holds fewer discrete choices)."""
+    order = np.argsort(-np.where(np.isfinite(objective), objective, -np.inf), kind="stable")
+    starts: list[Design] = []
+    seen: set[tuple[int, ...]] = set()
+    for i in order:
+        if designs[i].discrete not in seen and len(starts) < restarts:
+            seen.add(designs[i].discrete)
+            starts.append(designs[i])
+    for d in fallback:
+        if len(starts) == restarts:
+            break
+        if d.discrete not in seen:
+            seen.add(d.discrete)
+            starts.append(d)
+    starts += list(fallback[: restarts - len(starts)])
+    return starts
 
 
 class CMAES(Optimizer):
@@ -67,8 +123,8 @@ class CMAES(Optimizer):
     def __init__(self, config: CMAESConfig = CMAESConfig()):
         self.config = config
 
-    def plan(self, problem: Problem) -> tuple[int, int]:
-        """(restarts, generations) that fit the budget; raises if the budget is below one population."""
+    def plan(self, problem: Problem) -> CMAESPlan:
+        """How the budget is spent; raises ValueError if it is below one population."""
         c = self.config
         if problem.budget < c.popsize:
             raise ValueError(
@@ -76,45 +132,69 @@ class CMAES(Optimizer):
                 f"give --budget >= {c.popsize} or a smaller population"
             )
         generations = min(c.generations, problem.budget // c.popsize)
-        restarts = max(1, problem.budget // (c.popsize * generations))
-        return restarts, generations
+        per_restart = c.popsize * generations
+        restarts = max(1, int((1.0 - c.screen) * problem.budget) // per_restart)
+        screen = problem.budget - restarts * per_restart if c.screen > 0 else 0
+        return CMAESPlan(restarts, generations, screen)
+
+    def evaluate(self, problem: Problem, designs: Sequence[Design]) -> np.ndarray:
+        """Objective (mean reward over the problem's motions) of each design, (D,): one batched
+        rollout, or in the sequential mode one oracle rollout after another."""
+        if not self.config.sequential:
+            ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
+            return ev.objective
+        out = []
+        for d in designs:
+            # The oracle runs one world at a time: this is one candidate, motion after motion.
+            r = evaluate_designs([d], problem.motions, problem.reward, backend="mujoco").reward[0]
+            out.append(float(np.mean(r)) if all(math.isfinite(v) for v in r) else float("nan"))
+        return np.array(out)
 
     def optimize(self, problem: Problem) -> Result:
         c = self.config
-        restarts, generations = self.plan(problem)
+        plan = self.plan(problem)
         space = problem.design_space
-        start = time.perf_counter()
-        # Each restart's discrete choice and initial mean come from one seeded draw.
-        seeds = space.sample(restarts, seed=problem.seed)
-        strategies = []
-        for k, d in enumerate(seeds):
-            x0 = _encode(space, d)
-            opts = {"bounds": [0.0, 1.0], "popsize": c.popsize, "seed": problem.seed * 1000 + k + 1, "verbose": -9}
-            strategies.append((d.discrete, cma.CMAEvolutionStrategy(x0, c.sigma0, opts)))
+        backend = "mujoco" if c.sequential else problem.backend
+        # Every candidate keeps the discrete choice of a design drawn here (a topology), so
+        # every kernel the search needs is compiled before the clock starts.
+        drawn = space.sample(plan.screen + plan.restarts, seed=problem.seed)
+        screened, fallback = drawn[: plan.screen], drawn[plan.screen :]
+        warmup_seconds = warm_up(drawn, problem.motions, reward=problem.reward, backend=backend, device=problem.device)
 
-        all_designs: list[Design] = []
+        start = time.perf_counter()
+        all_designs: list[Design] = list(screened)
         all_rewards: list[float] = []
         history: list[float] = []
-        for g in range(generations):
+        if screened:
+            objective = self.evaluate(problem, screened)
+            all_rewards += list(objective)
+            history.append(float(np.nanmax(objective)) if np.isfinite(objective).any() else float("nan"))
+            starts = _starts(screened, objective, fallback, plan.restarts)
+        else:
+            starts = list(fallback)
+        streams = np.random.SeedSequence([problem.seed, 0x434D41]).spawn(plan.restarts)
+        strategies = [
+            (d.discrete, _strategy(_encode(space, d), c.sigma0, c.popsize, np.random.default_rng(s)))
+            for d, s in zip(starts, streams)
+        ]
+
+        for g in range(plan.generations):
             asked = [(discrete, es, es.ask()) for discrete, es in strategies]
             batch = [_decode(space, discrete, x) for discrete, _, xs in asked for x in xs]
-            if c.sequential:
-                objective = np.array([self._evaluate_one(problem, d) for d in batch])
-            else:
-                ev = evaluate_designs(batch, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
-                objective = ev.objective
+            objective = self.evaluate(problem, batch)
             k = 0
             for _, es, xs in asked:
                 f = objective[k : k + len(xs)]
-                # pycma minimises; a diverged candidate (NaN) gets the worst finite value.
-                loss = np.where(np.isfinite(f), -f, np.inf)
-                finite_max = np.max(loss[np.isfinite(loss)]) if np.isfinite(loss).any() else 0.0
-                es.tell(xs, list(np.where(np.isfinite(loss), loss, finite_max + 1.0)))
+                # pycma minimises; a diverged candidate (NaN) gets a value worse than any finite one.
+                loss = -f
+                finite = np.isfinite(loss)
+                worst = float(np.max(loss[finite])) + 1.0 if finite.any() else 0.0
+                es.tell(xs, [float(v) for v in np.where(finite, loss, worst)])
                 k += len(xs)
             all_designs += batch
             all_rewards += list(objective)
-            history.append(float(np.nanmax(all_rewards)))
-            log.info("cmaes generation %d/%d: best %.3f", g + 1, generations, history[-1])
+            history.append(float(np.nanmax(all_rewards)) if np.isfinite(all_rewards).any() else float("nan"))
+            log.info("cmaes generation %d/%d: best %.3f", g + 1, plan.generations, history[-1])
 
         rewards = np.array(all_rewards)
         best, best_reward = best_of(all_designs, rewards)
@@ -127,11 +207,8 @@ class CMAES(Optimizer):
             seconds=time.perf_counter() - start,
             rollouts=len(all_designs) * len(problem.motions),
             history=history,
-            info={"restarts": restarts, "generations": generations, "popsize": c.popsize},
+            info={
+                "restarts": plan.restarts, "generations": plan.generations, "popsize": c.popsize,
+                "screen": plan.screen, "sigma0": c.sigma0, "backend": backend, "warmup_seconds": warmup_seconds,
+            },
         )
-
-    @staticmethod
-    def _evaluate_one(problem: Problem, design: Design) -> float:
-        """The paper's way: one candidate, one motion at a time, on the oracle."""
-        rewards = [evaluate_designs([design], [m], problem.reward, backend="mujoco").objective[0] for m in problem.motions]
-        return float(np.mean(rewards)) if all(math.isfinite(r) for r in rewards) else float("nan")

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Sequence
 
+import mujoco
 import numpy as np
 import torch
 
@@ -30,8 +32,10 @@ class Evaluation:
     episode: Episode
 
 
-def run_rollout(designs: Sequence[Design], motions: Sequence[Motion], *, backend: str, device: str | None) -> Episode:
-    """Rollout of every design on every motion with `backend` (design-major worlds)."""
+def run_rollout(
+    designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None
+) -> Episode:
+    """Rollout of every design (or its built model) on every motion with `backend` (design-major worlds)."""
     if backend == "mujoco":
         from tt.sim.validate import oracle_rollout
 
@@ -41,12 +45,24 @@ def run_rollout(designs: Sequence[Design], motions: Sequence[Motion], *, backend
     return rollout(list(designs), list(motions), backend=backend, device=device)
 
 
-def score_episode(ep: Episode, designs: Sequence[Design], motions: Sequence[Motion], reward: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Reward and metrics of each world of `ep`, reshaped to (D, M)."""
+def score_episode(
+    ep: Episode,
+    designs: Sequence[Design],
+    motions: Sequence[Motion],
+    reward: str,
+    *,
+    models: Sequence[mujoco.MjModel] | None = None,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Reward and metrics of each world of `ep`, reshaped to (D, M).
+
+    models: the designs' built models when the caller has them (size and mass are read from
+    them); None builds them.
+    """
     space = designs[0].space
     cfg = get_reward(reward, space)
-    sp = get_space(space)
-    models = [sp.model(d) for d in designs]
+    if models is None:
+        sp = get_space(space)
+        models = [sp.model(d) for d in designs]
     device = ep.ee_pos.device
     size = robot_size(models).to(device)[ep.design_index.to(device)]
     mass = robot_mass(models).to(device)[ep.design_index.to(device)]
@@ -72,9 +88,58 @@ def evaluate_designs(
     spaces = {d.space for d in designs}
     if len(spaces) > 1:
         raise ValueError(f"designs from several spaces in one evaluation: {sorted(spaces)}")
-    ep = run_rollout(designs, motions, backend=backend, device=device)
-    r, m = score_episode(ep, designs, motions, reward)
+    sp = get_space(designs[0].space)
+    get_reward(reward, sp.name)  # an unknown reward fails before the rollout
+    if backend == "warp" and sp.has_contacts:
+        raise ValueError(
+            f"design space {sp.name!r} has contacts; backend 'warp' simulates contact-free trees only, "
+            "use backend='mujoco' or 'mjwarp'"
+        )
+    # Each design's model is built once, for the size and mass terms and, on "warp" (where a
+    # second build is a visible share of a small batch's time), for the rollout too.
+    models = [sp.model(d) for d in designs]
+    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device)
+    r, m = score_episode(ep, designs, motions, reward, models=models)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=m, episode=ep)
 
 
-__all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode"]
+def warm_up(
+    designs: Sequence[Design],
+    motions: Sequence[Motion],
+    *,
+    reward: str = "tracking",
+    backend: str = "warp",
+    device: str | None = None,
+) -> float:
+    """Compile (or load from Warp's kernel cache) what evaluating `designs` needs; seconds taken.
+
+    Warp builds one kernel module per tree topology on its first launch (about a minute per
+    topology on a CPU when not cached on disk). This evaluates one design per topology among
+    `designs` on the first two steps of the first motion, so an optimizer can start its
+    clock after every compile and first-call cost (imports, torch's first ops in the
+    reward); in a warm process it costs the models' build (milliseconds per design).
+    Candidates that keep a design's discrete choices share its topology. The "mujoco" oracle
+    compiles nothing; one short episode takes its first-call costs out of the timings.
+    """
+    start = time.perf_counter()
+    if not designs or not motions:
+        return 0.0
+    m = motions[0]
+    short = Motion(m.name, m.pos[:2], m.quat[:2], m.dt)
+    chosen = [designs[0]]
+    if backend != "mujoco":
+        from tt.kernels.model import topology_key
+
+        sp = get_space(designs[0].space)
+        by_discrete: dict[tuple[int, ...], Design] = {}
+        for d in designs:
+            by_discrete.setdefault(d.discrete, d)
+        by_topology: dict[tuple, Design] = {}
+        for d in by_discrete.values():
+            by_topology.setdefault(topology_key(sp.model(d), sp.ee_sites()), d)
+        chosen = list(by_topology.values())
+    evaluate_designs(chosen, [short], reward, backend=backend, device=device)
+    return time.perf_counter() - start
+
+
+__all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up"]

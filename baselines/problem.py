@@ -19,9 +19,10 @@ import numpy as np
 
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
+from tt.sim.rollout import BACKENDS as _ROLLOUT_BACKENDS
 
-#: Rollout backends an optimizer may evaluate candidates with.
-BACKENDS = ("warp", "mjwarp", "newton", "mujoco")
+#: Rollout backends an optimizer may evaluate candidates with (those `tt.sim.rollout` has).
+BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)
 
 
 @dataclass(frozen=True)
@@ -60,10 +61,16 @@ class Problem:
         dts = {round(m.dt, 9) for m in self.motions}
         if len(dts) > 1:
             raise ValueError(f"motions have different rates (dt {sorted(dts)} s); resample them to one rate")
-        if not isinstance(self.budget, (int, np.integer)) or self.budget < 1:
+        if not isinstance(self.budget, (int, np.integer)) or isinstance(self.budget, bool) or self.budget < 1:
             raise ValueError(f"Problem.budget = {self.budget!r}; must be an integer >= 1")
+        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"Problem.seed = {self.seed!r}; must be an integer >= 0")
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown backend {self.backend!r}; valid: {list(BACKENDS)}")
+        if self.device is not None:
+            from tt.device import resolve_device
+
+            resolve_device(self.device)  # raises on a device that does not exist, listing valid ones
 
     @property
     def design_space(self):

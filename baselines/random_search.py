@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from tt.baselines.evaluate import evaluate_designs
+from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 
 
@@ -14,8 +14,9 @@ class RandomSearch(Optimizer):
     name = "random"
 
     def optimize(self, problem: Problem) -> Result:
-        start = time.perf_counter()
         designs = problem.design_space.sample(problem.budget, seed=problem.seed)
+        warmup_seconds = warm_up(designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device)
+        start = time.perf_counter()
         ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
         best, best_reward = best_of(designs, ev.objective)
         return Result(
@@ -27,4 +28,5 @@ class RandomSearch(Optimizer):
             seconds=time.perf_counter() - start,
             rollouts=len(designs) * len(problem.motions),
             history=[best_reward],
+            info={"backend": problem.backend, "warmup_seconds": warmup_seconds},
         )

@@ -1,0 +1,754 @@
+"""`tt generate`: RoboToken datasets at scale, resumable, sharded, distributable.
+
+A dataset of N designs x K episodes is cut into shards of `GenerateConfig.designs_per_shard`
+designs. Shard i is a pure function of (config, i): its designs, the motion and SE(2)
+augmentation of every episode, and CMA-ES seeds all derive from
+``SeedSequence([seed, i, stream, ...])``, and the rollout is deterministic on the CPU. So
+shards can be generated in any order, by any number of processes or Ray workers, and a run
+that was killed resumes by generating exactly the shards that are missing or damaged: the
+result equals an uninterrupted run's, bit for bit.
+
+One shard:
+1. designs: sampled uniformly from the space, or (``bias="cmaes"``, the paper's data
+   biasing) every design CMA-ES samples with population 5 for 3 generations on training
+   motions, one run per motion, cycling through the training set;
+2. episodes: designs are rolled out in groups of `group_designs`; each group draws K
+   distinct training motions, each under its own random planar transform
+   (`tt.sim.motions.augment_motion`), and every design of the group runs all K of them
+   (one batched rollout of group x K worlds);
+3. filter: episodes shorter than `min_steps` control steps (the rollout terminated them:
+   the end effector left the target by more than the space's threshold) or with non-finite
+   states are dropped and counted by reason;
+4. tokenize: embodiment tokens per design, dynamics and target tokens of every executed
+   step, padded to the design space's maxima (`space_token_maxima`);
+5. write: appended to a shard under ``.partial/``, then checksummed and renamed into
+   ``shards/`` (`tt.tokens.store.ShardWriter`).
+
+Control perturbations (noisy commands executed, clean ones logged) need the rollout to
+perturb its own commands, which `tt.sim.rollout.rollout` does not offer yet; episodes are
+generated without perturbation (``Episode.action == Episode.ctrl``) and the config records
+``action_noise: 0``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field, fields, replace
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA
+from tt.tokens.store import (
+    DatasetError,
+    DatasetLock,
+    ShardPart,
+    ShardWriter,
+    clear_partial,
+    create_root,
+    discard_shard,
+    is_dataset,
+    merge_stats,
+    normalizer_from_stats,
+    read_manifest,
+    read_root,
+    shard_dirs,
+    update_root,
+    verify_shard,
+)
+
+logger = logging.getLogger(__name__)
+
+#: Data biasing methods of ``--bias``.
+BIASES = ("cmaes",)
+#: Random streams of a shard (the third SeedSequence entry).
+_STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES = 0, 1, 2
+#: Which robot count (`tt.tokens.tokenize.RobotIndex.counts`) sets each per-step type's tokens per step.
+_STEP_COUNT = {"free_link_obs": "free_link", "track_link_obs": "track_link", "dyna_joint_obs": "dyna_joint",
+               "ball_joint_obs": "ball_joint", "actuator_obs": "actuator", "control": "actuator", "target_pose": "track_link"}
+#: Worlds tokenized at once (bounds the memory of all-step token tensors).
+_TOKENIZE_WORLDS = 256
+#: A quoted attribute value made of numbers only (MJCF numbers and vectors).
+_NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
+#: Stages timed per shard, in pipeline order.
+STAGES = ("designs", "rollout", "score", "tokenize", "write")
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """What a dataset is; two runs with equal configs produce identical shards.
+
+    space: design space name. designs: N designs in total. episodes_per_design: K episodes
+    (motions) per design (paper: 10). seed: root of every random draw.
+    designs_per_shard: designs per shard (the unit of resume and of distribution).
+    group_designs: designs per rollout batch; a group shares its K augmented motions.
+    bias: None (uniform designs) or "cmaes" (paper's data biasing).
+    cmaes_popsize / cmaes_generations: CMA-ES population and generations per run (5, 3).
+    min_steps: episodes with fewer executed control steps are dropped (paper: 100 = 2 s).
+    max_motion_steps: cut training motions to this many steps (None: whole motions).
+    max_yaw [rad], max_shift [m]: ranges of the per-episode planar motion augmentation.
+    backend: rollout backend (`tt.sim.rollout.BACKENDS`). reward: reward stored per
+    episode and optimised by CMA-ES (`tt.guidance.rewards.REWARDS`).
+    """
+
+    space: str
+    designs: int
+    episodes_per_design: int = 10
+    seed: int = 0
+    designs_per_shard: int = 1024
+    group_designs: int = 128
+    bias: str | None = None
+    cmaes_popsize: int = 5
+    cmaes_generations: int = 3
+    min_steps: int = 100
+    max_motion_steps: int | None = None
+    max_yaw: float = math.pi / 8
+    max_shift: float = 0.03
+    backend: str = "warp"
+    reward: str = "tracking"
+
+    def __post_init__(self) -> None:
+        from tt.guidance.rewards import REWARDS
+        from tt.sim.designs import get_space
+        from tt.sim.rollout import BACKENDS
+
+        get_space(self.space)  # raises listing the valid spaces
+        for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"GenerateConfig.{name} = {v!r}; must be an integer >= 1")
+        if self.bias not in (None, *BIASES):
+            raise ValueError(f"GenerateConfig.bias = {self.bias!r}; valid: None or {list(BIASES)}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"GenerateConfig.backend = {self.backend!r}; valid: {list(BACKENDS)}")
+        if self.backend == "warp" and get_space(self.space).has_contacts:
+            raise ValueError(f"design space {self.space!r} has contacts; GenerateConfig.backend 'warp' simulates "
+                             "contact-free trees only, use backend='mujoco'")
+        if self.reward not in REWARDS:
+            raise ValueError(f"GenerateConfig.reward = {self.reward!r}; valid: {list(REWARDS)}")
+        if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
+            raise ValueError(f"GenerateConfig.max_motion_steps = {self.max_motion_steps} is below min_steps = "
+                             f"{self.min_steps}: every episode would be dropped")
+        if self.cmaes_popsize < 2 or self.cmaes_generations < 1:
+            raise ValueError(f"CMA-ES needs popsize >= 2 and generations >= 1, got {self.cmaes_popsize}, {self.cmaes_generations}")
+        if not (0 <= self.max_yaw <= math.pi and 0 <= self.max_shift):
+            raise ValueError(f"augmentation ranges must satisfy 0 <= max_yaw <= pi, max_shift >= 0; got {self.max_yaw}, {self.max_shift}")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
+
+    @property
+    def shards(self) -> int:
+        return -(-self.designs // self.designs_per_shard)
+
+    def shard_designs(self, index: int) -> int:
+        """Number of designs of shard `index`."""
+        if not 0 <= index < self.shards:
+            raise ValueError(f"shard {index} does not exist; the dataset has shards 0..{self.shards - 1}")
+        return min(self.designs_per_shard, self.designs - index * self.designs_per_shard)
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "shards": self.shards, "action_noise": 0.0}
+
+    @staticmethod
+    def from_dict(d: Mapping) -> "GenerateConfig":
+        names = {f.name for f in fields(GenerateConfig)}
+        return GenerateConfig(**{k: v for k, v in d.items() if k in names})
+
+
+def _seed_seq(*entropy: int) -> np.random.SeedSequence:
+    return np.random.SeedSequence([int(e) for e in entropy])
+
+
+def _rng(*entropy: int) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(_seed_seq(*entropy)))
+
+
+def _seed_int(*entropy: int, bits: int = 31) -> int:
+    return int(_seed_seq(*entropy).generate_state(1, np.uint64)[0] >> np.uint64(64 - bits))
+
+
+# ------------------------------------------------------------------------------ space maxima
+def _discrete_choices(space, limit: int) -> list[tuple[int, ...]] | None:
+    """Every complete discrete choice of `space`, or None if there are more than `limit`."""
+    out: list[tuple[int, ...]] = []
+    stack: list[tuple[int, ...]] = [()]
+    while stack:
+        prefix = stack.pop()
+        params = space.discrete_params(list(prefix))
+        if len(prefix) == len(params):
+            out.append(prefix)
+            if len(out) > limit:
+                return None
+            continue
+        stack += [prefix + (i,) for i in reversed(range(len(params[len(prefix)].options)))]
+    return out
+
+
+@lru_cache(maxsize=8)
+def space_token_maxima(space_name: str, limit: int = 4096) -> dict:
+    """Largest token counts of a design space's robots: tokens per robot of each embodiment
+    type, tokens per control step of each per-step type; and the widest design.
+
+    Token counts depend on the discrete choices only, so every discrete choice is considered
+    (continuous choices at mid-range) when there are at most `limit`; otherwise `limit`
+    random designs are (``source`` says which). Counts depend on the MJCF element tree, not
+    on numbers, so one model per distinct tree (MJCF text with numeric attribute values
+    blanked) is compiled and tokenized. Returns {"maxima": {type: count}, "discrete": max
+    discrete choices, "continuous": max continuous choices, "source": str}.
+    """
+    import mujoco
+
+    from tt.sim.designs import Design, get_space
+    from tt.tokens.tokenize import Tokenizer
+
+    sp = get_space(space_name)
+    choices = _discrete_choices(sp, limit)
+    if choices is None:
+        designs = sp.sample(limit, seed=0)
+        source = f"{limit} random designs"
+    else:
+        designs = [Design(sp.name, c, tuple(0.5 * (p.low + p.high) for p in sp.continuous_params(c))) for c in choices]
+        source = f"all {len(choices)} discrete choices"
+    trees: dict[str, str] = {}
+    for d in designs:
+        text = sp.to_mjcf(d)
+        trees.setdefault(_NUMBERS.sub('""', text), text)
+    tokenizer = Tokenizer()
+    maxima = {n: 0 for n in SCHEMA.names()}
+    texts = list(trees.values())
+    for start in range(0, len(texts), 512):
+        emb = tokenizer([mujoco.MjModel.from_xml_string(t) for t in texts[start:start + 512]])
+        for name, c in emb.tokens.counts().items():
+            maxima[name] = max(maxima[name], int(c.max()))
+        for r in emb.index:
+            for name, key in _STEP_COUNT.items():
+                maxima[name] = max(maxima[name], int(r.counts[key]))
+    return {"maxima": maxima, "discrete": max(len(d.discrete) for d in designs),
+            "continuous": max(len(d.continuous) for d in designs), "source": source}
+
+
+# ------------------------------------------------------------------------------ motions
+@lru_cache(maxsize=8)
+def training_motions(space_name: str) -> tuple:
+    """The training split's library motions for the space's end-effector count (unplaced:
+    `for_space` is applied after augmentation)."""
+    from tt.sim.designs import get_space
+    from tt.sim.motions import motion_set
+
+    return tuple(motion_set("train", arms=get_space(space_name).ee_count))
+
+
+def _episode_motion(config: GenerateConfig, base, aug_seed: int):
+    """Augmented, placed and (optionally) cut training motion."""
+    from tt.sim.motions import augment_motion, for_space
+    from tt.sim.motions.base import Motion
+
+    m = augment_motion(base, int(aug_seed), max_yaw=config.max_yaw, max_shift=config.max_shift)
+    m = for_space([m], config.space)[0]
+    if config.max_motion_steps is not None and m.steps > config.max_motion_steps:
+        n = config.max_motion_steps
+        m = Motion(m.name, m.pos[:n], m.quat[:n], m.dt, meta=dict(m.meta, cut=n))
+    return m
+
+
+# ------------------------------------------------------------------------------ one shard
+def shard_design_list(config: GenerateConfig, index: int, *, device: str | None = None) -> list:
+    """The designs of shard `index` (a pure function of config and index)."""
+    from tt.sim.designs import get_space
+
+    n = config.shard_designs(index)
+    sp = get_space(config.space)
+    if config.bias is None:
+        return sp.sample(n, seed=_seed_int(config.seed, index, _STREAM_DESIGNS))
+    return _cmaes_designs(config, index, n, device)
+
+
+def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | None) -> list:
+    """Every design CMA-ES samples in ceil(n / (popsize x generations)) runs, run j of shard i
+    on training motion (i * runs_per_full_shard + j) mod M, so consecutive shards walk the
+    whole training set."""
+    from tt.baselines import CMAES, CMAESConfig, Problem
+
+    per_run = config.cmaes_popsize * config.cmaes_generations
+    runs = -(-n // per_run)
+    first = index * -(-config.designs_per_shard // per_run)
+    base = training_motions(config.space)
+    by_motion: dict[int, int] = {}
+    for j in range(runs):
+        m = (first + j) % len(base)
+        by_motion[m] = by_motion.get(m, 0) + 1
+    optimizer = CMAES(CMAESConfig(popsize=config.cmaes_popsize, generations=config.cmaes_generations))
+    designs = []
+    for m, count in by_motion.items():
+        motion = _episode_motion(replace(config, max_yaw=0.0, max_shift=0.0), base[m], 0)
+        # Runs on one motion go in lock step (CMA-ES restarts), one batched rollout per generation.
+        problem = Problem(space=config.space, motions=(motion,), reward=config.reward, budget=per_run * count,
+                          seed=_seed_int(config.seed, index, _STREAM_CMAES, m, bits=21), backend=config.backend, device=device)
+        designs += optimizer.optimize(problem).designs
+    return designs[:n]
+
+
+def _select_worlds(ep, worlds: torch.Tensor):
+    """The Episode restricted to `worlds` (copies)."""
+    from tt.sim.episode import Episode
+
+    w = worlds.to(ep.qpos.device)
+    kw = {f.name: getattr(ep, f.name)[w] for f in fields(Episode) if f.name != "dt"}
+    return Episode(**kw, dt=ep.dt)
+
+
+def _finite_worlds(ep) -> np.ndarray:
+    """(W,) True where every executed step's state, command and pose is finite."""
+    alive = ep.alive.bool()
+    ok = torch.ones(ep.worlds, dtype=torch.bool, device=alive.device)
+    for name in ("qpos", "qvel", "ctrl", "action", "act_force", "act_vel", "ee_pos", "ee_quat"):
+        x = getattr(ep, name)
+        bad = ~torch.isfinite(x).reshape(x.shape[0], x.shape[1], -1).all(-1)
+        ok &= ~(bad & alive).any(1)
+    return ok.cpu().numpy()
+
+
+def _pad_last(x: np.ndarray, axis: int, size: int, what: str) -> np.ndarray:
+    cur = x.shape[axis]
+    if cur > size:
+        raise DatasetError(f"{what} has {cur} tokens, more than the design space's maximum {size}; "
+                           "the maxima stored with the dataset are wrong")
+    if cur == size:
+        return x
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (0, size - cur)
+    return np.pad(x, pad)
+
+
+def _design_arrays(designs: Sequence, widths: Mapping[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    disc = np.full((len(designs), widths["discrete"]), -1, np.int16)
+    cont = np.full((len(designs), widths["continuous"]), np.nan, np.float64)
+    for i, d in enumerate(designs):
+        disc[i, : len(d.discrete)] = d.discrete
+        cont[i, : len(d.continuous)] = d.continuous
+    return disc, cont
+
+
+@dataclass
+class ShardResult:
+    """What generating one shard did: counts, bytes, wall seconds per stage, CPU seconds of
+    the process (all its threads) over the whole shard."""
+
+    index: int
+    generated: int
+    kept: int
+    dropped: dict[str, int]
+    steps: int
+    bytes: int
+    seconds: dict[str, float]
+    cpu_seconds: float
+    device: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, device: str, widths: Mapping,
+                   progress: Callable[[int], None] | None = None, tokenizer=None) -> ShardResult:
+    """Generate shard `index` of the dataset at `out` (whose root exists) and commit it.
+
+    widths: ``space_token_maxima(config.space)`` as stored in the root. progress: called with
+    the number of episodes rolled out after each group. Returns the shard's `ShardResult`.
+    """
+    from tt.guidance.rewards import RewardInputs, get_reward, metrics
+    from tt.sim.designs import get_space
+    from tt.sim.rollout import rollout
+    from tt.tokens.episodes import episode_tokens
+    from tt.tokens.tokenize import Tokenizer
+
+    tokenizer = tokenizer if tokenizer is not None else Tokenizer()
+    maxima = {k: int(v) for k, v in widths["maxima"].items()}
+    static_len = {n: maxima[n] for n in EMBODIMENT_TYPES if maxima.get(n, 0) > 0}
+    step_types = [n for n in SCHEMA.names() if n not in EMBODIMENT_TYPES and maxima.get(n, 0) > 0]
+    sp = get_space(config.space)
+    K = config.episodes_per_design
+    base = training_motions(config.space)
+    reward_cfg = get_reward(config.reward, config.space)
+    seconds = {s: 0.0 for s in STAGES}
+    dropped = {"short": 0, "nonfinite": 0}
+    cpu0 = time.process_time()
+    t0 = time.perf_counter()
+    designs = shard_design_list(config, index, device=device)
+    seconds["designs"] += time.perf_counter() - t0
+    first_episode = index * config.designs_per_shard * K
+    generated = 0
+    with ShardWriter(out, index) as writer:
+        for g0 in range(0, len(designs), config.group_designs):
+            group = designs[g0:g0 + config.group_designs]
+            t = time.perf_counter()
+            rng = _rng(config.seed, index, _STREAM_EPISODES, g0)
+            motion_ids = rng.choice(len(base), size=K, replace=K > len(base))
+            aug_seeds = rng.integers(0, 2**31, size=K)
+            motions = [_episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
+            # Built once, for the rollout and the tokenizer (MJCF compilation is a few ms per robot).
+            models = [sp.model(d) for d in group]
+            ep = rollout(models, motions, backend=config.backend, device=device)
+            seconds["rollout"] += time.perf_counter() - t
+
+            t = time.perf_counter()
+            W = ep.worlds
+            dev = ep.ee_pos.device
+            motion_steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
+            # float64 sums: reproducible whatever the thread count of the process.
+            inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
+                                  act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive, fallen=ep.fallen,
+                                  motion_steps=motion_steps)
+            score = {k: v.cpu().numpy() for k, v in metrics(inputs, reward_cfg).items()}
+            lengths = ep.lengths().cpu().numpy().astype(np.int64)
+            finite = _finite_worlds(ep)
+            short = lengths < config.min_steps
+            dropped["nonfinite"] += int((~finite).sum())
+            dropped["short"] += int((finite & short).sum())
+            keep = np.nonzero(finite & ~short)[0]
+            generated += W
+            seconds["score"] += time.perf_counter() - t
+
+            t = time.perf_counter()
+            emb = tokenizer(models)
+            static_tb = emb.tokens.pad_to(static_len)
+            static = {n: (static_tb.values[n], static_tb.ids[n], static_tb.mask[n]) for n in static_len}
+            steps: dict[str, list] = {}
+            for c0 in range(0, len(keep), _TOKENIZE_WORLDS):
+                chunk = keep[c0:c0 + _TOKENIZE_WORLDS]
+                sub = _select_worlds(ep, torch.as_tensor(chunk))
+                ln = lengths[chunk]
+                tmax = int(ln.max())
+                tb = episode_tokens(sub, emb.index, step_index=torch.arange(tmax).expand(len(chunk), tmax))
+                rows = np.arange(tmax)[None, :] < ln[:, None]  # (w, tmax)
+                for name in tb.types:
+                    v = tb.values[name].cpu().numpy()
+                    p = v.shape[1] // tmax
+                    v = v.reshape(len(chunk), tmax, p, -1)[rows]  # (S, p, width)
+                    ids = tb.ids[name].cpu().numpy().reshape(len(chunk), tmax, p, -1)[:, 0]
+                    ids[..., SCHEMA[name].ids.index("time")] = 0
+                    mask = tb.mask[name].cpu().numpy().reshape(len(chunk), tmax, p)[:, 0]
+                    if not np.isfinite(v).all():
+                        raise FloatingPointError(f"shard {index}: non-finite {name} tokens from finite episodes")
+                    size = maxima[name]
+                    steps.setdefault(name, []).append((_pad_last(v, 1, size, name), _pad_last(ids, 1, size, name),
+                                                       _pad_last(mask, 1, size, name)))
+            step_arrays = {n: tuple(np.concatenate([c[k] for c in parts]) for k in range(3)) for n, parts in steps.items()}
+            # A type none of this group's robots has still needs its rows (all padding), so
+            # every per-step array of the shard stays aligned with the episode index.
+            n_steps = int(lengths[keep].sum())
+            for name in step_types:
+                if name not in step_arrays:
+                    t = SCHEMA[name]
+                    step_arrays[name] = (np.zeros((n_steps, maxima[name], t.width), np.float32),
+                                         np.zeros((len(keep), maxima[name], len(t.ids)), np.int64),
+                                         np.zeros((len(keep), maxima[name]), bool))
+            seconds["tokenize"] += time.perf_counter() - t
+
+            t = time.perf_counter()
+            d_local = ep.design_index.cpu().numpy()[keep]
+            m_local = ep.motion_index.cpu().numpy()[keep]
+            se2 = np.array([[motions[j].meta["se2"][k] for k in ("yaw", "dx", "dy")] for j in range(K)], np.float64)
+            episode = {
+                "episode_id": first_episode + (g0 + d_local) * K + m_local,
+                "design": d_local,
+                "motion": motion_ids[m_local].astype(np.int32),
+                "augment_seed": aug_seeds[m_local].astype(np.int64),
+                "se2": se2[m_local],
+                "length": lengths[keep],
+                "motion_steps": np.array([m.steps for m in motions], np.int32)[m_local],
+                "reward": score["reward"][keep].astype(np.float32),
+                "pos_err": score["pos_err"][keep].astype(np.float32),
+                "orn_err": score["orn_err"][keep].astype(np.float32),
+                "survival": score["survival"][keep] > 0.5,
+            }
+            disc, cont = _design_arrays(group, widths)
+            writer.append(ShardPart(disc, cont, static, episode, step_arrays))
+            seconds["write"] += time.perf_counter() - t
+            if progress is not None:
+                progress(W)
+        t = time.perf_counter()
+        attrs = {"generated": generated, "dropped": dropped, "device": "cpu" if device == "cpu" else "cuda"}
+        folder = writer.commit(attrs, {"seconds": seconds, "cpu_seconds": time.process_time() - cpu0, "device": device})
+        seconds["write"] += time.perf_counter() - t
+    manifest = read_manifest(folder)
+    size = sum(v[0] for v in manifest["files"].values())
+    return ShardResult(index, generated, writer.episodes, dropped, writer.steps, size, seconds, time.process_time() - cpu0, device)
+
+
+def _shard_task(config: dict, index: int, out: str, device: str, widths: dict, queue=None) -> dict:
+    """Worker entry point (process pool or Ray task): one shard, results as a dict."""
+    cfg = GenerateConfig.from_dict(config)
+    report = None if queue is None else queue.put
+    return generate_shard(cfg, index, out, device=device, widths=widths, progress=report).to_dict()
+
+
+def _init_worker() -> None:
+    # One thread per worker: the workers are the parallelism.
+    torch.set_num_threads(1)
+
+
+# ------------------------------------------------------------------------------ the run
+@dataclass
+class GenerateReport:
+    """Totals of the dataset and what this run did.
+
+    totals: designs, generated, kept, dropped (by reason), steps, bytes, shards (complete).
+    run: shards generated by this run, damaged shards regenerated, wall seconds, episodes
+    rolled out per second, seconds per stage summed over this run's shards (per worker),
+    CPU seconds of the shards' processes.
+    """
+
+    path: str
+    totals: dict
+    run: dict
+    shard_results: list[dict] = field(default_factory=list)
+
+    def text(self) -> str:
+        t, r = self.totals, self.run
+        drops = ", ".join(f"{v:,} {k}" for k, v in sorted(t["dropped"].items()) if v) or "none"
+        lines = [f"dataset {self.path}: {t['shards']} shards, {t['designs']:,} designs, {t['kept']:,} episodes kept of "
+                 f"{t['generated']:,} generated (dropped: {drops}), {t['steps']:,} steps, {_fmt_bytes(t['bytes'])}"]
+        if r["shards"]:
+            stage = r["stage_seconds"]
+            total = sum(stage.values()) or 1.0
+            split = ", ".join(f"{k} {100 * v / total:.0f}%" for k, v in stage.items())
+            lines.append(f"this run: {r['shards']} shards ({r['episodes']:,} episodes) in {r['seconds']:.1f} s = "
+                         f"{r['episodes_per_second']:.1f} episodes/s; time per stage: {split}")
+        else:
+            lines.append("this run: nothing to do, every shard was already complete")
+        if r["regenerated"]:
+            lines.append("regenerated damaged shards: " + "; ".join(f"{k}: {v}" for k, v in sorted(r["regenerated"].items())))
+        return "\n".join(lines)
+
+
+def _fmt_bytes(n: float) -> str:
+    from tt.tokens.store import _fmt_bytes as f
+
+    return f(n)
+
+
+def _check_config(stored: Mapping, wanted: Mapping, path: Path) -> None:
+    for k, v in wanted.items():
+        if k in stored and stored[k] != v:
+            raise DatasetError(f"{path} was generated with {k}={stored[k]!r}, this run asks for {k}={v!r}; "
+                               "re-run with the dataset's arguments to resume it, or choose another --out")
+    missing = [k for k in wanted if k not in stored]
+    if missing:
+        raise DatasetError(f"{path} has no stored value for {missing}; it was written by another tt version")
+
+
+def _open_or_create(config: GenerateConfig, out: Path) -> dict:
+    wanted = config.to_dict()
+    if is_dataset(out):
+        attrs = read_root(out)
+        _check_config(attrs.get("config", {}), wanted, out)
+        return attrs
+    others = [p.name for p in out.iterdir() if p.name not in (".lock", ".partial", "shards")]
+    if others:
+        raise DatasetError(f"{out} exists and is not a tt dataset (it holds {sorted(others)[:5]}); choose an empty or new folder")
+    widths = space_token_maxima(config.space)
+    motions = [m.name for m in training_motions(config.space)]
+    create_root(out, {"space": config.space, "config": wanted, "maxima": widths["maxima"],
+                      "design_widths": {"discrete": widths["discrete"], "continuous": widths["continuous"]},
+                      "maxima_source": widths["source"], "motions": motions, "complete": False})
+    return read_root(out)
+
+
+def _widths(attrs: Mapping) -> dict:
+    return {"maxima": attrs["maxima"], **attrs["design_widths"]}
+
+
+def generate(config: GenerateConfig, out: str | Path, *, device: str | None = None, workers: int = 1,
+             ray_address: str | None = None, progress: bool = True, verify: str = "full") -> GenerateReport:
+    """Generate (or resume) the dataset of `config` in folder `out`; see the module docstring.
+
+    device: Warp/torch device of the rollouts (None: `tt.device.default_device()`).
+    workers: processes generating shards at once (with ``ray_address="local"``: the local
+    Ray cluster's CPUs). ray_address: None (no Ray), "local" (start a local cluster) or a
+    cluster address ("ray://host:10001", "auto"); `out` must then be on a file system every
+    worker sees. verify: how existing shards are checked ("full": sizes and CRC-32, "size").
+    Raises `DatasetError` when `out` holds another config or is not a dataset.
+    """
+    from tt.device import resolve_device
+
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if verify not in ("size", "full"):
+        raise ValueError(f"verify must be 'size' or 'full', got {verify!r}")
+    device = resolve_device(device)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    with DatasetLock(out):
+        attrs = _open_or_create(config, out)
+        clear_partial(out)
+        widths = _widths(attrs)
+        done: dict[int, dict] = {}
+        regenerated: dict[int, str] = {}
+        for i, folder in shard_dirs(out).items():
+            why = verify_shard(folder, full=verify == "full") if i < config.shards else f"index beyond the {config.shards} shards"
+            if why is None:
+                done[i] = _shard_attrs(folder)
+            else:
+                logger.warning("shard %s is damaged (%s); regenerating it", folder.name, why)
+                regenerated[i] = why
+                discard_shard(out, i)
+        todo = [i for i in range(config.shards) if i not in done]
+        total = config.designs * config.episodes_per_design
+        initial = sum(int(a["generated"]) for a in done.values())
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, initial=initial, desc=f"generate {config.space}", unit="ep", dynamic_ncols=True, smoothing=0.05)
+        results: list[dict] = []
+        try:
+            if todo and ray_address is not None:
+                results = _run_ray(config, todo, out, device, widths, workers, ray_address, bar)
+            elif todo and workers > 1:
+                results = _run_pool(config, todo, out, device, widths, workers, bar)
+            else:
+                for i in todo:
+                    results.append(generate_shard(config, i, out, device=device, widths=widths,
+                                                  progress=bar.update if bar is not None else None).to_dict())
+        finally:
+            if bar is not None:
+                bar.close()
+        for r in results:
+            done[r["index"]] = _shard_attrs(out / "shards" / f"s{r['index']:06d}")
+        if len(done) == config.shards and not attrs.get("complete"):
+            stats = merge_stats(a["stats"] for a in done.values())
+            update_root(out, {"complete": True, "normalizer": normalizer_from_stats(stats).to_dict(),
+                              "totals": _totals(done, out)})
+        totals = _totals(done, out)
+    seconds = time.perf_counter() - start
+    stage = {s: sum(r["seconds"][s] for r in results) for s in STAGES}
+    episodes = sum(r["generated"] for r in results)
+    run = {"shards": len(results), "episodes": episodes, "seconds": seconds,
+           "cpu_seconds": sum(r["cpu_seconds"] for r in results),
+           "episodes_per_second": episodes / seconds if seconds > 0 else 0.0, "stage_seconds": stage,
+           "regenerated": regenerated, "workers": workers, "ray": ray_address, "device": device}
+    return GenerateReport(str(out), totals, run, results)
+
+
+def _shard_attrs(folder: Path) -> dict:
+    import json
+
+    attrs = json.loads((folder / "zarr.json").read_text())["attributes"]
+    attrs["bytes"] = sum(v[0] for v in read_manifest(folder)["files"].values())
+    return attrs
+
+
+def _totals(done: Mapping[int, dict], out: Path) -> dict:
+    dropped: dict[str, int] = {}
+    for a in done.values():
+        for k, v in a.get("dropped", {}).items():
+            dropped[k] = dropped.get(k, 0) + int(v)
+    return {"shards": len(done), "designs": sum(int(a["designs"]) for a in done.values()),
+            "generated": sum(int(a["generated"]) for a in done.values()), "kept": sum(int(a["episodes"]) for a in done.values()),
+            "dropped": dropped, "steps": sum(int(a["steps"]) for a in done.values()),
+            "bytes": sum(int(a["bytes"]) for a in done.values())}
+
+
+def _run_pool(config, todo, out, device, widths, workers, bar) -> list[dict]:
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")  # fork would copy Warp/torch thread state
+    with ctx.Manager() as manager:
+        queue = manager.Queue()
+        results = []
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+            pending = {pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue) for i in todo}
+            try:
+                while pending:
+                    finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                    _drain(queue, bar)
+                    for f in finished:
+                        results.append(f.result())
+            except BaseException:
+                for f in pending:
+                    f.cancel()
+                raise
+            _drain(queue, bar)
+    return results
+
+
+def _drain(queue, bar) -> None:
+    import queue as q
+
+    while True:
+        try:
+            n = queue.get_nowait()
+        except (q.Empty, EOFError, OSError):
+            return
+        if bar is not None:
+            bar.update(n)
+
+
+def _drain_ray(queue, bar) -> None:
+    n = queue.size()
+    if n and bar is not None:
+        bar.update(sum(queue.get_nowait_batch(n)))
+
+
+def _run_ray(config, todo, out, device, widths, workers, address, bar) -> list[dict]:
+    try:
+        import ray
+    except ImportError:
+        raise DatasetError("--ray needs Ray: pip install 'tt[ray]'") from None
+    started = False
+    if not ray.is_initialized():
+        if address == "local":
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        else:
+            ray.init(address=address, log_to_driver=False, configure_logging=False)
+        started = True
+    try:
+        from ray.util.queue import Queue
+
+        gpus = 1 if str(device).startswith("cuda") else 0
+        task = ray.remote(num_cpus=1, num_gpus=gpus, max_retries=2)(_shard_task)
+        queue = Queue(actor_options={"num_cpus": 0})  # episodes done, reported after every group
+        out_abs = str(Path(out).resolve())
+        pending = [task.remote(config.to_dict(), i, out_abs, device, widths, queue) for i in todo]
+        results = []
+        while pending:
+            finished, pending = ray.wait(pending, num_returns=1, timeout=0.5)
+            _drain_ray(queue, bar)
+            results += ray.get(finished)
+        _drain_ray(queue, bar)
+        return results
+    finally:
+        if started:
+            ray.shutdown()
+
+
+# ------------------------------------------------------------------------------ tt generate
+def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_design: int = 10, device: str | None = None,
+                 workers: int = 1, bias: str | None = None, seed: int = 0, ray: str | None = None,
+                 designs_per_shard: int = 1024, min_steps: int = 100, max_motion_steps: int | None = None,
+                 progress: bool = True) -> str:
+    """``tt generate --space S --designs N --episodes-per-design K --out DATASET [--device D]
+    [--workers W] [--bias cmaes] [--seed S] [--ray ADDRESS|local]``.
+
+    Generates or resumes the dataset and returns the summary text. Raises ValueError for
+    bad arguments and `DatasetError` when DATASET holds a dataset of other arguments.
+    """
+    config = GenerateConfig(space=space, designs=designs, episodes_per_design=episodes_per_design, seed=seed,
+                            designs_per_shard=designs_per_shard, bias=bias, min_steps=min_steps,
+                            max_motion_steps=max_motion_steps)
+    report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress)
+    return report.text()
+
+
+__all__ = [
+    "BIASES", "GenerateConfig", "GenerateReport", "STAGES", "ShardResult", "generate", "generate_cmd", "generate_shard",
+    "shard_design_list", "space_token_maxima", "training_motions",
+]
