@@ -1,0 +1,822 @@
+"""The ``mjwarp`` rollout backend: MuJoCo-Warp physics, W worlds per launch, tt's controllers.
+
+MuJoCo-Warp (``mujoco_warp``, imported as ``mjw``) steps W worlds of one MuJoCo model at
+a time. Designs of one *structure* (`structure_key`: the same bodies, joints, geoms,
+actuators and options, differing only in numbers) share one `mjw.Model` whose
+numeric fields that may vary per world (MuJoCo-Warp marks them with a leading ``*``
+dimension in ``mujoco_warp/_src/types.py``: body offsets and inertias, joint axes and
+ranges, geom sizes, actuator gains, ...) hold one entry per world (`batch_model`); a
+kernel reads entry ``worldid % shape[0]``. Unlike the ``warp`` backend this one
+simulates everything MuJoCo-Warp does, contacts and equality constraints included, so it
+runs the quadruped too.
+
+Control, per world and control step (the oracle's loop, `tt.sim.validate`, step for step):
+
+* fixed-base arms: tt's batched DiffIK kernel (`tt.kernels.ik.ik_step`, the oracle's mink
+  step, with forward kinematics on MuJoCo-Warp's ``qpos``), one launch per structure
+  group; the start posture is the oracle's float64 IK from ``qpos0`` toward the first
+  pose (the kernel `tt.kernels.rollout.make_initial_posture_kernel` builds);
+* floating-base legged robots (the quadruped): the oracle's whole-body controller
+  (`tt.sim.wbc.WholeBodyController`, mink) on the host, one world at a time, since tt
+  has no batched whole-body kernel; physics stays batched. It is as slow as the oracle's
+  controller and meant for validation batches, not data generation.
+
+Physics runs ``IKConfig.substeps(model)`` MuJoCo-Warp steps per control step with the
+command held, then one ``mjw.forward`` so the recorded site poses and actuator
+forces belong to the recorded state, as the oracle's ``mj_forward`` does. Worlds that
+terminated keep stepping in lockstep with the others but their records repeat the last
+one, alive False, which is what the oracle records.
+
+Records are written straight into one Episode-shaped set of Warp arrays (zero-padded to
+the widest design across structure groups), and the Episode's tensors are zero-copy
+torch views of them.
+
+Gradients: MuJoCo-Warp 3.17 is not differentiable through ``mjw.step`` (a `wp.Tape`
+over it returns all-zero gradients); use the ``warp`` backend (tt's kernels) or the
+``newton`` backend (Featherstone) for gradients.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import functools
+import hashlib
+import logging
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import mujoco
+import numpy as np
+import torch
+import warp as wp
+
+from tt.sim.controller import IKConfig, actuated_qpos, ee_site_names, model_name
+from tt.sim.designs import Design, get_space
+from tt.sim.episode import Episode
+from tt.sim.motions.base import Motion
+from tt.sim.wbc import HOME_KEY, WBCConfig, WholeBodyController, foot_site_names, free_joint, standing_height
+
+logger = logging.getLogger(__name__)
+
+#: MuJoCo's flags of frames that coincide (body and inertia frame, geom and body frame):
+#: value-derived shortcuts of MuJoCo C that MuJoCo-Warp 3.17 never reads, so designs may
+#: differ in them and still share one `mjw.Model` (random link offsets toggle them).
+_IGNORED_INT_FIELDS = ("body_sameframe", "geom_sameframe", "site_sameframe")
+
+#: Stand-in for an unlimited control range (float32-finite, as `tt.kernels.model.UNLIMITED`).
+_UNLIMITED = 1.0e10
+
+
+# --------------------------------------------------------------------------- batched model
+
+
+def structure_key(model: mujoco.MjModel) -> tuple:
+    """What must match for two MuJoCo models to share one `mjw.Model` (with per-world numbers).
+
+    Every integer, boolean and enum array of the model (body tree, joint and geom types,
+    contact bits, actuator kinds, sparsity patterns, ...) except `_IGNORED_INT_FIELDS`,
+    and every physics option. Models with equal keys differ only in floating-point fields.
+    """
+    parts = []
+    for name in dir(model):
+        if name.startswith("_") or name.startswith("name") or name in _IGNORED_INT_FIELDS:
+            continue
+        value = getattr(model, name)
+        if isinstance(value, np.ndarray) and value.dtype.kind in "iub":
+            parts.append((name, value.shape, hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest()))
+    opt = model.opt
+    for name in dir(opt):
+        if name.startswith("_"):
+            continue
+        value = getattr(opt, name)
+        if isinstance(value, (int, float, np.ndarray)):
+            parts.append(("opt." + name, tuple(np.atleast_1d(value).tolist())))
+    return tuple(parts)
+
+
+def _batchable_fields() -> list[tuple[str, str | None]]:
+    """(field name, owner) of the Model / Option array fields that may hold one entry per
+    world; owner "opt" for options, None for the model."""
+    import mujoco_warp as mjw
+
+    out = []
+    for cls, owner in ((mjw.Model, None), (mjw.Option, "opt")):
+        for f in dataclasses.fields(cls):
+            if tuple(getattr(f.type, "shape", ()))[:1] == ("*",):
+                out.append((f.name, owner))
+    return out
+
+
+def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, check: bool = True):
+    """One `mjw.Model` whose world w simulates ``models[w % len(models)]``.
+
+    models: MuJoCo models of one `structure_key` (the same object may repeat).
+    check: verify that the models share one structure (skip when the caller grouped them).
+    Fields whose values are equal in every model stay shared (leading dim 1); fields that
+    differ get a leading dimension of len(models). Raises ValueError naming the first model
+    of another structure, or a differing field that MuJoCo-Warp does not store as
+    MuJoCo does (so it cannot be filled from the MuJoCo models per world).
+    """
+    import mujoco_warp as mjw
+
+    if len(models) == 0:
+        raise ValueError("models is empty; batch_model needs at least one MuJoCo model")
+    keys = {}
+    key0 = structure_key(models[0]) if check else None
+    for i, m in enumerate(models if check else ()):
+        key = keys.get(id(m))
+        if key is None:
+            key = keys[id(m)] = structure_key(m)
+        if key != key0:
+            raise ValueError(
+                f"model {i} ({model_name(m)!r}) has a different structure from model 0 (integer fields or "
+                "options differ); group models by `structure_key` first"
+            )
+    with wp.ScopedDevice(device):
+        batched = mjw.put_model(models[0])
+        n = len(models)
+        # One host read per distinct model object (worlds repeat designs).
+        distinct = {id(m): m for m in models}
+        order = [id(m) for m in models]
+        for name, owner in _batchable_fields():
+            target = batched.opt if owner == "opt" else batched
+            array = getattr(target, name, None)
+            if array is None or array.shape[0] != 1:
+                continue
+            source0 = models[0].opt if owner == "opt" else models[0]
+            if not hasattr(source0, name):
+                continue  # derived by put_model from options (impratio_invsqrt), which the key fixes
+            host = {k: np.asarray(getattr(m.opt if owner == "opt" else m, name), dtype=np.float64) for k, m in distinct.items()}
+            first = host[order[0]]
+            if all(np.array_equal(v, first) for v in host.values()):
+                continue
+            shared = array.numpy()
+            if first.size != shared.size or not np.allclose(first.reshape(shared.shape), shared, rtol=1e-6, atol=1e-6):
+                raise ValueError(
+                    f"field {'opt.' if owner else ''}{name} differs between the models, but MuJoCo-Warp does not "
+                    "store it as MuJoCo does, so it cannot be set per world"
+                )
+            stacked = np.stack([host[k].reshape(shared.shape[1:]) for k in order])
+            setattr(target, name, wp.array(stacked.astype(shared.dtype), dtype=array.dtype, shape=(n,) + array.shape[1:]))
+    return batched
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@wp.func
+def mat2quat(m: wp.mat33) -> wp.vec4:
+    """(w, x, y, z) of a rotation matrix, MuJoCo's `mju_mat2Quat` branch for branch (so the
+    sign of the quaternion is the one the oracle records)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    q = wp.vec4()
+    if tr > 0.0:
+        w = 0.5 * wp.sqrt(1.0 + tr)
+        q = wp.vec4(w, 0.25 * (m[2, 1] - m[1, 2]) / w, 0.25 * (m[0, 2] - m[2, 0]) / w, 0.25 * (m[1, 0] - m[0, 1]) / w)
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        x = 0.5 * wp.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = wp.vec4(0.25 * (m[2, 1] - m[1, 2]) / x, x, 0.25 * (m[0, 1] + m[1, 0]) / x, 0.25 * (m[0, 2] + m[2, 0]) / x)
+    elif m[1, 1] > m[2, 2]:
+        y = 0.5 * wp.sqrt(1.0 - m[0, 0] + m[1, 1] - m[2, 2])
+        q = wp.vec4(0.25 * (m[0, 2] - m[2, 0]) / y, 0.25 * (m[0, 1] + m[1, 0]) / y, y, 0.25 * (m[1, 2] + m[2, 1]) / y)
+    else:
+        z = 0.5 * wp.sqrt(1.0 - m[0, 0] - m[1, 1] + m[2, 2])
+        q = wp.vec4(0.25 * (m[1, 0] - m[0, 1]) / z, 0.25 * (m[0, 2] + m[2, 0]) / z, 0.25 * (m[1, 2] + m[2, 1]) / z, z)
+    return wp.normalize(q)
+
+
+@wp.kernel(module="unique")
+def _lookahead_targets(
+    # In:
+    t: int,
+    lookahead: int,
+    world_motion: wp.array(dtype=int),
+    motion_steps_in: wp.array(dtype=wp.int32),
+    motion_pos_in: wp.array3d(dtype=wp.vec3),
+    motion_quat_in: wp.array3d(dtype=wp.vec4),
+    # Out:
+    target_pos_out: wp.array2d(dtype=wp.vec3),
+    target_quat_out: wp.array2d(dtype=wp.vec4),
+):
+    worldid, e = wp.tid()
+    motionid = world_motion[worldid]
+    goal = wp.min(t + lookahead, motion_steps_in[motionid] - 1)
+    target_pos_out[worldid, e] = motion_pos_in[motionid, goal, e]
+    target_quat_out[worldid, e] = motion_quat_in[motionid, goal, e]
+
+
+@wp.kernel(module="unique")
+def _joint_command(
+    # Model:
+    actuator_qpos: wp.array(dtype=int),
+    ctrl_range: wp.array2d(dtype=wp.vec2),
+    # In:
+    q_cmd_in: wp.array2d(dtype=float),
+    # Out:
+    ctrl_out: wp.array2d(dtype=float),
+):
+    worldid, u = wp.tid()
+    r = ctrl_range[worldid % ctrl_range.shape[0], u]
+    ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
+
+
+@wp.kernel(module="unique")
+def _site_poses(
+    # Model:
+    site_ids: wp.array(dtype=int),
+    # Data in:
+    site_xpos_in: wp.array2d(dtype=wp.vec3),
+    site_xmat_in: wp.array2d(dtype=wp.mat33),
+    # Out:
+    ee_pos_out: wp.array2d(dtype=wp.vec3),
+    ee_quat_out: wp.array2d(dtype=wp.vec4),
+):
+    worldid, e = wp.tid()
+    sid = site_ids[e]
+    ee_pos_out[worldid, e] = site_xpos_in[worldid, sid]
+    ee_quat_out[worldid, e] = mat2quat(site_xmat_in[worldid, sid])
+
+
+@wp.kernel(module="unique")
+def _record_step(
+    # In:
+    t: int,
+    threshold: float,
+    base_qpos: int,
+    fall_height: wp.array(dtype=float),
+    fall_cos_tilt: float,
+    world_row: wp.array(dtype=int),
+    world_motion: wp.array(dtype=int),
+    motion_steps_in: wp.array(dtype=wp.int32),
+    motion_pos_in: wp.array3d(dtype=wp.vec3),
+    motion_quat_in: wp.array3d(dtype=wp.vec4),
+    qpos_in: wp.array2d(dtype=float),
+    qvel_in: wp.array2d(dtype=float),
+    ctrl_in: wp.array2d(dtype=float),
+    act_force_in: wp.array2d(dtype=float),
+    act_vel_in: wp.array2d(dtype=float),
+    ee_pos_in: wp.array2d(dtype=wp.vec3),
+    ee_quat_in: wp.array2d(dtype=wp.vec4),
+    # Out:
+    qpos_out: wp.array3d(dtype=float),
+    qvel_out: wp.array3d(dtype=float),
+    ctrl_out: wp.array3d(dtype=float),
+    act_force_out: wp.array3d(dtype=float),
+    act_vel_out: wp.array3d(dtype=float),
+    ee_pos_out: wp.array3d(dtype=wp.vec3),
+    ee_quat_out: wp.array3d(dtype=wp.vec4),
+    target_pos_out: wp.array3d(dtype=wp.vec3),
+    target_quat_out: wp.array3d(dtype=wp.vec4),
+    alive_out: wp.array2d(dtype=wp.bool),
+    fallen_out: wp.array2d(dtype=wp.bool),
+):
+    i = wp.tid()
+    w = world_row[i]
+    motionid = world_motion[i]
+    steps = motion_steps_in[motionid]
+    record = wp.min(t, steps - 1)
+    ne = ee_pos_in.shape[1]
+    for e in range(ne):
+        target_pos_out[w, t, e] = motion_pos_in[motionid, record, e]
+        target_quat_out[w, t, e] = motion_quat_in[motionid, record, e]
+    stopped = t >= steps
+    if t > 0:
+        if not alive_out[w, t - 1]:
+            stopped = True
+    if stopped:
+        # Past termination or the motion's end: repeat the last record (the oracle's rule).
+        for d in range(qpos_in.shape[1]):
+            qpos_out[w, t, d] = qpos_out[w, t - 1, d]
+        for d in range(qvel_in.shape[1]):
+            qvel_out[w, t, d] = qvel_out[w, t - 1, d]
+        for u in range(ctrl_in.shape[1]):
+            ctrl_out[w, t, u] = ctrl_out[w, t - 1, u]
+            act_force_out[w, t, u] = act_force_out[w, t - 1, u]
+            act_vel_out[w, t, u] = act_vel_out[w, t - 1, u]
+        for e in range(ne):
+            ee_pos_out[w, t, e] = ee_pos_out[w, t - 1, e]
+            ee_quat_out[w, t, e] = ee_quat_out[w, t - 1, e]
+        fallen_out[w, t] = fallen_out[w, t - 1]
+        alive_out[w, t] = False
+    else:
+        for d in range(qpos_in.shape[1]):
+            qpos_out[w, t, d] = qpos_in[i, d]
+        for d in range(qvel_in.shape[1]):
+            qvel_out[w, t, d] = qvel_in[i, d]
+        for u in range(ctrl_in.shape[1]):
+            ctrl_out[w, t, u] = ctrl_in[i, u]
+            act_force_out[w, t, u] = act_force_in[i, u]
+            act_vel_out[w, t, u] = act_vel_in[i, u]
+        error = float(0.0)
+        for e in range(ne):
+            p = ee_pos_in[i, e]
+            ee_pos_out[w, t, e] = p
+            ee_quat_out[w, t, e] = ee_quat_in[i, e]
+            error += wp.length(motion_pos_in[motionid, record, e] - p)
+        fell = False
+        if base_qpos >= 0:
+            z = qpos_in[i, base_qpos + 2]
+            qw = qpos_in[i, base_qpos + 3]
+            qx = qpos_in[i, base_qpos + 4]
+            qy = qpos_in[i, base_qpos + 5]
+            qz = qpos_in[i, base_qpos + 6]
+            norm2 = qw * qw + qx * qx + qy * qy + qz * qz
+            # cos of the base z axis's angle to the world's: R_zz of the normalised quaternion.
+            cos_tilt = (qw * qw - qx * qx - qy * qy + qz * qz) / wp.max(norm2, 1.0e-30)
+            finite = wp.isfinite(z) and wp.isfinite(norm2)
+            # `not (>=)` so that a NaN height or tilt counts as a fall, like a low one.
+            fell = (not finite) or (not (z >= fall_height[i])) or (not (cos_tilt >= fall_cos_tilt))
+        fallen_out[w, t] = fell
+        # `<=` so that a NaN error (a diverged state) terminates like a large one.
+        alive_out[w, t] = (error <= threshold) and (not fell)
+
+
+# --------------------------------------------------------------------------- records
+
+
+@dataclass
+class EpisodeArrays:
+    """Records of W worlds over T control steps as Warp arrays (meanings: `Episode`).
+
+    qpos (W, T, NQ), qvel (W, T, NV), ctrl / act_force / act_vel (W, T, NU) float;
+    ee_pos, target_pos (W, T, NE) vec3 [m]; ee_quat, target_quat (W, T, NE) vec4 (w, x, y, z);
+    alive, fallen (W, T) bool. NQ, NV, NU are the widest design's; narrower designs
+    leave their extra columns zero (the oracle's padding).
+    """
+
+    qpos: wp.array
+    qvel: wp.array
+    ctrl: wp.array
+    act_force: wp.array
+    act_vel: wp.array
+    ee_pos: wp.array
+    ee_quat: wp.array
+    target_pos: wp.array
+    target_quat: wp.array
+    alive: wp.array
+    fallen: wp.array
+
+    @classmethod
+    def zeros(cls, W: int, T: int, nq: int, nv: int, nu: int, ne: int, *, device: str) -> "EpisodeArrays":
+        def z(shape, dtype):
+            return wp.zeros(shape, dtype=dtype, device=device)
+
+        return cls(
+            qpos=z((W, T, nq), float), qvel=z((W, T, nv), float), ctrl=z((W, T, max(nu, 1)), float),
+            act_force=z((W, T, max(nu, 1)), float), act_vel=z((W, T, max(nu, 1)), float),
+            ee_pos=z((W, T, ne), wp.vec3), ee_quat=z((W, T, ne), wp.vec4),
+            target_pos=z((W, T, ne), wp.vec3), target_quat=z((W, T, ne), wp.vec4),
+            alive=z((W, T), wp.bool), fallen=z((W, T), wp.bool),
+        )  # fmt: skip
+
+    def episode(self, D: int, M: int, nu: int, dt: float) -> Episode:
+        """The Episode of these records (zero-copy torch views), worlds design-major."""
+        f = {name: wp.to_torch(getattr(self, name)) for name in (f.name for f in dataclasses.fields(self))}
+        for name in ("ctrl", "act_force", "act_vel"):
+            f[name] = f[name][..., :nu]  # a design without actuators keeps one padding column
+        tdev = f["qpos"].device
+        return Episode(
+            qpos=f["qpos"], qvel=f["qvel"], ctrl=f["ctrl"], action=f["ctrl"],
+            act_force=f["act_force"], act_vel=f["act_vel"],
+            ee_pos=f["ee_pos"], ee_quat=f["ee_quat"], target_pos=f["target_pos"], target_quat=f["target_quat"],
+            alive=f["alive"], fallen=f["fallen"],
+            design_index=torch.arange(D, device=tdev).repeat_interleave(M),
+            motion_index=torch.arange(M, device=tdev).repeat(D),
+            dt=dt,
+        )  # fmt: skip
+
+
+def record_step(
+    records: EpisodeArrays,
+    t: int,
+    *,
+    threshold: float,
+    world_row: wp.array,
+    world_motion: wp.array,
+    motions,
+    qpos: wp.array,
+    qvel: wp.array,
+    ctrl: wp.array,
+    act_force: wp.array,
+    act_vel: wp.array,
+    ee_pos: wp.array,
+    ee_quat: wp.array,
+    base_qpos: int = -1,
+    fall_height: wp.array | None = None,
+    fall_tilt: float = math.pi,
+    device: str,
+) -> None:
+    """Write control step t of a group of Wg worlds into `records` (rows `world_row`).
+
+    qpos (Wg, nq), qvel (Wg, nv), ctrl / act_force / act_vel (Wg, nu) float and ee_pos
+    (Wg, NE) vec3, ee_quat (Wg, NE) vec4: the state after the step's physics and what
+    belongs to it. motions: `tt.kernels.rollout.MotionArrays`; world_motion (Wg,) int: each
+    world's motion. base_qpos: qpos address of a floating base (-1: fixed base, never
+    fallen); fall_height (Wg,) [m] and fall_tilt [rad]: the fall test of `tt.sim.wbc.fallen`.
+    """
+    Wg = qpos.shape[0]
+    if fall_height is None:
+        fall_height = wp.zeros(1, dtype=float, device=device)
+    wp.launch(
+        _record_step,
+        dim=Wg,
+        inputs=[
+            t, float(threshold), int(base_qpos), fall_height, float(math.cos(fall_tilt)), world_row, world_motion,
+            motions.steps, motions.pos, motions.quat, qpos, qvel, ctrl, act_force, act_vel, ee_pos, ee_quat,
+        ],  # fmt: skip
+        outputs=[
+            records.qpos, records.qvel, records.ctrl, records.act_force, records.act_vel, records.ee_pos,
+            records.ee_quat, records.target_pos, records.target_quat, records.alive, records.fallen,
+        ],  # fmt: skip
+        device=device,
+    )
+
+
+def joint_command(q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.array, ctrl: wp.array, *, device: str) -> None:
+    """ctrl (Wg, NU) = clip(q_cmd[:, actuator_qpos], ctrl_range): the position command of each
+    actuator from the IK's joint command q_cmd (Wg, NQ); actuator_qpos (NU,) int is the qpos
+    address each actuator drives (`tt.sim.controller.actuated_qpos`), ctrl_range (1 or Wg, NU)
+    vec2 its clamp (`ctrl_ranges`)."""
+    if ctrl.shape[1] and actuator_qpos.shape[0]:
+        wp.launch(_joint_command, dim=(q_cmd.shape[0], actuator_qpos.shape[0]), inputs=[actuator_qpos, ctrl_range, q_cmd], outputs=[ctrl], device=device)
+
+
+def lookahead_targets(t: int, lookahead: int, world_motion: wp.array, motions, target_pos: wp.array, target_quat: wp.array, *, device: str) -> None:
+    """IK targets of control step t: motion pose min(t + lookahead, T_m - 1) of each world's
+    motion, into target_pos (Wg, NE) vec3 and target_quat (Wg, NE) vec4."""
+    wp.launch(
+        _lookahead_targets,
+        dim=target_pos.shape,
+        inputs=[t, lookahead, world_motion, motions.steps, motions.pos, motions.quat],
+        outputs=[target_pos, target_quat],
+        device=device,
+    )
+
+
+@functools.cache
+def start_posture_kernel(topology):
+    """The oracle's float64 start-posture kernel of a topology
+    (`tt.kernels.rollout.make_initial_posture_kernel`) in a module of its own, so that
+    backends that only need the start posture do not compile the fused rollout."""
+    from tt.kernels.model import MODULE_OPTIONS, module_name
+    from tt.kernels.rollout import make_initial_posture_kernel
+
+    module = module_name(topology, "start_posture")
+    wp.set_module_options(MODULE_OPTIONS, module)
+    return make_initial_posture_kernel(topology, module)
+
+
+def start_postures(tree, motions, config: IKConfig, *, device: str) -> wp.array:
+    """Start postures (Wg, NV) float32 of the worlds of a `TreeModel` (world i runs model
+    entry i and motion i % M): ``config.init_iterations`` float64 IK steps from qpos0
+    toward each world's first motion pose, as `tt.sim.controller.DiffIKController.initial_q`."""
+    from tt.kernels.ik import ik_weights
+
+    W, NV = tree.world_count, tree.topology.dof_count
+    q_iter = wp.zeros((W, 1, NV), dtype=wp.float64, device=device)
+    out = wp.zeros((W, 1, NV), dtype=float, device=device)
+    k64 = tree.kinematics64
+    wp.launch(
+        start_posture_kernel(tree.topology),
+        dim=W,
+        inputs=[
+            k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range, k64.ee_pos,
+            k64.ee_quat, ik_weights(config), int(config.init_iterations), motions.first_pos, motions.first_quat,
+        ],  # fmt: skip
+        outputs=[q_iter, out],
+        device=device,
+    )
+    return out.reshape((W, NV))
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def resolve_models(designs: Sequence[Design | mujoco.MjModel]) -> tuple[list[mujoco.MjModel], tuple[str, ...]]:
+    """Compiled models and end-effector site names of the input designs (one kind per call)."""
+    if len(designs) == 0:
+        raise ValueError("designs is empty; a rollout needs at least one design")
+    models, sites = [], None
+    for i, d in enumerate(designs):
+        if isinstance(d, Design):
+            space = get_space(d.space)
+            m, s = space.model(d), space.ee_sites()
+        elif isinstance(d, mujoco.MjModel):
+            m, s = d, ee_site_names(d)
+        else:
+            raise TypeError(f"designs[{i}] is a {type(d).__name__}; expected a tt Design or a mujoco.MjModel")
+        if sites is None:
+            sites = s
+        elif s != sites:
+            raise ValueError(f"designs[{i}] ({model_name(m)!r}) has end effectors {list(s)}, designs[0] has {list(sites)}")
+        models.append(m)
+    return models, sites
+
+
+def padded_motions(motions: Sequence[Motion], arms: int, control_dt: float, *, device: str):
+    """`tt.kernels.rollout.MotionArrays` of M motions padded to the longest (last pose
+    repeated); raises ValueError for a motion of another rate or arm count."""
+    from tt.kernels.rollout import motion_arrays
+
+    if len(motions) == 0:
+        raise ValueError("motions is empty; a rollout needs at least one motion")
+    for j, motion in enumerate(motions):
+        if not isinstance(motion, Motion):
+            raise TypeError(f"motions[{j}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
+        if abs(motion.dt - control_dt) > 1e-9:
+            raise ValueError(
+                f"motions[{j}] ({motion.name!r}) has dt = {motion.dt} s; the controller runs at "
+                f"control_dt = {control_dt} s and needs motions sampled at that period"
+            )
+        if motion.arms != arms:
+            raise ValueError(f"motions[{j}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+    T = max(motion.steps for motion in motions)
+    pos = np.zeros((len(motions), T, arms, 3))
+    quat = np.zeros((len(motions), T, arms, 4))
+    for j, motion in enumerate(motions):
+        idx = np.minimum(np.arange(T), motion.steps - 1)
+        pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
+    return motion_arrays(pos, quat, [motion.steps for motion in motions], device=device), T
+
+
+def ctrl_ranges(models: Sequence[mujoco.MjModel]) -> np.ndarray:
+    """Per-model actuator command clamp (lo, hi), +-1e10 where not ctrllimited (the oracle
+    clips where ``actuator_ctrllimited``), (len(models), nu, 2) float32."""
+    out = np.tile(np.array([-_UNLIMITED, _UNLIMITED], np.float32), (len(models), models[0].nu, 1))
+    for i, m in enumerate(models):
+        limited = m.actuator_ctrllimited.astype(bool)
+        out[i, limited] = m.actuator_ctrlrange[limited]
+    return out
+
+
+# --------------------------------------------------------------------------- rollout
+
+
+@dataclass
+class _Group:
+    """The worlds of one structure: their designs, rows in the Episode and simulation."""
+
+    members: list[int]  # design indices
+    rows: np.ndarray  # (Wg,) Episode rows, design-major
+    floating: bool
+
+
+def mjwarp_rollout(
+    designs: Sequence[Design | mujoco.MjModel],
+    motions: Sequence[Motion],
+    *,
+    config: IKConfig = IKConfig(),
+    wbc_config: WBCConfig = WBCConfig(),
+    device: str | None = None,
+    nconmax: int | None = None,
+    njmax: int | None = None,
+    progress: bool = False,
+) -> Episode:
+    """Run every design on every motion on MuJoCo-Warp; an Episode of W = D * M worlds.
+
+    designs: D tt Designs or MjModels with sites ``ee_0``, ...; fixed-base arms run the
+        DiffIK of `config` (tt's batched kernel), floating-base legged robots the
+        whole-body controller of `wbc_config` (mink, on the host); a `WBCConfig` given as
+        `config` is used as `wbc_config` too.
+    motions: M motions sampled at the controller's control_dt, one arm per end effector.
+    device: Warp device (None: `tt.device.default_device()`); the Episode lives there.
+    nconmax, njmax: MuJoCo-Warp's contact and constraint capacity per world (None: its
+        defaults for the model).
+    Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`): worlds design-major,
+    joint fields zero-padded to the widest design, records repeated after termination.
+    """
+    from tt.device import resolve_device
+
+    device = resolve_device(device)
+    if isinstance(config, WBCConfig):
+        wbc_config = config  # `tt.sim.rollout.rollout` passes one config for every backend
+    models, sites = resolve_models(designs)
+    D, M, A = len(models), len(motions), len(sites)
+    floating = [free_joint(m) is not None for m in models]
+    for i, m in enumerate(models):
+        cfg = wbc_config if floating[i] else config
+        cfg.substeps(m)
+        if floating[i]:
+            foot_site_names(m)  # a floating base without feet raises here
+        actuated_qpos(m)  # every actuator must drive a hinge or slide joint
+    dts = {(wbc_config if floating[i] else config).control_dt for i in range(D)}
+    if len(dts) > 1:
+        raise ValueError(f"IKConfig.control_dt and WBCConfig.control_dt differ ({sorted(dts)}); one batch needs one rate")
+    control_dt = dts.pop()
+    marrays, T = padded_motions(motions, A, control_dt, device=device)
+
+    # Structure groups refine tt's topology groups (`tt.kernels.model.topology_key`): one
+    # `mjw.Model` and one IK kernel launch each.
+    groups: dict[tuple, _Group] = {}
+    for d, m in enumerate(models):
+        key = (structure_key(m), tuple(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, s) for s in sites))
+        g = groups.setdefault(key, _Group([], np.zeros(0, np.int64), floating[d]))
+        g.members.append(d)
+    for g in groups.values():
+        g.rows = np.array([d * M + j for d in g.members for j in range(M)], dtype=np.int64)
+    logger.debug("mjwarp rollout: %d designs in %d structure group(s), %d motions, T=%d", D, len(groups), M, T)
+
+    records = EpisodeArrays.zeros(
+        D * M, T, max(m.nq for m in models), max(m.nv for m in models), max(m.nu for m in models), A, device=device
+    )
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=T * len(groups), desc="mjwarp", unit="step")
+    for g in groups.values():
+        with wp.ScopedDevice(device):
+            _run_group(
+                [models[d] for d in g.members for _ in range(M)], g, sites=sites, motions=marrays, steps=T,
+                motion_count=M, config=wbc_config if g.floating else config, records=records, device=device,
+                nconmax=nconmax, njmax=njmax, bar=bar,
+            )  # fmt: skip
+    if bar is not None:
+        bar.close()
+    return records.episode(D, M, max(m.nu for m in models), control_dt)
+
+
+def _ik_model(m: mujoco.MjModel) -> mujoco.MjModel:
+    """`m`, or a copy of it with contacts disabled: tt's IK kernel reads only the kinematic
+    tree, and its `TreeModel` refuses models with contacts (which MuJoCo-Warp simulates)."""
+    if m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
+        return m
+    kinematic = copy.deepcopy(m)
+    kinematic.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    return kinematic
+
+
+def _run_group(
+    group_models: list[mujoco.MjModel],
+    g: _Group,
+    *,
+    sites: tuple[str, ...],
+    motions,
+    steps: int,
+    motion_count: int,
+    config: IKConfig,
+    records: EpisodeArrays,
+    device: str,
+    nconmax: int | None,
+    njmax: int | None,
+    bar,
+) -> None:
+    """Simulate the Wg worlds of one structure group (world i: ``group_models[i]`` on motion
+    ``i % motion_count``) and write their records into rows ``g.rows``."""
+    import mujoco_warp as mjw
+
+    from tt.kernels.ik import ik_step
+    from tt.kernels.model import build_tree_model
+
+    m0 = group_models[0]
+    Wg, A = len(group_models), len(sites)
+    substeps = config.substeps(m0)
+    model = batch_model(group_models, device=device, check=False)
+    data = mjw.make_data(m0, nworld=Wg, nconmax=nconmax, njmax=njmax)
+    world_row = wp.array(g.rows.astype(np.int32), dtype=int, device=device)
+    world_motion = wp.array((np.arange(Wg) % motion_count).astype(np.int32), dtype=int, device=device)
+    site_ids = wp.array([mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_SITE, s) for s in sites], dtype=int, device=device)
+    act_qpos = actuated_qpos(m0)
+    target_pos = wp.zeros((Wg, A), dtype=wp.vec3, device=device)
+    target_quat = wp.zeros((Wg, A), dtype=wp.vec4, device=device)
+    ee_pos = wp.zeros((Wg, A), dtype=wp.vec3, device=device)
+    ee_quat = wp.zeros((Wg, A), dtype=wp.vec4, device=device)
+    base_qpos, fall_height = -1, None
+
+    if g.floating:
+        # The oracle's whole-body controller, one per design, on the host.
+        designs = {id(m): m for m in group_models}
+        controllers = {k: WholeBodyController(m, config) for k, m in designs.items()}
+        joint = free_joint(m0)
+        base_qpos = int(m0.jnt_qposadr[joint])
+        heights = [config.fall_height_fraction * standing_height(m) for m in group_models]
+        fall_height = wp.array(np.array(heights, np.float32), dtype=float, device=device)
+        first_pos, first_quat = motions.first_pos.numpy(), motions.first_quat.numpy()
+        qpos0 = np.stack([
+            controllers[id(m)].initial_q(first_pos[i % motion_count], first_quat[i % motion_count])
+            for i, m in enumerate(group_models)
+        ])  # fmt: skip
+        key = mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
+        if key >= 0:
+            data.ctrl.assign(np.stack([m.key_ctrl[key] for m in group_models]).astype(np.float32))
+        data.qpos.assign(qpos0.astype(np.float32))
+        motion_pos, motion_quat, motion_steps = motions.pos.numpy(), motions.quat.numpy(), motions.steps.numpy()
+        limited = [m.actuator_ctrllimited.astype(bool) for m in group_models]
+        ranges = [m.actuator_ctrlrange for m in group_models]
+        ctrl = np.zeros((Wg, m0.nu))
+    else:
+        kinematic = {id(m): _ik_model(m) for m in group_models}
+        tree = build_tree_model([kinematic[id(m)] for m in group_models], sites, device=device)
+        wp.copy(data.qpos, start_postures(tree, motions, config, device=device))
+        ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
+        act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
+        q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
+    data.qvel.zero_()
+
+    for t in range(steps):
+        if g.floating:
+            q = data.qpos.numpy().astype(np.float64)
+            # Terminated worlds keep their last command: the oracle stops them, and mink
+            # should not see a state that may have diverged.
+            alive = records.alive.numpy()[g.rows, t - 1] if t > 0 else np.ones(Wg, bool)
+            for i, m in enumerate(group_models):
+                if not alive[i]:
+                    continue
+                j = i % motion_count
+                goal = min(t + config.lookahead_steps, int(motion_steps[j]) - 1)
+                q_cmd_i = controllers[id(m)].step(q[i], motion_pos[j, goal], motion_quat[j, goal])
+                c = q_cmd_i[act_qpos]
+                c[limited[i]] = np.clip(c[limited[i]], ranges[i][limited[i], 0], ranges[i][limited[i], 1])
+                ctrl[i] = c
+            data.ctrl.assign(ctrl.astype(np.float32))
+        else:
+            lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
+            ik_step(tree, data.qpos, target_pos, target_quat, config, q_cmd, device=device)
+            joint_command(q_cmd, act_qpos_w, ranges_w, data.ctrl, device=device)
+        for _ in range(substeps):
+            mjw.step(model, data)
+        mjw.forward(model, data)
+        wp.launch(_site_poses, dim=(Wg, A), inputs=[site_ids, data.site_xpos, data.site_xmat], outputs=[ee_pos, ee_quat], device=device)
+        record_step(
+            records, t, threshold=config.termination_pos_error, world_row=world_row, world_motion=world_motion,
+            motions=motions, qpos=data.qpos, qvel=data.qvel, ctrl=data.ctrl, act_force=data.actuator_force,
+            act_vel=data.actuator_velocity, ee_pos=ee_pos, ee_quat=ee_quat, base_qpos=base_qpos,
+            fall_height=fall_height, fall_tilt=getattr(config, "fall_tilt", math.pi), device=device,
+        )  # fmt: skip
+        if bar is not None:
+            bar.update(1)
+
+
+# --------------------------------------------------------------------------- open loop
+
+
+def mjwarp_simulate(
+    models: Sequence[mujoco.MjModel],
+    ctrl: np.ndarray,
+    *,
+    qpos: np.ndarray | None = None,
+    qvel: np.ndarray | None = None,
+    device: str | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Open-loop simulation of W models under given actuator commands, one physics step each.
+
+    models: W MuJoCo models (any mix of structures; each structure is one batched model).
+    ctrl: commands per physics step, (W, S, NU) with NU >= every model's nu (extra columns
+        ignored). qpos, qvel: initial state (W, NQ), (W, NV) zero-padded (None: qpos0, rest).
+    Returns qpos (W, S + 1, NQ) and qvel (W, S + 1, NV) float64 (entry 0: the initial state,
+    entry s: after s steps), zero-padded to the widest model.
+    """
+    import mujoco_warp as mjw
+
+    from tt.device import resolve_device
+
+    device = resolve_device(device)
+    W = len(models)
+    ctrl = np.asarray(ctrl, dtype=np.float64)
+    nq, nv, nu = (max(getattr(m, k) for m in models) for k in ("nq", "nv", "nu"))
+    if ctrl.ndim != 3 or ctrl.shape[0] != W or ctrl.shape[2] < nu:
+        raise ValueError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, >= {nu})")
+    S = ctrl.shape[1]
+    qpos_out = np.zeros((W, S + 1, nq))
+    qvel_out = np.zeros((W, S + 1, nv))
+    groups: dict[tuple, list[int]] = {}
+    for i, m in enumerate(models):
+        groups.setdefault(structure_key(m), []).append(i)
+    for members in groups.values():
+        m0 = models[members[0]]
+        with wp.ScopedDevice(device):
+            model = batch_model([models[i] for i in members], device=device)
+            data = mjw.make_data(m0, nworld=len(members))
+            q0 = np.stack([m0.qpos0 if qpos is None else qpos[i, : m0.nq] for i in members])
+            v0 = np.zeros((len(members), m0.nv)) if qvel is None else np.stack([qvel[i, : m0.nv] for i in members])
+            data.qpos.assign(q0.astype(np.float32))
+            data.qvel.assign(v0.astype(np.float32))
+            c = wp.array(ctrl[members][:, :, : m0.nu].astype(np.float32), dtype=float, device=device)
+            traj_q = [data.qpos.numpy().astype(np.float64)]
+            traj_v = [data.qvel.numpy().astype(np.float64)]
+            for s in range(S):
+                wp.copy(data.ctrl, c[:, s])
+                mjw.step(model, data)
+                traj_q.append(data.qpos.numpy().astype(np.float64))
+                traj_v.append(data.qvel.numpy().astype(np.float64))
+        qpos_out[members, :, : m0.nq] = np.stack(traj_q, axis=1)
+        qvel_out[members, :, : m0.nv] = np.stack(traj_v, axis=1)
+    return qpos_out, qvel_out
+
+
+__all__ = [
+    "EpisodeArrays",
+    "batch_model",
+    "joint_command",
+    "ctrl_ranges",
+    "lookahead_targets",
+    "mjwarp_rollout",
+    "mjwarp_simulate",
+    "padded_motions",
+    "record_step",
+    "resolve_models",
+    "start_postures",
+    "structure_key",
+]
