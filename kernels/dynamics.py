@@ -14,8 +14,9 @@ One physics step of a world (all in thread-local memory, see `dynamics_funcs`):
 6. Joint limits as MuJoCo's soft constraints (solref / solimp): a limit row is active when
    q is past its range; its force minimises MuJoCo's dual objective
    1/2 f (A + R) f + f (J qacc_smooth - aref), f >= 0 (A = J M^-1 J^T), solved by
-   projected Gauss-Seidel (`TreeModel.limit_sweeps` sweeps), which for the one or two rows a
-   robot's limits produce at a time converges to the solution of MuJoCo's Newton solver.
+   projected Gauss-Seidel (at most `TreeModel.limit_sweeps` sweeps, until the forces change
+   by less than 1e-6 relative), which for the one or two rows a robot's limits produce at a
+   time converges to the solution of MuJoCo's Newton solver.
 7. Euler with implicit joint damping, as MuJoCo integrates it:
    qacc = (M + h D)^-1 (qfrc_smooth + qfrc_constraint); qd' = qd + h qacc; q' = q + h qd'.
 
@@ -327,12 +328,20 @@ def dynamics_funcs(topology: Topology) -> SimpleNamespace:
                 reg[d] = wp.max(MJ_MINVAL, (1.0 - imp) * dof_invweight0[mid, d] / imp)
         f = T.dof_vec()
         for sweep in range(limit_sweeps[mid % limit_sweeps.shape[0]]):
+            change = float(0.0)
+            size = float(0.0)
             for d in range(NV):
                 if sign[d] != 0.0:
                     res = offset[d] + reg[d] * f[d]
                     for j in range(NV):
                         res += sign[d] * sign[j] * Minv[d, j] * f[j]
-                    f[d] = wp.max(0.0, f[d] - res / (Minv[d, d] + reg[d]))
+                    f_new = wp.max(0.0, f[d] - res / (Minv[d, d] + reg[d]))
+                    change = wp.max(change, wp.abs(f_new - f[d]))
+                    size = wp.max(size, wp.abs(f_new))
+                    f[d] = f_new
+            # Converged (one sweep already is, for a single row): stop early.
+            if change <= 1.0e-6 * size:
+                break
         for d in range(NV):
             qfrc[d] = sign[d] * f[d]
         return qfrc, active

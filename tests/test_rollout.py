@@ -1,8 +1,9 @@
 """`tt.sim.rollout.rollout`: the warp backend against the oracle, episode by episode, and its errors.
 
 Closed loop, episode by episode: warp and the oracle (MuJoCo C + mink) run the same designs
-on the same motions; every episode must have the same survival (the same alive steps),
-mean position error within 0.2 cm and tracking reward within 2%.
+on the same motions; every episode must have the same survival (whether it tracks its whole
+motion), mean position error within 0.2 cm (over the steps both count) and tracking reward
+within 2%.
 
 Some random designs make that impossible for any implementation that is not bit-identical
 to the oracle: their start posture (fifty IK steps toward a pose they cannot reach) or
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from tt.guidance.rewards import RewardInputs, get_reward, metrics
+from tt.guidance.rewards import RewardInputs, evaluate, get_reward
 from tt.kernels.model import topology_of
 from tt.sim.designs import get_space
 from tt.sim.motions import Motion, for_space, motion_set
@@ -26,10 +27,6 @@ from tt.sim.rollout import rollout
 
 POS_ERR_TOL = 0.2  # [cm]
 REWARD_REL_TOL = 0.02
-
-
-def _metrics(episode, space):
-    return metrics(RewardInputs.from_episode(episode), get_reward("tracking", space))
 
 
 #: MjModel fields the kernels read, rounded to float32 for the second oracle run.
@@ -68,30 +65,36 @@ def _compare(space, designs, motions, min_reproducible):
     assert torch.equal(warp_ep.motion_index, oracle_ep.motion_index)
     np.testing.assert_allclose(warp_ep.target_pos.numpy(), oracle_ep.target_pos.numpy(), atol=1e-6)
 
-    w, o, a = (_metrics(ep, space) for ep in (warp_ep, oracle_ep, again_ep))
+    cfg = get_reward("tracking", space)
+    w, o, a = (evaluate(RewardInputs.from_episode(ep), cfg) for ep in (warp_ep, oracle_ep, again_ep))
 
-    def same_pos_err(x, y, tol):
-        both_nan = torch.isnan(x["pos_err"]) & torch.isnan(y["pos_err"])
-        return both_nan | ((x["pos_err"] - y["pos_err"]).abs() <= tol)
+    def pos_err_gap(x, y):
+        """|mean position error [cm] of x - that of y| over the steps both count (NaN-free)."""
+        common = x.counted & y.counted
+        n = common.sum(1).clamp(min=1)
+        mx = (x.pos_err.mean(-1) * common).sum(1) / n
+        my = (y.pos_err.mean(-1) * common).sum(1) / n
+        return 100.0 * (mx - my).abs()
 
-    def same_reward(x, y, tol):
-        return (x["reward"] - y["reward"]).abs() <= tol * y["reward"].abs().clamp(min=1.0)
+    def reward_gap(x, y):
+        return (x.reward - y.reward).abs() / y.reward.abs().clamp(min=1.0)
 
     start_moved = (oracle_ep.qpos[:, 0] - again_ep.qpos[:, 0]).abs().amax(dim=-1)
     reproducible = (
         (start_moved < 1e-4)
-        & (oracle_ep.alive == again_ep.alive).all(dim=1)
-        & same_pos_err(a, o, 0.05)
-        & same_reward(a, o, 0.005)
+        & (a.survived == o.survived)
+        & (pos_err_gap(a, o) <= 0.05)
+        & (reward_gap(a, o) <= 0.005)
     )
     assert reproducible.float().mean() >= min_reproducible, reproducible.float().mean()
     r = reproducible
-    assert torch.equal(warp_ep.alive[r], oracle_ep.alive[r])
-    assert bool(same_pos_err(w, o, POS_ERR_TOL)[r].all()), (w["pos_err"][r] - o["pos_err"][r]).abs().max()
-    assert bool(same_reward(w, o, REWARD_REL_TOL)[r].all())
-    # Survival over all episodes, reproducible or not, differs at most where the oracle's
-    # own does under float32 rounding or the episode is not reproducible.
-    assert (w["survival"] != o["survival"]).sum() <= (a["survival"] != o["survival"]).sum() + (~r).sum()
+    assert torch.equal(w.survived[r], o.survived[r])
+    assert bool((pos_err_gap(w, o)[r] <= POS_ERR_TOL).all()), pos_err_gap(w, o)[r].max()
+    assert bool((reward_gap(w, o)[r] <= REWARD_REL_TOL).all()), reward_gap(w, o)[r].max()
+    # Most reproducible episodes also end at the same step (a failing episode may cross the
+    # termination threshold one step apart).
+    same_length = (w.counted.sum(1) == o.counted.sum(1))[r]
+    assert same_length.float().mean() >= 0.9
     return warp_ep, oracle_ep
 
 
