@@ -46,6 +46,10 @@ from tt.kernels.model import (
 )
 
 
+#: Gauss-Seidel sweeps of the joint-limit solve in differentiable kernels (exact for one
+#: active row; two or three rows, what a robot's limits produce, converge in a few).
+LIMIT_SWEEPS_DIFFERENTIABLE = 8
+
 vec9 = wp.types.vector(length=9, dtype=wp.float32)
 
 
@@ -81,9 +85,18 @@ def limit_impedance(pos: float, dmin: float, dmax: float, width: float, midpoint
     return dmin + y * (dmax - dmin)
 
 
+def dynamics_funcs(topology: Topology, differentiable: bool = False) -> SimpleNamespace:
+    """See `_dynamics_funcs` (one cache entry per variant, however the flag is passed)."""
+    return _dynamics_funcs(topology, bool(differentiable))
+
+
 @functools.cache
-def dynamics_funcs(topology: Topology) -> SimpleNamespace:
+def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace:
     """Warp functions of one topology (see the module docstring for the algorithm).
+
+    differentiable: the variant for kernels with adjoints: the joint-limit solve runs a
+    fixed `LIMIT_SWEEPS_DIFFERENTIABLE` sweeps in unrolled loops (exact adjoint) instead
+    of dynamic loops that stop at convergence (`TreeModel.limit_sweeps` at most).
 
     step(mid, model fields..., q, qd, ctrl) -> (q', qd', act_force, act_vel, active_limits):
         one Euler step of world-model entry `mid` from joint positions q and velocities qd
@@ -95,6 +108,7 @@ def dynamics_funcs(topology: Topology) -> SimpleNamespace:
     """
     T = local_types(topology)
     K = kinematics_funcs(topology)
+    DIFFERENTIABLE = differentiable
     NB, NV, NU = topology.body_count, topology.dof_count, topology.actuator_count
     PARENT = topology.body_parent
     BDOF = topology.body_dof
@@ -264,6 +278,29 @@ def dynamics_funcs(topology: Topology) -> SimpleNamespace:
         return qfrc, act_force, act_vel
 
     @wp.func
+    def minv_column(Lm: T.dof_mat, Dm: T.dof_vec, d: int):
+        e = T.dof_vec()
+        e[d] = 1.0
+        return solve(Lm, Dm, e)
+
+    @wp.func
+    def pgs_sweep(sign: T.dof_vec, offset: T.dof_vec, reg: T.dof_vec, Minv: T.dof_mat, f: T.dof_vec):
+        # One projected Gauss-Seidel sweep over the active rows; returns the forces, the
+        # largest change and the largest force.
+        change = float(0.0)
+        size = float(0.0)
+        for d in range(NV):
+            if sign[d] != 0.0:
+                res = offset[d] + reg[d] * f[d]
+                for j in range(NV):
+                    res += sign[d] * sign[j] * Minv[d, j] * f[j]
+                f_new = wp.max(0.0, f[d] - res / (Minv[d, d] + reg[d]))
+                change = wp.max(change, wp.abs(f_new - f[d]))
+                size = wp.max(size, wp.abs(f_new))
+                f[d] = f_new
+        return f, change, size
+
+    @wp.func
     def limit_forces(
         mid: int,
         dof_range: wp.array2d(dtype=wp.vec2),
@@ -297,17 +334,23 @@ def dynamics_funcs(topology: Topology) -> SimpleNamespace:
             return qfrc, active
         Lm, Dm = factor(M)
         acc0 = solve(Lm, Dm, qfrc_smooth)
-        # Columns of M^-1 for the active rows only. The loops over rows and sweeps are
-        # dynamic (their bounds come from arrays) so that only their bodies are unrolled.
-        nv = dof_range.shape[1]
+        # Columns of M^-1 for the active rows only. In the forward-only build the loops over
+        # rows and sweeps are dynamic (bounds from arrays: only their bodies are unrolled)
+        # and the sweeps stop once converged; the differentiable build unrolls them with a
+        # fixed sweep count, which Warp's adjoint replays exactly.
         Minv = T.dof_mat()
-        for d in range(nv):
-            if sign[d] != 0.0:
-                e = T.dof_vec()
-                e[d] = 1.0
-                col = solve(Lm, Dm, e)
-                for i in range(NV):
-                    Minv[i, d] = col[i]
+        if wp.static(DIFFERENTIABLE):
+            for d in range(NV):
+                if sign[d] != 0.0:
+                    col = minv_column(Lm, Dm, d)
+                    for i in range(NV):
+                        Minv[i, d] = col[i]
+        else:
+            for d in range(dof_range.shape[1]):
+                if sign[d] != 0.0:
+                    col = minv_column(Lm, Dm, d)
+                    for i in range(NV):
+                        Minv[i, d] = col[i]
         # Row data: residual offset J acc0 - aref and regulariser R.
         offset = T.dof_vec()
         reg = T.dof_vec()
@@ -327,21 +370,15 @@ def dynamics_funcs(topology: Topology) -> SimpleNamespace:
                 offset[d] = sign[d] * acc0[d] - aref
                 reg[d] = wp.max(MJ_MINVAL, (1.0 - imp) * dof_invweight0[mid, d] / imp)
         f = T.dof_vec()
-        for sweep in range(limit_sweeps[mid % limit_sweeps.shape[0]]):
-            change = float(0.0)
-            size = float(0.0)
-            for d in range(NV):
-                if sign[d] != 0.0:
-                    res = offset[d] + reg[d] * f[d]
-                    for j in range(NV):
-                        res += sign[d] * sign[j] * Minv[d, j] * f[j]
-                    f_new = wp.max(0.0, f[d] - res / (Minv[d, d] + reg[d]))
-                    change = wp.max(change, wp.abs(f_new - f[d]))
-                    size = wp.max(size, wp.abs(f_new))
-                    f[d] = f_new
-            # Converged (one sweep already is, for a single row): stop early.
-            if change <= 1.0e-6 * size:
-                break
+        if wp.static(DIFFERENTIABLE):
+            for sweep in range(LIMIT_SWEEPS_DIFFERENTIABLE):
+                f, change, size = pgs_sweep(sign, offset, reg, Minv, f)
+        else:
+            for sweep in range(limit_sweeps[mid % limit_sweeps.shape[0]]):
+                f, change, size = pgs_sweep(sign, offset, reg, Minv, f)
+                # Converged (one sweep already is, for a single row): stop early.
+                if change <= 1.0e-6 * size:
+                    break
         for d in range(NV):
             qfrc[d] = sign[d] * f[d]
         return qfrc, active

@@ -43,11 +43,12 @@ from tt.kernels.pose import position_error
 from tt.sim.controller import IKConfig
 
 
-def make_rollout_kernel(topology: Topology, module: str):
-    """The fused rollout kernel of one topology, registered in Warp module `module`."""
+def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = False):
+    """The fused rollout kernel of one topology, registered in Warp module `module`
+    (`differentiable`: with the physics variant whose adjoint is exact, see `dynamics_funcs`)."""
     T = local_types(topology)
     K = kinematics_funcs(topology)
-    Dyn = dynamics_funcs(topology)
+    Dyn = dynamics_funcs(topology, differentiable)
     IK = ik_funcs(topology)
     NV, NU, NE = topology.dof_count, topology.actuator_count, topology.ee_count
     ACT_DOF = topology.actuator_dof
@@ -291,7 +292,7 @@ def grad_kernels(topology: Topology) -> SimpleNamespace:
     return SimpleNamespace(
         module=module,
         initial_posture=make_initial_posture_kernel(topology, module),
-        rollout=make_rollout_kernel(topology, module),
+        rollout=make_rollout_kernel(topology, module, differentiable=True),
     )
 
 
@@ -389,9 +390,12 @@ def rollout_tree(
     motion m). `motions` comes from `motion_arrays`.
     differentiable: use the kernel with adjoints and a state slot per physics step, so the
         call can be recorded on a `wp.Tape` (memory grows with W * steps * substeps).
-        Gradients flow through the controller and the physics from the start posture on;
-        the start posture itself (a float64 IK iteration on `model.kinematics64`, chaotic
-        for robots that cannot reach the first pose) is a constant for them.
+        Gradients flow through the controller and the physics to the float32 model fields;
+        the start posture (a float64 IK iteration, see `make_initial_posture_kernel`) reads
+        `model.kinematics64`, so its gradient reaches those float64 copies (when they
+        require grad), not the float32 fields; for robots that cannot reach the first pose
+        that iteration is chaotic and its derivative not informative (pass `initial_qpos`
+        to hold the start fixed).
     initial_qpos: start postures (W, NV) [rad or m] to use instead of the start-posture kernel.
     chunk: control steps per launch (None: all in one); progress: a callable taking the
         number of control steps done after each launch (e.g. a tqdm bar's update).

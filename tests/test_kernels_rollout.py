@@ -145,3 +145,79 @@ def test_rollout_gradients_match_float64_finite_differences():
             values.append(_oracle_reward(m, motion, q0, config))
         fd = (values[0] - values[1]) / (2 * eps)
         assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (adjoint, fd)
+
+
+_LIMITED_ARM = """
+<mujoco model="limited_arm">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="0.002" integrator="Euler"><flag contact="disable"/></option>
+  <worldbody>
+    <body name="b1" pos="0 0 0.1">
+      <joint name="j1" type="hinge" axis="0 0 1" range="-0.06 0.06" damping="0.1" armature="0.01"/>
+      <geom type="capsule" fromto="0 0 0 0.28 0 0" size="0.02" density="1000"/>
+      <body name="b2" pos="0.28 0 0" euler="0 0 1.5708">
+        <joint name="j2" type="hinge" axis="0 0 1" range="-0.05 0.05" damping="0.1" armature="0.01"/>
+        <geom type="capsule" fromto="0 0 0 0.22 0 0" size="0.02" density="1000"/>
+        <site name="ee_0" pos="0.22 0 0"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    <position joint="j1" kp="30" kv="2" ctrlrange="-0.06 0.06"/>
+    <position joint="j2" kp="30" kv="2" ctrlrange="-0.05 0.05"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@pytest.mark.slow
+def test_gradients_through_active_joint_limits_match_float64_finite_differences():
+    # A two-link arm with ranges of a few degrees, driven along a circle it cannot follow:
+    # it presses into its joint limits, so the soft limit constraints act on most steps.
+    model = mujoco.MjModel.from_xml_string(_LIMITED_ARM)
+    t = np.arange(STEPS) * 0.02
+    pos = np.stack([0.22 + 0.06 * np.cos(3 * t), 0.18 + 0.06 * np.sin(3 * t), np.full_like(t, 0.1)], -1)[:, None]
+    yaw = np.pi / 2 + 0.3 * np.sin(3 * t)
+    quat = np.stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], -1)[:, None]
+    from tt.sim.motions.base import Motion
+
+    motion = Motion("circle", pos, quat)
+    config = IKConfig()
+    q0 = DiffIKController(model, config).initial_q(motion.pos[0], motion.quat[0])
+    tree = build_tree_model([model], ("ee_0",), device="cpu", requires_grad=True)
+    motions = motion_arrays(motion.pos[None], motion.quat[None], [STEPS], device="cpu")
+    reward = wp.zeros(1, dtype=float, requires_grad=True)
+    tape = wp.Tape()
+    with tape:
+        out = rollout_tree(tree, motions, 1, STEPS, config=config, differentiable=True, initial_qpos=q0[None])
+        counted = wp.array(out.alive.numpy().astype(np.int32), dtype=wp.int32)
+        tracking_reward(out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, counted, reward)
+    tape.backward(loss=reward)
+    # The limits are active in the rollout (MuJoCo's constraint count on the recorded states).
+    data = mujoco.MjData(model)
+    active = 0
+    for q, qd in zip(out.qpos.numpy()[0], out.qvel.numpy()[0]):
+        data.qpos[:], data.qvel[:] = q, qd
+        mujoco.mj_forward(model, data)
+        active += data.nefc > 0
+    assert active >= STEPS // 4
+    checks = [("body_pos", (2, 0)), ("body_pos", (1, 2)), ("act_gain", (0,)), ("act_gain", (1,)), ("dof_damping", (1,))]
+    for name, index in checks:
+        adjoint = float(getattr(tree, name).grad.numpy()[0][index])
+        values = []
+        for sign in (1.0, -1.0):
+            m = mujoco.MjModel.from_xml_string(_LIMITED_ARM)
+            if name == "body_pos":
+                m.body_pos[index] += sign * 1e-5
+            elif name == "act_gain":
+                m.actuator_gainprm[index[0], 0] += sign * 1e-3
+                m.actuator_biasprm[index[0], 1] -= sign * 1e-3  # a position servo's kp is both
+            else:
+                m.dof_damping[index[0]] += sign * 1e-4
+            values.append(_oracle_reward(m, motion, q0, config))
+        step = {"body_pos": 1e-5, "act_gain": 1e-3, "dof_damping": 1e-4}[name]
+        fd = (values[0] - values[1]) / (2 * step)
+        if name == "act_gain":
+            # kp enters as gain and as bias b1 = -kp: the chain rule adds the bias gradient.
+            adjoint -= float(tree.act_bias.grad.numpy()[0][index[0]][1])
+        assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (name, index, adjoint, fd)
