@@ -16,7 +16,8 @@ A world-step is one physics step (0.002 s) of one world; the toss is 223 control
 The closed-loop rates exclude setup (model building, start posture): each combination
 runs a short motion (the first 10 control steps) and a long one (the whole toss, or as
 many steps as fit the time budget), and the rate is the difference in world-steps over the
-difference in time; setup is the short run's time less its share of stepping. Compile
+difference in time (runs shorter than 2 s: the best of 5); setup is the short run's time
+less its share of stepping. Compile
 times come from a separate process per backend with an empty Warp kernel cache: the first
 call (compile + run) and a second, warm call, on one design of each ViperX topology.
 
@@ -210,6 +211,11 @@ def _closed_loop_rate(backend: str, designs, full_steps: int, budget: float, his
     if short + long_steps * per_step > budget:
         long_steps = min(full_steps, int(max(3 * SHORT_STEPS, (budget - short) / per_step)))
     long = _closed_loop(backend, designs, long_steps)
+    if long < 2.0:
+        # Fast combinations: the best of 5 of each run, so timer noise and other jobs'
+        # bursts do not decide a difference of milliseconds.
+        short = min([short] + [_closed_loop(backend, designs, SHORT_STEPS) for _ in range(4)])
+        long = min([long] + [_closed_loop(backend, designs, long_steps) for _ in range(4)])
     world_steps = n * 10 * (long_steps - SHORT_STEPS)
     rate = world_steps / max(long - short, 1e-9)
     rec.update(

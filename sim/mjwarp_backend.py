@@ -6,16 +6,19 @@ actuators and options, differing only in numbers) share one `mjw.Model` whose
 numeric fields that may vary per world (MuJoCo-Warp marks them with a leading ``*``
 dimension in ``mujoco_warp/_src/types.py``: body offsets and inertias, joint axes and
 ranges, geom sizes, actuator gains, ...) hold one entry per world (`batch_model`); a
-kernel reads entry ``worldid % shape[0]``. Unlike the ``warp`` backend this one
-simulates everything MuJoCo-Warp does, contacts and equality constraints included, so it
-runs the quadruped too.
+kernel reads entry ``worldid % shape[0]``. Structure groups refine tt's topology groups
+(`tt.kernels.model.topology_key`): ViperX designs form 3 of each, one per DoF count.
+Unlike the ``warp`` backend this one simulates everything MuJoCo-Warp does, contacts and
+equality constraints included, so it runs the quadruped too.
 
 Control, per world and control step (the oracle's loop, `tt.sim.validate`, step for step):
 
 * fixed-base arms: tt's batched DiffIK kernel (`tt.kernels.ik.ik_step`, the oracle's mink
   step, with forward kinematics on MuJoCo-Warp's ``qpos``), one launch per structure
   group; the start posture is the oracle's float64 IK from ``qpos0`` toward the first
-  pose (the kernel `tt.kernels.rollout.make_initial_posture_kernel` builds);
+  pose (the kernel `tt.kernels.rollout.make_initial_posture_kernel` builds). An arm
+  whose model has contacts gets its IK from a copy with contacts disabled (the IK reads
+  only the kinematic tree); MuJoCo-Warp simulates the contacts;
 * floating-base legged robots (the quadruped): the oracle's whole-body controller
   (`tt.sim.wbc.WholeBodyController`, mink) on the host, one world at a time, since tt
   has no batched whole-body kernel; physics stays batched. It is as slow as the oracle's
@@ -30,6 +33,12 @@ one, alive False, which is what the oracle records.
 Records are written straight into one Episode-shaped set of Warp arrays (zero-padded to
 the widest design across structure groups), and the Episode's tensors are zero-copy
 torch views of them.
+
+`mjwarp_simulate` runs open-loop commands (the dynamics reference of the tests).
+
+Speed: on the CPU device every `mjw.step` is about 80 kernel launches, so small batches
+are bound by Python's launch overhead and each structure group adds its own launches;
+see ``benchmarks/results/sim.md``.
 
 Gradients: MuJoCo-Warp 3.17 is not differentiable through ``mjw.step`` (a `wp.Tape`
 over it returns all-zero gradients); use the ``warp`` backend (tt's kernels) or the
@@ -78,22 +87,32 @@ def structure_key(model: mujoco.MjModel) -> tuple:
     Every integer, boolean and enum array of the model (body tree, joint and geom types,
     contact bits, actuator kinds, sparsity patterns, ...) except `_IGNORED_INT_FIELDS`,
     and every physics option. Models with equal keys differ only in floating-point fields.
+    Returns (digest of the integer arrays, their shapes, the options' bytes).
     """
-    parts = []
-    for name in dir(model):
-        if name.startswith("_") or name.startswith("name") or name in _IGNORED_INT_FIELDS:
-            continue
-        value = getattr(model, name)
-        if isinstance(value, np.ndarray) and value.dtype.kind in "iub":
-            parts.append((name, value.shape, hashlib.sha1(np.ascontiguousarray(value).tobytes()).hexdigest()))
+    arrays = [getattr(model, name) for name in _int_fields()]
+    digest = hashlib.sha1(b"".join(a.tobytes() for a in arrays)).hexdigest()
     opt = model.opt
-    for name in dir(opt):
-        if name.startswith("_"):
-            continue
-        value = getattr(opt, name)
-        if isinstance(value, (int, float, np.ndarray)):
-            parts.append(("opt." + name, tuple(np.atleast_1d(value).tolist())))
-    return tuple(parts)
+    options = tuple(np.atleast_1d(getattr(opt, name)).tobytes() for name in _option_fields())
+    return digest, tuple(a.shape for a in arrays), options
+
+
+@functools.cache
+def _int_fields() -> tuple[str, ...]:
+    """Names of MjModel's integer / boolean arrays (the same for every model: MuJoCo fixes
+    each field's type), less names and `_IGNORED_INT_FIELDS`."""
+    probe = mujoco.MjModel.from_xml_string("<mujoco/>")
+    return tuple(
+        name for name in dir(probe)
+        if not name.startswith(("_", "name")) and name not in _IGNORED_INT_FIELDS
+        and isinstance(getattr(probe, name), np.ndarray) and getattr(probe, name).dtype.kind in "iub"
+    )  # fmt: skip
+
+
+@functools.cache
+def _option_fields() -> tuple[str, ...]:
+    """Names of MjOption's numeric fields."""
+    opt = mujoco.MjModel.from_xml_string("<mujoco/>").opt
+    return tuple(n for n in dir(opt) if not n.startswith("_") and isinstance(getattr(opt, n), (int, float, np.ndarray)))
 
 
 def _batchable_fields() -> list[tuple[str, str | None]]:
