@@ -13,7 +13,7 @@ def train_cmd(data: str | Path, *, task: str = "robot", size: str = "small", out
     """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
 
     data: episode token file (`tt.dit.data.EpisodeTokens.save`); task: robot | control |
-    both; size: tiny | small | large; out: run folder (checkpoints, loss.csv, loss.png);
+    both; size: tiny | mini | small | large; out: run folder (checkpoints, loss.csv, loss.png);
     lr: None for the paper's value of the size; device: None for the default device;
     resume: continue from the run folder's latest checkpoint if it has one.
     Raises ValueError (bad arguments, mismatched run folder), FileNotFoundError and

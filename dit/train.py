@@ -42,7 +42,7 @@ from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
 log = logging.getLogger(__name__)
 
 #: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
-DEFAULT_LR = {"tiny": 5e-3, "small": 5e-3, "large": 1e-4}
+DEFAULT_LR = {"tiny": 5e-3, "mini": 1e-3, "small": 5e-3, "large": 1e-4}
 
 
 @dataclass
@@ -51,7 +51,7 @@ class TrainConfig:
 
     data: episode token file (`EpisodeTokens.save`); out: run folder; task: "robot",
     "control" or "both" (a unified model; each batch is half robot, half control
-    windows); size: "tiny", "small" or "large"; steps: total optimizer steps; lr: None
+    windows); size: "tiny", "mini", "small" or "large"; steps: total optimizer steps; lr: None
     for `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of
     each task's DDIM process; future_states: the control task also diffuses the states
     after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
@@ -195,7 +195,9 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     if episodes is None:
         if not config.data:
             raise ValueError("TrainConfig.data is empty: give an episode token file (or pass episodes=)")
-        episodes = EpisodeTokens.load(config.data)
+        from tt.tokens.loader import open_token_source
+
+        episodes = open_token_source(config.data)
     layout = episodes.layout(config.window)
     resume_from = latest_checkpoint(out) if config.resume else None
 

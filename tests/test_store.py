@@ -222,6 +222,9 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     a.check(src.layout(8))
     plain = StoreTokenSource(dataset, augment=None, windows_per_block=4).sample(9, 8, "random", torch.Generator().manual_seed(3))
     assert not torch.equal(plain.values["target_pose"], a.values["target_pose"])  # augmentation is on by default
+    identity = StoreTokenSource(dataset, augment=SE2Augment(0.0, 0.0), windows_per_block=4)
+    same = identity.sample(9, 8, "random", torch.Generator().manual_seed(3))
+    assert all(torch.equal(same.values[n], plain.values[n]) for n in plain.values)  # g = identity changes nothing
     torch.set_num_threads(1)
     result = train(TrainConfig(out=str(tmp_path / "run"), size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu"),
                    episodes=src)

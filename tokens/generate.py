@@ -20,7 +20,9 @@ One shard:
    the end effector left the target by more than the space's threshold) or with non-finite
    states are dropped and counted by reason;
 4. tokenize: embodiment tokens per design, dynamics and target tokens of every executed
-   step, padded to the design space's maxima (`space_token_maxima`);
+   step, padded to the design space's maxima (`space_token_maxima`); a group's kept
+   episodes are stored in a seeded random order, so that a block of consecutive episodes
+   (the unit loaders read) mixes the group's robots;
 5. write: appended to a shard under ``.partial/``, then checksummed and renamed into
    ``shards/`` (`tt.tokens.store.ShardWriter`).
 
@@ -401,7 +403,8 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             W = ep.worlds
             dev = ep.ee_pos.device
             motion_steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
-            # float64 sums: reproducible whatever the thread count of the process.
+            # Summed in float64, so the float32 values stored do not depend on the summation
+            # order (thread count) of the worker that computed them.
             inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
                                   act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive, fallen=ep.fallen,
                                   motion_steps=motion_steps)
@@ -411,7 +414,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             short = lengths < config.min_steps
             dropped["nonfinite"] += int((~finite).sum())
             dropped["short"] += int((finite & short).sum())
-            keep = np.nonzero(finite & ~short)[0]
+            # Stored in random order: a block of consecutive episodes (what loaders read at once)
+            # then holds many robots, not the K episodes of a few.
+            keep = rng.permutation(np.nonzero(finite & ~short)[0])
             generated += W
             seconds["score"] += time.perf_counter() - t
 

@@ -242,9 +242,9 @@ def view(
 
 @app.command()
 def train(
-    data: Path = typer.Option(..., help="Episode token file written by `tt generate`."),
+    data: Path = typer.Option(..., help="Dataset folder written by `tt generate` (or an episode token file)."),
     task: str = typer.Option("robot", help="robot | control | both."),
-    size: str = typer.Option("small", help="tiny | small | large."),
+    size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
     steps: int = typer.Option(10_000, help="Optimizer steps."),
     batch_size: int = typer.Option(64, help="Episodes per batch."),
@@ -265,6 +265,49 @@ def train(
         _fail(str(e))
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
+
+
+@app.command()
+def generate(
+    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual (warp backend: contact-free spaces)."),
+    designs: int = typer.Option(..., help="Number of designs N."),
+    episodes_per_design: int = typer.Option(10, help="Episodes per design K (augmented training motions)."),
+    out: Path = typer.Option(..., help="Dataset folder (zarr v3 store); run the same command again to resume it."),
+    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
+    workers: int = typer.Option(1, help="Shards generated at once: worker processes, or the CPUs of --ray local."),
+    bias: Optional[str] = typer.Option(None, help="Data biasing: cmaes (CMA-ES, population 5, 3 generations per training motion)."),
+    seed: int = typer.Option(0, help="Random seed; every shard derives its draws from (seed, shard index)."),
+    ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt[ray]')."),
+    designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
+    min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
+) -> None:
+    """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
+    from tt.tokens.generate import generate_cmd
+
+    try:
+        typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
+                                bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps))
+    except ValueError as e:  # DatasetError, DesignError and bad arguments are ValueErrors
+        _fail(str(e))
+
+
+dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")
+app.add_typer(dataset_app, name="dataset")
+
+
+@dataset_app.command("info")
+def dataset_info(
+    path: Path = typer.Argument(..., help="Dataset folder."),
+    plot: Optional[Path] = typer.Option(None, help="Also save the histogram of episode rewards as this PNG."),
+    json_out: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
+) -> None:
+    """Counts, token-type maxima, normalisation statistics and the reward histogram of a dataset."""
+    from tt.tokens.store import dataset_info_cmd
+
+    try:
+        typer.echo(dataset_info_cmd(path, plot=plot, as_json=json_out))
+    except ValueError as e:
+        _fail(str(e))
 
 
 @app.command()

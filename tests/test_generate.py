@@ -1,0 +1,177 @@
+"""``tt generate``: a run killed with SIGKILL and resumed equals an uninterrupted one, byte
+for byte; damaged shards are regenerated; stored episodes equal a direct rollout +
+tokenization; CMA-ES biasing keeps every sampled design; Ray and process workers give the
+same dataset."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, replace
+
+import numpy as np
+import pytest
+import torch
+
+from tt.sim.designs import get_space
+from tt.sim.motions import augment_motion, for_space, motion_set
+from tt.sim.motions.base import Motion
+from tt.sim.rollout import rollout
+from tt.tokens import episode_tokens, tokenize_models
+from tt.tokens.generate import GenerateConfig, generate, shard_design_list
+from tt.tokens.store import DatasetError, TokenStore, read_manifest, read_root, shard_dirs
+
+#: 5 shards of 2 designs x 2 episodes on motions cut to 40 steps (20 kept at least).
+CONFIG = GenerateConfig(space="viperx", designs=10, episodes_per_design=2, designs_per_shard=2, min_steps=20,
+                        max_motion_steps=40)
+
+_CHILD = """
+import json, sys
+from tt.tokens.generate import GenerateConfig, generate
+generate(GenerateConfig(**json.loads(sys.argv[2])), sys.argv[1], device="cpu", progress=False)
+"""
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """An uninterrupted run."""
+    path = tmp_path_factory.mktemp("gen") / "reference"
+    report = generate(CONFIG, path, device="cpu", progress=False)
+    assert report.run["shards"] == CONFIG.shards
+    return path
+
+
+def _same_data(a, b) -> None:
+    """Equal episodes (content digests) and byte-identical shard files (sizes and CRC-32)."""
+    da, db = TokenStore(a, verify="full").episode_digests(), TokenStore(b, verify="full").episode_digests()
+    assert len(da) > 0 and da == db
+    sa, sb = shard_dirs(a), shard_dirs(b)
+    assert sorted(sa) == sorted(sb) == list(range(CONFIG.shards))
+    for i in sa:
+        assert read_manifest(sa[i])["files"] == read_manifest(sb[i])["files"], f"shard {i} differs"
+
+
+def test_killed_run_resumes_to_the_uninterrupted_dataset(reference, tmp_path):
+    path = tmp_path / "killed"
+    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(path), json.dumps(asdict(CONFIG))],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 600
+    try:
+        while child.poll() is None and len(shard_dirs(path)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.wait()
+    assert child.returncode == -signal.SIGKILL
+    complete = len(shard_dirs(path))
+    assert 2 <= complete < CONFIG.shards, f"the child finished {complete} of {CONFIG.shards} shards before the kill"
+    assert not read_root(path).get("complete")
+    assert (path / ".lock").exists()  # left by the killed process; the resumed run takes it over
+
+    report = generate(CONFIG, path, device="cpu", progress=False)
+    assert report.run["shards"] == CONFIG.shards - complete
+    assert read_root(path)["complete"] and not (path / ".lock").exists()
+    assert list((path / ".partial").iterdir()) == []
+    _same_data(path, reference)
+    assert read_root(path)["normalizer"] == read_root(reference)["normalizer"]
+    assert generate(CONFIG, path, device="cpu", progress=False).run["shards"] == 0  # nothing left to do
+
+
+def test_truncated_shard_is_detected_and_regenerated(reference, tmp_path):
+    path = tmp_path / "damaged"
+    shutil.copytree(reference, path)
+    chunk = max((p for p in (shard_dirs(path)[3] / "track_link_obs").rglob("*") if p.is_file() and "/c/" in str(p)),
+                key=lambda p: p.stat().st_size)
+    chunk.write_bytes(chunk.read_bytes()[:-5])
+    leftover = path / ".partial" / "s000004-123-deadbeef"  # an interrupted write
+    leftover.mkdir(parents=True)
+    report = generate(CONFIG, path, device="cpu", progress=False)
+    assert list(report.run["regenerated"]) == [3] and "truncated" in report.run["regenerated"][3]
+    assert report.run["shards"] == 1 and not leftover.exists()
+    _same_data(path, reference)
+
+
+def test_other_arguments_or_foreign_folder_are_refused(reference, tmp_path):
+    with pytest.raises(DatasetError, match="seed=0.*seed=1"):
+        generate(replace(CONFIG, seed=1), reference, device="cpu", progress=False)
+    (tmp_path / "notes.txt").write_text("not a dataset")
+    with pytest.raises(DatasetError, match="not a tt dataset"):
+        generate(CONFIG, tmp_path, device="cpu", progress=False)
+
+
+def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
+    """Reference: the designs re-sampled, the motion re-built from the stored motion index and
+    augmentation seed with the public motion API, one rollout, the tokenizers."""
+    sp = get_space("viperx")
+    store = TokenStore(reference)
+    reader = store.readers[2]
+    designs = reader.designs(sp)
+    assert designs == shard_design_list(CONFIG, 2)
+    block = reader.read_block(0, reader.episodes, fields=True)
+    base = motion_set("train", arms=1)
+    assert (block.length >= CONFIG.min_steps).all()
+    orders = [r.field("design") for r in store.readers]
+    assert any((np.diff(d) < 0).any() for d in orders)  # episodes are stored shuffled, not design by design
+    generated = int(reader.attrs["generated"])
+    assert generated == 2 * CONFIG.episodes_per_design and reader.episodes + sum(reader.attrs["dropped"].values()) == generated
+    for e in range(len(block)):
+        design = designs[int(block.design[e])]
+        m = augment_motion(base[int(block.episode["motion"][e])], int(block.episode["augment_seed"][e]),
+                           max_yaw=CONFIG.max_yaw, max_shift=CONFIG.max_shift)
+        np.testing.assert_array_equal(block.episode["se2"][e], [m.meta["se2"][k] for k in ("yaw", "dx", "dy")])
+        m = for_space([m], "viperx")[0]
+        m = Motion(m.name, m.pos[:40], m.quat[:40], m.dt)
+        ep = rollout([design], [m], device="cpu")
+        n = int(ep.lengths()[0])
+        assert n == block.length[e]
+        emb = tokenize_models([sp.model(design)])
+        ref = episode_tokens(ep, emb.index, step_index=torch.arange(n)[None])
+        win = block.windows(np.array([e]), np.arange(n)[None])
+        for name in ref.types:
+            v = ref.values[name].numpy().reshape(n, -1, ref.values[name].shape[-1])
+            p = v.shape[1]
+            got = win["values"][name].reshape(n, -1, v.shape[-1])
+            np.testing.assert_allclose(got[:, :p], v, rtol=1e-6, atol=1e-6, err_msg=name)
+            assert (got[:, p:] == 0).all() and win["mask"][name].reshape(n, -1)[:, :p].all()
+            assert not win["mask"][name].reshape(n, -1)[:, p:].any()
+        for name in emb.tokens.types:
+            real = emb.tokens.values[name].shape[1]
+            np.testing.assert_array_equal(win["values"][name][0, :real], emb.tokens.values[name][0], err_msg=name)
+
+
+def test_cmaes_bias_keeps_every_design_cmaes_samples():
+    """Shard 0 of 20 designs: two CMA-ES runs (population 5, 3 generations) on training
+    motions 0 and 1; reference: `tt.baselines.CMAES` run directly on those problems."""
+    from tt.baselines import CMAES, CMAESConfig, Problem
+    from tt.tokens.generate import _seed_int, training_motions
+
+    cfg = replace(CONFIG, designs=20, designs_per_shard=20, bias="cmaes")
+    designs = shard_design_list(cfg, 0, device="cpu")
+    assert len(designs) == 20
+    reference = []
+    for m in (0, 1):
+        motion = for_space([training_motions("viperx")[m]], "viperx")[0]
+        motion = Motion(motion.name, motion.pos[:40], motion.quat[:40], motion.dt)
+        problem = Problem(space="viperx", motions=(motion,), reward="tracking", budget=15,
+                          seed=_seed_int(cfg.seed, 0, 2, m, bits=21), backend="warp", device="cpu")
+        reference += CMAES(CMAESConfig(popsize=5, generations=3)).optimize(problem).designs
+    assert designs == reference[:20]
+    assert len({d.discrete for d in designs[:15]}) == 1  # one run: one discrete choice, 15 samples
+    assert designs[:5] != shard_design_list(replace(cfg, bias=None), 0)[:5]
+
+
+@pytest.mark.slow
+def test_ray_and_process_workers_equal_one_process(reference, tmp_path):
+    """A local Ray cluster of 2 workers, and 2 worker processes, write the same dataset."""
+    pytest.importorskip("ray")
+    report = generate(CONFIG, tmp_path / "ray", device="cpu", workers=2, ray_address="local", progress=False)
+    assert report.run["shards"] == CONFIG.shards
+    _same_data(tmp_path / "ray", reference)
+    report = generate(CONFIG, tmp_path / "pool", device="cpu", workers=2, progress=False)
+    assert report.run["shards"] == CONFIG.shards
+    _same_data(tmp_path / "pool", reference)
