@@ -5,14 +5,23 @@ Per world and control step t (the oracle's loop, `tt.sim.validate`, step for ste
 1. state (q, qd) at the start of the step; at t = 0 the oracle's start posture, at rest:
    `IKConfig.init_iterations` kinematic IK steps from qpos0 toward the motion's first pose;
 2. IK target: the motion pose at min(t + lookahead, T_m - 1); q_cmd = DiffIK step
-   (`tt.kernels.ik`); ctrl = clip(q_cmd of each actuated joint, ctrlrange);
+   (`tt.kernels.ik`); action = clip(q_cmd of each actuated joint, ctrlrange); the command
+   executed is ctrl = action, or with control perturbation (``action_noise`` sigma > 0)
+   ctrl = clip(action + sigma n, ctrlrange), n ~ N(0, 1) per actuator (`action_noise_draws`);
 3. `substeps` physics steps (`tt.kernels.dynamics`) with ctrl held;
-4. record q, qd, ctrl, actuator forces and velocities at the new state, end-effector
-   poses (`tt.kernels.fk`) and the target at index min(t, T_m - 1);
+4. record q, qd, ctrl, action (with perturbation only), actuator forces and velocities at the
+   new state, end-effector poses (`tt.kernels.fk`) and the target at index min(t, T_m - 1);
 5. termination: the step is alive while the position error summed over end effectors
    stays within `threshold`; the first step past it keeps its record with alive False,
    and every later step (also every step after the motion's last) repeats the last record
    with alive False.
+
+Perturbation noise is a function of (seed, world id, t, actuator) only: Warp's PCG hash
+(`wp.rand_init`) keyed by the world id and then by the control step, two uniforms per
+actuator turned Gaussian by Box-Muller. So it does not depend on the chunking, the thread
+schedule or the device (the integer stream is identical everywhere; log and cos are float32
+library calls, equal to within an ulp or two between CPU and CUDA), and sigma = 0 skips it
+entirely, leaving the noise-free kernel's arithmetic untouched.
 
 All of a world's working memory is thread-local; the only memory it writes is its records
 (one time slice per step, never overwritten) and its physics state buffer. The state
@@ -41,6 +50,18 @@ from tt.kernels.lie import wxyz
 from tt.kernels.model import MODULE_OPTIONS, Topology, TreeModel, local_types, module_name
 from tt.kernels.pose import position_error
 from tt.sim.controller import IKConfig
+
+
+@wp.func
+def _noise_state(seed: int, world: int, t: int):
+    """PCG state of world `world`'s control step `t` (a per-world key, then the step)."""
+    return wp.rand_init(wp.int32(wp.rand_init(seed, world)), t)
+
+
+@wp.func
+def _standard_normal(u1: float, u2: float):
+    """Box-Muller: a standard normal from two uniforms in [0, 1) (1 - u1 > 0: log stays finite)."""
+    return wp.sqrt(-2.0 * wp.log(1.0 - u1)) * wp.cos(2.0 * wp.pi * u2)
 
 
 def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = False):
@@ -94,6 +115,9 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
         motion_pos_in: wp.array3d(dtype=wp.vec3),
         motion_quat_in: wp.array3d(dtype=wp.vec4),
         motion_steps_in: wp.array(dtype=wp.int32),
+        noise_std: float,
+        noise_seed: int,
+        noise_world_in: wp.array(dtype=wp.int32),
         # Data in / out (physics state, slot s mod L after physics step s):
         qpos_state: wp.array3d(dtype=float),
         qvel_state: wp.array3d(dtype=float),
@@ -108,6 +132,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
         target_pos_out: wp.array3d(dtype=wp.vec3),
         target_quat_out: wp.array3d(dtype=wp.vec4),
         alive_out: wp.array2d(dtype=wp.bool),
+        action_out: wp.array3d(dtype=float),  # written only when noise_std > 0
     ):
         worldid = wp.tid()
         mid = worldid % body_pos.shape[0]
@@ -132,6 +157,9 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                     ctrl_out[worldid, t, u] = ctrl_out[worldid, t - 1, u]
                     act_force_out[worldid, t, u] = act_force_out[worldid, t - 1, u]
                     act_vel_out[worldid, t, u] = act_vel_out[worldid, t - 1, u]
+                if noise_std > 0.0:
+                    for u in range(NU):
+                        action_out[worldid, t, u] = action_out[worldid, t - 1, u]
                 for e in range(NE):
                     ee_pos_out[worldid, t, e] = ee_pos_out[worldid, t - 1, e]
                     ee_quat_out[worldid, t, e] = ee_quat_out[worldid, t - 1, e]
@@ -156,6 +184,15 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                 for u in range(NU):
                     cr = act_ctrlrange[mid, u]
                     ctrl[u] = wp.clamp(q_cmd[wp.static(ACT_DOF[u])], cr[0], cr[1])
+                if noise_std > 0.0:
+                    # Control perturbation: log the clean command, execute a noisy one.
+                    rng = _noise_state(noise_seed, noise_world_in[worldid], t)
+                    for u in range(NU):
+                        action_out[worldid, t, u] = ctrl[u]
+                        u1 = wp.randf(rng)
+                        u2 = wp.randf(rng)
+                        cr = act_ctrlrange[mid, u]
+                        ctrl[u] = wp.clamp(ctrl[u] + noise_std * _standard_normal(u1, u2), cr[0], cr[1])
 
                 # Physics, with the command held.
                 for k in range(substeps):
@@ -313,11 +350,43 @@ def load_differentiable(topology: Topology, device: str) -> SimpleNamespace:
     return kernels
 
 
+@wp.kernel(enable_backward=False)
+def _noise_draws(seed: int, world_in: wp.array(dtype=wp.int32), t_begin: int, draws_out: wp.array3d(dtype=float)):
+    w, i = wp.tid()
+    rng = _noise_state(seed, world_in[w], t_begin + i)
+    for u in range(draws_out.shape[2]):
+        u1 = wp.randf(rng)
+        u2 = wp.randf(rng)
+        draws_out[w, i, u] = _standard_normal(u1, u2)
+
+
+def action_noise_draws(
+    noise_seed: int, world_ids, steps: int, actuator_count: int, *, t_begin: int = 0, device: str = "cpu"
+) -> np.ndarray:
+    """The standard normals n the rollout kernel draws for control perturbation, (W, steps, NU)
+    float32: world ``world_ids[i]``'s control steps t_begin, ..., t_begin + steps - 1. World w
+    of a rollout with ``action_noise`` sigma executes clip(action + sigma n[w, t], ctrlrange)."""
+    _check_noise(0.0, noise_seed)
+    ids = wp.array(np.asarray(world_ids, dtype=np.int32), dtype=wp.int32, device=device)
+    out = wp.zeros((ids.shape[0], steps, actuator_count), dtype=float, device=device)
+    wp.launch(_noise_draws, dim=(ids.shape[0], steps), inputs=[int(noise_seed), ids, int(t_begin)], outputs=[out], device=device)
+    return out.numpy()
+
+
+def _check_noise(action_noise: float, noise_seed: int) -> None:
+    if not (np.isfinite(action_noise) and action_noise >= 0.0):
+        raise ValueError(f"action_noise = {action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+    if not isinstance(noise_seed, (int, np.integer)) or not 0 <= noise_seed < 2**31:
+        raise ValueError(f"noise_seed = {noise_seed!r}; must be an integer in 0..2**31-1")
+
+
 @dataclass
 class RolloutArrays:
     """Records of W worlds over T control steps, as Warp arrays (see `Episode` for meanings).
 
-    qpos, qvel: (W, T, NV) float; ctrl, act_force, act_vel: (W, T, NU) float;
+    qpos, qvel: (W, T, NV) float; ctrl (executed), act_force, act_vel: (W, T, NU) float;
+    action: the clean commands, (W, T, NU) float; the same array as ``ctrl`` when the
+    rollout has no control perturbation;
     ee_pos, target_pos: (W, T, NE) vec3; ee_quat, target_quat: (W, T, NE) vec4 (w, x, y, z);
     alive: (W, T) bool; qpos_state, qvel_state: (W, L, NV) physics state buffer.
     """
@@ -325,6 +394,7 @@ class RolloutArrays:
     qpos: wp.array
     qvel: wp.array
     ctrl: wp.array
+    action: wp.array
     act_force: wp.array
     act_vel: wp.array
     ee_pos: wp.array
@@ -381,6 +451,9 @@ def rollout_tree(
     initial_qpos: np.ndarray | None = None,
     chunk: int | None = None,
     progress=None,
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
+    world_ids: np.ndarray | None = None,
     device: str | None = None,
 ) -> RolloutArrays:
     """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
@@ -399,6 +472,14 @@ def rollout_tree(
     initial_qpos: start postures (W, NV) [rad or m] to use instead of the start-posture kernel.
     chunk: control steps per launch (None: all in one); progress: a callable taking the
         number of control steps done after each launch (e.g. a tqdm bar's update).
+    action_noise: control perturbation, the standard deviation sigma [rad or m, the
+        actuator's unit] of Gaussian noise added to every executed command: ctrl =
+        clip(action + sigma n, ctrlrange) while ``action`` records the clean command
+        (0: none; ``action`` is then ``ctrl``). The noise is the same for every chunking and
+        device (see `action_noise_draws`); no gradient flows through it.
+    noise_seed: seed of the noise, 0..2**31-1. world_ids: (W,) ints keying each world's
+        noise (default 0..W-1); a caller splitting one batch into launches passes the
+        worlds' indices in the whole batch, so the noise does not depend on the split.
     """
     topo = model.topology
     device = device or model.device
@@ -411,7 +492,11 @@ def rollout_tree(
             f"{config.control_dt} s into one whole number of physics steps"
         )
     substeps = int(substeps[0])
+    _check_noise(action_noise, noise_seed)
     W, NV, NU, NE = world_count, topo.dof_count, max(topo.actuator_count, 1), topo.ee_count
+    world_ids = np.arange(W) if world_ids is None else np.asarray(world_ids)
+    if world_ids.shape != (W,):
+        raise ValueError(f"world_ids has shape {world_ids.shape}; expected ({W},), one id per world")
     if motions.pos.ndim != 3 or motions.pos.shape[2] != NE:
         raise ValueError(f"motion pos has shape {motions.pos.shape}; expected (M, T, {NE}) for {NE} end effector(s)")
     if steps < 1:
@@ -421,10 +506,13 @@ def rollout_tree(
     def zeros(shape, dtype, grad=differentiable):
         return wp.zeros(shape, dtype=dtype, device=device, requires_grad=grad)
 
+    ctrl = zeros((W, steps, NU), float)
     out = RolloutArrays(
         qpos=zeros((W, steps, NV), float),
         qvel=zeros((W, steps, NV), float),
-        ctrl=zeros((W, steps, NU), float),
+        ctrl=ctrl,
+        # Without perturbation the kernel never writes `action_out`: ctrl stands in for it.
+        action=zeros((W, steps, NU), float) if action_noise > 0.0 else ctrl,
         act_force=zeros((W, steps, NU), float),
         act_vel=zeros((W, steps, NU), float),
         ee_pos=zeros((W, steps, NE), wp.vec3),
@@ -435,6 +523,7 @@ def rollout_tree(
         qpos_state=zeros((W, slots, NV), float),
         qvel_state=zeros((W, slots, NV), float),
     )
+    noise_world = wp.array(world_ids.astype(np.int32), dtype=wp.int32, device=device)
     kernels = load_differentiable(topo, device) if differentiable else rollout_kernels(topo)
     # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
     iterations = int(config.init_iterations)
@@ -466,11 +555,12 @@ def rollout_tree(
                 *model_inputs(model), model.ee_pos, model.ee_quat,
                 ik_weights(config), config.lookahead_steps, substeps, float(config.termination_pos_error),
                 t0, t1, motions.pos, motions.quat, motions.steps,
+                float(action_noise), int(noise_seed), noise_world,
                 out.qpos_state, out.qvel_state,
             ],  # fmt: skip
             outputs=[
                 out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
-                out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive,
+                out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
             ],  # fmt: skip
             device=device,
         )

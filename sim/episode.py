@@ -17,8 +17,12 @@ class Episode:
 
     qpos: joint positions, (W, T, nq)
     qvel: joint velocities, (W, T, nv)
-    ctrl: actuator commands executed (joint position targets [rad or m]), (W, T, nu)
-    action: clean controller output logged for learning (equals ctrl without perturbation), (W, T, nu)
+    ctrl: actuator commands executed (joint position targets [rad or m]), (W, T, nu): the
+        clean command, or with control perturbation (`tt.sim.rollout.rollout`'s
+        ``action_noise`` sigma > 0) clip(action + sigma n, ctrlrange), n ~ N(0, 1)
+    action: the controller's clean command clip(q_cmd, ctrlrange), computed at the state
+        the step started from (perturbed or not), logged for learning (RoboToken control
+        tokens), (W, T, nu); the same tensor as ctrl without perturbation
     act_force: actuator forces [N m or N], (W, T, nu)
     act_vel: actuator velocities [rad/s or m/s], (W, T, nu)
     ee_pos: end-effector positions [m], (W, T, A, 3)

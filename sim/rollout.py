@@ -13,6 +13,13 @@ look-ahead at 50 Hz) driving the design's position actuators. Backends:
 
 The Episode's conventions (padding of joint fields to the widest design, repeated records
 after termination or past a motion's end) are the oracle's; see `tt.sim.validate`.
+
+Control perturbation (``action_noise`` > 0, "warp" only): the paper's data generation adds
+noise to the expert's commands and logs the unperturbed ones for supervision. Each step the
+actuators execute ``Episode.ctrl`` = clip(action + sigma n, ctrlrange), n ~ N(0, 1) per
+actuator, a function of (noise_seed, world, step) only; ``Episode.action`` holds the clean
+command the controller computed at the (perturbed) state. With sigma = 0 the rollout is the
+unperturbed one, bit for bit, and ``action`` is ``ctrl``.
 """
 
 from __future__ import annotations
@@ -99,6 +106,8 @@ def rollout(
     chunk: int | None = DEFAULT_CHUNK,
     progress: bool = False,
     config: IKConfig = IKConfig(),
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
 
@@ -111,14 +120,22 @@ def rollout(
         tensors of the Episode live there ("mujoco" always returns CPU tensors).
     chunk: control steps per kernel launch (None: the whole episode in one launch).
     progress: show a tqdm bar (control steps for "warp", worlds for "mujoco").
+    action_noise: control perturbation, standard deviation [rad or m] of the Gaussian noise
+        on every executed command (``Episode.ctrl``; ``Episode.action`` stays the clean
+        command); 0 for none. Only the "warp" backend perturbs.
+    noise_seed: seed of that noise, 0..2**31-1; world w's noise depends on (noise_seed, w,
+        control step) only, so equal arguments give identical episodes.
     Raises ValueError for mixed design spaces, motions of different dt, an unknown device
-    or backend, and designs with contacts on "warp".
+    or backend, designs with contacts on "warp", and action_noise > 0 on another backend.
     """
     from tt.device import resolve_device
 
     if backend not in BACKENDS:
         raise ValueError(f"unknown rollout backend {backend!r}; valid: {list(BACKENDS)}")
     device = resolve_device(device)
+    if action_noise != 0.0 and backend != "warp":
+        raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
+                         "clean commands (use action_noise=0)")
     if backend == "mjwarp":  # validates its own inputs: it also runs designs with contacts
         from tt.sim.mjwarp_backend import mjwarp_rollout
 
@@ -133,7 +150,8 @@ def rollout(
         from tt.sim.validate import oracle_rollout
 
         return oracle_rollout(designs, motions, config=config, progress=progress)
-    return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress)
+    return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
+                         action_noise=action_noise, noise_seed=noise_seed)
 
 
 def _rollout_warp(
@@ -145,6 +163,8 @@ def _rollout_warp(
     device: str,
     chunk: int | None,
     progress: bool,
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> Episode:
     import warp as wp
 
@@ -178,9 +198,12 @@ def _rollout_warp(
     for members in groups.values():
         # One model entry per world (design-major), so world w reads entry w.
         tree = build_tree_model([models[d] for d in members for _ in range(M)], sites, device=device)
+        # Noise keyed by the world's index in the Episode, not in its topology group.
+        world_ids = np.array([d * M + j for d in members for j in range(M)])
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
-            config=config, chunk=chunk, progress=bar.update if bar else None, device=device,
+            config=config, chunk=chunk, progress=bar.update if bar else None,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
         )  # fmt: skip
         results.append((members, arrays))
     if bar is not None:
@@ -189,18 +212,22 @@ def _rollout_warp(
     design_index = torch.arange(D).repeat_interleave(M)
     motion_index = torch.arange(M).repeat(D)
     names = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos", "target_quat", "alive")
+    perturbed = action_noise > 0.0
+    if perturbed:
+        names += ("action",)
+    actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
     if len(results) == 1:
         (members, arrays), = results
         fields = {name: wp.to_torch(getattr(arrays, name)) for name in names}
         nu = models[0].nu
         if fields["ctrl"].shape[-1] != nu:  # a model without actuators keeps one padding column
-            for name in ("ctrl", "act_force", "act_vel"):
+            for name in actuator_fields:
                 fields[name] = fields[name][..., :nu]
     else:
         # Several topologies: copy each group's records into one zero-padded Episode.
         sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
         nu = max(m.nu for m in models)
-        sizes.update(ctrl=nu, act_force=nu, act_vel=nu)
+        sizes.update({name: nu for name in actuator_fields})
         tdev = wp.device_to_torch(device)
         fields = {}
         for name in names:
@@ -221,7 +248,7 @@ def _rollout_warp(
         qpos=fields["qpos"],
         qvel=fields["qvel"],
         ctrl=fields["ctrl"],
-        action=fields["ctrl"],
+        action=fields["action"] if perturbed else fields["ctrl"],
         act_force=fields["act_force"],
         act_vel=fields["act_vel"],
         ee_pos=fields["ee_pos"],

@@ -1,7 +1,7 @@
 """``tt generate``: a run killed with SIGKILL and resumed equals an uninterrupted one, byte
-for byte; damaged shards are regenerated; stored episodes equal a direct rollout +
-tokenization; CMA-ES biasing keeps every sampled design; Ray and process workers give the
-same dataset."""
+for byte; damaged shards are regenerated; stored episodes equal a direct (control-perturbed)
+rollout + tokenization, with the clean commands as control tokens; CMA-ES biasing keeps
+every sampled design; Ray and process workers give the same dataset."""
 
 from __future__ import annotations
 
@@ -99,15 +99,23 @@ def test_truncated_shard_is_detected_and_regenerated(reference, tmp_path):
 def test_other_arguments_or_foreign_folder_are_refused(reference, tmp_path):
     with pytest.raises(DatasetError, match="seed=0.*seed=1"):
         generate(replace(CONFIG, seed=1), reference, device="cpu", progress=False)
+    with pytest.raises(DatasetError, match=f"action_noise={CONFIG.action_noise}.*action_noise=0.0"):
+        generate(replace(CONFIG, action_noise=0.0), reference, device="cpu", progress=False)
+    assert read_root(reference)["config"]["action_noise"] == CONFIG.action_noise
     (tmp_path / "notes.txt").write_text("not a dataset")
     with pytest.raises(DatasetError, match="not a tt dataset"):
         generate(CONFIG, tmp_path, device="cpu", progress=False)
 
 
 def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
-    """Reference: the designs re-sampled, the motion re-built from the stored motion index and
-    augmentation seed with the public motion API, one rollout, the tokenizers."""
+    """Reference: the designs re-sampled, the group's motions re-built from the stored motion
+    indices and augmentation seeds with the public motion API, one perturbed rollout of the
+    group (world d * K + slot, the shard's noise seed), the tokenizers. Control tokens hold
+    the clean commands (``Episode.action``), not the executed ones."""
+    from tt.tokens.generate import _STREAM_NOISE, _seed_int
+
     sp = get_space("viperx")
+    K = CONFIG.episodes_per_design
     store = TokenStore(reference)
     reader = store.readers[2]
     designs = reader.designs(sp)
@@ -119,18 +127,32 @@ def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
     assert any((np.diff(d) < 0).any() for d in orders)  # episodes are stored shuffled, not design by design
     generated = int(reader.attrs["generated"])
     assert generated == 2 * CONFIG.episodes_per_design and reader.episodes + sum(reader.attrs["dropped"].values()) == generated
+    # Episode ids are shard-major, then design, then motion slot.
+    local = block.episode["episode_id"] - 2 * CONFIG.designs_per_shard * K
+    np.testing.assert_array_equal(local // K, block.design)
+    slots = {}
     for e in range(len(block)):
-        design = designs[int(block.design[e])]
-        m = augment_motion(base[int(block.episode["motion"][e])], int(block.episode["augment_seed"][e]),
-                           max_yaw=CONFIG.max_yaw, max_shift=CONFIG.max_shift)
-        np.testing.assert_array_equal(block.episode["se2"][e], [m.meta["se2"][k] for k in ("yaw", "dx", "dy")])
+        slots[int(local[e] % K)] = (int(block.episode["motion"][e]), int(block.episode["augment_seed"][e]))
+    assert sorted(slots) == list(range(K)), "every motion slot of the group has a kept episode"
+    motions = []
+    for slot in range(K):
+        m = augment_motion(base[slots[slot][0]], slots[slot][1], max_yaw=CONFIG.max_yaw, max_shift=CONFIG.max_shift)
         m = for_space([m], "viperx")[0]
-        m = Motion(m.name, m.pos[:40], m.quat[:40], m.dt)
-        ep = rollout([design], [m], device="cpu")
-        n = int(ep.lengths()[0])
+        motions.append(Motion(m.name, m.pos[:40], m.quat[:40], m.dt))
+    assert CONFIG.action_noise > 0
+    ep = rollout(designs, motions, device="cpu", action_noise=CONFIG.action_noise,
+                 noise_seed=_seed_int(CONFIG.seed, 2, _STREAM_NOISE, 0))
+    embs = [tokenize_models([sp.model(d)]) for d in designs]
+    for e in range(len(block)):
+        design, slot = int(block.design[e]), int(local[e] % K)
+        w = design * K + slot
+        m = augment_motion(base[slots[slot][0]], slots[slot][1], max_yaw=CONFIG.max_yaw, max_shift=CONFIG.max_shift)
+        np.testing.assert_array_equal(block.episode["se2"][e], [m.meta["se2"][k] for k in ("yaw", "dx", "dy")])
+        n = int(ep.lengths()[w])
         assert n == block.length[e]
-        emb = tokenize_models([sp.model(design)])
-        ref = episode_tokens(ep, emb.index, step_index=torch.arange(n)[None])
+        emb = embs[design]
+        one = _select(ep, w)
+        ref = episode_tokens(one, emb.index, step_index=torch.arange(n)[None])
         win = block.windows(np.array([e]), np.arange(n)[None])
         for name in ref.types:
             v = ref.values[name].numpy().reshape(n, -1, ref.values[name].shape[-1])
@@ -139,9 +161,23 @@ def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
             np.testing.assert_allclose(got[:, :p], v, rtol=1e-6, atol=1e-6, err_msg=name)
             assert (got[:, p:] == 0).all() and win["mask"][name].reshape(n, -1)[:, :p].all()
             assert not win["mask"][name].reshape(n, -1)[:, p:].any()
+        nu = sp.model(designs[design]).nu
+        control = win["values"]["control"].reshape(n, -1)[:, :nu]
+        np.testing.assert_allclose(control, ep.action[w, :n, :nu].numpy(), rtol=1e-6, atol=1e-6)
+        assert np.abs(control - ep.ctrl[w, :n, :nu].numpy()).max() > 0.5 * CONFIG.action_noise  # not the executed ones
         for name in emb.tokens.types:
             real = emb.tokens.values[name].shape[1]
             np.testing.assert_array_equal(win["values"][name][0, :real], emb.tokens.values[name][0], err_msg=name)
+
+
+def _select(ep, w: int):
+    """World w of an Episode as a one-world Episode of design 0 (for its robot's own token index)."""
+    from dataclasses import fields as dc_fields
+
+    from tt.sim.episode import Episode
+
+    kw = {f.name: getattr(ep, f.name)[w:w + 1] for f in dc_fields(Episode) if f.name != "dt"}
+    return Episode(**{**kw, "design_index": torch.zeros(1, dtype=torch.long)}, dt=ep.dt)
 
 
 def test_cmaes_bias_keeps_every_design_cmaes_samples():
@@ -163,6 +199,19 @@ def test_cmaes_bias_keeps_every_design_cmaes_samples():
     assert designs == reference[:20]
     assert len({d.discrete for d in designs[:15]}) == 1  # one run: one discrete choice, 15 samples
     assert designs[:5] != shard_design_list(replace(cfg, bias=None), 0)[:5]
+
+
+def test_action_noise_is_checked_and_defaults_to_the_measured_value():
+    from tt.tokens.generate import DEFAULT_ACTION_NOISE
+
+    assert CONFIG.action_noise == DEFAULT_ACTION_NOISE > 0
+    with pytest.raises(ValueError, match="action_noise = -0.01"):
+        replace(CONFIG, action_noise=-0.01)
+    with pytest.raises(ValueError, match="needs backend 'warp'"):
+        replace(CONFIG, backend="mujoco")
+    assert replace(CONFIG, backend="mujoco", action_noise=0.0).to_dict()["action_noise"] == 0.0
+    # A dataset written before the option existed stored action_noise 0: it reads back unperturbed.
+    assert GenerateConfig.from_dict({**CONFIG.to_dict(), "action_noise": 0.0}).action_noise == 0.0
 
 
 @pytest.mark.slow
