@@ -19,10 +19,13 @@ Control, per world and control step (the oracle's loop, `tt.sim.validate`, step 
   pose (the kernel `tt.kernels.rollout.make_initial_posture_kernel` builds). An arm
   whose model has contacts gets its IK from a copy with contacts disabled (the IK reads
   only the kinematic tree); MuJoCo-Warp simulates the contacts;
-* floating-base legged robots (the quadruped): the oracle's whole-body controller
-  (`tt.sim.wbc.WholeBodyController`, mink) on the host, one world at a time, since tt
-  has no batched whole-body kernel; physics stays batched. It is as slow as the oracle's
-  controller and meant for validation batches, not data generation.
+* floating-base legged robots (the quadruped): tt's batched whole-body kernels
+  (`tt.kernels.wbc.wbc_step`, the oracle's `tt.sim.wbc.WholeBodyController` step in
+  float64, any mix of designs in one launch per structure group), start posture by the
+  same kernels from ``home`` (`tt.kernels.wbc.wbc_initial_q`). A world that terminated
+  keeps its last command, as the oracle stops it. ``floating_controller="mink"`` runs the
+  oracle's controller itself on the host instead, one world at a time (the reference the
+  kernel path is tested against; as slow as the oracle's controller).
 
 Physics runs ``IKConfig.substeps(model)`` MuJoCo-Warp steps per control step with the
 command held, then one ``mjw.forward`` so the recorded site poses and actuator
@@ -73,6 +76,10 @@ logger = logging.getLogger(__name__)
 #: value-derived shortcuts of MuJoCo C that MuJoCo-Warp 3.17 never reads, so designs may
 #: differ in them and still share one `mjw.Model` (random link offsets toggle them).
 _IGNORED_INT_FIELDS = ("body_sameframe", "geom_sameframe", "site_sameframe")
+
+#: Controllers of floating-base robots: tt's batched whole-body kernels, or the oracle's mink
+#: controller on the host (the reference).
+FLOATING_CONTROLLERS = ("kernel", "mink")
 
 #: Stand-in for an unlimited control range (float32-finite, as `tt.kernels.model.UNLIMITED`).
 _UNLIMITED = 1.0e10
@@ -237,6 +244,29 @@ def _joint_command(
     ctrl_out: wp.array2d(dtype=float),
 ):
     worldid, u = wp.tid()
+    r = ctrl_range[worldid % ctrl_range.shape[0], u]
+    ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
+
+
+@wp.kernel(module="unique")
+def _live_joint_command(
+    # Model:
+    actuator_qpos: wp.array(dtype=int),
+    ctrl_range: wp.array2d(dtype=wp.vec2),
+    # In:
+    t: int,
+    world_row: wp.array(dtype=int),
+    alive_in: wp.array2d(dtype=wp.bool),
+    q_cmd_in: wp.array2d(dtype=float),
+    # Out:
+    ctrl_out: wp.array2d(dtype=float),
+):
+    worldid, u = wp.tid()
+    # A terminated world keeps its last command: the oracle stops it, and its state may
+    # have diverged. (alive_in holds the Episode's records; step t - 1 is the last written.)
+    if t > 0:
+        if not alive_in[world_row[worldid], t - 1]:
+            return
     r = ctrl_range[worldid % ctrl_range.shape[0], u]
     ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
 
@@ -592,23 +622,28 @@ def mjwarp_rollout(
     nconmax: int | None = None,
     njmax: int | None = None,
     progress: bool = False,
+    floating_controller: str = "kernel",
 ) -> Episode:
     """Run every design on every motion on MuJoCo-Warp; an Episode of W = D * M worlds.
 
     designs: D tt Designs or MjModels with sites ``ee_0``, ...; fixed-base arms run the
         DiffIK of `config` (tt's batched kernel), floating-base legged robots the
-        whole-body controller of `wbc_config` (mink, on the host); a `WBCConfig` given as
-        `config` is used as `wbc_config` too.
+        whole-body controller of `wbc_config`; a `WBCConfig` given as `config` is used as
+        `wbc_config` too.
     motions: M motions sampled at the controller's control_dt, one arm per end effector.
     device: Warp device (None: `tt.device.default_device()`); the Episode lives there.
     nconmax, njmax: MuJoCo-Warp's contact and constraint capacity per world (None: its
         defaults for the model).
+    floating_controller: "kernel" (tt's batched whole-body kernels, `tt.kernels.wbc`) or
+        "mink" (the oracle's `WholeBodyController` on the host, world by world: the reference).
     Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`): worlds design-major,
     joint fields zero-padded to the widest design, records repeated after termination.
     """
     from tt.device import resolve_device
 
     device = resolve_device(device)
+    if floating_controller not in FLOATING_CONTROLLERS:
+        raise ValueError(f"floating_controller = {floating_controller!r}; expected one of {FLOATING_CONTROLLERS}")
     if isinstance(config, WBCConfig):
         wbc_config = config  # `tt.sim.rollout.rollout` passes one config for every backend
     models, sites = resolve_models(designs)
@@ -650,7 +685,7 @@ def mjwarp_rollout(
             _run_group(
                 [models[d] for d in g.members for _ in range(M)], g, sites=sites, motions=marrays, steps=T,
                 motion_count=M, config=wbc_config if g.floating else config, records=records, device=device,
-                nconmax=nconmax, njmax=njmax, bar=bar,
+                nconmax=nconmax, njmax=njmax, bar=bar, floating_controller=floating_controller,
             )  # fmt: skip
     if bar is not None:
         bar.close()
@@ -681,6 +716,7 @@ def _run_group(
     nconmax: int | None,
     njmax: int | None,
     bar,
+    floating_controller: str = "kernel",
 ) -> None:
     """Simulate the Wg worlds of one structure group (world i: ``group_models[i]`` on motion
     ``i % motion_count``) and write their records into rows ``g.rows``."""
@@ -688,6 +724,7 @@ def _run_group(
 
     from tt.kernels.ik import ik_step
     from tt.kernels.model import build_tree_model
+    from tt.kernels.wbc import build_wbc_model, make_wbc_data, wbc_initial_q, wbc_step
 
     m0 = group_models[0]
     Wg, A = len(group_models), len(sites)
@@ -705,26 +742,37 @@ def _run_group(
     base_qpos, fall_height = -1, None
 
     if g.floating:
-        # The oracle's whole-body controller, one per design, on the host.
-        designs = {id(m): m for m in group_models}
-        controllers = {k: WholeBodyController(m, config) for k, m in designs.items()}
         joint = free_joint(m0)
         base_qpos = int(m0.jnt_qposadr[joint])
         heights = [config.fall_height_fraction * standing_height(m) for m in group_models]
         fall_height = wp.array(np.array(heights, np.float32), dtype=float, device=device)
-        first_pos, first_quat = motions.first_pos.numpy(), motions.first_quat.numpy()
-        qpos0 = np.stack([
-            controllers[id(m)].initial_q(first_pos[i % motion_count], first_quat[i % motion_count])
-            for i, m in enumerate(group_models)
-        ])  # fmt: skip
         key = mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
         if key >= 0:
             data.ctrl.assign(np.stack([m.key_ctrl[key] for m in group_models]).astype(np.float32))
+        world_motions = np.arange(Wg) % motion_count
+        if floating_controller == "mink":
+            # The oracle's whole-body controller, one per design, on the host.
+            designs = {id(m): m for m in group_models}
+            controllers = {k: WholeBodyController(m, config) for k, m in designs.items()}
+            first_pos, first_quat = motions.first_pos.numpy(), motions.first_quat.numpy()
+            qpos0 = np.stack([
+                controllers[id(m)].initial_q(first_pos[i % motion_count], first_quat[i % motion_count])
+                for i, m in enumerate(group_models)
+            ])  # fmt: skip
+            motion_pos, motion_quat, motion_steps = motions.pos.numpy(), motions.quat.numpy(), motions.steps.numpy()
+            limited = [m.actuator_ctrllimited.astype(bool) for m in group_models]
+            ranges = [m.actuator_ctrlrange for m in group_models]
+            ctrl = np.zeros((Wg, m0.nu))
+        else:
+            wbc = build_wbc_model(group_models, config, device=device)
+            wbc_data = make_wbc_data(wbc, Wg, device=device)
+            first_pos = wp.array(motions.first_pos.numpy()[world_motions], dtype=wp.vec3d, device=device)
+            first_quat = wp.array(motions.first_quat.numpy()[world_motions], dtype=wp.vec4d, device=device)
+            qpos0 = wbc_initial_q(wbc, first_pos, first_quat, data=wbc_data, device=device).numpy()
+            ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
+            act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
+            q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
         data.qpos.assign(qpos0.astype(np.float32))
-        motion_pos, motion_quat, motion_steps = motions.pos.numpy(), motions.quat.numpy(), motions.steps.numpy()
-        limited = [m.actuator_ctrllimited.astype(bool) for m in group_models]
-        ranges = [m.actuator_ctrlrange for m in group_models]
-        ctrl = np.zeros((Wg, m0.nu))
     else:
         kinematic = {id(m): _ik_model(m) for m in group_models}
         tree = build_tree_model([kinematic[id(m)] for m in group_models], sites, device=device)
@@ -735,7 +783,14 @@ def _run_group(
     data.qvel.zero_()
 
     for t in range(steps):
-        if g.floating:
+        if g.floating and floating_controller == "kernel":
+            lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
+            wbc_step(wbc, data.qpos, target_pos, target_quat, q_cmd, data=wbc_data, device=device)
+            wp.launch(
+                _live_joint_command, dim=(Wg, m0.nu), inputs=[act_qpos_w, ranges_w, t, world_row, records.alive, q_cmd],
+                outputs=[data.ctrl], device=device,
+            )  # fmt: skip
+        elif g.floating:
             q = data.qpos.numpy().astype(np.float64)
             # Terminated worlds keep their last command: the oracle stops them, and mink
             # should not see a state that may have diverged.
@@ -826,6 +881,7 @@ def mjwarp_simulate(
 
 
 __all__ = [
+    "FLOATING_CONTROLLERS",
     "EpisodeArrays",
     "batch_model",
     "joint_command",

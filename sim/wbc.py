@@ -248,6 +248,36 @@ def _ancestor_dofs(model: mujoco.MjModel, body: int) -> set[int]:
     return dofs
 
 
+def stance_points(model: mujoco.MjModel, feet: tuple[str, ...] | None = None) -> np.ndarray:
+    """Positions [m] of the foot sites `feet` (default: `foot_site_names`) in the ``home``
+    pose, (F, 3) float64: the points the controller holds the feet at."""
+    feet = foot_site_names(model) if feet is None else feet
+    data = mujoco.MjData(model)
+    data.qpos[:] = home_qpos(model)
+    mujoco.mj_kinematics(model, data)
+    return np.array([data.site(f).xpos for f in feet])
+
+
+def posture_costs(model: mujoco.MjModel, config: WBCConfig = WBCConfig()) -> np.ndarray:
+    """Cost [1/rad or 1/m] of each DoF's posture row, (nv,) float64: ``config.posture_cost``
+    on the actuated joints on the path to ``ee_0`` (the arm, rail included),
+    ``config.leg_posture_cost`` on the other actuated joints, 0 on passive joints and on
+    the free joint."""
+    return _posture_dofs(model, config)[2]
+
+
+def _posture_dofs(model: mujoco.MjModel, config: WBCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(actuated DoFs (nu,), arm DoFs, posture costs (nv,)); see `posture_costs`."""
+    actuated_qpos(model)  # every actuator must drive a hinge or slide joint
+    actuated = model.jnt_dofadr[model.actuator_trnid[:, 0]].astype(np.int64)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, ee_site_names(model)[0])
+    arm = np.array(sorted(_ancestor_dofs(model, int(model.site_bodyid[site]))), dtype=np.int64)
+    cost = np.zeros(model.nv)
+    cost[actuated] = config.leg_posture_cost
+    cost[np.intersect1d(arm, actuated)] = config.posture_cost
+    return actuated, arm, cost
+
+
 class WholeBodyController:
     """mink whole-body IK for one legged floating-base model (see `WBCConfig`).
 
@@ -282,8 +312,7 @@ class WholeBodyController:
         self.feet = foot_site_names(model)
         self.q_home = home_qpos(model)
         self.configuration = mink.Configuration(model, self.q_home)
-        data = self.configuration.data
-        self.stance = np.array([data.site(f).xpos for f in self.feet])
+        self.stance = stance_points(model, self.feet)
 
         self.frame_tasks = [
             mink.FrameTask(site, "site", position_cost=config.position_cost,
@@ -297,13 +326,7 @@ class WholeBodyController:
         centre = self.stance.mean(axis=0)
         self.com_task.set_target(np.array([centre[0], centre[1], 0.0]))
 
-        actuated_qpos(model)  # every actuator must drive a hinge or slide joint
-        self.actuated_dofs = model.jnt_dofadr[model.actuator_trnid[:, 0]].astype(np.int64)
-        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, self.sites[0])
-        self.arm_dofs = np.array(sorted(_ancestor_dofs(model, int(model.site_bodyid[site]))), dtype=np.int64)
-        posture_cost = np.zeros(model.nv)
-        posture_cost[self.actuated_dofs] = config.leg_posture_cost
-        posture_cost[np.intersect1d(self.arm_dofs, self.actuated_dofs)] = config.posture_cost
+        self.actuated_dofs, self.arm_dofs, posture_cost = _posture_dofs(model, config)
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.posture_task.set_target(self.q_home)
         self.equality_tasks = (
@@ -371,5 +394,7 @@ __all__ = [
     "foot_site_names",
     "free_joint",
     "home_qpos",
+    "posture_costs",
+    "stance_points",
     "standing_height",
 ]
