@@ -3,7 +3,9 @@
 * Tokenization: robots per second on a batch of compiled models (``--robots`` designs per
   space; compiling the MJCF is not timed: the tokenizer's input is an `MjModel`). "cold":
   ``tokenize_models`` (plans of every topology derived in the call); "warm": a `Tokenizer`
-  that has seen the space's topologies before, as in a data-generation loop.
+  that has seen the space's topologies before, as in a data-generation loop. Reference
+  beside them: the same warm `Tokenizer` called once per robot (``--single`` robots), the
+  unbatched cost.
 * Episode tokens: episode-samples per second of ``episode_tokens`` (8 random steps per
   world) on a synthetic episode of ``--worlds`` worlds x ``--steps`` control steps whose
   worlds run the tokenized designs (values do not change the cost).
@@ -68,7 +70,7 @@ def _synthetic_episode(index, worlds: int, steps: int, seed: int) -> Episode:
                    design_index=torch.randint(len(index), (worlds,), generator=g), motion_index=torch.zeros(worlds, dtype=torch.long), dt=0.02)
 
 
-def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, repeats: int) -> dict:
+def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, repeats: int, single: int) -> dict:
     space = get_space(name)
     designs = space.sample(robots, seed=0)
     texts = [space.to_mjcf(d) for d in designs]
@@ -82,6 +84,8 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
         warm = Tokenizer()
         warm(models)
         wall_w, cpu_w = _best(lambda: warm(models), repeats)
+        one = models[:min(single, robots)]
+        wall_1, cpu_1 = _best(lambda: [warm([m]) for m in one], 1)
     topologies = len({r.topology for r in emb.index})
     counts = emb.tokens.counts()
     total = emb.tokens.total()
@@ -90,6 +94,7 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
         "space": name, "robots": robots, "topologies": topologies,
         "tokenize_robots_per_s_wall": robots / wall, "tokenize_robots_per_s_cpu": robots / cpu,
         "tokenize_warm_robots_per_s_wall": robots / wall_w, "tokenize_warm_robots_per_s_cpu": robots / cpu_w,
+        "tokenize_single_robots_per_s_wall": len(one) / wall_1, "tokenize_single_robots_per_s_cpu": len(one) / cpu_1,
         "tokens_mean": float(total.mean()), "tokens_min": int(total.min()), "tokens_max": int(total.max()),
         "mjcf_chars_mean": float(chars.mean()), "chars_per_token": float((chars / total).mean()),
         "per_type_max": {t: int(counts[t].max()) for t in EMBODIMENT_TYPES if t in counts},
@@ -109,20 +114,24 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
 
 def write_markdown(rows: list[dict], args) -> str:
     lines = ["# RoboToken benchmarks", "", machine_header("cpu").rstrip(), f"- RoboToken schema v{SCHEMA_VERSION}",
-             f"- load average (1 min) at start / end: {args.load_start:.1f} / {os.getloadavg()[0]:.1f} "
+             f"- load average (1 min) at start, after each space, at end: {args.load_start:.1f}, "
+             f"{', '.join(format(r['load_1min'], '.1f') for r in rows)}, {os.getloadavg()[0]:.1f} "
              f"on {os.cpu_count()} cores (other jobs share this machine: wall numbers shrink with load, CPU numbers less so)",
              f"- torch threads: {args.threads}",
-             f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps {args.steps} --threads {args.threads}`", "",
+             f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps {args.steps} --single {args.single} --threads {args.threads}`", "",
              "## Throughput", "",
-             f"Tokenize: {args.robots} compiled designs per space in one call (MJCF compile not timed). "
+             f"Tokenize: {args.robots} compiled designs per space in one call (MJCF compile not timed); reference: "
+             f"one call per robot, {args.single} robots, warm. "
              f"Episodes: {args.worlds} worlds x {args.steps} steps, 8 random steps per world, worlds spread over the "
              f"tokenized designs. Detokenize: MJCF text + MuJoCo compile, {args.detok} robots. Best of {args.repeats} "
              "runs; wall clock and process CPU time (the machine may be shared).", "",
-             "| space | topologies | tokenize robots/s cold (wall / CPU) | warm (wall / CPU) | episode-samples/s (wall / CPU) | detokenize robots/s (wall / CPU) |",
-             "|---|---:|---:|---:|---:|---:|"]
+             "| space | topologies | tokenize robots/s cold (wall / CPU) | warm (wall / CPU) | one robot per call (wall / CPU) "
+             "| episode-samples/s (wall / CPU) | detokenize robots/s (wall / CPU) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['space']} | {r['topologies']} | {r['tokenize_robots_per_s_wall']:,.0f} / {r['tokenize_robots_per_s_cpu']:,.0f} | "
                      f"{r['tokenize_warm_robots_per_s_wall']:,.0f} / {r['tokenize_warm_robots_per_s_cpu']:,.0f} | "
+                     f"{r['tokenize_single_robots_per_s_wall']:,.0f} / {r['tokenize_single_robots_per_s_cpu']:,.0f} | "
                      f"{r['episode_samples_per_s_wall']:,.0f} / {r['episode_samples_per_s_cpu']:,.0f} | "
                      f"{r['detokenize_robots_per_s_wall']:,.0f} / {r['detokenize_robots_per_s_cpu']:,.0f} |")
     lines += ["", "Targets (issue): >= 2,000 robots/s and >= 20,000 episode-samples/s.", "",
@@ -145,6 +154,7 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=500)
     p.add_argument("--detok", type=int, default=200)
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--single", type=int, default=200, help="robots tokenized one per call (the unbatched reference)")
     p.add_argument("--spaces", nargs="*", default=list(SPACE_NAMES))
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", type=Path, default=RESULTS)
@@ -153,7 +163,8 @@ def main() -> None:
     args.load_start = os.getloadavg()[0]
     rows = []
     for name in args.spaces:
-        r = bench_space(name, args.robots, args.worlds, args.steps, args.detok, args.repeats)
+        r = bench_space(name, args.robots, args.worlds, args.steps, args.detok, args.repeats, args.single)
+        r["load_1min"] = os.getloadavg()[0]
         print(json.dumps({"bench": "tokens", **r}), flush=True)
         rows.append(r)
     args.out.parent.mkdir(parents=True, exist_ok=True)

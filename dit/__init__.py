@@ -6,7 +6,7 @@ from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
 from tt.dit.layout import PAD_VALUE, Layout, LayoutError, Role, TokenSpec, TokenTensors, layout_from_schema
 from tt.dit.model import DIT_CONFIGS, DiTConfig, RoboDiT, get_config
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, SampleResult, sample
 from tt.dit.tasks import CONTROL, ROBOT, TaskMasks, TaskSpec, get_task, task_masks
 from tt.dit.train import TrainConfig, TrainResult, train

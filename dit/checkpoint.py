@@ -17,6 +17,11 @@ dict:
 
 Loading checks the format and the schema version first, so a checkpoint of another
 RoboToken schema fails with `SchemaVersionError` before any weight is read.
+
+Shipped checkpoints. The repository's ``checkpoints/`` folder (installed as
+``tt.checkpoints``) holds the checkpoints tt ships, one file per design space named
+``<space>.pt`` or ``<space>_<size>.pt`` (``viperx_mini.pt``); `default_checkpoint`
+finds a space's.
 """
 
 from __future__ import annotations
@@ -31,12 +36,14 @@ import torch
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 
 #: Format tag of checkpoint files.
 CHECKPOINT_FORMAT = "tt.dit.checkpoint/1"
 
 _NAME = re.compile(r"^step_(\d+)\.pt$")
+#: Model sizes, the one preferred when a space ships several first.
+_SIZE_PREFERENCE = ("large", "small", "mini", "tiny")
 
 
 def checkpoint_path(run: str | Path, step: int) -> Path:
@@ -55,6 +62,51 @@ def list_checkpoints(run: str | Path) -> list[Path]:
 def latest_checkpoint(run: str | Path) -> Path | None:
     found = list_checkpoints(run)
     return found[-1] if found else None
+
+
+def shipped_folder() -> Path:
+    """The folder of shipped checkpoints: ``checkpoints/`` beside the package's ``dit/``
+    (the repository root in an editable install, ``tt/checkpoints`` in an installed one)."""
+    return Path(__file__).resolve().parent.parent / "checkpoints"
+
+
+def shipped_checkpoints(folder: str | Path | None = None) -> dict[str, list[Path]]:
+    """Shipped checkpoint files by design space, the preferred one first (see `default_checkpoint`).
+
+    folder: where to look (None: `shipped_folder()`); a missing folder holds none.
+    """
+    folder = shipped_folder() if folder is None else Path(folder)
+    found: dict[str, list[tuple[int, str, Path]]] = {}
+    if folder.is_dir():
+        for p in folder.iterdir():
+            if p.suffix != ".pt" or not p.is_file():
+                continue
+            space, _, size = p.stem.partition("_")
+            rank = _SIZE_PREFERENCE.index(size) if size in _SIZE_PREFERENCE else len(_SIZE_PREFERENCE)
+            found.setdefault(space, []).append((rank, p.name, p))
+    return {space: [p for *_, p in sorted(files)] for space, files in sorted(found.items())}
+
+
+class NoCheckpointError(FileNotFoundError):
+    """No shipped checkpoint for a design space."""
+
+
+def default_checkpoint(space: str, folder: str | Path | None = None) -> Path:
+    """The shipped checkpoint of design space `space`: ``<space>.pt`` or
+    ``<space>_<size>.pt`` in `folder` (None: `shipped_folder()`); of several sizes, the
+    largest model (large, small, mini, tiny, then any other suffix by name).
+
+    Raises NoCheckpointError (a FileNotFoundError) naming the spaces that have one.
+    """
+    folder = shipped_folder() if folder is None else Path(folder)
+    shipped = shipped_checkpoints(folder)
+    if space in shipped:
+        return shipped[space][0]
+    have = ", ".join(f"{s} ({', '.join(p.name for p in ps)})" for s, ps in shipped.items()) or "none"
+    raise NoCheckpointError(
+        f"no shipped DiT checkpoint for design space {space!r} in {folder} (expected {space}.pt or "
+        f"{space}_<size>.pt; spaces with one: {have}); train one with `tt train` and pass --checkpoint RUN"
+    )
 
 
 def save_checkpoint(path: str | Path, state: dict) -> Path:

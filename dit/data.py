@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 
 #: Format tag of `EpisodeTokens` files.
 FILE_FORMAT = "tt.dit.episodes/1"
@@ -148,12 +148,11 @@ class EpisodeTokens:
         if self.schema_version is None:
             return Normalizer.fit(data)
         from tt.tokens.batch import TokenBatch
-        from tt.tokens.normalize import Normalizer as SchemaNormalizer
 
         ids = {k: np.zeros((*v.shape[:2], len(self.id_names[k])), np.int64) for k, (v, _) in data.items()}
         batch = TokenBatch({k: v.numpy() for k, (v, _) in data.items()}, ids, {k: m.numpy() for k, (_, m) in data.items()},
                            self.schema_version)
-        return Normalizer.from_schema_normalizer(SchemaNormalizer.fit(batch))
+        return Normalizer.fit(batch)
 
     def window_steps(self, episodes: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None) -> torch.Tensor:
         """Step indices (n, steps), ascending, of windows of the given episodes."""

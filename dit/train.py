@@ -36,7 +36,7 @@ from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
 from tt.dit.layout import LayoutError
 from tt.dit.model import RoboDiT, get_config
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
 
 log = logging.getLogger(__name__)

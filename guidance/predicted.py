@@ -41,11 +41,10 @@ import numpy as np
 import torch
 
 from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
-from tt.dit.normalization import Normalizer
 from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
-from tt.tokens.normalize import is_padding
+from tt.tokens.normalize import Normalizer, is_padding
 from tt.tokens.schema import GEOM_TYPES, SCHEMA
 
 #: Ways to choose a query's control steps (see the module docstring).

@@ -32,7 +32,7 @@ from tt.baselines.problem import Optimizer, Problem, Result
 from tt.dit.checkpoint import TrainedModel, load_model
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
@@ -262,7 +262,7 @@ def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenTensor
     names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
     batch = TokenBatch({n: tokens.values[n].detach().float().cpu() for n in names},
                        {n: tokens.ids[n].cpu() for n in names}, {n: tokens.mask[n].cpu() for n in names}, layout.schema_version)
-    return normalizer.to_schema_normalizer().unnormalize(batch, detect_padding=True, clip=True).to_numpy()
+    return normalizer.denormalize(batch, detect_padding=True, clip=True).to_numpy()
 
 
 @dataclass

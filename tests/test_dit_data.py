@@ -9,9 +9,10 @@ import torch
 
 from tt.dit.data import EpisodeTokens
 from tt.dit.layout import PAD_VALUE, LayoutError, TokenTensors
-from tt.dit.normalization import Normalizer
 from tt.dit.tasks import CONTROL, task_masks
 from tt.dit.toy import toy_episodes
+from tt.tokens.normalize import MIN_RANGE, Normalizer
+from tt.tokens.schema import SCHEMA
 
 
 @pytest.fixture(scope="module")
@@ -99,6 +100,40 @@ def test_normalizer(episodes):
     torch.testing.assert_close(const.denormalize_values("a", y), torch.tensor([[2.0, 1.0]]))
     again = Normalizer.from_state_dict(norm.state_dict())
     torch.testing.assert_close(again.normalize(tokens).values["state"], n.values["state"], rtol=0, atol=0)
+    # A fit widens a constant feature to MIN_RANGE about its value: 0 there, scaled around it.
+    fit = Normalizer.fit({"a": (torch.tensor([[[2.0, 0.0], [2.0, 4.0]]]), torch.tensor([[True, True]]))})
+    np.testing.assert_array_equal(fit.low["a"], [2.0 - MIN_RANGE / 2, 0.0])
+    np.testing.assert_array_equal(fit.high["a"], [2.0 + MIN_RANGE / 2, 4.0])
+    torch.testing.assert_close(fit.normalize_values("a", torch.tensor([[2.0, 1.0]], dtype=torch.float64)),
+                               torch.tensor([[0.0, -0.5]], dtype=torch.float64))
+
+
+def test_checkpoint_normalizer_state_loads_unchanged():
+    """A checkpoint's normaliser state (float32 tensors, constant features at low == high as
+    DiT fits wrote them before the normalisers were merged) loads, maps values by the
+    formula x_n = 2 (x - low) / (high - low) - 1 evaluated in float32 as (x - low) (2 / span) - 1
+    (constant features: x - low), and saves back to the same tensors."""
+    import tt.dit
+
+    assert tt.dit.Normalizer is Normalizer
+    state = {"low": {"a": torch.tensor([0.5, -3.0, 7.0]), "b": torch.tensor([-1.0])},
+             "high": {"a": torch.tensor([2.5, 1.0, 7.0]), "b": torch.tensor([0.25])}}
+    norm = Normalizer.from_state_dict(state)
+    x = torch.tensor([[1.0, 0.0, 7.5], [2.5, -3.0, 6.0]])
+    lo, hi = state["low"]["a"], state["high"]["a"]
+    span = hi - lo
+    want = torch.stack([(x[:, 0] - lo[0]) * (2.0 / span[0]) - 1, (x[:, 1] - lo[1]) * (2.0 / span[1]) - 1, x[:, 2] - lo[2]], -1)
+    assert torch.equal(norm.normalize_values("a", x), want)
+    torch.testing.assert_close(want, torch.tensor([[-0.5, 0.5, 0.5], [1.0, -1.0, -1.0]]))
+    assert torch.equal(norm.denormalize_values("a", want), x)
+    mask = torch.tensor([[True], [False]])
+    out = norm.normalize(TokenTensors({"b": torch.tensor([[[0.25]], [[0.0]]])}, {"b": torch.zeros(2, 1, 1, dtype=torch.long)}, {"b": mask}))
+    assert isinstance(out, TokenTensors)
+    assert torch.equal(out.values["b"], torch.tensor([[[1.0]], [[PAD_VALUE]]]))
+    saved = norm.state_dict()
+    for part in ("low", "high"):
+        for k, v in state[part].items():
+            assert saved[part][k].dtype == torch.float32 and torch.equal(saved[part][k], v), (part, k)
 
 
 def test_from_tokens_package():
@@ -109,7 +144,6 @@ def test_from_tokens_package():
     from tt.sim.episode import Episode
     from tt.tokens.batch import TokenBatch
     from tt.tokens.episodes import episode_tokens
-    from tt.tokens.normalize import Normalizer as SchemaNormalizer
     from tt.tokens.tokenize import tokenize_models
 
     space = get_space("viperx")
@@ -141,7 +175,8 @@ def test_from_tokens_package():
     real = window.mask["control"][1, 2 * n_act:3 * n_act]
     got = window.values["control"][1, 2 * n_act:3 * n_act, 0][real]
     torch.testing.assert_close(got, episode.action[1, steps[1, 2], : int(real.sum())])
-    # Statistics agree with tt.tokens' own normaliser on the same tokens.
+    # Statistics are the schema fit of the same tokens as a TokenBatch (fixed ranges for bits
+    # and rotations), and a TokenBatch normalises as the TokenTensors do.
     ours = data.fit_normalizer()
     flat = {k: v.reshape(v.shape[0], -1, v.shape[-1]) for k, v in data.step_values.items()}
     valid = torch.arange(t)[None, :] < data.lengths[:, None]
@@ -150,11 +185,14 @@ def test_from_tokens_package():
                        {**{k: np.zeros((*v.shape[:2], 2), np.int64) for k, v in flat.items()},
                         **{k: v.numpy() for k, v in data.static_ids.items()}},
                        {**{k: v.numpy() for k, v in mask.items()}, **{k: v.numpy() for k, v in data.static_mask.items()}})
-    theirs = SchemaNormalizer.fit(batch)
+    theirs = Normalizer.fit(batch)
+    assert sorted(ours.low) == sorted(theirs.low)
     for k in theirs.low:
-        np.testing.assert_allclose(ours.low[k].numpy(), theirs.low[k], rtol=1e-6, atol=1e-6)
-        np.testing.assert_allclose(ours.high[k].numpy(), theirs.high[k], rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(ours.low[k], theirs.low[k], err_msg=k)
+        np.testing.assert_array_equal(ours.high[k], theirs.high[k], err_msg=k)
+    np.testing.assert_array_equal(ours.low["link"][SCHEMA["link"].slice("irot")], -1.0)
     tokens = TokenTensors(window.values, window.ids, window.mask)
-    back = ours.to_schema_normalizer().normalize(TokenBatch(tokens.values, tokens.ids, tokens.mask))
+    back = ours.normalize(TokenBatch(tokens.values, tokens.ids, tokens.mask))
+    assert isinstance(back, TokenBatch)
     for k, v in ours.normalize(tokens).values.items():
-        torch.testing.assert_close(v, back.values[k].float(), rtol=0, atol=1e-5)
+        assert torch.equal(v, back.values[k]), k

@@ -11,7 +11,7 @@ import torch
 from tt.dit.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_model
 from tt.dit.ema import EMA
 from tt.dit.model import RoboDiT
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 from tt.dit.train import TrainConfig, lr_factor, train
 from tt.dit.toy import toy_episodes
 from tt.tokens.schema import SchemaVersionError

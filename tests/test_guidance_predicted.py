@@ -17,7 +17,6 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from tt.dit.layout import layout_from_schema
-from tt.dit.normalization import Normalizer
 from tt.guidance.predicted import (
     PredictedReward,
     build_query,
@@ -29,7 +28,7 @@ from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate, get_reward
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.tokens.batch import TokenBatch
-from tt.tokens.normalize import Normalizer as SchemaNormalizer
+from tt.tokens.normalize import Normalizer
 from tt.tokens.schema import PAD_VALUE
 from tt.tokens.tokenize import tokenize_models
 
@@ -108,14 +107,13 @@ def truth():
     target_raw = np.concatenate([target_pos.reshape(B, S, 3), target_rot.as_matrix().reshape(B, S, 9)], -1)
     target = TokenBatch({"target_pose": target_raw.astype(np.float32)}, {"target_pose": np.zeros((B, S, 2), np.int64)},
                         {"target_pose": np.ones((B, S), bool)})
-    stats = SchemaNormalizer.fit([emb, dyn, target])
-    norm = Normalizer.from_schema_normalizer(stats)
+    norm = Normalizer.fit([emb, dyn, target])
     counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) for n in emb.types}
     counts.update(track_link_obs=1, target_pose=1, actuator_obs=P)
     layout = layout_from_schema(counts, steps=S)
     x0 = {}
     for name, batch in (("emb", emb), ("dyn", dyn)):
-        normed = stats.normalize(batch.to_torch())
+        normed = norm.normalize(batch.to_torch())
         for n in normed.types:
             x0[n] = normed.values[n]
     ee_quat = _scipy_quat(ee_rot).reshape(B, S, 1, 4)

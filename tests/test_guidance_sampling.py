@@ -24,7 +24,7 @@ from tt.dit.checkpoint import TrainedModel
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import layout_from_schema
 from tt.dit.model import RoboDiT, get_config
-from tt.dit.normalization import Normalizer
+from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import sample
 from tt.dit.tasks import ROBOT, task_masks
 from tt.dit.toy import toy_episodes
@@ -285,7 +285,6 @@ def test_decoder_recovers_a_real_design_from_normalised_tokens():
     """Normalised, padded tokens of a real design (as a perfect model would output them) go
     through `embodiment_batch` and `DesignDecoder` back to that design."""
     from tt.tokens.design_fit import CandidateTable
-    from tt.tokens.normalize import Normalizer as SchemaNormalizer
     from tt.tokens.tokenize import tokenize_models
 
     space = get_space("viperx")
@@ -293,14 +292,14 @@ def test_decoder_recovers_a_real_design_from_normalised_tokens():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         emb = tokenize_models([space.model(d) for d in designs]).tokens
-    stats = SchemaNormalizer.fit(emb)
+    norm = Normalizer.fit(emb)
     counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) + 2 for n in emb.types}  # room for padding
     layout = layout_from_schema(counts, steps=8)
-    padded = stats.normalize(emb.pad_to({n: counts[n] for n in emb.types}).to_torch())
+    padded = norm.normalize(emb.pad_to({n: counts[n] for n in emb.types}).to_torch())
     from tt.dit.layout import TokenTensors
 
     tokens = TokenTensors(dict(padded.values), dict(padded.ids), dict(padded.mask))
-    batch = embodiment_batch(layout, Normalizer.from_schema_normalizer(stats), tokens)
+    batch = embodiment_batch(layout, norm, tokens)
     table = CandidateTable(space, discrete=[designs[0].discrete, designs[1].discrete])
     decoded = DesignDecoder(space, table=table)(batch, 0)
     assert decoded.design is not None and decoded.design.discrete == designs[0].discrete
@@ -333,7 +332,6 @@ def test_zeroth_order_returns_the_design_with_the_best_predicted_tracking(motion
     from tt.dit.layout import TokenTensors
     from tt.tokens.batch import TokenBatch
     from tt.tokens.design_fit import CandidateTable
-    from tt.tokens.normalize import Normalizer as SchemaNormalizer
     from tt.tokens.tokenize import tokenize_models
 
     space = get_space("viperx")
@@ -358,10 +356,9 @@ def test_zeroth_order_returns_the_design_with_the_best_predicted_tracking(motion
     dyn = TokenBatch({"track_link_obs": track.numpy(), "target_pose": target.numpy()},
                      {"track_link_obs": np.zeros((3, 8, 2), np.int64), "target_pose": np.zeros((3, 8, 2), np.int64)},
                      {"track_link_obs": ones, "target_pose": ones})
-    stats = SchemaNormalizer.fit([emb, dyn])
-    norm = Normalizer.from_schema_normalizer(stats)
-    x0 = {n: v for n, v in stats.normalize(emb.to_torch()).values.items()}
-    x0["track_link_obs"] = stats.normalize(dyn.subset(["track_link_obs"]).to_torch()).values["track_link_obs"]
+    norm = Normalizer.fit([emb, dyn])
+    x0 = {n: v for n, v in norm.normalize(emb.to_torch()).values.items()}
+    x0["track_link_obs"] = norm.normalize(dyn.subset(["track_link_obs"]).to_torch()).values["track_link_obs"]
     model = OracleEps(layout, x0)
     trained = TrainedModel(model, norm, layout, 0)
     table = CandidateTable(space, discrete=[d.discrete for d in designs])

@@ -338,7 +338,7 @@ def _noisy_decoding(space: str, designs: int, rounds: int) -> tuple[int, int]:
     for _ in range(rounds):
         noisy = TokenBatch({k: (v + rng.normal(0, 0.05, v.shape)).astype(np.float32) for k, v in clean.values.items()},
                            clean.ids, clean.mask)
-        decoded = norm.unnormalize(noisy, detect_padding=True)
+        decoded = norm.denormalize(noisy, detect_padding=True)
         for k in decoded.types:  # padding is found again from the values alone
             assert np.array_equal(decoded.mask[k], emb.tokens.mask[k]), k
         for r in detokenize(decoded):
@@ -499,7 +499,7 @@ def test_normalizer_maps_to_unit_range_and_back(tmp_path):
         assert not is_padding(real).any()
     bits = SCHEMA["link"].slice("geom_type")
     assert set(np.unique(x.values["link"][x.mask["link"]][:, bits]).tolist()) <= {-1.0, 1.0}
-    back = norm.unnormalize(x)
+    back = norm.denormalize(x)
     for k in back.types:
         m = emb.tokens.mask[k]
         assert np.allclose(back.values[k][m], emb.tokens.values[k][m], atol=1e-5)

@@ -4,7 +4,7 @@ tokens and their normalisation for diffusion.
     emb = tokenize_models([space.model(d) for d in designs])       # embodiment tokens
     dyn = episode_tokens(episode, emb.index, steps=8, mode="random")  # dynamics + targets
     norm = Normalizer.fit(batches); x = norm.normalize(emb.tokens)    # [-1, 1]
-    results = detokenize(norm.unnormalize(x_hat, detect_padding=True))  # MJCF + MjModel
+    results = detokenize(norm.denormalize(x_hat, detect_padding=True))  # MJCF + MjModel
 """
 
 from tt.tokens.batch import TokenBatch

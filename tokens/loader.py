@@ -202,10 +202,8 @@ class StoreTokenSource:
         return layout
 
     def fit_normalizer(self):
-        """`tt.dit.normalization.Normalizer` from the dataset's stored statistics."""
-        from tt.dit.normalization import Normalizer
-
-        return Normalizer.from_schema_normalizer(self.store.normalizer())
+        """`tt.tokens.normalize.Normalizer` from the dataset's stored statistics."""
+        return self.store.normalizer()
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None):
         """n raw windows (`tt.dit.layout.TokenTensors`), drawn with `generator` (CPU)."""

@@ -1,18 +1,27 @@
-"""Normalisation of encoded tokens into [-1, 1] for diffusion, with statistics per attribute.
+"""Normalisation of token values into [-1, 1] for diffusion, with statistics per value.
 
-Each value of an attribute maps ``[low, high] -> [-1, 1]`` linearly, with ``low`` and
-``high`` computed from a dataset (minimum and maximum, or quantiles) and stored with it.
-Bits (binary attributes, the sign of a signed log) use [0, 1] and rotation entries
-[-1, 1] whatever the data, so their meaning never depends on a dataset. Padding tokens get
-`PAD_VALUE` in every value; `is_padding` finds them again in (noisy) model output.
+Each value of a token type maps ``[low, high] -> [-1, 1]`` linearly, with ``low`` and
+``high`` the minimum and maximum (or quantiles) of that value over the real tokens of a
+dataset. For the schema's token types, bits (binary attributes, the sign of a signed log)
+use [0, 1] and rotation entries [-1, 1] whatever the data, so their meaning never depends
+on a dataset; other types (the DiT's generic test data) use the data's ranges throughout.
+A fit widens ranges narrower than `MIN_RANGE` about their middle, so a value that is
+constant over the data maps to 0. Padding tokens get `PAD_VALUE` in every value;
+`is_padding` finds them again in (noisy) model output.
+
+One `Normalizer` serves the tokenizer's numpy batches and the DiT's torch tensors
+(`tt.tokens.TokenBatch`, `tt.dit.layout.TokenTensors`, or one type's values at a time,
+differentiably), and is what datasets store (`to_dict`, JSON) and DiT checkpoints store
+(`state_dict`, float32 tensors).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, TypeVar
 
 import numpy as np
 import torch
@@ -20,12 +29,20 @@ import torch
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import PAD_VALUE, SCHEMA, SCHEMA_VERSION, Encoding, check_version
 
-#: Smallest range [low, high] a value gets; constant values map to 0.
+#: Smallest range [low, high] a fit gives a value; constant values map to 0.
 MIN_RANGE = 1e-4
+#: Statistics with high - low below this (written by hand, or by DiT fits before the
+#: normalisers were merged, which kept constant values at low == high) shift the value
+#: (low -> 0) instead of scaling it.
+CONSTANT_RANGE = 1e-6
 #: A token is padding when the RMS distance of its normalised values to PAD_VALUE is below
 #: this: far above model noise on padding (sigma 0.05 -> RMS 0.05), far below real tokens,
 #: whose rotation entries alone keep them ~0.6 RMS away.
 PADDING_RMS = 0.3
+
+#: Token containers: `TokenBatch` or `tt.dit.layout.TokenTensors` (dataclasses with values,
+#: ids and mask dicts).
+Tokens = TypeVar("Tokens")
 
 
 def _fixed_range(tname: str) -> tuple[np.ndarray, np.ndarray]:
@@ -45,33 +62,57 @@ def _fixed_range(tname: str) -> tuple[np.ndarray, np.ndarray]:
     return low, high
 
 
-@dataclass
 class Normalizer:
-    """Per-value ranges of every token type: low[type], high[type] (width,) arrays."""
+    """Per-type, per-value affine map ``x_n = 2 (x - low) / (high - low) - 1``.
 
-    low: dict[str, np.ndarray]
-    high: dict[str, np.ndarray]
-    version: int = SCHEMA_VERSION
+    low, high: type -> (D,) float64 arrays, the range of each value over real tokens.
+    version: RoboToken schema version of the data the statistics come from.
+    """
 
+    def __init__(self, low: Mapping, high: Mapping, version: int = SCHEMA_VERSION):
+        if set(low) != set(high):
+            raise ValueError(f"low and high name different types: {sorted(low)} vs {sorted(high)}")
+        self.low = {k: np.array(_np(v), dtype=np.float64) for k, v in low.items()}
+        self.high = {k: np.array(_np(v), dtype=np.float64) for k, v in high.items()}
+        self.version = int(version)
+        for k in self.low:
+            if self.low[k].ndim != 1 or self.low[k].shape != self.high[k].shape:
+                raise ValueError(f"type {k!r}: low {self.low[k].shape} and high {self.high[k].shape} must be equal (D,) shapes")
+            if (self.high[k] < self.low[k]).any():
+                raise ValueError(f"type {k!r}: high < low in value {int(np.flatnonzero(self.high[k] < self.low[k])[0])}")
+
+    def __repr__(self) -> str:
+        widths = ", ".join(f"{k}: {len(v)}" for k, v in self.low.items())
+        return f"Normalizer({{{widths}}}, version={self.version})"
+
+    # ---------------------------------------------------------------- statistics
     @staticmethod
-    def fit(batches: Iterable[TokenBatch] | TokenBatch, quantile: float = 0.0) -> "Normalizer":
-        """Statistics over the real tokens of a dataset (one batch or an iterable of them).
+    def fit(data, quantile: float = 0.0) -> "Normalizer":
+        """Statistics over the real tokens of a dataset.
 
+        data: a `TokenBatch` or `TokenTensors`; a mapping type -> (values (..., D), mask
+        (...) True for real tokens); numpy or torch; or an iterable of these, streamed.
         quantile: 0 uses minimum and maximum (streaming); q > 0 uses the q and 1 - q
         quantiles (keeps every value in memory), so rare outliers do not squash the rest.
+        A type without real tokens gets no statistics.
         """
-        if isinstance(batches, TokenBatch):
-            batches = [batches]
         if not 0.0 <= quantile < 0.5:
             raise ValueError(f"quantile must be in [0, 0.5), got {quantile}")
+        parts = [data] if isinstance(data, Mapping) or hasattr(data, "values") and hasattr(data, "mask") else data
         lo: dict[str, np.ndarray] = {}
         hi: dict[str, np.ndarray] = {}
         kept: dict[str, list[np.ndarray]] = {}
-        for b in batches:
-            check_version(b.version, "a batch given to Normalizer.fit")
-            for name in b.types:
-                m = _np(b.mask[name]).astype(bool)
-                v = _np(b.values[name]).astype(np.float64)[m]
+        for part in parts:
+            if isinstance(part, Mapping):
+                items = [(name, v, m) for name, (v, m) in part.items()]
+            else:
+                if hasattr(part, "version"):
+                    check_version(part.version, "tokens given to Normalizer.fit")
+                items = [(name, v, part.mask[name]) for name, v in part.values.items()]
+            for name, values, mask in items:
+                v = _np(values).astype(np.float64)[_np(mask).astype(bool)]  # (n, D)
+                if name in SCHEMA.names() and v.shape[-1] != SCHEMA[name].width:
+                    raise ValueError(f"values of token type {name!r} are {v.shape[-1]} wide; schema v{SCHEMA_VERSION} says {SCHEMA[name].width}")
                 if not len(v):
                     continue
                 if quantile > 0:
@@ -84,54 +125,112 @@ class Normalizer:
             lo[name], hi[name] = np.quantile(v, quantile, axis=0), np.quantile(v, 1 - quantile, axis=0)
         low, high = {}, {}
         for name in lo:
-            flo, fhi = _fixed_range(name)
-            l = np.where(np.isnan(flo), lo[name], flo)
-            h = np.where(np.isnan(fhi), hi[name], fhi)
+            l, h = lo[name], hi[name]
+            if name in SCHEMA.names():
+                flo, fhi = _fixed_range(name)
+                l, h = np.where(np.isnan(flo), l, flo), np.where(np.isnan(fhi), h, fhi)
             mid = 0.5 * (l + h)
             narrow = h - l < MIN_RANGE
             low[name] = np.where(narrow, mid - MIN_RANGE / 2, l)
             high[name] = np.where(narrow, mid + MIN_RANGE / 2, h)
         return Normalizer(low, high)
 
-    def _range(self, name: str, like):
+    def check(self, layout) -> None:
+        """Raise `tt.dit.layout.LayoutError` unless every type of `layout` (a
+        `tt.dit.layout.Layout`) has statistics of its width."""
+        from tt.dit.layout import LayoutError  # the DiT builds on tokens, not the reverse
+
+        for s in layout.specs:
+            if s.name not in self.low:
+                raise LayoutError(f"normalisation statistics lack token type {s.name!r}")
+            if self.low[s.name].shape != (s.dim,):
+                raise LayoutError(f"normalisation statistics of {s.name!r} have width {self.low[s.name].shape}, layout dim {s.dim}")
+
+    # ---------------------------------------------------------------- the map
+    def _affine(self, name: str, like):
+        """(low, scale, offset) in the type, dtype and device of `like`, with
+        ``x_n = (x - low) scale - offset``; subtracting low first keeps float32 precision
+        on narrow ranges."""
         if name not in self.low:
-            raise KeyError(f"no statistics for token type {name!r}; the normalizer has {sorted(self.low)}")
-        lo, hi = self.low[name], self.high[name]
+            raise KeyError(f"no normalisation statistics for token type {name!r}; have {sorted(self.low)}")
         if isinstance(like, torch.Tensor):
-            return torch.as_tensor(lo, dtype=like.dtype, device=like.device), torch.as_tensor(hi, dtype=like.dtype, device=like.device)
-        return lo.astype(like.dtype), hi.astype(like.dtype)
+            lo = torch.as_tensor(self.low[name], dtype=like.dtype, device=like.device)
+            hi = torch.as_tensor(self.high[name], dtype=like.dtype, device=like.device)
+            span = hi - lo
+            const = span < CONSTANT_RANGE
+            scale = torch.where(const, torch.ones_like(span), 2.0 / span.clamp_min(CONSTANT_RANGE))
+            offset = torch.where(const, torch.zeros_like(span), torch.ones_like(span))
+            return lo, scale, offset
+        dtype = like.dtype if np.issubdtype(like.dtype, np.floating) else np.float64
+        lo, hi = self.low[name].astype(dtype), self.high[name].astype(dtype)
+        span = hi - lo
+        const = span < CONSTANT_RANGE
+        scale = np.where(const, 1.0, 2.0 / np.maximum(span, CONSTANT_RANGE)).astype(dtype)
+        offset = np.where(const, 0.0, 1.0).astype(dtype)
+        return lo, scale, offset
 
-    def normalize(self, batch: TokenBatch) -> TokenBatch:
-        """Encoded tokens -> [-1, 1] (values outside the dataset's range go beyond);
-        padding tokens -> `PAD_VALUE`."""
-        check_version(batch.version, "normalized batch")
-        values = {}
-        for name in batch.types:
-            v = batch.values[name]
-            lo, hi = self._range(name, v)
-            x = (v - lo) / (hi - lo) * 2 - 1
-            m = batch.mask[name][..., None]
-            values[name] = torch.where(m, x, torch.full_like(x, PAD_VALUE)) if isinstance(x, torch.Tensor) else np.where(m, x, PAD_VALUE).astype(v.dtype)
-        return TokenBatch(values, dict(batch.ids), dict(batch.mask), batch.version)
+    def normalize_values(self, name: str, x, mask=None):
+        """Values (..., D) of type `name` -> normalised (numpy or torch, differentiable);
+        tokens where `mask` (...) is False become PAD_VALUE."""
+        if not isinstance(x, torch.Tensor):
+            x = np.asarray(x)
+        lo, scale, offset = self._affine(name, x)
+        y = (x - lo) * scale - offset
+        if mask is None:
+            return y
+        if isinstance(y, torch.Tensor):
+            return torch.where(mask.unsqueeze(-1), y, torch.full_like(y, PAD_VALUE))
+        return np.where(np.asarray(mask)[..., None], y, PAD_VALUE).astype(y.dtype)
 
-    def unnormalize(self, batch: TokenBatch, detect_padding: bool = False, clip: bool = False) -> TokenBatch:
-        """[-1, 1] -> encoded tokens. detect_padding: replace the mask with `is_padding` of
-        the input (for model output); clip: clip to [-1, 1] first."""
+    def denormalize_values(self, name: str, y):
+        """Normalised values (..., D) of type `name` -> encoded values (numpy or torch,
+        differentiable)."""
+        if not isinstance(y, torch.Tensor):
+            y = np.asarray(y)
+        lo, scale, offset = self._affine(name, y)
+        return (y + offset) / scale + lo
+
+    def normalize(self, tokens: Tokens) -> Tokens:
+        """Every type of `tokens` (a `TokenBatch` or `TokenTensors`) -> normalised, padding
+        tokens -> PAD_VALUE (values beyond the dataset's range go beyond [-1, 1]). The
+        result is of the same class; ids and mask are shared, not copied."""
+        if hasattr(tokens, "version"):
+            check_version(tokens.version, "normalized tokens")
+        values = {k: self.normalize_values(k, v, tokens.mask[k]) for k, v in tokens.values.items()}
+        return dataclasses.replace(tokens, values=values)
+
+    def denormalize(self, tokens: Tokens, detect_padding: bool = False, clip: bool = False) -> Tokens:
+        """Normalised `tokens` -> encoded values, of the same class.
+
+        detect_padding: replace the mask with `is_padding` of the input (for model output);
+        clip: clip to [-1, 1] first.
+        """
         values, mask = {}, {}
-        for name in batch.types:
-            x = batch.values[name]
-            if clip:
-                x = x.clamp(-1, 1) if isinstance(x, torch.Tensor) else np.clip(x, -1, 1)
-            lo, hi = self._range(name, x)
-            values[name] = (x + 1) / 2 * (hi - lo) + lo
-            mask[name] = ~is_padding(batch.values[name]) if detect_padding else batch.mask[name]
-        return TokenBatch(values, dict(batch.ids), mask, batch.version)
+        for name, y in tokens.values.items():
+            x = (y.clamp(-1, 1) if isinstance(y, torch.Tensor) else np.clip(y, -1, 1)) if clip else y
+            values[name] = self.denormalize_values(name, x)
+            mask[name] = ~is_padding(y) if detect_padding else tokens.mask[name]
+        return dataclasses.replace(tokens, values=values, mask=mask)
 
     # ---------------------------------------------------------------- files
+    def state_dict(self) -> dict:
+        """``{"low": {type: tensor}, "high": {type: tensor}}``, float32 on the CPU: what DiT
+        checkpoints hold."""
+        return {"low": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.low.items()},
+                "high": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.high.items()}}
+
+    @staticmethod
+    def from_state_dict(state: Mapping) -> "Normalizer":
+        """Inverse of `state_dict` (a checkpoint's ``"normalizer"`` entry)."""
+        return Normalizer(state["low"], state["high"])
+
     def to_dict(self) -> dict:
-        """JSON-ready: per type and attribute, the low and high of each value."""
+        """JSON-ready: per type and attribute, the low and high of each value (schema types only)."""
         out = {"schema_version": self.version, "types": {}}
         for name in self.low:
+            if name not in SCHEMA.names():
+                raise ValueError(f"token type {name!r} is not in schema v{SCHEMA_VERSION} ({list(SCHEMA.names())}); "
+                                 "save its statistics with state_dict")
             t = SCHEMA[name]
             out["types"][name] = {a.name: {"low": self.low[name][t.slice(a.name)].tolist(), "high": self.high[name][t.slice(a.name)].tolist()}
                                   for a in t.attributes}
