@@ -11,8 +11,10 @@ with world pose T_b = (R, p) and target T_t:
     g    = -sum_sites J^T C^2 e - c_q^2 (q - qpos0)
     q_cmd = clip(q + H^-1 g, joint range)
 
-with mu = lm_damping * sum_sites |C e|^2 (mink's Levenberg-Marquardt term). The functions
-here compute the same in float32 inside a world's thread; `ik_step` runs them on W worlds.
+with mu = lm_damping * sum_sites |C e|^2 (mink's Levenberg-Marquardt term), and, as in
+mink, Jl^-1(e) replaced by the identity when |w|^2 < `tt.kernels.lie.MINK_JLOG_EPS` (an
+orientation already on target). The functions here compute the same in float32 inside a
+world's thread; `ik_step` runs them on W worlds.
 """
 
 import functools
@@ -99,7 +101,7 @@ def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
             jac = wp.static(K.site_jacobian[e])(axis, anchor, p)
             rinv = wp.quat_inverse(r)
             ev, ew = LIE.se3_log(rinv * LIE.quat_wxyz(target_quat[e]), wp.quat_rotate(rinv, target_pos[e] - p))
-            A, B = LIE.se3_ljacinv(ev, ew)
+            A, B = LIE.se3_jlog(ev, ew)
             Rt = wp.transpose(wp.quat_to_matrix(r))
             # Task Jacobian -Jl^-1(e) [R^T jacp; R^T jacr], split into its linear rows (Jv)
             # and angular rows (Jw).
