@@ -8,7 +8,9 @@
   unbatched cost.
 * Episode tokens: episode-samples per second of ``episode_tokens`` (8 random steps per
   world) on a synthetic episode of ``--worlds`` worlds x ``--steps`` control steps whose
-  worlds run the tokenized designs (values do not change the cost).
+  worlds run the tokenized designs (values do not change the cost). Reference beside it:
+  one world per call (``--single`` worlds, each with only its own robot), the unbatched
+  cost.
 * Detokenization: robots per second of ``detokenize`` (MJCF text + MuJoCo compile).
 * Sizes: RoboTokens per robot next to the MJCF text length (characters) of each space.
 
@@ -70,6 +72,13 @@ def _synthetic_episode(index, worlds: int, steps: int, seed: int) -> Episode:
                    design_index=torch.randint(len(index), (worlds,), generator=g), motion_index=torch.zeros(worlds, dtype=torch.long), dt=0.02)
 
 
+def _one_world(ep: Episode, w: int) -> Episode:
+    """World `w` of `ep` as an Episode of its own (views), running design 0."""
+    f = {k: getattr(ep, k)[w:w + 1] for k in ("qpos", "qvel", "ctrl", "action", "act_force", "act_vel", "ee_pos", "ee_quat",
+                                              "target_pos", "target_quat", "alive", "fallen", "motion_index")}
+    return Episode(**f, design_index=torch.zeros(1, dtype=torch.long), dt=ep.dt)
+
+
 def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, repeats: int, single: int) -> dict:
     space = get_space(name)
     designs = space.sample(robots, seed=0)
@@ -105,6 +114,10 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
     wall, cpu = _best(lambda: episode_tokens(ep, emb.index, steps=8, generator=gen), repeats)
     out["episode_samples_per_s_wall"] = worlds / wall
     out["episode_samples_per_s_cpu"] = worlds / cpu
+    per_world = [(_one_world(ep, w), [emb.index[int(ep.design_index[w])]]) for w in range(min(single, worlds))]
+    wall, cpu = _best(lambda: [episode_tokens(e, r, steps=8, generator=gen) for e, r in per_world], 1)
+    out["episode_single_samples_per_s_wall"] = len(per_world) / wall
+    out["episode_single_samples_per_s_cpu"] = len(per_world) / cpu
     sub = emb.tokens.select(np.arange(min(detok, robots)))
     wall, cpu = _best(lambda: detokenize(sub), 1)
     out["detokenize_robots_per_s_wall"] = len(sub) / wall
@@ -118,21 +131,23 @@ def write_markdown(rows: list[dict], args) -> str:
              f"{', '.join(format(r['load_1min'], '.1f') for r in rows)}, {os.getloadavg()[0]:.1f} "
              f"on {os.cpu_count()} cores (other jobs share this machine: wall numbers shrink with load, CPU numbers less so)",
              f"- torch threads: {args.threads}",
-             f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps {args.steps} --single {args.single} --threads {args.threads}`", "",
+             f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps {args.steps} --single {args.single} --detok {args.detok} --repeats {args.repeats} --threads {args.threads}`", "",
              "## Throughput", "",
              f"Tokenize: {args.robots} compiled designs per space in one call (MJCF compile not timed); reference: "
              f"one call per robot, {args.single} robots, warm. "
              f"Episodes: {args.worlds} worlds x {args.steps} steps, 8 random steps per world, worlds spread over the "
-             f"tokenized designs. Detokenize: MJCF text + MuJoCo compile, {args.detok} robots. Best of {args.repeats} "
+             f"tokenized designs, in one call; reference: one world per call, {args.single} worlds. "
+             f"Detokenize: MJCF text + MuJoCo compile, {args.detok} robots. Best of {args.repeats} "
              "runs; wall clock and process CPU time (the machine may be shared).", "",
              "| space | topologies | tokenize robots/s cold (wall / CPU) | warm (wall / CPU) | one robot per call (wall / CPU) "
-             "| episode-samples/s (wall / CPU) | detokenize robots/s (wall / CPU) |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "| episode-samples/s (wall / CPU) | one world per call (wall / CPU) | detokenize robots/s (wall / CPU) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['space']} | {r['topologies']} | {r['tokenize_robots_per_s_wall']:,.0f} / {r['tokenize_robots_per_s_cpu']:,.0f} | "
                      f"{r['tokenize_warm_robots_per_s_wall']:,.0f} / {r['tokenize_warm_robots_per_s_cpu']:,.0f} | "
                      f"{r['tokenize_single_robots_per_s_wall']:,.0f} / {r['tokenize_single_robots_per_s_cpu']:,.0f} | "
                      f"{r['episode_samples_per_s_wall']:,.0f} / {r['episode_samples_per_s_cpu']:,.0f} | "
+                     f"{r['episode_single_samples_per_s_wall']:,.0f} / {r['episode_single_samples_per_s_cpu']:,.0f} | "
                      f"{r['detokenize_robots_per_s_wall']:,.0f} / {r['detokenize_robots_per_s_cpu']:,.0f} |")
     lines += ["", "Targets (issue): >= 2,000 robots/s and >= 20,000 episode-samples/s.", "",
               "## Token counts and MJCF size", "",

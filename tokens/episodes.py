@@ -1,8 +1,9 @@
 """Episodes -> dynamics RoboTokens (and target-pose tokens) at chosen control steps.
 
-`episode_tokens` reads a `tt.sim.episode.Episode` where it lies (CPU or GPU): it gathers
-only the chosen steps of the tensors it needs, with torch indexing on the episode's
-device, and never copies a whole episode. Worlds may run different robots (the Episode's
+`episode_tokens` reads a `tt.sim.episode.Episode` where it lies (CPU or GPU): it copies
+only the chosen steps (whole rows, once per tensor it needs) with torch indexing on the
+episode's device, never a whole episode, and picks every token's entries from those rows
+with one gather per token type. Worlds may run different robots (the Episode's
 ``design_index`` says which); their joint and actuator addresses come from the
 `RobotIndex` the tokenizer returned for each robot.
 
@@ -90,42 +91,92 @@ def _quat_to_mat(q: torch.Tensor) -> torch.Tensor:
     ], -1).reshape(*q.shape[:-1], 3, 3)
 
 
-def _per_world(robots: Sequence[RobotIndex], design_index: np.ndarray, field: str):
-    """(W, Emax) addresses of `field` per world (-1 padded) and the mask."""
-    arrays = [np.asarray(getattr(r, field)) for r in robots]
-    emax = max((len(a) for a in arrays), default=0)
-    table = np.full((len(robots), emax), -1, dtype=np.int64)
-    for i, a in enumerate(arrays):
-        table[i, : len(a)] = a
-    out = table[design_index]
-    return out, out >= 0
+# Address fields of RobotIndex that episode tokens read, each padded into one (R, Emax)
+# table: -1 marks entities a robot lacks.
+_ADDRESS_FIELDS = ("free_qposadr", "dyna_qposadr", "dyna_dofadr", "ball_qposadr", "ball_dofadr", "actuator_mj")
 
 
-def _gather(x: torch.Tensor, w: torch.Tensor, t: torch.Tensor, cols: torch.Tensor, width: int = 1) -> torch.Tensor:
-    """x[w, t, cols + i] for i < width: x (W, T, C), t (W, K), cols (W, E) -> (W, K, E, width).
+def _stack_padded(arrays: list[np.ndarray], trailing: tuple, fill, dtype) -> np.ndarray:
+    """(R, Emax, *trailing) array of R arrays of shapes (E_r, *trailing), `fill` past E_r.
 
-    Reads just those entries: one 1-D gather through a flat view of a contiguous tensor
-    (no copy of the episode), advanced indexing otherwise."""
-    idx = cols.clamp(min=0)[:, None, :, None] + torch.arange(width, device=x.device)
+    One concatenation and one masked assignment instead of a Python loop of row assignments."""
+    lens = np.fromiter(map(len, arrays), dtype=np.int64, count=len(arrays))
+    emax = int(lens.max(initial=0))
+    out = np.full((len(arrays), emax, *trailing), fill, dtype=dtype)
+    if emax:
+        # Empty arrays may lack the trailing dimensions (shape (0,)): leave them out.
+        out[np.arange(emax) < lens[:, None]] = np.concatenate([a for a, n in zip(arrays, lens.tolist()) if n])
+    return out
+
+
+def _robot_tables(robots: Sequence[RobotIndex]) -> dict[str, np.ndarray]:
+    """Padded tables of every robot's addresses, (R, Emax) int64 (-1 padded), and free-link
+    offsets, (R, Fmax, 3, 3) and (R, Fmax, 3) float64 (zero padded). Tables of entities
+    no robot has are (R, 0) (their partner fields are not read)."""
+    tables = {}
+    for f in _ADDRESS_FIELDS:
+        partner = {"dyna_dofadr": "dyna_qposadr", "ball_dofadr": "ball_qposadr"}.get(f)
+        if partner is not None and not tables[partner].shape[1]:
+            tables[f] = tables[partner]
+            continue
+        tables[f] = _stack_padded([getattr(r, f) for r in robots], (), -1, np.int64)
+    if tables["free_qposadr"].shape[1]:
+        tables["free_offset_rot"] = _stack_padded([r.free_offset_rot for r in robots], (3, 3), 0.0, np.float64)
+        tables["free_offset_pos"] = _stack_padded([r.free_offset_pos for r in robots], (3,), 0.0, np.float64)
+    return tables
+
+
+def _step_rows(x: torch.Tensor, rows: torch.Tensor, w: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """x[w, t] flattened: x (W, T, ...) -> (W*K, C); rows = w*T + t, w and t (W*K,).
+
+    Whole rows are copied (contiguous memory, one index_select) rather than single
+    entries: picking entries one by one costs several times more."""
+    c = int(np.prod(x.shape[2:]))
     if x.is_contiguous():
-        T, C = x.shape[1], x.shape[2]
-        flat = (w[:, None, None, None] * T + t[:, :, None, None]) * C + idx
-        return x.view(-1)[flat]
-    return x[w[:, None, None, None], t[:, :, None, None], idx]
+        return x.view(x.shape[0] * x.shape[1], c).index_select(0, rows)
+    return x[w, t].reshape(len(rows), c)
 
 
-def _pack(name: str, cols: dict[str, torch.Tensor], entity_ids: torch.Tensor, steps: torch.Tensor, valid: torch.Tensor) -> tuple:
-    """Attributes (W, K, E, dim) -> tokens (W, K*E, width), ids (W, K*E, 2), mask (W, K*E);
-    the values of invalid tokens are zero."""
-    t = SCHEMA[name]
-    parts = [cols[a.name].reshape(*cols[a.name].shape[:3], a.width) for a in t.attributes]
-    v = torch.cat(parts, -1) if len(parts) > 1 else parts[0].clone()
-    W, K, E = v.shape[:3]
-    ids = torch.empty(W, K, E, 2, dtype=torch.long, device=v.device)
-    ids[..., 0] = entity_ids[:, None, :]
+def _step_buffer(episode: Episode, names: Sequence[str], rows, w, t, invalid: torch.Tensor | None) -> tuple[torch.Tensor, dict, int]:
+    """The chosen steps of the episode tensors `names` side by side, and one zero column.
+
+    Returns the buffer (W*K, C) in the tensors' promoted dtype, the first column of each
+    tensor, and the zero column (what padded entities read). Rows of invalid steps are
+    zero (invalid: (n,) flat row numbers, or None)."""
+    parts, start, c = [], {}, 0
+    for n in names:
+        x = getattr(episode, n)
+        start[n] = c
+        parts.append(_step_rows(x, rows, w, t))
+        c += parts[-1].shape[1]
+    parts.append(torch.zeros(len(rows), 1, dtype=parts[0].dtype, device=rows.device))
+    buf = torch.cat(parts, 1)
+    if invalid is not None:
+        buf.index_fill_(0, invalid, 0.0)
+    return buf, start, c
+
+
+def _columns(addr: np.ndarray, width: int, start: int, limit: int, zero: int, field: str, source: str, used: np.ndarray) -> np.ndarray:
+    """Step-buffer columns of `width` entries from each address: addr (R, E) (-1 padded) ->
+    (R, E, width); padded entities read the zero column.
+
+    limit: column count of the episode tensor `source`; the addresses of the robots `used`
+    (R,) bool must fit in it."""
+    live = addr[used]
+    if live.size and int(live.max()) + width > limit:
+        bad = int(np.argmax((addr.max(1) + width > limit) & used))
+        raise ValueError(f"robots[{bad}].{field} reaches column {int(addr[bad].max()) + width - 1} of episode.{source}, "
+                         f"which has {limit} columns: the episode was not rolled out with this robot")
+    return np.where(addr[..., None] >= 0, start + addr[..., None] + np.arange(width), zero)
+
+
+def _token_ids(E: int, steps: torch.Tensor) -> torch.Tensor:
+    """(W, K*E, 2) IDs (entity, control step) of entities 0..E-1 at steps (W, K)."""
+    W, K = steps.shape
+    ids = torch.empty(W, K, E, 2, dtype=torch.long, device=steps.device)
+    ids[..., 0] = torch.arange(E, device=steps.device)
     ids[..., 1] = steps[:, :, None]
-    v.masked_fill_(~valid[..., None], 0.0)
-    return v.reshape(W, K * E, -1), ids.reshape(W, K * E, 2), valid.reshape(W, K * E)
+    return ids.reshape(W, K * E, 2)
 
 
 def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int = 8, mode: str = "random",
@@ -136,7 +187,8 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
 
     robots: `RobotIndex` per design, addressed by ``episode.design_index``; step_index:
     (W, K) steps to use instead of sampling (all valid). Returns a torch `TokenBatch` on the
-    episode's device, N = W; time IDs are the control step indices.
+    episode's device, N = W; time IDs are the control step indices. Tokens of invalid
+    steps and padded entities are zero.
     """
     dev = episode.qpos.device
     W, T = episode.worlds, episode.steps
@@ -152,73 +204,85 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
             raise ValueError(f"step_index must be (W={W}, K) with values in 0..{T - 1}, got shape {tuple(st.shape)}")
         valid = torch.ones_like(st, dtype=torch.bool)
     K = st.shape[1]
-    w = torch.arange(W, device=dev)
-    values, ids, mask = {}, {}, {}
-
-    def put(name, cols, ent_ids, ent_mask):
-        v, i, m = _pack(name, cols, ent_ids, st, valid[:, :, None] & ent_mask[:, None, :])
-        values[name], ids[name], mask[name] = v.to(dtype), i, m
-
-    def tens(a):
-        return torch.as_tensor(a, device=dev)
-
-    # Track links and targets: one per end effector.
     A = episode.ee_pos.shape[2]
     counts = {len(r.track_link) for r in robots}
     if counts != {A}:
         raise ValueError(f"episode has {A} end effectors but the robots have {sorted(counts)} track links")
+    tab = _robot_tables(robots)
+    used = np.bincount(design, minlength=len(robots)) > 0
+    # Every token reads rows (world, step) of the episode: copy those rows once per tensor.
+    w_rows = torch.arange(W, device=dev)[:, None].expand(W, K).reshape(-1)
+    t_rows = st.reshape(-1)
+    rows = w_rows * T + t_rows
+    invalid = None
+    if not bool(valid.all()):
+        invalid = torch.nonzero(~valid.reshape(-1))[:, 0]
+    values, ids, mask = {}, {}, {}
+
+    def put(name, v, ent_ok):
+        """v (W, K, E, width) -> tokens; ent_ok (W, E) numpy."""
+        E = v.shape[2]
+        m = valid[:, :, None] & torch.as_tensor(ent_ok, device=dev)[:, None, :]
+        values[name] = v.reshape(W, K * E, v.shape[3]).to(dtype)
+        ids[name], mask[name] = _token_ids(E, st), m.reshape(W, K * E)
+
+    # Track links and targets: one per end effector.
     if A:
-        ent = torch.arange(A, device=dev)[None].expand(W, A)
-        ok = torch.ones(W, A, dtype=torch.bool, device=dev)
         for name, p, q in (("track_link_obs", episode.ee_pos, episode.ee_quat), ("target_pose", episode.target_pos, episode.target_quat)):
-            pos = p[w[:, None], st]  # (W, K, A, 3)
-            rot = _quat_to_mat(q[w[:, None], st]).reshape(W, K, A, 9)
-            put(name, {"pos": pos, "rot": rot}, ent, ok)
+            pos = _step_rows(p, rows, w_rows, t_rows).view(W, K, A, 3)
+            rot = _quat_to_mat(_step_rows(q, rows, w_rows, t_rows).view(W, K, A, 4)).reshape(W, K, A, 9)
+            v = torch.cat([pos, rot], -1)
+            if invalid is not None:
+                v.masked_fill_(~valid[:, :, None, None], 0.0)
+            put(name, v, np.ones((W, A), dtype=bool))
+
+    F, D, B, nA = (tab[f].shape[1] for f in ("free_qposadr", "dyna_qposadr", "ball_qposadr", "actuator_mj"))
+    names = (("qpos",) if F or D or B else ()) + (("qvel",) if D or B else ()) + (("act_vel", "act_force", "action") if nA else ())
+    if not names:
+        return TokenBatch(values, ids, mask)
+    buf, start, zero = _step_buffer(episode, names, rows, w_rows, t_rows, invalid)
+    buf = buf.view(W, K, buf.shape[1])
+    width = {n: int(np.prod(getattr(episode, n).shape[2:])) for n in names}
+
+    def gather(cols):
+        """Buffer columns (R, E, width) of each robot -> values (W, K, E, width)."""
+        E, n = cols.shape[1], cols.shape[2]
+        idx = torch.as_tensor(cols[design].reshape(W, 1, E * n), device=dev).expand(W, K, E * n)
+        return buf.gather(2, idx).view(W, K, E, n)
+
+    def cols(field, source, n):
+        return _columns(tab[field], n, start[source], width[source], zero, field, source, used)
 
     # Free links: body pose from the free joint's qpos, then the link's offset in the body.
-    adr, ok_np = _per_world(robots, design, "free_qposadr")
-    if adr.shape[1]:
-        F = adr.shape[1]
-        a = tens(adr)
-        raw = _gather(episode.qpos, w, st, a, 7)  # (W, K, F, 7)
+    if F:
+        ok = tab["free_qposadr"] >= 0
+        raw = gather(cols("free_qposadr", "qpos", 7)).to(episode.qpos.dtype)  # (W, K, F, 7)
         rb = _quat_to_mat(raw[..., 3:])
-        off_r = np.zeros((W, F, 3, 3))
-        off_p = np.zeros((W, F, 3))
-        for i, r in enumerate(robots):
-            sel = design == i
-            f = len(r.free_qposadr)
-            off_r[sel, :f], off_p[sel, :f] = r.free_offset_rot, r.free_offset_pos
-        orr = tens(off_r).to(rb.dtype)[:, None]
-        opp = tens(off_p).to(rb.dtype)[:, None]
+        orr = torch.as_tensor(tab["free_offset_rot"][design], device=dev).to(rb.dtype)[:, None]
+        opp = torch.as_tensor(tab["free_offset_pos"][design], device=dev).to(rb.dtype)[:, None]
         rot = rb @ orr
         pos = (rb @ opp[..., None])[..., 0] + raw[..., :3]
-        put("free_link_obs", {"pos": pos, "rot": rot.reshape(W, K, F, 9)}, torch.arange(F, device=dev)[None].expand(W, F), tens(ok_np))
+        v = torch.cat([pos, rot.reshape(W, K, F, 9)], -1)
+        m = valid[:, :, None] & torch.as_tensor(ok[design], device=dev)[:, None, :]
+        v.masked_fill_(~m[..., None], 0.0)
+        put("free_link_obs", v, ok[design])
 
     # Hinge / slide joints.
-    qadr, ok_np = _per_world(robots, design, "dyna_qposadr")
-    if qadr.shape[1]:
-        vadr, _ = _per_world(robots, design, "dyna_dofadr")
-        D = qadr.shape[1]
-        put("dyna_joint_obs", {"qpos": _gather(episode.qpos, w, st, tens(qadr)), "qvel": _gather(episode.qvel, w, st, tens(vadr))},
-            torch.arange(D, device=dev)[None].expand(W, D), tens(ok_np))
+    if D:
+        c = np.concatenate([cols("dyna_qposadr", "qpos", 1), cols("dyna_dofadr", "qvel", 1)], -1)
+        put("dyna_joint_obs", gather(c), (tab["dyna_qposadr"] >= 0)[design])
 
     # Ball joints: quaternion with w >= 0 (q and -q are the same rotation), local angular velocity.
-    qadr, ok_np = _per_world(robots, design, "ball_qposadr")
-    if qadr.shape[1]:
-        vadr, _ = _per_world(robots, design, "ball_dofadr")
-        B = qadr.shape[1]
-        quat = _gather(episode.qpos, w, st, tens(qadr), 4)
-        quat = torch.where(quat[..., :1] < 0, -quat, quat)
-        put("ball_joint_obs", {"quat": quat, "angvel": _gather(episode.qvel, w, st, tens(vadr), 3)},
-            torch.arange(B, device=dev)[None].expand(W, B), tens(ok_np))
+    if B:
+        v = gather(np.concatenate([cols("ball_qposadr", "qpos", 4), cols("ball_dofadr", "qvel", 3)], -1))
+        quat = v[..., :4]
+        v[..., :4] = torch.where(quat[..., :1] < 0, -quat, quat)
+        put("ball_joint_obs", v, (tab["ball_qposadr"] >= 0)[design])
 
     # Actuators: observation and the clean command.
-    aadr, ok_np = _per_world(robots, design, "actuator_mj")
-    if aadr.shape[1]:
-        nA = aadr.shape[1]
-        a = tens(aadr)
-        ent = torch.arange(nA, device=dev)[None].expand(W, nA)
-        put("actuator_obs", {"velocity": _gather(episode.act_vel, w, st, a), "force": _gather(episode.act_force, w, st, a)}, ent, tens(ok_np))
-        put("control", {"target": _gather(episode.action, w, st, a)}, ent, tens(ok_np))
+    if nA:
+        ok = (tab["actuator_mj"] >= 0)[design]
+        put("actuator_obs", gather(np.concatenate([cols("actuator_mj", "act_vel", 1), cols("actuator_mj", "act_force", 1)], -1)), ok)
+        put("control", gather(cols("actuator_mj", "action", 1)), ok)
 
     return TokenBatch(values, ids, mask)
