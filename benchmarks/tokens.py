@@ -23,10 +23,16 @@ worker process per core). Usage: ``python benchmarks/tokens.py [--robots 1000] [
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import time
+
+# One thread per library (OpenMP, BLAS), as torch gets with --threads 1: on a shared 2-core
+# machine idle-spinning worker threads otherwise burn CPU time that the rates would count.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
 import warnings
 from pathlib import Path
 
