@@ -2,7 +2,7 @@
 
 from tt.baselines.cmaes import CMAES, CMAESConfig, CMAESPlan
 from tt.baselines.evaluate import Evaluation, evaluate_designs, warm_up
-from tt.baselines.problem import BACKENDS, Optimizer, Problem, Result
+from tt.baselines.problem import BACKENDS, Optimizer, Problem, Result, default_backend
 from tt.baselines.random_search import RandomSearch
 
 #: Optimizer names accepted by `get_optimizer` and `tt optimize --method`; zeroth and dgs
@@ -36,5 +36,5 @@ def get_optimizer(method: str, **options) -> Optimizer:
 
 __all__ = [
     "BACKENDS", "CMAES", "CMAESConfig", "CMAESPlan", "Evaluation", "METHODS", "Optimizer", "Problem",
-    "RandomSearch", "Result", "evaluate_designs", "get_optimizer", "warm_up",
+    "RandomSearch", "Result", "default_backend", "evaluate_designs", "get_optimizer", "warm_up",
 ]

@@ -25,6 +25,17 @@ from tt.sim.rollout import BACKENDS as _ROLLOUT_BACKENDS
 BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)
 
 
+def default_backend(space: str) -> str:
+    """The backend candidates of `space` are evaluated with when a problem names none:
+    ``"warp"`` (tt's kernels) for contact-free spaces, ``"mujoco"`` (the oracle) for spaces
+    with contacts (the quadruped), which ``"warp"`` cannot simulate. ``"mjwarp"`` simulates
+    them too; on a CPU it ran the quadruped at 0.02x (1 world) to 0.95x (256 worlds of one
+    structure) the oracle's world-steps per CPU second, and 0.03x for random designs, which
+    rarely share a structure (benchmarks/results/quadruped.md). Name it to use it, e.g. on
+    a GPU, where it was not measured."""
+    return "mujoco" if get_space(space).has_contacts else "warp"
+
+
 @dataclass(frozen=True)
 class Problem:
     """One design optimization problem.
@@ -40,7 +51,7 @@ class Problem:
     reward: str
     budget: int
     seed: int = 0
-    backend: str = "warp"
+    backend: str | None = None
     device: str | None = None
 
     def __post_init__(self) -> None:
@@ -65,8 +76,15 @@ class Problem:
             raise ValueError(f"Problem.budget = {self.budget!r}; must be an integer >= 1")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
             raise ValueError(f"Problem.seed = {self.seed!r}; must be an integer >= 0")
+        if self.backend is None:
+            object.__setattr__(self, "backend", default_backend(self.space))
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown backend {self.backend!r}; valid: {list(BACKENDS)}")
+        if self.backend == "warp" and sp.has_contacts:
+            raise ValueError(
+                f"Problem.backend = 'warp' cannot evaluate design space {self.space!r}: it has contacts, which "
+                "tt's kernels do not simulate; use 'mujoco' (the oracle), 'mjwarp', or None for the default"
+            )
         if self.device is not None:
             from tt.device import resolve_device
 

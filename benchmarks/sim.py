@@ -22,7 +22,7 @@ times come from a separate process per backend with an empty Warp kernel cache: 
 call (compile + run) and a second, warm call, on one design of each ViperX topology.
 
 Writes benchmarks/results/sim.md. Usage:
-    python benchmarks/sim.py [--sizes 1 64 1024 4096] [--budget 300] [--oracle-worlds 4]
+    python benchmarks/sim.py [--sizes 1 64 1024 4096] [--budget 300] [--oracle-worlds 32]
 """
 
 from __future__ import annotations
@@ -335,7 +335,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
     ap.add_argument("--budget", type=float, default=300.0, help="seconds allowed per closed-loop combination")
-    ap.add_argument("--oracle-worlds", type=int, default=4)
+    ap.add_argument("--oracle-worlds", type=int, default=32)
     ap.add_argument("--backends", nargs="+", default=list(CLOSED_LOOP))
     ap.add_argument("--no-compile-probe", action="store_true")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sim.md")

@@ -765,13 +765,22 @@ def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_desi
     """``tt generate --space S --designs N --episodes-per-design K --out DATASET [--device D]
     [--workers W] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]``.
 
-    action_noise None: `DEFAULT_ACTION_NOISE`. Generates or resumes the dataset and returns the summary text. Raises ValueError for
+    The rollout backend is `tt.baselines.problem.default_backend` of the space: "warp" for
+    contact-free spaces, "mujoco" (the oracle, one world at a time) for the quadruped.
+    action_noise None: `DEFAULT_ACTION_NOISE` on "warp", 0 on "mujoco" (which does not
+    perturb). Generates or resumes the dataset and returns the summary text. Raises ValueError for
     bad arguments and `DatasetError` when DATASET holds a dataset of other arguments.
     """
+    from tt.baselines.problem import default_backend
+
+    # tt's kernels for contact-free spaces, the oracle for spaces with contacts (the quadruped).
+    backend = default_backend(space)
+    if action_noise is None:
+        # Only the warp backend perturbs commands; the oracle runs the clean ones.
+        action_noise = DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
     config = GenerateConfig(space=space, designs=designs, episodes_per_design=episodes_per_design, seed=seed,
                             designs_per_shard=designs_per_shard, bias=bias, min_steps=min_steps,
-                            max_motion_steps=max_motion_steps,
-                            action_noise=DEFAULT_ACTION_NOISE if action_noise is None else action_noise)
+                            max_motion_steps=max_motion_steps, backend=backend, action_noise=action_noise)
     report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress)
     return report.text()
 

@@ -107,8 +107,14 @@ def validate(
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
+    episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
+    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (5 DDIM steps per control step) on tt's batched Warp physics."),
+    checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped one)."),
+    device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
 ) -> None:
-    """Run the MuJoCo + mink oracle on designs and motions; print the metrics table."""
+    """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
+    from types import SimpleNamespace
+
     from rich.console import Console
 
     from tt.baselines.evaluate import evaluate_designs
@@ -126,23 +132,42 @@ def validate(
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {sorted(spaces)}")
     ms = _motions(motion, motion_file, sp_name)
+    if controller not in ("ik", "model"):
+        _fail(f"--controller {controller!r} does not exist; controllers: ik, model")
     try:
-        ev = evaluate_designs(designs, ms, reward, backend="mujoco")
-    except ValueError as e:
+        if controller == "ik":
+            ev = evaluate_designs(designs, ms, reward, backend="mujoco")
+            title = "oracle (MuJoCo C + mink)"
+        else:
+            from tt.baselines.evaluate import score_episode
+            from tt.dit.checkpoint import default_checkpoint
+            from tt.dit.controller import model_rollout
+
+            ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name)
+            ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
+            ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
+            title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
+    except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
     rows = []
     for i, _ in enumerate(designs):
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
     if len(designs) > 1:
         rows.append({"name": "mean", **summary_row(ev.metrics)})
-    Console().print(rich_table(rows, columns_for(reward), title=f"oracle (MuJoCo C + mink), {reward}, motions: {', '.join(m.name for m in ms)}"))
+    Console().print(rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
         sp = get_space(sp_name)
         json_out.write_text(json.dumps({
-            "reward": reward, "motions": [m.name for m in ms],
+            "reward": reward, "controller": controller, "motions": [m.name for m in ms],
             "designs": [sp.to_dict(d) for d in designs], "metrics": rows,
             "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
         }, indent=1))
+    if episode is not None:
+        from tt.viz.episode_file import save_episode_npz
+
+        path = save_episode_npz(episode, ev.episode if controller == "ik" else ep, designs,
+                                motion_name=", ".join(m.name for m in ms))
+        typer.echo(f"wrote {path}: {len(designs) * len(ms)} rollouts; show them with `tt view {path}`")
 
 
 def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dict]:
@@ -166,9 +191,9 @@ def optimize(
     popsize: int = typer.Option(5, help="CMA-ES population size."),
     generations: int = typer.Option(3, help="CMA-ES generations per restart."),
     sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
-    backend: str = typer.Option("warp", help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco."),
+    backend: Optional[str] = typer.Option(None, help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco (default: warp, or mujoco for spaces with contacts: quadruped)."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="zeroth/dgs: DiT checkpoint file or run folder."),
+    checkpoint: Optional[Path] = typer.Option(None, help="zeroth/dgs: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
     samples: Optional[int] = typer.Option(None, help="zeroth/dgs: candidates to sample (default: --budget)."),
     num_steps: int = typer.Option(100, help="zeroth/dgs: DDIM steps."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
@@ -178,7 +203,8 @@ def optimize(
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
     Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
-    diffusion model's Zeroth-Order search and Dynamics Self-Guidance; need --checkpoint)."""
+    diffusion model's Zeroth-Order search and Dynamics Self-Guidance; they use the space's
+    shipped checkpoint unless --checkpoint is given)."""
     from rich.console import Console
 
     from tt.baselines import Problem, get_optimizer
@@ -192,7 +218,9 @@ def optimize(
             options = {"popsize": popsize, "generations": generations, "sequential": sequential}
         elif method in ("zeroth", "dgs"):
             if checkpoint is None:
-                raise ValueError(f"--method {method} needs --checkpoint (a run folder of `tt train`)")
+                from tt.dit.checkpoint import default_checkpoint
+
+                checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
             options = {"checkpoint": str(checkpoint), "samples": samples, "num_steps": num_steps}
             if method == "dgs":
                 options.update(scale=scale, sim_grad_weight=sim_grad_weight)
@@ -200,7 +228,7 @@ def optimize(
         problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
         if method == "cmaes":
             opt.plan(problem)  # a budget below one population fails here, before any work
-    except (DesignError, ValueError) as e:
+    except (DesignError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     try:
         result = opt.optimize(problem)
@@ -216,7 +244,7 @@ def optimize(
     if json_out is not None:
         json_out.write_text(json.dumps({
             "method": result.method, "space": space, "reward": reward, "motions": [m.name for m in ms],
-            "budget": budget, "seed": seed, "backend": backend, "optimize_seconds": result.seconds,
+            "budget": budget, "seed": seed, "backend": problem.backend, "optimize_seconds": result.seconds,
             "rollouts": result.rollouts, "objective": result.best_reward, "design": sp.to_dict(result.best),
             "validated": rows[0], "info": result.info,
         }, indent=1))
@@ -269,7 +297,7 @@ def train(
 
 @app.command()
 def generate(
-    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual (warp backend: contact-free spaces)."),
+    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual (tt's warp kernels), quadruped (the MuJoCo + mink oracle: contacts)."),
     designs: int = typer.Option(..., help="Number of designs N."),
     episodes_per_design: int = typer.Option(10, help="Episodes per design K (augmented training motions)."),
     out: Path = typer.Option(..., help="Dataset folder (zarr v3 store); run the same command again to resume it."),
@@ -280,13 +308,15 @@ def generate(
     ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt[ray]')."),
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
+    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.generate.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
     from tt.tokens.generate import generate_cmd
 
     try:
         typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
-                                bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps))
+                                bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
+                                action_noise=action_noise))
     except ValueError as e:  # DatasetError, DesignError and bad arguments are ValueErrors
         _fail(str(e))
 
@@ -316,22 +346,29 @@ def demo(
     motion: str = typer.Option("toss", help="Target motion (library name or file)."),
     reward: str = typer.Option("tracking", help="Reward name."),
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
+    samples: int = typer.Option(16, help="Candidates for Zeroth-Order and Self-Guidance."),
+    num_steps: int = typer.Option(20, help="DDIM steps of Zeroth-Order and Self-Guidance (of 100)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the space's shipped one)."),
     seed: int = typer.Option(0, help="Random seed."),
     out: Path = typer.Option(Path("tt_demo"), help="Folder for demo.json and demo.html."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
 ) -> None:
-    """The main job: co-design a robot for a motion with every method; validate; show the winners."""
+    """The main job: co-design a robot for a motion with every method; validate; show the winners.
+
+    Random and batched CMA-ES always run; Zeroth-Order and Dynamics Self-Guidance run when
+    the space has a shipped DiT checkpoint (or --checkpoint is given)."""
     from rich.console import Console
 
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 
-    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, seed=seed, out=out, device=device)
     try:
+        config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, samples=samples, num_steps=num_steps,
+                            checkpoint=checkpoint, seed=seed, out=out, device=device)
         rows = run_demo(config, echo=typer.echo)
-    except ValueError as e:
+    except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
-    extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")]
+    extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + ([("note", "note")] if any("note" in r for r in rows) else [])
     Console().print(rich_table(rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"))
 
 

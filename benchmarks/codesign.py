@@ -1,0 +1,648 @@
+"""Co-design on ViperX with the diffusion model vs the baselines: the paper's tables, test-time
+scaling and the simulator-gradient (lambda) ablation.
+
+Methods, each on the same problem (design space ViperX, target motions, reward, seed):
+Random (the best of `--budget` random designs, one batched Warp rollout), CMA-ES batched
+(tt's default CMA-ES, every generation one Warp rollout, budget `--budget`), Zeroth-Order
+(`--n` model samples ranked by the model's own reward prediction, no simulator) and Dynamics
+Self-Guidance (`--dgs-n` guided samples, ranked the same way). The MuJoCo + mink oracle
+re-runs every winner on its run's motions: the tables show those validated numbers.
+
+Parts (``--parts``, run in this order, the tracking reward first):
+* table: per setting and reward, every method on every seed; mean and 95% CI (Student t)
+  over the runs of validated position / orientation error, survival, the reward's own
+  metric, validated reward and optimize time. Single trajectory: run i (seed i) optimizes
+  for one validation motion (the i-th of the list benchmarks/optimize.py uses); multi
+  trajectory: one design for a fixed set of `--multi-motions` validation motions.
+* scaling: single trajectory, tracking, seeds 0 .. `--scaling-seeds` - 1: validated reward
+  of Zeroth-Order and Self-Guidance at n = `--scaling-n` and of CMA-ES batched (and
+  Random) at budgets `--scaling-budgets`, against n and against optimize time.
+* lambda: Self-Guidance with the differentiable-simulation gradient mixed in
+  (``--sim-grad-weight`` lambda = `--lambdas`) on `--lambda-seeds` single-trajectory runs
+  with `--lambda-n` samples; the simulator gradient runs from guided step `--lambda-start`.
+
+Timing. Every optimize time is the optimizer's wall time for its problem; validation is
+excluded. One-time costs are excluded and reported: the Warp kernel compile (or cache
+load) and first calls of the rollout backends (a warm-up before anything is timed, as in
+benchmarks/optimize.py), loading the checkpoint and building ViperX's decoding table
+(`tt.tokens.design_fit.CandidateTable`), once per process, shared by the learned methods.
+
+Prints one JSON line per run, the script's own run time, and writes
+benchmarks/results/codesign.md with codesign.png, codesign_scaling.png and
+codesign_lambda.png. ``--from-log LOG`` rewrites the report from a run's printed lines.
+``--max-minutes`` stops starting new runs after that much wall time; the report lists what
+was skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
+from tt.guidance.rewards import REWARDS
+from tt.report import REWARD_METRIC, markdown_table, summary_row
+from tt.sim.designs import get_space
+from tt.sim.motions import for_space, motion_set
+from tt.sim.motions.base import Motion
+
+try:
+    from machine import machine_header
+except ImportError:  # run as a module from the repository root
+    from benchmarks.machine import machine_header
+
+RESULTS = Path(__file__).parent / "results"
+SPACE = "viperx"
+RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
+METHODS = (RANDOM, CMAES_B, ZEROTH, DGS)
+LEARNED = (ZEROTH, DGS)
+SINGLE, MULTI = "single trajectory", "multi trajectory"
+
+#: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
+PAPER = {
+    SINGLE: [("Random", 19.4, 8.9, 72.2, None), ("CMA-ES", 5.0, 5.7, 98.3, 47.5), ("Zeroth", 4.1, 4.2, 96.1, 0.5),
+             ("DGS", 4.1, 3.9, 99.4, 2.8)],
+    MULTI: [("Random", 17.0, 9.4, 80.6, None), ("CMA-ES", 7.1, 6.1, 86.7, 663.8), ("Zeroth", 3.4, 3.9, 95.6, 1.2),
+            ("DGS", 2.4, 3.5, 98.9, 43.5)],
+}
+
+
+# ------------------------------------------------------------------------------ setup
+@dataclass
+class Learned:
+    """The model and decoder the learned methods share, and what loading them took."""
+
+    trained: object
+    decoder: object
+    checkpoint: Path
+    seconds: float
+
+
+def load_learned(checkpoint: Path) -> Learned:
+    from tt.dit.checkpoint import load_model
+    from tt.guidance.zeroth import DesignDecoder
+    from tt.tokens.design_fit import CandidateTable
+
+    start = time.perf_counter()
+    trained = load_model(checkpoint, device="cpu")
+    space = get_space(SPACE)
+    decoder = DesignDecoder(space, table=CandidateTable(space))
+    return Learned(trained, decoder, Path(checkpoint), time.perf_counter() - start)
+
+
+def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
+    if method == RANDOM:
+        return RandomSearch()
+    if method == CMAES_B:
+        return CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
+    from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
+    from tt.guidance.zeroth import SamplerConfig, ZerothOrder
+
+    if method == ZEROTH:
+        return ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder)
+    start = args.lambda_start if lam > 0 else 0
+    return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
+                                model=learned.trained, decoder=learned.decoder)
+
+
+# ------------------------------------------------------------------------------ runs
+def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, entries: list[tuple[str, int, float]],
+              args, learned: Learned | None) -> list[dict]:
+    """Every (method, n, lambda) of `entries` on one problem, winners validated in one oracle call."""
+    results = []
+    for method, n, lam in entries:
+        problem = Problem(SPACE, motions, reward, n, seed=seed, backend="warp", device="cpu")
+        start = time.perf_counter()
+        try:
+            results.append((method, n, lam, optimizer(method, args, learned, lam=lam).optimize(problem), None))
+        except ValueError as e:  # a learned method whose candidates all fail to decode returns no design
+            results.append((method, n, lam, None, (str(e), time.perf_counter() - start)))
+    done = [r for r in results if r[3] is not None]
+    ev = evaluate_designs([r[3].best for r in done], motions, reward, backend="mujoco") if done else None
+    records, k = [], 0
+    for method, n, lam, res, failure in results:
+        rec = {"bench": "codesign", "part": part, "setting": setting, "reward_name": reward, "seed": seed,
+               "motions": [m.name for m in motions], "method": method, "n": n, "lambda": lam}
+        if res is None:
+            rec.update(ok=False, error=failure[0], seconds=failure[1])
+        else:
+            info = res.info
+            rec.update(ok=True, seconds=res.seconds, rollouts=res.rollouts, objective=res.best_reward,
+                       warmup_seconds=info.get("warmup_seconds", 0.0), decode_failures=info.get("decode_failures"),
+                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"),
+                       **summary_row(ev.metrics, k), design=get_space(SPACE).to_dict(res.best))
+            k += 1
+        records.append(rec)
+        print(json.dumps(rec), flush=True)
+    return records
+
+
+# ------------------------------------------------------------------------------ statistics
+def mean_ci(values) -> tuple[float, float]:
+    """Mean and 95% CI half-width (Student t) of the finite values; NaN when there are none."""
+    from scipy.stats import t
+
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
+    if v.size == 0:
+        return float("nan"), float("nan")
+    if v.size == 1:
+        return float(v[0]), float("nan")
+    return float(v.mean()), float(t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+
+
+def _fmt(m: float, h: float, digits: int = 3) -> str:
+    if not math.isfinite(m):
+        return "-"
+    body = f"{m:.{digits}g}" if abs(m) < 1000 else f"{m:.0f}"
+    if not math.isfinite(h):
+        return body
+    return f"{body} ± {h:.2g}" if abs(h) < 1000 else f"{body} ± {h:.0f}"
+
+
+def _ok(records: list[dict]) -> list[dict]:
+    return [r for r in records if r["ok"]]
+
+
+def aggregate(records: list[dict], label: str, reward: str, extra: dict | None = None) -> dict:
+    ok = _ok(records)
+    row = {"name": label, "runs": f"{len(ok)}/{len(records)}"}
+    keys = ["pos_err", "orn_err", "survival_pct", "reward", "seconds"]
+    metric = REWARD_METRIC.get(reward)
+    if metric:
+        keys.insert(3, metric[0])
+    for key in keys:
+        row[key] = _fmt(*mean_ci([r.get(key) for r in ok]))
+    row.update(extra or {})
+    return row
+
+
+def columns(reward: str, extra=()) -> list[tuple[str, str]]:
+    cols = [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)")]
+    metric = REWARD_METRIC.get(reward)
+    if metric:
+        cols.append(metric)
+    return cols + [("reward", "reward"), ("seconds", "optimize (s)"), ("runs", "runs with a design")] + list(extra)
+
+
+def paired(records: list[dict], a: tuple, b: tuple, key: str) -> list[float]:
+    """Per seed: record a's key minus record b's; a and b are (method, n) (n None: any)."""
+    def pick(method, n):
+        return {r["seed"]: r for r in _ok(records) if r["method"] == method and (n is None or r["n"] == n)}
+    ra, rb = pick(*a), pick(*b)
+    return [ra[s][key] - rb[s][key] for s in sorted(set(ra) & set(rb))]
+
+
+# ------------------------------------------------------------------------------ plots
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_tables(tables: dict[str, list[dict]], path: Path) -> None:
+    plt = _plt()
+    fig, axes = plt.subplots(2, len(tables), figsize=(6.5 * len(tables), 7), squeeze=False)
+    for col, (name, records) in enumerate(tables.items()):
+        rewards = list(dict.fromkeys(r["reward_name"] for r in records))
+        labels = [m for m in METHODS if any(r["method"] == m for r in records)]
+        width = 0.8 / len(labels)
+        for row, key in enumerate(("reward", "seconds")):
+            ax = axes[row][col]
+            for j, label in enumerate(labels):
+                ms = [mean_ci([r[key] for r in _ok(records) if r["method"] == label and r["reward_name"] == rw])
+                      for rw in rewards]
+                x = np.arange(len(rewards)) + (j - (len(labels) - 1) / 2) * width
+                ax.bar(x, [0 if not math.isfinite(m) else m for m, _ in ms], width,
+                       yerr=[0 if not math.isfinite(h) else h for _, h in ms], capsize=3, label=label)
+            ax.set_xticks(np.arange(len(rewards)), rewards, rotation=15)
+            ax.set_ylabel("validated reward" if key == "reward" else "optimize time (s)")
+            if key == "seconds":
+                ax.set_yscale("log")
+            ax.set_title(f"ViperX, {name}")
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def scaling_series(records: list[dict]) -> dict[str, list[tuple[int, tuple, tuple]]]:
+    """method -> [(n, (reward mean, ci), (seconds mean, ci))] over n."""
+    out = {}
+    for method in METHODS:
+        ns = sorted({r["n"] for r in records if r["method"] == method})
+        pts = []
+        for n in ns:
+            rs = [r for r in records if r["method"] == method and r["n"] == n]
+            pts.append((n, mean_ci([r["reward"] for r in _ok(rs)]), mean_ci([r["seconds"] for r in rs])))
+        if pts:
+            out[method] = pts
+    return out
+
+
+def plot_scaling(records: list[dict], path: Path) -> None:
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for method, pts in scaling_series(records).items():
+        n = np.array([p[0] for p in pts], dtype=float)
+        r = np.array([p[1][0] for p in pts])
+        h = np.nan_to_num(np.array([p[1][1] for p in pts]))
+        s = np.array([p[2][0] for p in pts])
+        for ax, x in ((axes[0], n), (axes[1], s)):
+            ax.plot(x, r, "o--" if method in (RANDOM, CMAES_B) else "o-", label=method)
+            ax.fill_between(x, r - h, r + h, alpha=0.2)
+    axes[0].set_xscale("log", base=2)
+    axes[0].set_xlabel("n (samples; rollout budget for Random / CMA-ES)")
+    axes[1].set_xscale("log")
+    axes[1].set_xlabel("optimize wall time (s), this CPU")
+    for ax in axes:
+        ax.set_ylabel("validated reward (oracle)")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.suptitle("ViperX single trajectory, tracking: test-time scaling (mean ± 95% CI over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_lambda(records: list[dict], path: Path) -> None:
+    plt = _plt()
+    lams = sorted({r["lambda"] for r in records})
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, key, label in ((axes[0], "reward", "validated reward"), (axes[1], "seconds", "optimize time (s)")):
+        ms = [mean_ci([r[key] for r in _ok(records) if r["lambda"] == lam]) for lam in lams]
+        ax.errorbar(lams, [m for m, _ in ms], yerr=[0 if not math.isfinite(h) else h for _, h in ms], fmt="o-", capsize=3)
+        ax.set_xlabel("lambda (share of the simulator gradient)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle("Self-Guidance with differentiable-simulation gradient mixing")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ report
+def targets(tables: dict[str, list[dict]], scaling: list[dict], info: dict) -> list[str]:
+    """The issue's two targets, each with its numbers and a verdict."""
+    lines = []
+    single = [r for r in tables.get(SINGLE, []) if r["reward_name"] == "tracking"]
+    n_big = info["n"]
+    z = [r for r in single if r["method"] == ZEROTH and r["n"] == n_big]
+    c = [r for r in single if r["method"] == CMAES_B]
+    if z and c:
+        zp, zh = mean_ci([r.get("pos_err") for r in _ok(z)])
+        cp, ch = mean_ci([r.get("pos_err") for r in _ok(c)])
+        zs, _ = mean_ci([r["seconds"] for r in z])
+        cs, _ = mean_ci([r["seconds"] for r in c])
+        ratio = cs / zs if zs > 0 else float("nan")
+        d = paired(single, (ZEROTH, n_big), (CMAES_B, None), "pos_err")
+        dm, dh = mean_ci(d)
+        pos_ok = len(_ok(z)) == len(z) and math.isfinite(zp) and zp <= cp
+        time_ok = ratio >= 10
+        lines.append(
+            f"- Zeroth-Order (n={n_big}) vs CMA-ES batched (budget {info['budget']}), single trajectory, tracking, "
+            f"{len(z)} runs: validated position error {_fmt(zp, zh)} vs {_fmt(cp, ch)} cm (paired difference "
+            f"{_fmt(dm, dh)} cm; Zeroth-Order returned a design in {len(_ok(z))} of {len(z)} runs); optimize time "
+            f"{zs:.3g} s vs {cs:.3g} s, CMA-ES / Zeroth-Order = {ratio:.2g}x. Target (error no worse, >= 10x less "
+            f"time): error {'met' if pos_ok else 'NOT met'}, time {'met' if time_ok else 'NOT met'}."
+        )
+    z1 = paired(scaling, (DGS, 1), (ZEROTH, 1), "reward")
+    one = {m: [r for r in scaling if r["method"] == m and r["n"] == 1] for m in (ZEROTH, DGS)}
+    if not z1 and one[ZEROTH] and one[DGS]:
+        lines.append(
+            f"- Self-Guidance vs Zeroth-Order at n=1, single trajectory, tracking: Self-Guidance returned a design in "
+            f"{len(_ok(one[DGS]))} of {len(one[DGS])} runs, Zeroth-Order in {len(_ok(one[ZEROTH]))} of "
+            f"{len(one[ZEROTH])}; no run where both did, so no paired comparison. Target (Self-Guidance beats "
+            f"Zeroth-Order at n=1): NOT shown."
+        )
+    if z1:
+        m, h = mean_ci(z1)
+        zr = mean_ci([r["reward"] for r in _ok(scaling) if r["method"] == ZEROTH and r["n"] == 1])
+        gr = mean_ci([r["reward"] for r in _ok(scaling) if r["method"] == DGS and r["n"] == 1])
+        wins = sum(x > 0 for x in z1)
+        lines.append(
+            f"- Self-Guidance vs Zeroth-Order at n=1, single trajectory, tracking, {len(z1)} paired runs: validated "
+            f"reward {_fmt(*gr)} vs {_fmt(*zr)}, paired difference {_fmt(m, h)} (Self-Guidance higher in {wins} of "
+            f"{len(z1)}). Target (Self-Guidance beats Zeroth-Order at n=1): {'met' if m > 0 else 'NOT met'}"
+            f"{'' if not math.isfinite(h) or m - h > 0 or m <= 0 else ' on the mean, though the 95% CI includes 0'}."
+        )
+    return lines
+
+
+def notes(records: list[dict], info: dict) -> str:
+    """What the numbers mean and what was cut; the decode statistics of this run."""
+    learned = [r for r in records if r["method"] in LEARNED]
+    candidates = sum(r["n"] for r in learned)
+    undecoded = sum(r["n"] for r in learned if not r["ok"]) + sum(r.get("decode_failures") or 0 for r in _ok(learned))
+    lines = [
+        "## Notes",
+        "",
+        f"- Decoding. A learned method's winner is the best-ranked candidate whose embodiment tokens decode to a "
+        f"ViperX design (`tt.tokens.design_from_tokens`: token counts and every binary attribute must match a "
+        f"discrete choice of the space exactly; continuous choices are then fitted). In this run {undecoded} of the "
+        f"{candidates} candidates tried did not decode"
+        + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "") + ". A run where none decodes returns no "
+        "design: its row counts it under 'runs with a design' and its errors and reward are left out (not zero).",
+        "- Timing. Zeroth-Order and Self-Guidance times are the whole `optimize` call: sampling (n sequences of one "
+        "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
+        "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
+        "this 2-core CPU the DiT's forward pass over n x ~240 tokens dominates the learned methods' time, so they "
+        "scale about linearly in n x steps; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
+        "- Cuts, to fit about 40 minutes of a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 "
+        f"settings on a GPU): {info['steps']} DDIM steps instead of 100; the seeds, rewards and sample counts listed "
+        "above; the scaling part's Self-Guidance stops at n = the table's; the lambda part runs few samples and seeds "
+        "and mixes the simulator gradient into the last guided steps only (each such step decodes, differentiates "
+        "and simulates every candidate).",
+        "- Other jobs shared the machine (see the load averages above); the methods of one run ran back to back, so "
+        "they saw similar load.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def report(records: list[dict], info: dict, out: Path) -> str:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tables: dict[str, list[dict]] = {}
+    for r in records:
+        if r["part"] == "table":
+            tables.setdefault(r["setting"], []).append(r)
+    scaling = [r for r in records if r["part"] == "scaling" or (
+        r["part"] == "table" and r["setting"] == SINGLE and r["reward_name"] == "tracking"
+        and r["seed"] < info["scaling_seeds"])]
+    lam = [r for r in records if r["part"] == "lambda"]
+    sections = []
+    for name, rs in tables.items():
+        head = f"## ViperX, {name}\n\n"
+        if name == SINGLE:
+            first = [r for r in rs if r["method"] == rs[0]["method"] and r["reward_name"] == rs[0]["reward_name"]]
+            head += f"- run i (seed i) optimizes for motion i of: {', '.join(r['motions'][0] for r in first)}\n"
+        else:
+            head += (f"- every run optimizes one design for the mean over {len(rs[0]['motions'])} validation motions: "
+                     f"{', '.join(rs[0]['motions'])}\n")
+        for reward in dict.fromkeys(r["reward_name"] for r in rs):
+            sub = [r for r in rs if r["reward_name"] == reward]
+            rows = []
+            for method in METHODS:
+                mr = [r for r in sub if r["method"] == method]
+                if mr:
+                    # A run without a design tried (and failed) every one of its n candidates.
+                    fails = sum(r.get("decode_failures") or 0 for r in _ok(mr)) + sum(r["n"] for r in mr if not r["ok"])
+                    extra = {"n": str(mr[0]["n"])}
+                    if method in LEARNED:
+                        extra["decode"] = f"{fails / len(mr):.1f}"
+                    rows.append(aggregate(mr, method, reward, extra))
+            table = markdown_table(rows, columns(reward, [("n", "n / budget"), ("decode", "failed decodes per run")]),
+                                   first=("name", "method"))
+            seeds = sorted({r["seed"] for r in sub})
+            head += f"\n### {reward} ({len(seeds)} runs: seeds {', '.join(map(str, seeds))})\n\n{table}\n"
+        paper = PAPER.get(name)
+        if paper and any(r["reward_name"] == "tracking" for r in rs):
+            prow = [{"name": p[0], "pos_err": p[1], "orn_err": p[2], "survival_pct": p[3], "seconds": p[4]} for p in paper]
+            head += ("\nThe paper's table (RTX 4090, 3.8M-episode dataset, 11.6M-parameter model, its own budgets; "
+                     "not comparable run for run):\n\n" + markdown_table(
+                         prow, [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)"),
+                                ("seconds", "optimize (s)")], first=("name", "method")) + "\n")
+        sections.append(head)
+    if scaling:
+        rows = []
+        for method, pts in scaling_series(scaling).items():
+            for n, (rm, rh), (sm, sh) in pts:
+                rs = [r for r in scaling if r["method"] == method and r["n"] == n]
+                rows.append({"name": method, "n": str(n), "reward": _fmt(rm, rh), "seconds": _fmt(sm, sh),
+                             "pos_err": _fmt(*mean_ci([r.get("pos_err") for r in _ok(rs)])),
+                             "runs": f"{len(_ok(rs))}/{len(rs)}"})
+        seeds = sorted({r["seed"] for r in scaling})
+        sections.append(
+            f"## Test-time scaling (single trajectory, tracking; seeds {', '.join(map(str, seeds))})\n\n"
+            "![scaling](codesign_scaling.png)\n\n"
+            + markdown_table(rows, [("n", "n / budget"), ("reward", "validated reward"), ("pos_err", "pos err (cm)"),
+                                    ("seconds", "optimize (s)"), ("runs", "runs with a design")], first=("name", "method"))
+            + "\n"
+        )
+        plot_scaling(scaling, out.parent / "codesign_scaling.png")
+    if lam:
+        rows = []
+        for value in sorted({r["lambda"] for r in lam}):
+            rs = [r for r in lam if r["lambda"] == value]
+            sims = [r.get("sim") or {} for r in _ok(rs)]
+            rows.append({**aggregate(rs, f"lambda = {value:g}", "tracking"),
+                         "sim": f"{sum(s.get('candidates', 0) for s in sims)} / {sum(s.get('decode_failures', 0) for s in sims)}"})
+        seeds = sorted({r["seed"] for r in lam})
+        sections.append(
+            f"## Simulator-gradient mixing: Self-Guidance with `--sim-grad-weight` lambda (single trajectory, tracking; "
+            f"n = {lam[0]['n']}, seeds {', '.join(map(str, seeds))}; simulator gradient from guided step "
+            f"{info['lambda_start']} of {info['steps']})\n\n![lambda](codesign_lambda.png)\n\n"
+            + markdown_table(rows, columns("tracking", [("sim", "simulated / undecodable candidate-steps")]),
+                             first=("name", "")) + "\n"
+        )
+        plot_lambda(lam, out.parent / "codesign_lambda.png")
+    if tables:
+        plot_tables(tables, out.with_suffix(".png"))
+    goal = targets(tables, scaling, info)
+    skipped = info.get("skipped", [])
+    text = (
+        "# Co-design: Random, CMA-ES, Zeroth-Order and Self-Guidance on ViperX\n\n"
+        + info["machine"]
+        + f"- load average (1, 5, 15 min) at start {info['load_start']}, at end {info.get('load_end', '-')}\n"
+        f"- command: `{info['command']}`\n"
+        f"- run time {info.get('wall_seconds', float('nan')):.0f} s wall; before any timing: warm-up (kernel compile or "
+        f"cache load, first calls) {info['warmup_seconds']:.0f} s, checkpoint load and decoding table "
+        f"{info['learned_seconds']:.1f} s\n"
+        f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
+        f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
+        f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
+        f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory {info['multi_n']} "
+        f"and {info['multi_dgs_n']}); Random and CMA-ES budget {info['budget']} candidates per motion (multi "
+        f"trajectory {info['multi_budget']}); CMA-ES population {info['popsize']}, {info['generations']} generations "
+        f"per restart, half the budget screened first (tt's default)\n"
+        "- one row: mean ± 95% CI (Student t) over runs (seed i). Errors, survival, the reward's metric and the "
+        "reward are the oracle's (MuJoCo C + mink) re-run of each winner on its run's motions; a learned method "
+        "returns no design when none of its candidates decodes to a ViperX design (counted in 'runs with a "
+        "design'; its time still counts)\n"
+        + ("- skipped (over --max-minutes): " + "; ".join(skipped) + "\n" if skipped else "")
+        + "\n## The issue's targets\n\n" + ("\n".join(goal) if goal else "- not measured in this run") + "\n\n"
+        + "\n".join(sections)
+        + "\n![tables](codesign.png)\n\n" + notes(records, info)
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return text
+
+
+def read_log(path: Path) -> tuple[list[dict], dict]:
+    records, info = [], {}
+    for line in path.read_text().splitlines():
+        if not line.startswith("{"):
+            continue
+        rec = json.loads(line)
+        if "method" in rec:
+            records.append(rec)
+        elif "config" in rec:
+            info.update(rec["config"])
+        elif "end" in rec:
+            info.update(rec["end"])
+    return records, info
+
+
+# ------------------------------------------------------------------------------ main
+def _ints(text: str) -> list[int]:
+    return [int(x) for x in text.split(",") if x]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
+    ap.add_argument("--parts", default="table,scaling,lambda", help="comma-separated: table, scaling, lambda")
+    ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
+    ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
+    ap.add_argument("--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none")
+    ap.add_argument("--multi-motions", type=int, default=5, help="validation motions per multi-trajectory run")
+    ap.add_argument("--n", type=int, default=128, help="Zeroth-Order samples (table, single trajectory)")
+    ap.add_argument("--dgs-n", type=int, default=32, help="Self-Guidance samples (table, single trajectory)")
+    ap.add_argument("--multi-n", type=int, default=32, help="Zeroth-Order samples (multi trajectory)")
+    ap.add_argument("--multi-dgs-n", type=int, default=8, help="Self-Guidance samples (multi trajectory)")
+    ap.add_argument("--budget", type=int, default=128, help="Random and CMA-ES candidates per run (single trajectory)")
+    ap.add_argument("--multi-budget", type=int, default=128, help="Random and CMA-ES candidates per motion (multi)")
+    ap.add_argument("--steps", type=int, default=20, help="DDIM steps of the learned methods (of 100)")
+    ap.add_argument("--popsize", type=int, default=5)
+    ap.add_argument("--generations", type=int, default=3)
+    ap.add_argument("--scaling-seeds", type=int, default=3)
+    ap.add_argument("--scaling-n", default="1,2,4,8,16,32,64,128", help="Zeroth-Order and Self-Guidance sample counts")
+    ap.add_argument("--scaling-dgs-max", type=int, default=32, help="largest Self-Guidance n in the scaling part")
+    ap.add_argument("--scaling-budgets", default="5,10,20,40,80,128", help="Random and CMA-ES budgets (>= popsize)")
+    ap.add_argument("--lambdas", default="0,0.25,0.5,1")
+    ap.add_argument("--lambda-seeds", type=int, default=2)
+    ap.add_argument("--lambda-n", type=int, default=4)
+    ap.add_argument("--lambda-start", type=int, default=15, help="first guided step with the simulator gradient")
+    ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
+    ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
+    ap.add_argument("--from-log", type=Path, default=None, help="rewrite the report from a run's printed JSON lines")
+    args = ap.parse_args()
+    command = "python benchmarks/codesign.py " + " ".join(
+        f"--{k.replace('_', '-')} {v if v != '' else chr(39) * 2}" for k, v in vars(args).items()
+        if k not in ("out", "from_log") and v is not None)
+    if args.from_log is not None:
+        records, info = read_log(args.from_log)
+        print(report(records, info, args.out))
+        return
+
+    t0 = time.perf_counter()
+    from tt.dit.checkpoint import default_checkpoint
+
+    checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE)
+    parts = [p for p in args.parts.split(",") if p]
+    unknown = sorted(set(parts) - {"table", "scaling", "lambda"})
+    if unknown:
+        sys.exit(f"--parts: unknown {unknown}; valid: table, scaling, lambda")
+    rewards = list(REWARDS) if args.rewards == "all" else [r for r in args.rewards.split(",") if r]
+    multi_rewards = list(REWARDS) if args.multi_rewards == "all" else [r for r in args.multi_rewards.split(",") if r]
+    # The tracking reward first, then the others (a --max-minutes cut drops the others first).
+    rewards.sort(key=lambda r: r != "tracking")
+    multi_rewards.sort(key=lambda r: r != "tracking")
+
+    val = for_space(motion_set("val", arms=1), SPACE)
+    skills = len(val) // 3  # the validation split holds 3 variants of each skill
+    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds)
+    single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
+    step = max(1, len(val) // args.multi_motions)
+    multi_motions = tuple(val[::step][: args.multi_motions])
+
+    info = {
+        "machine": machine_header("cpu"), "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
+        "command": command, "checkpoint": str(checkpoint), "steps": args.steps, "n": args.n, "dgs_n": args.dgs_n,
+        "multi_n": args.multi_n, "multi_dgs_n": args.multi_dgs_n, "budget": args.budget, "multi_budget": args.multi_budget,
+        "popsize": args.popsize, "generations": args.generations, "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
+        "lambda_start": args.lambda_start,
+    }
+    # One-time costs, before any timing: the model and decoding table, every ViperX topology's
+    # kernels (rollout, and the differentiable rollout for the lambda part), first calls.
+    learned = load_learned(checkpoint)
+    info.update(learned_seconds=learned.seconds, checkpoint_step=learned.trained.step,
+                parameters=sum(p.numel() for p in learned.trained.model.parameters()))
+    t = time.perf_counter()
+    space = get_space(SPACE)
+    for reward in dict.fromkeys(rewards + multi_rewards + ["tracking"]):
+        warm_up(space.sample(200, seed=12345), val[:1], reward=reward, backend="warp", device="cpu")
+        warm_up(space.sample(1, seed=12345), val[:1], reward=reward, backend="mujoco")
+    short = (Motion(val[0].name, val[0].pos[:20], val[0].quat[:20], val[0].dt),)
+    for method in LEARNED:
+        try:
+            optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
+                Problem(SPACE, short, "tracking", 2, seed=0, device="cpu"))
+        except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
+            pass
+    if "lambda" in parts:
+        from tt.guidance.rewards import get_reward
+        from tt.guidance.simgrad import design_reward_gradient
+        from tt.kernels.model import topology_key
+
+        by_topology = {}
+        for d in space.sample(200, seed=12345):
+            by_topology.setdefault(topology_key(space.model(d), space.ee_sites()), d)
+        design_reward_gradient(space, list(by_topology.values()), short, get_reward("tracking", SPACE), device="cpu")
+    info["warmup_seconds"] = time.perf_counter() - t
+    print(json.dumps({"bench": "codesign", "config": info}), flush=True)
+
+    start = time.perf_counter()
+    records: list[dict] = []
+    skipped: list[str] = []
+
+    def over() -> bool:
+        return args.max_minutes is not None and time.perf_counter() - start > 60 * args.max_minutes
+
+    def group(part, setting, motions, reward, seed, entries, label):
+        if over():
+            skipped.append(label)
+            return
+        records.extend(run_group(part, setting, motions, reward, seed, entries, args, learned))
+
+    single_entries = [(RANDOM, args.budget, 0.0), (CMAES_B, args.budget, 0.0), (ZEROTH, args.n, 0.0), (DGS, args.dgs_n, 0.0)]
+    multi_entries = [(RANDOM, args.multi_budget, 0.0), (CMAES_B, args.multi_budget, 0.0), (ZEROTH, args.multi_n, 0.0),
+                     (DGS, args.multi_dgs_n, 0.0)]
+    jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
+    if "table" in parts:
+        for reward in rewards:
+            for i in range(args.seeds):
+                jobs.append((0 if reward == "tracking" else 3, ("table", SINGLE, (single_motions[i],), reward, i,
+                                                                single_entries, f"table {SINGLE} {reward} seed {i}")))
+        for reward in multi_rewards:
+            for i in range(args.seeds):
+                jobs.append((2 if reward == "tracking" else 4, ("table", MULTI, multi_motions, reward, i, multi_entries,
+                                                                f"table {MULTI} {reward} seed {i}")))
+    if "scaling" in parts:
+        ns = _ints(args.scaling_n)
+        budgets = [b for b in _ints(args.scaling_budgets) if b >= args.popsize]
+        for i in range(args.scaling_seeds):
+            have = {(m, n) for m, n, _ in single_entries} if ("table" in parts and "tracking" in rewards and i < args.seeds) else set()
+            entries = [(m, b, 0.0) for b in budgets for m in (RANDOM, CMAES_B)]
+            entries += [(ZEROTH, n, 0.0) for n in ns] + [(DGS, n, 0.0) for n in ns if n <= args.scaling_dgs_max]
+            entries = [e for e in entries if (e[0], e[1]) not in have]
+            jobs.append((1, ("scaling", SINGLE, (single_motions[i],), "tracking", i, entries, f"scaling seed {i}")))
+    if "lambda" in parts:
+        for i in range(args.lambda_seeds):
+            entries = [(DGS, args.lambda_n, float(x)) for x in args.lambdas.split(",") if x]
+            jobs.append((1, ("lambda", SINGLE, (single_motions[i],), "tracking", i, entries, f"lambda seed {i}")))
+    for _, job in sorted(jobs, key=lambda j: j[0]):
+        group(*job)
+
+    info["wall_seconds"] = time.perf_counter() - start
+    info["skipped"] = skipped
+    info["load_end"] = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    print(json.dumps({"bench": "codesign", "end": {k: info[k] for k in ("wall_seconds", "skipped", "load_end")}}), flush=True)
+    text = report(records, info, args.out)
+    print(text)
+    print(f"codesign benchmark: {time.perf_counter() - t0:.0f} s in all ({info['wall_seconds']:.0f} s of timed runs, "
+          f"{info['warmup_seconds']:.0f} s warm-up, {learned.seconds:.0f} s model and decoding table)", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,142 @@
+"""The shipped-checkpoint lookup, `tt optimize`'s use of it, and `tt demo` with and without a model.
+
+The demo's learned rows are checked end to end with a tiny trained checkpoint (2 optimizer
+steps on toy episodes) and a stand-in decoder: one that turns every candidate into the
+nominal ViperX (so both learned winners are that design and the oracle must report the
+nominal's tracking for them), and one that decodes nothing (the demo reports the method
+without a design and keeps the others' rows).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from tt.dit import checkpoint as ckpt
+from tt.dit.toy import toy_episodes
+from tt.dit.train import TrainConfig, train
+from tt.guidance import zeroth
+from tt.guidance.zeroth import Decoded
+
+COUNTS = dict(link=6, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
+              control=3, target_pose=1)
+
+
+def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_path):
+    for name in ("viperx_mini.pt", "viperx_small.pt", "quadruped.pt", "README.md", "viperx_notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert ckpt.default_checkpoint("viperx", tmp_path) == tmp_path / "viperx_small.pt"
+    assert ckpt.default_checkpoint("quadruped", tmp_path) == tmp_path / "quadruped.pt"
+    assert list(ckpt.shipped_checkpoints(tmp_path)) == ["quadruped", "viperx"]
+    with pytest.raises(ckpt.NoCheckpointError, match=r"'bimanual'.*quadruped \(quadruped.pt\), viperx"):
+        ckpt.default_checkpoint("bimanual", tmp_path)
+    with pytest.raises(FileNotFoundError, match="spaces with one: none"):
+        ckpt.default_checkpoint("viperx", tmp_path / "missing")
+    # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
+    assert ckpt.shipped_folder().name == "checkpoints" and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
+
+
+def test_optimize_without_checkpoint_fails_clearly_when_none_is_shipped(tmp_path, monkeypatch):
+    from tt.cli import app
+
+    monkeypatch.setattr(ckpt, "shipped_folder", lambda: tmp_path)
+    result = CliRunner().invoke(app, ["optimize", "--method", "zeroth", "--motion", "toss", "--budget", "2"])
+    assert result.exit_code == 2
+    assert "no shipped DiT checkpoint for design space 'viperx'" in result.output
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    """A tiny DiT trained for 2 steps on toy RoboToken episodes, saved as `tt train` saves it."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("run")
+    episodes = toy_episodes(episodes=8, steps=16, seed=0, schema_counts=COUNTS)
+    train(TrainConfig(out=str(out), task="robot", size="tiny", steps=2, batch_size=4, checkpoint_every=2, device="cpu",
+                      warmup_steps=1), episodes=episodes)
+    torch.set_num_threads(threads)
+    return ckpt.latest_checkpoint(out)
+
+
+class NominalDecoder:
+    """Every candidate decodes to the space's nominal design."""
+
+    def __init__(self, space, table=None):
+        self.space = space
+
+    def __call__(self, batch, index):
+        return Decoded(self.space.nominal(), None, 0.0)
+
+
+class NoDecoder(NominalDecoder):
+    def __call__(self, batch, index):
+        return Decoded(None, "no discrete choice of space 'viperx' has this token structure")
+
+
+def _demo(tmp_path, monkeypatch, decoder, checkpoint, methods):
+    from tt.demo import DemoConfig, run_demo
+    from tt.tokens import design_fit
+
+    monkeypatch.setattr(zeroth, "DesignDecoder", decoder)
+    monkeypatch.setattr(design_fit, "CandidateTable", lambda space: None)  # the stand-in decoders need no table
+    lines: list[str] = []
+    config = DemoConfig(budget=4, samples=2, num_steps=2, methods=methods, checkpoint=checkpoint, out=tmp_path / "demo")
+    rows = run_demo(config, echo=lines.append)
+    return rows, lines, json.loads((tmp_path / "demo" / "demo.json").read_text())
+
+
+def test_demo_runs_the_learned_methods_and_validates_their_winners(tmp_path, monkeypatch, tiny_checkpoint):
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.report import summary_row
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, get_motion
+
+    rows, lines, saved = _demo(tmp_path, monkeypatch, NominalDecoder, tiny_checkpoint, ("random", "zeroth", "dgs"))
+    assert [r["name"] for r in rows] == ["Random", "Zeroth", "DGS"]
+    assert any(line.startswith(f"checkpoint {tiny_checkpoint}") for line in lines)
+    want = summary_row(evaluate_designs([get_space("viperx").nominal()], for_space([get_motion("toss")], "viperx"),
+                                        "tracking", backend="mujoco").metrics, 0)
+    for row in rows[1:]:
+        assert row["rollouts"] == 0 and row["seconds"] > 0
+        for key in ("pos_err", "orn_err", "survival_pct", "reward"):
+            assert row[key] == pytest.approx(want[key], rel=1e-6), key
+    assert math.isfinite(rows[0]["reward"])
+    assert saved["designs"]["Zeroth"] == get_space("viperx").to_dict(get_space("viperx").nominal())
+    assert (tmp_path / "demo" / "demo.html").is_file()
+
+
+def test_demo_reports_a_learned_method_without_a_design_and_keeps_the_others(tmp_path, monkeypatch, tiny_checkpoint):
+    rows, lines, _ = _demo(tmp_path, monkeypatch, NoDecoder, tiny_checkpoint, ("random", "zeroth"))
+    assert [r["name"] for r in rows] == ["Random", "Zeroth"]
+    assert "pos_err" in rows[0] and "pos_err" not in rows[1]
+    assert rows[1]["note"].startswith("no design")
+    assert any("[zeroth] no design: none of the 2 candidates decoded" in line for line in lines)
+
+
+def test_demo_without_a_shipped_checkpoint_says_so_and_runs_the_baselines(tmp_path, monkeypatch):
+    from tt.demo import DemoConfig, run_demo
+
+    monkeypatch.setattr(ckpt, "shipped_folder", lambda: tmp_path / "none")
+    lines: list[str] = []
+    rows = run_demo(DemoConfig(budget=4, methods=("random", "zeroth", "dgs"), out=tmp_path / "demo"), echo=lines.append)
+    assert [r["name"] for r in rows] == ["Random"]
+    assert any(line.startswith("Zeroth-Order and Self-Guidance skipped: no shipped DiT checkpoint") for line in lines)
+
+
+def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, tiny_checkpoint):
+    from tt.cli import app
+
+    (tmp_path / "viperx_tiny.pt").symlink_to(tiny_checkpoint)
+    monkeypatch.setattr(ckpt, "shipped_folder", lambda: tmp_path)
+    monkeypatch.setattr(zeroth, "DesignDecoder", NominalDecoder)
+    out = tmp_path / "result.json"
+    result = CliRunner().invoke(app, ["optimize", "--method", "zeroth", "--motion", "toss", "--samples", "2",
+                                      "--num-steps", "2", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    saved = json.loads(out.read_text())
+    assert saved["method"] == "zeroth" and saved["info"]["samples"] == 2 and saved["info"]["num_steps"] == 2
+    assert saved["validated"]["survival_pct"] == 100.0
