@@ -164,7 +164,7 @@ def _fmt(m: float, h: float, digits: int = 3) -> str:
     body = f"{m:.{digits}g}" if abs(m) < 1000 else f"{m:.0f}"
     if not math.isfinite(h):
         return body
-    return f"{body} ± {h:.2g}" if abs(h) < 1000 else f"{body} ± {h:.0f}"
+    return f"{body} ± {h:.2g}" if abs(h) < 100 else f"{body} ± {h:.0f}"
 
 
 def _ok(records: list[dict]) -> list[dict]:
@@ -352,7 +352,9 @@ def notes(records: list[dict], info: dict) -> str:
         f"discrete choice of the space exactly; continuous choices are then fitted). In this run {undecoded} of the "
         f"{candidates} candidates tried did not decode"
         + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "") + ". A run where none decodes returns no "
-        "design: its row counts it under 'runs with a design' and its errors and reward are left out (not zero).",
+        "design: its row counts it under 'runs with a design' and its errors and reward are left out (not zero). "
+        "benchmarks/results/dit_eval.md measures the shipped model's samples (decode rate, predicted vs simulated "
+        "reward) on their own.",
         "- Timing. Zeroth-Order and Self-Guidance times are the whole `optimize` call: sampling (n sequences of one "
         "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
         "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
@@ -398,7 +400,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
                     fails = sum(r.get("decode_failures") or 0 for r in _ok(mr)) + sum(r["n"] for r in mr if not r["ok"])
                     extra = {"n": str(mr[0]["n"])}
                     if method in LEARNED:
-                        extra["decode"] = f"{fails / len(mr):.1f}"
+                        extra["decode"] = f"{fails / len(mr):.3g}"
                     rows.append(aggregate(mr, method, reward, extra))
             table = markdown_table(rows, columns(reward, [("n", "n / budget"), ("decode", "failed decodes per run")]),
                                    first=("name", "method"))
@@ -434,8 +436,8 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         for value in sorted({r["lambda"] for r in lam}):
             rs = [r for r in lam if r["lambda"] == value]
             sims = [r.get("sim") or {} for r in _ok(rs)]
-            rows.append({**aggregate(rs, f"lambda = {value:g}", "tracking"),
-                         "sim": f"{sum(s.get('candidates', 0) for s in sims)} / {sum(s.get('decode_failures', 0) for s in sims)}"})
+            sim = f"{sum(s.get('candidates', 0) for s in sims)} / {sum(s.get('decode_failures', 0) for s in sims)}"
+            rows.append({**aggregate(rs, f"lambda = {value:g}", "tracking"), "sim": sim if sims and value > 0 else "-"})
         seeds = sorted({r["seed"] for r in lam})
         sections.append(
             f"## Simulator-gradient mixing: Self-Guidance with `--sim-grad-weight` lambda (single trajectory, tracking; "
