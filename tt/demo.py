@@ -161,7 +161,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     for method in methods:
         budget = config.samples if method in LEARNED else config.budget
         problem = Problem(space=config.space, motions=tuple(motions), reward=config.reward, budget=budget,
-                          seed=config.seed, backend="warp", device=config.device)
+                          seed=config.seed, device=config.device)  # the space's default backend
         what = f"{budget} samples, {config.num_steps} DDIM steps" if method in LEARNED else f"{budget} candidates"
         echo(f"[{method}] optimizing ({what}) ...")
         start = time.perf_counter()
