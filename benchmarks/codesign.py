@@ -258,8 +258,9 @@ def plot_scaling(records: list[dict], path: Path) -> None:
         r = np.array([p[1][0] for p in pts])
         h = np.nan_to_num(np.array([p[1][1] for p in pts]))
         s = np.array([p[2][0] for p in pts])
+        label = method if np.isfinite(r).any() else f"{method}: no design decoded in any run"
         for ax, x in ((axes[0], n), (axes[1], s)):
-            ax.plot(x, r, "o--" if method in (RANDOM, CMAES_B) else "o-", label=method)
+            ax.plot(x, r, "o--" if method in (RANDOM, CMAES_B) else "o-", label=label)
             ax.fill_between(x, r - h, r + h, alpha=0.2)
     axes[0].set_xscale("log", base=2)
     axes[0].set_xlabel("n (samples; rollout budget for Random / CMA-ES)")
