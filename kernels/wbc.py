@@ -65,7 +65,7 @@ import mujoco
 import numpy as np
 import warp as wp
 
-from tt.kernels.lie import lie_funcs
+from tt.kernels.lie import MINK_JLOG_EPS, lie_funcs
 from tt.sim.controller import ee_site_names, model_name
 from tt.sim.wbc import WBCConfig, foot_site_names, free_joint, home_qpos, posture_costs, stance_points
 
@@ -80,9 +80,8 @@ _LIE = lie_funcs(wp.float64)
 #: with centimetres of position error and an orientation already on target (a target taken
 #: from the site's own pose) the oracle's Jacobian differs from the exact one by about
 #: ``|v| / 2`` on rotational DoFs; the kernel follows the oracle.
-_MINK_JLOG_EPS = 1e-10
-# A float64 constant: a float literal inside a kernel is float32 in Warp.
-_MINK_JLOG_EPS64 = wp.constant(wp.float64(_MINK_JLOG_EPS))
+# mink's threshold (`tt.kernels.lie.MINK_JLOG_EPS`) as a float64 constant: a float literal inside a kernel is float32 in Warp.
+_MINK_JLOG_EPS64 = wp.constant(wp.float64(MINK_JLOG_EPS))
 
 JOINT_FREE = int(mujoco.mjtJoint.mjJNT_FREE)
 JOINT_SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
@@ -673,7 +672,7 @@ def _task_rows(
         A, B = _LIE.se3_ljacinv(ev, ew)
         if wp.dot(ew, ew) < _MINK_JLOG_EPS64:
             # mink's jlog switches to the identity below this rotation error (see
-            # _MINK_JLOG_EPS): a discontinuity of the oracle that the kernel reproduces.
+            # MINK_JLOG_EPS): a discontinuity of the oracle that the kernel reproduces.
             A = wp.identity(n=3, dtype=wp.float64)
             B = wp.mat33d()
         Rt = wp.transpose(wp.quat_to_matrix(r))
