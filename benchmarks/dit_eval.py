@@ -4,16 +4,18 @@
     for held-out (validation) motions, the model generates candidate robots
     (motion-to-robot task, 100 DDIM steps) and predicts each one's tracking reward from
     its own predicted dynamics tokens (`tt.guidance.predicted.PredictedReward`, the
-    (T / S)-scaled estimate Zeroth-Order ranks by); each candidate is decoded to a ViperX
-    design and simulated on that motion (DiffIK, tracking reward of
+    (T / S)-scaled estimate Zeroth-Order ranks by); each candidate is decoded to the
+    nearest ViperX design (what the optimizers return) and simulated on that motion
+    (DiffIK, tracking reward of
     `tt.guidance.rewards`). Reported: Pearson r (and Spearman) over all candidates, and
     a scatter plot.
 (b) Validity and diversity of samples: motion-conditioned samples (those of (a)) and
     unconditional ones (the same query with the target-pose tokens masked out of
     attention: the model sees no motion). Share that decode to a loadable robot (the
-    generic detokenizer's MJCF compiles in MuJoCo) and to a ViperX design (its token
-    structure matches a discrete choice; continuous choices fitted), and the distribution
-    of the decoded designs' DoF count and mount against the training episodes'.
+    generic detokenizer's MJCF compiles in MuJoCo), that have a ViperX token structure
+    exactly, and that project onto a ViperX design (nearest structure, continuous choices
+    fitted), with the projection's distance; and the distribution of the designs' DoF count
+    and mount against the training episodes'.
 (c) The model as controller (`tt.dit.controller`, 5 DDIM steps per control step, Warp
     physics) on held-out ViperX designs (sampled with a seed no training shard used) x
     validation motions, against the MuJoCo + mink oracle on the same designs and motions:
@@ -92,7 +94,10 @@ def choices(space, design) -> dict[str, str]:
 
 
 class Decoder:
-    """Candidates' embodiment tokens -> per candidate (detokenized MjModel or None, ViperX design or None)."""
+    """Candidates' embodiment tokens -> per candidate (detokenized MjModel or None, ViperX design
+    or None, structure distance): the design is the nearest one (`design_from_tokens` with
+    ``max_distance=None``, what the optimizers return); distance 0 means the candidate had a
+    ViperX token structure itself, -1 that decoding failed."""
 
     def __init__(self, space, top_k: int):
         from tt.tokens.design_fit import CandidateTable
@@ -101,7 +106,7 @@ class Decoder:
         self.top_k = top_k
         t = time.perf_counter()
         self.table = CandidateTable(space)
-        emit(part="setup", what="candidate_table", seconds=time.perf_counter() - t, choices=len(self.table.keys))
+        emit(part="setup", what="candidate_table", seconds=time.perf_counter() - t, choices=len(self.table))
 
     def __call__(self, batch) -> list[tuple[object, object]]:
         from tt.tokens.design_fit import design_from_tokens
@@ -111,13 +116,13 @@ class Decoder:
         out = []
         for i in range(len(batch)):
             try:
-                fit = design_from_tokens(batch, i, self.space, table=self.table, top_k=self.top_k)
-                design = fit.design
+                fit = design_from_tokens(batch, i, self.space, table=self.table, top_k=self.top_k, max_distance=None)
+                design, distance = fit.design, fit.distance
                 if design is not None:
                     self.space.model(design)  # the decoded design compiles
             except Exception:  # a candidate may break the fit in any way; it then counts as not decoded
-                design = None
-            out.append((models[i], design))
+                design, distance = None, -1
+            out.append((models[i], design, distance))
         return out
 
 
@@ -174,7 +179,7 @@ def generate(trained, args, decoder, device) -> dict:
     sampler = CandidateSampler(trained, device)
     # designs: candidates decoded to ViperX designs (warp rollout); mjcf: the detokenized
     # robots themselves (the oracle, which runs any fixed-base arm with an ee_0 site).
-    cond = {"models": [], "designs": [], "failures": {}, "sets": {"design": {"motion": [], "predicted": [], "simulated": []},
+    cond = {"models": [], "designs": [], "distances": [], "failures": {}, "sets": {"design": {"motion": [], "predicted": [], "simulated": []},
                                                   "mjcf": {"motion": [], "predicted": [], "simulated": []}}}
     sample_s = decode_s = sim_s = 0.0
     for j, m in enumerate(motions):
@@ -184,17 +189,18 @@ def generate(trained, args, decoder, device) -> dict:
         t = time.perf_counter()
         dec = decoder(embodiment_batch(trained.layout, trained.normalizer, gen.tokens))
         decode_s += time.perf_counter() - t
-        cond["models"] += [x for x, _ in dec]
-        cond["designs"] += [d for _, d in dec]
+        cond["models"] += [x for x, _, _ in dec]
+        cond["designs"] += [d for _, d, _ in dec]
+        cond["distances"] += [k for _, _, k in dec]
         t = time.perf_counter()
-        ok = [i for i, (_, d) in enumerate(dec) if d is not None]
+        ok = [i for i, (_, d, _) in enumerate(dec) if d is not None]
         if ok:
             ev = evaluate_designs([dec[i][1] for i in ok], [m], "tracking", backend=args.backend, device=args.device)
             sets = cond["sets"]["design"]
             sets["motion"] += [m.name] * len(ok)
             sets["predicted"] += [float(gen.reward[i, 0]) for i in ok]
             sets["simulated"] += [float(r) for r in ev.reward[:, 0]]
-        loaded = [i for i, (x, _) in enumerate(dec) if x is not None]
+        loaded = [i for i, (x, _, _) in enumerate(dec) if x is not None]
         scored = oracle_rewards([dec[i][0] for i in loaded], m, cond["failures"])
         sets = cond["sets"]["mjcf"]
         for i, r in zip(loaded, scored):
@@ -207,7 +213,7 @@ def generate(trained, args, decoder, device) -> dict:
              simulated_mjcf=sum(r is not None for r in scored), predicted_mean=float(np.mean(gen.reward[:, 0])))
     cond["seconds"] = {"sample": sample_s, "decode": decode_s, "simulate": sim_s}
 
-    uncond = {"models": [], "designs": [], "seconds": {}}
+    uncond = {"models": [], "designs": [], "distances": [], "seconds": {}}
     if args.unconditional:
         t = time.perf_counter()
         model = NoMotion(trained.model).to(device).eval()
@@ -219,8 +225,9 @@ def generate(trained, args, decoder, device) -> dict:
         t = time.perf_counter()
         dec = decoder(embodiment_batch(trained.layout, trained.normalizer, res.tokens))
         uncond["seconds"]["decode"] = time.perf_counter() - t
-        uncond["models"] = [x for x, _ in dec]
-        uncond["designs"] = [d for _, d in dec]
+        uncond["models"] = [x for x, _, _ in dec]
+        uncond["designs"] = [d for _, d, _ in dec]
+        uncond["distances"] = [k for _, _, k in dec]
     return {"motions": [m.name for m in motions], "cond": cond, "uncond": uncond}
 
 
@@ -256,7 +263,7 @@ def scatter_plot(sets: dict, titles: dict, path: Path) -> None:
 
 def section_a(out: dict, args) -> str:
     sets = out["cond"]["sets"]
-    labels = {"design": f"decoded ViperX designs, `{args.backend}` rollout", "mjcf": "detokenized MJCF robots, oracle"}
+    labels = {"design": f"nearest ViperX designs, `{args.backend}` rollout", "mjcf": "detokenized MJCF robots, oracle"}
     stats, rows, titles = {}, [], {}
     for key, c in sets.items():
         p, s = np.asarray(c["predicted"]), np.asarray(c["simulated"])
@@ -281,8 +288,9 @@ def section_a(out: dict, args) -> str:
         f"motion-to-robot, {args.num_steps} DDIM steps, eta 0) and predicts each one's tracking reward from its own "
         "predicted track-link tokens (8 evenly placed steps, scaled by T / 8: `tt.guidance.predicted`, what "
         "Zeroth-Order ranks by). Each generated robot is then simulated on its motion with the DiffIK controller and "
-        "scored by `tt.guidance.rewards`, two ways: decoded to a ViperX design (what `tt optimize` returns; "
-        "candidates whose token structure matches no discrete choice are left out), and as the detokenizer's MJCF "
+        "scored by `tt.guidance.rewards`, two ways: decoded to the nearest ViperX design (what `tt optimize` returns: "
+        "a candidate whose token structure matches no discrete choice exactly is projected onto the nearest one, "
+        "`tt.tokens.design_from_tokens(max_distance=None)`), and as the detokenizer's MJCF "
         "robot itself (run by the MuJoCo + mink oracle; robots it cannot drive are left out).",
         "",
         *[f"- {labels[k]}: **Pearson r = {st[0]:.2f}** (Spearman {st[1]:.2f}) over {st[2]} of {total} robots" for k, st in stats.items()],
@@ -359,18 +367,25 @@ def section_b(out: dict, args, space) -> str:
         "Motion-conditioned: the candidates of (a). Unconditional: the same query with the target-pose "
         "tokens masked out of attention, so the model sees no motion. The model was not trained with "
         "conditioning dropout, so this input is outside its training distribution. \"Loads\": the generic "
-        "detokenizer's MJCF compiles in MuJoCo. \"ViperX design\": the tokens' structure matches a discrete "
-        "choice of the space and the fitted design compiles (what the optimizers return).",
+        "detokenizer's MJCF compiles in MuJoCo. \"ViperX structure\": the tokens' structure is exactly "
+        "that of a discrete choice of the space (token counts and every binary attribute). \"Nearest ViperX "
+        "design\": projected onto the nearest structure and fitted, the design compiles (what the optimizers "
+        "return); distance: binary token attributes changed by the projection (a missing or extra token counts "
+        "as its attributes + 1).",
         "",
-        "| samples | count | loads in MuJoCo | decode to a ViperX design |",
-        "|---|---:|---:|---:|",
+        "| samples | count | loads in MuJoCo | ViperX structure | nearest ViperX design | distance (median, 90th pct) |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     for name, s in sets.items():
         n = len(s["models"])
         loads = 100.0 * np.mean([x is not None for x in s["models"]])
+        exact = 100.0 * np.mean([k == 0 and d is not None for d, k in zip(s["designs"], s["distances"])])
         dec = 100.0 * np.mean([d is not None for d in s["designs"]])
-        lines.append(f"| {name} | {n} | {loads:.1f} % | {dec:.1f} % |")
-        emit(part="b", samples=name, count=n, loads_pct=loads, decoded_pct=dec)
+        dist = np.array([k for d, k in zip(s["designs"], s["distances"]) if d is not None], dtype=float)
+        med = f"{np.median(dist):.0f}, {np.percentile(dist, 90):.0f}" if len(dist) else "–"
+        lines.append(f"| {name} | {n} | {loads:.1f} % | {exact:.1f} % | {dec:.1f} % | {med} |")
+        emit(part="b", samples=name, count=n, loads_pct=loads, exact_pct=exact, decoded_pct=dec,
+             distances=[int(k) for k in s["distances"]])
     # Choices two ways: of the decoded ViperX designs, and read off the loadable MJCF robots.
     columns = {}
     for name, s in sets.items():
@@ -379,7 +394,7 @@ def section_b(out: dict, args, space) -> str:
     accuracy = mjcf_classifier_accuracy(space)
     lines += [
         "",
-        "Distribution of the samples' choices: share of the decoded ViperX designs (\"designs\") and of the "
+        "Distribution of the samples' choices: share of the nearest ViperX designs (\"designs\") and of the "
         "loadable MJCF robots (\"MJCF\": DoF = joint count, mount from the first joint's world axis; on "
         f"200 random ViperX designs this reading gives the true DoF and mount for {100 * accuracy:.0f} %); "
         "training: share of the training episodes.",

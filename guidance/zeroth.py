@@ -9,8 +9,10 @@ mean over motions of the predicted episode reward. No simulator runs.
 
 Candidates are ranked by that objective and decoded to designs of the problem's space
 (`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
-choice of the space and the continuous choices fitted). A candidate that does not decode
-(no discrete choice has its token structure) is ranked last and counted. ``decode="best"``
+choice of the space and the continuous choices fitted). By default a candidate whose token
+structure no discrete choice has exactly is projected onto the nearest one (the result's
+info counts them: ``projected``); a decoder with ``max_distance`` set can refuse them, and a
+candidate that does not decode is ranked last and counted. ``decode="best"``
 decodes in rank order until one succeeds, which is what `optimize` needs; ``"all"``
 decodes every candidate, for the full ranking.
 
@@ -212,11 +214,14 @@ class CandidateSampler:
 @dataclass
 class Decoded:
     """One candidate's decoding: design (None when it failed), error (why), residual (RMS
-    token mismatch of the fitted design, inf on failure)."""
+    token mismatch of the fitted design, inf on failure), distance (binary token attributes
+    the candidate had to change to reach the design's structure: 0 when it decoded exactly;
+    `tt.tokens.CandidateTable.distances`)."""
 
     design: Design | None
     error: str | None = None
     residual: float = float("inf")
+    distance: int = 0
 
 
 #: decoder(embodiment TokenBatch (encoded, padding detected), index) -> Decoded.
@@ -228,14 +233,18 @@ class DesignDecoder:
     keeping the space's candidate table between calls (ViperX: ~10 s to build).
 
     table: a prebuilt `tt.tokens.CandidateTable` of `space` (None: every discrete choice,
-    built at the first call).
+    built at the first call); max_distance: how far a candidate's token structure may be
+    from the nearest discrete choice's (`design_from_tokens`; None, the default: any
+    candidate is projected onto the nearest design, as the optimizers need a design; 0: only
+    exact structures decode).
     """
 
-    def __init__(self, space: DesignSpace, table=None):
+    def __init__(self, space: DesignSpace, table=None, max_distance: int | None = None):
         if table is not None and table.space is not space:
             raise ValueError(f"the candidate table is of space {table.space.name!r}, not {space.name!r}")
         self.space = space
         self._table = table
+        self.max_distance = max_distance
 
     def __call__(self, tokens, index: int) -> Decoded:
         from tt.tokens.design_fit import CandidateTable, design_from_tokens
@@ -243,12 +252,13 @@ class DesignDecoder:
         if self._table is None:
             self._table = CandidateTable(self.space)
         try:
-            fit = design_from_tokens(tokens, index, self.space, table=self._table)
+            fit = design_from_tokens(tokens, index, self.space, table=self._table, max_distance=self.max_distance)
         except Exception as e:  # a candidate's tokens may break the fit in any way; report, do not crash
             return Decoded(None, f"decoding failed: {type(e).__name__}: {e}")
         if fit.design is None:
-            return Decoded(None, f"no discrete choice of space {self.space.name!r} has this token structure")
-        return Decoded(fit.design, None, fit.residual)
+            return Decoded(None, f"no discrete choice of space {self.space.name!r} is within {self.max_distance} binary "
+                                 f"attributes of this token structure (nearest: {fit.distance})")
+        return Decoded(fit.design, None, fit.residual, fit.distance)
 
 
 def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenTensors):
@@ -336,6 +346,8 @@ def learned_result(method: str, problem: Problem, gen: Generation, ranking: Rank
         "decode_failures": ranking.failures,
         "decode_errors": {str(i): d.error for i, d in ranking.decoded.items() if d.error},
         "residual_best": float(ranking.decoded[best].residual),
+        "distance_best": int(ranking.decoded[best].distance),
+        "projected": sum(d.design is not None and d.distance > 0 for d in ranking.decoded.values()),
         "best_candidate": int(best),
         "sample_seconds": gen.seconds,
     }

@@ -565,3 +565,48 @@ def test_tokens_back_to_design_choices():
     assert fit.design.discrete == design.discrete and fit.exact
     assert np.allclose(fit.design.continuous, design.continuous, atol=1e-5)
     assert fit.candidates == len(candidates)  # all share the structure; ranking picks the right one
+
+
+def test_token_structure_off_by_bits_projects_onto_the_nearest_design():
+    """A sample that is one link-ID bit and one whole token off every discrete choice (what
+    an undertrained model emits) decodes to nothing by default and, with projection, to the
+    design it came from: its discrete choices, continuous choices to 1e-4."""
+    from tt.tokens.schema import SCHEMA
+
+    sp = get_space("viperx")
+    design = sp.sample(1, seed=21)[0]
+    mount, dof, first, second, *rest = design.discrete
+    candidates = [(m, dof, a, b, *rest) for m in range(4) for a in range(3) for b in range(3)]
+    table = CandidateTable(sp, discrete=candidates)
+    emb = _quiet_tokenize([sp.model(design)]).tokens
+    values = {n: np.array(v, copy=True) for n, v in emb.values.items()}
+    mask = {n: np.array(v, copy=True) for n, v in emb.mask.items()}
+    col = SCHEMA["dyna_joint"].slice("link_id").start
+    values["dyna_joint"][0, 0, col] = 1.0 - values["dyna_joint"][0, 0, col]  # a wrong link-ID bit
+    n = int(mask["dyna_joint"][0].sum())
+    values["dyna_joint"] = np.concatenate([values["dyna_joint"], values["dyna_joint"][:, :1]], 1)  # an extra joint token
+    mask["dyna_joint"] = np.concatenate([mask["dyna_joint"], np.ones((1, 1), bool)], 1)
+    ids = {k: np.array(v, copy=True) for k, v in emb.ids.items()}
+    ids["dyna_joint"] = np.concatenate([ids["dyna_joint"], ids["dyna_joint"][:, :1]], 1)
+    noisy = TokenBatch(values, ids, mask, emb.version)
+    assert int(noisy.mask["dyna_joint"][0].sum()) == n + 1
+
+    assert design_from_tokens(noisy, 0, sp, table=table).design is None
+    fit = design_from_tokens(noisy, 0, sp, table=table, max_distance=None)
+    assert fit.design.discrete == design.discrete and not fit.exact
+    assert fit.distance > 1  # the flipped bit plus the extra token's attributes
+    np.testing.assert_allclose(fit.design.continuous, design.continuous, atol=1e-4)
+    with pytest.raises(ValueError, match="max_distance"):
+        design_from_tokens(noisy, 0, sp, table=table, max_distance=-1)
+
+    # A token dropped early in a sequence costs that token (its attributes + 1), not a
+    # mismatch in every later one: the distance is an alignment, not slot by slot. (The
+    # first fixed joint holds the mount, so the second is dropped.)
+    keep = np.delete(np.flatnonzero(emb.mask["fixed_joint"][0]), 1)
+    dropped = TokenBatch({**emb.values, "fixed_joint": emb.values["fixed_joint"][:, keep]},
+                         {**emb.ids, "fixed_joint": emb.ids["fixed_joint"][:, keep]},
+                         {**emb.mask, "fixed_joint": emb.mask["fixed_joint"][:, keep]}, emb.version)
+    fit = design_from_tokens(dropped, 0, sp, table=table, max_distance=None)
+    assert fit.distance == SCHEMA["fixed_joint"].slice("link_id").stop - SCHEMA["fixed_joint"].slice("link_id").start + 1
+    assert fit.design.discrete == design.discrete
+    np.testing.assert_allclose(fit.design.continuous, design.continuous, atol=1e-4)

@@ -82,12 +82,13 @@ def tokenize_cmd(path: str, as_json: bool = False, out: str | None = None) -> st
     return "\n".join(lines)
 
 
-def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None) -> str:
-    """``tt detokenize TOKENS.npz --out robot.xml [--index i] [--space viperx]``.
+def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None, project: bool = False) -> str:
+    """``tt detokenize TOKENS.npz --out robot.xml [--index i] [--space viperx [--project]]``.
 
     Writes robot `index` of the token file as MJCF to `out` (also when MuJoCo refuses it,
     so it can be inspected, then raises with MuJoCo's reason). With `space`, also fits
-    that design space's choices to the tokens and writes them to ``<out>.design.json``.
+    that design space's choices to the tokens and writes them to ``<out>.design.json``
+    (`project`: the nearest design when no choice has the tokens' exact structure).
     """
     try:
         tokens = TokenBatch.load(path)
@@ -111,10 +112,12 @@ def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None
             sp = get_space(space)
         except DesignError as e:
             raise TokenCommandError(str(e)) from None
-        fit = design_from_tokens(tokens, index, sp)
+        fit = design_from_tokens(tokens, index, sp, max_distance=None if project else 0)
         if fit.design is None:
-            raise TokenCommandError(f"no {space} design has this token structure ({fit.candidates} candidates)")
+            raise TokenCommandError(f"no {space} design has this token structure (nearest: {fit.distance} binary attributes "
+                                    "off); --project takes the nearest design")
         design_path = str(Path(out).with_suffix("")) + ".design.json"
         save_designs([fit.design], design_path)
-        lines.append(f"wrote {design_path}: {space} design, token residual {fit.residual:.2e} (RMS)")
+        lines.append(f"wrote {design_path}: {space} design, token residual {fit.residual:.2e} (RMS)"
+                     + (f", projected from a structure {fit.distance} binary attributes off" if fit.distance else ""))
     return "\n".join(lines)

@@ -393,12 +393,13 @@ def detokenize(
     out: Path = typer.Option(..., help="Write the robot's MJCF here."),
     index: int = typer.Option(0, help="Which robot of the file."),
     space: Optional[str] = typer.Option(None, help="Also fit the design choices of this space (writes OUT.design.json)."),
+    project: bool = typer.Option(False, help="With --space: take the nearest design when no choice has these tokens' exact structure."),
 ) -> None:
     """Turn RoboTokens back into MJCF (and, for tt's spaces, design choices)."""
     from tt.tokens.cli import TokenCommandError, detokenize_cmd
 
     try:
-        typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space))
+        typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project))
     except (TokenCommandError, FileNotFoundError, ValueError) as e:
         _fail(str(e))
 
