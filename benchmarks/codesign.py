@@ -137,6 +137,7 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
             info = res.info
             rec.update(ok=True, seconds=res.seconds, rollouts=res.rollouts, objective=res.best_reward,
                        warmup_seconds=info.get("warmup_seconds", 0.0), decode_failures=info.get("decode_failures"),
+                       distance=info.get("distance_best"), projected=info.get("projected"), decoded=info.get("decoded"),
                        sample_seconds=info.get("sample_seconds"), sim=info.get("sim"),
                        **summary_row(ev.metrics, k), design=get_space(SPACE).to_dict(res.best))
             k += 1
@@ -345,17 +346,23 @@ def notes(records: list[dict], info: dict) -> str:
     learned = [r for r in records if r["method"] in LEARNED]
     candidates = sum(r["n"] for r in learned)
     undecoded = sum(r["n"] for r in learned if not r["ok"]) + sum(r.get("decode_failures") or 0 for r in _ok(learned))
+    winners = [r for r in _ok(learned) if r.get("distance") is not None]
+    dist = np.array([r["distance"] for r in winners], dtype=float)
+    projected = f"{int((dist > 0).sum())} of {len(dist)}" if len(dist) else "none"
+    spread = f" (structure distance median {np.median(dist):.0f}, max {dist.max():.0f})" if len(dist) else ""
     lines = [
         "## Notes",
         "",
-        f"- Decoding. A learned method's winner is the best-ranked candidate whose embodiment tokens decode to a "
-        f"ViperX design (`tt.tokens.design_from_tokens`: token counts and every binary attribute must match a "
-        f"discrete choice of the space exactly; continuous choices are then fitted). In this run {undecoded} of the "
-        f"{candidates} candidates tried did not decode"
-        + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "") + ". A run where none decodes returns no "
+        f"- Decoding. A learned method's winner is its best-ranked candidate, decoded to a ViperX design "
+        f"(`tt.tokens.design_from_tokens`): a candidate whose embodiment tokens have the token structure of a discrete "
+        f"choice of the space (token counts and every binary attribute) decodes to it; otherwise it is projected onto "
+        f"the nearest structure (edit distance over the token sequences, counted in binary attributes); continuous "
+        f"choices are then fitted. Winners projected in this run: {projected}{spread}. {undecoded} of the "
+        f"{candidates} candidates tried did not decode at all"
+        + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "") + "; a run where none decodes returns no "
         "design: its row counts it under 'runs with a design' and its errors and reward are left out (not zero). "
-        "benchmarks/results/dit_eval.md measures the shipped model's samples (decode rate, predicted vs simulated "
-        "reward) on their own.",
+        "benchmarks/results/dit_eval.md measures the shipped model's samples (structure distances, predicted vs "
+        "simulated reward) on their own.",
         "- Timing. Zeroth-Order and Self-Guidance times are the whole `optimize` call: sampling (n sequences of one "
         "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
         "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "

@@ -17,7 +17,8 @@ match the given ones.
    onto the nearest structure the space has, the way continuous values are clipped to
    their bounds.
 3. The rest are ranked by how far their continuous token values are from the target's
-   (over the tokens the alignment pairs); for the best few, the continuous choices are fitted by
+   (over the tokens the alignment pairs, each value scaled by its spread over the
+   candidates); for the best few, the continuous choices are fitted by
    bounded least squares on those values (each evaluation builds the MJCF, compiles and
    tokenizes it). The first fit whose residual is below `tol` wins; otherwise the lowest
    residual.
@@ -106,26 +107,37 @@ def _edit_distances(sb: np.ndarray, bits: np.ndarray, counts: np.ndarray) -> np.
     return prev[np.arange(C), counts]
 
 
-def _alignment(sb: np.ndarray, cb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _alignment(sb: np.ndarray, cb: np.ndarray, tie: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Token pairs (sample rows, candidate rows) that an optimal `_edit_distances` alignment
-    of sb (n, nb) with cb (c, nb) substitutes; equal lengths and bits give the identity."""
+    of sb (n, nb) with cb (c, nb) substitutes; equal lengths and bits give the identity.
+
+    tie: (n, c) cost of pairing two tokens that breaks ties between alignments of equal
+    edit distance (which token is the missing one when the bits cannot tell), or None.
+    """
     n, c = len(sb), len(cb)
     gap = sb.shape[1] + 1
     sub = np.abs(cb[None, :, :].astype(np.int64) - sb[:, None, :]).sum(-1)  # (n, c)
+    tie = np.zeros((n, c)) if tie is None else tie
+    # Lexicographic costs (edit distance, then tie cost); gaps add no tie cost.
     D = np.zeros((n + 1, c + 1), np.int64)
+    E = np.zeros((n + 1, c + 1))
     D[:, 0] = np.arange(n + 1) * gap
     D[0, :] = np.arange(c + 1) * gap
+    move = np.zeros((n + 1, c + 1), np.int8)  # 0 pair, 1 sample token unmatched, 2 candidate token unmatched
+    move[1:, 0], move[0, 1:] = 1, 2
     for i in range(1, n + 1):
         for j in range(1, c + 1):
-            D[i, j] = min(D[i - 1, j - 1] + sub[i - 1, j - 1], D[i - 1, j] + gap, D[i, j - 1] + gap)
+            options = ((D[i - 1, j - 1] + sub[i - 1, j - 1], E[i - 1, j - 1] + tie[i - 1, j - 1], 0),
+                       (D[i - 1, j] + gap, E[i - 1, j], 1), (D[i, j - 1] + gap, E[i, j - 1], 2))
+            D[i, j], E[i, j], move[i, j] = min(options)
     rows, cols = [], []
     i, j = n, c
     while i > 0 and j > 0:
-        if D[i, j] == D[i - 1, j - 1] + sub[i - 1, j - 1]:
+        if move[i, j] == 0:
             rows.append(i - 1)
             cols.append(j - 1)
             i, j = i - 1, j - 1
-        elif D[i, j] == D[i - 1, j] + gap:
+        elif move[i, j] == 1:
             i -= 1
         else:
             j -= 1
@@ -180,6 +192,16 @@ class CandidateTable:
                          for n in EMBODIMENT_TYPES) for k in range(len(self.discrete))]
         first: dict[bytes, int] = {}
         self.structure = np.array([first.setdefault(k, len(first)) for k in keys], dtype=np.int64)
+        # Ranking weights of the continuous columns: 1 / variance over the candidates' real
+        # tokens, so the values that tell discrete choices apart (a mount's rotation) count
+        # as much as large ones that do not (masses); columns no choice changes get 0
+        # (their spread over the table is float rounding, not information).
+        self.weights = {}
+        for n in EMBODIMENT_TYPES:
+            counts, _, cont = self.features[n]
+            real = cont[np.arange(cont.shape[1])[None, :] < counts[:, None]]
+            var = real.var(axis=0) if len(real) else np.zeros(cont.shape[2])
+            self.weights[n] = np.where(var > 1e-6, 1.0 / np.maximum(var, 1e-6), 0.0)  # below: float rounding
 
     def __len__(self) -> int:
         return len(self.discrete)
@@ -198,17 +220,24 @@ class CandidateTable:
 
     def alignment(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Per type, the (sample rows, candidate rows) token pairs of candidate i's optimal
-        alignment (the same for every candidate of its structure, `self.structure`)."""
+        alignment, the same for every candidate of its structure (`self.structure`): among
+        alignments of equal edit distance, the one whose paired tokens' continuous values
+        are closest (weighted, `self.weights`) to the structure's mean candidate."""
+        same = self.structure == self.structure[i]
         out = {}
         for name in EMBODIMENT_TYPES:
-            counts, bits, _ = self.features[name]
-            out[name] = _alignment(feat[name][0], bits[i, :counts[i]])
+            counts, bits, cont = self.features[name]
+            mean = cont[same, :counts[i]].mean(axis=0)
+            tie = (self.weights[name] * (feat[name][1][:, None, :] - mean[None, :, :]) ** 2).sum(-1)
+            out[name] = _alignment(feat[name][0], bits[i, :counts[i]], tie)
         return out
 
     def continuous_error(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int,
                          pairs: dict[str, tuple[np.ndarray, np.ndarray]]) -> float:
-        """Sum of squared differences of the continuous values of the aligned tokens."""
-        return float(sum(np.sum((self.features[n][2][i, c] - feat[n][1][r]) ** 2) for n, (r, c) in pairs.items()))
+        """Weighted sum of squared differences of the continuous values of the aligned tokens
+        (`self.weights`)."""
+        return float(sum(np.sum(self.weights[n] * (self.features[n][2][i, c] - feat[n][1][r]) ** 2)
+                         for n, (r, c) in pairs.items()))
 
 
 @dataclass
