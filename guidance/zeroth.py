@@ -252,7 +252,8 @@ class DesignDecoder:
         if self._table is None:
             self._table = CandidateTable(self.space)
         try:
-            fit = design_from_tokens(tokens, index, self.space, table=self._table, max_distance=self.max_distance)
+            # Two fits: a projected candidate has no exact fit to stop at, and more fits buy little.
+            fit = design_from_tokens(tokens, index, self.space, table=self._table, max_distance=self.max_distance, top_k=2)
         except Exception as e:  # a candidate's tokens may break the fit in any way; report, do not crash
             return Decoded(None, f"decoding failed: {type(e).__name__}: {e}")
         if fit.design is None:

@@ -300,26 +300,40 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
         own = {n: table.features[n][1][i, :table.features[n][0][i]] for n in EMBODIMENT_TYPES}
         target = np.concatenate([feat[n][1][r].ravel() for n, (r, _) in pairs[i].items()])
 
-        def residual(x: np.ndarray, discrete=discrete, own=own, rows=pairs[i], target=target) -> np.ndarray:
-            x = np.clip(x, lo, hi)
+        def residuals(X: np.ndarray, discrete=discrete, own=own, rows=pairs[i], target=target) -> np.ndarray:
+            """Token residuals of k continuous choice vectors X (k, p), one tokenizer call."""
+            X = np.clip(X, lo, hi)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", TokenizeWarning)
-                emb = tokenize_models([space.model(Design(space.name, discrete, tuple(float(v) for v in x)))], _FLOAT64)
-            f = _type_features(emb.tokens, 0)
-            if any(not np.array_equal(f[n][0], own[n]) for n in EMBODIMENT_TYPES):
-                return np.full_like(target, 1e3)  # the continuous choices changed the structure
-            return np.concatenate([f[n][1][c].ravel() for n, (_, c) in rows.items()]) - target
+                emb = tokenize_models([space.model(Design(space.name, discrete, tuple(float(v) for v in x))) for x in X], _FLOAT64)
+            out = np.empty((len(X), len(target)))
+            for k in range(len(X)):
+                f = _type_features(emb.tokens, k)
+                if any(not np.array_equal(f[n][0], own[n]) for n in EMBODIMENT_TYPES):
+                    out[k] = 1e3  # the continuous choices changed the structure
+                else:
+                    out[k] = np.concatenate([f[n][1][c].ravel() for n, (_, c) in rows.items()]) - target
+            return out
+
+        def jacobian(x: np.ndarray, residuals=residuals) -> np.ndarray:
+            """Forward differences, all perturbed designs tokenized together (stepping
+            inward at an upper bound)."""
+            h = 1e-6 * np.maximum(1.0, np.abs(x))
+            h = np.where(x + h > hi, -h, h)
+            R = residuals(np.vstack([x[None], x[None] + np.diag(h)]))
+            return ((R[1:] - R[0]) / h[:, None]).T
 
         fitted += 1
         if len(params) == 0:
-            r = residual(np.zeros(0))
             x = np.zeros(0)
+            r = residuals(x[None])[0]
         else:
             # float64 candidate tokens keep finite differences clean; the target's float32
             # rounding (~1e-7 relative) is far below `tol`. A projected target has no exact
             # fit: its residual stalls well above `tol`, so fewer, looser iterations suffice.
             exact = nearest == 0
-            sol = least_squares(residual, 0.5 * (lo + hi), bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9), diff_step=1e-6,
+            sol = least_squares(lambda x, residuals=residuals: residuals(x[None])[0], 0.5 * (lo + hi), jac=jacobian,
+                                bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9),
                                 xtol=1e-10 if exact else 1e-4, ftol=1e-10 if exact else 1e-4, gtol=1e-10 if exact else 1e-6,
                                 max_nfev=(20 if exact else 5) * (len(params) + 1))
             x, r = np.clip(sol.x, lo, hi), sol.fun
