@@ -203,7 +203,9 @@ class DynamicsSelfGuidance(ZerothOrder):
         if c.sim_grad_weight > 0:
             from tt.guidance.simgrad import SimGradient
 
-            sim = SimGradient(problem.space, cfg, self._trained, decoder=decoder, start_step=c.sim_grad_start,
+            # The simulator gradient lands on the candidate's own tokens: exact structures only.
+            exact = decoder.exact() if hasattr(decoder, "exact") else decoder
+            sim = SimGradient(problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start,
                               device=problem.device)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,

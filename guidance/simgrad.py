@@ -25,8 +25,8 @@ The simulator's gradient of a candidate's reward, in three links:
    design can produce equals dR/dc along the matching change of c.
 
 `SimGradient.token_gradient` does all three for every candidate of a guided step (each
-decoded with `tt.guidance.zeroth.DesignDecoder`; a candidate that does not decode gets a
-zero gradient and is counted) and `tt.guidance.selfguide` mixes it into the guidance
+decoded with `tt.guidance.zeroth.DesignDecoder` to a design of exactly its token structure,
+no projection; a candidate that does not decode gets a zero gradient and is counted) and `tt.guidance.selfguide` mixes it into the guidance
 gradient. Cost: per guided step, one least-squares decode per candidate (CPU, seconds),
 2 p compiles for the Jacobians, and one differentiable rollout of candidates x motions,
 whose memory grows with steps x substeps; `DGSConfig.sim_grad_start` limits it to the
@@ -356,7 +356,7 @@ class SimGradient:
 
     space: design space (contact-free); cfg: the reward (its guidance alphas are used);
     trained: the model (layout and normaliser); decoder: candidate decoder (default
-    `tt.guidance.zeroth.DesignDecoder`); start_step: guided steps before it get no simulator
+    `tt.guidance.zeroth.DesignDecoder` with ``max_distance=0``); start_step: guided steps before it get no simulator
     gradient; device: Warp device for the rollouts.
     """
 
@@ -369,7 +369,9 @@ class SimGradient:
         if self.space.has_contacts:
             raise ValueError(f"--sim-grad-weight needs a contact-free design space; {self.space.name!r} has contacts")
         self.cfg, self.trained = cfg, trained
-        self.decoder = decoder if decoder is not None else DesignDecoder(self.space)
+        # Exact structures only: the token gradient is mapped onto the candidate's own tokens,
+        # so the decoded design must have them (a projected design has other tokens).
+        self.decoder = decoder if decoder is not None else DesignDecoder(self.space, max_distance=0)
         self.start_step, self.device, self.config, self.rel_step = int(start_step), device, config, rel_step
         self.stats = SimStats()
 

@@ -246,6 +246,14 @@ class DesignDecoder:
         self._table = table
         self.max_distance = max_distance
 
+    def exact(self) -> "DesignDecoder":
+        """A decoder of the same space and table that accepts exact token structures only."""
+        from tt.tokens.design_fit import CandidateTable
+
+        if self._table is None:
+            self._table = CandidateTable(self.space)
+        return DesignDecoder(self.space, table=self._table, max_distance=0)
+
     def __call__(self, tokens, index: int) -> Decoded:
         from tt.tokens.design_fit import CandidateTable, design_from_tokens
 
