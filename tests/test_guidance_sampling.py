@@ -305,6 +305,19 @@ def test_decoder_recovers_a_real_design_from_normalised_tokens():
     assert decoded.design is not None and decoded.design.discrete == designs[0].discrete
     np.testing.assert_allclose(decoded.design.continuous, designs[0].continuous, atol=1e-4)
     assert decoded.residual < 1e-4
+    assert decoded.distance == 0
+
+    # One wrong link-ID bit (what an undertrained model emits): the default decoder projects it
+    # onto the nearest design, the exact twin (what the simulator gradient uses) refuses it.
+    from tt.tokens.schema import SCHEMA
+
+    col = SCHEMA["dyna_joint"].slice("link_id").start
+    batch.values["dyna_joint"][0, 0, col] = 1.0 - batch.values["dyna_joint"][0, 0, col]
+    decoder = DesignDecoder(space, table=table)
+    projected = decoder(batch, 0)
+    assert projected.design is not None and projected.design.discrete == designs[0].discrete and projected.distance == 1
+    refused = decoder.exact()(batch, 0)
+    assert refused.design is None and "nearest: 1" in refused.error
 
 
 class OracleEps(torch.nn.Module):
