@@ -107,17 +107,16 @@ def _edit_distances(sb: np.ndarray, bits: np.ndarray, counts: np.ndarray) -> np.
     return prev[np.arange(C), counts]
 
 
-def _alignment(sb: np.ndarray, cb: np.ndarray, tie: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _alignment(sb: np.ndarray, cb: np.ndarray, tie: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Token pairs (sample rows, candidate rows) that an optimal `_edit_distances` alignment
     of sb (n, nb) with cb (c, nb) substitutes; equal lengths and bits give the identity.
 
     tie: (n, c) cost of pairing two tokens that breaks ties between alignments of equal
-    edit distance (which token is the missing one when the bits cannot tell), or None.
+    edit distance (which token is the missing one when the bits cannot tell).
     """
     n, c = len(sb), len(cb)
     gap = sb.shape[1] + 1
     sub = np.abs(cb[None, :, :].astype(np.int64) - sb[:, None, :]).sum(-1)  # (n, c)
-    tie = np.zeros((n, c)) if tie is None else tie
     # Lexicographic costs (edit distance, then tie cost); gaps add no tie cost.
     D = np.zeros((n + 1, c + 1), np.int64)
     E = np.zeros((n + 1, c + 1))
@@ -191,7 +190,13 @@ class CandidateTable:
         keys = [b"".join(np.ascontiguousarray(self.features[n][1][k, :self.features[n][0][k]]).tobytes() + b"|"
                          for n in EMBODIMENT_TYPES) for k in range(len(self.discrete))]
         first: dict[bytes, int] = {}
-        self.structure = np.array([first.setdefault(k, len(first)) for k in keys], dtype=np.int64)
+        representative = []  # the first candidate of each structure
+        for k, key in enumerate(keys):
+            if key not in first:
+                first[key] = len(first)
+                representative.append(k)
+        self.structure = np.array([first[key] for key in keys], dtype=np.int64)
+        self._representative = np.array(representative, dtype=np.int64)
         # Ranking weights of the continuous columns: 1 / variance over the candidates' real
         # tokens, so the values that tell discrete choices apart (a mount's rotation) count
         # as much as large ones that do not (masses); columns no choice changes get 0
@@ -212,11 +217,13 @@ class CandidateTable:
         attributes differ costs how many differ, a missing or extra token its attributes
         + 1), summed over types. 0 means the same token structure; a sample that misses one
         token early in a sequence costs that one token, not every later one."""
-        structure = np.zeros(len(self.discrete), np.int64)
+        # One edit distance per distinct structure, shared by its candidates.
+        reps = self._representative
+        per_structure = np.zeros(len(reps), np.int64)
         for name in EMBODIMENT_TYPES:
             counts, bits, _ = self.features[name]
-            structure += _edit_distances(feat[name][0], bits, counts)
-        return structure
+            per_structure += _edit_distances(feat[name][0], bits[reps], counts[reps])
+        return per_structure[self.structure]
 
     def alignment(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Per type, the (sample rows, candidate rows) token pairs of candidate i's optimal
