@@ -49,7 +49,7 @@ import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
 from tt.guidance.rewards import REWARDS
-from tt.report import REWARD_METRIC, markdown_table, summary_row
+from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
@@ -147,18 +147,6 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
 
 
 # ------------------------------------------------------------------------------ statistics
-def mean_ci(values) -> tuple[float, float]:
-    """Mean and 95% CI half-width (Student t) of the finite values; NaN when there are none."""
-    from scipy.stats import t
-
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
-    if v.size == 0:
-        return float("nan"), float("nan")
-    if v.size == 1:
-        return float(v[0]), float("nan")
-    return float(v.mean()), float(t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
-
-
 def _fmt(m: float, h: float, digits: int = 3) -> str:
     if not math.isfinite(m):
         return "-"
@@ -209,32 +197,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def plot_tables(tables: dict[str, list[dict]], path: Path) -> None:
-    plt = _plt()
-    fig, axes = plt.subplots(2, len(tables), figsize=(6.5 * len(tables), 7), squeeze=False)
-    for col, (name, records) in enumerate(tables.items()):
-        rewards = list(dict.fromkeys(r["reward_name"] for r in records))
-        labels = [m for m in METHODS if any(r["method"] == m for r in records)]
-        width = 0.8 / len(labels)
-        for row, key in enumerate(("reward", "seconds")):
-            ax = axes[row][col]
-            for j, label in enumerate(labels):
-                ms = [mean_ci([r[key] for r in _ok(records) if r["method"] == label and r["reward_name"] == rw])
-                      for rw in rewards]
-                x = np.arange(len(rewards)) + (j - (len(labels) - 1) / 2) * width
-                ax.bar(x, [0 if not math.isfinite(m) else m for m, _ in ms], width,
-                       yerr=[0 if not math.isfinite(h) else h for _, h in ms], capsize=3, label=label)
-            ax.set_xticks(np.arange(len(rewards)), rewards, rotation=15)
-            ax.set_ylabel("validated reward" if key == "reward" else "optimize time (s)")
-            if key == "seconds":
-                ax.set_yscale("log")
-            ax.set_title(f"ViperX, {name}")
-            ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def scaling_series(records: list[dict]) -> dict[str, list[tuple[int, tuple, tuple]]]:
@@ -456,7 +418,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         )
         plot_lambda(lam, out.parent / "codesign_lambda.png")
     if tables:
-        plot_tables(tables, out.with_suffix(".png"))
+        plot_method_bars({k: _ok(v) for k, v in tables.items()}, out.with_suffix(".png"), order=METHODS)
     goal = targets(tables, scaling, info)
     skipped = info.get("skipped", [])
     text = (

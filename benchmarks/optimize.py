@@ -35,7 +35,7 @@ import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
 from tt.guidance.rewards import REWARDS
-from tt.report import REWARD_METRIC, markdown_table, summary_row
+from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion, motion_set
 
@@ -78,19 +78,6 @@ def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig) -> list[di
     return records
 
 
-def mean_ci(values) -> tuple[float, float]:
-    """Mean and half-width of the 95% Student-t confidence interval (nan for one value)."""
-    from scipy import stats
-
-    v = np.asarray([x for x in values if math.isfinite(x)], dtype=np.float64)
-    if v.size == 0:
-        return float("nan"), float("nan")
-    if v.size == 1:
-        return float(v[0]), float("nan")
-    half = stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size)
-    return float(v.mean()), float(half)
-
-
 def _fmt(m: float, h: float) -> str:
     digits = 2 if abs(m) < 10 else 1 if abs(m) < 1000 else 0
     return f"{m:.{digits}f}" if not math.isfinite(h) else f"{m:.{digits}f} ± {h:.{digits}f}"
@@ -120,34 +107,6 @@ def speedups(records: list[dict]) -> list[float]:
     """Sequential / batched optimize time of each run."""
     seq = {(r["reward_name"], r["seed"]): r["seconds"] for r in records if r["method"] == SEQUENTIAL}
     return [seq[(r["reward_name"], r["seed"])] / r["seconds"] for r in records if r["method"] == BATCHED]
-
-
-def plot(settings: dict[str, list[dict]], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, len(settings), figsize=(6.5 * len(settings), 7), squeeze=False)
-    for col, (name, records) in enumerate(settings.items()):
-        rewards = list(dict.fromkeys(r["reward_name"] for r in records))
-        labels = list(dict.fromkeys(r["method"] for r in records))
-        width = 0.8 / len(labels)
-        for row, key in enumerate(("reward", "seconds")):
-            ax = axes[row][col]
-            for j, label in enumerate(labels):
-                ms = [mean_ci([r[key] for r in records if r["method"] == label and r["reward_name"] == rw]) for rw in rewards]
-                x = np.arange(len(rewards)) + (j - (len(labels) - 1) / 2) * width
-                ax.bar(x, [m for m, _ in ms], width, yerr=[0 if not math.isfinite(h) else h for _, h in ms],
-                       capsize=3, label=label)
-            ax.set_xticks(np.arange(len(rewards)), rewards, rotation=15)
-            ax.set_ylabel("validated reward" if key == "reward" else "optimize time (s)")
-            if key == "seconds":
-                ax.set_yscale("log")
-            ax.set_title(f"ViperX, {name}")
-            ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
 
 
 def paired(records: list[dict], a: str, b: str, key: str = "reward") -> list[float]:
@@ -256,7 +215,7 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
-    plot(settings, out.with_suffix(".png"))
+    plot_method_bars(settings, out.with_suffix(".png"))
     return text, verdicts
 
 

@@ -28,7 +28,7 @@ Usage:
     python benchmarks/quadruped.py [--designs 100] [--seed 0] [--workers 2] [--budget-min M]
         [--motions NAME:SEED ...] [--motions-per-design 0] [--set FIELD=VALUE ...]
         [--speed-sizes 1 16 64 256] [--speed-mixed 4] [--speed-steps 50] [--speed-repeats 2]
-        [--skip-speed] [--skip-quality] [--raw RAW.json] [--from-raw RAW.json ...]
+        [--skip-speed] [--skip-quality] [--raw RAW.json] [--resume RAW.json] [--from-raw RAW.json ...]
         [--out benchmarks/results/quadruped.md]
 """
 
@@ -99,14 +99,18 @@ def _assignments(designs: int, motions: int, per_design: int) -> list[list[int]]
 
 
 def run_quality(designs, assignments, workers: int, budget_s: float | None = None, *,
-                motion_names: list[str] | None = None, overrides: dict | None = None) -> list[dict]:
+                motion_names: list[str] | None = None, overrides: dict | None = None,
+                skip: set[int] = frozenset()) -> list[dict]:
     """Episodes of the designs, in design order; logs one JSON line per finished design.
 
     assignments: indices into the motions (`_val_motions(motion_names)`) per design.
     budget_s: stop starting designs once this many seconds have passed; the designs started
-    by then finish, so the result is the first k designs (k <= len(designs)).
-    overrides: `WBCConfig` fields that differ from the defaults."""
-    jobs = iter([(i, d, a, motion_names, overrides or {}) for i, (d, a) in enumerate(zip(designs, assignments))])
+    by then finish, so the result is the first k designs not skipped.
+    overrides: `WBCConfig` fields that differ from the defaults.
+    skip: design indices already measured (a resumed run); they are not run or returned."""
+    jobs = iter([(i, d, a, motion_names, overrides or {}) for i, (d, a) in enumerate(zip(designs, assignments))
+                 if i not in skip])
+    todo = len(designs) - len(skip)
     results: dict[int, dict] = {}
     start = time.perf_counter()
     # spawn, not fork: the speed part has started torch's and Warp's thread pools in this
@@ -119,11 +123,11 @@ def run_quality(designs, assignments, workers: int, budget_s: float | None = Non
                 r = fut.result()
                 results[r["index"]] = r
                 elapsed = time.perf_counter() - start
-                _log({"part": "quality", "design": r["index"], "done": len(results), "of": len(designs),
+                _log({"part": "quality", "design": r["index"], "done": len(results), "of": todo,
                       "pos_err_cm": float(np.nanmean(r["pos_err"])), "survived": int(np.sum(r["survival"])),
                       "episodes": len(r["motions"]), "seconds": round(r["seconds"], 1),
                       "elapsed_s": round(elapsed, 1),
-                      "eta_s": round(elapsed / len(results) * (len(designs) - len(results)), 1)})
+                      "eta_s": round(elapsed / len(results) * (todo - len(results)), 1)})
                 if budget_s is None or elapsed < budget_s:
                     running |= {pool.submit(_evaluate_design, job) for job in islice(jobs, 1)}
     return [results[i] for i in sorted(results)]
@@ -430,6 +434,18 @@ def _report(args, space, motions, results, nominal_results, speed, meta: dict) -
     return "\n".join(lines)
 
 
+def _resumed(args) -> tuple[list[dict], list[dict]]:
+    """The quality results and nominal runs of ``args.resume``, after checking that it measured
+    the same designs on the same motions with the same controller."""
+    raw = json.loads(args.resume.read_text())
+    for name in ("seed", "motions", "motions_per_design", "overrides"):
+        if raw["args"].get(name) != getattr(args, name):
+            raise SystemExit(f"--resume {args.resume}: it ran with {name}={raw['args'].get(name)!r}, "
+                             f"this run has {name}={getattr(args, name)!r}")
+    results = [r for r in raw["results"] if r["index"] < args.designs]
+    return results, raw["nominal"]
+
+
 def main() -> None:
     import sys
 
@@ -452,6 +468,9 @@ def main() -> None:
                     help="start no new design after this many minutes of the quality part; report the designs done")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "quadruped.md")
     ap.add_argument("--raw", type=Path, default=None, help="also save the measurements as JSON here")
+    ap.add_argument("--resume", type=Path, default=None, metavar="RAW.json",
+                    help="a --raw file of an earlier run with the same seed, designs and motions: keep its quality "
+                         "results (and nominal runs) and run only the designs it lacks")
     ap.add_argument("--from-raw", type=Path, nargs="+", default=None,
                     help="write the report from --raw files (each file's parts replace earlier ones); run nothing")
     args = ap.parse_args()
@@ -507,12 +526,17 @@ def main() -> None:
                                                     args.speed_steps, args.speed_repeats))
         if not args.skip_quality:
             designs = args.sample[: args.designs]
+            earlier, nominal_earlier = _resumed(args) if args.resume else ([], [])
             results, nominal = part("quality", lambda: (
                 run_quality(designs, _assignments(len(designs), len(motions), args.motions_per_design), args.workers,
                             None if args.budget_min is None else 60.0 * args.budget_min,
-                            motion_names=args.motions, overrides=args.overrides),
-                run_quality([space.nominal()], _assignments(1, len(motions), 0), args.workers,
-                            motion_names=args.motions, overrides=args.overrides)))
+                            motion_names=args.motions, overrides=args.overrides,
+                            skip={r["index"] for r in earlier}),
+                nominal_earlier or run_quality([space.nominal()], _assignments(1, len(motions), 0), args.workers,
+                                               motion_names=args.motions, overrides=args.overrides)))
+            if args.resume:
+                results = sorted(earlier + results, key=lambda r: r["index"])
+                meta["quality"] = _merged_meta(json.loads(args.resume.read_text())["meta"]["quality"], meta["quality"])
         if args.raw is not None:
             args.raw.write_text(json.dumps({"args": {k: getattr(args, k) for k in kept}, "meta": meta,
                                             "speed": speed, "results": results, "nominal": nominal}))

@@ -78,3 +78,53 @@ def summary_row(metrics: Mapping, index: int | slice = slice(None)) -> dict[str,
             finite = v[np.isfinite(v)]
             row[key] = float(finite.mean()) if finite.size else float("nan")
     return row
+
+
+def mean_ci(values) -> tuple[float, float]:
+    """Mean and half-width of the 95 % Student-t confidence interval of the finite values
+    (None skipped); NaN half-width for one value, NaN both for none."""
+    import numpy as np
+    from scipy import stats
+
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=np.float64)
+    if v.size == 0:
+        return float("nan"), float("nan")
+    if v.size == 1:
+        return float(v[0]), float("nan")
+    return float(v.mean()), float(stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+
+
+def plot_method_bars(settings: Mapping[str, Sequence[Mapping]], path, order: Sequence[str] | None = None,
+                     space: str = "ViperX") -> None:
+    """One column per setting: validated reward (top) and optimize time (bottom, log scale) per
+    reward and method, mean with 95 % CI. Records carry method, reward_name, reward, seconds;
+    `order` fixes the methods' order (default: first appearance)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(2, len(settings), figsize=(6.5 * len(settings), 7), squeeze=False)
+    for col, (name, records) in enumerate(settings.items()):
+        rewards = list(dict.fromkeys(r["reward_name"] for r in records))
+        present = list(dict.fromkeys(r["method"] for r in records))
+        labels = [m for m in order if m in present] if order else present
+        width = 0.8 / max(len(labels), 1)
+        for row, key in enumerate(("reward", "seconds")):
+            ax = axes[row][col]
+            for j, label in enumerate(labels):
+                ms = [mean_ci([r[key] for r in records if r["method"] == label and r["reward_name"] == rw])
+                      for rw in rewards]
+                x = np.arange(len(rewards)) + (j - (len(labels) - 1) / 2) * width
+                ax.bar(x, [m if math.isfinite(m) else 0.0 for m, _ in ms], width,
+                       yerr=[h if math.isfinite(h) else 0.0 for _, h in ms], capsize=3, label=label)
+            ax.set_xticks(np.arange(len(rewards)), rewards, rotation=15)
+            ax.set_ylabel("validated reward" if key == "reward" else "optimize time (s)")
+            if key == "seconds":
+                ax.set_yscale("log")
+            ax.set_title(f"{space}, {name}")
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
