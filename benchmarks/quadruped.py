@@ -413,7 +413,10 @@ def _speed_lines(speed: list[dict]) -> list[str]:
 def _merged_meta(a: dict, b: dict) -> dict:
     """One header entry for a part measured in two runs: both dates and commands, the summed
     wall time, the higher loads."""
-    return {"date": f"{a['date']} and {b['date']}", "commands": a.get("commands", [a["argv"]]) + b.get("commands", [b["argv"]]),
+    def commands(m: dict) -> list:
+        return m["commands"] if "commands" in m else [m["argv"]]
+
+    return {"date": f"{a['date']} and {b['date']}", "commands": commands(a) + commands(b),
             "wall": a["wall"] + b["wall"],
             "load_start": [max(x, y) for x, y in zip(a["load_start"], b["load_start"])],
             "load_end": [max(x, y) for x, y in zip(a["load_end"], b["load_end"])]}

@@ -227,6 +227,43 @@ class TokenTensors:
                         raise LayoutError(f"ids[{s.name!r}] kind {kind!r} spans {lo[k]}..{hi[k]}; valid 0..{layout.id_sizes[kind] - 1}")
 
 
+def slot_ids(spec: TokenSpec, slots: int, id_sizes: Mapping[str, int]) -> torch.Tensor:
+    """Positional IDs (slots, K) of `slots` consecutive tokens of `spec` (of one control step
+    for step types), time IDs zero: slot i holds entity i, or entity i // 2 with order i % 2
+    for types with a joint-order ID; clamped to the ID tables."""
+    pos = torch.arange(slots)
+    paired = "order" in spec.ids
+    cols = []
+    for kind in spec.ids:
+        if kind == "time":
+            cols.append(torch.zeros_like(pos))
+        elif kind == "order":
+            cols.append(pos % 2)
+        else:
+            cols.append((pos // 2 if paired else pos).clamp(max=id_sizes[kind] - 1))
+    return torch.stack(cols, -1)
+
+
+def with_slot_ids(layout: Layout, tokens: TokenTensors) -> TokenTensors:
+    """`tokens` with every embodiment padding token carrying its slot's positional ID.
+
+    The tokenizer writes ID 0 into padding slots, while real embodiment tokens carry their
+    slot's ID. A motion-to-robot model trained on that learns which slots are padding from
+    their IDs, but when it generates a robot (`tt.guidance.predicted.build_query`) every slot
+    carries its positional ID, since the robot does not exist yet, and it then never emits
+    padding (the step-6,500 ViperX checkpoint made every sample 7-DoF). Training on these
+    IDs makes the IDs say nothing about padding, so the values must. Step types already
+    carry positional IDs in their padding (`tt.tokens.episodes`).
+    """
+    ids = dict(tokens.ids)
+    for s in layout.specs:
+        if s.per_step:
+            continue
+        slot = slot_ids(s, s.length, layout.id_sizes).to(tokens.ids[s.name].device)
+        ids[s.name] = torch.where(tokens.mask[s.name].unsqueeze(-1), tokens.ids[s.name], slot)
+    return TokenTensors(tokens.values, ids, tokens.mask)
+
+
 def layout_from_schema(counts: Mapping[str, int], *, steps: int = 8, max_time: int = 1024) -> Layout:
     """Layout of the RoboToken schema for a design space.
 

@@ -29,12 +29,13 @@ from tt.dit.checkpoint import (
     latest_checkpoint,
     list_checkpoints,
     load_checkpoint,
+    load_model,
     save_checkpoint,
 )
 from tt.dit.data import EpisodeTokens
 from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
-from tt.dit.layout import LayoutError
+from tt.dit.layout import LayoutError, with_slot_ids
 from tt.dit.model import RoboDiT, get_config
 from tt.tokens.normalize import Normalizer
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
@@ -56,7 +57,9 @@ class TrainConfig:
     each task's DDIM process; future_states: the control task also diffuses the states
     after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
     device: None for `tt.device.default_device()`; keep_checkpoints: how many of the
-    newest checkpoints to keep.
+    newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
+    and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
+    fine-tune after a change of the training data; ignored when the run resumes.
     """
 
     data: str = ""
@@ -82,6 +85,7 @@ class TrainConfig:
     device: str | None = None
     bf16: bool = True
     resume: bool = True
+    init: str = ""
 
     def __post_init__(self) -> None:
         if self.task not in ("robot", "control", "both"):
@@ -210,6 +214,15 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r}")
         model.load_state_dict(state["state_dict"])
         normalizer = Normalizer.from_state_dict(state["normalizer"])
+    elif config.init:
+        state = None
+        start = load_model(config.init, ema=True)
+        model, normalizer = start.model, start.normalizer
+        if model.layout != layout:
+            raise LayoutError(f"--init {config.init} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
+        if model.config != get_config(config.size):
+            raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r}")
+        log.info("starting from the EMA weights of %s (step %d)", config.init, start.step)
     else:
         state = None
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
@@ -242,7 +255,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     while step < config.steps:
         parts = []
         for task, n in tasks:
-            raw = episodes.sample(n, config.window, task.window, data_gen)
+            raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen))
             raw.check(layout)
             tokens = normalizer.normalize(raw).to(device)
             parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen)))

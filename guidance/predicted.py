@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
+from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, slot_ids
 from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
@@ -100,21 +100,6 @@ class RobotQuery:
         return int(self.target_pos.shape[2])
 
 
-def _entity_ids(spec: TokenSpec, slots: int, id_sizes) -> list[torch.Tensor]:
-    """Positional IDs (slots,) per ID kind except time (see the module docstring)."""
-    pos = torch.arange(slots)
-    paired = "order" in spec.ids
-    cols = []
-    for kind in spec.ids:
-        if kind == "time":
-            cols.append(torch.zeros_like(pos))
-        elif kind == "order":
-            cols.append(pos % 2)
-        else:
-            cols.append((pos // 2 if paired else pos).clamp(max=id_sizes[kind] - 1))
-    return cols
-
-
 def _rotation_matrix(quat: np.ndarray) -> np.ndarray:
     """Unit quaternions (..., 4) (w, x, y, z) -> rotation matrices (..., 3, 3)."""
     q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
@@ -154,7 +139,7 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
     values, ids, mask = {}, {}, {}
     for spec in layout.specs:
         per = spec.per_step if spec.role in STEP_ROLES else spec.length
-        cols = _entity_ids(spec, per, layout.id_sizes)
+        cols = slot_ids(spec, per, layout.id_sizes).unbind(-1)
         if spec.role in STEP_ROLES:
             i = torch.stack(cols, -1)[None, None].expand(count, S, per, len(spec.ids)).clone()  # (B, S, P, K)
             i[..., spec.time_index] = steps[:, :, None]

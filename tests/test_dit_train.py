@@ -153,3 +153,19 @@ def test_lr_schedule():
     assert lr_factor(5250, 500, 10_000) == pytest.approx(0.5)
     assert lr_factor(7875, 500, 10_000) == pytest.approx(0.5 * (1 + math.cos(math.pi * 7375 / 9500)))
     assert lr_factor(10_000, 500, 10_000) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_init_starts_a_new_run_from_the_ema_weights(tmp_path, episodes):
+    source = train(_config(tmp_path / "a", task="both", steps=3), episodes=episodes)
+    shadow = load_checkpoint(source.checkpoint)["ema"]["shadow"]
+    # lr 0: the new run's one step leaves the weights where --init put them.
+    result = train(_config(tmp_path / "b", task="both", steps=1, lr=0.0, init=str(source.checkpoint)), episodes=episodes)
+    state = load_checkpoint(result.checkpoint)
+    assert state["step"] == 1 and len(result.losses) == 1
+    weights = load_model(result.checkpoint, ema=False).model
+    assert len(list(weights.parameters())) == len(shadow)
+    for p, a in zip(weights.parameters(), shadow):
+        assert torch.equal(p, a)
+    _assert_same(state["normalizer"], load_checkpoint(source.checkpoint)["normalizer"], "normalizer")
+    with pytest.raises(ValueError, match="holds a"):
+        train(_config(tmp_path / "c", task="both", steps=1, size="mini", init=str(source.checkpoint)), episodes=episodes)

@@ -209,3 +209,44 @@ def test_predicted_reward_gradient_matches_finite_differences(truth):
 
     args = tuple(base[n].clone().requires_grad_(True) for n in names)
     assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-5, rtol=1e-4, fast_mode=True)
+
+
+def test_training_padding_carries_the_ids_a_generation_query_gives():
+    # Three ViperX designs of 5, 6 and 7 DoF: the tokenizer pads the shorter ones with ID 0,
+    # where a generation query (the robot does not exist yet) gives every slot its positional
+    # ID. `with_slot_ids` (applied to every training batch) makes the two agree, so the IDs
+    # cannot tell the model which slots are padding.
+    from tt.dit.layout import with_slot_ids
+
+    space = get_space("viperx")
+    by_dof = {}
+    for d in space.sample(60, seed=0):
+        by_dof.setdefault(space.model(d).nu, d)
+    assert sorted(by_dof) == [5, 6, 7]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        emb = tokenize_models([space.model(by_dof[k]) for k in (5, 6, 7)]).tokens
+    counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) for n in emb.types}
+    counts.update(track_link_obs=1, target_pose=1, actuator_obs=7, dyna_joint_obs=7, control=7)
+    layout = layout_from_schema(counts, steps=S)
+    emb = emb.pad_to({n: layout[n].length for n in emb.types}).to_torch()
+    motion = for_space([get_motion("toss")], "viperx")[0]
+    target = TokenBatch({"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
+                        {"target_pose": np.zeros((4, S, 2), np.int64)}, {"target_pose": np.ones((4, S), bool)})
+    query = build_query(layout, Normalizer.fit([emb, target]), motion, 3).tokens
+    train = query.clone()
+    names = [s.name for s in layout.specs if not s.per_step]
+    for n in names:
+        train.ids[n], train.mask[n] = emb.ids[n].clone(), emb.mask[n].clone()
+    padded = [n for n in names if not bool(train.mask[n].all())]
+    assert set(padded) >= {"link", "dyna_joint", "actuator"}
+    assert not all(torch.equal(train.ids[n], query.ids[n]) for n in padded)  # zero IDs in the padding
+
+    fixed = with_slot_ids(layout, train)
+    for n in names:
+        assert torch.equal(fixed.ids[n], query.ids[n]), n
+        real = train.mask[n]
+        assert torch.equal(fixed.ids[n][real], train.ids[n][real]), n  # real tokens keep their IDs
+    for n in layout.names:
+        if layout[n].per_step:
+            assert torch.equal(fixed.ids[n], train.ids[n]), n

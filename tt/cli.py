@@ -281,6 +281,7 @@ def train(
     seed: int = typer.Option(0, help="Random seed."),
     checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
+    init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's EMA weights and normaliser (fine-tuning)."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
     from tt.dit.cli import train_cmd
@@ -288,7 +289,7 @@ def train(
 
     try:
         result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
-                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume)
+                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init)
     except (ValueError, FileNotFoundError, SchemaVersionError) as e:
         _fail(str(e))
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
