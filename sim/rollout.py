@@ -46,8 +46,9 @@ BACKENDS: tuple[str, ...] = ("warp", "mjwarp", "newton", "mujoco")
 DEFAULT_CHUNK = 50
 
 
-def _models(designs: Sequence[Design | mujoco.MjModel]) -> tuple[list[mujoco.MjModel], tuple[str, ...], str | None]:
-    """Compiled models, end-effector site names and design space name (None for raw models)."""
+def _models(designs: Sequence[Design | mujoco.MjModel], backend: str = "warp") -> tuple[list[mujoco.MjModel], tuple[str, ...], str | None]:
+    """Compiled models, end-effector site names and design space name (None for raw models);
+    raises for designs with contacts on the contact-free "warp" backend."""
     if len(designs) == 0:
         raise ValueError("designs is empty; rollout needs at least one design")
     spaces = {d.space for d in designs if isinstance(d, Design)}
@@ -60,7 +61,7 @@ def _models(designs: Sequence[Design | mujoco.MjModel]) -> tuple[list[mujoco.MjM
         raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
     if spaces:
         space = get_space(spaces.pop())
-        if space.has_contacts:
+        if space.has_contacts and backend == "warp":
             raise ValueError(
                 f"design space {space.name!r} has contacts (has_contacts=True); the 'warp' backend "
                 "simulates contact-free trees only, use backend='mujoco'"
@@ -144,7 +145,7 @@ def rollout(
         from tt.sim.newton_backend import newton_rollout
 
         return newton_rollout(designs, motions, config=config, device=device, progress=progress)
-    models, sites, space = _models(designs)
+    models, sites, space = _models(designs, backend)
     _check_motions(motions, config, len(sites))
     if backend == "mujoco":
         from tt.sim.validate import oracle_rollout

@@ -155,3 +155,59 @@ def test_errors_name_the_problem():
     quadruped = get_space("quadruped")
     with pytest.raises(ValueError, match="contacts"):
         rollout([quadruped.nominal()], [motion], device="cpu")
+
+
+def _cli(args):
+    from typer.testing import CliRunner
+
+    from tt.cli import app
+
+    res = CliRunner().invoke(app, args)
+    return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
+
+
+@pytest.mark.parametrize("space_name, backend, motion_steps", [("viperx", "warp", None), ("quadruped", "mujoco", 20)])
+def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, backend, motion_steps):
+    """`tt rollout` (warp by default, the oracle for the quadruped's contacts) writes the
+    metrics an evaluation of the same designs on the same backend gives, and counts world-steps."""
+    import json
+
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.sim.designs import load_designs
+    from tt.sim.motions import get_motion, save_npz
+
+    args = ["rollout", "--space", space_name, "--n", "3", "--seed", "5", "--out", str(tmp_path / "run")]
+    toss = get_motion("toss")
+    if motion_steps is None:
+        args += ["--motion", "toss", "--motion", "scrub"]
+        motions = for_space([toss, get_motion("scrub")], space_name)
+    else:
+        short = Motion("toss[:20]", toss.pos[:motion_steps], toss.quat[:motion_steps], toss.dt)
+        save_npz(short, tmp_path / "short.npz")
+        args += ["--motion-file", str(tmp_path / "short.npz")]
+        motions = for_space([short], space_name)
+    code, text = _cli(args)
+    assert code == 0, text
+    assert "world-steps/s" in text and f"backend {backend}" in text, text
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    designs = load_designs(tmp_path / "run" / "designs.json")
+    assert designs == get_space(space_name).sample(3, 5)
+    assert summary["backend"] == backend and summary["worlds"] == 3 * len(motions)
+    assert summary["world_steps"] == 3 * 10 * sum(m.steps for m in motions)  # 0.002 s physics, 50 Hz control
+    ref = evaluate_designs(designs, motions, "tracking", backend=backend, device="cpu")
+    for key in ("pos_err", "survival", "reward"):
+        np.testing.assert_allclose(np.asarray(summary["per_world"][key]), ref.metrics[key], rtol=1e-6, atol=1e-9)
+    assert (tmp_path / "run" / "episode.npz").stat().st_size > 0
+
+
+def test_cli_rollout_errors_name_the_problem(tmp_path):
+    code, text = _cli(["rollout", "--space", "quadruped", "--n", "1", "--backend", "warp"])
+    assert code != 0 and "has contacts" in text, text
+    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--device", "cuda:7"])
+    assert code != 0 and "does not exist" in text, text
+    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--backend", "bullet"])
+    assert code != 0 and "bullet" in text, text
+    code, text = _cli(["rollout", "--space", "cheetah", "--n", "1"])
+    assert code != 0 and "cheetah" in text, text
+    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--motion", "nope"])
+    assert code != 0 and "nope" in text, text

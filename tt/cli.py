@@ -170,6 +170,89 @@ def validate(
         typer.echo(f"wrote {path}: {len(designs) * len(ms)} rollouts; show them with `tt view {path}`")
 
 
+@app.command()
+def rollout(
+    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual, quadruped."),
+    n: int = typer.Option(16, help="Random designs of the space (seed --seed); ignored with --design."),
+    seed: int = typer.Option(0, help="Random seed of the designs."),
+    design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
+    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable; default: toss); see `tt motions`."),
+    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    backend: Optional[str] = typer.Option(None, help="warp | mjwarp | newton | mujoco (default: warp; mujoco, the oracle, for spaces with contacts)."),
+    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
+    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
+) -> None:
+    """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
+    metrics per motion and the world-steps per second."""
+    import time
+
+    from rich.console import Console
+
+    from tt.baselines.evaluate import score_episode
+    from tt.report import columns_for, rich_table, summary_row
+    from tt.sim.controller import IKConfig
+    from tt.sim.designs import DesignError, get_space, load_designs
+    from tt.sim.rollout import BACKENDS
+    from tt.sim.rollout import rollout as run_rollout
+
+    try:
+        if design is not None:
+            designs = load_designs(design)
+            spaces = {d.space for d in designs}
+            if spaces != {space}:
+                _fail(f"--space {space} but the designs of {design} are from {sorted(spaces)}")
+        else:
+            if n < 1:
+                _fail(f"--n must be >= 1, got {n}")
+            designs = get_space(space).sample(n, seed)
+        sp = get_space(space)
+    except (DesignError, FileNotFoundError, ValueError) as e:
+        _fail(str(e))
+    ms = _motions(motion if (motion or motion_file) else ["toss"], motion_file, sp.name)
+    backend = backend or ("mujoco" if sp.has_contacts else "warp")
+    if backend not in BACKENDS:
+        _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")
+    models = [sp.model(d) for d in designs]
+    worlds = len(designs) * len(ms)
+    config = IKConfig()
+    # A world-step is one physics step of one world, counted over each motion's length.
+    world_steps = sum(config.substeps(m) * mo.steps for m in models for mo in ms)
+    start = time.perf_counter()
+    try:
+        ep = run_rollout(designs, ms, backend=backend, device=device, progress=True, config=config)
+        if ep.qpos.is_cuda:
+            import torch
+
+            torch.cuda.synchronize(ep.qpos.device)
+        seconds = time.perf_counter() - start
+        _, metrics = score_episode(ep, designs, ms, reward, models=models)
+    except ValueError as e:
+        _fail(str(e))
+    rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
+    if len(ms) > 1:
+        rows.append({"name": "all", **summary_row(metrics)})
+    Console().print(rich_table(rows, columns_for(reward), first=("name", "motion"),
+                               title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)"))
+    rate = world_steps / seconds
+    typer.echo(f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
+               f"(backend {backend}, device {ep.qpos.device}; model building, kernel compile or cache load included)")
+    if out is not None:
+        from tt.sim.designs import save_designs
+        from tt.viz.episode_file import save_episode_npz
+
+        out.mkdir(parents=True, exist_ok=True)
+        save_designs(designs, out / "designs.json")
+        save_episode_npz(out / "episode.npz", ep, designs, motion_name=", ".join(mo.name for mo in ms))
+        (out / "summary.json").write_text(json.dumps({
+            "space": sp.name, "backend": backend, "device": str(ep.qpos.device), "reward": reward,
+            "motions": [mo.name for mo in ms], "designs": len(designs), "worlds": worlds, "world_steps": world_steps,
+            "seconds": seconds, "world_steps_per_s": rate, "metrics": rows,
+            "per_world": {k: v.tolist() for k, v in metrics.items()},
+        }, indent=1))
+        typer.echo(f"wrote {out}/designs.json, episode.npz (show with `tt view {out / 'episode.npz'}`) and summary.json")
+
+
 def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dict]:
     """Oracle re-run of each design on every motion, one summary row per design."""
     from tt.baselines.evaluate import evaluate_designs
