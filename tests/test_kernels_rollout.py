@@ -5,8 +5,8 @@
 * Gradients of the tracking reward of a rollout with respect to link offsets (body_pos)
   and the mount pose, taken with `wp.Tape` through the differentiable rollout kernel, equal
   central finite differences of the same rollout run in float64 by MuJoCo C with the
-  oracle's mink controller (relative error <= 1e-2). The start posture is held fixed (the
-  oracle's, passed to both): gradients flow through the controller and the physics.
+  oracle's mink controller (relative error <= 1e-2), on ten ViperX designs of 5, 6 and 7 DoF. The start posture is held fixed (the oracle's, passed to both): gradients flow
+  through the controller and the physics.
 """
 
 import mujoco
@@ -97,54 +97,71 @@ def _quat_mul(a, b):
     return out
 
 
+def _check_design_gradients(space, design, motion, config: IKConfig) -> None:
+    """Tape gradients of the tracking reward of `design` w.r.t. its link offsets and mount
+    yaw against central finite differences of the float64 oracle rollout."""
+    model = space.model(design)
+    q0 = DiffIKController(model, config).initial_q(motion.pos[0], motion.quat[0])
+    tree = build_tree_model([model], space.ee_sites(), device="cpu", requires_grad=True)
+    motions = motion_arrays(motion.pos[None, :STEPS], motion.quat[None, :STEPS], [STEPS], device="cpu")
+    tape = wp.Tape()
+    reward = wp.zeros(1, dtype=float, requires_grad=True)
+    with tape:
+        out = rollout_tree(tree, motions, 1, STEPS, config=config, differentiable=True, initial_qpos=q0[None])
+        counted = wp.array(out.alive.numpy().astype(np.int32), dtype=wp.int32)
+        tracking_reward(out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, counted, reward)
+    assert out.alive.numpy().all()
+    tape.backward(loss=reward)
+    grad_pos = tree.body_pos.grad.numpy()[0].copy()
+    grad_quat = tree.body_quat.grad.numpy()[0].copy()
+
+    eps = 1e-5
+    # Link offsets of every moving body and the mount position.
+    for b in range(1, model.nbody):
+        for c in range(3):
+            if abs(model.body_pos[b, c]) < 1e-12 and b > 1:
+                continue  # offsets that are zero by construction stay so
+            values = []
+            for sign in (1.0, -1.0):
+                m = space.model(design)
+                m.body_pos[b, c] += sign * eps
+                values.append(_oracle_reward(m, motion, q0, config))
+            fd = (values[0] - values[1]) / (2 * eps)
+            assert abs(grad_pos[b, c] - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (design, b, c, grad_pos[b, c], fd)
+    # Mount yaw: rotate the base about the world z axis; d/dyaw by the chain rule.
+    base_quat = model.body_quat[1].copy()
+    dq_dyaw = 0.5 * _quat_mul([0.0, 0.0, 0.0, 1.0], base_quat)
+    adjoint = float(grad_quat[1] @ dq_dyaw)
+    values = []
+    for sign in (1.0, -1.0):
+        m = space.model(design)
+        m.body_quat[1] = _quat_mul([np.cos(sign * eps / 2), 0.0, 0.0, np.sin(sign * eps / 2)], base_quat)
+        values.append(_oracle_reward(m, motion, q0, config))
+    fd = (values[0] - values[1]) / (2 * eps)
+    assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (design, adjoint, fd)
+
+
 @pytest.mark.slow
 def test_rollout_gradients_match_float64_finite_differences():
+    # Ten designs: the nominal and, for each DoF count (5, 6, 7), the first three random ones
+    # that track the motion's start (oracle reward above 1 of 20): a design whose end
+    # effector stays far from the targets has a reward and gradients of 1e-10 or less, which
+    # says nothing (5 of the first 10 random designs of seed 0; those pass too).
     space = get_space("viperx")
     motion = motion_set("train", arms=1)[0]
     config = IKConfig()
-    # Two designs of one topology (one compile of the differentiable module).
-    nominal = space.nominal()
-    other = next(d for d in space.sample(50, seed=3) if d.discrete[1] == nominal.discrete[1])
-    for design in (nominal, other):
+    chosen, per_dof = [space.nominal()], {5: 0, 6: 0, 7: 0}
+    for design in space.sample(60, seed=0):
         model = space.model(design)
+        if per_dof[model.nu] == 3:
+            continue
         q0 = DiffIKController(model, config).initial_q(motion.pos[0], motion.quat[0])
-        tree = build_tree_model([model], space.ee_sites(), device="cpu", requires_grad=True)
-        motions = motion_arrays(motion.pos[None, :STEPS], motion.quat[None, :STEPS], [STEPS], device="cpu")
-        tape = wp.Tape()
-        reward = wp.zeros(1, dtype=float, requires_grad=True)
-        with tape:
-            out = rollout_tree(tree, motions, 1, STEPS, config=config, differentiable=True, initial_qpos=q0[None])
-            counted = wp.array(out.alive.numpy().astype(np.int32), dtype=wp.int32)
-            tracking_reward(out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, counted, reward)
-        assert out.alive.numpy().all()
-        tape.backward(loss=reward)
-        grad_pos = tree.body_pos.grad.numpy()[0].copy()
-        grad_quat = tree.body_quat.grad.numpy()[0].copy()
-
-        eps = 1e-5
-        # Link offsets of every moving body and the mount position.
-        for b in range(1, model.nbody):
-            for c in range(3):
-                if abs(model.body_pos[b, c]) < 1e-12 and b > 1:
-                    continue  # offsets that are zero by construction stay so
-                values = []
-                for sign in (1.0, -1.0):
-                    m = space.model(design)
-                    m.body_pos[b, c] += sign * eps
-                    values.append(_oracle_reward(m, motion, q0, config))
-                fd = (values[0] - values[1]) / (2 * eps)
-                assert abs(grad_pos[b, c] - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (b, c, grad_pos[b, c], fd)
-        # Mount yaw: rotate the base about the world z axis; d/dyaw by the chain rule.
-        base_quat = space.model(design).body_quat[1].copy()
-        dq_dyaw = 0.5 * _quat_mul([0.0, 0.0, 0.0, 1.0], base_quat)
-        adjoint = float(grad_quat[1] @ dq_dyaw)
-        values = []
-        for sign in (1.0, -1.0):
-            m = space.model(design)
-            m.body_quat[1] = _quat_mul([np.cos(sign * eps / 2), 0.0, 0.0, np.sin(sign * eps / 2)], base_quat)
-            values.append(_oracle_reward(m, motion, q0, config))
-        fd = (values[0] - values[1]) / (2 * eps)
-        assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (adjoint, fd)
+        if _oracle_reward(model, motion, q0, config) > 1.0:
+            chosen.append(design)
+            per_dof[model.nu] += 1
+    assert len(chosen) == 10, per_dof
+    for design in chosen:
+        _check_design_gradients(space, design, motion, config)
 
 
 _LIMITED_ARM = """
