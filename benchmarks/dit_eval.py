@@ -95,33 +95,32 @@ def choices(space, design) -> dict[str, str]:
 
 class Decoder:
     """Candidates' embodiment tokens -> per candidate (detokenized MjModel or None, ViperX design
-    or None, structure distance): the design is the nearest one (`design_from_tokens` with
+    or None, structure distance): the design is the nearest one (`DesignDecoder` with
     ``max_distance=None``, what the optimizers return); distance 0 means the candidate had a
     ViperX token structure itself, -1 that decoding failed."""
 
     def __init__(self, space, top_k: int):
+        from tt.guidance.zeroth import DesignDecoder
         from tt.tokens.design_fit import CandidateTable
 
         self.space = space
-        self.top_k = top_k
         t = time.perf_counter()
-        self.table = CandidateTable(space)
-        emit(part="setup", what="candidate_table", seconds=time.perf_counter() - t, choices=len(self.table))
+        self.decoder = DesignDecoder(space, CandidateTable(space), max_distance=None, top_k=top_k)
+        emit(part="setup", what="candidate_table", seconds=time.perf_counter() - t, choices=len(self.decoder.table))
 
-    def __call__(self, batch) -> list[tuple[object, object]]:
-        from tt.tokens.design_fit import design_from_tokens
+    def __call__(self, batch) -> list[tuple[object, object, int]]:
         from tt.tokens.detokenize import detokenize
 
         models = [r.model for r in detokenize(batch)]
         out = []
         for i in range(len(batch)):
-            try:
-                fit = design_from_tokens(batch, i, self.space, table=self.table, top_k=self.top_k, max_distance=None)
-                design, distance = fit.design, fit.distance
-                if design is not None:
+            dec = self.decoder(batch, i)
+            design, distance = dec.design, (dec.distance if dec.design is not None else -1)
+            if design is not None:
+                try:
                     self.space.model(design)  # the decoded design compiles
-            except Exception:  # a candidate may break the fit in any way; it then counts as not decoded
-                design, distance = None, -1
+                except Exception:  # counts as not decoded, whatever broke
+                    design, distance = None, -1
             out.append((models[i], design, distance))
         return out
 

@@ -236,32 +236,37 @@ class DesignDecoder:
     built at the first call); max_distance: how far a candidate's token structure may be
     from the nearest discrete choice's (`design_from_tokens`; None, the default: any
     candidate is projected onto the nearest design, as the optimizers need a design; 0: only
-    exact structures decode).
+    exact structures decode); top_k: how many nearest discrete choices get a continuous fit
+    (two by default: a projected candidate has no exact fit to stop at, and more fits buy little).
     """
 
-    def __init__(self, space: DesignSpace, table=None, max_distance: int | None = None):
+    def __init__(self, space: DesignSpace, table=None, max_distance: int | None = None, top_k: int = 2):
         if table is not None and table.space is not space:
             raise ValueError(f"the candidate table is of space {table.space.name!r}, not {space.name!r}")
         self.space = space
         self._table = table
         self.max_distance = max_distance
+        self.top_k = top_k
 
-    def exact(self) -> "DesignDecoder":
-        """A decoder of the same space and table that accepts exact token structures only."""
+    @property
+    def table(self):
+        """The space's `tt.tokens.CandidateTable` (built at the first use)."""
         from tt.tokens.design_fit import CandidateTable
 
         if self._table is None:
             self._table = CandidateTable(self.space)
-        return DesignDecoder(self.space, table=self._table, max_distance=0)
+        return self._table
+
+    def exact(self) -> "DesignDecoder":
+        """A decoder of the same space and table that accepts exact token structures only."""
+        return DesignDecoder(self.space, table=self.table, max_distance=0, top_k=self.top_k)
 
     def __call__(self, tokens, index: int) -> Decoded:
-        from tt.tokens.design_fit import CandidateTable, design_from_tokens
+        from tt.tokens.design_fit import design_from_tokens
 
-        if self._table is None:
-            self._table = CandidateTable(self.space)
         try:
-            # Two fits: a projected candidate has no exact fit to stop at, and more fits buy little.
-            fit = design_from_tokens(tokens, index, self.space, table=self._table, max_distance=self.max_distance, top_k=2)
+            fit = design_from_tokens(tokens, index, self.space, table=self.table, max_distance=self.max_distance,
+                                     top_k=self.top_k)
         except Exception as e:  # a candidate's tokens may break the fit in any way; report, do not crash
             return Decoded(None, f"decoding failed: {type(e).__name__}: {e}")
         if fit.design is None:
