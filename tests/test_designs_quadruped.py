@@ -262,3 +262,53 @@ def test_malformed_json_raises_naming_the_field(space, edit, field):
     edit(data)
     with pytest.raises(DesignError, match=field):
         space.from_dict(data)
+
+
+@pytest.mark.parametrize("linkage_legs", [0, 2, 4])
+def test_passive_linkage_joints_are_unactuated_joints_in_robotokens(space, linkage_legs):
+    """RoboTokens of a quadruped with linkage legs, decoded back to MJCF, have the same joints,
+    the same passive (unactuated) joints at the same places in joint order, and the linkage
+    loops as equality constraints at the same bodies (an MJCF round trip through the tokens)."""
+    import warnings
+
+    from tt.tokens.detokenize import detokenize
+    from tt.tokens.tokenize import tokenize_models
+
+    legs = [1] * linkage_legs + [0] * (4 - linkage_legs)
+    model = space.model(_with_discrete(space, (1, *legs, 0, 1)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tokens = tokenize_models([model]).tokens
+    back = detokenize(tokens)[0].model
+    assert back is not None
+
+    def passive_ids(m):
+        driven = {int(m.actuator_trnid[a, 0]) for a in range(m.nu)}
+        return [j for j in range(m.njnt) if j not in driven and m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
+
+    assert (back.njnt, back.nu, back.neq) == (model.njnt, model.nu, model.neq)
+    assert passive_ids(back) == passive_ids(model) and len(passive_ids(model)) == 2 * linkage_legs
+    np.testing.assert_array_equal(back.jnt_type, model.jnt_type)
+    np.testing.assert_array_equal(back.jnt_bodyid, model.jnt_bodyid)
+    np.testing.assert_array_equal(back.eq_type, model.eq_type)
+
+    def loops(m):
+        """Each connect constraint as (sorted body pair, anchor in the torso's frame at qpos0);
+        the detokenizer names its own sites and may list a pair's two sides the other way round
+        (and places the floating base elsewhere in the world)."""
+        data = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, data)
+        out = []
+        for i in range(m.neq):
+            a, b = int(m.eq_obj1id[i]), int(m.eq_obj2id[i])
+            if m.eq_objtype[i] == mujoco.mjtObj.mjOBJ_SITE:
+                pair, anchor = (int(m.site_bodyid[a]), int(m.site_bodyid[b])), data.site_xpos[a].copy()
+            else:
+                pair, anchor = (a, b), data.xpos[a] + data.xmat[a].reshape(3, 3) @ m.eq_data[i, :3]
+            local = data.xmat[1].reshape(3, 3).T @ (anchor - data.xpos[1])
+            out.append((tuple(sorted(pair)), local))
+        return sorted(out, key=lambda x: x[0])
+
+    for (pair, anchor), (pair_back, anchor_back) in zip(loops(model), loops(back), strict=True):
+        assert pair == pair_back
+        np.testing.assert_allclose(anchor_back, anchor, atol=1e-5)
