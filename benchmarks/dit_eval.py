@@ -511,6 +511,7 @@ def main() -> None:
     parser.add_argument("--progress", action="store_true", help="(c) progress bar over control steps")
     parser.add_argument("--out", default=str(RESULTS / "dit_eval.md"), help="results markdown file")
     args = parser.parse_args()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # the sections write their plots beside it
     if set(args.parts) - set("abc"):
         parser.error(f"--parts {args.parts!r}: use letters a, b, c")
     if args.threads:

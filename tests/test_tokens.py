@@ -384,6 +384,29 @@ def test_garbage_is_reported_not_raised():
     assert not r.ok and "no link tokens" in r.error
 
 
+def test_an_end_effector_marked_on_two_links_stays_on_the_deepest():
+    # A generated robot may mark an earlier link as track link 0 too; MuJoCo would reject a
+    # second site named ee_0. The detokenizer keeps it on the deepest link and says so.
+    sp = get_space("viperx")
+    t = _quiet_tokenize([sp.model(sp.nominal())]).tokens
+    clean = detokenize(t)[0]
+    sl = SCHEMA["link"].slice("track_id")
+    rows = np.flatnonzero(t.mask["link"][0])
+    values = {k: v.copy() for k, v in t.values.items()}
+    tip = next(r for r in rows if not np.array_equal(values["link"][0, r, sl], values["link"][0, rows[0], sl]))
+    values["link"][0, 2, sl] = values["link"][0, tip, sl]
+    r = detokenize(TokenBatch(values, t.ids, t.mask))[0]
+    assert r.ok, r.error
+    assert any("track link 0: marked on links" in n for n in r.notes), r.notes
+    site_pos = []
+    for m in (clean.model, r.model):
+        assert sum(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i) == "ee_0" for i in range(m.nsite)) == 1
+        d = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, d)
+        site_pos.append(d.site("ee_0").xpos.copy())
+    np.testing.assert_allclose(site_pos[1], site_pos[0], atol=1e-9)
+
+
 # ------------------------------------------------------------------------------ episodes
 def _open_loop_episode(models, steps: int, seed: int, substeps: int = 10) -> Episode:
     """Episodes from MuJoCo C: random smooth commands, recorded at 50 Hz."""

@@ -231,6 +231,32 @@ class _RobotTree:
         self._spanning_forest(joints, links)
         self._grow_tree()
         self._place_links()
+        self._pick_track_links()
+
+    def _pick_track_links(self) -> None:
+        """One link per track ID: a (generated) robot may mark several links as the same
+        end effector, which MuJoCo rejects as a repeated site name; the deepest link in the
+        tree keeps it (an end effector sits at a chain's tip), the others lose it."""
+        parent = {c: g for g, cs in self.children.items() for c in cs}
+
+        def depth(g: int) -> int:
+            d = 0
+            while g in parent and parent[g] != -1:
+                g, d = parent[g], d + 1
+            return d
+
+        by_tid: dict[int, list[int]] = {}
+        for lid, r in self.row.items():
+            tid = int(self.lk["track_id"][r])
+            if tid >= 0:
+                by_tid.setdefault(tid, []).append(lid)
+        self.track_link: dict[int, int] = {}
+        for tid, lids in sorted(by_tid.items()):
+            keep = max(lids, key=lambda l: (depth(self.group_of[l]), l))
+            if len(lids) > 1:
+                self.notes.append(f"track link {tid}: marked on links {sorted(lids)}; kept on link {keep} (deepest), "
+                                  "dropped from the others")
+            self.track_link[tid] = keep
 
     # ------------------------------------------------------------------ structure
     def _spanning_forest(self, joints: dict, links: set[int]) -> None:
@@ -451,7 +477,7 @@ class _RobotTree:
             if code > 0:
                 self.lines.append(pad + "  " + _geom_xml(l, code, lk, row, rb, pb, self.config, self.notes))
             tid = int(lk["track_id"][row])
-            if tid >= 0:
+            if tid >= 0 and self.track_link.get(tid) == l:
                 self.lines.append(f'{pad}  <site name="ee_{tid}"{_pose(rb, pb)} size="0.01"/>')
         self.lines += [f"{pad}  {site}" for site in self.loop_sites.get(g, [])]
         self._emit_children(g, depth + 1)
