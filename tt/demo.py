@@ -30,6 +30,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 log = logging.getLogger(__name__)
 
 #: Methods that sample the diffusion model (need a checkpoint).
@@ -185,7 +187,11 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     ev = evaluate_designs(winners, motions, config.reward, backend="mujoco")
     rows = []
     for i, r in enumerate(results):
-        rows.append({"name": labels[i], **summary_row(ev.metrics, i), "seconds": r.seconds, "rollouts": r.rollouts})
+        row = {"name": labels[i], **summary_row(ev.metrics, i), "seconds": r.seconds, "rollouts": r.rollouts}
+        if not np.isfinite(row.get("pos_err", 0.0)):
+            # No step counted: the error is past the termination threshold from the start.
+            row["note"] = "ended at step 1"
+        rows.append(row)
     rows += failures
 
     config.out.mkdir(parents=True, exist_ok=True)

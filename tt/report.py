@@ -29,7 +29,7 @@ def _fmt(v) -> str:
     if isinstance(v, str):
         return v
     if isinstance(v, float) and not math.isfinite(v):
-        return "nan"
+        return "-"
     if isinstance(v, float):
         return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
     return str(v)
