@@ -33,16 +33,13 @@ class Evaluation:
 
 
 def run_rollout(
-    designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None
+    designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None,
+    progress: bool = False,
 ) -> Episode:
     """Rollout of every design (or its built model) on every motion with `backend` (design-major worlds)."""
-    if backend == "mujoco":
-        from tt.sim.validate import oracle_rollout
-
-        return oracle_rollout(list(designs), list(motions))
     from tt.sim.rollout import rollout
 
-    return rollout(list(designs), list(motions), backend=backend, device=device)
+    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress)
 
 
 def score_episode(
@@ -81,8 +78,10 @@ def evaluate_designs(
     *,
     backend: str = "warp",
     device: str | None = None,
+    progress: bool = False,
 ) -> Evaluation:
-    """Roll out every design on every motion in one batch and score it with `reward`."""
+    """Roll out every design on every motion in one batch and score it with `reward`
+    (progress: a tqdm bar over the rollout)."""
     if not designs:
         raise ValueError("evaluate_designs needs at least one design")
     spaces = {d.space for d in designs}
@@ -98,7 +97,7 @@ def evaluate_designs(
     # Each design's model is built once, for the size and mass terms and, on "warp" (where a
     # second build is a visible share of a small batch's time), for the rollout too.
     models = [sp.model(d) for d in designs]
-    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device)
+    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress)
     r, m = score_episode(ep, designs, motions, reward, models=models)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=m, episode=ep)
 

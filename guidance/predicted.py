@@ -139,13 +139,13 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
     values, ids, mask = {}, {}, {}
     for spec in layout.specs:
         per = spec.per_step if spec.role in STEP_ROLES else spec.length
-        cols = slot_ids(spec, per, layout.id_sizes).unbind(-1)
+        slot = slot_ids(spec, per, layout.id_sizes)  # (P, K)
         if spec.role in STEP_ROLES:
-            i = torch.stack(cols, -1)[None, None].expand(count, S, per, len(spec.ids)).clone()  # (B, S, P, K)
+            i = slot[None, None].expand(count, S, per, len(spec.ids)).clone()  # (B, S, P, K)
             i[..., spec.time_index] = steps[:, :, None]
             ids[spec.name] = i.reshape(count, S * per, -1)
         else:
-            ids[spec.name] = torch.stack(cols, -1)[None].expand(count, per, len(spec.ids)).clone()
+            ids[spec.name] = slot[None].expand(count, per, len(spec.ids)).clone()
         if spec.role is Role.CONDITION:
             if spec.name != "target_pose":
                 raise LayoutError(f"conditioning type {spec.name!r} is not a target pose; this query fills target_pose only")

@@ -189,14 +189,14 @@ def rollout(
 
     from rich.console import Console
 
-    from tt.baselines.evaluate import score_episode
+    from tt.baselines.evaluate import evaluate_designs
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.controller import IKConfig
     from tt.sim.designs import DesignError, get_space, load_designs
     from tt.sim.rollout import BACKENDS
-    from tt.sim.rollout import rollout as run_rollout
 
     try:
+        sp = get_space(space)
         if design is not None:
             designs = load_designs(design)
             spaces = {d.space for d in designs}
@@ -205,30 +205,24 @@ def rollout(
         else:
             if n < 1:
                 _fail(f"--n must be >= 1, got {n}")
-            designs = get_space(space).sample(n, seed)
-        sp = get_space(space)
+            designs = sp.sample(n, seed)
     except (DesignError, FileNotFoundError, ValueError) as e:
         _fail(str(e))
     ms = _motions(motion if (motion or motion_file) else ["toss"], motion_file, sp.name)
     backend = backend or ("mujoco" if sp.has_contacts else "warp")
     if backend not in BACKENDS:
         _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")
-    models = [sp.model(d) for d in designs]
     worlds = len(designs) * len(ms)
-    config = IKConfig()
-    # A world-step is one physics step of one world, counted over each motion's length.
-    world_steps = sum(config.substeps(m) * mo.steps for m in models for mo in ms)
+    # A world-step is one physics step of one world, counted over each motion's length; every
+    # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
+    world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
     try:
-        ep = run_rollout(designs, ms, backend=backend, device=device, progress=True, config=config)
-        if ep.qpos.is_cuda:
-            import torch
-
-            torch.cuda.synchronize(ep.qpos.device)
-        seconds = time.perf_counter() - start
-        _, metrics = score_episode(ep, designs, ms, reward, models=models)
+        ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True)
     except ValueError as e:
         _fail(str(e))
+    seconds = time.perf_counter() - start
+    ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
     if len(ms) > 1:
         rows.append({"name": "all", **summary_row(metrics)})
@@ -236,7 +230,7 @@ def rollout(
                                title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)"))
     rate = world_steps / seconds
     typer.echo(f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
-               f"(backend {backend}, device {ep.qpos.device}; model building, kernel compile or cache load included)")
+               f"(backend {backend}, device {ep.qpos.device}; model building, kernel compile or cache load and scoring included)")
     if out is not None:
         from tt.sim.designs import save_designs
         from tt.viz.episode_file import save_episode_npz
