@@ -437,16 +437,16 @@ def _report(args, space, motions, results, nominal_results, speed, meta: dict) -
     return "\n".join(lines)
 
 
-def _resumed(args) -> tuple[list[dict], list[dict]]:
-    """The quality results and nominal runs of ``args.resume``, after checking that it measured
-    the same designs on the same motions with the same controller."""
+def _resumed(args) -> tuple[list[dict], list[dict], dict]:
+    """The quality results, nominal runs and quality-part header of ``args.resume``, after
+    checking that it measured the same designs on the same motions with the same controller."""
     raw = json.loads(args.resume.read_text())
     for name in ("seed", "motions", "motions_per_design", "overrides"):
         if raw["args"].get(name) != getattr(args, name):
             raise SystemExit(f"--resume {args.resume}: it ran with {name}={raw['args'].get(name)!r}, "
                              f"this run has {name}={getattr(args, name)!r}")
     results = [r for r in raw["results"] if r["index"] < args.designs]
-    return results, raw["nominal"]
+    return results, raw["nominal"], raw["meta"]["quality"]
 
 
 def main() -> None:
@@ -529,7 +529,7 @@ def main() -> None:
                                                     args.speed_steps, args.speed_repeats))
         if not args.skip_quality:
             designs = args.sample[: args.designs]
-            earlier, nominal_earlier = _resumed(args) if args.resume else ([], [])
+            earlier, nominal_earlier, meta_earlier = _resumed(args) if args.resume else ([], [], None)
             results, nominal = part("quality", lambda: (
                 run_quality(designs, _assignments(len(designs), len(motions), args.motions_per_design), args.workers,
                             None if args.budget_min is None else 60.0 * args.budget_min,
@@ -539,7 +539,7 @@ def main() -> None:
                                                motion_names=args.motions, overrides=args.overrides)))
             if args.resume:
                 results = sorted(earlier + results, key=lambda r: r["index"])
-                meta["quality"] = _merged_meta(json.loads(args.resume.read_text())["meta"]["quality"], meta["quality"])
+                meta["quality"] = _merged_meta(meta_earlier, meta["quality"])
         if args.raw is not None:
             args.raw.write_text(json.dumps({"args": {k: getattr(args, k) for k in kept}, "meta": meta,
                                             "speed": speed, "results": results, "nominal": nominal}))
