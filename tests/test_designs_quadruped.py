@@ -55,10 +55,14 @@ def _stands(model: mujoco.MjModel, seconds: float) -> tuple[float, float]:
     return dz, tilt
 
 
-def _passive_joints(model: mujoco.MjModel) -> set[str]:
+def _passive_joint_ids(model: mujoco.MjModel) -> list[int]:
+    """Joints no actuator drives (the free joint aside), in joint order."""
     driven = {int(model.actuator_trnid[a, 0]) for a in range(model.nu)}
-    return {model.joint(j).name for j in range(model.njnt)
-            if j not in driven and model.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE}
+    return [j for j in range(model.njnt) if j not in driven and model.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
+
+
+def _passive_joints(model: mujoco.MjModel) -> set[str]:
+    return {model.joint(j).name for j in _passive_joint_ids(model)}
 
 
 def test_space_has_the_papers_seven_binary_choices(space):
@@ -282,12 +286,8 @@ def test_passive_linkage_joints_are_unactuated_joints_in_robotokens(space, linka
     back = detokenize(tokens)[0].model
     assert back is not None
 
-    def passive_ids(m):
-        driven = {int(m.actuator_trnid[a, 0]) for a in range(m.nu)}
-        return [j for j in range(m.njnt) if j not in driven and m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
-
     assert (back.njnt, back.nu, back.neq) == (model.njnt, model.nu, model.neq)
-    assert passive_ids(back) == passive_ids(model) and len(passive_ids(model)) == 2 * linkage_legs
+    assert _passive_joint_ids(back) == _passive_joint_ids(model) and len(_passive_joint_ids(model)) == 2 * linkage_legs
     np.testing.assert_array_equal(back.jnt_type, model.jnt_type)
     np.testing.assert_array_equal(back.jnt_bodyid, model.jnt_bodyid)
     np.testing.assert_array_equal(back.eq_type, model.eq_type)
