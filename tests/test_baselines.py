@@ -185,15 +185,6 @@ def test_budget_below_population_fails_before_any_rollout(monkeypatch):
 
 
 # ------------------------------------------------------------------------------ tt optimize
-def _cli(args):
-    from typer.testing import CliRunner
-
-    from tt.cli import app
-
-    res = CliRunner().invoke(app, args)
-    return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
-
-
 @pytest.mark.parametrize(
     "args, message",
     [
@@ -203,18 +194,18 @@ def _cli(args):
         (["--motion", "toss", "--budget", "3"], "budget 3 is below the CMA-ES population size 5"),
     ],
 )
-def test_optimize_cli_rejects_bad_input(args, message):
-    code, out = _cli(["optimize", *args])
+def test_optimize_cli_rejects_bad_input(args, message, tt_cli):
+    code, out = tt_cli(["optimize", *args])
     assert code == 2, out
     assert message in out
 
 
-def test_optimize_cli_writes_design_time_and_validated_metrics(tmp_path):
+def test_optimize_cli_writes_design_time_and_validated_metrics(tmp_path, tt_cli):
     motion_file = tmp_path / "toss_short.npz"
     save_npz(_motion("toss", steps=75), motion_file)
     out = tmp_path / "opt.json"
-    code, text = _cli(["optimize", "--motion-file", str(motion_file), "--reward", "tracking_weight",
-                       "--budget", "10", "--seed", "1", "--json", str(out)])
+    code, text = tt_cli(["optimize", "--motion-file", str(motion_file), "--reward", "tracking_weight",
+                          "--budget", "10", "--seed", "1", "--json", str(out)])
     assert code == 0, text
     data = json.loads(out.read_text())
     space = get_space("viperx")

@@ -114,16 +114,7 @@ def test_cmaes_improves_over_random_designs_on_the_quadruped(space):
 
 
 # ------------------------------------------------------------------------------ the CLI
-def _cli(args):
-    from typer.testing import CliRunner
-
-    from tt.cli import app
-
-    res = CliRunner().invoke(app, args)
-    return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
-
-
-def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path):
+def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
     """`tt optimize --method random|cmaes`, `tt generate` and `tt view` on the quadruped with
     no backend named: the oracle evaluates, and asking for 'warp' fails naming the contacts."""
     import json
@@ -136,7 +127,7 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path):
     common = ["optimize", "--space", "quadruped", "--motion-file", str(motion_file), "--seed", "3"]
     for method, budget, extra in (("random", 2, []), ("cmaes", 5, ["--generations", "1"])):
         out = tmp_path / f"{method}.json"
-        code, text = _cli([*common, "--method", method, "--budget", str(budget), *extra, "--json", str(out)])
+        code, text = tt_cli([*common, "--method", method, "--budget", str(budget), *extra, "--json", str(out)])
         assert code == 0, text
         data = json.loads(out.read_text())
         assert data["backend"] == "mujoco" and data["rollouts"] == budget
@@ -145,31 +136,31 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path):
         assert v["survival_pct"] == 100.0 and 0.0 < v["pos_err"] < 20.0, v
         # The oracle's reward of the winner is the objective the search measured on the oracle.
         assert v["reward"] == pytest.approx(data["objective"], rel=1e-5)
-    code, text = _cli([*common, "--method", "random", "--budget", "2", "--backend", "warp"])
+    code, text = tt_cli([*common, "--method", "random", "--budget", "2", "--backend", "warp"])
     assert code == 2 and "has contacts" in text, text
 
     dataset = tmp_path / "ds"
-    code, text = _cli(["generate", "--space", "quadruped", "--designs", "1", "--episodes-per-design", "1",
-                       "--min-steps", "10", "--out", str(dataset)])
+    code, text = tt_cli(["generate", "--space", "quadruped", "--designs", "1", "--episodes-per-design", "1",
+                          "--min-steps", "10", "--out", str(dataset)])
     assert code == 0, text
     assert "1 episodes kept of 1 generated" in text, text
-    code, text = _cli(["dataset", "info", str(dataset), "--json"])
+    code, text = tt_cli(["dataset", "info", str(dataset), "--json"])
     config = json.loads(text)["config"]
     assert (config["backend"], config["action_noise"]) == ("mujoco", 0.0)
-    code, text = _cli(["generate", "--space", "quadruped", "--designs", "1", "--out", str(tmp_path / "noisy"),
-                       "--action-noise", "0.01"])
+    code, text = tt_cli(["generate", "--space", "quadruped", "--designs", "1", "--out", str(tmp_path / "noisy"),
+                          "--action-noise", "0.01"])
     assert code == 2 and "needs backend 'warp'" in text, text
 
-    code, text = _cli(["designs", "--space", "quadruped", "--n", "2", "--out", str(tmp_path / "d")])
+    code, text = tt_cli(["designs", "--space", "quadruped", "--n", "2", "--out", str(tmp_path / "d")])
     assert code == 0, text
     html = tmp_path / "q.html"
-    code, text = _cli(["view", str(tmp_path / "d" / "designs.json"), "--html", str(html)])
+    code, text = tt_cli(["view", str(tmp_path / "d" / "designs.json"), "--html", str(html)])
     assert code == 0 and html.stat().st_size > 10_000, text
     # `tt validate` rolls out on the oracle and saves the rollout that `tt view` animates.
     episode = tmp_path / "ep.npz"
-    code, text = _cli(["validate", "--design", f"{tmp_path / 'd' / 'designs.json'}#1", "--motion-file", str(motion_file),
-                       "--episode", str(episode), "--json", str(tmp_path / "val.json")])
+    code, text = tt_cli(["validate", "--design", f"{tmp_path / 'd' / 'designs.json'}#1", "--motion-file", str(motion_file),
+                          "--episode", str(episode), "--json", str(tmp_path / "val.json")])
     assert code == 0 and episode.exists(), text
     assert json.loads((tmp_path / "val.json").read_text())["metrics"][0]["survival_pct"] == 100.0
-    code, text = _cli(["view", str(episode), "--html", str(tmp_path / "ep.html")])
+    code, text = tt_cli(["view", str(episode), "--html", str(tmp_path / "ep.html")])
     assert code == 0 and "0.38 s animation" in text, text

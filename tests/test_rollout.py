@@ -157,17 +157,8 @@ def test_errors_name_the_problem():
         rollout([quadruped.nominal()], [motion], device="cpu")
 
 
-def _cli(args):
-    from typer.testing import CliRunner
-
-    from tt.cli import app
-
-    res = CliRunner().invoke(app, args)
-    return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
-
-
 @pytest.mark.parametrize("space_name, backend, motion_steps", [("viperx", "warp", None), ("quadruped", "mujoco", 20)])
-def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, backend, motion_steps):
+def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, backend, motion_steps, tt_cli):
     """`tt rollout` (warp by default, the oracle for the quadruped's contacts) writes the
     metrics an evaluation of the same designs on the same backend gives, and counts world-steps."""
     import json
@@ -186,7 +177,7 @@ def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, ba
         save_npz(short, tmp_path / "short.npz")
         args += ["--motion-file", str(tmp_path / "short.npz")]
         motions = for_space([short], space_name)
-    code, text = _cli(args)
+    code, text = tt_cli(args)
     assert code == 0, text
     assert "world-steps/s" in text and f"backend {backend}" in text, text
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
@@ -200,14 +191,14 @@ def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, ba
     assert (tmp_path / "run" / "episode.npz").stat().st_size > 0
 
 
-def test_cli_rollout_errors_name_the_problem(tmp_path):
-    code, text = _cli(["rollout", "--space", "quadruped", "--n", "1", "--backend", "warp"])
+def test_cli_rollout_errors_name_the_problem(tmp_path, tt_cli):
+    code, text = tt_cli(["rollout", "--space", "quadruped", "--n", "1", "--backend", "warp"])
     assert code != 0 and "has contacts" in text, text
-    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--device", "cuda:7"])
+    code, text = tt_cli(["rollout", "--space", "viperx", "--n", "1", "--device", "cuda:7"])
     assert code != 0 and "does not exist" in text, text
-    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--backend", "bullet"])
+    code, text = tt_cli(["rollout", "--space", "viperx", "--n", "1", "--backend", "bullet"])
     assert code != 0 and "bullet" in text, text
-    code, text = _cli(["rollout", "--space", "cheetah", "--n", "1"])
+    code, text = tt_cli(["rollout", "--space", "cheetah", "--n", "1"])
     assert code != 0 and "cheetah" in text, text
-    code, text = _cli(["rollout", "--space", "viperx", "--n", "1", "--motion", "nope"])
+    code, text = tt_cli(["rollout", "--space", "viperx", "--n", "1", "--motion", "nope"])
     assert code != 0 and "nope" in text, text
