@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Mapping, Protocol
 import numpy as np
 import torch
 
@@ -244,6 +244,30 @@ class EpisodeTokens:
         return EpisodeTokens({n: roles[n] for n in order}, {n: _schema_ids(n) for n in order}, id_sizes, static_values,
                              static_ids, static_mask, step_values, step_ids, step_mask, lengths.long().cpu(),
                              embodiment.version, order)
+
+    def subset(self, episodes: torch.Tensor) -> "EpisodeTokens":
+        """The episodes at indices `episodes` (n,) long, in that order (copies)."""
+        groups = {g: {n: x[episodes] for n, x in getattr(self, g).items()}
+                  for g in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask")}
+        return EpisodeTokens(dict(self.roles), dict(self.id_names), dict(self.id_sizes), lengths=self.lengths[episodes],
+                             schema_version=self.schema_version, order=self.order, **groups)
+
+    def pad_to(self, counts: Mapping[str, int]) -> "EpisodeTokens":
+        """Every type padded (never truncated) to ``counts[type]`` tokens per robot
+        (embodiment types) or per step (per-step types); types not named keep their length."""
+        def grow(x: torch.Tensor, axis: int, size: int, name: str) -> torch.Tensor:
+            if x.shape[axis] > size:
+                raise LayoutError(f"type {name!r} has {x.shape[axis]} tokens, more than the {size} asked for")
+            shape = list(x.shape)
+            shape[axis] = size - x.shape[axis]
+            return torch.cat([x, torch.zeros(shape, dtype=x.dtype)], dim=axis)
+
+        groups = {}
+        for group, axis in (("static_values", 1), ("static_ids", 1), ("static_mask", 1), ("step_values", 2),
+                            ("step_ids", 1), ("step_mask", 1)):
+            groups[group] = {n: grow(x, axis, counts[n], n) if n in counts else x for n, x in getattr(self, group).items()}
+        return EpisodeTokens(dict(self.roles), dict(self.id_names), dict(self.id_sizes), lengths=self.lengths,
+                             schema_version=self.schema_version, order=self.order, **groups)
 
     @staticmethod
     def concatenate(parts: list["EpisodeTokens"]) -> "EpisodeTokens":

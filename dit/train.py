@@ -37,6 +37,7 @@ from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
 from tt.dit.layout import LayoutError, with_slot_ids
 from tt.dit.model import RoboDiT, get_config
+from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
 
@@ -59,7 +60,9 @@ class TrainConfig:
     device: None for `tt.device.default_device()`; keep_checkpoints: how many of the
     newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
     and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
-    fine-tune after a change of the training data; ignored when the run resumes.
+    fine-tune after a change of the training data; ignored when the run resumes; online:
+    train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
+    of `data` (a dict is read as `OnlineConfig` fields).
     """
 
     data: str = ""
@@ -86,8 +89,13 @@ class TrainConfig:
     bf16: bool = True
     resume: bool = True
     init: str = ""
+    online: OnlineConfig | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.online, dict):
+            self.online = OnlineConfig(**self.online)
+        if self.online is not None and self.data:
+            raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
         if self.task not in ("robot", "control", "both"):
             raise ValueError(f"task {self.task!r} does not exist; tasks: robot, control, both")
         get_config(self.size)
@@ -196,9 +204,11 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     device = _resolve_device(config.device)
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
-    if episodes is None:
+    if episodes is None and config.online is not None:
+        episodes = OnlineTokenSource(config.online, device=str(device))
+    elif episodes is None:
         if not config.data:
-            raise ValueError("TrainConfig.data is empty: give an episode token file (or pass episodes=)")
+            raise ValueError("TrainConfig.data is empty: give a dataset or an episode token file, online=, or episodes=")
         from tt.tokens.loader import open_token_source
 
         episodes = open_token_source(config.data)
@@ -252,7 +262,10 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
              config.size, model.parameter_count(), device, config.task, step, config.steps)
     last = latest_checkpoint(out)
+    start_step = getattr(episodes, "start_step", None)  # sources whose data changes with the step (online)
     while step < config.steps:
+        if start_step is not None:
+            start_step(step)
         parts = []
         for task, n in tasks:
             raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen))

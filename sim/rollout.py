@@ -25,7 +25,7 @@ unperturbed one, bit for bit, and ``action`` is ``ctrl``.
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import mujoco
 import numpy as np
@@ -35,6 +35,9 @@ from tt.sim.controller import IKConfig, check_fixed_base, ee_site_names, model_n
 from tt.sim.designs import Design, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
+
+if TYPE_CHECKING:
+    from tt.kernels.rollout import RolloutArrays
 
 logger = logging.getLogger(__name__)
 
@@ -155,6 +158,93 @@ def rollout(
                          action_noise=action_noise, noise_seed=noise_seed)
 
 
+#: Episode fields recorded by the Warp rollout kernel (``action`` only with perturbation).
+_RECORDED = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos", "target_quat", "alive")
+
+
+def rollout_records(
+    models: Sequence[mujoco.MjModel],
+    sites: tuple[str, ...],
+    motions: Sequence[Motion],
+    *,
+    config: IKConfig = IKConfig(),
+    device: str,
+    chunk: int | None = DEFAULT_CHUNK,
+    progress=None,
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
+) -> list[tuple[list[int], "RolloutArrays"]]:
+    """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
+
+    models: D compiled contact-free trees with end-effector `sites`; motions: M motions.
+    Returns [(members, records)]: the design indices of each topology group (ascending) and
+    the kernel's records of its ``len(members) * M`` worlds, design-major over members.
+    progress: a callable taking a number of control steps done, or None.
+    Inputs are not validated here; `rollout` does that.
+    """
+    from tt.kernels.model import build_tree_model, check_supported, topology_key
+    from tt.kernels.rollout import motion_arrays, rollout_tree
+
+    for i, m in enumerate(models):
+        check_fixed_base(m)
+        check_supported(m, i)
+    M = len(motions)
+    T = max(motion.steps for motion in motions)
+    A = len(sites)
+    pos = np.zeros((M, T, A, 3))
+    quat = np.zeros((M, T, A, 4))
+    for j, motion in enumerate(motions):
+        idx = np.minimum(np.arange(T), motion.steps - 1)
+        pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
+    marrays = motion_arrays(pos, quat, [motion.steps for motion in motions], device=device)
+
+    groups: dict[tuple, list[int]] = {}
+    for d, m in enumerate(models):
+        groups.setdefault(topology_key(m, sites), []).append(d)
+    logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", len(models), len(groups), M, T)
+    results = []
+    for members in groups.values():
+        # One model entry per world (design-major), so world w reads entry w.
+        tree = build_tree_model([models[d] for d in members for _ in range(M)], sites, device=device)
+        # Noise keyed by the world's index in the whole rollout, not in its topology group.
+        world_ids = np.array([d * M + j for d in members for j in range(M)])
+        arrays = rollout_tree(
+            tree, marrays, len(members) * M, T,
+            config=config, chunk=chunk, progress=progress,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
+        )  # fmt: skip
+        results.append((members, arrays))
+    return results
+
+
+def group_episode(members: Sequence[int], records, motions: int, nu: int, *, perturbed: bool, dt: float) -> Episode:
+    """The Episode of one topology group's records, as zero-copy torch views of its Warp arrays.
+
+    members: the group's design indices (its worlds are design-major over them: world
+    k * motions + m is design members[k] on motion m; ``design_index`` holds members[k]);
+    records: its `RolloutArrays`; nu: the group's actuator count (a model without actuators
+    records one padding column, cut off by the view); perturbed: the rollout had action noise.
+    """
+    import warp as wp
+
+    names = _RECORDED + (("action",) if perturbed else ())
+    fields = {name: wp.to_torch(getattr(records, name)) for name in names}
+    if fields["ctrl"].shape[-1] != nu:
+        for name in ("ctrl", "action", "act_force", "act_vel"):
+            if name in fields:
+                fields[name] = fields[name][..., :nu]
+    tdev = fields["qpos"].device
+    W, T = fields["qpos"].shape[:2]
+    return Episode(
+        **{k: fields[k] for k in _RECORDED},
+        action=fields["action"] if perturbed else fields["ctrl"],
+        fallen=torch.zeros((W, T), dtype=torch.bool, device=tdev),
+        design_index=torch.as_tensor(list(members), dtype=torch.long, device=tdev).repeat_interleave(motions),
+        motion_index=torch.arange(motions, device=tdev).repeat(len(members)),
+        dt=dt,
+    )
+
+
 def _rollout_warp(
     models: list[mujoco.MjModel],
     sites: tuple[str, ...],
@@ -169,99 +259,52 @@ def _rollout_warp(
 ) -> Episode:
     import warp as wp
 
-    from tt.kernels.model import build_tree_model, check_supported, topology_key
-    from tt.kernels.rollout import motion_arrays, rollout_tree
-
-    for i, m in enumerate(models):
-        check_fixed_base(m)
-        check_supported(m, i)
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
-    A = len(sites)
-    pos = np.zeros((M, T, A, 3))
-    quat = np.zeros((M, T, A, 4))
-    for j, motion in enumerate(motions):
-        idx = np.minimum(np.arange(T), motion.steps - 1)
-        pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
-    marrays = motion_arrays(pos, quat, [motion.steps for motion in motions], device=device)
-
-    groups: dict[tuple, list[int]] = {}
-    for d, m in enumerate(models):
-        groups.setdefault(topology_key(m, sites), []).append(d)
-    logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", D, len(groups), M, T)
-
     bar = None
     if progress:
         from tqdm import tqdm
+        from tt.kernels.model import topology_key
 
-        bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
-    results = []
-    for members in groups.values():
-        # One model entry per world (design-major), so world w reads entry w.
-        tree = build_tree_model([models[d] for d in members for _ in range(M)], sites, device=device)
-        # Noise keyed by the world's index in the Episode, not in its topology group.
-        world_ids = np.array([d * M + j for d in members for j in range(M)])
-        arrays = rollout_tree(
-            tree, marrays, len(members) * M, T,
-            config=config, chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
-        )  # fmt: skip
-        results.append((members, arrays))
+        groups = len({topology_key(m, sites) for m in models})
+        bar = tqdm(total=T * groups, desc="rollout", unit="step")
+    results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk,
+                              progress=bar.update if bar else None, action_noise=action_noise, noise_seed=noise_seed)
     if bar is not None:
         bar.close()
-
-    design_index = torch.arange(D).repeat_interleave(M)
-    motion_index = torch.arange(M).repeat(D)
-    names = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos", "target_quat", "alive")
     perturbed = action_noise > 0.0
-    if perturbed:
-        names += ("action",)
-    actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
     if len(results) == 1:
         (members, arrays), = results
-        fields = {name: wp.to_torch(getattr(arrays, name)) for name in names}
-        nu = models[0].nu
-        if fields["ctrl"].shape[-1] != nu:  # a model without actuators keeps one padding column
-            for name in actuator_fields:
-                fields[name] = fields[name][..., :nu]
-    else:
-        # Several topologies: copy each group's records into one zero-padded Episode.
-        sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
-        nu = max(m.nu for m in models)
-        sizes.update({name: nu for name in actuator_fields})
-        tdev = wp.device_to_torch(device)
-        fields = {}
+        return group_episode(members, arrays, M, models[0].nu, perturbed=perturbed, dt=config.control_dt)
+    # Several topologies: copy each group's records into one zero-padded Episode.
+    names = _RECORDED + (("action",) if perturbed else ())
+    actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
+    sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
+    nu = max(m.nu for m in models)
+    sizes.update({name: nu for name in actuator_fields})
+    tdev = wp.device_to_torch(device)
+    fields = {}
+    for name in names:
+        first = wp.to_torch(getattr(results[0][1], name))
+        shape = (D * M, T) + (tuple(first.shape[2:]) if name not in sizes else (sizes[name],))
+        fields[name] = torch.zeros(shape, dtype=first.dtype, device=tdev)
+    for members, arrays in results:
+        worlds = torch.tensor([d * M + j for d in members for j in range(M)], device=tdev)
         for name in names:
-            first = wp.to_torch(getattr(results[0][1], name))
-            shape = (D * M, T) + (tuple(first.shape[2:]) if name not in sizes else (sizes[name],))
-            fields[name] = torch.zeros(shape, dtype=first.dtype, device=tdev)
-        for members, arrays in results:
-            worlds = torch.tensor([d * M + j for d in members for j in range(M)], device=tdev)
-            for name in names:
-                src = wp.to_torch(getattr(arrays, name))
-                if name in sizes:
-                    width = min(src.shape[-1], sizes[name])
-                    fields[name][worlds, :, :width] = src[..., :width]
-                else:
-                    fields[name][worlds] = src
-    tdev = fields["qpos"].device
+            src = wp.to_torch(getattr(arrays, name))
+            if name in sizes:
+                width = min(src.shape[-1], sizes[name])
+                fields[name][worlds, :, :width] = src[..., :width]
+            else:
+                fields[name][worlds] = src
     return Episode(
-        qpos=fields["qpos"],
-        qvel=fields["qvel"],
-        ctrl=fields["ctrl"],
+        **{k: fields[k] for k in _RECORDED},
         action=fields["action"] if perturbed else fields["ctrl"],
-        act_force=fields["act_force"],
-        act_vel=fields["act_vel"],
-        ee_pos=fields["ee_pos"],
-        ee_quat=fields["ee_quat"],
-        target_pos=fields["target_pos"],
-        target_quat=fields["target_quat"],
-        alive=fields["alive"],
         fallen=torch.zeros((D * M, T), dtype=torch.bool, device=tdev),
-        design_index=design_index.to(tdev),
-        motion_index=motion_index.to(tdev),
+        design_index=torch.arange(D, device=tdev).repeat_interleave(M),
+        motion_index=torch.arange(M, device=tdev).repeat(D),
         dt=config.control_dt,
     )
 
 
-__all__ = ["BACKENDS", "DEFAULT_CHUNK", "rollout"]
+__all__ = ["BACKENDS", "DEFAULT_CHUNK", "group_episode", "rollout", "rollout_records"]

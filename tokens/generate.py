@@ -268,7 +268,7 @@ def training_motions(space_name: str) -> tuple:
     return tuple(motion_set("train", arms=get_space(space_name).ee_count))
 
 
-def _episode_motion(config: GenerateConfig, base, aug_seed: int):
+def episode_motion(config: GenerateConfig, base, aug_seed: int):
     """Augmented, placed and (optionally) cut training motion."""
     from tt.sim.motions import augment_motion, for_space
     from tt.sim.motions.base import Motion
@@ -310,7 +310,7 @@ def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | Non
     optimizer = CMAES(CMAESConfig(popsize=config.cmaes_popsize, generations=config.cmaes_generations))
     designs = []
     for m, count in by_motion.items():
-        motion = _episode_motion(replace(config, max_yaw=0.0, max_shift=0.0), base[m], 0)
+        motion = episode_motion(replace(config, max_yaw=0.0, max_shift=0.0), base[m], 0)
         # Runs on one motion go in lock step (CMA-ES restarts), one batched rollout per generation.
         problem = Problem(space=config.space, motions=(motion,), reward=config.reward, budget=per_run * count,
                           seed=_seed_int(config.seed, index, _STREAM_CMAES, m, bits=21), backend=config.backend, device=device)
@@ -327,7 +327,7 @@ def _select_worlds(ep, worlds: torch.Tensor):
     return Episode(**kw, dt=ep.dt)
 
 
-def _finite_worlds(ep) -> np.ndarray:
+def finite_worlds(ep) -> np.ndarray:
     """(W,) True where every executed step's state, command and pose is finite."""
     alive = ep.alive.bool()
     ok = torch.ones(ep.worlds, dtype=torch.bool, device=alive.device)
@@ -414,7 +414,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             rng = _rng(config.seed, index, _STREAM_EPISODES, g0)
             motion_ids = rng.choice(len(base), size=K, replace=K > len(base))
             aug_seeds = rng.integers(0, 2**31, size=K)
-            motions = [_episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
+            motions = [episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
             # Built once, for the rollout and the tokenizer (MJCF compilation is a few ms per robot).
             models = [sp.model(d) for d in group]
             ep = rollout(models, motions, backend=config.backend, device=device, action_noise=config.action_noise,
@@ -432,7 +432,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
                                   motion_steps=motion_steps)
             score = {k: v.cpu().numpy() for k, v in metrics(inputs, reward_cfg).items()}
             lengths = ep.lengths().cpu().numpy().astype(np.int64)
-            finite = _finite_worlds(ep)
+            finite = finite_worlds(ep)
             short = lengths < config.min_steps
             dropped["nonfinite"] += int((~finite).sum())
             dropped["short"] += int((finite & short).sum())

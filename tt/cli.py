@@ -347,7 +347,13 @@ def view(
 
 @app.command()
 def train(
-    data: Path = typer.Option(..., help="Dataset folder written by `tt generate` (or an episode token file)."),
+    data: Optional[Path] = typer.Option(None, help="Dataset folder written by `tt generate` (or an episode token file)."),
+    online: bool = typer.Option(False, help="Train on episodes the batched Warp sim generates as training goes (no --data)."),
+    space: str = typer.Option("viperx", help="--online: design space (contact-free)."),
+    online_designs: int = typer.Option(64, help="--online: new designs per refresh."),
+    online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
+    refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
+    online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
@@ -364,10 +370,19 @@ def train(
     from tt.dit.cli import train_cmd
     from tt.tokens.schema import SchemaVersionError
 
+    if online == (data is not None):
+        _fail("give exactly one source of training data: --data DATASET or --online")
     try:
+        online_config = None
+        if online:
+            from tt.dit.online import OnlineConfig
+
+            online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
+                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed)
         result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
-                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init)
-    except (ValueError, FileNotFoundError, SchemaVersionError) as e:
+                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
+                           online=online_config)
+    except (ValueError, FileNotFoundError, RuntimeError, SchemaVersionError) as e:
         _fail(str(e))
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
