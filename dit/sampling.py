@@ -17,6 +17,12 @@ x0_hat through the network: ``g = torch.autograd.grad(R(x0_hat), x_t)``, then re
 subset of types; eps' replaces eps only on guided tokens (``guided``: which types, or
 per-type (B, L) masks; default all diffused types) and never on tokens that are not
 diffused. x0_hat is clipped to the data range (+-1), as the step uses it.
+
+Inpainting (``known``): tokens the task diffuses but whose clean values are given, e.g. a
+design's embodiment tokens when the motion-to-robot model is asked only for that design's
+dynamics. Before each network call they are set to their given value noised to the
+current step's level, q(x_t | x0) with fresh noise (the replacement method; the network
+sees them as it saw diffused tokens in training), and the result holds their given values.
 """
 
 from __future__ import annotations
@@ -64,7 +70,8 @@ def _guided_masks(guided, updated: dict[str, torch.Tensor]) -> dict[str, torch.T
 def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: CosineDDIM | None = None,
            num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
            guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
-           guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False) -> SampleResult:
+           guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
+           known: Mapping[str, torch.Tensor] | None = None) -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
     model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
@@ -73,7 +80,8 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
     eta: DDIM noise (0 deterministic, 1 DDPM-like; the paper uses 1 for self-guidance);
     generator: on the tokens' device, for the initial noise and eta > 0; guide, guided,
     guide_grad: see the module docstring; keep_x0: record x0_hat per step; bf16: autocast
-    the network to bfloat16 (CUDA only).
+    the network to bfloat16 (CUDA only); known: type -> (B, L) bool, diffused tokens whose
+    given values are kept (inpainting, see the module docstring).
     """
     layout = model.layout
     tokens.check(layout)
@@ -88,6 +96,13 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
     wanted = output_types(task, layout)
     updated = {n: masks.noised[n] & masks.visible[n] for n in wanted}
     guided_masks = _guided_masks(guided, updated) if guide is not None else {}
+    given = {}
+    for n, m in (known or {}).items():
+        if n not in updated:
+            raise ValueError(f"known names type {n!r}, which this task does not diffuse; diffused: {sorted(updated)}")
+        m = m.to(device).bool() & updated[n]
+        updated[n] = updated[n] & ~m
+        given[n] = (m, tokens.values[n].float())
     x = {}
     for s in layout.specs:
         v = tokens.values[s.name]
@@ -103,6 +118,9 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
     for i, t in enumerate(steps):
         t_prev = steps[i + 1] if i + 1 < len(steps) else -1
         time = torch.full((b,), float(scheduler.model_time(t)), device=device)
+        for n, (m, x0_given) in given.items():
+            noise = torch.randn(x0_given.shape, generator=generator, device=device, dtype=torch.float32)
+            x[n] = torch.where(m.unsqueeze(-1), scheduler.add_noise(x0_given, noise, t), x[n])
         x_in = {n: (v.detach().requires_grad_(n in updated) if use_grad else v) for n, v in x.items()}
         with torch.set_grad_enabled(use_grad), autocast:
             eps = {n: e.float() for n, e in model(x_in, tokens.ids, masks.noised, time, masks.attend, outputs=wanted).items()}
@@ -121,5 +139,7 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
         for n in wanted:
             x_prev, _ = scheduler.step(x[n].detach(), eps[n].detach(), t, t_prev, eta=eta, generator=generator)
             x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, x[n].detach())
+    for n, (m, x0_given) in given.items():
+        x[n] = torch.where(m.unsqueeze(-1), x0_given, x[n])
     out = TokenTensors({n: x[n].detach().to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
     return SampleResult(out, updated, history)

@@ -44,7 +44,7 @@ from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, s
 from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
-from tt.tokens.normalize import Normalizer, is_padding
+from tt.tokens.normalize import PAD_VALUE, Normalizer, is_padding
 from tt.tokens.schema import GEOM_TYPES, SCHEMA
 
 #: Ways to choose a query's control steps (see the module docstring).
@@ -164,6 +164,48 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
             mask[spec.name] = torch.ones(count, spec.length, dtype=torch.bool)
     tokens = TokenTensors(values, ids, mask).to(device)
     return RobotQuery(tokens, steps.to(device), int(motion.steps), pos.float().to(device), quat.float().to(device))
+
+
+def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models, *, placement: str = "even",
+                 generator: torch.Generator | None = None,
+                 device: str | torch.device = "cpu") -> tuple[RobotQuery, dict[str, torch.Tensor]]:
+    """A motion-to-robot query for given robots: `build_query` with one sequence per model
+    whose embodiment slots hold that robot's tokens (normalised; padding at PAD_VALUE with
+    its slot ID, as in training). Returns (query, known): known marks those slots (type ->
+    (B, L) bool), for `tt.dit.sampling.sample`'s inpainting, so the model predicts the
+    dynamics of these robots on the motion instead of inventing a robot.
+
+    models: compiled MuJoCo models (`DesignSpace.model`). Raises LayoutError for a robot
+    that does not fit the layout.
+    """
+    import warnings
+
+    from tt.dit.layout import with_slot_ids
+    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+
+    query = build_query(layout, normalizer, motion, len(models), placement=placement, generator=generator, device=device)
+    static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TokenizeWarning)
+        emb = Tokenizer()(list(models)).tokens
+    try:
+        padded = emb.pad_to({s.name: s.length for s in static}).to_torch(str(device))
+    except ValueError as e:
+        raise LayoutError(f"a robot does not fit the model's layout: {e}") from None
+    tokens = query.tokens
+    values, ids, mask = dict(tokens.values), dict(tokens.ids), dict(tokens.mask)
+    for s in static:
+        if s.name in padded.values:
+            ids[s.name], mask[s.name] = padded.ids[s.name], padded.mask[s.name]
+            values[s.name] = normalizer.normalize_values(s.name, padded.values[s.name].float(), mask[s.name])
+        else:  # a type none of the robots has: all padding
+            mask[s.name] = torch.zeros_like(mask[s.name])
+            values[s.name] = torch.full_like(values[s.name], PAD_VALUE)
+    filled = with_slot_ids(layout, TokenTensors(values, ids, mask))
+    # The query's masks stay all-True: in the robot task every slot is visible, padding included.
+    query.tokens = TokenTensors(filled.values, filled.ids, tokens.mask)
+    known = {s.name: torch.ones(len(models), s.length, dtype=torch.bool, device=device) for s in static}
+    return query, known
 
 
 # ------------------------------------------------------------------------------ geometry
@@ -319,6 +361,7 @@ __all__ = [
     "PredictedReward",
     "RobotQuery",
     "build_query",
+    "design_query",
     "matrix_to_quat",
     "orthonormalize",
     "predicted_metrics",

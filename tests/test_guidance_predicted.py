@@ -250,3 +250,43 @@ def test_training_padding_carries_the_ids_a_generation_query_gives():
     for n in layout.names:
         if layout[n].per_step:
             assert torch.equal(fixed.ids[n], train.ids[n]), n
+
+
+def test_design_query_holds_the_tokens_training_gives_those_designs():
+    # Inpainting asks the motion-to-robot model for the dynamics of given designs; their
+    # embodiment slots must look exactly as in a training batch of those designs
+    # (normalised values, PAD_VALUE and positional IDs in the padding), and be marked known.
+    from tt.dit.layout import TokenTensors, with_slot_ids
+    from tt.guidance.predicted import design_query
+
+    space = get_space("viperx")
+    by_dof = {}
+    for d in space.sample(60, seed=1):
+        by_dof.setdefault(space.model(d).nu, d)
+    models = [space.model(by_dof[k]) for k in (7, 5, 6)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        emb = tokenize_models(models).tokens
+    counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) for n in emb.types}
+    counts.update(track_link_obs=1, target_pose=1, actuator_obs=7, dyna_joint_obs=7, control=7)
+    layout = layout_from_schema(counts, steps=S)
+    emb = emb.pad_to({n: layout[n].length for n in emb.types}).to_torch()
+    target = TokenBatch({"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
+                        {"target_pose": np.zeros((4, S, 2), np.int64)}, {"target_pose": np.ones((4, S), bool)})
+    norm = Normalizer.fit([emb, target])
+    motion = for_space([get_motion("toss")], "viperx")[0]
+    query, known = design_query(layout, norm, motion, models)
+    plain = build_query(layout, norm, motion, 3)
+    names = [s.name for s in layout.specs if not s.per_step]
+    assert sorted(known) == sorted(names)
+    training = norm.normalize(with_slot_ids(layout, TokenTensors({n: emb.values[n] for n in names},
+                                                                 {n: emb.ids[n] for n in names},
+                                                                 {n: emb.mask[n] for n in names})))
+    for n in names:
+        assert known[n].all()
+        torch.testing.assert_close(query.tokens.values[n], training.values[n].float(), rtol=0, atol=0, msg=n)
+        assert torch.equal(query.tokens.ids[n], training.ids[n]), n
+        assert (query.tokens.values[n][~emb.mask[n]] == PAD_VALUE).all(), n
+    for n in layout.names:  # everything else is the plain query's
+        if n not in names:
+            assert torch.equal(query.tokens.values[n], plain.tokens.values[n]) and torch.equal(query.tokens.ids[n], plain.tokens.ids[n]), n
