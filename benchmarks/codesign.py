@@ -29,7 +29,8 @@ benchmarks/optimize.py), loading the checkpoint and building ViperX's decoding t
 
 Prints one JSON line per run, the script's own run time, and writes
 benchmarks/results/codesign.md with codesign.png, codesign_scaling.png and
-codesign_lambda.png. ``--from-log LOG`` rewrites the report from a run's printed lines.
+codesign_lambda.png. ``--from-log LOG [LOG ...]`` rewrites the report from printed lines (later logs:
+runs that continue the first, e.g. with more rewards).
 ``--max-minutes`` stops starting new runs after that much wall time; the report lists what
 was skipped.
 """
@@ -450,18 +451,30 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     return text
 
 
-def read_log(path: Path) -> tuple[list[dict], dict]:
+def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
+    """Records and run info of one run's printed lines, or of several runs that continue one
+    another (e.g. more rewards later): the first run's config describes the report; the
+    others' commands are listed, their wall times added and their skipped runs kept."""
     records, info = [], {}
-    for line in path.read_text().splitlines():
-        if not line.startswith("{"):
+    for k, path in enumerate(paths):
+        run: dict = {}
+        for line in path.read_text().splitlines():
+            if not line.startswith("{"):
+                continue
+            rec = json.loads(line)
+            if "method" in rec:
+                records.append(rec)
+            elif "config" in rec:
+                run.update(rec["config"])
+            elif "end" in rec:
+                run.update(rec["end"])
+        if k == 0:
+            info.update(run)
             continue
-        rec = json.loads(line)
-        if "method" in rec:
-            records.append(rec)
-        elif "config" in rec:
-            info.update(rec["config"])
-        elif "end" in rec:
-            info.update(rec["end"])
+        info["command"] += f"`, then `{run['command']}"
+        info["wall_seconds"] = info.get("wall_seconds", 0.0) + run.get("wall_seconds", 0.0)
+        info["skipped"] = info.get("skipped", []) + run.get("skipped", [])
+        info["load_end"] = run.get("load_end", info.get("load_end"))
     return records, info
 
 
@@ -497,7 +510,8 @@ def main() -> None:
     ap.add_argument("--lambda-start", type=int, default=15, help="first guided step with the simulator gradient")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
-    ap.add_argument("--from-log", type=Path, default=None, help="rewrite the report from a run's printed JSON lines")
+    ap.add_argument("--from-log", type=Path, nargs="+", default=None,
+                    help="rewrite the report from a run's printed JSON lines (several logs: runs that continue the first)")
     args = ap.parse_args()
     command = "python benchmarks/codesign.py " + " ".join(
         f"--{k.replace('_', '-')} {v if v != '' else chr(39) * 2}" for k, v in vars(args).items()
