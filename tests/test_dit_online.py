@@ -155,3 +155,12 @@ def test_cli_trains_online(tt_cli, tmp_path):
                         "--out", str(tmp_path / "run")])
     assert code == 0, out
     assert "trained to step 3" in out
+
+
+def test_shipped_checkpoint_fine_tunes_online(source):
+    # `tt train --online --init checkpoints/viperx_mini.pt` needs the online layout to be the
+    # one the shipped model was trained on (from the 52k-episode dataset).
+    from tt.dit.checkpoint import default_checkpoint, load_model
+
+    trained = load_model(default_checkpoint("viperx"), device="cpu")
+    assert source.layout(trained.layout.steps) == trained.layout
