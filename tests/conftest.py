@@ -15,3 +15,15 @@ def tt_cli():
         return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
 
     return run
+
+
+@pytest.fixture
+def single_thread():
+    """torch on one thread for the test (tiny models run fastest so, and stay fast when other
+    jobs share the cores); the previous setting is restored after it."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

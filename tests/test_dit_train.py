@@ -17,14 +17,7 @@ from tt.dit.toy import toy_episodes
 from tt.tokens.schema import SchemaVersionError
 
 
-@pytest.fixture(autouse=True)
-def _single_thread():
-    """Tiny models run fastest on one thread (and stay fast when other jobs share the
-    cores); the previous setting is restored after each test."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread")
 
 
 @pytest.fixture(scope="module")
