@@ -142,6 +142,8 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
     assert code != 0 and "--data DATASET or --online" in out
     code, out = tt_cli(["train", "--online", "--space", "quadruped", "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "contacts" in out
+    code, out = tt_cli(["train", "--online", "--action-noise", "-1", "--out", str(tmp_path / "r"), "--steps", "1"])
+    assert code != 0 and "action_noise" in out
 
 
 def test_cli_trains_online(tt_cli, tmp_path):

@@ -354,6 +354,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
+    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.generate.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
@@ -377,8 +378,9 @@ def train(
         if online:
             from tt.dit.online import OnlineConfig
 
+            extra = {} if action_noise is None else {"action_noise": action_noise}
             online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
-                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed)
+                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed, **extra)
         result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                            device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
                            online=online_config)
