@@ -331,9 +331,9 @@ def notes(records: list[dict], info: dict) -> str:
         "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
         "this 2-core CPU the DiT's forward pass over n x ~240 tokens dominates the learned methods' time, so they "
         "scale about linearly in n x steps; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
-        "- Cuts, to fit about 40 minutes of a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 "
-        f"settings on a GPU): {info['steps']} DDIM steps instead of 100; the seeds, rewards and sample counts listed "
-        "above; the scaling part's Self-Guidance stops at n = the table's; the lambda part runs few samples and seeds "
+        "- Cuts, to fit a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 settings on a GPU; "
+        f"the tables above say which seeds and rewards ran): {info['steps']} DDIM steps instead of 100; the sample "
+        "counts listed above; the scaling part's Self-Guidance stops at n = the table's; the lambda part runs few samples and seeds "
         "and mixes the simulator gradient into the last guided steps only (each such step decodes, differentiates "
         "and simulates every candidate).",
         "- Other jobs shared the machine (see the load averages above); the methods of one run ran back to back, so "
