@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 
@@ -79,9 +79,6 @@ class OnlineConfig:
         return GenerateConfig(space=self.space, designs=self.designs, episodes_per_design=self.motions, seed=self.seed,
                               designs_per_shard=self.designs, group_designs=self.designs, min_steps=self.min_steps,
                               max_motion_steps=self.max_motion_steps, action_noise=self.action_noise)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class OnlineTokenSource:
