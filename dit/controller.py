@@ -597,25 +597,12 @@ class ModelPolicy:
 
     def reset(self, ctx: LoopContext) -> None:
         """Tokenize the designs (embodiment tokens, padded to the layout) and index their actuators."""
-        import warnings
-
-        from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+        from tt.dit.layout import robot_embodiment
 
         self.ctx = ctx
-        layout, norm, dev = self.layout, self.trained.normalizer, self.device
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", TokenizeWarning)
-            emb = Tokenizer()(ctx.models)
-        self.robots = emb.index
-        static = [s for s in layout.specs if s.role not in STEP_ROLES]
-        try:
-            padded = emb.tokens.pad_to({s.name: s.length for s in static}).to_torch(str(dev))
-        except ValueError as e:
-            raise LayoutError(f"a design does not fit the model's layout: {e}") from None
-        self._static = {}
-        for s in static:
-            v, i, m = padded.values[s.name], padded.ids[s.name], padded.mask[s.name]
-            self._static[s.name] = (norm.normalize_values(s.name, v, m), i, m)
+        layout, dev = self.layout, self.device
+        static, self.robots = robot_embodiment(layout, self.trained.normalizer, ctx.models, dev)
+        self._static = {n: (static.values[n], static.ids[n], static.mask[n]) for n in static.values}
         for s in layout.specs:
             if s.role in STEP_ROLES:
                 widest = max(_step_count(s.name, r) for r in self.robots)

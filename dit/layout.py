@@ -264,6 +264,33 @@ def with_slot_ids(layout: Layout, tokens: TokenTensors) -> TokenTensors:
     return TokenTensors(tokens.values, ids, tokens.mask)
 
 
+def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.device = "cpu"):
+    """Embodiment tokens of given robots as a model takes them: tokenized, padded to the
+    layout's lengths, normalised (padding at PAD_VALUE, carrying its slot's positional ID,
+    as `with_slot_ids` gives training batches).
+
+    normalizer: the model's `tt.tokens.normalize.Normalizer`; models: compiled MuJoCo models.
+    Returns (tokens, robots): `TokenTensors` of the layout's embodiment types, (N, L, D)
+    each, and the tokenizer's `RobotIndex` per robot. Raises LayoutError for a robot the
+    layout cannot hold.
+    """
+    import warnings
+
+    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+
+    static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TokenizeWarning)
+        emb = Tokenizer()(list(models))
+    try:
+        padded = emb.tokens.pad_to({s.name: s.length for s in static}).to_torch(str(device))
+    except ValueError as e:
+        raise LayoutError(f"a robot does not fit the model's layout: {e}") from None
+    values = {s.name: normalizer.normalize_values(s.name, padded.values[s.name].float(), padded.mask[s.name]) for s in static}
+    tokens = TokenTensors(values, {s.name: padded.ids[s.name] for s in static}, {s.name: padded.mask[s.name] for s in static})
+    return with_slot_ids(layout, tokens), emb.index
+
+
 def layout_from_schema(counts: Mapping[str, int], *, steps: int = 8, max_time: int = 1024) -> Layout:
     """Layout of the RoboToken schema for a design space.
 

@@ -44,7 +44,7 @@ from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, s
 from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
-from tt.tokens.normalize import PAD_VALUE, Normalizer, is_padding
+from tt.tokens.normalize import Normalizer, is_padding
 from tt.tokens.schema import GEOM_TYPES, SCHEMA
 
 #: Ways to choose a query's control steps (see the module docstring).
@@ -178,32 +178,13 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     models: compiled MuJoCo models (`DesignSpace.model`). Raises LayoutError for a robot
     that does not fit the layout.
     """
-    import warnings
-
-    from tt.dit.layout import with_slot_ids
-    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+    from tt.dit.layout import robot_embodiment
 
     query = build_query(layout, normalizer, motion, len(models), placement=placement, generator=generator, device=device)
-    static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", TokenizeWarning)
-        emb = Tokenizer()(list(models)).tokens
-    try:
-        padded = emb.pad_to({s.name: s.length for s in static}).to_torch(str(device))
-    except ValueError as e:
-        raise LayoutError(f"a robot does not fit the model's layout: {e}") from None
-    tokens = query.tokens
-    values, ids, mask = dict(tokens.values), dict(tokens.ids), dict(tokens.mask)
-    for s in static:
-        if s.name in padded.values:
-            ids[s.name], mask[s.name] = padded.ids[s.name], padded.mask[s.name]
-            values[s.name] = normalizer.normalize_values(s.name, padded.values[s.name].float(), mask[s.name])
-        else:  # a type none of the robots has: all padding
-            mask[s.name] = torch.zeros_like(mask[s.name])
-            values[s.name] = torch.full_like(values[s.name], PAD_VALUE)
-    filled = with_slot_ids(layout, TokenTensors(values, ids, mask))
+    emb, _ = robot_embodiment(layout, normalizer, models, device)
     # The query's masks stay all-True: in the robot task every slot is visible, padding included.
-    query.tokens = TokenTensors(filled.values, filled.ids, tokens.mask)
+    query.tokens = TokenTensors({**query.tokens.values, **emb.values}, {**query.tokens.ids, **emb.ids}, query.tokens.mask)
+    static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
     known = {s.name: torch.ones(len(models), s.length, dtype=torch.bool, device=device) for s in static}
     return query, known
 
