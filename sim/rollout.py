@@ -158,7 +158,7 @@ def rollout(
                          action_noise=action_noise, noise_seed=noise_seed)
 
 
-#: Episode fields recorded by the Warp rollout kernel (``action`` only with perturbation).
+#: Episode fields the Warp rollout kernel records in every rollout.
 _RECORDED = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos", "target_quat", "alive")
 
 
@@ -170,7 +170,7 @@ def rollout_records(
     config: IKConfig = IKConfig(),
     device: str,
     chunk: int | None = DEFAULT_CHUNK,
-    progress=None,
+    progress: bool = False,
     action_noise: float = 0.0,
     noise_seed: int = 0,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
@@ -179,7 +179,7 @@ def rollout_records(
     models: D compiled contact-free trees with end-effector `sites`; motions: M motions.
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
-    progress: a callable taking a number of control steps done, or None.
+    progress: show a tqdm bar over the control steps of every group.
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import build_tree_model, check_supported, topology_key
@@ -202,6 +202,11 @@ def rollout_records(
     for d, m in enumerate(models):
         groups.setdefault(topology_key(m, sites), []).append(d)
     logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", len(models), len(groups), M, T)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
     results = []
     for members in groups.values():
         # One model entry per world (design-major), so world w reads entry w.
@@ -210,11 +215,18 @@ def rollout_records(
         world_ids = np.array([d * M + j for d in members for j in range(M)])
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
-            config=config, chunk=chunk, progress=progress,
+            config=config, chunk=chunk, progress=bar.update if bar else None,
             action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
         )  # fmt: skip
         results.append((members, arrays))
+    if bar is not None:
+        bar.close()
     return results
+
+
+def _recorded(perturbed: bool) -> tuple[str, ...]:
+    """Episode fields the Warp rollout records (``action`` only with control perturbation)."""
+    return _RECORDED + (("action",) if perturbed else ())
 
 
 def group_episode(members: Sequence[int], records, motions: int, nu: int, *, perturbed: bool, dt: float) -> Episode:
@@ -227,8 +239,7 @@ def group_episode(members: Sequence[int], records, motions: int, nu: int, *, per
     """
     import warp as wp
 
-    names = _RECORDED + (("action",) if perturbed else ())
-    fields = {name: wp.to_torch(getattr(records, name)) for name in names}
+    fields = {name: wp.to_torch(getattr(records, name)) for name in _recorded(perturbed)}
     if fields["ctrl"].shape[-1] != nu:
         for name in ("ctrl", "action", "act_force", "act_vel"):
             if name in fields:
@@ -261,23 +272,14 @@ def _rollout_warp(
 
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        from tt.kernels.model import topology_key
-
-        groups = len({topology_key(m, sites) for m in models})
-        bar = tqdm(total=T * groups, desc="rollout", unit="step")
-    results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk,
-                              progress=bar.update if bar else None, action_noise=action_noise, noise_seed=noise_seed)
-    if bar is not None:
-        bar.close()
+    results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
+                              action_noise=action_noise, noise_seed=noise_seed)
     perturbed = action_noise > 0.0
     if len(results) == 1:
         (members, arrays), = results
         return group_episode(members, arrays, M, models[0].nu, perturbed=perturbed, dt=config.control_dt)
     # Several topologies: copy each group's records into one zero-padded Episode.
-    names = _RECORDED + (("action",) if perturbed else ())
+    names = _recorded(perturbed)
     actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
     sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
     nu = max(m.nu for m in models)
