@@ -109,6 +109,11 @@ class OnlineTokenSource:
     def __len__(self) -> int:
         return 0 if self._data is None else len(self._data)
 
+    @property
+    def design_space(self) -> str:
+        """Name of the design space the episodes are of (recorded in checkpoints)."""
+        return self.config.space
+
     def layout(self, steps: int = 8) -> Layout:
         """The layout of the space's largest robot (what a `tt generate` dataset of it has)."""
         from tt.dit.layout import layout_from_schema
@@ -137,20 +142,29 @@ class OnlineTokenSource:
         return self._data.sample(n, steps, kind, generator)
 
     # -------------------------------------------------------------- one refresh
+    def draw(self, k: int) -> tuple[list, list]:
+        """The designs and augmented, placed training motions of refresh `k` (every design
+        runs every motion), a function of (seed, k)."""
+        from tt.tokens.generate import _rng, _seed_int, episode_motion, training_motions
+
+        cfg = self.config
+        designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
+        rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
+        base = training_motions(cfg.space)
+        motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
+        motions = [episode_motion(self._generate, base[m], s) for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))]
+        return designs, motions
+
     def _refresh(self, k: int) -> EpisodeTokens:
         if k in self._refreshes:
             return self._refreshes[k]
         from tt.sim.controller import IKConfig
         from tt.sim.rollout import group_episode, rollout_records
         from tt.tokens.episodes import episode_tokens
-        from tt.tokens.generate import _rng, _seed_int, episode_motion, finite_worlds, training_motions
+        from tt.tokens.generate import _seed_int, finite_worlds
 
         cfg, t0 = self.config, time.perf_counter()
-        designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
-        rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
-        base = training_motions(cfg.space)
-        motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
-        motions = [episode_motion(self._generate, base[m], s) for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))]
+        designs, motions = self.draw(k)
         too_long = max(m.steps for m in motions)
         if too_long > cfg.max_time:
             raise LayoutError(f"a training motion has {too_long} steps, the layout's time IDs {cfg.max_time} rows; "
