@@ -25,6 +25,34 @@ from typing import Sequence
 import numpy as np
 
 
+#: Seed offset of held-out designs: far from every seed a training run or `tt generate` draws
+#: designs with (`tt.tokens.generate` and `tt.dit.online` hash (seed, index, stream)).
+HELDOUT_SEED = 90_001
+
+
+def validation_motions(space: str, count: int | None = None) -> list:
+    """`count` validation motions of the space's end-effector count, spread over the skills
+    (every one for None), placed for the space."""
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, motion_set
+
+    val = motion_set("val", arms=get_space(space).ee_count)
+    if count is not None:
+        if count < 1:
+            raise ValueError(f"count must be >= 1, got {count}")
+        stride = max(1, len(val) // count)
+        val = val[::stride][:count]
+    return for_space(val, space)
+
+
+def heldout_designs(space: str, count: int, seed: int = 0) -> list:
+    """`count` designs of the space that no training draw holds (plain `DesignSpace.sample`
+    with seed ``HELDOUT_SEED + seed``)."""
+    from tt.sim.designs import get_space
+
+    return get_space(space).sample(count, seed=HELDOUT_SEED + seed)
+
+
 def pearson(x: np.ndarray, y: np.ndarray) -> float:
     """Pearson r of two 1-D arrays over their finite pairs (NaN for fewer than 3 or no spread)."""
     x, y = np.asarray(x, np.float64).ravel(), np.asarray(y, np.float64).ravel()
@@ -114,4 +142,5 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
                        {"predict": t1 - t0, "simulate": t2 - t1})
 
 
-__all__ = ["LadderScore", "pearson", "score_designs", "within_motion"]
+__all__ = ["HELDOUT_SEED", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
+           "within_motion"]
