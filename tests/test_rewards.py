@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from tt.guidance.rewards import (
+from tt.sim.rewards import (
     METRIC_UNITS,
     REWARD_SPACES,
     REWARDS,
