@@ -73,13 +73,35 @@ def motions(
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
     out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
+    stats: bool = typer.Option(False, "--stats", help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions (min-max)."),
 ) -> None:
     """List the motion library, or export one motion to .npz."""
     from rich.console import Console
     from rich.table import Table
 
-    from tt.sim.motions import MotionError, list_motions, resolve_motion, save_npz
+    from tt.sim.motions import MotionError, list_motions, motion_set, motion_stats, resolve_motion, save_npz
 
+    if stats:
+        try:
+            skills = [r.name for r in list_motions(arms=arms)]
+        except MotionError as e:
+            _fail(str(e))
+        by_skill: dict[str, list] = {s: [] for s in skills}
+        for st in motion_stats([m for split in ("train", "val") for m in motion_set(split, arms=arms)]):
+            by_skill[st.name.split(":")[0]].append(st)
+        cols = (("peak_speed", "peak speed (m/s)"), ("p95_speed", "p95 speed (m/s)"), ("peak_accel", "peak accel (m/s^2)"),
+                ("extent", "extent (m)"), ("orn_range", "orn range (deg)"), ("duration", "duration (s)"))
+        table = Table(title="tt motion library statistics: min-max over each skill's train and val motions")
+        for header in ("skill", "motions") + tuple(h for _, h in cols):
+            table.add_column(header, justify="left" if header == "skill" else "right")
+        for skill, rows in by_skill.items():
+            cells = []
+            for key, _ in cols:
+                v = [getattr(r, key) for r in rows]
+                cells.append(f"{min(v):.3g}-{max(v):.3g}")
+            table.add_row(skill, str(len(rows)), *cells)
+        Console(width=200).print(table)
+        return
     if name is None:
         table = Table(title="tt motion library (50 Hz)")
         rows = [r.row() for r in list_motions(arms=arms)]
