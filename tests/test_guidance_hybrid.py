@@ -39,7 +39,6 @@ class FixedProposals:
         self.ranked_with: list = []
 
     def generate(self, problem):
-        n = len(self.designs)
         gen = Generation(tokens=None, layout=None, reward=self.predicted[:, None].repeat(len(problem.motions), 1),
                          objective=self.predicted, metrics={}, seconds=0.0)
         return gen, None, {}
