@@ -42,7 +42,7 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
 
     from tt.dit.layout import Role, layout_from_schema
     from tt.guidance.predicted import _rotation_matrix, query_steps
-    from tt.tokens.generate import space_token_maxima
+    from tt.tokens.draws import space_token_maxima
     from tt.tokens.tokenize import TokenizeWarning, Tokenizer
 
     layout = layout_from_schema({k: v for k, v in space_token_maxima(space.name)["maxima"].items() if v > 0})

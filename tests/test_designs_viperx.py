@@ -114,7 +114,7 @@ def test_dof_choice_changes_the_parameter_lists(space):
 def test_nominal_sub_space_fixes_the_structure():
     """viperx-nominal: the nominal arm's discrete choices, continuous ones free; its designs build
     the same MJCF as the equal ViperX design, its rewards are ViperX's."""
-    from tt.guidance.rewards import get_reward
+    from tt.sim.rewards import get_reward
     from tt.sim.designs import DesignError, FixedStructureSpace, get_space
 
     full, sub = get_space("viperx"), get_space("viperx-nominal")

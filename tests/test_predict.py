@@ -107,7 +107,7 @@ def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
     from tt.dit.sampling import sample
     from tt.dit.tasks import ROBOT
     from tt.guidance.predicted import PredictedReward, design_query, predict_designs
-    from tt.guidance.rewards import get_reward
+    from tt.sim.rewards import get_reward
     from tt.sim.motions import for_space, resolve_motion
 
     trained = load_model(checkpoint)

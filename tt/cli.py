@@ -73,13 +73,35 @@ def motions(
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
     out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
+    stats: bool = typer.Option(False, "--stats", help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions (min-max)."),
 ) -> None:
     """List the motion library, or export one motion to .npz."""
     from rich.console import Console
     from rich.table import Table
 
-    from tt.sim.motions import MotionError, list_motions, resolve_motion, save_npz
+    from tt.sim.motions import MotionError, list_motions, motion_set, motion_stats, resolve_motion, save_npz
 
+    if stats:
+        try:
+            skills = [r.name for r in list_motions(arms=arms)]
+        except MotionError as e:
+            _fail(str(e))
+        by_skill: dict[str, list] = {s: [] for s in skills}
+        for st in motion_stats([m for split in ("train", "val") for m in motion_set(split, arms=arms)]):
+            by_skill[st.name.split(":")[0]].append(st)
+        cols = (("peak_speed", "peak speed (m/s)"), ("p95_speed", "p95 speed (m/s)"), ("peak_accel", "peak accel (m/s^2)"),
+                ("extent", "extent (m)"), ("orn_range", "orn range (deg)"), ("duration", "duration (s)"))
+        table = Table(title="tt motion library statistics: min-max over each skill's train and val motions")
+        for header in ("skill", "motions") + tuple(h for _, h in cols):
+            table.add_column(header, justify="left" if header == "skill" else "right")
+        for skill, rows in by_skill.items():
+            cells = []
+            for key, _ in cols:
+                v = [getattr(r, key) for r in rows]
+                cells.append(f"{min(v):.3g}-{max(v):.3g}")
+            table.add_row(skill, str(len(rows)), *cells)
+        Console(width=200).print(table)
+        return
     if name is None:
         table = Table(title="tt motion library (50 Hz)")
         rows = [r.row() for r in list_motions(arms=arms)]
@@ -262,7 +284,9 @@ def optimize(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
     reward: str = typer.Option("tracking", help="Reward name."),
-    method: str = typer.Option("cmaes", help="random | cmaes."),
+    method: str = typer.Option("cmaes", help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim (the hybrids: the model proposes, the batched simulator verifies; cmaes --init model is the third)."),
+    init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts CMA-ES from the model's samples (screen and step sizes) instead of random designs."),
+    verify: Optional[int] = typer.Option(None, help="zeroth-sim/dgs-sim: candidates (best predicted first) the simulator checks (default: all --samples)."),
     budget: int = typer.Option(60, help="Candidate designs per motion."),
     seed: int = typer.Option(0, help="Random seed."),
     popsize: int = typer.Option(5, help="CMA-ES population size."),
@@ -270,9 +294,9 @@ def optimize(
     sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
     backend: Optional[str] = typer.Option(None, help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco (default: warp, or mujoco for spaces with contacts: quadruped)."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="zeroth/dgs: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
-    samples: Optional[int] = typer.Option(None, help="zeroth/dgs: candidates to sample (default: --budget)."),
-    num_steps: int = typer.Option(100, help="zeroth/dgs: DDIM steps."),
+    checkpoint: Optional[Path] = typer.Option(None, help="learned methods: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
+    samples: Optional[int] = typer.Option(None, help="learned methods: candidates to sample (default: --budget; cmaes --init model: its screen size)."),
+    num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -281,30 +305,48 @@ def optimize(
 
     Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
     diffusion model's Zeroth-Order search and Dynamics Self-Guidance; they use the space's
-    shipped checkpoint unless --checkpoint is given)."""
+    shipped checkpoint unless --checkpoint is given), and the hybrids, in which the model
+    proposes and the batched simulator verifies: zeroth-sim and dgs-sim (--verify K of the
+    model's best candidates) and cmaes --init model (CMA-ES started from the model's samples)."""
     from rich.console import Console
 
-    from tt.baselines import Problem, get_optimizer
+    from tt.baselines import Problem
+    from tt.optimizers import LEARNED, get_optimizer
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, get_space
 
+    if init not in (None, "model"):
+        _fail(f"--init {init!r}: the only initialisation is 'model'")
+    if init is not None and method != "cmaes":
+        _fail(f"--init model initialises CMA-ES; it does not apply to --method {method}")
+    if verify is not None and method not in ("zeroth-sim", "dgs-sim"):
+        _fail(f"--verify applies to zeroth-sim and dgs-sim, not --method {method}")
+    if init == "model":
+        method = "cmaes-init-model"
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     try:
         options: dict = {}
-        if method == "cmaes":
+        if method in ("cmaes", "cmaes-init-model"):
             options = {"popsize": popsize, "generations": generations, "sequential": sequential}
-        elif method in ("zeroth", "dgs"):
+        if method in LEARNED:
             if checkpoint is None:
                 from tt.dit.checkpoint import default_checkpoint
 
                 checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
-            options = {"checkpoint": str(checkpoint), "samples": samples, "num_steps": num_steps}
-            if method == "dgs":
+            options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps)
+            if method in ("dgs", "dgs-sim"):
                 options.update(scale=scale, sim_grad_weight=sim_grad_weight)
+            if method in ("zeroth-sim", "dgs-sim"):
+                if verify is not None and verify > (samples or budget):
+                    raise ValueError(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can "
+                                     "only check sampled candidates")
+                options.update(verify=verify)
         opt = get_optimizer(method, **options)
         problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
         if method == "cmaes":
             opt.plan(problem)  # a budget below one population fails here, before any work
+        if method == "cmaes-init-model":
+            opt.cmaes.plan(problem)
     except (DesignError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     try:
@@ -316,6 +358,11 @@ def optimize(
     rows[0]["seconds"] = result.seconds
     console = Console()
     console.print(f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective {result.best_reward:.2f}")
+    if "verified_simulated" in result.info:
+        info = result.info
+        console.print(f"verified {info['verified']} of {info['samples']} sampled candidates in the batched simulator: "
+                      f"predicted vs simulated r = {info['predicted_vs_simulated_r']:.2f}; the simulator's pick was the "
+                      f"model's #{info['best_predicted_rank'] + 1}")
     console.print_json(json.dumps(sp.to_dict(result.best)))
     console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
@@ -366,8 +413,8 @@ def predict(
     try:
         from tt.dit.checkpoint import default_checkpoint, load_model
         from tt.guidance.predicted import predict_designs
-        from tt.guidance.rewards import get_reward
-        from tt.device import default_device
+        from tt.sim.rewards import get_reward
+        from tt.kernels.device import default_device
 
         cfg = get_reward(reward, space)
         ckpt = checkpoint if checkpoint is not None else default_checkpoint(space)
@@ -425,7 +472,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
-    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.generate.DEFAULT_ACTION_NOISE; 0: none)."),
+    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
@@ -494,10 +541,10 @@ def generate(
     ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt[ray]')."),
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
-    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.generate.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
+    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
-    from tt.tokens.generate import generate_cmd
+    from tt.generate import generate_cmd
 
     try:
         typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,

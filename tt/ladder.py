@@ -26,7 +26,7 @@ import numpy as np
 
 
 #: Seed offset of held-out designs: far from every seed a training run or `tt generate` draws
-#: designs with (`tt.tokens.generate` and `tt.dit.online` hash (seed, index, stream)).
+#: designs with (`tt.tokens.draws` and `tt.dit.online` hash (seed, index, stream)).
 HELDOUT_SEED = 90_001
 
 
@@ -116,7 +116,7 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
 
     from tt.baselines.evaluate import evaluate_designs
     from tt.guidance.predicted import predict_designs, query_steps
-    from tt.guidance.rewards import RewardInputs, evaluate, get_reward
+    from tt.sim.rewards import RewardInputs, evaluate, get_reward
 
     designs, motions = list(designs), list(motions)
     cfg = get_reward(reward, designs[0].space)
