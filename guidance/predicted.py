@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, slot_ids
+from tt.kernels.errors import TTError
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
@@ -190,7 +191,7 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
 
 
 # ------------------------------------------------------------------------------ critic
-class CheckpointSpaceError(ValueError):
+class CheckpointSpaceError(TTError):
     """A checkpoint trained on one design space asked about designs of another."""
 
 
