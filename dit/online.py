@@ -50,7 +50,14 @@ class OnlineConfig:
     augmented training motions per refresh (every design runs every motion);
     refresh_every: optimizer steps between refreshes; buffer: refreshes whose episodes
     windows are drawn from; seed: root of every draw; action_noise, min_steps,
-    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows.
+    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows;
+    absorbing: a terminated episode stays in the data to the motion's end. The rollout's
+    records after termination repeat the terminal state (its end effector already past the
+    threshold) beside the motion's true targets (`tt.kernels.rollout`), so windows that reach
+    past the end teach the model which designs fail and where, which the motion-to-robot
+    query's evenly placed steps ask about; without it (the default, as `tt generate`) windows
+    stop at the end and episodes shorter than `min_steps` are dropped, so the data never shows
+    a design failing.
     """
 
     space: str = "viperx"
@@ -63,6 +70,7 @@ class OnlineConfig:
     min_steps: int = 100
     max_motion_steps: int | None = None
     max_time: int = 1024
+    absorbing: bool = False
 
     def __post_init__(self) -> None:
         from tt.sim.designs import get_space
@@ -179,6 +187,8 @@ class OnlineTokenSource:
                                dt=IKConfig().control_dt)
             lengths = ep.lengths()
             world_steps += int(lengths.sum())
+            if cfg.absorbing:
+                lengths = torch.tensor([m.steps for m in motions], device=lengths.device)[ep.motion_index.to(lengths.device)]
             keep = torch.as_tensor(finite_worlds(ep), device=lengths.device) & (lengths >= cfg.min_steps)
             dropped += int((~keep).sum())
             if not bool(keep.any()):

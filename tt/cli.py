@@ -472,6 +472,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
+    online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
     action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
@@ -518,7 +519,8 @@ def train(
 
             extra = {} if action_noise is None else {"action_noise": action_noise}
             online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
-                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed, **extra)
+                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed,
+                                         absorbing=online_absorbing, **extra)
         result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                            device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
                            online=online_config, **recipe)
