@@ -23,24 +23,28 @@ def test_pearson_and_within_motion_against_numpy():
     assert np.isnan(pearson(np.array([1.0, np.nan, 2.0]), np.array([1.0, 2.0, np.nan])))  # < 3 finite pairs
 
 
-#: R0's recipe (found on the 2-core CPU, see the report in checkpoints/README.md).
-R0 = dict(size="tiny", steps=1200, batch_size=32, lr=3e-3, warmup_steps=100, type_weights={"track_link_obs": 4.0})
+#: R0's recipe. Not yet shown to pass: on the shared 2-core CPU this recipe reached pooled
+#: r = 0.17 at step 300 and 0.24 at step 600 (rising; the 8-step estimator's own ceiling is
+#: 1.00), so the step count is a guess to be settled by running this test on an idle machine.
+R0 = dict(size="tiny", steps=3000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
 
 
 @pytest.mark.slow
 @pytest.mark.usefixtures("single_thread")
 def test_r0_a_small_model_memorizes_64_episodes(tmp_path):
     """R0: the 64 episodes of one online refresh (16 viperx-nominal designs x 4 augmented
-    training motions, no control perturbation) trained on alone; `tt predict` on those same
-    designs x motions correlates with their simulated rewards at r >= 0.95 (pooled)."""
+    training motions, no control perturbation, terminated episodes kept to the motion's end:
+    `OnlineConfig.absorbing`) trained on alone; `tt predict` on those same designs x motions
+    correlates with their simulated rewards at r >= 0.95 (pooled)."""
     from tt.dit.checkpoint import load_model
     from tt.dit.online import OnlineConfig, OnlineTokenSource
     from tt.dit.train import TrainConfig, train
     from tt.ladder import score_designs
 
     online = OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
-                          action_noise=0.0, min_steps=8, seed=0)
+                          action_noise=0.0, min_steps=8, seed=0, absorbing=True)
     train(TrainConfig(out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0["steps"], online=online, **R0))
+    # Scored with 20 DDIM steps, eta 0, one sample per pair (`tt predict --num-steps 20`).
     trained = load_model(tmp_path / "r0")
     designs, motions = OnlineTokenSource(online, device="cpu").draw(0)
     score = score_designs(trained, designs, motions, num_steps=20)
