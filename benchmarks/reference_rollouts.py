@@ -22,7 +22,7 @@ Cases (CPU device):
   `tt.kernels.forward_kinematics` of the 8 ViperX designs;
 * ``simgrad``: the differentiable rollout's reward and its gradient with respect to the
   nominal ViperX's continuous choices on 12 steps of toss (`tt.guidance.simgrad`);
-* ``dit_ik`` / ``dit_model``: the closed loop of `tt.dit.controller` with the DiffIK policy
+* ``dit_ik`` / ``dit_model``: the closed loop of `tt.dit.closed_loop` with the DiffIK policy
   (30 steps) and with the shipped checkpoint's DiT (8 steps), 2 ViperX designs x 2 motions;
 * ``mjwarp_viperx``, ``mjwarp_quadruped``, ``newton_viperx``: the other backends on short
   motions (30 / 10 / 30 steps; the quadruped runs tt's whole-body kernels).
@@ -118,14 +118,21 @@ def _cases():
         return {"reward": np.asarray(res.reward), "grad": np.asarray(res.grad[0])}
 
     def dit_ik():
-        from tt.dit.controller import IKPolicy, closed_loop_rollout
+        try:
+            from tt.dit.closed_loop import closed_loop_rollout
+            from tt.dit.policies import IKPolicy
+        except ImportError:  # before the split of tt.dit.controller
+            from tt.dit.controller import IKPolicy, closed_loop_rollout
 
         return _episode_arrays(closed_loop_rollout(designs[:2], motions, IKPolicy(), device="cpu", steps=30))
 
     def dit_model():
         import torch
 
-        from tt.dit.controller import model_rollout
+        try:
+            from tt.dit.policies import model_rollout
+        except ImportError:  # before the split of tt.dit.controller
+            from tt.dit.controller import model_rollout
 
         torch.manual_seed(0)
         ep = model_rollout(designs[:2], motions, ROOT / "checkpoints" / "viperx_mini.pt", device="cpu", steps=8)

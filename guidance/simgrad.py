@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import logging
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -47,21 +47,19 @@ import warp as wp
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.layout import STEP_ROLES, TokenTensors
 from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
+from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
 
 log = logging.getLogger(__name__)
 
-#: `TreeModel` fields (float32) that may depend on a design's continuous choices.
-FIELDS = (
-    "body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat", "body_inertia",
-    "dof_axis", "dof_pos", "dof_ref", "dof_armature", "dof_damping", "dof_stiffness", "dof_springref",
-    "dof_range", "dof_limit_kb", "dof_solimp", "dof_invweight0",
-    "act_gain", "act_bias", "act_gear", "act_ctrlrange", "act_forcerange", "ee_pos", "ee_quat",
-)  # fmt: skip
-#: Float64 kinematic copies (`TreeModel.kinematics64`) the start posture reads.
-FIELDS64 = ("body_pos", "body_quat", "dof_axis", "dof_pos", "dof_ref", "dof_range", "ee_pos", "ee_quat")
+#: `tt.kernels.model.TreeArrays` members (float32) that may depend on a design's continuous
+#: choices: every per-body, per-dof, per-actuator and per-end-effector field (the struct is
+#: the one list; gravity, timestep and the limit flags are per-world options).
+FIELDS = ENTITY_FIELDS
+#: Float64 kinematic copies (`TreeModel.kinematics64`, `Kinematics64`) the start posture reads.
+FIELDS64 = KINEMATICS64_FIELDS
 #: Quaternion fields (q and -q are one rotation; differences align their signs first).
 _QUATS = ("body_quat", "body_iquat", "ee_quat")
 #: Finite-difference step as a fraction of each continuous choice's range.
@@ -162,7 +160,7 @@ def _stencil(space: DesignSpace, design: Design, rel_step: float) -> tuple[list[
 
 def _host_fields(tree, models) -> dict:
     """Per-world host copies of the differentiable fields, size and mass (one row per model)."""
-    out = {name: getattr(tree, name).numpy().astype(np.float64) for name in FIELDS}
+    out = {name: getattr(tree.arrays, name).numpy().astype(np.float64) for name in FIELDS}
     out.update({("64", name): getattr(tree.kinematics64, name).numpy() for name in FIELDS64})
     out["size"] = robot_size(models, dtype=torch.float64).numpy()
     out["mass"] = robot_mass(models, dtype=torch.float64).numpy()
@@ -202,16 +200,17 @@ class _Rollout(WarpProgram):
 
     def __init__(self, tree, motions, steps: int, config: IKConfig, device: str):
         self.tree, self.motions, self.steps, self.config, self.device = tree, motions, steps, config, device
-        self.dtypes = [getattr(tree, n).dtype for n in FIELDS] + [getattr(tree.kinematics64, n).dtype for n in FIELDS64]
+        self.dtypes = [getattr(tree.arrays, n).dtype for n in FIELDS] + [getattr(tree.kinematics64, n).dtype for n in FIELDS64]
 
     def record(self, arrays: list[wp.array]) -> list[wp.array]:
         from tt.kernels.rollout import rollout_tree
 
         k = len(FIELDS)
-        model = replace(self.tree, **dict(zip(FIELDS, arrays[:k])),
-                        kinematics64=replace(self.tree.kinematics64, **dict(zip(FIELDS64, arrays[k:]))))
-        W = self.tree.body_pos.shape[0]
-        out = rollout_tree(model, self.motions, W, self.steps, config=self.config, differentiable=True, device=self.device)
+        # The arrays come from `WarpFunction` with requires_grad set, so the new structs
+        # carry their gradients.
+        model = self.tree.with_fields(dict(zip(FIELDS, arrays[:k])), dict(zip(FIELDS64, arrays[k:])))
+        out = rollout_tree(model, self.motions, self.tree.world_count, self.steps, **self.config.rollout_args(),
+                           differentiable=True, device=self.device)
         return [out.ee_pos, out.ee_quat, out.act_force, out.act_vel, out.alive, out.target_pos, out.target_quat]
 
 
