@@ -4,8 +4,9 @@ The simulator's gradient of a candidate's reward, in three links:
 
 1. Design -> model fields. A design's continuous choices c (link lengths, offsets, ...)
    build an MJCF, MuJoCo compiles it, and tt's Warp kernels read the compiled model as
-   `tt.kernels.model.TreeModel` fields (body offsets, masses, inertias, joint axes,
-   gains, site poses, and the float64 kinematic copies the start posture is solved with),
+   the members of the `tt.kernels.model.TreeArrays` struct (body offsets, masses,
+   inertias, joint axes, gains, site poses: `ENTITY_FIELDS`, taken from the struct) and
+   of `Kinematics64` (the float64 kinematic copies the start posture is solved with),
    plus the robot's size and mass. The compiler is not differentiable, so the Jacobian
    dF/dc comes from central differences of the compile (step 1e-4 of each choice's range,
    kept inside the bounds); F(c) = F(c0) + dF/dc (c - c0) around the candidate.

@@ -8,6 +8,15 @@ hangs from which, joint types, which joints the actuators drive, which bodies ca
 end-effector sites) is a `Topology`, and kernels are compiled once per topology with it
 unrolled into straight-line code.
 
+The per-world arrays are one flat `@wp.struct`, `TreeArrays`: every tree kernel and
+`wp.func` takes it as its ``model`` parameter (passed in, never returned from a
+`wp.func`, a case whose adjoints Warp has had bugs in), and gradients under `wp.Tape`
+reach its members' ``.grad``. It is the one list of the model's fields: adding one is an edit of
+`TreeArrays` and of `build_tree_model`, which fills it; `ENTITY_FIELDS` (the fields a
+design's continuous choices may change, which `tt.guidance.simgrad` differentiates) is
+derived from it. `Kinematics64` holds float64 copies of the kinematic fields for the
+start posture.
+
 MuJoCo lets one body carry several joints, each expressed in the frame left by the joints
 before it. tt splits such a body into a chain of bodies with one joint each (the first
 keeps the body's offset, the last its mass and sites), which is the same kinematics, so
