@@ -10,7 +10,7 @@ The result is an `Episode` with the oracle's conventions (`tt.sim.validate`): st
 rest at the oracle's start posture, record the state after each step, end a world at the
 first step whose summed position error exceeds the threshold (that record kept with
 alive False, later ones repeated), targets at index ``min(k, T_m - 1)``; so
-`tt.guidance.rewards` scores it like any other rollout.
+`tt.sim.rewards` scores it like any other rollout.
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ class ArmWorlds:
                  config: IKConfig = IKConfig(), device: str | None = None):
         import warp as wp
 
-        from tt.device import resolve_device
+        from tt.kernels.device import resolve_device
         from tt.kernels.model import build_tree_model, check_supported, topology_key
 
         self.device = resolve_device(device)

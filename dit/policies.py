@@ -248,7 +248,7 @@ def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str 
     if not isinstance(model, TrainedModel):
         import warp as wp
 
-        from tt.device import resolve_device
+        from tt.kernels.device import resolve_device
 
         task = control_task(model) if task is None else task
         model = load_model(model, device=str(wp.device_to_torch(resolve_device(device))))

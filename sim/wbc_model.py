@@ -83,7 +83,7 @@ def build_wbc_model(
         per-DoF posture costs it implies.
     Raises ValueError naming the first model the kernels cannot drive.
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     if len(models) == 0:
