@@ -46,7 +46,9 @@ import numpy as np
 import torch
 
 from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
+from tt.dit.layout import Layout, LayoutError
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, TaskSpec
 from tt.sim.controller import IKConfig, check_fixed_base
@@ -615,7 +617,7 @@ class ModelPolicy:
         self._actuator = act.to(ctx.target_pos.device)  # (D, P): MuJoCo actuator of each control slot
         self.generator = torch.Generator(device=dev).manual_seed(int(self.config.seed))
 
-    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenTensors, int]:
+    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenBatch, int]:
         """Normalised control-task tokens of worlds `worlds` at control step `step`, and the
         window slot whose command is executed (1, or 0 at step 0)."""
         from tt.tokens.episodes import episode_tokens
@@ -667,7 +669,7 @@ class ModelPolicy:
             values[s.name] = norm.normalize_values(s.name, v.reshape(n, S * P, s.dim), m.reshape(n, S * P))
             ids[s.name] = i.reshape(n, S * P, -1)
             mask[s.name] = m.reshape(n, S * P)
-        return TokenTensors(values, ids, mask), slot
+        return TokenBatch(values, ids, mask), slot
 
     def __call__(self, step: int, worlds: torch.Tensor, state: StepState) -> torch.Tensor:
         from tt.dit.ddim import CosineDDIM

@@ -199,7 +199,7 @@ def test_loader_batches_have_layout_shapes_and_padding_masks(dataset):
     for workers in (0, 2):
         seen = 0
         for batch in make_loader(dataset, batch_size=5, steps=8, kind="consecutive", workers=workers, seed=1):
-            batch.check(layout)
+            layout.check(batch)
             seen += len(batch)
             nu = batch.mask["actuator"].sum(1)  # actuators of each window's robot
             assert (batch.mask["control"].sum(1) == 8 * nu).all()
@@ -219,7 +219,7 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     b = src.sample(9, 8, "random", torch.Generator().manual_seed(3))
     for name in a.values:
         assert torch.equal(a.values[name], b.values[name]) and torch.equal(a.ids[name], b.ids[name])
-    a.check(src.layout(8))
+    src.layout(8).check(a)
     plain = StoreTokenSource(dataset, augment=None, windows_per_block=4).sample(9, 8, "random", torch.Generator().manual_seed(3))
     assert not torch.equal(plain.values["target_pose"], a.values["target_pose"])  # augmentation is on by default
     identity = StoreTokenSource(dataset, augment=SE2Augment(0.0, 0.0), windows_per_block=4)

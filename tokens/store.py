@@ -49,14 +49,12 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
+from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, STEP_TYPES, check_version
 
 logger = logging.getLogger(__name__)
 
 #: Format tag in the root attributes; bumps when the layout above changes.
 FORMAT = "tt.dataset/1"
-#: Per-step token types (dynamics and conditioning), in schema order.
-STEP_TYPES: tuple[str, ...] = tuple(n for n in SCHEMA.names() if SCHEMA[n].role is not Role.EMBODIMENT)
 #: Control steps per chunk of the per-step arrays (~60 ViperX episodes): big enough that a
 #: block read is a few large reads, small enough that a random window reads little.
 STEP_CHUNK = 16384
