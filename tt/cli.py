@@ -193,7 +193,7 @@ def rollout(
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.controller import IKConfig
     from tt.sim.designs import DesignError, get_space, load_designs
-    from tt.sim.rollout import BACKENDS
+    from tt.sim.backends import BACKENDS
 
     try:
         sp = get_space(space)
