@@ -26,9 +26,10 @@ import torch
 
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES, Role
+from tt.kernels.errors import TTError
 
 
-class LayoutError(ValueError):
+class LayoutError(TTError):
     """A token spec, layout or token tensor that does not fit together."""
 
 

@@ -27,6 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
+from tt.kernels.errors import TTError
+
 #: Bump on any change to the layout below; stored with tokens, datasets and checkpoints.
 SCHEMA_VERSION = 1
 
@@ -377,7 +379,7 @@ EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
 STEP_TYPES = tuple(t.name for t in SCHEMA.types if t.role in STEP_ROLES)
 
 
-class SchemaVersionError(ValueError):
+class SchemaVersionError(TTError):
     """Tokens, statistics or a checkpoint written with another schema version."""
 
 
