@@ -24,7 +24,6 @@ from tt.tokens.store import (
     ShardReader,
     ShardWriter,
     TokenStore,
-    dataset_info_cmd,
     shard_dirs,
     verify_shard,
 )
@@ -231,13 +230,16 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     assert result.step == 2 and torch.isfinite(result.losses).all()
 
 
-def test_dataset_info_command(dataset, tmp_path):
+def test_dataset_info_command(dataset, tmp_path, tt_cli):
     png = tmp_path / "rewards.png"
-    text = dataset_info_cmd(dataset, plot=png)
+    code, text = tt_cli(["dataset", "info", str(dataset), "--plot", str(png)])
+    assert code == 0, text
     store = TokenStore(dataset)
     assert f"episodes {store.episodes:,} kept" in text and "shards 2/2" in text and "dyna_joint_obs 7" in text
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    info = json.loads(dataset_info_cmd(dataset, as_json=True))
+    code, out = tt_cli(["dataset", "info", str(dataset), "--json"])
+    assert code == 0, out
+    info = json.loads(out)
     assert info["episodes"] == store.episodes and info["complete"]
     assert info["episodes"] + sum(info["dropped"].values()) == info["episodes_generated"] == 12
     assert info["reward"]["n"] == store.episodes

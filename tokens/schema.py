@@ -375,8 +375,6 @@ SCHEMA = Schema(
 )
 
 EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
-#: Types tokenized once per control step (every role in `STEP_ROLES`).
-STEP_TYPES = tuple(t.name for t in SCHEMA.types if t.role in STEP_ROLES)
 
 
 class SchemaVersionError(TTError):
