@@ -13,13 +13,12 @@ worlds, design-major. The registry by name is `tt.sim.backends`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Protocol, Sequence, runtime_checkable
 
 import mujoco
 
 from tt.sim.controller import IKConfig, ee_site_names, model_name
 from tt.sim.designs import Design, get_space
-from tt.sim.designs.base import DesignSpace
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 
@@ -30,14 +29,12 @@ class Robots:
 
     models: the compiled models, one per design, in input order.
     sites: end-effector site names of each model (``ee_0``, ...).
-    space: the design space when every input was a tt Design of one space, else None.
     mjcf: the MJCF text of each model, None where the input was an `MjModel` (a compiled
         model does not carry its MJCF; backends that import MJCF need Designs).
     """
 
     models: tuple[mujoco.MjModel, ...]
     sites: tuple[tuple[str, ...], ...]
-    space: DesignSpace | None
     mjcf: tuple[str | None, ...]
 
     def __len__(self) -> int:
@@ -104,8 +101,7 @@ def resolve_designs(
         models.append(model)
         sites.append(s)
         mjcf.append(xml)
-    space = get_space(spaces[0]) if len(spaces) == 1 and all(isinstance(d, Design) for d in designs) else None
-    return Robots(tuple(models), tuple(sites), space, tuple(mjcf))
+    return Robots(tuple(models), tuple(sites), tuple(mjcf))
 
 
 def check_motions(motions: Sequence[Motion], control_dt: float, arms: int) -> None:
@@ -129,6 +125,7 @@ def check_motions(motions: Sequence[Motion], control_dt: float, arms: int) -> No
             raise ValueError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
 
 
+@runtime_checkable
 class RolloutBackend(Protocol):
     """One batched simulator behind `tt.sim.rollout.rollout`.
 
