@@ -64,7 +64,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from tt.sim.backends.base import Robots, resolve_designs
+from tt.sim.backends import Robots, get_backend
 from tt.sim.controller import IKConfig, actuated_qpos, model_name
 from tt.sim.designs import Design
 from tt.sim.episode import Episode
@@ -627,7 +627,7 @@ def mjwarp_rollout(
         raise ValueError(f"floating_controller = {floating_controller!r}; expected one of {FLOATING_CONTROLLERS}")
     if isinstance(config, WBCConfig):
         wbc_config = config  # `tt.sim.rollout.rollout` passes one config for every backend
-    robots = designs if isinstance(designs, Robots) else resolve_designs(designs, who="the 'mjwarp' backend", one_space=False)
+    robots = designs if isinstance(designs, Robots) else get_backend("mjwarp").resolve(designs)
     models, sites = list(robots.models), robots.ee_sites
     D, M, A = len(models), len(motions), len(sites)
     floating = [free_joint(m) is not None for m in models]

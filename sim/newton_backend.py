@@ -49,7 +49,7 @@ import numpy as np
 import warp as wp
 
 from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
-from tt.sim.backends.base import Robots, resolve_designs
+from tt.sim.backends import Robots, get_backend
 from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.mjwarp_backend import mat2quat
@@ -221,7 +221,7 @@ def _check_newton_model(m: mujoco.MjModel, index: int) -> None:
 
 def _design_inputs(designs: Sequence[Design] | Robots) -> tuple[list[mujoco.MjModel], list[str], tuple[str, ...]]:
     """MuJoCo models, MJCF texts and end-effector sites of tt Designs (one contact-free space)."""
-    robots = designs if isinstance(designs, Robots) else resolve_designs(designs, who="the 'newton' backend", contacts=False)
+    robots = designs if isinstance(designs, Robots) else get_backend("newton").resolve(designs)
     for i, xml in enumerate(robots.mjcf):
         if xml is None:
             raise TypeError(

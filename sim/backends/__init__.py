@@ -35,7 +35,7 @@ class WarpBackend:
     perturbs = True
 
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
-        return resolve_designs(designs, who="the 'warp' backend", contacts=False)
+        return resolve_designs(designs, who="the 'warp' backend", contacts=False, hint="use backend='mjwarp' or 'mujoco'")
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
             progress: bool, action_noise: float, noise_seed: int) -> Episode:
@@ -70,7 +70,7 @@ class NewtonBackend:
     perturbs = False
 
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
-        return resolve_designs(designs, who="the 'newton' backend", contacts=False)
+        return resolve_designs(designs, who="the 'newton' backend", contacts=False, hint="use backend='mjwarp'")
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
             progress: bool, action_noise: float, noise_seed: int) -> Episode:

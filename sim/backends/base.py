@@ -58,6 +58,7 @@ def resolve_designs(
     who: str = "a rollout",
     one_space: bool = True,
     contacts: bool = True,
+    hint: str = "",
 ) -> Robots:
     """Compile D designs into `Robots`.
 
@@ -67,6 +68,7 @@ def resolve_designs(
         batched backends: motions and rewards are per space); False lets the oracle run
         any mix, world by world.
     contacts: False raises for a design space with contacts (``has_contacts``).
+    hint: what to do instead, appended to that error ("use backend='mjwarp' or 'mujoco'").
     Raises ValueError (TypeError for an input of another type) naming the design.
     """
     if len(designs) == 0:
@@ -85,7 +87,7 @@ def resolve_designs(
         for name in spaces:
             if get_space(name).has_contacts:
                 raise ValueError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
-                                 "contact-free trees only, use backend='mjwarp' or 'mujoco'")
+                                 f"contact-free trees only{'; ' + hint if hint else ''}")
     models, sites, mjcf = [], [], []
     for i, d in enumerate(designs):
         if isinstance(d, Design):
