@@ -233,27 +233,10 @@ class ArmWorlds:
 
 
 def _models(designs) -> tuple[list[mujoco.MjModel], tuple[str, ...]]:
-    from tt.sim.controller import ee_site_names
-    from tt.sim.designs import Design, get_space
+    from tt.sim.backends.base import resolve_designs
 
-    if len(designs) == 0:
-        raise ValueError("designs is empty; a closed-loop rollout needs at least one design")
-    if all(isinstance(d, Design) for d in designs):
-        spaces = {d.space for d in designs}
-        if len(spaces) > 1:
-            raise ValueError(f"designs mix design spaces {sorted(spaces)}; run one space per call")
-        sp = get_space(spaces.pop())
-        if sp.has_contacts:
-            raise ValueError(f"design space {sp.name!r} has contacts; the closed-loop rollout runs contact-free arms only")
-        return [sp.model(d) for d in designs], sp.ee_sites()
-    for i, m in enumerate(designs):
-        if not isinstance(m, mujoco.MjModel):
-            raise TypeError(f"designs[{i}] is a {type(m).__name__}; expected tt Designs or mujoco.MjModels (not mixed)")
-    sites = ee_site_names(designs[0])
-    for i, m in enumerate(designs):
-        if ee_site_names(m) != sites:
-            raise ValueError(f"designs[{i}] has end effectors {ee_site_names(m)}, designs[0] has {sites}")
-    return list(designs), sites
+    robots = resolve_designs(designs, who="the model's closed-loop rollout", contacts=False)
+    return list(robots.models), robots.ee_sites
 
 
 def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, config: IKConfig = IKConfig(),

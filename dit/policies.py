@@ -32,12 +32,14 @@ import torch
 
 from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
 from tt.dit.closed_loop import LoopContext, StepState, closed_loop_rollout
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
+from tt.dit.layout import Layout, LayoutError
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, TaskSpec
 from tt.sim.controller import IKConfig
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
 
 #: Controllers of `tt validate --controller`.
 CONTROLLERS = ("ik", "model")
@@ -150,7 +152,7 @@ class ModelPolicy:
         self._actuator = act.to(ctx.target_pos.device)  # (D, P): MuJoCo actuator of each control slot
         self.generator = torch.Generator(device=dev).manual_seed(int(self.config.seed))
 
-    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenTensors, int]:
+    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenBatch, int]:
         """Normalised control-task tokens of worlds `worlds` at control step `step`, and the
         window slot whose command is executed (1, or 0 at step 0)."""
         from tt.tokens.episodes import episode_tokens
@@ -202,7 +204,7 @@ class ModelPolicy:
             values[s.name] = norm.normalize_values(s.name, v.reshape(n, S * P, s.dim), m.reshape(n, S * P))
             ids[s.name] = i.reshape(n, S * P, -1)
             mask[s.name] = m.reshape(n, S * P)
-        return TokenTensors(values, ids, mask), slot
+        return TokenBatch(values, ids, mask), slot
 
     def __call__(self, step: int, worlds: torch.Tensor, state: StepState) -> torch.Tensor:
         from tt.dit.ddim import CosineDDIM
