@@ -131,7 +131,7 @@ def test_type_weights_scale_their_terms(episodes):
     name = next(iter(per_type))
     weighted, per_type_w = diffusion_loss(model, [(task, inputs)], type_weights={name: 4.0})
     assert torch.equal(per_type[name], per_type_w[name])  # the reported terms are unweighted
-    assert math.isclose(float(weighted), float(total) + 3.0 * float(per_type[name]), rel_tol=1e-6)
+    assert math.isclose(float(weighted.detach()), float(total.detach()) + 3.0 * float(per_type[name]), rel_tol=1e-6)
     with pytest.raises(ValueError, match="not token types"):
         diffusion_loss(model, [(task, inputs)], type_weights={"no_such_type": 2.0})
 

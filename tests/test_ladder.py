@@ -23,9 +23,10 @@ def test_pearson_and_within_motion_against_numpy():
     assert np.isnan(pearson(np.array([1.0, np.nan, 2.0]), np.array([1.0, 2.0, np.nan])))  # < 3 finite pairs
 
 
-#: R0's recipe. Not yet shown to pass: on the shared 2-core CPU this recipe reached pooled
-#: r = 0.17 at step 300 and 0.24 at step 600 (rising; the 8-step estimator's own ceiling is
-#: 1.00), so the step count is a guess to be settled by running this test on an idle machine.
+#: R0's recipe. Not yet shown to pass: an 800-step run of it (lr decayed to 0 at 800, loss
+#: 0.25) reached pooled r = 0.17 at step 300, 0.24 at 600, 0.23 at 800 (0.32 on the 48 pairs
+#: that ran past a few steps), against the 8-step estimator's own ceiling of 1.00; the step
+#: count here is a guess for an idle machine, and the recipe may need more than steps.
 R0 = dict(size="tiny", steps=3000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
 
 
