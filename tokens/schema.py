@@ -24,8 +24,11 @@ Conventions the encoded values follow:
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 from enum import Enum
+
+from tt.kernels.errors import TTError
 
 #: Bump on any change to the layout below; stored with tokens, datasets and checkpoints.
 SCHEMA_VERSION = 1
@@ -364,12 +367,19 @@ EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
 DYNAMICS_TYPES = SCHEMA.names(Role.DYNAMICS)
 
 
-class SchemaVersionError(ValueError):
+class SchemaVersionError(TTError):
     """Tokens, statistics or a checkpoint written with another schema version."""
 
 
 def check_version(version: int, what: str) -> None:
-    """Raise `SchemaVersionError` unless `version` is this code's `SCHEMA_VERSION`."""
+    """Raise `SchemaVersionError` unless `version` is this code's `SCHEMA_VERSION` (an integer)."""
+    try:
+        if isinstance(version, bool):
+            raise TypeError
+        version = operator.index(version)  # ints, numpy integers and 0-d integer arrays
+    except TypeError:
+        raise SchemaVersionError(f"{what} has schema_version {version!r}, which is not an integer; this code reads "
+                                 f"RoboToken schema {SCHEMA_VERSION}") from None
     if int(version) != SCHEMA_VERSION:
         raise SchemaVersionError(
             f"{what} uses RoboToken schema v{int(version)}, this code reads v{SCHEMA_VERSION}; "

@@ -49,6 +49,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from tt.kernels.errors import TTError
+from tt.kernels.files import reason
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
 
 logger = logging.getLogger(__name__)
@@ -71,7 +73,7 @@ _SHARD_RE = re.compile(r"^s(\d{6})$")
 _MANIFEST = "manifest.json"
 
 
-class DatasetError(ValueError):
+class DatasetError(TTError):
     """A dataset folder that does not exist, is of another format or config, or is incomplete."""
 
 
@@ -159,43 +161,79 @@ def _jsonable(x):
 
 # ------------------------------------------------------------------------------ lock
 class DatasetLock:
-    """One writer per dataset: ``DATASET/.lock`` holds host and pid of the running `tt generate`.
+    """One writer per dataset: an exclusive `fcntl.flock` on ``DATASET/.lock``, which holds
+    host and pid of the running `tt generate` (for messages).
 
-    A lock left by a process that no longer runs on this host (killed) is taken over.
+    The kernel drops the flock of a process that dies, so a lock left by a killed run is
+    free, and taking it over is the flock itself: of several runs starting together exactly
+    one gets it, the others are refused. (The old protocol read the stale file, unlinked it
+    and created a new one, so two runs could both win.) A lock file naming a live process
+    of this host, or any process of another host (where flock may not reach), is refused.
     """
 
     def __init__(self, path: str | Path):
         self.file = Path(path) / ".lock"
         self.held = False
+        self._fd: int | None = None
+
+    @staticmethod
+    def _owner(fd: int) -> dict:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            other = json.loads(os.read(fd, 4096).decode() or "{}")
+            return other if isinstance(other, dict) else {}
+        except (OSError, ValueError):
+            return {}
+
+    def _refuse(self, fd: int, message: str) -> None:
+        os.close(fd)
+        raise DatasetError(message)
 
     def __enter__(self) -> "DatasetLock":
+        import fcntl
+
         me = {"host": socket.gethostname(), "pid": os.getpid()}
-        for _ in range(2):
+        for _ in range(8):
+            fd = os.open(self.file, os.O_CREAT | os.O_RDWR, 0o644)
             try:
-                fd = os.open(self.file, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                try:
-                    other = json.loads(self.file.read_text())
-                except (OSError, json.JSONDecodeError):
-                    other = {}
-                if other.get("host") == me["host"] and _pid_alive(int(other.get("pid", -1))):
-                    raise DatasetError(f"{self.file.parent} is being written by process {other['pid']} on this host; "
-                                       "wait for it or stop it first") from None
-                if other.get("host") not in (None, me["host"]):
-                    raise DatasetError(f"{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if that "
-                                       f"run is gone, delete {self.file}") from None
-                self.file.unlink(missing_ok=True)  # stale: its process is gone
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                other = self._owner(fd)
+                self._refuse(fd, f"{self.file.parent} is being written by process {other.get('pid', '?')} on "
+                                 f"{other.get('host', 'this host')}; wait for it or stop it first")
+            try:  # a holder that released (unlinked) the file between our open and flock: retry on the new file
+                same = os.fstat(fd).st_ino == os.stat(self.file).st_ino
+            except FileNotFoundError:
+                same = False
+            if not same:
+                os.close(fd)
                 continue
-            with os.fdopen(fd, "w") as f:
-                json.dump(me, f)
-            self.held = True
+            other = self._owner(fd)
+            pid = other.get("pid", -1)
+            pid = pid if isinstance(pid, int) else -1
+            if other.get("host") == me["host"] and pid != me["pid"] and _pid_alive(pid):
+                self._refuse(fd, f"{self.file.parent} is being written by process {pid} on this host; "
+                                 "wait for it or stop it first")
+            if other.get("host") not in (None, me["host"]):
+                self._refuse(fd, f"{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if that "
+                                 f"run is gone, delete {self.file}")
+            if other:
+                logger.info("taking over the lock %s of a run that is gone (%s)", self.file, other)
+            os.ftruncate(fd, 0)
+            os.lseek(fd, 0, os.SEEK_SET)
+            os.write(fd, json.dumps(me).encode())
+            os.fsync(fd)
+            self._fd, self.held = fd, True
             return self
         raise DatasetError(f"could not take the lock {self.file}")
 
     def __exit__(self, *exc) -> None:
         if self.held:
+            # Unlinked while still locked; a run that opened the old file meanwhile sees the
+            # inode change after its flock and retries on a new file.
             self.file.unlink(missing_ok=True)
-            self.held = False
+            os.close(self._fd)
+            self._fd, self.held = None, False
 
 
 def _pid_alive(pid: int) -> bool:
@@ -267,6 +305,39 @@ def verify_shard(folder: str | Path, *, full: bool = True) -> str | None:
         if full and _crc32(p) != crc:
             return f"file {rel} fails its CRC-32 check (content changed)"
     return None
+
+
+def check_shards(path: str | Path, *, shards: int | None = None, full: bool = True) -> dict[int, str | None]:
+    """Shard index -> None if the shard is intact, else why not (`verify_shard`), for every
+    shard folder of dataset `path`; with `shards`, an index at or beyond it is damaged too.
+    The check `tt generate` runs before it resumes, and `tt dataset verify`."""
+    out = {}
+    for i, folder in shard_dirs(path).items():
+        out[i] = verify_shard(folder, full=full) if shards is None or i < shards else f"index beyond the {shards} shards"
+    return out
+
+
+def dataset_verify_cmd(path: str | Path) -> str:
+    """``tt dataset verify DATASET``: sizes and CRC-32 of every file of every shard.
+
+    Returns the summary; raises `DatasetError` (one line) naming each damaged shard and why.
+    """
+    path = Path(path)
+    attrs = read_root(path)
+    expected = attrs.get("config", {}).get("shards")
+    verdicts = check_shards(path, shards=expected, full=True)
+    damaged = {i: why for i, why in verdicts.items() if why is not None}
+    if damaged:
+        named = "; ".join(f"{shard_name(i)}: {why}" for i, why in list(damaged.items())[:5])
+        more = f"; and {len(damaged) - 5} more" if len(damaged) > 5 else ""
+        raise DatasetError(f"{path}: {len(damaged)} of {len(verdicts)} shards fail verification ({named}{more}); re-run "
+                           "the `tt generate` command that wrote the dataset to regenerate them")
+    missing = [] if expected is None else [i for i in range(expected) if i not in verdicts]
+    files = sum(len(read_manifest(f)["files"]) for f in shard_dirs(path).values())
+    text = f"{path}: all {len(verdicts)} shards intact ({files} files, sizes and CRC-32 checked)"
+    if missing:
+        text += f"; {len(missing)} of {expected} shards not generated yet (run `tt generate` again to finish)"
+    return text
 
 
 def read_manifest(folder: str | Path) -> dict:
@@ -437,12 +508,12 @@ class ShardWriter:
         if self._pending_bytes >= self.flush_bytes:
             self.flush()
 
-    def commit(self, attrs: Mapping, manifest_extra: Mapping | None = None, *, fsync: bool = True) -> Path:
+    def commit(self, attrs: Mapping, *, fsync: bool = True) -> Path:
         """Finish the shard: attributes, manifest (sizes and CRC-32 of every file), fsync, rename.
 
-        attrs: stored in the shard group's ``zarr.json`` (content: part of the checksums);
-        manifest_extra: stored in ``manifest.json`` only (e.g. timings, which differ between
-        runs). An existing damaged shard of the same index is replaced; an intact one is kept
+        attrs: stored in the shard group's ``zarr.json`` (content: part of the checksums).
+        Nothing that differs between runs (timings) is stored, so a shard is a pure function
+        of its arguments and index, manifest included. An existing damaged shard of the same index is replaced; an intact one is kept
         (another writer finished it first) and this one discarded.
         """
         self.flush()
@@ -458,7 +529,7 @@ class ShardWriter:
                 with open(p, "rb+") as f:
                     os.fsync(f.fileno())
             files[rel] = [p.stat().st_size, _crc32(p)]
-        manifest = {"format": FORMAT, "index": self.index, "files": files, **_jsonable(dict(manifest_extra or {}))}
+        manifest = {"format": FORMAT, "index": self.index, "files": files}
         mpath = self.tmp / _MANIFEST
         mpath.write_text(json.dumps(manifest))
         if fsync:
@@ -574,21 +645,34 @@ class ShardReader:
         self._arrays: dict[str, object] = {}
         self._fields: dict[str, np.ndarray] = {}
 
-    def _array(self, key: str):
+    def _damaged(self, what: str, error: BaseException) -> DatasetError:
+        dataset = self.folder.parent.parent
+        return DatasetError(f"dataset shard {self.folder}: {what} cannot be read ({reason(error)}); "
+                            f"`tt dataset verify {dataset}` checks every chunk, and re-running the `tt generate` "
+                            "command that wrote it regenerates a damaged shard")
+
+    def _read(self, key: str, rows: slice = slice(None)) -> np.ndarray:
+        """Rows `rows` of array `key` of the shard; a chunk that does not decode is a `DatasetError`."""
         import zarr
 
-        if key not in self._arrays:
-            self._arrays[key] = zarr.open_array(str(self.folder / key), mode="r", zarr_format=3)
-        return self._arrays[key]
+        try:
+            if key not in self._arrays:
+                self._arrays[key] = zarr.open_array(str(self.folder / key), mode="r", zarr_format=3)
+            return np.asarray(self._arrays[key][rows])
+        except Exception as e:  # blosc, zarr and json raise unrelated types for a damaged chunk or header
+            raise self._damaged(f"array {key}", e) from None
 
     @cached_property
     def attrs(self) -> dict:
-        return json.loads((self.folder / "zarr.json").read_text())["attributes"]
+        try:
+            return json.loads((self.folder / "zarr.json").read_text())["attributes"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise self._damaged("zarr.json", e) from None
 
     def field(self, name: str) -> np.ndarray:
         """Per-episode field `name` of every episode (read once, then kept)."""
         if name not in self._fields:
-            self._fields[name] = np.asarray(self._array(f"episode/{name}")[:])
+            self._fields[name] = self._read(f"episode/{name}")
         return self._fields[name]
 
     @property
@@ -607,7 +691,7 @@ class ShardReader:
 
     def static_rows(self, start: int, stop: int) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Embodiment tokens (values, ids, mask) of designs [start, stop) of the shard."""
-        return {n: tuple(np.asarray(self._array(f"{n}/{part}")[start:stop]) for part in ("values", "ids", "mask"))
+        return {n: tuple(self._read(f"{n}/{part}", slice(start, stop)) for part in ("values", "ids", "mask"))
                 for n in self.types if n in EMBODIMENT_TYPES}
 
     @property
@@ -630,8 +714,8 @@ class ShardReader:
         for n in self.types:
             if n in EMBODIMENT_TYPES:
                 continue
-            steps[n] = (np.asarray(self._array(f"{n}/values")[s0:s1]), np.asarray(self._array(f"{n}/ids")[start:stop]),
-                        np.asarray(self._array(f"{n}/mask")[start:stop]))
+            steps[n] = (self._read(f"{n}/values", slice(s0, s1)), self._read(f"{n}/ids", slice(start, stop)),
+                        self._read(f"{n}/mask", slice(start, stop)))
         episode = {k: v[start:stop] for k, v in self.index.items()} if fields else {}
         return EpisodeBlock(length=length, design=design - d0, offset=step_start - s0, static=self.static_rows(d0, d1),
                             steps=steps, episode=episode)
@@ -640,8 +724,8 @@ class ShardReader:
         """The shard's designs as `tt.sim.designs.Design` of `space` (a DesignSpace)."""
         from tt.sim.designs import Design
 
-        disc = np.asarray(self._array("design/discrete")[:])
-        cont = np.asarray(self._array("design/continuous")[:])
+        disc = self._read("design/discrete")
+        cont = self._read("design/continuous")
         out = []
         for d, c in zip(disc, cont):
             out.append(Design(space.name, tuple(int(v) for v in d if v >= 0), tuple(float(v) for v in c if not np.isnan(v))))
@@ -869,7 +953,8 @@ def dataset_info_cmd(path: str | Path, *, plot: str | Path | None = None, as_jso
 
 __all__ = [
     "BLOCK_EPISODES", "DatasetError", "DatasetLock", "EpisodeBlock", "FORMAT", "STEP_TYPES", "ShardPart", "ShardReader",
-    "ShardWriter", "TokenStore", "clear_partial", "create_root", "dataset_info", "dataset_info_cmd", "discard_shard",
+    "ShardWriter", "TokenStore", "check_shards", "clear_partial", "create_root", "dataset_info", "dataset_info_cmd",
+    "dataset_verify_cmd", "discard_shard",
     "is_dataset", "merge_stats", "normalizer_from_stats", "plot_rewards", "read_manifest", "read_root", "shard_dirs",
     "shard_name", "update_root", "verify_shard",
 ]
