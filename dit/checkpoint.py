@@ -27,6 +27,7 @@ finds a space's.
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -131,7 +132,9 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu", 
     `tt.tokens.schema.SchemaVersionError` (written for another RoboToken schema)."""
     path = check_readable(path, "checkpoint")
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # torch warns about pickle protocols of foreign files
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # torch raises RuntimeError, EOFError, UnpicklingError, ... for damaged files
         raise CorruptFileError(f"checkpoint {path} cannot be read: {reason(e)}") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:

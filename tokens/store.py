@@ -775,7 +775,8 @@ class TokenStore:
         for index, folder in shard_dirs(self.path).items():
             why = None if verify == "none" else verify_shard(folder, full=verify == "full")
             if why is not None:
-                logger.warning("skipping damaged shard %s: %s", folder.name, why)
+                logger.warning("skipping damaged shard %s of %s: %s (re-running the `tt generate` command that wrote it "
+                               "regenerates it)", folder.name, self.path, why)
                 self.damaged[index] = why
                 continue
             self.readers.append(ShardReader(folder))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import List, Optional
 
@@ -12,8 +13,8 @@ import click
 import typer
 from typer.core import TyperGroup
 
-#: Words of library messages that advise loading pickles; tt's messages never carry them.
-_PICKLE_WORDS = ("pickle", "weights_only", "untrusted")
+#: Words of library messages that advise loading pickles (torch.load, np.load); tt never passes them on.
+_PICKLE_WORDS = ("allow_pickle", "weights_only", "untrusted")
 
 
 def error_message(e: BaseException) -> str:
@@ -94,9 +95,28 @@ def _write_json(path: Path, data: dict) -> None:
                    f"e.g. {nulls[0]}; the file's null_values entry lists them", err=True)
 
 
+class _Stderr(logging.StreamHandler):
+    """Logs to the ``sys.stderr`` of the moment (a test runner swaps it between commands)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:
+        pass
+
+
 @app.callback()
 def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at INFO level; on an error, print the traceback too.")) -> None:
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    # tt's warnings (a damaged shard skipped, a checkpoint fallen back from) go to stderr;
+    # other libraries' warnings reach it through logging's last-resort handler.
+    log = logging.getLogger("tt")
+    if not any(isinstance(h, _Stderr) for h in log.handlers):
+        handler = _Stderr()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        log.addHandler(handler)
+    log.setLevel(logging.INFO if verbose else logging.WARNING)
     if not verbose:
         # Warp prints its banner and each module load to stdout; the CLI's output is its tables.
         import warp as wp

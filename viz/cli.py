@@ -150,9 +150,9 @@ def _serve_until_stopped(vis, *, stop_server: bool, echo: Callable[[str], None])
     def interrupt(signum, frame):
         raise KeyboardInterrupt
 
-    echo("serving; press Ctrl-C to stop")
     previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
-    try:
+    try:  # from here on a signal stops the server
+        echo("serving; press Ctrl-C to stop")
         while True:
             _time.sleep(1.0)
     except KeyboardInterrupt:
