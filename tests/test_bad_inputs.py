@@ -1,7 +1,7 @@
 """Every bad input through the real ``tt`` command line: a non-zero exit, one ``error:`` line
 naming the offending file, flag or field, no traceback, nothing lost (issue 22).
 
-The table is `tests/bad_inputs.py` (also run by the sweep ``benchmarks/bad_inputs.py``);
+The table is `tests/bad_input_cases.py` (also run by the sweep ``benchmarks/bad_inputs.py``);
 the tests after it cover what a table row cannot: resuming from a damaged checkpoint,
 refusing a resume with other arguments, fsync before rename, strict JSON, the dataset
 lock, a full disk, ``tt view --serve`` under SIGTERM and unique detokenized names.
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bad_inputs import CASES, CLASSES, outcome, make_files  # noqa: E402
+from bad_input_cases import CASES, CLASSES, outcome, make_files  # noqa: E402
 
 from tt.tokens.generate import GenerateConfig, generate  # noqa: E402
 

@@ -89,6 +89,8 @@ def resample_motion(motion: Motion, dt: float = MOTION_DT) -> Motion:
 
 def _check_array(path: Path, field: str, arr: Any, width: int) -> np.ndarray:
     """A (T, width) float array, or `MotionError` naming the file and field."""
+    if getattr(arr, "dtype", np.dtype("f8")).kind not in "fiu":
+        raise MotionError(f"{path}: field {field!r} holds {np.asarray(arr).dtype} values, not real numbers")
     try:
         a = np.asarray(arr, dtype=np.float64)
     except (TypeError, ValueError) as e:
