@@ -135,7 +135,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "bad_inputs.md")
     args = parser.parse_args()
 
-    from tt.tokens.generate import GenerateConfig, generate
+    from tt.generate import GenerateConfig, generate
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:

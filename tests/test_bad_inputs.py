@@ -25,7 +25,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from bad_input_cases import CASES, CLASSES, outcome, make_files  # noqa: E402
 
-from tt.tokens.generate import GenerateConfig, generate  # noqa: E402
+from tt.generate import GenerateConfig, generate  # noqa: E402
 
 #: 2 shards of 2 designs x 1 episode on motions cut to 24 steps: the smallest real dataset.
 DATASET = GenerateConfig(space="viperx", designs=4, episodes_per_design=1, designs_per_shard=2, min_steps=10,
@@ -180,7 +180,7 @@ def test_stale_lock_takeover_has_one_winner(tmp_path):
 
 
 def test_full_disk_during_generation_says_how_to_resume(tt_cli, tmp_path, monkeypatch):
-    import tt.tokens.generate as gen
+    import tt.generate as gen
 
     def full(config, index, out, **kwargs):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(Path(out) / ".partial" / f"s{index:06d}"))

@@ -72,14 +72,14 @@ def test_train_killed_between_checkpoint_write_and_rename(tmp_path, tt_cli, sing
 
 _GENERATE_CHILD = """
 import json, sys
-from tt.tokens.generate import GenerateConfig, generate
+from tt.generate import GenerateConfig, generate
 generate(GenerateConfig(**json.loads(sys.argv[2])), sys.argv[1], device="cpu", progress=False)
 """
 
 
 @pytest.mark.slow
 def test_generate_killed_at_ten_random_points(tmp_path):
-    from tt.tokens.generate import GenerateConfig, generate
+    from tt.generate import GenerateConfig, generate
     from tt.tokens.store import TokenStore, read_manifest, read_root, shard_dirs, verify_shard
 
     config = GenerateConfig(space="viperx", designs=12, episodes_per_design=2, designs_per_shard=2, min_steps=20,

@@ -51,6 +51,7 @@ import numpy as np
 
 from tt.kernels.errors import TTError
 from tt.kernels.files import reason
+from tt.kernels.version import tt_version
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
 
 logger = logging.getLogger(__name__)
@@ -90,12 +91,6 @@ def _compressor():
     # lz4 + bitshuffle: ~1.4x on float32 physics data, and decoding is far faster than
     # reading from disk, so training reads are not compute bound.
     return BloscCodec(cname="lz4", clevel=5, shuffle=BloscShuffle.bitshuffle)
-
-
-def tt_version() -> str:
-    import tt
-
-    return str(tt.__version__)
 
 
 # ------------------------------------------------------------------------------ root
