@@ -62,7 +62,7 @@ def test_bad_input(case, files, tt_cli):
 
 
 def test_optimize_help_lists_every_method(tt_cli):
-    from tt.baselines import METHODS
+    from tt.optimizers import METHODS
 
     code, out = tt_cli(["optimize", "--help"])
     assert code == 0 and all(m in out for m in METHODS), out

@@ -24,7 +24,7 @@ from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
 from tt.tokens import episode_tokens, tokenize_models
 from tt.generate import GenerateConfig, generate, shard_design_list
-from tt.tokens.store import DatasetError, TokenStore, read_manifest, read_root, shard_dirs
+from tt.tokens.store import DatasetError, TokenStore, read_root, shard_dirs
 
 #: 5 shards of 2 designs x 2 episodes on motions cut to 40 steps (20 kept at least).
 CONFIG = GenerateConfig(space="viperx", designs=10, episodes_per_design=2, designs_per_shard=2, min_steps=20,

@@ -50,7 +50,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from tt.kernels.errors import TTError
-from tt.kernels.files import reason
+from tt.kernels.files import reason, strict_json
 from tt.kernels.version import tt_version
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
 
@@ -913,7 +913,10 @@ def dataset_info_cmd(path: str | Path, *, plot: str | Path | None = None, as_jso
     if plot is not None:
         plot_rewards(rewards, plot, title=f"{info['space']} dataset {Path(path).name}")
     if as_json:
-        return json.dumps(info, indent=1)
+        clean, nulls = strict_json(info)  # strict JSON: NaN as null, and said so
+        if nulls:
+            clean["null_values"] = {"why": "NaN or infinite values, written as null (JSON has no NaN)", "fields": nulls}
+        return json.dumps(clean, indent=1, allow_nan=False)
     cfg = info["config"]
     lines = [f"{info['path']}: {info['format']}, RoboToken schema v{info['schema_version']}, tt {info['tt_version']}",
              f"space {info['space']}; seed {cfg.get('seed')}; bias {cfg.get('bias') or 'none'}; "
