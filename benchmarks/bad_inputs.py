@@ -38,7 +38,10 @@ def _invoke(args: list[str]) -> tuple[int, str]:
     from tt.cli import app
 
     res = CliRunner().invoke(app, args)
-    return res.exit_code, res.output + (res.stderr if res.stderr_bytes is not None else "")
+    out = res.output + (res.stderr if res.stderr_bytes is not None else "")
+    if res.exception is not None and not isinstance(res.exception, SystemExit):
+        out += f"\nTraceback (uncaught): {type(res.exception).__name__}: {res.exception}"  # the runner keeps it
+    return res.exit_code, out
 
 
 def _scenario(name: str, cls: int, run) -> Outcome:

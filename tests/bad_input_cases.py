@@ -168,13 +168,6 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     return f
 
 
-def _no_file(path_attr: str) -> Callable[[SimpleNamespace, str], str | None]:
-    def check(f: SimpleNamespace, out: str) -> str | None:
-        return None if Path(getattr(f, path_attr)).exists() else f"{getattr(f, path_attr)} was not written"
-
-    return check
-
-
 def _stale_designs_removed(f: SimpleNamespace, out: str) -> str | None:
     folder = Path(f.root) / "designs_out"
     stale = folder / "viperx_0003.xml"
@@ -193,13 +186,6 @@ def _earlier_designs(f: SimpleNamespace) -> None:
     folder = Path(f.root) / "designs_out"
     CliRunner().invoke(app, ["designs", "--n", "4", "--out", str(folder)])
     (folder / "mine.txt").write_text("kept")
-
-
-def _set(name: str, value: str) -> Callable[[SimpleNamespace], None]:
-    def setup(f: SimpleNamespace) -> None:
-        setattr(f, name, value.format(**vars(f)))
-
-    return setup
 
 
 V = ["validate", "--design"]
@@ -263,7 +249,7 @@ CASES: list[Case] = [
     Case("generate --out onto a file", 3, lambda f: ["generate", "--designs", "1", "--out", f.afile], ("--out", "afile")),
     Case("detokenize --out onto a folder", 3, lambda f: ["detokenize", f.tokens, "--out", f.robots_dir], ("--out", "robots_dir", "is a folder")),
     Case("validate --json into missing folders", 3, lambda f: [*V, f.designs + "#0", "--motion-file", f.motion, "--json", f.missing + "/v.json"], ok=True,
-         check=lambda f, out: None if json.loads(Path(f.missing, "v.json").read_text(), parse_constant=_reject) else "no JSON"),
+         check=lambda f, out: _strict_json(Path(f.missing, "v.json"))),
     # -- 4: garbage reported as success
     Case("detokenize: NaN inside a real token", 4, lambda f: ["detokenize", f.tokens_nan, "--out", f.root + "/r.xml"], ("tokens_nan.npz", "NaN", "'link'")),
     Case("optimize: no candidate survives a step", 4, lambda f: ["optimize", "--method", "random", "--budget", "3", "--motion-file", f.motion_far],
@@ -306,8 +292,19 @@ CASES: list[Case] = [
 ]
 
 
-def _reject(constant: str):
-    raise ValueError(f"bare {constant} in JSON")
+def _strict_json(path: Path) -> str | None:
+    """None if `path` exists and parses as strict JSON (no bare NaN), else what is wrong."""
+    if not path.exists():
+        return f"{path} was not written"
+
+    def reject(constant: str):
+        raise ValueError(f"bare {constant}")
+
+    try:
+        json.loads(path.read_text(), parse_constant=reject)
+    except ValueError as e:
+        return f"{path} is not strict JSON ({e})"
+    return None
 
 
 @dataclass
@@ -331,7 +328,10 @@ def outcome(case: Case, files: SimpleNamespace, invoke: Callable[[list[str]], tu
         return Outcome(case, "traceback", code, out, "a traceback or an internal error")
     if any(w in out for w in PICKLE_ADVICE):
         return Outcome(case, "misleading", code, out, "advice about loading pickles")
-    problem = case.check(files, out) if case.check is not None else None
+    try:
+        problem = case.check(files, out) if case.check is not None else None
+    except Exception as e:  # a check that cannot even read what the command left
+        problem = f"{type(e).__name__}: {e}"
     if case.ok:
         if code != 0:
             return Outcome(case, "misleading", code, out, f"exit {code} for a valid input")

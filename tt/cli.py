@@ -429,7 +429,7 @@ def optimize(
         opt.plan(problem)  # a budget below one population fails here, before any work
     result = opt.optimize(problem)
     rewards = np.asarray(result.rewards, dtype=np.float64)
-    if rewards.size and not np.any(np.isfinite(rewards) & (rewards != 0.0)):
+    if method in ("random", "cmaes") and rewards.size and not np.any(np.isfinite(rewards) & (rewards != 0.0)):
         # A rollout that terminates at its first step scores exactly 0 under every reward.
         _fail(f"no candidate of {rewards.size} survived a single control step (every objective is 0 or NaN): the "
               f"motion is out of reach of these {space} designs; try another motion, space or a larger --budget")
