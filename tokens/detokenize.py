@@ -453,7 +453,8 @@ class _RobotTree:
         lk, pad, name = self.lk, "  " * depth, f"b{self.anchor[g]}"
         self.lines.append(f'{pad}<body name="{name}"{_pose(*pose)}>')
         if g in self.free_roots:
-            self.lines.append(f'{pad}  <freejoint name="{self._unique("joint", f"free{self.free_of[self.anchor[g]]}")}"/>')
+            free = self._unique("joint", f"free{self.free_of[self.anchor[g]]}")
+            self.lines.append(f'{pad}  <freejoint name="{free}"/>')
         for ji in joints:
             j = ji["joint"]
             jname = self._unique("joint", f"ball{j.jid}" if j.kind == "ball" else f"j{j.jid}")
@@ -513,7 +514,8 @@ class _RobotTree:
                 if jid not in self.actuated:
                     self.notes.append(f"actuator {aid}: dynamic joint {jid} is not in the tree; dropped")
                     continue
-                act_lines.append("    " + _actuator_xml(aid, self._unique("actuator", f"a{aid}"), self.actuated[jid], ad, r, self.notes))
+                name = self._unique("actuator", f"a{aid}")
+                act_lines.append("    " + _actuator_xml(aid, name, self.actuated[jid], ad, r, self.notes))
         any_contact = bool(np.any(lk["contact"][list(self.row.values())] > 0))
         floor = any_contact if config.floor is None else config.floor
         flag = "" if config.contacts else '\n    <flag contact="disable"/>'
