@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable
@@ -25,6 +26,7 @@ from typing import Callable
 import torch
 
 from tt.dit.checkpoint import (
+    RESUME_KEYS,
     checkpoint_path,
     latest_checkpoint,
     list_checkpoints,
@@ -40,6 +42,7 @@ from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
+from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
 
@@ -221,6 +224,61 @@ def _resolve_device(device: str | None) -> torch.device:
     return torch.device(device)
 
 
+#: TrainConfig fields a resumed run must share with the run it continues, and their flags.
+#: (steps may grow, checkpoints and devices may change: none of these change a step's result.)
+RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size": "--batch-size", "lr": "--lr",
+              "seed": "--seed", "online": "--online ...", "window": "window", "warmup_steps": "warmup_steps",
+              "weight_decay": "weight_decay", "grad_clip": "grad_clip", "ema_power": "ema_power",
+              "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
+              "control_diffusion_steps": "control_diffusion_steps", "future_states": "future_states", "loss": "loss",
+              "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
+              "type_weights": "--type-weight"}
+
+
+def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
+    """Refuse to resume run `out` (trained with TrainConfig dict `stored`) with other arguments,
+    as `tt generate` refuses to resume a dataset with other arguments; `ValueError` naming the flag."""
+    if not stored:
+        return
+    saved = TrainConfig.from_dict(stored)
+    for name, flag in RUN_FIELDS.items():
+        before, now = getattr(saved, name), getattr(config, name)
+        if name == "lr":
+            before, now = saved.learning_rate, config.learning_rate
+        elif name == "data":
+            before, now = (str(Path(v).resolve()) if v else "" for v in (before, now))
+        elif name == "online":
+            before, now = (asdict(v) if v is not None else None for v in (before, now))
+        if before != now:
+            raise ValueError(f"run {out} was trained with {flag} {before!r}, this run asks for {now!r}; resume it with "
+                             "its own arguments, or give another --out (or --no-resume to start it over)")
+
+
+def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
+    """(path, state) of the newest checkpoint of run `out` that reads completely, or (None, None).
+
+    A damaged newer checkpoint (truncated by a full disk, say) is renamed ``*.pt.damaged``,
+    out of the run's list but kept, and the next older one is used; a warning says so.
+    """
+    folder = out / "checkpoints"
+    if folder.is_dir():
+        for tmp in folder.glob(".step_*.pt.tmp-*"):  # left by a process killed while writing
+            tmp.unlink(missing_ok=True)
+    damaged = []
+    for path in reversed(list_checkpoints(out)):
+        try:
+            return path, load_checkpoint(path, need=RESUME_KEYS)
+        except CorruptFileError as e:
+            damaged.append(path)
+            keep = path.with_name(path.name + ".damaged")
+            os.replace(path, keep)
+            log.warning("%s; moved it to %s and resuming from the checkpoint before it", e, keep.name)
+    if damaged:
+        raise CorruptFileError(f"run {out}: every checkpoint is damaged ({', '.join(p.name for p in damaged)}, now "
+                               "*.pt.damaged); start it over with --no-resume or give another --out")
+    return None, None
+
+
 def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
           on_step: Callable[[int, float], None] | None = None) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
@@ -240,13 +298,13 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
             raise ValueError("TrainConfig.data is empty: give a dataset or an episode token file, online=, or episodes=")
         from tt.dit.loader import open_token_source
 
-        episodes = open_token_source(config.data)
+        episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
     layout = episodes.layout(config.window)
     space = space if space is not None else getattr(episodes, "design_space", None)
-    resume_from = latest_checkpoint(out) if config.resume else None
+    resume_from, state = newest_intact_checkpoint(out) if config.resume else (None, None)
 
     if resume_from is not None:
-        state = load_checkpoint(resume_from)
+        check_same_run(state.get("train_config") or {}, config, out)
         model = RoboDiT.from_description(state["model"])
         if model.layout != layout:
             raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")

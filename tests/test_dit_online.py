@@ -143,7 +143,7 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
     code, out = tt_cli(["train", "--online", "--space", "quadruped", "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "contacts" in out
     code, out = tt_cli(["train", "--online", "--action-noise", "-1", "--out", str(tmp_path / "r"), "--steps", "1"])
-    assert code != 0 and "action_noise" in out
+    assert code != 0 and "--action-noise" in out
 
 
 def test_cli_trains_online(tt_cli, tmp_path):

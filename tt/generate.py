@@ -44,6 +44,7 @@ error +0.3 cm). ``action_noise=0`` generates unperturbed episodes (``Episode.act
 
 from __future__ import annotations
 
+import errno
 import logging
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -76,6 +77,7 @@ from tt.tokens.store import (
     DatasetError,
     ShardPart,
     ShardWriter,
+    check_shards,
     clear_partial,
     create_root,
     discard_shard,
@@ -85,6 +87,7 @@ from tt.tokens.store import (
     read_manifest,
     read_root,
     shard_dirs,
+    shard_name,
     update_root,
     verify_shard,
 )
@@ -307,7 +310,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
                 progress(W)
         t = time.perf_counter()
         attrs = {"generated": generated, "dropped": dropped, "device": "cpu" if device == "cpu" else "cuda"}
-        folder = writer.commit(attrs, {"seconds": seconds, "cpu_seconds": time.process_time() - cpu0, "device": device})
+        folder = writer.commit(attrs)  # timings stay out of the files: a resumed dataset is byte-identical
         seconds["write"] += time.perf_counter() - t
     manifest = read_manifest(folder)
     size = sum(v[0] for v in manifest["files"].values())
@@ -418,8 +421,8 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
         widths = _widths(attrs)
         done: dict[int, dict] = {}
         regenerated: dict[int, str] = {}
-        for i, folder in shard_dirs(out).items():
-            why = verify_shard(folder, full=verify == "full") if i < config.shards else f"index beyond the {config.shards} shards"
+        for i, why in check_shards(out, shards=config.shards, full=verify == "full").items():
+            folder = out / "shards" / shard_name(i)
             if why is None:
                 done[i] = _shard_attrs(folder)
             else:
@@ -444,6 +447,13 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
                 for i in todo:
                     results.append(generate_shard(config, i, out, device=device, widths=widths,
                                                   progress=bar.update if bar is not None else None).to_dict())
+        except OSError as e:
+            if e.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            kept = sum(verify_shard(f, full=False) is None for f in shard_dirs(out).values())
+            raise DatasetError(f"{e.strerror} while writing {out} ({e.filename or 'a shard'}): {kept} of {config.shards} shards "
+                               "are complete and kept, the one being written is discarded on the next run; free space, "
+                               "then re-run the same command to resume") from None
         finally:
             if bar is not None:
                 bar.close()

@@ -29,7 +29,7 @@ SPACE_NAMES: tuple[str, ...] = tuple(_MODULES)
 
 def get_space(name: str) -> DesignSpace:
     """The design space called `name`; raises `DesignError` listing the valid names."""
-    if name not in _MODULES:
+    if not isinstance(name, str) or name not in _MODULES:
         raise DesignError(f"unknown design space {name!r}; valid: {list(_MODULES)}")
     module, attribute = _MODULES[name]
     return getattr(importlib.import_module(module), attribute)

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import CorruptFileError, read_json
 
 
 class DesignError(TTError):
@@ -221,6 +222,8 @@ class DesignSpace(ABC):
             v = cnamed[p.name]
             if not isinstance(v, (int, float)) or isinstance(v, bool):
                 raise DesignError(f"continuous field {p.name!r} = {v!r} is not a number")
+            if isinstance(v, int) and abs(v) > 1e300:  # float() of a huge JSON integer overflows
+                raise DesignError(f"continuous field {p.name!r} is an integer beyond 1e300, outside [{p.low}, {p.high}] {p.unit}")
             values.append(float(v))
         design = Design(self.name, tuple(discrete), tuple(values))
         self.validate(design)
@@ -248,26 +251,34 @@ def load_designs(spec: str | Path) -> list[Design]:
         except ValueError:
             raise DesignError(f"design index {idx!r} after '#' is not an integer") from None
     path = Path(spec)
-    if not path.exists():
-        raise FileNotFoundError(f"design file {path} does not exist")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise DesignError(f"{path} is not valid JSON: {e}") from None
+        data = read_json(path, "design file")
+    except CorruptFileError as e:
+        raise DesignError(str(e)) from None
     items = data["designs"] if isinstance(data, dict) and "designs" in data else data
     if isinstance(items, dict):
         items = [items]
     if not isinstance(items, list):
         raise DesignError(f"{path}: expected a list of designs or {{'designs': [...]}}")
+    if not items:
+        raise DesignError(f"{path} holds no designs")
+    numbers = list(range(len(items)))
     if index is not None:
         if not -len(items) <= index < len(items):
             raise DesignError(f"design index {index} out of range: {path} holds {len(items)} designs")
-        items = [items[index]]
+        numbers = [numbers[index]]
     designs = []
-    for k, item in enumerate(items):
+    for k in numbers:
+        item = items[k]
+        where = f"{path}: design #{k} of {len(items)}"
         if not isinstance(item, dict) or "space" not in item:
-            raise DesignError(f"{path}: design {k} has no 'space' field")
-        designs.append(get_space(item["space"]).from_dict(item))
+            raise DesignError(f"{where} has no 'space' field")
+        if not isinstance(item["space"], str):
+            raise DesignError(f"{where}: field 'space' is {item['space']!r}, not a name")
+        try:
+            designs.append(get_space(item["space"]).from_dict(item))
+        except DesignError as e:
+            raise DesignError(f"{where}: {e}") from None
     return designs
 
 
