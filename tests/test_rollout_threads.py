@@ -92,3 +92,23 @@ def test_thread_counts_are_validated():
             cpu_threads(bad)
     with pytest.raises(ValueError, match="threads"):
         rollout(get_space("viperx").sample(1, seed=0), _motions(), device="cpu", threads=0)
+
+
+def test_cli_rollout_threads_flag(tmp_path, tt_cli):
+    """`tt rollout --threads K` reports K threads and the same metrics for every K."""
+    import json
+
+    from tt.sim.motions import save_npz
+
+    save_npz(_motions(40)[0], tmp_path / "short.npz")
+    summaries = {}
+    for k in (1, 2):
+        code, text = tt_cli(["rollout", "--n", "5", "--seed", "2", "--motion-file", str(tmp_path / "short.npz"),
+                             "--threads", str(k), "--device", "cpu", "--out", str(tmp_path / f"t{k}")])
+        assert code == 0, text
+        assert f"{k} threads" in text, text
+        summaries[k] = json.loads((tmp_path / f"t{k}" / "summary.json").read_text())
+        assert summaries[k]["threads"] == k
+    assert summaries[1]["per_world"] == summaries[2]["per_world"]
+    code, text = tt_cli(["rollout", "--n", "1", "--threads", "0"])
+    assert code != 0 and "threads" in text, text
