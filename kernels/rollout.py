@@ -36,8 +36,9 @@ Kernels are compiled once per `Topology` (`rollout_kernels`), the differentiable
 a separate module that is built only when first asked for (`grad_kernels`).
 
 On the CPU Warp runs a launch on the calling thread, one world after another. Since worlds
-are independent, `rollout_tree` cuts them into `threads` contiguous slices and launches
-each from its own Python thread on array views of that slice (`_world_views`): a CPU launch
+are independent, `rollout_tree` cuts them into a few contiguous slices per thread and
+launches each from a pool of `threads` Python threads on array views of that slice
+(`_world_views`): a CPU launch
 is a call through a ``ctypes.CFUNCTYPE`` pointer, which releases the GIL for the kernel's
 whole run, and the generated CPU kernel keeps its task index in a parameter (no static
 state), so launches on disjoint slices run in parallel. Every world runs the same code on
@@ -452,6 +453,10 @@ def motion_arrays(pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requ
     )
 
 
+#: Slices of worlds per CPU thread in a threaded launch (load balance; see `rollout_tree`).
+SLICES_PER_THREAD = 4
+
+
 def cpu_threads(threads: int | None = None) -> int:
     """Threads for a CPU rollout: `threads`, or every core this process may run on (None).
 
@@ -467,12 +472,12 @@ def cpu_threads(threads: int | None = None) -> int:
     return int(threads)
 
 
-def world_slices(world_count: int, threads: int, align: int = 1) -> list[tuple[int, int]]:
-    """Split worlds 0..world_count-1 into at most `threads` contiguous [lo, hi) slices of
+def world_slices(world_count: int, count: int, align: int = 1) -> list[tuple[int, int]]:
+    """Split worlds 0..world_count-1 into at most `count` contiguous [lo, hi) slices of
     near-equal size whose starts are multiples of `align` (so per-motion or per-model
     indexing ``world % align`` is unchanged inside a slice)."""
     blocks = -(-world_count // align)
-    count = max(1, min(threads, blocks))
+    count = max(1, min(count, blocks))
     cuts = [min(world_count, (blocks * k // count) * align) for k in range(count + 1)]
     return [(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:]) if hi > lo]
 
@@ -611,8 +616,10 @@ def rollout_tree(
     # W itself (arrays of W entries are cut to the slice), so each world reads what it would
     # read in one launch.
     align = math.lcm(*(n for n in (model.world_count, motions.count) if n != W))
-    slices = world_slices(W, threads, align)
-    pool = ThreadPoolExecutor(len(slices), thread_name_prefix="tt-rollout") if len(slices) > 1 else None
+    # A few slices per thread, taken from a queue: worlds that terminate early cost little,
+    # so equal slices can take unequal times, and the launches of a chunk end together.
+    slices = world_slices(W, threads * SLICES_PER_THREAD if threads > 1 else 1, align)
+    pool = ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout") if len(slices) > 1 else None
     if pool is not None:
         wp.load_module(kernels.module, device=device)  # once, before the threads launch
     try:
