@@ -98,8 +98,11 @@ def evaluate_designs(
             "use backend='mujoco' or 'mjwarp'"
         )
     # Each design's model is built once, for the size and mass terms and, on "warp" (where a
-    # second build is a visible share of a small batch's time), for the rollout too.
-    models = [sp.model(d) for d in designs]
+    # second build is a visible share of a small batch's time), for the rollout too; large
+    # batches in worker processes, one per rollout thread.
+    from tt.kernels.rollout import cpu_threads
+
+    models = sp.models(designs, processes=cpu_threads(threads))
     ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
                      threads=threads)
     r, m = score_episode(ep, designs, motions, reward, models=models)

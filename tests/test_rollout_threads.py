@@ -112,3 +112,20 @@ def test_cli_rollout_threads_flag(tmp_path, tt_cli):
     assert summaries[1]["per_world"] == summaries[2]["per_world"]
     code, text = tt_cli(["rollout", "--n", "1", "--threads", "0"])
     assert code != 0 and "threads" in text, text
+
+
+def test_models_built_in_worker_processes_equal_the_serial_build(monkeypatch):
+    """`DesignSpace.models(processes=2)` returns the serial build's models (MuJoCo's binary
+    format through pickling), in order."""
+    import tt.sim.designs.base as base
+
+    space = get_space("viperx")
+    designs = space.sample(6, seed=4)
+    monkeypatch.setattr(base, "PARALLEL_MODELS_MIN", 1)
+    parallel = space.models(designs, processes=2)
+    serial = [space.model(d) for d in designs]
+    assert len(parallel) == len(serial)
+    for a, b in zip(parallel, serial):
+        for name in ("body_pos", "body_quat", "body_mass", "body_inertia", "jnt_axis", "jnt_range", "actuator_gainprm",
+                     "site_pos", "qpos0", "dof_invweight0"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
