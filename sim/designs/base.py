@@ -18,6 +18,8 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
+
 
 #: Fewest designs for which `DesignSpace.models` starts worker processes (a worker's start,
 #: about a second of imports, must be won back by building its share of the models).
@@ -32,7 +34,7 @@ def _build_models(space: str, designs: list) -> list[mujoco.MjModel]:
     return [sp.model(d) for d in designs]
 
 
-class DesignError(ValueError):
+class DesignError(TTError):
     """A design that does not belong to its space; the message names the field."""
 
 
