@@ -129,3 +129,13 @@ def test_models_built_in_worker_processes_equal_the_serial_build(monkeypatch):
         for name in ("body_pos", "body_quat", "body_mass", "body_inertia", "jnt_axis", "jnt_range", "actuator_gainprm",
                      "site_pos", "qpos0", "dof_invweight0"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_problem_threads_are_validated():
+    from tt.baselines.problem import Problem
+
+    motion = _motions()[0]
+    assert Problem(space="viperx", motions=(motion,), reward="tracking", budget=4, threads=2).threads == 2
+    for bad in (0, -2, 1.5):
+        with pytest.raises(ValueError, match="Problem.threads"):
+            Problem(space="viperx", motions=(motion,), reward="tracking", budget=4, threads=bad)
