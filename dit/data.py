@@ -23,7 +23,9 @@ from typing import Mapping, Protocol
 import numpy as np
 import torch
 
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES, Role
+from tt.dit.layout import Layout, LayoutError, TokenSpec
 from tt.tokens.normalize import Normalizer
 
 #: Format tag of `EpisodeTokens` files.
@@ -39,7 +41,7 @@ class TokenSource(Protocol):
     def fit_normalizer(self) -> Normalizer:
         """Normalisation statistics over the whole dataset."""
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenTensors:
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenBatch:
         """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "consecutive"."""
 
 
@@ -172,7 +174,7 @@ class EpisodeTokens:
             return start[:, None] + torch.arange(steps)[None, :]
         raise ValueError(f"window kind {kind!r} does not exist; kinds: random, consecutive")
 
-    def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenTensors:
+    def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenBatch:
         """Raw tokens of windows: episodes (n,) long, step_index (n, steps) from `window_steps`."""
         n, steps = step_index.shape
         time = step_index  # (n, steps): time IDs are episode step indices
@@ -190,9 +192,9 @@ class EpisodeTokens:
                 values[name] = self.static_values[name][episodes]
                 ids[name] = self.static_ids[name][episodes]
                 mask[name] = self.static_mask[name][episodes]
-        return TokenTensors(values, ids, mask)
+        return TokenBatch(values, ids, mask)
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenTensors:
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenBatch:
         """n windows of uniformly drawn episodes (raw, unnormalised tokens)."""
         episodes = torch.randint(0, len(self), (n,), generator=generator)
         return self.window(episodes, self.window_steps(episodes, steps, kind, generator))

@@ -124,12 +124,12 @@ def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.
 
 
 def _tensors(parts: list[dict]):
-    """Numpy window dicts (`EpisodeBlock.windows`) -> one `tt.dit.layout.TokenTensors`."""
-    from tt.dit.layout import TokenTensors
+    """Numpy window dicts (`EpisodeBlock.windows`) -> one `tt.tokens.batch.TokenBatch`."""
+    from tt.tokens.batch import TokenBatch
 
     names = list(parts[0]["values"])
     cat = lambda key, name, dt: torch.from_numpy(np.concatenate([p[key][name] for p in parts])).to(dt)  # noqa: E731
-    return TokenTensors({n: cat("values", n, torch.float32) for n in names}, {n: cat("ids", n, torch.int64) for n in names},
+    return TokenBatch({n: cat("values", n, torch.float32) for n in names}, {n: cat("ids", n, torch.int64) for n in names},
                         {n: cat("mask", n, torch.bool) for n in names})
 
 
@@ -206,7 +206,7 @@ class StoreTokenSource:
         return self.store.normalizer()
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None):
-        """n raw windows (`tt.dit.layout.TokenTensors`), drawn with `generator` (CPU)."""
+        """n raw windows (`tt.tokens.batch.TokenBatch`), drawn with `generator` (CPU)."""
         if steps > self.shortest:
             raise ValueError(f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}")
         g = max(1, -(-n // self.windows_per_block))
@@ -235,7 +235,7 @@ class EpisodeWindows(torch.utils.data.IterableDataset):
     Each epoch shuffles the blocks (seeded by seed and epoch), gives DataLoader worker w the
     blocks w, w + workers, ...; reads `shuffle_blocks` of them at a time, and yields their
     episodes' windows (`windows_per_episode` each) in random order in batches of `batch_size`
-    `tt.dit.layout.TokenTensors` (values (B, L, width), ids (B, L, k), mask (B, L)).
+    `tt.tokens.batch.TokenBatch` (values (B, L, width), ids (B, L, k), mask (B, L)).
     epochs: None streams forever. drop_last: drop each worker's last, smaller batch.
     """
 
@@ -310,7 +310,7 @@ def _identity(batch):
 
 def make_loader(path: str | Path, *, batch_size: int = 64, steps: int = 8, kind: str = "random", workers: int = 0,
                 seed: int = 0, epochs: int | None = 1, augment: SE2Augment | None = SE2Augment(), **kwargs) -> torch.utils.data.DataLoader:
-    """A DataLoader of `EpisodeWindows` batches (`tt.dit.layout.TokenTensors`); `workers`
+    """A DataLoader of `EpisodeWindows` batches (`tt.tokens.batch.TokenBatch`); `workers`
     processes read in parallel. Extra keyword arguments go to `EpisodeWindows`."""
     ds = EpisodeWindows(path, batch_size=batch_size, steps=steps, kind=kind, augment=augment, seed=seed, epochs=epochs, **kwargs)
     return torch.utils.data.DataLoader(ds, batch_size=None, num_workers=workers, collate_fn=_identity,

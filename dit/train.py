@@ -239,7 +239,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             torch.manual_seed(config.seed)
             model = RoboDiT(layout, get_config(config.size))
         normalizer = episodes.fit_normalizer()
-    normalizer.check(layout)
+    layout.check_normalizer(normalizer)
     model.to(device).train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     ema = EMA(model, power=config.ema_power, max_decay=config.ema_max_decay)
@@ -269,7 +269,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
         parts = []
         for task, n in tasks:
             raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen))
-            raw.check(layout)
+            layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
             parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen)))
         for g in optimizer.param_groups:
