@@ -431,16 +431,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--others-max-n", type=int, default=1024, help="largest N for mjwarp and newton")
     ap.add_argument("--budget", type=float, default=20.0, help="seconds per mjwarp / newton combination")
     ap.add_argument("--deadline", type=float, default=480.0, help="mjwarp / newton are skipped past this many seconds")
-    ap.add_argument("--cli-n", type=int, default=4096, help="designs of the CLI figure (0: no CLI figure)")
+    ap.add_argument("--cli-n", type=int, default=None, help="designs of the CLI figure (default 4096, --quick: 8; 0: none)")
     ap.add_argument("--steps", type=int, default=None, help="control steps of the toss (default: all 223)")
     ap.add_argument("--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8")
     ap.add_argument("--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)")
     args = ap.parse_args(argv)
     if args.quick:
-        args.sizes, args.oracle_worlds, args.cli_n = [1, 8], 2, 8
+        args.sizes, args.oracle_worlds = [1, 8], 2
+        args.cli_n = 8 if args.cli_n is None else args.cli_n
         args.steps = args.steps or CHUNK + 10
         args.mujoco_world_steps, args.budget, args.others_max_n = 2e4, 5.0, 1
     args.sizes = sorted(set(args.sizes))
+    args.cli_n = 4096 if args.cli_n is None else args.cli_n
     if args.backends is None:
         args.backends = [] if args.quick else list(OTHERS)
     for b in args.backends:

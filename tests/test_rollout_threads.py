@@ -31,8 +31,16 @@ def _tensor_fields(ep) -> dict[str, np.ndarray]:
     return {f.name: getattr(ep, f.name).numpy() for f in dataclasses.fields(ep) if isinstance(getattr(ep, f.name), torch.Tensor)}
 
 
+@pytest.fixture
+def small_slices(monkeypatch):
+    """Slices of any size, so that the few worlds of a test are cut too."""
+    import tt.kernels.rollout
+
+    monkeypatch.setattr(tt.kernels.rollout, "MIN_SLICE_WORLDS", 1)
+
+
 @pytest.mark.parametrize("action_noise", [0.0, 0.05])
-def test_episodes_are_bit_identical_for_every_thread_count(action_noise):
+def test_episodes_are_bit_identical_for_every_thread_count(action_noise, small_slices):
     # 9 designs of several topologies x 2 motions: groups of uneven size, slices of whole
     # motion blocks (2 worlds), so 3 threads cut a group unevenly.
     designs = get_space("viperx").sample(9, seed=3)
@@ -51,7 +59,7 @@ def test_episodes_are_bit_identical_for_every_thread_count(action_noise):
     assert not episodes[1]["alive"].all()
 
 
-def test_shared_model_and_motion_entries_keep_their_world_indexing():
+def test_shared_model_and_motion_entries_keep_their_world_indexing(small_slices):
     """A model of 2 entries and 3 motions read as ``world % 2`` and ``world % 3``: slices must
     start at multiples of 6, and each world must read the entries it reads in one launch."""
     space = get_space("viperx")
@@ -94,7 +102,7 @@ def test_thread_counts_are_validated():
         rollout(get_space("viperx").sample(1, seed=0), _motions(), device="cpu", threads=0)
 
 
-def test_cli_rollout_threads_flag(tmp_path, tt_cli):
+def test_cli_rollout_threads_flag(tmp_path, tt_cli, small_slices):
     """`tt rollout --threads K` reports K threads and the same metrics for every K."""
     import json
 
