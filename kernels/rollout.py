@@ -38,10 +38,9 @@ a separate module that is built only when first asked for (`grad_kernels`).
 On the CPU Warp runs a launch on the calling thread, one world after another. Since worlds
 are independent, `rollout_tree` cuts them into a few contiguous slices per thread and
 launches each from a pool of `threads` Python threads on array views of that slice
-(`_world_views`): a CPU launch
-is a call through a ``ctypes.CFUNCTYPE`` pointer, which releases the GIL for the kernel's
-whole run, and the generated CPU kernel keeps its task index in a parameter (no static
-state), so launches on disjoint slices run in parallel. Every world runs the same code on
+(`_world_views`): a CPU launch is a call through a ``ctypes.CFUNCTYPE`` pointer, which
+releases the GIL for the kernel's whole run, and the generated CPU kernel keeps its task
+index in a parameter (no static state), so launches on disjoint slices run in parallel. Every world runs the same code on
 the same inputs whichever slice it lands in, so the records are bit-identical for any
 thread count.
 """
@@ -506,21 +505,23 @@ def _world_views(obj, lo: int, hi: int, worlds: int):
     return obj
 
 
-def _launch_sliced(pool, slices, kernel, dim: int, inputs, outputs, device, worlds: int) -> None:
-    """`wp.launch(kernel, dim, inputs, outputs)` over worlds, one launch per slice, on `pool`
-    (a launch per slice on the calling thread when there is one slice)."""
+def _launch_sliced(kernel, *, dim: int, inputs, outputs, device, slices, threads: int) -> None:
+    """`wp.launch(kernel, dim, inputs, outputs, device)` over `dim` worlds, one launch per
+    [lo, hi) of `slices` on views of the per-world arrays, from `threads` threads (one
+    slice: one launch on this thread)."""
     if len(slices) == 1:
         wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
         return
-    futures = [
-        pool.submit(
-            wp.launch, kernel, dim=hi - lo, inputs=_world_views(inputs, lo, hi, worlds),
-            outputs=_world_views(outputs, lo, hi, worlds), device=device,
-        )
-        for lo, hi in slices
-    ]  # fmt: skip
-    for f in futures:
-        f.result()
+    with ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout") as pool:
+        futures = [
+            pool.submit(
+                wp.launch, kernel, dim=hi - lo, inputs=_world_views(inputs, lo, hi, dim),
+                outputs=_world_views(outputs, lo, hi, dim), device=device,
+            )
+            for lo, hi in slices
+        ]  # fmt: skip
+        for f in futures:
+            f.result()
 
 
 def rollout_tree(
@@ -617,54 +618,54 @@ def rollout_tree(
         threads = 1
     # Slices start at multiples of every leading dimension read as ``world % n`` that is not
     # W itself (arrays of W entries are cut to the slice), so each world reads what it would
-    # read in one launch.
+    # read in one launch. A few slices per thread, taken from a queue: worlds that terminate
+    # early cost little, so equal slices can take unequal times.
     align = math.lcm(*(n for n in (model.world_count, motions.count) if n != W))
-    # A few slices per thread, taken from a queue: worlds that terminate early cost little,
-    # so equal slices can take unequal times, and the launches of a chunk end together.
-    slices = world_slices(W, min(threads * SLICES_PER_THREAD, max(1, W // MIN_SLICE_WORLDS)) if threads > 1 else 1, align)
-    pool = ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout") if len(slices) > 1 else None
-    if pool is not None:
+    count = min(threads * SLICES_PER_THREAD, max(1, W // MIN_SLICE_WORLDS)) if threads > 1 else 1
+    slices = world_slices(W, count, align)
+    if len(slices) > 1:
         wp.load_module(kernels.module, device=device)  # once, before the threads launch
-    try:
-        # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
-        iterations = int(config.init_iterations)
-        q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
-        if initial_qpos is not None:
-            start = np.zeros((W, slots, NV), np.float32)
-            start[:, 0] = initial_qpos
-            out.qpos_state.assign(start)
-        else:
-            k64 = model.kinematics64
-            _launch_sliced(
-                pool, slices, kernels.initial_posture, W,
-                [
-                    k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
-                    k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
-                ],
-                [q_iter, out.qpos_state], device, W,
-            )  # fmt: skip
-        kernel = kernels.rollout
-        chunk = steps if chunk is None else max(1, int(chunk))
-        for t0 in range(0, steps, chunk):
-            t1 = min(steps, t0 + chunk)
-            _launch_sliced(
-                pool, slices, kernel, W,
-                [
-                    *model_inputs(model), model.ee_pos, model.ee_quat,
-                    ik_weights(config), config.lookahead_steps, substeps, float(config.termination_pos_error),
-                    t0, t1, motions.pos, motions.quat, motions.steps,
-                    float(action_noise), int(noise_seed), noise_world,
-                    out.qpos_state, out.qvel_state,
-                ],
-                [
-                    out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
-                    out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
-                ],
-                device, W,
-            )  # fmt: skip
-            if progress is not None:
-                progress(t1 - t0)
-    finally:
-        if pool is not None:
-            pool.shutdown()
+    # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
+    iterations = int(config.init_iterations)
+    q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
+    if initial_qpos is not None:
+        start = np.zeros((W, slots, NV), np.float32)
+        start[:, 0] = initial_qpos
+        out.qpos_state.assign(start)
+    else:
+        k64 = model.kinematics64
+        _launch_sliced(
+            kernels.initial_posture,
+            dim=W,
+            inputs=[
+                k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
+                k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
+            ],  # fmt: skip
+            outputs=[q_iter, out.qpos_state],
+            device=device,
+            slices=slices, threads=threads,
+        )
+    kernel = kernels.rollout
+    chunk = steps if chunk is None else max(1, int(chunk))
+    for t0 in range(0, steps, chunk):
+        t1 = min(steps, t0 + chunk)
+        _launch_sliced(
+            kernel,
+            dim=W,
+            inputs=[
+                *model_inputs(model), model.ee_pos, model.ee_quat,
+                ik_weights(config), config.lookahead_steps, substeps, float(config.termination_pos_error),
+                t0, t1, motions.pos, motions.quat, motions.steps,
+                float(action_noise), int(noise_seed), noise_world,
+                out.qpos_state, out.qvel_state,
+            ],  # fmt: skip
+            outputs=[
+                out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
+                out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
+            ],  # fmt: skip
+            device=device,
+            slices=slices, threads=threads,
+        )
+        if progress is not None:
+            progress(t1 - t0)
     return out
