@@ -395,7 +395,7 @@ def _report(args, r: dict) -> str:
         "last record: the warp rows on executed world-steps are the like-for-like comparison with the oracle. "
         "warp's rate excludes setup (next tables).\n\n"
         "## Ratios\n\n" + ratios + "\n\n"
-        + (f"## Targets at N = 4,096\n\n" + "\n".join(targets) + "\n\n" if targets else "")
+        + ("## Targets at N = 4,096\n\n" + "\n".join(targets) + "\n\n" if targets else "")
         + cli_t
         + f"## Thread scaling at N = {n_ref}\n\n" + scaling_t + "\n\n"
         "The 32-core row is a projection, not a measurement: the 1-thread rate times 32 times the measured "

@@ -106,10 +106,10 @@ def shard_design_list(config: GenerateConfig, index: int, *, device: str | None 
     sp = get_space(config.space)
     if config.bias is None:
         return sp.sample(n, seed=_seed_int(config.seed, index, _STREAM_DESIGNS))
-    return _cmaes_designs(config, index, n, device)
+    return _cmaes_designs(config, index, n, device, threads)
 
 
-def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | None) -> list:
+def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | None, threads: int | None = None) -> list:
     """Every design CMA-ES samples in ceil(n / (popsize x generations)) runs, run j of shard i
     on training motion (i * runs_per_full_shard + j) mod M, so consecutive shards walk the
     whole training set."""
