@@ -46,7 +46,7 @@ def _kernels(topology):
     from tt.kernels.dynamics import dynamics_funcs
     from tt.kernels.fk import kinematics_funcs
     from tt.kernels.ik import IKWeights, ik_funcs
-    from tt.kernels.model import MODULE_OPTIONS, local_types, module_name
+    from tt.kernels.model import MODULE_OPTIONS, TreeArrays, local_types, module_name
 
     module = module_name(topology, "cost")
     wp.set_module_options(MODULE_OPTIONS, module)
@@ -58,60 +58,21 @@ def _kernels(topology):
     ACT_DOF = topology.actuator_dof
 
     @wp.kernel(module=module)
-    def fk_only(
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        q0: wp.array2d(dtype=float),
-        iterations: int,
-        out: wp.array(dtype=float),
-    ):
+    def fk_only(model: TreeArrays, q0: wp.array2d(dtype=float), iterations: int, out: wp.array(dtype=float)):
         w = wp.tid()
         q = T.dof_vec()
         for d in range(NV):
             q[d] = q0[w, d]
         acc = float(0.0)
         for i in range(iterations):
-            xpos, xquat, axis, anchor = K.kinematics(w, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+            xpos, xquat, axis, anchor = K.kinematics(w, model, q)
             acc += xpos[NB - 1][0] + xquat[NB - 1][1] + axis[NV - 1][2] + anchor[NV - 1][0]
             for d in range(NV):
                 q[d] = q[d] + 1.0e-4  # a new posture each time: no FK result can be reused
         out[w] = acc
 
     @wp.kernel(module=module)
-    def physics_only(
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        body_mass: wp.array2d(dtype=float),
-        body_ipos: wp.array2d(dtype=wp.vec3),
-        body_iquat: wp.array2d(dtype=wp.vec4),
-        body_inertia: wp.array2d(dtype=wp.vec3),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_armature: wp.array2d(dtype=float),
-        dof_damping: wp.array2d(dtype=float),
-        dof_stiffness: wp.array2d(dtype=float),
-        dof_springref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        dof_limit_kb: wp.array2d(dtype=wp.vec2),
-        dof_solimp: wp.array3d(dtype=float),
-        dof_invweight0: wp.array2d(dtype=float),
-        act_gain: wp.array2d(dtype=float),
-        act_bias: wp.array2d(dtype=wp.vec3),
-        act_gear: wp.array2d(dtype=float),
-        act_ctrlrange: wp.array2d(dtype=wp.vec2),
-        act_forcerange: wp.array2d(dtype=wp.vec2),
-        gravity: wp.array(dtype=wp.vec3),
-        timestep: wp.array(dtype=float),
-        limit_enabled: wp.array(dtype=wp.int32),
-        limit_sweeps: wp.array(dtype=wp.int32),
-        q0: wp.array2d(dtype=float),
-        iterations: int,
-        out: wp.array(dtype=float),
-    ):
+    def physics_only(model: TreeArrays, q0: wp.array2d(dtype=float), iterations: int, out: wp.array(dtype=float)):
         w = wp.tid()
         q = T.dof_vec()
         qd = T.dof_vec()
@@ -121,15 +82,7 @@ def _kernels(topology):
         for u in range(NU):
             ctrl[u] = q0[w, wp.static(ACT_DOF[u])]
         for i in range(iterations):
-            q, qd, force, vel, active = Dyn.step(
-                w,
-                body_pos, body_quat, body_mass, body_ipos, body_iquat, body_inertia,
-                dof_axis, dof_pos, dof_ref, dof_armature, dof_damping, dof_stiffness, dof_springref,
-                dof_range, dof_limit_kb, dof_solimp, dof_invweight0,
-                act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange,
-                gravity, timestep, limit_enabled, limit_sweeps,
-                q, qd, ctrl,
-            )  # fmt: skip
+            q, qd, force, vel, active = Dyn.step(w, model, q, qd, ctrl)
         acc = float(0.0)
         for d in range(NV):
             acc += q[d] + qd[d]
@@ -137,14 +90,7 @@ def _kernels(topology):
 
     @wp.kernel(module=module)
     def controller_only(
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        ee_pos: wp.array2d(dtype=wp.vec3),
-        ee_quat: wp.array2d(dtype=wp.vec4),
+        model: TreeArrays,
         weights: IKWeights,
         q0: wp.array2d(dtype=float),
         motion_pos: wp.array2d(dtype=wp.vec3),
@@ -162,8 +108,8 @@ def _kernels(topology):
             for e in range(NE):
                 tpos[e] = motion_pos[i % motion_pos.shape[0], e]
                 tquat[e] = motion_quat[i % motion_pos.shape[0], e]
-            xpos, xquat, axis, anchor = K.kinematics(w, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
-            q = IK.command(w, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights)
+            xpos, xquat, axis, anchor = K.kinematics(w, model, q)
+            q = IK.command(w, model, xpos, xquat, axis, anchor, q, tpos, tquat, weights)
         acc = float(0.0)
         for d in range(NV):
             acc += q[d]
@@ -195,8 +141,6 @@ def main(argv: list[str] | None = None) -> None:
     import warp as wp
 
     wp.config.quiet = True
-    from tt.kernels.dynamics import model_inputs
-    from tt.kernels.ik import ik_weights
     from tt.kernels.model import build_tree_model, topology_key, topology_of
     from tt.kernels.rollout import motion_arrays, rollout_tree
     from tt.sim.controller import IKConfig
@@ -220,7 +164,8 @@ def main(argv: list[str] | None = None) -> None:
     config = IKConfig()
 
     # The start postures of the fused rollout, so every part starts where the rollout does.
-    start = rollout_tree(tree, marrays, W, 1, threads=1, device="cpu")
+    args = config.rollout_args()
+    start = rollout_tree(tree, marrays, W, 1, **args, threads=1, device="cpu")
     q0 = wp.array(start.qpos_state.numpy()[:, 0], dtype=float, device="cpu")
     module, fk_only, physics_only, controller_only = _kernels(topo)
     t0 = time.perf_counter()
@@ -228,24 +173,22 @@ def main(argv: list[str] | None = None) -> None:
     compile_s = time.perf_counter() - t0
     out = wp.zeros(W, dtype=float, device="cpu")
     physics_steps = steps * SUBSTEPS
-    k = tree
 
     def fused():
-        return rollout_tree(tree, marrays, W, steps, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu")
+        return rollout_tree(tree, marrays, W, steps, **args, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu")
 
     def fk():
-        wp.launch(fk_only, dim=W, inputs=[k.body_pos, k.body_quat, k.dof_axis, k.dof_pos, k.dof_ref, q0, physics_steps, out],
-                  device="cpu")  # fmt: skip
+        wp.launch(fk_only, dim=W, inputs=[tree.arrays, q0, physics_steps, out], device="cpu")
 
     def physics():
-        wp.launch(physics_only, dim=W, inputs=[*model_inputs(tree), q0, physics_steps, out], device="cpu")
+        wp.launch(physics_only, dim=W, inputs=[tree.arrays, q0, physics_steps, out], device="cpu")
 
     mpos = wp.array(toss.pos[:steps].astype(np.float32), dtype=wp.vec3, device="cpu")
     mquat = wp.array(toss.quat[:steps].astype(np.float32), dtype=wp.vec4, device="cpu")
 
     def controller():
-        wp.launch(controller_only, dim=W, inputs=[k.body_pos, k.body_quat, k.dof_axis, k.dof_pos, k.dof_ref, k.dof_range,
-                  k.ee_pos, k.ee_quat, ik_weights(config), q0, mpos, mquat, steps, out], device="cpu")  # fmt: skip
+        wp.launch(controller_only, dim=W, inputs=[tree.arrays, config.ik_weights(), q0, mpos, mquat, steps, out],
+                  device="cpu")  # fmt: skip
 
     for f in (fused, fk, physics, controller):  # warm: first-call costs out of the timings
         f()

@@ -164,6 +164,7 @@ def _warp(built, marrays, steps: int, threads: int, repeats: int) -> dict:
     past termination only repeats its last record, so ``rate_executed`` counts the steps
     that ran physics (the oracle's count)."""
     from tt.kernels.rollout import rollout_tree
+    from tt.sim.controller import IKConfig
 
     best = None
     for _ in range(repeats):
@@ -171,7 +172,7 @@ def _warp(built, marrays, steps: int, threads: int, repeats: int) -> dict:
         for tree, n, _build in built:
             marks: list[float] = []
             start = time.perf_counter()
-            out = rollout_tree(tree, marrays, n, steps, chunk=CHUNK, threads=threads, device="cpu",
+            out = rollout_tree(tree, marrays, n, steps, **IKConfig().rollout_args(), chunk=CHUNK, threads=threads, device="cpu",
                                progress=lambda k: marks.append(time.perf_counter()))  # fmt: skip
             calls += time.perf_counter() - start
             if len(marks) < 2:

@@ -70,7 +70,7 @@ def _run(space, cases, config):
     pos = np.stack([c[2] for c in cases])[:, None].astype(np.float32)
     quat = np.stack([c[3] for c in cases])[:, None].astype(np.float32)
     out = ik_step(
-        tree, wp.array(q, dtype=float), wp.array(pos, dtype=wp.vec3), wp.array(quat, dtype=wp.vec4), config
+        tree, wp.array(q, dtype=float), wp.array(pos, dtype=wp.vec3), wp.array(quat, dtype=wp.vec4), config.ik_weights()
     )
     return out.numpy(), np.stack([c[4] for c in cases])
 

@@ -14,6 +14,7 @@ import torch
 
 from tt.kernels.model import build_tree_model
 from tt.kernels.rollout import cpu_threads, motion_arrays, rollout_tree, world_slices
+from tt.sim.controller import IKConfig
 from tt.sim.designs import get_space
 from tt.sim.motions import Motion, for_space, get_motion
 from tt.sim.rollout import rollout
@@ -72,7 +73,8 @@ def test_shared_model_and_motion_entries_keep_their_world_indexing(small_slices)
     quat = np.stack([toss.quat[k : k + STEPS] for k in (0, 5, 10)])
     marrays = motion_arrays(pos, quat, [STEPS] * 3, device="cpu")
     W = 18
-    runs = {k: rollout_tree(tree, marrays, W, STEPS, threads=k, device="cpu") for k in (1, 2, 3, 5)}
+    args = IKConfig().rollout_args()
+    runs = {k: rollout_tree(tree, marrays, W, STEPS, **args, threads=k, device="cpu") for k in (1, 2, 3, 5)}
     for k in (2, 3, 5):
         for name in ("qpos", "qvel", "ctrl", "ee_pos", "target_pos", "alive"):
             assert np.array_equal(getattr(runs[k], name).numpy(), getattr(runs[1], name).numpy()), (k, name)
