@@ -164,8 +164,8 @@ def main(argv: list[str] | None = None) -> None:
     config = IKConfig()
 
     # The start postures of the fused rollout, so every part starts where the rollout does.
-    args = config.rollout_args()
-    start = rollout_tree(tree, marrays, W, 1, **args, threads=1, device="cpu")
+    rollout_args = config.rollout_args()
+    start = rollout_tree(tree, marrays, W, 1, **rollout_args, threads=1, device="cpu")
     q0 = wp.array(start.qpos_state.numpy()[:, 0], dtype=float, device="cpu")
     module, fk_only, physics_only, controller_only = _kernels(topo)
     t0 = time.perf_counter()
@@ -175,7 +175,7 @@ def main(argv: list[str] | None = None) -> None:
     physics_steps = steps * SUBSTEPS
 
     def fused():
-        return rollout_tree(tree, marrays, W, steps, **args, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu")
+        return rollout_tree(tree, marrays, W, steps, **rollout_args, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu")
 
     def fk():
         wp.launch(fk_only, dim=W, inputs=[tree.arrays, q0, physics_steps, out], device="cpu")
