@@ -5,6 +5,7 @@ dict:
 
     format           "tt.dit.checkpoint/1"
     schema_version   RoboToken schema version of the layout (None: not a schema layout)
+    space            design space of the training episodes (None: not recorded)
     model            layout and DiTConfig (`RoboDiT.describe`)
     state_dict       network weights
     ema              EMA weights and update count (`EMA.state_dict`)
@@ -140,12 +141,15 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
 @dataclass
 class TrainedModel:
     """A network ready to sample: model (EMA weights unless asked otherwise, eval mode),
-    its normaliser, layout and the step it was saved at."""
+    its normaliser, layout, the step it was saved at, the design space it was trained on
+    (None: not recorded, as in checkpoints written before spaces were) and its file."""
 
     model: RoboDiT
     normalizer: Normalizer
     layout: Layout
     step: int
+    space: str | None = None
+    path: Path | None = None
 
 
 def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> TrainedModel:
@@ -164,4 +168,5 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
         averaged.load_state_dict(state["ema"])
         averaged.copy_to(model)
     model.to(device).eval()
-    return TrainedModel(model, Normalizer.from_state_dict(state["normalizer"]), model.layout, int(state["step"]))
+    return TrainedModel(model, Normalizer.from_state_dict(state["normalizer"]), model.layout, int(state["step"]),
+                        state.get("space"), path)

@@ -192,6 +192,11 @@ class StoreTokenSource:
     def __len__(self) -> int:
         return self.store.episodes
 
+    @property
+    def design_space(self) -> str | None:
+        """Name of the design space the dataset was generated from (recorded in checkpoints)."""
+        return self.store.attrs.get("space")
+
     def layout(self, steps: int = 8):
         """`tt.dit.layout.Layout` of the design space's largest robot, windows of `steps` steps."""
         from tt.dit.layout import LayoutError, layout_from_schema

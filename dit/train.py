@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable
 
@@ -63,6 +63,13 @@ class TrainConfig:
     fine-tune after a change of the training data; ignored when the run resumes; online:
     train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
     of `data` (a dict is read as `OnlineConfig` fields).
+
+    Sample-efficiency choices (defaults: the paper's recipe): prediction: what the network
+    predicts, "eps", "x0" or "v" (`tt.dit.ddim.PREDICTIONS`); weighting: noise-level loss
+    weighting "none", "min_snr" (gamma `min_snr_gamma`) or "edm" (`CosineDDIM.loss_weight`);
+    type_weights: token type -> factor on its loss term (e.g. more on ``track_link_obs``, what
+    the rewards read); bf16_cpu: autocast to bfloat16 on the CPU too (``bf16`` alone autocasts
+    on CUDA only).
     """
 
     data: str = ""
@@ -90,10 +97,30 @@ class TrainConfig:
     resume: bool = True
     init: str = ""
     online: OnlineConfig | None = None
+    prediction: str = "eps"
+    weighting: str = "none"
+    min_snr_gamma: float = 5.0
+    type_weights: dict[str, float] = field(default_factory=dict)
+    bf16_cpu: bool = False
 
     def __post_init__(self) -> None:
+        from tt.dit.ddim import PREDICTIONS, WEIGHTINGS
+
         if isinstance(self.online, dict):
             self.online = OnlineConfig(**self.online)
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        if not self.min_snr_gamma > 0:
+            raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
+        self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
+        bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise ValueError(f"type_weights must be finite and >= 0, got {bad}")
+        if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
+            raise ValueError(f"robot_diffusion_steps and control_diffusion_steps must be >= 1, got "
+                             f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
         if self.online is not None and self.data:
             raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
         if self.task not in ("robot", "control", "both"):
@@ -194,12 +221,14 @@ def _resolve_device(device: str | None) -> torch.device:
     return torch.device(device)
 
 
-def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
+def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
           on_step: Callable[[int, float], None] | None = None) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
 
-    episodes: training data in memory (else loaded from ``config.data``); on_step: called
-    after every optimizer step with (step, loss), e.g. to drive a progress bar.
+    episodes: training data in memory (else loaded from ``config.data``); space: the design
+    space the episodes are of, recorded in the checkpoint (None: the source's
+    ``design_space``, if it has one); on_step: called after every optimizer step with
+    (step, loss), e.g. to drive a progress bar.
     """
     device = _resolve_device(config.device)
     out = Path(config.out)
@@ -213,6 +242,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
 
         episodes = open_token_source(config.data)
     layout = episodes.layout(config.window)
+    space = space if space is not None else getattr(episodes, "design_space", None)
     resume_from = latest_checkpoint(out) if config.resume else None
 
     if resume_from is not None:
@@ -222,6 +252,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
         if model.config != get_config(config.size):
             raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.prediction != config.prediction:
+            raise ValueError(f"run {out} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
         model.load_state_dict(state["state_dict"])
         normalizer = Normalizer.from_state_dict(state["normalizer"])
     elif config.init:
@@ -232,12 +264,15 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raise LayoutError(f"--init {config.init} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
         if model.config != get_config(config.size):
             raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.prediction != config.prediction:
+            raise ValueError(f"--init {config.init} predicts {model.prediction!r}, config asks for prediction "
+                             f"{config.prediction!r}")
         log.info("starting from the EMA weights of %s (step %d)", config.init, start.step)
     else:
         state = None
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
             torch.manual_seed(config.seed)
-            model = RoboDiT(layout, get_config(config.size))
+            model = RoboDiT(layout, get_config(config.size), prediction=config.prediction)
         normalizer = episodes.fit_normalizer()
     layout.check_normalizer(normalizer)
     model.to(device).train()
@@ -258,7 +293,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
 
     tasks = config.tasks()
     schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
-    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=config.bf16 and device.type == "cuda")
+    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16,
+                              enabled=config.bf16 and (device.type == "cuda" or config.bf16_cpu))
     log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
              config.size, model.parameter_count(), device, config.task, step, config.steps)
     last = latest_checkpoint(out)
@@ -271,11 +307,13 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen))
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
-            parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen)))
+            parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen,
+                                             prediction=config.prediction, weighting=config.weighting,
+                                             gamma=config.min_snr_gamma)))
         for g in optimizer.param_groups:
             g["lr"] = config.learning_rate * lr_factor(step, config.warmup_steps, config.steps)
         with autocast:
-            loss, per_type = diffusion_loss(model, parts, loss=config.loss)
+            loss, per_type = diffusion_loss(model, parts, loss=config.loss, type_weights=config.type_weights)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
@@ -291,6 +329,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             last = checkpoint_path(out, step)
             save_checkpoint(last, {
                 "schema_version": layout.schema_version,
+                "space": space,
                 "model": model.describe(),
                 "state_dict": model.state_dict(),
                 "ema": ema.state_dict(),

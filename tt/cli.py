@@ -384,6 +384,77 @@ def optimize(
 
 
 @app.command()
+def predict(
+    design: str = typer.Option(..., help="designs.json or designs.json#i."),
+    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
+    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped one)."),
+    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
+    num_steps: Optional[int] = typer.Option(None, help="DDIM steps (default: all 100 of the motion-to-robot process)."),
+    seed: int = typer.Option(0, help="Seed of the sampling noise."),
+    device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
+) -> None:
+    """The model as a critic: predict each design's dynamics on each motion (its embodiment
+    inpainted) and the reward of those dynamics, without simulating."""
+    import math
+
+    from rich.console import Console
+
+    from tt.report import columns_for, rich_table
+    from tt.sim.designs import DesignError, load_designs
+
+    try:
+        designs = load_designs(design)
+        spec, _, tail = design.rpartition("#") if "#" in design else (design, "", "")
+        indices = list(range(len(designs)))
+        if tail:
+            i = int(tail)
+            indices = [i if i >= 0 else i + len(load_designs(spec))]
+    except (DesignError, FileNotFoundError) as e:
+        _fail(str(e))
+    spaces = sorted({d.space for d in designs})
+    if len(spaces) > 1:
+        _fail(f"designs from several spaces in one call: {spaces}")
+    space = spaces[0]
+    ms = _motions(motion, motion_file, space)
+    try:
+        from tt.dit.checkpoint import default_checkpoint, load_model
+        from tt.guidance.predicted import predict_designs
+        from tt.sim.rewards import get_reward
+        from tt.kernels.device import default_device
+
+        cfg = get_reward(reward, space)
+        ckpt = checkpoint if checkpoint is not None else default_checkpoint(space)
+        trained = load_model(ckpt, device=device or default_device())
+        pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed)
+    except (ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+
+    def clean(v: float) -> float | None:
+        return float(v) if math.isfinite(v) else None
+
+    predictions, rows = [], []
+    for a, i in enumerate(indices):
+        for j, m in enumerate(ms):
+            values = {k: clean(float(v[a, j])) for k, v in pred.metrics.items()}
+            predictions.append({"design": i, "motion": m.name, "reward": clean(float(pred.reward[a, j])), "metrics": values})
+            row = {"name": str(i), "motion": m.name, **{k: v for k, v in values.items() if v is not None}}
+            if values.get("survival") is not None:
+                row["survival_pct"] = 100.0 * values["survival"]
+            rows.append(row)
+    Console().print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
+                               title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)"))
+    if json_out is not None:
+        json_out.write_text(json.dumps({
+            "reward": reward, "motions": [m.name for m in ms], "space": space, "checkpoint": str(ckpt),
+            "samples": samples, "predictions": predictions,
+        }, indent=1))
+        typer.echo(f"wrote {len(predictions)} predictions to {json_out}")
+
+
+@app.command()
 def view(
     source: str = typer.Argument(..., help="designs.json[#i] or an episode file episode.npz[#w]."),
     motion: Optional[str] = typer.Option(None, help="Target motion to draw: library name or file."),
@@ -410,6 +481,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
+    online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
     action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
@@ -422,6 +494,14 @@ def train(
     checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
     init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's EMA weights and normaliser (fine-tuning)."),
+    prediction: str = typer.Option("eps", help="What the network predicts: eps | x0 | v."),
+    weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm."),
+    min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma."),
+    type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable), e.g. track_link_obs=4."),
+    bf16_cpu: bool = typer.Option(False, help="Autocast to bfloat16 on the CPU too (CUDA always autocasts)."),
+    robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the motion-to-robot task."),
+    control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
+    warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
     from tt.dit.cli import train_cmd
@@ -429,6 +509,18 @@ def train(
 
     if online == (data is not None):
         _fail("give exactly one source of training data: --data DATASET or --online")
+    weights = {}
+    for item in type_weight or []:
+        name, eq, value = item.partition("=")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq or not name:
+            _fail(f"--type-weight {item!r} is not TYPE=WEIGHT (e.g. track_link_obs=4)")
+    recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
+                  bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
+                  control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps)
     try:
         online_config = None
         if online:
@@ -436,10 +528,11 @@ def train(
 
             extra = {} if action_noise is None else {"action_noise": action_noise}
             online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
-                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed, **extra)
+                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed,
+                                         absorbing=online_absorbing, **extra)
         result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                            device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
-                           online=online_config)
+                           online=online_config, **recipe)
     except (ValueError, FileNotFoundError, RuntimeError, SchemaVersionError) as e:
         _fail(str(e))
     final = float(result.losses[-1]) if len(result.losses) else float("nan")

@@ -86,6 +86,12 @@ class DesignSpace(ABC):
     #: origin) into this robot's workspace; see `tt.sim.motions.for_space`.
     motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
+    @property
+    def family(self) -> str:
+        """The full space this one belongs to (its own name; a `FixedStructureSpace`'s base):
+        what reward weights and layouts are looked up by."""
+        return self.name
+
     @abstractmethod
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
         """The discrete parameters given (a prefix of) the discrete choices.
@@ -299,3 +305,68 @@ def load_designs(spec: str | Path) -> list[Design]:
             raise DesignError(f"{path}: design {k} has no 'space' field")
         designs.append(get_space(item["space"]).from_dict(item))
     return designs
+
+
+class FixedStructureSpace(DesignSpace):
+    """A sub-space of `base` with its discrete choices fixed and its continuous choices free.
+
+    A rung of the learnability ladder (one kinematic structure, so a model only has to
+    learn how lengths and mount poses change the motion), and a space of its own for every
+    command: designs, MJCF, tokens and rewards are `base`'s. Its discrete parameters keep
+    `base`'s names with one option each (the fixed one), so its designs' JSON reads like
+    `base`'s and their discrete indices are all 0.
+
+    name: the sub-space's name; base: the full space; discrete: `base`'s complete discrete
+    choices to fix (option indices).
+    """
+
+    def __init__(self, name: str, base: DesignSpace, discrete: Sequence[int]):
+        fixed = tuple(int(i) for i in discrete)
+        params = base.discrete_params(fixed)
+        if len(fixed) != len(params):
+            raise DesignError(f"sub-space {name!r}: {len(fixed)} discrete choices given, space {base.name!r} "
+                              f"needs {len(params)}: {[p.name for p in params]}")
+        for i, (p, v) in enumerate(zip(params, fixed)):
+            if not 0 <= v < len(p.options):
+                raise DesignError(f"sub-space {name!r}: discrete[{i}] ({p.name!r}) = {v}; valid: 0..{len(p.options) - 1}")
+        self.name = name
+        self.base = base
+        self.fixed = fixed
+        self.has_contacts = base.has_contacts
+        self.ee_count = base.ee_count
+        self.motion_offset = base.motion_offset
+        self._params = tuple(DiscreteParam(p.name, (p.options[i],)) for p, i in zip(params, fixed))
+
+    @property
+    def family(self) -> str:
+        return self.base.family
+
+    def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
+        return self._params
+
+    def continuous_params(self, discrete: Sequence[int]) -> tuple[ContinuousParam, ...]:
+        return self.base.continuous_params(self.fixed)
+
+    def nominal(self) -> Design:
+        base = self.base.nominal()
+        if base.discrete == self.fixed:
+            values = base.continuous
+        else:
+            values = tuple(0.5 * (p.low + p.high) for p in self.continuous_params(()))
+        return Design(self.name, (0,) * len(self.fixed), values)
+
+    def _mjcf(self, discrete, values, options) -> str:
+        return self.base._mjcf(self.fixed, values, options)
+
+    def to_base(self, design: Design) -> Design:
+        """The same robot as a design of `base`."""
+        self.validate(design)
+        return Design(self.base.name, self.fixed, tuple(design.continuous))
+
+    def from_base(self, design: Design) -> Design:
+        """A design of `base` with this sub-space's discrete choices as a design of the sub-space."""
+        self.base.validate(design)
+        if tuple(design.discrete) != self.fixed:
+            raise DesignError(f"design's discrete choices {list(design.discrete)} are not sub-space {self.name!r}'s "
+                              f"{list(self.fixed)}")
+        return Design(self.name, (0,) * len(self.fixed), tuple(design.continuous))
