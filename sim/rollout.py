@@ -59,6 +59,7 @@ def rollout(
     config: IKConfig = IKConfig(),
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
 
@@ -76,6 +77,9 @@ def rollout(
         command); 0 for none. Only the "warp" backend perturbs.
     noise_seed: seed of that noise, 0..2**31-1; world w's noise depends on (noise_seed, w,
         control step) only, so equal arguments give identical episodes.
+    threads: CPU threads the "warp" backend spreads each topology group's worlds over
+        (None: every core); the Episode is the same bit for bit for every count. Other
+        backends ignore it.
     Raises ValueError for mixed design spaces, motions of different dt, an unknown device
     or backend, designs with contacts on "warp", and action_noise > 0 on another backend.
     """
@@ -83,11 +87,15 @@ def rollout(
 
     impl = get_backend(backend)
     device = resolve_device(device)
+    if threads is not None:
+        from tt.kernels.rollout import cpu_threads
+
+        cpu_threads(threads)  # a bad count fails on every backend
     if action_noise != 0.0 and not impl.perturbs:
         raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
     return impl.run(impl.resolve(designs), motions, config=config, device=device, chunk=chunk, progress=progress,
-                    action_noise=action_noise, noise_seed=noise_seed)
+                    action_noise=action_noise, noise_seed=noise_seed, threads=threads)
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -105,6 +113,7 @@ def rollout_records(
     progress: bool = False,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
 
@@ -112,6 +121,7 @@ def rollout_records(
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
+    threads: CPU threads each group's worlds are spread over (None: every core).
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import build_tree_model, check_supported, topology_key
@@ -148,7 +158,7 @@ def rollout_records(
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads,
         )  # fmt: skip
         results.append((members, arrays))
     if bar is not None:
@@ -199,13 +209,14 @@ def _rollout_warp(
     progress: bool,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
 ) -> Episode:
     import warp as wp
 
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
     results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                              action_noise=action_noise, noise_seed=noise_seed)
+                              action_noise=action_noise, noise_seed=noise_seed, threads=threads)
     perturbed = action_noise > 0.0
     if len(results) == 1:
         (members, arrays), = results

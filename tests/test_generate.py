@@ -225,3 +225,10 @@ def test_ray_and_process_workers_equal_one_process(reference, tmp_path):
     report = generate(CONFIG, tmp_path / "pool", device="cpu", workers=2, progress=False)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "pool", reference)
+
+
+def test_one_rollout_thread_writes_the_dataset_of_every_core(reference, tmp_path):
+    """`threads=1` (the reference ran on every core) writes the same shards, byte for byte."""
+    report = generate(CONFIG, tmp_path / "one", device="cpu", progress=False, threads=1)
+    assert report.run["shards"] == CONFIG.shards
+    _same_data(tmp_path / "one", reference)

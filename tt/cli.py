@@ -296,6 +296,7 @@ def rollout(
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
     metrics per motion and the world-steps per second."""
@@ -328,7 +329,7 @@ def rollout(
     # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
-    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True)
+    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads)
     seconds = time.perf_counter() - start
     ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
@@ -337,8 +338,14 @@ def rollout(
     Console().print(rich_table(rows, columns_for(reward), first=("name", "motion"),
                                title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)"))
     rate = world_steps / seconds
+    used = None
+    if backend == "warp" and ep.qpos.device.type == "cpu":
+        from tt.kernels.rollout import cpu_threads
+
+        used = cpu_threads(threads)
     typer.echo(f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
-               f"(backend {backend}, device {ep.qpos.device}; model building, kernel compile or cache load and scoring included)")
+               f"(backend {backend}, device {ep.qpos.device}{f', {used} threads' if used else ''}; "
+               "model building, kernel compile or cache load and scoring included)")
     if out is not None:
         from tt.sim.designs import save_designs
         from tt.viz.episode_file import save_episode_npz
@@ -348,7 +355,7 @@ def rollout(
         _write_json(out / "summary.json", {
             "space": sp.name, "backend": backend, "device": str(ep.qpos.device), "reward": reward,
             "motions": [mo.name for mo in ms], "designs": len(designs), "worlds": worlds, "world_steps": world_steps,
-            "seconds": seconds, "world_steps_per_s": rate, "metrics": rows,
+            "seconds": seconds, "world_steps_per_s": rate, "threads": used, "metrics": rows,
             "per_world": {k: v.tolist() for k, v in metrics.items()},
         })
         typer.echo(f"wrote {out}/designs.json, episode.npz (show with `tt view {out / 'episode.npz'}`) and summary.json")
@@ -385,6 +392,7 @@ def optimize(
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
@@ -443,7 +451,8 @@ def optimize(
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
     opt = get_optimizer(method, **options)
-    problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
+    problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device,
+                      threads=threads)
     if method == "cmaes":
         opt.plan(problem)  # a budget below one population fails here, before any work
     if method == "cmaes-init-model":
@@ -650,6 +659,7 @@ def generate(
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
     action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the dataset is the same for any count."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
     from tt.generate import generate_cmd
@@ -661,7 +671,7 @@ def generate(
     _output(out, "--out", folder=True)
     typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
                             bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
-                            action_noise=action_noise))
+                            action_noise=action_noise, threads=threads))
 
 
 dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")

@@ -22,6 +22,19 @@ from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, read_json
 
 
+#: Fewest designs for which `DesignSpace.models` starts worker processes (a worker's start,
+#: about a second of imports, must be won back by building its share of the models).
+PARALLEL_MODELS_MIN = 512
+
+
+def _build_models(space: str, designs: list) -> list[mujoco.MjModel]:
+    """Worker of `DesignSpace.models`: the compiled models of `designs` of space `space`."""
+    from tt.sim.designs import get_space
+
+    sp = get_space(space)
+    return [sp.model(d) for d in designs]
+
+
 class DesignError(TTError):
     """A design that does not belong to its space; the message names the field."""
 
@@ -173,6 +186,29 @@ class DesignSpace(ABC):
     def model(self, design: Design) -> mujoco.MjModel:
         """The compiled MuJoCo model of a design."""
         return mujoco.MjModel.from_xml_string(self.to_mjcf(design))
+
+    def models(self, designs: Sequence[Design], *, processes: int = 1) -> list[mujoco.MjModel]:
+        """The compiled models of `designs`, in order (`model` of each).
+
+        processes > 1 and at least `PARALLEL_MODELS_MIN` designs: the designs are built in
+        that many spawned worker processes, a contiguous chunk each, and their models
+        unpickled here (MJCF generation is Python and MuJoCo's compiler holds the GIL, so
+        threads would not help; unpickling a model costs a fraction of compiling it). The
+        models are the same either way: pickling is MuJoCo's binary model format.
+        """
+        designs = list(designs)
+        if processes <= 1 or len(designs) < PARALLEL_MODELS_MIN:
+            return [self.model(d) for d in designs]
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        processes = min(processes, len(designs))
+        cuts = [len(designs) * k // processes for k in range(processes + 1)]
+        # spawn: a forked child would inherit this process's Warp/torch/OpenMP thread state.
+        with ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn")) as pool:
+            parts = pool.map(_build_models, [self.name] * processes,
+                             [designs[lo:hi] for lo, hi in zip(cuts[:-1], cuts[1:])])
+            return [m for part in parts for m in part]
 
     # ---------------------------------------------------------------- JSON
     def to_dict(self, design: Design) -> dict:
