@@ -40,6 +40,10 @@ def error_message(e: BaseException) -> str:
     return " ".join(line.strip() for line in text.splitlines() if line.strip())
 
 
+#: typer ships its own copy of click; its usage errors (`typer.BadParameter`) derive from this.
+_TYPER_CLICK_ERROR = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
+
+
 class _Commands(TyperGroup):
     """The one error handler of every command: ``error: ...`` on stderr, exit code 2, the
     traceback only with ``tt -v``."""
@@ -47,8 +51,8 @@ class _Commands(TyperGroup):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except (typer.Exit, click.exceptions.Exit, click.ClickException, click.Abort, KeyboardInterrupt):
-            raise
+        except (typer.Exit, click.exceptions.Exit, click.ClickException, _TYPER_CLICK_ERROR, click.Abort, KeyboardInterrupt):
+            raise  # usage errors (a flag out of its range, say) are click's to report
         except Exception as e:
             if ctx.params.get("verbose"):
                 import traceback
@@ -506,6 +510,9 @@ def predict(
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, load_designs
 
+    _at_least("--samples", samples, 1)
+    _at_least("--num-steps", num_steps, 1)
+    _output(json_out, "--json")
     try:
         designs = load_designs(design)
         spec, _, tail = design.rpartition("#") if "#" in design else (design, "", "")
@@ -548,10 +555,10 @@ def predict(
     Console().print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
                                title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)"))
     if json_out is not None:
-        json_out.write_text(json.dumps({
+        _write_json(json_out, {
             "reward": reward, "motions": [m.name for m in ms], "space": space, "checkpoint": str(ckpt),
             "samples": samples, "predictions": predictions,
-        }, indent=1))
+        })
         typer.echo(f"wrote {len(predictions)} predictions to {json_out}")
 
 
