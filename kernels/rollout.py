@@ -455,6 +455,7 @@ def rollout_tree(
     noise_seed: int = 0,
     world_ids: np.ndarray | None = None,
     device: str | None = None,
+    graph: bool | None = None,
 ) -> RolloutArrays:
     """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
 
@@ -480,6 +481,12 @@ def rollout_tree(
     noise_seed: seed of the noise, 0..2**31-1. world_ids: (W,) ints keying each world's
         noise (default 0..W-1); a caller splitting one batch into launches passes the
         worlds' indices in the whole batch, so the noise does not depend on the split.
+    graph: launch the start posture and every chunk as one captured graph (`wp.ScopedCapture`,
+        replayed by `wp.capture_launch`): one driver submission instead of one per launch.
+        None (default): on a CUDA device yes, on the CPU plain launches (Warp 1.19 can
+        replay a CPU capture too, which the tests use to check both paths agree); False:
+        plain launches everywhere. `progress` is then called once, after the replay.
+        Not with ``differentiable`` (a `wp.Tape` records the plain launches).
     """
     topo = model.topology
     device = device or model.device
@@ -502,6 +509,11 @@ def rollout_tree(
     if steps < 1:
         raise ValueError(f"steps = {steps}; a rollout needs at least one control step")
     slots = steps * substeps + 1 if differentiable else 1
+    use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
+    if use_graph and differentiable:
+        if graph:
+            raise ValueError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
+        use_graph = False
 
     def zeros(shape, dtype, grad=differentiable):
         return wp.zeros(shape, dtype=dtype, device=device, requires_grad=grad)
@@ -532,24 +544,12 @@ def rollout_tree(
         start = np.zeros((W, slots, NV), np.float32)
         start[:, 0] = initial_qpos
         out.qpos_state.assign(start)
-    else:
-        k64 = model.kinematics64
-        wp.launch(
-            kernels.initial_posture,
-            dim=W,
-            inputs=[
-                k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
-                k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
-            ],  # fmt: skip
-            outputs=[q_iter, out.qpos_state],
-            device=device,
-        )
-    kernel = kernels.rollout
     chunk = steps if chunk is None else max(1, int(chunk))
-    for t0 in range(0, steps, chunk):
-        t1 = min(steps, t0 + chunk)
+    chunks = [(t0, min(steps, t0 + chunk)) for t0 in range(0, steps, chunk)]
+
+    def launch(t0: int, t1: int) -> None:
         wp.launch(
-            kernel,
+            kernels.rollout,
             dim=W,
             inputs=[
                 *model_inputs(model), model.ee_pos, model.ee_quat,
@@ -564,6 +564,37 @@ def rollout_tree(
             ],  # fmt: skip
             device=device,
         )
+
+    def start_posture() -> None:
+        k64 = model.kinematics64
+        wp.launch(
+            kernels.initial_posture,
+            dim=W,
+            inputs=[
+                k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
+                k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
+            ],  # fmt: skip
+            outputs=[q_iter, out.qpos_state],
+            device=device,
+        )
+
+    if use_graph:
+        # Load (compile) outside the capture: drivers before CUDA 12.3 cannot load modules
+        # while a stream is being captured.
+        wp.load_module(kernels.module, device=device)
+        with wp.ScopedCapture(device=device) as capture:
+            if initial_qpos is None:
+                start_posture()
+            for t0, t1 in chunks:
+                launch(t0, t1)
+        wp.capture_launch(capture.graph)
+        if progress is not None:
+            progress(steps)
+        return out
+    if initial_qpos is None:
+        start_posture()
+    for t0, t1 in chunks:
+        launch(t0, t1)
         if progress is not None:
             progress(t1 - t0)
     return out

@@ -112,6 +112,7 @@ def rollout(
     config: IKConfig = IKConfig(),
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    graph: bool | None = None,
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
 
@@ -129,6 +130,9 @@ def rollout(
         command); 0 for none. Only the "warp" backend perturbs.
     noise_seed: seed of that noise, 0..2**31-1; world w's noise depends on (noise_seed, w,
         control step) only, so equal arguments give identical episodes.
+    graph: replay the kernel launches as captured graphs ("warp": each topology group's
+        whole rollout; "mjwarp": each control step's physics); None: on a CUDA device yes,
+        on the CPU no; False: plain launches (see `tt.kernels.rollout.rollout_tree`).
     Raises ValueError for mixed design spaces, motions of different dt, an unknown device
     or backend, designs with contacts on "warp", and action_noise > 0 on another backend.
     """
@@ -143,7 +147,7 @@ def rollout(
     if backend == "mjwarp":  # validates its own inputs: it also runs designs with contacts
         from tt.sim.mjwarp_backend import mjwarp_rollout
 
-        return mjwarp_rollout(designs, motions, config=config, device=device, progress=progress)
+        return mjwarp_rollout(designs, motions, config=config, device=device, progress=progress, graph=graph)
     if backend == "newton":
         from tt.sim.newton_backend import newton_rollout
 
@@ -155,7 +159,7 @@ def rollout(
 
         return oracle_rollout(designs, motions, config=config, progress=progress)
     return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                         action_noise=action_noise, noise_seed=noise_seed)
+                         action_noise=action_noise, noise_seed=noise_seed, graph=graph)
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -173,6 +177,7 @@ def rollout_records(
     progress: bool = False,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    graph: bool | None = None,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
 
@@ -180,6 +185,7 @@ def rollout_records(
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
+    graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import build_tree_model, check_supported, topology_key
@@ -216,7 +222,7 @@ def rollout_records(
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
             config=config, chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, graph=graph,
         )  # fmt: skip
         results.append((members, arrays))
     if bar is not None:
@@ -267,13 +273,14 @@ def _rollout_warp(
     progress: bool,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    graph: bool | None = None,
 ) -> Episode:
     import warp as wp
 
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
     results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                              action_noise=action_noise, noise_seed=noise_seed)
+                              action_noise=action_noise, noise_seed=noise_seed, graph=graph)
     perturbed = action_noise > 0.0
     if len(results) == 1:
         (members, arrays), = results
