@@ -386,6 +386,10 @@ def train(
                            online=online_config)
     except (ValueError, FileNotFoundError, RuntimeError, SchemaVersionError) as e:
         _fail(str(e))
+    import os
+
+    if int(os.environ.get("RANK", "0")) != 0:
+        return  # a data-parallel run (torchrun) reports from rank 0
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
 
