@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 import torch
 
-from tt.guidance.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
+from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
 from tt.sim.designs import Design, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -22,7 +22,7 @@ class Evaluation:
 
     objective: mean reward over motions per design, (D,).
     reward: reward per design and motion, (D, M).
-    metrics: per-metric arrays of shape (D, M) (units in `tt.guidance.rewards.METRIC_UNITS`).
+    metrics: per-metric arrays of shape (D, M) (units in `tt.sim.rewards.METRIC_UNITS`).
     episode: the rollout the scores came from (worlds design-major: w = d * M + m).
     """
 

@@ -41,7 +41,7 @@ class Problem:
     """One design optimization problem.
 
     space: design space name. motions: target motions (all with one dt and the space's
-    end-effector count). reward: reward name (`tt.guidance.rewards.REWARDS`). budget:
+    end-effector count). reward: reward name (`tt.sim.rewards.REWARDS`). budget:
     candidate designs per motion. seed: random seed. backend: rollout backend used to
     evaluate candidates in batches. device: Warp/torch device, None for the default.
     """
@@ -55,7 +55,7 @@ class Problem:
     device: str | None = None
 
     def __post_init__(self) -> None:
-        from tt.guidance.rewards import get_reward
+        from tt.sim.rewards import get_reward
 
         sp = get_space(self.space)  # raises on an unknown space, listing valid ones
         get_reward(self.reward, self.space)  # raises on an unknown reward
@@ -86,7 +86,7 @@ class Problem:
                 "tt's kernels do not simulate; use 'mujoco' (the oracle), 'mjwarp', or None for the default"
             )
         if self.device is not None:
-            from tt.device import resolve_device
+            from tt.kernels.device import resolve_device
 
             resolve_device(self.device)  # raises on a device that does not exist, listing valid ones
 

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
-from tt.guidance.rewards import REWARDS
+from tt.sim.rewards import REWARDS
 from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, motion_set
@@ -567,7 +567,7 @@ def main() -> None:
         except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
             pass
     if "lambda" in parts:
-        from tt.guidance.rewards import get_reward
+        from tt.sim.rewards import get_reward
         from tt.guidance.simgrad import design_reward_gradient
         from tt.kernels.model import topology_key
 

@@ -1,7 +1,7 @@
 """Data generation throughput: ViperX episodes per second end to end (designs, rollout,
 scoring, tokenization, zarr writes), with the share of time per stage.
 
-Runs `tt.tokens.generate.generate` on shards of N designs x 10 episodes (the paper's
+Runs `tt.generate.generate` on shards of N designs x 10 episodes (the paper's
 episodes per design) on full training motions:
   serial: one process, `--shards-serial` shards (the Warp modules are loaded before timing);
   cmaes: the same with the paper's data biasing (CMA-ES, population 5, 3 generations per run);
@@ -27,7 +27,7 @@ try:
 except ImportError:  # run as a module from the repository root
     from benchmarks.machine import machine_header
 
-from tt.tokens.generate import STAGES, GenerateConfig, generate
+from tt.generate import STAGES, GenerateConfig, generate
 
 RESULTS = Path(__file__).parent / "results"
 

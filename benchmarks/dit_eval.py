@@ -7,7 +7,7 @@
     (T / S)-scaled estimate Zeroth-Order ranks by); each candidate is decoded to the
     nearest ViperX design (what the optimizers return) and simulated on that motion
     (DiffIK, tracking reward of
-    `tt.guidance.rewards`). Reported: Pearson r (and Spearman) over all candidates, and
+    `tt.sim.rewards`). Reported: Pearson r (and Spearman) over all candidates, and
     a scatter plot.
 (b) Validity and diversity of samples: motion-conditioned samples (those of (a)) and
     unconditional ones (the same query with the target-pose tokens masked out of
@@ -137,7 +137,7 @@ def oracle_rewards(models, motion, failures: dict[str, int]) -> list[float | Non
     """Tracking reward of each MjModel on `motion` under the oracle; None where it cannot run
     (no end-effector site, an actuator the DiffIK cannot command, ...), the reason counted in
     `failures`."""
-    from tt.guidance.rewards import RewardInputs, get_reward, reward
+    from tt.sim.rewards import RewardInputs, get_reward, reward
     from tt.sim.validate import oracle_rollout
 
     cfg = get_reward("tracking", SPACE)
@@ -178,7 +178,7 @@ def generate(trained, args, decoder, device) -> dict:
     from tt.dit.sampling import sample
     from tt.dit.tasks import ROBOT
     from tt.guidance.predicted import build_query
-    from tt.guidance.rewards import get_reward
+    from tt.sim.rewards import get_reward
     from tt.guidance.zeroth import CandidateSampler, embodiment_batch
 
     cfg = get_reward("tracking", SPACE)
@@ -295,7 +295,7 @@ def section_a(out: dict, args) -> str:
         f"motion-to-robot, {args.num_steps} DDIM steps, eta 0) and predicts each one's tracking reward from its own "
         "predicted track-link tokens (8 evenly placed steps, scaled by T / 8: `tt.guidance.predicted`, what "
         "Zeroth-Order ranks by). Each generated robot is then simulated on its motion with the DiffIK controller and "
-        "scored by `tt.guidance.rewards`, two ways: decoded to the nearest ViperX design (what `tt optimize` returns: "
+        "scored by `tt.sim.rewards`, two ways: decoded to the nearest ViperX design (what `tt optimize` returns: "
         "a candidate whose token structure matches no discrete choice exactly is projected onto the nearest one, "
         "`tt.tokens.design_from_tokens(max_distance=None)`), and as the detokenizer's MJCF "
         "robot itself (run by the MuJoCo + mink oracle; robots it cannot drive are left out).",
@@ -324,7 +324,7 @@ def section_d(trained, args, space) -> str:
     from tt.dit.sampling import sample
     from tt.dit.tasks import ROBOT
     from tt.guidance.predicted import PredictedReward, design_query
-    from tt.guidance.rewards import RewardInputs, evaluate, get_reward
+    from tt.sim.rewards import RewardInputs, evaluate, get_reward
 
     cfg = get_reward("tracking", SPACE)
     designs = space.sample(args.heldout_designs, seed=args.design_seed + 1)

@@ -53,7 +53,7 @@ def main() -> None:
     p.add_argument("--out", default=str(RESULTS))
     args = p.parse_args()
     torch.set_num_threads(args.threads)
-    from tt.tokens.loader import open_token_source
+    from tt.dit.loader import open_token_source
 
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
-from tt.guidance.rewards import REWARDS
+from tt.sim.rewards import REWARDS
 from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion, motion_set

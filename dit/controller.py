@@ -9,7 +9,7 @@ steps with the command held). The result is an `Episode` with the oracle's conve
 (`tt.sim.validate`): start at rest at the oracle's start posture, record the state after
 each step, end a world at the first step whose summed position error exceeds the
 threshold (that record kept with alive False, later ones repeated), targets at index
-``min(k, T_m - 1)``; so `tt.guidance.rewards` scores it like any other rollout.
+``min(k, T_m - 1)``; so `tt.sim.rewards` scores it like any other rollout.
 
 Policies:
 
@@ -258,7 +258,7 @@ class ArmWorlds:
                  config: IKConfig = IKConfig(), device: str | None = None):
         import warp as wp
 
-        from tt.device import resolve_device
+        from tt.kernels.device import resolve_device
         from tt.kernels.model import build_tree_model, check_supported, topology_key
 
         self.device = resolve_device(device)
@@ -713,7 +713,7 @@ def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str 
     if not isinstance(model, TrainedModel):
         import warp as wp
 
-        from tt.device import resolve_device
+        from tt.kernels.device import resolve_device
 
         task = control_task(model) if task is None else task
         model = load_model(model, device=str(wp.device_to_torch(resolve_device(device))))

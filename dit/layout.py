@@ -31,6 +31,8 @@ from typing import Mapping
 
 import torch
 
+from tt.kernels.errors import TTError
+
 #: Value of every feature of a padding token in normalised space (tt.tokens.schema.PAD_VALUE).
 PAD_VALUE = -1.0
 
@@ -48,7 +50,7 @@ class Role(str, Enum):
 STEP_ROLES = (Role.DYNAMICS, Role.ACTION, Role.CONDITION)
 
 
-class LayoutError(ValueError):
+class LayoutError(TTError):
     """A token spec, layout or token tensor that does not fit together."""
 
 

@@ -32,7 +32,7 @@ import torch
 
 from tt.dit.data import EpisodeTokens
 from tt.dit.layout import Layout, LayoutError, TokenTensors
-from tt.tokens.generate import DEFAULT_ACTION_NOISE, GenerateConfig
+from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig
 from tt.tokens.normalize import Normalizer
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,7 @@ class OnlineConfig:
     augmented training motions per refresh (every design runs every motion);
     refresh_every: optimizer steps between refreshes; buffer: refreshes whose episodes
     windows are drawn from; seed: root of every draw; action_noise, min_steps,
-    max_motion_steps: as `tt.tokens.generate.GenerateConfig`; max_time: time-ID rows.
+    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows.
     """
 
     space: str = "viperx"
@@ -90,9 +90,9 @@ class OnlineTokenSource:
     """
 
     def __init__(self, config: OnlineConfig, device: str | None = None):
-        from tt.device import resolve_device
+        from tt.kernels.device import resolve_device
         from tt.sim.designs import get_space
-        from tt.tokens.generate import space_token_maxima
+        from tt.tokens.draws import space_token_maxima
         from tt.tokens.tokenize import Tokenizer
 
         self.config = config
@@ -146,7 +146,7 @@ class OnlineTokenSource:
         from tt.sim.controller import IKConfig
         from tt.sim.rollout import group_episode, rollout_records
         from tt.tokens.episodes import episode_tokens
-        from tt.tokens.generate import _rng, _seed_int, episode_motion, finite_worlds, training_motions
+        from tt.tokens.draws import _rng, _seed_int, episode_motion, finite_worlds, training_motions
 
         cfg, t0 = self.config, time.perf_counter()
         designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))

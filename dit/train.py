@@ -67,7 +67,7 @@ class TrainConfig:
     for `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of
     each task's DDIM process; future_states: the control task also diffuses the states
     after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
-    device: None for `tt.device.default_device()`; keep_checkpoints: how many of the
+    device: None for `tt.kernels.device.default_device()`; keep_checkpoints: how many of the
     newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
     and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
     fine-tune after a change of the training data; ignored when the run resumes; online:
@@ -230,7 +230,7 @@ def _start_process_group(dp: DataParallel, device: torch.device) -> None:
 
 def _resolve_device(device: str | None) -> torch.device:
     if device is None:
-        from tt.device import default_device
+        from tt.kernels.device import default_device
 
         device = default_device()
     if device.startswith("cuda") and not torch.cuda.is_available():
@@ -260,7 +260,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     elif episodes is None:
         if not config.data:
             raise ValueError("TrainConfig.data is empty: give a dataset or an episode token file, online=, or episodes=")
-        from tt.tokens.loader import open_token_source
+        from tt.dit.loader import open_token_source
 
         episodes = open_token_source(config.data)
     layout = episodes.layout(config.window)

@@ -1,1 +1,1 @@
-"""tt.guidance: rewards, Zeroth-Order search and Dynamics Self-Guidance."""
+"""tt.guidance: the model's queries and predicted reward, Zeroth-Order search, Dynamics Self-Guidance, composition and simulator gradients (the rewards themselves are `tt.sim.rewards`)."""

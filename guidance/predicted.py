@@ -23,9 +23,9 @@ or its final tokens): denormalise (`tt.dit.Normalizer`, differentiable), then
 * actuator observations -> actuator force and velocity; slots the predicted robot does not
   use (its actuator token, or failing that the observation itself, is padding) count 0;
 * link tokens -> size and mass (`token_size`, `token_mass`, the formulas of
-  `tt.guidance.rewards.robot_size` / `robot_mass` on token values).
+  `tt.sim.rewards.robot_size` / `robot_mass` on token values).
 
-These fill a `RewardInputs` of S steps, evaluated by `tt.guidance.rewards.evaluate`, the
+These fill a `RewardInputs` of S steps, evaluated by `tt.sim.rewards.evaluate`, the
 one definition of each reward. The S steps are a sample of the motion's T steps, so the
 episode reward is estimated as (T / S) x the S-step reward: each counted step stands for
 T / S steps of the motion, and the embodiment penalty, S alpha excess over S steps, scales
@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, slot_ids
-from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
 from tt.tokens.normalize import Normalizer, is_padding
@@ -226,7 +226,7 @@ def matrix_to_quat(r: torch.Tensor) -> torch.Tensor:
 
 def token_size(geom_code: torch.Tensor, size: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
     """Robot size [m] from link tokens, (B,): the sum over real links of each geom's longest
-    dimension, as `tt.guidance.rewards.robot_size` measures a compiled model.
+    dimension, as `tt.sim.rewards.robot_size` measures a compiled model.
 
     geom_code: (B, L) long (`tt.tokens.schema.GEOM_TYPES`; unknown codes count 0);
     size: (B, L, 3) MuJoCo size convention [m] (negative values count 0); real: (B, L) bool.
@@ -245,7 +245,7 @@ def token_size(geom_code: torch.Tensor, size: torch.Tensor, real: torch.Tensor) 
 def token_mass(mass: torch.Tensor, real: torch.Tensor) -> torch.Tensor:
     """Robot mass [kg] from link masses (B, L) [kg] of real links (B, L), (B,): the links
     carry the whole body masses (`tt.tokens.inertia` splits each body over its links), so
-    their sum is `tt.guidance.rewards.robot_mass`."""
+    their sum is `tt.sim.rewards.robot_mass`."""
     return torch.where(real, mass, torch.zeros_like(mass)).sum(-1)
 
 
@@ -327,9 +327,9 @@ class PredictedReward:
 
 
 def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """Predicted metrics of each sequence (`tt.guidance.rewards.metrics` on the S steps;
+    """Predicted metrics of each sequence (`tt.sim.rewards.metrics` on the S steps;
     reward scaled to the motion length), detached, each (B,)."""
-    from tt.guidance.rewards import metrics
+    from tt.sim.rewards import metrics
 
     with torch.no_grad():
         out = metrics(reward.inputs(x0), reward.cfg)

@@ -3,7 +3,7 @@
 At each reverse step the network predicts eps for every token; the predicted clean tokens
 x0_hat = (x_t - sqrt(1 - abar_t) eps) / sqrt(abar_t) hold the candidate's embodiment and
 its dynamics on the target motion, so the reward of x0_hat (`tt.guidance.predicted`, with
-the guidance alphas of `tt.guidance.rewards`: alpha_size = alpha_mass = 0.005) is a
+the guidance alphas of `tt.sim.rewards`: alpha_size = alpha_mass = 0.005) is a
 differentiable function of the noisy tokens x_t through the network. Its gradient shifts
 the noise prediction of the embodiment tokens only (Dhariwal & Nichol 2021):
 

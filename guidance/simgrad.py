@@ -15,7 +15,7 @@ The simulator's gradient of a candidate's reward, in three links:
    as Warp arrays sharing their memory (`wp.from_torch`), the records come back as torch
    views of the Warp arrays (`wp.to_torch`), and backward hands the records' adjoints to
    `Tape.backward` and returns the fields' gradients, again as views. The reward is
-   `tt.guidance.rewards.evaluate` on those records (the one definition; full motion length,
+   `tt.sim.rewards.evaluate` on those records (the one definition; full motion length,
    exact termination), averaged over motions; autograd carries dR/dF to dR/dc.
 3. Choices -> tokens. A candidate's tokens decode to c by least squares on its encoded
    continuous token values e (`tt.tokens.design_from_tokens`); linearised, c moves by
@@ -46,7 +46,7 @@ import warp as wp
 
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.layout import STEP_ROLES, TokenTensors
-from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
@@ -242,7 +242,7 @@ def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], 
     """Reward `cfg` of each design on `motions` from a differentiable Warp rollout and, with
     `gradient`, dR/dc (see the module docstring). guidance: use the guidance alphas;
     jacobians: precomputed `field_jacobian`s of the designs (else computed here)."""
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
     from tt.kernels.model import build_tree_model, topology_key
     from tt.kernels.rollout import motion_arrays
 

@@ -39,7 +39,7 @@ from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
 from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
-from tt.guidance.rewards import RewardConfig, get_reward
+from tt.sim.rewards import RewardConfig, get_reward
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
 
@@ -328,12 +328,12 @@ def rank_candidates(objective: np.ndarray, batch, decoder: Decoder, *, decode: s
 
 # ------------------------------------------------------------------------------ optimizer
 def resolve_model(trained: TrainedModel | None, checkpoint, device: str | None) -> TrainedModel:
-    """The given model, or the checkpoint's loaded on `device` (default: `tt.device.default_device()`)."""
+    """The given model, or the checkpoint's loaded on `device` (default: `tt.kernels.device.default_device()`)."""
     if trained is not None:
         return trained
     if checkpoint is None:
         raise ValueError("a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model")
-    from tt.device import default_device
+    from tt.kernels.device import default_device
 
     return load_model(checkpoint, device=device or default_device())
 

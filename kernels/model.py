@@ -350,7 +350,7 @@ def build_tree_model(
     limit_sweeps: Gauss-Seidel sweeps of the joint-limit force solve.
     Raises ValueError naming the first model whose topology or features do not fit.
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     if len(models) == 0:

@@ -1,6 +1,6 @@
 """Pose errors and the tracking reward as Warp functions and kernels.
 
-The definitions are those of `tt.guidance.rewards` (the one torch definition of every
+The definitions are those of `tt.sim.rewards` (the one torch definition of every
 reward): the position error is |p_target - p| [m]; the orientation error is the geodesic
 angle 2 atan2(|v|, |w|) [rad] of the relative quaternion (w, v); with A end effectors the
 errors are summed over them; a step's tracking term is

@@ -326,7 +326,7 @@ def build_wbc_model(
     config: the whole-body controller's settings (`tt.sim.wbc.WBCConfig`).
     Raises ValueError naming the first model the kernels cannot drive.
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     if len(models) == 0:

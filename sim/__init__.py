@@ -1,1 +1,1 @@
-"""tt.sim: design spaces, target motions, rollouts and the MuJoCo + mink oracle."""
+"""tt.sim: design spaces, target motions, rewards, rollouts and the MuJoCo + mink oracle."""

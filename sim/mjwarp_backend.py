@@ -632,7 +632,7 @@ def mjwarp_rollout(
         whole-body controller of `wbc_config`; a `WBCConfig` given as `config` is used as
         `wbc_config` too.
     motions: M motions sampled at the controller's control_dt, one arm per end effector.
-    device: Warp device (None: `tt.device.default_device()`); the Episode lives there.
+    device: Warp device (None: `tt.kernels.device.default_device()`); the Episode lives there.
     nconmax, njmax: MuJoCo-Warp's contact and constraint capacity per world (None: its
         defaults for the model).
     floating_controller: "kernel" (tt's batched whole-body kernels, `tt.kernels.wbc`) or
@@ -644,7 +644,7 @@ def mjwarp_rollout(
     Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`): worlds design-major,
     joint fields zero-padded to the widest design, records repeated after termination.
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     if floating_controller not in FLOATING_CONTROLLERS:
@@ -865,7 +865,7 @@ def mjwarp_simulate(
     """
     import mujoco_warp as mjw
 
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     W = len(models)

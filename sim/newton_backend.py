@@ -472,7 +472,7 @@ def newton_rollout(
     """
     import newton
 
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
     from tt.kernels.ik import ik_step
     from tt.kernels.model import topology_key
     from tt.sim.mjwarp_backend import EpisodeArrays, joint_command, lookahead_targets, padded_motions, record_step, start_postures
@@ -605,7 +605,7 @@ def newton_simulate(
         ``ctrl`` array, and run inside the caller's `wp.Tape` (record the call on a tape to
         take gradients of the returned ``states`` with respect to ``ctrl``).
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     device = resolve_device(device)
     models, xmls, _ = _design_inputs(designs)

@@ -121,7 +121,7 @@ def rollout(
     backend: ``"warp"`` (tt's kernels), ``"mjwarp"`` (MuJoCo-Warp, contacts too, see
         `tt.sim.mjwarp_backend`), ``"newton"`` (Newton Featherstone, see
         `tt.sim.newton_backend`) or ``"mujoco"`` (the oracle).
-    device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None for `tt.device.default_device()`;
+    device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None for `tt.kernels.device.default_device()`;
         tensors of the Episode live there ("mujoco" always returns CPU tensors).
     chunk: control steps per kernel launch (None: the whole episode in one launch).
     progress: show a tqdm bar (control steps for "warp", worlds for "mujoco").
@@ -136,7 +136,7 @@ def rollout(
     Raises ValueError for mixed design spaces, motions of different dt, an unknown device
     or backend, designs with contacts on "warp", and action_noise > 0 on another backend.
     """
-    from tt.device import resolve_device
+    from tt.kernels.device import resolve_device
 
     if backend not in BACKENDS:
         raise ValueError(f"unknown rollout backend {backend!r}; valid: {list(BACKENDS)}")

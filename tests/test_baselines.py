@@ -13,7 +13,8 @@ import json
 import numpy as np
 import pytest
 
-from tt.baselines import CMAES, CMAESConfig, CMAESPlan, Problem, RandomSearch, evaluate_designs, get_optimizer
+from tt.baselines import CMAES, CMAESConfig, CMAESPlan, Problem, RandomSearch, evaluate_designs
+from tt.optimizers import get_optimizer
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import Motion, for_space, get_motion, save_npz
 

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from tt.guidance.rewards import robot_mass, robot_size
+from tt.sim.rewards import robot_mass, robot_size
 from tt.sim.designs import Design, DesignError, get_space, load_designs, save_designs
 from tt.sim.designs import quadruped as q
 

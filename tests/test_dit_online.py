@@ -17,7 +17,7 @@ from tt.dit.train import TrainConfig, train
 from tt.sim.designs import get_space
 from tt.sim.rollout import _RECORDED, group_episode, rollout, rollout_records
 from tt.tokens import episode_tokens, tokenize_models
-from tt.tokens.generate import space_token_maxima
+from tt.tokens.draws import space_token_maxima
 
 #: Small refreshes on motions cut to 40 steps (20 kept at least), 2 refreshes buffered.
 CONFIG = OnlineConfig(space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40)
@@ -35,7 +35,7 @@ def source():
 
 def _motions(n: int = 2):
     """The first n augmented motions of refresh 0, drawn as the source draws them."""
-    from tt.tokens.generate import _rng, episode_motion, training_motions
+    from tt.tokens.draws import _rng, episode_motion, training_motions
 
     base = training_motions("viperx")
     rng = _rng(CONFIG.seed, 0, _STREAM_MOTIONS)
@@ -65,7 +65,7 @@ def test_online_tokens_equal_the_copying_path(source):
     """Refresh 0's episodes, tokenized from zero-copy group views, equal the same designs and
     motions rolled out by `rollout` (one padded Episode, copied) and tokenized directly."""
     space = get_space("viperx")
-    from tt.tokens.generate import _seed_int
+    from tt.tokens.draws import _seed_int
 
     designs = space.sample(CONFIG.designs, seed=_seed_int(CONFIG.seed, 0, _STREAM_DESIGNS))
     motions = _motions(CONFIG.motions)

@@ -23,7 +23,7 @@ from tt.sim.motions import augment_motion, for_space, motion_set
 from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
 from tt.tokens import episode_tokens, tokenize_models
-from tt.tokens.generate import GenerateConfig, generate, shard_design_list
+from tt.generate import GenerateConfig, generate, shard_design_list
 from tt.tokens.store import DatasetError, TokenStore, read_manifest, read_root, shard_dirs
 
 #: 5 shards of 2 designs x 2 episodes on motions cut to 40 steps (20 kept at least).
@@ -32,7 +32,7 @@ CONFIG = GenerateConfig(space="viperx", designs=10, episodes_per_design=2, desig
 
 _CHILD = """
 import json, sys
-from tt.tokens.generate import GenerateConfig, generate
+from tt.generate import GenerateConfig, generate
 generate(GenerateConfig(**json.loads(sys.argv[2])), sys.argv[1], device="cpu", progress=False)
 """
 
@@ -112,7 +112,7 @@ def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
     indices and augmentation seeds with the public motion API, one perturbed rollout of the
     group (world d * K + slot, the shard's noise seed), the tokenizers. Control tokens hold
     the clean commands (``Episode.action``), not the executed ones."""
-    from tt.tokens.generate import _STREAM_NOISE, _seed_int
+    from tt.tokens.draws import _STREAM_NOISE, _seed_int
 
     sp = get_space("viperx")
     K = CONFIG.episodes_per_design
@@ -184,7 +184,7 @@ def test_cmaes_bias_keeps_every_design_cmaes_samples():
     """Shard 0 of 20 designs: two CMA-ES runs (population 5, 3 generations) on training
     motions 0 and 1; reference: `tt.baselines.CMAES` run directly on those problems."""
     from tt.baselines import CMAES, CMAESConfig, Problem
-    from tt.tokens.generate import _seed_int, training_motions
+    from tt.tokens.draws import _seed_int, training_motions
 
     cfg = replace(CONFIG, designs=20, designs_per_shard=20, bias="cmaes")
     designs = shard_design_list(cfg, 0, device="cpu")
@@ -202,7 +202,7 @@ def test_cmaes_bias_keeps_every_design_cmaes_samples():
 
 
 def test_action_noise_is_checked_and_defaults_to_the_measured_value():
-    from tt.tokens.generate import DEFAULT_ACTION_NOISE
+    from tt.tokens.draws import DEFAULT_ACTION_NOISE
 
     assert CONFIG.action_noise == DEFAULT_ACTION_NOISE > 0
     with pytest.raises(ValueError, match="action_noise = -0.01"):

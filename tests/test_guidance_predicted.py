@@ -2,7 +2,7 @@
 
 References: MuJoCo's compiled models (`robot_size` / `robot_mass` of the real designs the
 link tokens come from), scipy's rotation conversions, the reward definitions of
-`tt.guidance.rewards` evaluated on the ground-truth inputs the tokens were made from, the
+`tt.sim.rewards` evaluated on the ground-truth inputs the tokens were made from, the
 paper's formula on a hand case (perfect tracking scores one per step), and finite
 differences for the gradient guidance uses.
 """
@@ -24,7 +24,7 @@ from tt.guidance.predicted import (
     orthonormalize,
     query_steps,
 )
-from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate, get_reward, orientation_error, robot_mass, robot_size
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, get_reward, orientation_error, robot_mass, robot_size
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.tokens.batch import TokenBatch

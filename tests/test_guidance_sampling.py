@@ -30,7 +30,7 @@ from tt.dit.tasks import ROBOT, task_masks
 from tt.dit.toy import toy_episodes
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens
 from tt.guidance.predicted import build_query, query_steps
-from tt.guidance.rewards import get_reward
+from tt.sim.rewards import get_reward
 from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, GuidanceScales, SelfGuidance
 from tt.guidance.zeroth import (
     CandidateSampler,

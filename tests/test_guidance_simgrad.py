@@ -17,7 +17,7 @@ import pytest
 import torch
 import warp as wp
 
-from tt.guidance.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.guidance.simgrad import (
     WarpFunction,
     WarpProgram,

@@ -1,6 +1,6 @@
 """The fused rollout's differentiability and the Warp tracking reward.
 
-* The tracking reward kernel equals `tt.guidance.rewards` (the torch definition), value and
+* The tracking reward kernel equals `tt.sim.rewards` (the torch definition), value and
   gradient with respect to the poses.
 * Gradients of the tracking reward of a rollout with respect to link offsets (body_pos)
   and the mount pose, taken with `wp.Tape` through the differentiable rollout kernel, equal
@@ -15,7 +15,7 @@ import pytest
 import torch
 import warp as wp
 
-from tt.guidance.rewards import RewardInputs, evaluate, get_reward
+from tt.sim.rewards import RewardInputs, evaluate, get_reward
 from tt.kernels.model import build_tree_model
 from tt.kernels.pose import tracking_reward
 from tt.kernels.rollout import motion_arrays, rollout_tree

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from tt.baselines import CMAES, Problem
-from tt.guidance.rewards import RewardInputs, get_reward, metrics
+from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.motions.base import Motion

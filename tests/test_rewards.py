@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from tt.guidance.rewards import (
+from tt.sim.rewards import (
     METRIC_UNITS,
     REWARD_SPACES,
     REWARDS,
@@ -287,6 +287,21 @@ def test_metrics_by_hand():
     s = summarize(m)
     assert s["survival_pct"] == pytest.approx(50.0)
     assert s["pos_err"] == pytest.approx(100 * 0.35 * 0.75 / 2)
+
+
+def test_p95_and_within_2cm_by_hand():
+    """pos_err_p95 is numpy's linear-interpolation percentile of the counted steps' errors;
+    within_2cm counts the motion's steps that counted at <= 2 cm (a terminated step is not within)."""
+    cfg = get_reward("tracking", "viperx")
+    errors_cm = [[0.0, 1.0, 1.9, 3.0, 10.0], [1.0, 60.0, 0.0, 0.0, 0.0]]  # world 1 terminates at step 1
+    inputs = make_inputs([[[e / 100.0] for e in w] for w in errors_cm], [[[0.0]] * 5] * 2)
+    m = metrics(inputs, cfg)
+    assert m["pos_err_p95"][0].item() == pytest.approx(np.percentile(errors_cm[0], 95), rel=1e-6)
+    assert m["pos_err_p95"][1].item() == pytest.approx(1.0, rel=1e-6)
+    assert m["within_2cm"].tolist() == pytest.approx([3 / 5, 1 / 5])
+    s = summarize(m)
+    assert s["within_2cm_pct"] == pytest.approx(100 * (3 / 5 + 1 / 5) / 2)
+    assert "within_2cm" not in s
 
 
 def test_metrics_without_counted_steps_are_nan_and_skipped_in_summary():

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from tt.guidance.rewards import RewardInputs, evaluate, get_reward
+from tt.sim.rewards import RewardInputs, evaluate, get_reward
 from tt.kernels.model import topology_of
 from tt.sim.designs import get_space
 from tt.sim.motions import Motion, for_space, motion_set

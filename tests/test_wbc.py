@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from tt.guidance.rewards import RewardInputs, get_reward, metrics
+from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import for_space, get_motion

@@ -27,6 +27,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import Enum
 
+from tt.kernels.errors import TTError
+
 #: Bump on any change to the layout below; stored with tokens, datasets and checkpoints.
 SCHEMA_VERSION = 1
 
@@ -364,7 +366,7 @@ EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
 DYNAMICS_TYPES = SCHEMA.names(Role.DYNAMICS)
 
 
-class SchemaVersionError(ValueError):
+class SchemaVersionError(TTError):
     """Tokens, statistics or a checkpoint written with another schema version."""
 
 

@@ -49,6 +49,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from tt.kernels.errors import TTError
+from tt.kernels.version import tt_version
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
 
 logger = logging.getLogger(__name__)
@@ -71,7 +73,7 @@ _SHARD_RE = re.compile(r"^s(\d{6})$")
 _MANIFEST = "manifest.json"
 
 
-class DatasetError(ValueError):
+class DatasetError(TTError):
     """A dataset folder that does not exist, is of another format or config, or is incomplete."""
 
 
@@ -88,12 +90,6 @@ def _compressor():
     # lz4 + bitshuffle: ~1.4x on float32 physics data, and decoding is far faster than
     # reading from disk, so training reads are not compute bound.
     return BloscCodec(cname="lz4", clevel=5, shuffle=BloscShuffle.bitshuffle)
-
-
-def tt_version() -> str:
-    import tt
-
-    return str(tt.__version__)
 
 
 # ------------------------------------------------------------------------------ root

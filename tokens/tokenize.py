@@ -37,6 +37,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.encodings import encode_attribute
 from tt.tokens.frames import compose, invert, quat_to_mat, z_to_axis
@@ -70,7 +71,7 @@ _MESH, _BALL, _FREE, _SLIDE = int(_G.mjGEOM_MESH), int(_J.mjJNT_BALL), int(_J.mj
 _AFFINE, _CONNECT = int(mujoco.mjtBias.mjBIAS_AFFINE), int(mujoco.mjtEq.mjEQ_CONNECT)
 
 
-class TokenizeError(ValueError):
+class TokenizeError(TTError):
     """A model RoboTokens cannot represent; the message names the element and the limit."""
 
 

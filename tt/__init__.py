@@ -1,12 +1,13 @@
 """tt: motion-conditioned robot co-design.
 
-Public API re-exports; the implementation lives in the subpackages
-(`tt.sim`, `tt.kernels`, `tt.tokens`, `tt.dit`, `tt.guidance`, `tt.baselines`, `tt.viz`).
+The implementation lives in the subpackages, layered high -> low: the app (`tt.cli`,
+`tt.demo`, `tt.report`, `tt.generate`, `tt.optimizers`) > `tt.viz` > `tt.guidance` >
+`tt.baselines` > `tt.dit` > `tt.tokens` > `tt.sim` > `tt.kernels`; imports only go down.
 """
 
-from importlib.metadata import PackageNotFoundError, version
+from tt.kernels.errors import TTError
+from tt.kernels.version import tt_version
 
-try:
-    __version__ = version("tt")
-except PackageNotFoundError:  # running from a source tree that was not installed
-    __version__ = "0.0.0"
+__version__ = tt_version()
+
+__all__ = ["TTError", "__version__"]

@@ -73,13 +73,35 @@ def motions(
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
     out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
+    stats: bool = typer.Option(False, "--stats", help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions (min-max)."),
 ) -> None:
     """List the motion library, or export one motion to .npz."""
     from rich.console import Console
     from rich.table import Table
 
-    from tt.sim.motions import MotionError, list_motions, resolve_motion, save_npz
+    from tt.sim.motions import MotionError, list_motions, motion_set, motion_stats, resolve_motion, save_npz
 
+    if stats:
+        try:
+            skills = [r.name for r in list_motions(arms=arms)]
+        except MotionError as e:
+            _fail(str(e))
+        by_skill: dict[str, list] = {s: [] for s in skills}
+        for st in motion_stats([m for split in ("train", "val") for m in motion_set(split, arms=arms)]):
+            by_skill[st.name.split(":")[0]].append(st)
+        cols = (("peak_speed", "peak speed (m/s)"), ("p95_speed", "p95 speed (m/s)"), ("peak_accel", "peak accel (m/s^2)"),
+                ("extent", "extent (m)"), ("orn_range", "orn range (deg)"), ("duration", "duration (s)"))
+        table = Table(title="tt motion library statistics: min-max over each skill's train and val motions")
+        for header in ("skill", "motions") + tuple(h for _, h in cols):
+            table.add_column(header, justify="left" if header == "skill" else "right")
+        for skill, rows in by_skill.items():
+            cells = []
+            for key, _ in cols:
+                v = [getattr(r, key) for r in rows]
+                cells.append(f"{min(v):.3g}-{max(v):.3g}")
+            table.add_row(skill, str(len(rows)), *cells)
+        Console(width=200).print(table)
+        return
     if name is None:
         table = Table(title="tt motion library (50 Hz)")
         rows = [r.row() for r in list_motions(arms=arms)]
@@ -284,7 +306,8 @@ def optimize(
     shipped checkpoint unless --checkpoint is given)."""
     from rich.console import Console
 
-    from tt.baselines import Problem, get_optimizer
+    from tt.baselines import Problem
+    from tt.optimizers import get_optimizer
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, get_space
 
@@ -354,7 +377,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
-    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.generate.DEFAULT_ACTION_NOISE; 0: none)."),
+    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
@@ -407,10 +430,10 @@ def generate(
     ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt[ray]')."),
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
-    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.generate.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
+    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
-    from tt.tokens.generate import generate_cmd
+    from tt.generate import generate_cmd
 
     try:
         typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,

@@ -99,7 +99,7 @@ def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
 
 def learned_setup(checkpoint: Path, space: str, device: str | None) -> LearnedSetup:
     """Load the model and build the decoder once for both learned methods."""
-    from tt.device import default_device
+    from tt.kernels.device import default_device
     from tt.dit.checkpoint import load_model
     from tt.guidance.zeroth import DesignDecoder
     from tt.sim.designs import get_space
@@ -113,7 +113,7 @@ def learned_setup(checkpoint: Path, space: str, device: str | None) -> LearnedSe
 
 
 def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None = None):
-    from tt.baselines import get_optimizer
+    from tt.optimizers import get_optimizer
 
     if method == "cmaes":
         return get_optimizer("cmaes", **config.cmaes_options)

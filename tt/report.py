@@ -8,6 +8,8 @@ from typing import Mapping, Sequence
 #: (key, header) of the columns every metrics table shows, in the paper's order.
 COLUMNS = (
     ("pos_err", "pos err (cm)"),
+    ("pos_err_p95", "p95 pos err (cm)"),
+    ("within_2cm_pct", "within 2 cm (%)"),
     ("orn_err", "orn err (deg)"),
     ("survival_pct", "survival (%)"),
     ("reward", "reward"),
@@ -66,14 +68,17 @@ def rich_table(rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], titl
 
 def summary_row(metrics: Mapping, index: int | slice = slice(None)) -> dict[str, float]:
     """Aggregate (D, M) metric arrays of an `Evaluation` over motions (and the selected designs):
-    errors are averaged over episodes that ran at least one step; survival in percent."""
+    errors are averaged over episodes that ran at least one step; survival and the share within
+    2 cm in percent."""
     import numpy as np
+
+    from tt.sim.rewards import PERCENT_METRICS
 
     row: dict[str, float] = {}
     for key, value in metrics.items():
         v = np.asarray(value, dtype=np.float64)[index]
-        if key == "survival":
-            row["survival_pct"] = float(100.0 * np.mean(v))
+        if key in PERCENT_METRICS:
+            row[PERCENT_METRICS[key]] = float(100.0 * np.mean(v))
         else:
             finite = v[np.isfinite(v)]
             row[key] = float(finite.mean()) if finite.size else float("nan")

@@ -12,8 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 
-class CameraError(ValueError):
+
+class CameraError(TTError):
     """Camera options out of range; the message names the field."""
 
 

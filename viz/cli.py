@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from tt.kernels.errors import TTError
 from tt.sim.designs import DesignError, get_space, load_designs
 from tt.sim.motions.base import Motion
 from tt.viz.episode_file import EpisodeFileError, load_episode_npz
@@ -19,7 +20,7 @@ from tt.viz.html import write_html
 from tt.viz.scene import Scene, SceneOptions, build_scene
 
 
-class ViewError(ValueError):
+class ViewError(TTError):
     """A ``tt view`` request that cannot be served; the message says what to change."""
 
 

@@ -37,6 +37,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, DesignError, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion, MotionError
@@ -45,7 +46,7 @@ from tt.viz.scene import Scene, SceneOptions, build_scene
 FORMAT = "tt.episode.v1"
 
 
-class EpisodeFileError(ValueError):
+class EpisodeFileError(TTError):
     """An episode file (or record) that is malformed or does not match its designs."""
 
 

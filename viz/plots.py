@@ -17,8 +17,10 @@ from typing import Mapping, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
+from tt.kernels.errors import TTError
 
-class PlotError(ValueError):
+
+class PlotError(TTError):
     """Plot inputs of mismatched shapes, missing labels or intervals that exclude their value."""
 
 

@@ -13,8 +13,10 @@ from typing import NamedTuple, Sequence
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
 
-class PoseError(ValueError):
+
+class PoseError(TTError):
     """A joint trajectory that does not fit its model; the message names the field."""
 
 

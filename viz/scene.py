@@ -27,6 +27,7 @@ import mujoco
 import numpy as np
 import umsgpack
 
+from tt.kernels.errors import TTError
 from tt.sim.motions.base import MOTION_DT, Motion
 from tt.viz.camera import CameraOptions, CameraView, frame_points
 from tt.viz.poses import BodyPoses, body_poses, pose_matrix, quat_to_mat
@@ -48,7 +49,7 @@ _CAMERA_OBJECT = "/Cameras/default/rotated/<object>"
 _FLOAT32_EXT = 0x17  # msgpack extension code meshcat's viewer decodes as a Float32Array
 
 
-class SceneError(ValueError):
+class SceneError(TTError):
     """Inputs that cannot make a scene; the message names the argument and the robot."""
 
 

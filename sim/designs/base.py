@@ -18,8 +18,10 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
 
-class DesignError(ValueError):
+
+class DesignError(TTError):
     """A design that does not belong to its space; the message names the field."""
 
 

@@ -22,6 +22,7 @@ from tt.sim.motions.io import (
     save_npz,
     umi_episode_count,
 )
+from tt.sim.motions.stats import MotionStats, motion_stats
 from tt.sim.motions.library import (
     BIMANUAL,
     BIMANUAL_CENTER,
@@ -44,11 +45,13 @@ from tt.sim.motions.library import (
 )
 
 __all__ = [
+    "motion_stats",
     "BIMANUAL",
     "BIMANUAL_CENTER",
     "BIMANUAL_MOUNT_Y",
     "MOTION_DT",
     "MOTION_HZ",
+    "MotionStats",
     "for_space",
     "Motion",
     "MotionError",

@@ -6,12 +6,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tt.kernels.errors import TTError
+
 #: Control and motion rate of tt [Hz]; every motion is resampled to it.
 MOTION_HZ = 50.0
 MOTION_DT = 1.0 / MOTION_HZ
 
 
-class MotionError(ValueError):
+class MotionError(TTError):
     """A trajectory that cannot be tracked as given (NaN, bad quaternions, empty)."""
 
 

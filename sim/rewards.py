@@ -59,6 +59,8 @@ REWARDS: tuple[str, ...] = (
 #: Units of the per-world metrics returned by `metrics`.
 METRIC_UNITS: dict[str, str] = {
     "pos_err": "cm",
+    "pos_err_p95": "cm",
+    "within_2cm": "1",
     "orn_err": "deg",
     "survival": "1",
     "torque": "N m",
@@ -68,6 +70,11 @@ METRIC_UNITS: dict[str, str] = {
     "reward": "1",
     "length": "steps",
 }
+
+#: Per-world 0/1 or share metrics that tables report in percent, under these names.
+PERCENT_METRICS: dict[str, str] = {"survival": "survival_pct", "within_2cm": "within_2cm_pct"}
+#: The position error [cm] under which a step counts towards ``within_2cm``.
+WITHIN_CM = 2.0
 
 
 # ------------------------------------------------------------------------------ config
@@ -413,6 +420,10 @@ def metrics(inputs: RewardInputs, cfg: RewardConfig) -> dict[str, torch.Tensor]:
 
     pos_err, orn_err: mean position [cm] and orientation [deg] error over counted steps and end
         effectors (NaN for a world with no counted step).
+    pos_err_p95: the 95th percentile of the position error [cm] (mean over end effectors) over
+        counted steps (NaN for a world with no counted step): the hard parts a mean hides.
+    within_2cm: share of the motion's steps that counted with a position error of at most
+        `WITHIN_CM` (a step after termination is not within, so early termination lowers it).
     survival: 1.0 if the world ran its whole motion without terminating, else 0.0.
     torque, velocity: mean |tau|_2 and |qdot|_2 over counted steps (when the inputs hold them).
     size, mass: the robot's size [m] and mass [kg] (when the inputs hold them).
@@ -421,8 +432,13 @@ def metrics(inputs: RewardInputs, cfg: RewardConfig) -> dict[str, torch.Tensor]:
     with torch.no_grad():
         terms = evaluate(inputs, cfg)
         c = terms.counted
+        err_cm = 100.0 * terms.pos_err.mean(-1)  # (W, T)
+        nan = torch.full((), float("nan"), dtype=err_cm.dtype, device=err_cm.device)
+        within = (c & (err_cm <= WITHIN_CM)).sum(1).to(err_cm.dtype)
         out = {
-            "pos_err": 100.0 * _mean_over_counted(terms.pos_err.mean(-1), c),
+            "pos_err": _mean_over_counted(err_cm, c),
+            "pos_err_p95": torch.nanquantile(torch.where(c, err_cm, nan), 0.95, dim=1),
+            "within_2cm": within / _motion_steps(inputs).clamp(min=1).to(err_cm.dtype),
             "orn_err": torch.rad2deg(_mean_over_counted(terms.orn_err.mean(-1), c)),
             "survival": terms.survived.to(terms.reward.dtype),
         }
@@ -447,8 +463,8 @@ def summarize(per_world: Mapping[str, torch.Tensor]) -> dict[str, float]:
     out: dict[str, float] = {}
     for key, value in per_world.items():
         v = value.detach().to(torch.float64)
-        if key == "survival":
-            out["survival_pct"] = float(100.0 * v.mean())
+        if key in PERCENT_METRICS:
+            out[PERCENT_METRICS[key]] = float(100.0 * v.mean())
         else:
             out[key] = float(torch.nanmean(v))
     return out
@@ -491,6 +507,8 @@ def robot_mass(
 
 __all__ = [
     "METRIC_UNITS",
+    "PERCENT_METRICS",
+    "WITHIN_CM",
     "REWARDS",
     "REWARD_SPACES",
     "RewardConfig",

@@ -1,0 +1,230 @@
+"""The draws of a RoboToken dataset: its config (`GenerateConfig`) and the seeded random
+designs, augmented motions and episode filter that every episode comes from.
+
+`tt generate` (`tt.generate`, the orchestration: shards, workers, CMA-ES biasing) and the
+online training source (`tt.dit.online`) draw from here, so a dataset and an online run
+of the same config see the same distribution. Every draw is a pure function of
+``SeedSequence([seed, ...])`` (see `tt.generate` for the streams of a shard).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, fields
+from functools import lru_cache
+from typing import Mapping
+
+import numpy as np
+import torch
+
+from tt.tokens.schema import SCHEMA
+
+#: Data biasing methods of ``--bias``.
+BIASES = ("cmaes",)
+#: Random streams of a shard (the third SeedSequence entry).
+_STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES, _STREAM_NOISE = 0, 1, 2, 3
+#: Default control perturbation [rad or m] (measured, see the module docstring).
+DEFAULT_ACTION_NOISE = 0.01
+#: Which robot count (`tt.tokens.tokenize.RobotIndex.counts`) sets each per-step type's tokens per step.
+_STEP_COUNT = {"free_link_obs": "free_link", "track_link_obs": "track_link", "dyna_joint_obs": "dyna_joint",
+               "ball_joint_obs": "ball_joint", "actuator_obs": "actuator", "control": "actuator", "target_pose": "track_link"}
+#: A quoted attribute value made of numbers only (MJCF numbers and vectors).
+_NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """What a dataset is; two runs with equal configs produce identical shards.
+
+    space: design space name. designs: N designs in total. episodes_per_design: K episodes
+    (motions) per design (paper: 10). seed: root of every random draw.
+    designs_per_shard: designs per shard (the unit of resume and of distribution).
+    group_designs: designs per rollout batch; a group shares its K augmented motions.
+    bias: None (uniform designs) or "cmaes" (paper's data biasing).
+    cmaes_popsize / cmaes_generations: CMA-ES population and generations per run (5, 3).
+    min_steps: episodes with fewer executed control steps are dropped (paper: 100 = 2 s).
+    max_motion_steps: cut training motions to this many steps (None: whole motions).
+    max_yaw [rad], max_shift [m]: ranges of the per-episode planar motion augmentation.
+    backend: rollout backend (`tt.sim.rollout.BACKENDS`). reward: reward stored per
+    episode and optimised by CMA-ES (`tt.sim.rewards.REWARDS`).
+    action_noise: control perturbation, the standard deviation [rad or m] of the Gaussian
+    noise on every executed command (clean commands are logged); 0: none ("warp" backend
+    only when > 0). CMA-ES biasing scores its candidates without it.
+    """
+
+    space: str
+    designs: int
+    episodes_per_design: int = 10
+    seed: int = 0
+    designs_per_shard: int = 1024
+    group_designs: int = 128
+    bias: str | None = None
+    cmaes_popsize: int = 5
+    cmaes_generations: int = 3
+    min_steps: int = 100
+    max_motion_steps: int | None = None
+    max_yaw: float = math.pi / 8
+    max_shift: float = 0.03
+    backend: str = "warp"
+    reward: str = "tracking"
+    action_noise: float = DEFAULT_ACTION_NOISE
+
+    def __post_init__(self) -> None:
+        from tt.sim.rewards import REWARDS
+        from tt.sim.designs import get_space
+        from tt.sim.rollout import BACKENDS
+
+        get_space(self.space)  # raises listing the valid spaces
+        for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"GenerateConfig.{name} = {v!r}; must be an integer >= 1")
+        if self.bias not in (None, *BIASES):
+            raise ValueError(f"GenerateConfig.bias = {self.bias!r}; valid: None or {list(BIASES)}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"GenerateConfig.backend = {self.backend!r}; valid: {list(BACKENDS)}")
+        if self.backend == "warp" and get_space(self.space).has_contacts:
+            raise ValueError(f"design space {self.space!r} has contacts; GenerateConfig.backend 'warp' simulates "
+                             "contact-free trees only, use backend='mujoco'")
+        if self.reward not in REWARDS:
+            raise ValueError(f"GenerateConfig.reward = {self.reward!r}; valid: {list(REWARDS)}")
+        if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
+            raise ValueError(f"GenerateConfig.max_motion_steps = {self.max_motion_steps} is below min_steps = "
+                             f"{self.min_steps}: every episode would be dropped")
+        if self.cmaes_popsize < 2 or self.cmaes_generations < 1:
+            raise ValueError(f"CMA-ES needs popsize >= 2 and generations >= 1, got {self.cmaes_popsize}, {self.cmaes_generations}")
+        if not (0 <= self.max_yaw <= math.pi and 0 <= self.max_shift):
+            raise ValueError(f"augmentation ranges must satisfy 0 <= max_yaw <= pi, max_shift >= 0; got {self.max_yaw}, {self.max_shift}")
+        if not 0 <= self.seed < 2**32:
+            raise ValueError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
+        if not (isinstance(self.action_noise, (int, float, np.integer, np.floating)) and math.isfinite(self.action_noise) and self.action_noise >= 0):
+            raise ValueError(f"GenerateConfig.action_noise = {self.action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+        if self.action_noise > 0 and self.backend != "warp":
+            raise ValueError(f"GenerateConfig.action_noise = {self.action_noise} needs backend 'warp' (the backend that "
+                             f"perturbs commands); backend {self.backend!r} needs action_noise=0")
+
+    @property
+    def shards(self) -> int:
+        return -(-self.designs // self.designs_per_shard)
+
+    def shard_designs(self, index: int) -> int:
+        """Number of designs of shard `index`."""
+        if not 0 <= index < self.shards:
+            raise ValueError(f"shard {index} does not exist; the dataset has shards 0..{self.shards - 1}")
+        return min(self.designs_per_shard, self.designs - index * self.designs_per_shard)
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "shards": self.shards}
+
+    @staticmethod
+    def from_dict(d: Mapping) -> "GenerateConfig":
+        names = {f.name for f in fields(GenerateConfig)}
+        return GenerateConfig(**{k: v for k, v in d.items() if k in names})
+
+
+def _seed_seq(*entropy: int) -> np.random.SeedSequence:
+    return np.random.SeedSequence([int(e) for e in entropy])
+
+
+def _rng(*entropy: int) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(_seed_seq(*entropy)))
+
+
+def _seed_int(*entropy: int, bits: int = 31) -> int:
+    return int(_seed_seq(*entropy).generate_state(1, np.uint64)[0] >> np.uint64(64 - bits))
+
+
+# ------------------------------------------------------------------------------ space maxima
+def _discrete_choices(space, limit: int) -> list[tuple[int, ...]] | None:
+    """Every complete discrete choice of `space`, or None if there are more than `limit`."""
+    out: list[tuple[int, ...]] = []
+    stack: list[tuple[int, ...]] = [()]
+    while stack:
+        prefix = stack.pop()
+        params = space.discrete_params(list(prefix))
+        if len(prefix) == len(params):
+            out.append(prefix)
+            if len(out) > limit:
+                return None
+            continue
+        stack += [prefix + (i,) for i in reversed(range(len(params[len(prefix)].options)))]
+    return out
+
+
+@lru_cache(maxsize=8)
+def space_token_maxima(space_name: str, limit: int = 4096) -> dict:
+    """Largest token counts of a design space's robots: tokens per robot of each embodiment
+    type, tokens per control step of each per-step type; and the widest design.
+
+    Token counts depend on the discrete choices only, so every discrete choice is considered
+    (continuous choices at mid-range) when there are at most `limit`; otherwise `limit`
+    random designs are (``source`` says which). Counts depend on the MJCF element tree, not
+    on numbers, so one model per distinct tree (MJCF text with numeric attribute values
+    blanked) is compiled and tokenized. Returns {"maxima": {type: count}, "discrete": max
+    discrete choices, "continuous": max continuous choices, "source": str}.
+    """
+    import mujoco
+
+    from tt.sim.designs import Design, get_space
+    from tt.tokens.tokenize import Tokenizer
+
+    sp = get_space(space_name)
+    choices = _discrete_choices(sp, limit)
+    if choices is None:
+        designs = sp.sample(limit, seed=0)
+        source = f"{limit} random designs"
+    else:
+        designs = [Design(sp.name, c, tuple(0.5 * (p.low + p.high) for p in sp.continuous_params(c))) for c in choices]
+        source = f"all {len(choices)} discrete choices"
+    trees: dict[str, str] = {}
+    for d in designs:
+        text = sp.to_mjcf(d)
+        trees.setdefault(_NUMBERS.sub('""', text), text)
+    tokenizer = Tokenizer()
+    maxima = {n: 0 for n in SCHEMA.names()}
+    texts = list(trees.values())
+    for start in range(0, len(texts), 512):
+        emb = tokenizer([mujoco.MjModel.from_xml_string(t) for t in texts[start:start + 512]])
+        for name, c in emb.tokens.counts().items():
+            maxima[name] = max(maxima[name], int(c.max()))
+        for r in emb.index:
+            for name, key in _STEP_COUNT.items():
+                maxima[name] = max(maxima[name], int(r.counts[key]))
+    return {"maxima": maxima, "discrete": max(len(d.discrete) for d in designs),
+            "continuous": max(len(d.continuous) for d in designs), "source": source}
+
+
+# ------------------------------------------------------------------------------ motions
+@lru_cache(maxsize=8)
+def training_motions(space_name: str) -> tuple:
+    """The training split's library motions for the space's end-effector count (unplaced:
+    `for_space` is applied after augmentation)."""
+    from tt.sim.designs import get_space
+    from tt.sim.motions import motion_set
+
+    return tuple(motion_set("train", arms=get_space(space_name).ee_count))
+
+
+def episode_motion(config: GenerateConfig, base, aug_seed: int):
+    """Augmented, placed and (optionally) cut training motion."""
+    from tt.sim.motions import augment_motion, for_space
+    from tt.sim.motions.base import Motion
+
+    m = augment_motion(base, int(aug_seed), max_yaw=config.max_yaw, max_shift=config.max_shift)
+    m = for_space([m], config.space)[0]
+    if config.max_motion_steps is not None and m.steps > config.max_motion_steps:
+        n = config.max_motion_steps
+        m = Motion(m.name, m.pos[:n], m.quat[:n], m.dt, meta=dict(m.meta, cut=n))
+    return m
+
+
+def finite_worlds(ep) -> np.ndarray:
+    """(W,) True where every executed step's state, command and pose is finite."""
+    alive = ep.alive.bool()
+    ok = torch.ones(ep.worlds, dtype=torch.bool, device=alive.device)
+    for name in ("qpos", "qvel", "ctrl", "action", "act_force", "act_vel", "ee_pos", "ee_quat"):
+        x = getattr(ep, name)
+        bad = ~torch.isfinite(x).reshape(x.shape[0], x.shape[1], -1).all(-1)
+        ok &= ~(bad & alive).any(1)
+    return ok.cpu().numpy()
