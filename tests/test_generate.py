@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from dataclasses import asdict, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -214,13 +215,57 @@ def test_action_noise_is_checked_and_defaults_to_the_measured_value():
     assert GenerateConfig.from_dict({**CONFIG.to_dict(), "action_noise": 0.0}).action_noise == 0.0
 
 
-@pytest.mark.slow
 def test_ray_and_process_workers_equal_one_process(reference, tmp_path):
-    """A local Ray cluster of 2 workers, and 2 worker processes, write the same dataset."""
-    pytest.importorskip("ray")
+    """A local Ray cluster of 2 workers, and 2 worker processes, write the same dataset.
+    (Ray comes with the test extra, so CI runs this.)"""
     report = generate(CONFIG, tmp_path / "ray", device="cpu", workers=2, ray_address="local", progress=False)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "ray", reference)
     report = generate(CONFIG, tmp_path / "pool", device="cpu", workers=2, progress=False)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "pool", reference)
+
+
+def _ray_shard_tasks() -> list[int]:
+    """Process ids of Ray workers executing a shard now (Ray titles them ``ray::<task>``)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                if (proc / "cmdline").read_bytes().startswith(b"ray::_shard_task"):
+                    pids.append(int(proc.name))
+            except OSError:
+                continue  # ended meanwhile
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds Ray's worker processes through /proc")
+def test_a_ray_worker_killed_mid_shard_is_retried_and_the_dataset_verifies(reference, tmp_path):
+    """SIGKILL a Ray worker while it generates a shard: Ray reruns the task (``max_retries``)
+    on a fresh worker, the shard is written from scratch, and the dataset equals one process's."""
+    import threading
+
+    killed: list[int] = []
+    done = threading.Event()
+
+    def killer():
+        while not done.is_set() and not killed:
+            pids = _ray_shard_tasks()
+            if pids:
+                time.sleep(0.5)  # well inside the shard (it takes seconds), past its start
+                if pids[0] in _ray_shard_tasks():
+                    os.kill(pids[0], signal.SIGKILL)
+                    killed.append(pids[0])
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        report = generate(CONFIG, tmp_path / "ray", device="cpu", workers=2, ray_address="local", progress=False)
+    finally:
+        done.set()
+        thread.join()
+    assert len(killed) == 1, "no Ray worker was caught mid-shard"
+    assert report.run["shards"] == CONFIG.shards
+    TokenStore(tmp_path / "ray", verify="full")  # every shard's checksums verify
+    _same_data(tmp_path / "ray", reference)
