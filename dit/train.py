@@ -70,7 +70,8 @@ class TrainConfig:
     device: None for `tt.kernels.device.default_device()`; keep_checkpoints: how many of the
     newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
     and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
-    fine-tune after a change of the training data; ignored when the run resumes; online:
+    fine-tune after a change of the training data; ignored when the run resumes; compile:
+    run the forward pass through `torch.compile` (the first steps pay the compile); online:
     train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
     of `data` (a dict is read as `OnlineConfig` fields).
     """
@@ -99,6 +100,7 @@ class TrainConfig:
     bf16: bool = True
     resume: bool = True
     init: str = ""
+    compile: bool = False
     online: OnlineConfig | None = None
 
     def __post_init__(self) -> None:
@@ -324,6 +326,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             total = count.detach().clone()
             dist.all_reduce(total)
             return total / dp.world_size
+    if config.compile:
+        forward = torch.compile(forward)
     schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=config.bf16 and device.type == "cuda")
     log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
