@@ -81,3 +81,14 @@ def test_a_batch_that_does_not_split_over_the_ranks_is_refused(monkeypatch, tmp_
     assert dp.share(12, "robot") == (4, 8)
     with pytest.raises(ValueError, match="does not split over 3"):
         dp.share(8, "task robot's batch")
+
+
+def test_episode_tokens_part_is_the_slice_of_the_whole_draw():
+    episodes = toy_episodes(episodes=12, steps=20, seed=0)
+    for kind in ("random", "consecutive"):
+        g_all, g_part = torch.Generator().manual_seed(2), torch.Generator().manual_seed(2)
+        whole = episodes.sample(8, 4, kind, g_all)
+        part = episodes.sample(8, 4, kind, g_part, part=(4, 8))
+        for name, x in whole.values.items():
+            assert torch.equal(x[4:8], part.values[name]) and torch.equal(whole.ids[name][4:8], part.ids[name])
+        assert torch.equal(g_all.get_state(), g_part.get_state())

@@ -269,3 +269,20 @@ def test_a_ray_worker_killed_mid_shard_is_retried_and_the_dataset_verifies(refer
     assert report.run["shards"] == CONFIG.shards
     TokenStore(tmp_path / "ray", verify="full")  # every shard's checksums verify
     _same_data(tmp_path / "ray", reference)
+
+
+@pytest.mark.parametrize("kind", ["random", "consecutive"])
+def test_a_data_parallel_rank_reads_its_part_of_the_store_windows(reference, kind):
+    """`StoreTokenSource.sample(part=(a, b))`: windows a .. b - 1 of what the same draw of all
+    n gives (blocks, episodes, steps and the SE(2) augmentation), and the generator ends in
+    the same state, so the ranks stay in step."""
+    from tt.dit.loader import StoreTokenSource
+
+    source = StoreTokenSource(reference, windows_per_block=3)
+    g_all, g_part = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    whole = source.sample(8, 4, kind, g_all)
+    part = source.sample(8, 4, kind, g_part, part=(3, 7))
+    for field in ("values", "ids", "mask"):
+        for name, x in getattr(whole, field).items():
+            assert torch.equal(x[3:7], getattr(part, field)[name]), (field, name)
+    assert torch.equal(g_all.get_state(), g_part.get_state())
