@@ -115,6 +115,19 @@ def _starts(designs: Sequence[Design], objective: np.ndarray, fallback: Sequence
     return starts
 
 
+#: Smallest step size [normalised units] a proposal spread may set: below it, a restart
+#: cannot move off a prior that is confidently wrong.
+MIN_SIGMA = 0.05
+
+
+def _spread(space: DesignSpace, proposals: Sequence[Design], start: Design, sigma0: float) -> float:
+    """Step size of a restart from the proposals of its discrete choice (see `CMAES.optimize`)."""
+    same = [_encode(space, d) for d in proposals if d.discrete == start.discrete]
+    if len(same) < 2 or not same[0].size:
+        return sigma0
+    return float(np.clip(np.std(np.stack(same), axis=0).mean(), MIN_SIGMA, sigma0))
+
+
 class CMAES(Optimizer):
     """CMA-ES with restarts over sampled discrete choices; see the module docstring."""
 
@@ -150,7 +163,17 @@ class CMAES(Optimizer):
             out.append(float(np.mean(r)) if all(math.isfinite(v) for v in r) else float("nan"))
         return np.array(out)
 
-    def optimize(self, problem: Problem) -> Result:
+    def optimize(self, problem: Problem, *, proposals: Sequence[Design] | None = None) -> Result:
+        """Run CMA-ES on `problem`.
+
+        proposals: designs of the problem's space from a learned prior, best first. They
+        take the first half (rounded up) of the screening batch, random draws the rest, so
+        that a prior that knows nothing costs at most half the screen. Each restart starts
+        from the best screened design of its discrete choice; a restart that starts from a
+        proposal takes the spread of the proposals of its choice as its step size (mean
+        standard deviation of the normalised continuous values, clipped to [MIN_SIGMA,
+        sigma0]; sigma0 where the choice has one proposal).
+        """
         c = self.config
         plan = self.plan(problem)
         space = problem.design_space
@@ -159,7 +182,14 @@ class CMAES(Optimizer):
         # every kernel the search needs is compiled before the clock starts.
         drawn = space.sample(plan.screen + plan.restarts, seed=problem.seed)
         screened, fallback = drawn[: plan.screen], drawn[plan.screen :]
-        warmup_seconds = warm_up(drawn, problem.motions, reward=problem.reward, backend=backend, device=problem.device)
+        if proposals is not None:
+            proposals = list(proposals)
+            if any(d.space != space.name for d in proposals):
+                raise ValueError(f"CMA-ES proposals must be designs of space {space.name!r}")
+            take = min(len(proposals), -(-plan.screen // 2))
+            screened = (proposals[:take] + screened)[: plan.screen]
+        warmup_seconds = warm_up(list(screened) + list(fallback), problem.motions, reward=problem.reward, backend=backend,
+                                 device=problem.device)
 
         start = time.perf_counter()
         all_designs: list[Design] = list(screened)
@@ -173,9 +203,11 @@ class CMAES(Optimizer):
         else:
             starts = list(fallback)
         streams = np.random.SeedSequence([problem.seed, 0x434D41]).spawn(plan.restarts)
+        proposed = {id(d) for d in proposals or ()}  # identity: a start is one of these very objects
+        sigmas = [_spread(space, proposals, d, c.sigma0) if id(d) in proposed else c.sigma0 for d in starts]
         strategies = [
-            (d.discrete, _strategy(_encode(space, d), c.sigma0, c.popsize, np.random.default_rng(s)))
-            for d, s in zip(starts, streams)
+            (d.discrete, _strategy(_encode(space, d), sigma, c.popsize, np.random.default_rng(s)))
+            for d, sigma, s in zip(starts, sigmas, streams)
         ]
 
         for g in range(plan.generations):
@@ -210,5 +242,6 @@ class CMAES(Optimizer):
             info={
                 "restarts": plan.restarts, "generations": plan.generations, "popsize": c.popsize,
                 "screen": plan.screen, "sigma0": c.sigma0, "backend": backend, "warmup_seconds": warmup_seconds,
+                "sigmas": [float(v) for v in sigmas], "proposals": None if proposals is None else len(proposals),
             },
         )

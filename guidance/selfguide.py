@@ -33,16 +33,15 @@ simulator gradient.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Mapping
 
 import torch
 
-from tt.baselines.problem import Problem, Result
+from tt.baselines.problem import Problem
 from tt.dit.sampling import GuideFn
 from tt.dit.tasks import ROBOT
-from tt.guidance.zeroth import Decoder, GuideContext, SamplerConfig, ZerothOrder, learned_result
+from tt.guidance.zeroth import Decoder, Generation, GuideContext, SamplerConfig, ZerothOrder
 
 
 # ------------------------------------------------------------------------------ scales
@@ -194,9 +193,10 @@ class DynamicsSelfGuidance(ZerothOrder):
     def __init__(self, config: DGSConfig = DGSConfig(), *, model=None, decoder: Decoder | None = None):
         super().__init__(config, model=model, decoder=decoder)
 
-    def optimize(self, problem: Problem) -> Result:
+    def generate(self, problem: Problem) -> tuple[Generation, Decoder, dict]:
+        """As `ZerothOrder.generate`, with the guidance hook (info also holds its statistics
+        and, under "rollouts", the simulator-gradient rollouts it ran)."""
         c: DGSConfig = self.config
-        start = time.perf_counter()
         sampler, decoder, cfg, n = self._setup(problem)
         scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions))
         sim = None
@@ -210,12 +210,11 @@ class DynamicsSelfGuidance(ZerothOrder):
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
                           placement=c.placement, chunk=c.chunk, guidance=guidance)
-        ranking = self._rank(gen, decoder)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement, "scale": scale,
-                "sim_grad_weight": c.sim_grad_weight, **summary}
-        return learned_result(self.name, problem, gen, ranking, time.perf_counter() - start, rollouts=rollouts, info=info)
+                "sim_grad_weight": c.sim_grad_weight, **summary, "rollouts": rollouts}
+        return gen, decoder, info
 
 
 __all__ = ["DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]

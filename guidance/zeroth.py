@@ -312,14 +312,21 @@ class Ranking:
         return None
 
 
-def rank_candidates(objective: np.ndarray, batch, decoder: Decoder, *, decode: str = "best") -> Ranking:
-    """Rank by predicted objective (NaN last), decode, move failed decodes last (see module)."""
+def rank_candidates(objective: np.ndarray, batch, decoder: Decoder, *, decode: str = "best",
+                    limit: int | None = None) -> Ranking:
+    """Rank by predicted objective (NaN last), decode, move failed decodes last (see module).
+
+    limit: with decode="all", stop once this many candidates decoded (None: all of them);
+    decode="best" is limit 1."""
     obj = np.where(np.isfinite(objective), objective, -np.inf)
     order = [int(i) for i in np.argsort(-obj, kind="stable")]
+    want = 1 if decode == "best" else limit
     decoded: dict[int, Decoded] = {}
+    successes = 0
     for i in order:
         decoded[i] = decoder(batch, i)
-        if decode == "best" and decoded[i].design is not None:
+        successes += decoded[i].design is not None
+        if want is not None and successes >= want:
             break
     ok = [i for i in order if i not in decoded or decoded[i].design is not None]
     failed = [i for i in order if i in decoded and decoded[i].design is None]
@@ -398,19 +405,29 @@ class ZerothOrder(Optimizer):
             decoder = self._decoders.setdefault(problem.space, DesignDecoder(get_space(problem.space)))
         return sampler, decoder, get_reward(problem.reward, problem.space), c.samples or problem.budget
 
-    def _rank(self, gen: Generation, decoder: Decoder) -> Ranking:
+    def rank(self, gen: Generation, decoder: Decoder, *, limit: int | None = None) -> Ranking:
+        """The candidates of `gen` ranked and decoded: per the config's decode policy, or,
+        with `limit`, until `limit` of them decoded."""
         batch = embodiment_batch(self._trained.layout, self._trained.normalizer, gen.tokens)
+        if limit is not None:
+            return rank_candidates(gen.objective, batch, decoder, decode="all", limit=limit)
         return rank_candidates(gen.objective, batch, decoder, decode=self.config.decode)
 
-    def optimize(self, problem: Problem) -> Result:
+    def generate(self, problem: Problem) -> tuple[Generation, Decoder, dict]:
+        """Sample and score the problem's n candidates: (generation, the decoder of the
+        problem's space, what the result's info records about the sampling)."""
         c = self.config
-        start = time.perf_counter()
         sampler, decoder, cfg, n = self._setup(problem)
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
                           placement=c.placement, chunk=c.chunk)
-        ranking = self._rank(gen, decoder)
+        return gen, decoder, {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement}
+
+    def optimize(self, problem: Problem) -> Result:
+        start = time.perf_counter()
+        gen, decoder, info = self.generate(problem)
+        ranking = self.rank(gen, decoder)
         return learned_result(self.name, problem, gen, ranking, time.perf_counter() - start,
-                              info={"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement})
+                              rollouts=int(info.pop("rollouts", 0)), info=info)
 
 
 __all__ = [

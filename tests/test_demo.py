@@ -95,13 +95,15 @@ def test_demo_runs_the_learned_methods_and_validates_their_winners(tmp_path, mon
     from tt.sim.designs import get_space
     from tt.sim.motions import for_space, get_motion
 
-    rows, lines, saved = _demo(tmp_path, monkeypatch, NominalDecoder, tiny_checkpoint, ("random", "zeroth", "dgs"))
-    assert [r["name"] for r in rows] == ["Random", "Zeroth", "DGS"]
+    rows, lines, saved = _demo(tmp_path, monkeypatch, NominalDecoder, tiny_checkpoint,
+                               ("random", "zeroth", "dgs", "zeroth-sim"))
+    assert [r["name"] for r in rows] == ["Random", "Zeroth", "DGS", "Zeroth + sim"]
     assert any(line.startswith(f"checkpoint {tiny_checkpoint}") for line in lines)
     want = summary_row(evaluate_designs([get_space("viperx").nominal()], for_space([get_motion("toss")], "viperx"),
                                         "tracking", backend="mujoco").metrics, 0)
     for row in rows[1:]:
-        assert row["rollouts"] == 0 and row["seconds"] > 0
+        # The model-only methods run no rollout; the hybrid checks its 2 samples on the motion.
+        assert row["rollouts"] == (2 if row["name"] == "Zeroth + sim" else 0) and row["seconds"] > 0
         for key in ("pos_err", "orn_err", "survival_pct", "reward"):
             assert row[key] == pytest.approx(want[key], rel=1e-6), key
     assert math.isfinite(rows[0]["reward"])
@@ -124,7 +126,7 @@ def test_demo_without_a_shipped_checkpoint_says_so_and_runs_the_baselines(tmp_pa
     lines: list[str] = []
     rows = run_demo(DemoConfig(budget=4, methods=("random", "zeroth", "dgs"), out=tmp_path / "demo"), echo=lines.append)
     assert [r["name"] for r in rows] == ["Random"]
-    assert any(line.startswith("Zeroth-Order and Self-Guidance skipped: no shipped DiT checkpoint") for line in lines)
+    assert any(line.startswith("the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped: no shipped DiT checkpoint") for line in lines)
 
 
 def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, tiny_checkpoint):

@@ -284,7 +284,9 @@ def optimize(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
     reward: str = typer.Option("tracking", help="Reward name."),
-    method: str = typer.Option("cmaes", help="random | cmaes."),
+    method: str = typer.Option("cmaes", help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim (the hybrids: the model proposes, the batched simulator verifies; cmaes --init model is the third)."),
+    init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts CMA-ES from the model's samples (screen and step sizes) instead of random designs."),
+    verify: Optional[int] = typer.Option(None, help="zeroth-sim/dgs-sim: candidates (best predicted first) the simulator checks (default: all --samples)."),
     budget: int = typer.Option(60, help="Candidate designs per motion."),
     seed: int = typer.Option(0, help="Random seed."),
     popsize: int = typer.Option(5, help="CMA-ES population size."),
@@ -292,9 +294,9 @@ def optimize(
     sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
     backend: Optional[str] = typer.Option(None, help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco (default: warp, or mujoco for spaces with contacts: quadruped)."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="zeroth/dgs: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
-    samples: Optional[int] = typer.Option(None, help="zeroth/dgs: candidates to sample (default: --budget)."),
-    num_steps: int = typer.Option(100, help="zeroth/dgs: DDIM steps."),
+    checkpoint: Optional[Path] = typer.Option(None, help="learned methods: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
+    samples: Optional[int] = typer.Option(None, help="learned methods: candidates to sample (default: --budget; cmaes --init model: its screen size)."),
+    num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -303,31 +305,48 @@ def optimize(
 
     Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
     diffusion model's Zeroth-Order search and Dynamics Self-Guidance; they use the space's
-    shipped checkpoint unless --checkpoint is given)."""
+    shipped checkpoint unless --checkpoint is given), and the hybrids, in which the model
+    proposes and the batched simulator verifies: zeroth-sim and dgs-sim (--verify K of the
+    model's best candidates) and cmaes --init model (CMA-ES started from the model's samples)."""
     from rich.console import Console
 
     from tt.baselines import Problem
-    from tt.optimizers import get_optimizer
+    from tt.optimizers import LEARNED, get_optimizer
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, get_space
 
+    if init not in (None, "model"):
+        _fail(f"--init {init!r}: the only initialisation is 'model'")
+    if init is not None and method != "cmaes":
+        _fail(f"--init model initialises CMA-ES; it does not apply to --method {method}")
+    if verify is not None and method not in ("zeroth-sim", "dgs-sim"):
+        _fail(f"--verify applies to zeroth-sim and dgs-sim, not --method {method}")
+    if init == "model":
+        method = "cmaes-init-model"
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     try:
         options: dict = {}
-        if method == "cmaes":
+        if method in ("cmaes", "cmaes-init-model"):
             options = {"popsize": popsize, "generations": generations, "sequential": sequential}
-        elif method in ("zeroth", "dgs"):
+        if method in LEARNED:
             if checkpoint is None:
                 from tt.dit.checkpoint import default_checkpoint
 
                 checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
-            options = {"checkpoint": str(checkpoint), "samples": samples, "num_steps": num_steps}
-            if method == "dgs":
+            options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps)
+            if method in ("dgs", "dgs-sim"):
                 options.update(scale=scale, sim_grad_weight=sim_grad_weight)
+            if method in ("zeroth-sim", "dgs-sim"):
+                if verify is not None and verify > (samples or budget):
+                    raise ValueError(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can "
+                                     "only check sampled candidates")
+                options.update(verify=verify)
         opt = get_optimizer(method, **options)
         problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
         if method == "cmaes":
             opt.plan(problem)  # a budget below one population fails here, before any work
+        if method == "cmaes-init-model":
+            opt.cmaes.plan(problem)
     except (DesignError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     try:
@@ -339,6 +358,11 @@ def optimize(
     rows[0]["seconds"] = result.seconds
     console = Console()
     console.print(f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective {result.best_reward:.2f}")
+    if "verified_simulated" in result.info:
+        info = result.info
+        console.print(f"verified {info['verified']} of {info['samples']} sampled candidates in the batched simulator: "
+                      f"predicted vs simulated r = {info['predicted_vs_simulated_r']:.2f}; the simulator's pick was the "
+                      f"model's #{info['best_predicted_rank'] + 1}")
     console.print_json(json.dumps(sp.to_dict(result.best)))
     console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
     if json_out is not None:

@@ -9,7 +9,9 @@ Methods: Random and batched CMA-ES (budget candidates each, scored by tt's batch
 rollout), and, when the design space has a shipped DiT checkpoint
 (`tt.dit.checkpoint.default_checkpoint`) or one is given, the diffusion model's
 Zeroth-Order search and Dynamics Self-Guidance (`samples` candidates each, `num_steps` DDIM
-steps, ranked by the model's own reward prediction: no simulator runs). Without a
+steps, ranked by the model's own reward prediction: no simulator runs) and the hybrid
+Zeroth + sim (the same samples, every one checked in one batched rollout, the simulated
+best wins; `tt.guidance.hybrid`). Without a
 checkpoint the learned methods are skipped and the output says why; a learned method none
 of whose candidates decodes to a design of the space gets a "no design" row.
 
@@ -34,8 +36,9 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-#: Methods that sample the diffusion model (need a checkpoint).
-LEARNED = ("zeroth", "dgs")
+#: Methods that sample the diffusion model (need a checkpoint); zeroth-sim is the hybrid
+#: (the model proposes, the batched simulator verifies every sample).
+LEARNED = ("zeroth", "dgs", "zeroth-sim")
 #: Every method the demo knows, in the order it runs them.
 ALL_METHODS = ("random", "cmaes") + LEARNED
 
@@ -93,7 +96,7 @@ def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
     try:
         path = default_checkpoint(config.space)
     except NoCheckpointError as e:
-        return None, f"Zeroth-Order and Self-Guidance skipped: {e}"
+        return None, f"the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped: {e}"
     return path, f"shipped checkpoint {path.name}"
 
 
@@ -123,16 +126,21 @@ def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None
 
         if learned is None:
             raise ValueError(f"method {method!r} needs a DiT checkpoint")
-        if method == "zeroth":
-            return ZerothOrder(SamplerConfig(samples=config.samples, num_steps=config.num_steps),
-                               model=learned.trained, decoder=learned.decoder)
+        if method in ("zeroth", "zeroth-sim"):
+            zeroth = ZerothOrder(SamplerConfig(samples=config.samples, num_steps=config.num_steps),
+                                 model=learned.trained, decoder=learned.decoder)
+            if method == "zeroth":
+                return zeroth
+            from tt.guidance.hybrid import SimVerified
+
+            return SimVerified(zeroth)
         return DynamicsSelfGuidance(DGSConfig(samples=config.samples, num_steps=config.num_steps),
                                     model=learned.trained, decoder=learned.decoder)
     return get_optimizer(method)
 
 
 #: Row names, the paper's (CMA-ES is tt's batched CMA-ES; DGS is Dynamics Self-Guidance).
-LABELS = {"random": "Random", "cmaes": "CMA-ES", "zeroth": "Zeroth", "dgs": "DGS"}
+LABELS = {"random": "Random", "cmaes": "CMA-ES", "zeroth": "Zeroth", "dgs": "DGS", "zeroth-sim": "Zeroth + sim"}
 
 
 def run_demo(config: DemoConfig, echo=print) -> list[dict]:
@@ -178,7 +186,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
             failures.append({"name": LABELS[method], "seconds": time.perf_counter() - start, "rollouts": 0,
                              "note": "no design decoded"})
             continue
-        kind = "predicted objective" if method in LEARNED else "objective"
+        kind = "predicted objective" if method in ("zeroth", "dgs") else "objective"
         echo(f"[{method}] {result.rollouts} rollouts, {result.seconds:.1f} s, {kind} {result.best_reward:.1f}")
         results.append(result)
         labels.append(LABELS[method])
