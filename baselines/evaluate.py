@@ -34,12 +34,12 @@ class Evaluation:
 
 def run_rollout(
     designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None,
-    progress: bool = False,
+    progress: bool = False, graph: bool | None = None,
 ) -> Episode:
     """Rollout of every design (or its built model) on every motion with `backend` (design-major worlds)."""
     from tt.sim.rollout import rollout
 
-    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress)
+    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress, graph=graph)
 
 
 def score_episode(
@@ -79,9 +79,10 @@ def evaluate_designs(
     backend: str = "warp",
     device: str | None = None,
     progress: bool = False,
+    graph: bool | None = None,
 ) -> Evaluation:
     """Roll out every design on every motion in one batch and score it with `reward`
-    (progress: a tqdm bar over the rollout)."""
+    (progress: a tqdm bar over the rollout; graph: CUDA graphs, see `tt.sim.rollout.rollout`)."""
     if not designs:
         raise ValueError("evaluate_designs needs at least one design")
     spaces = {d.space for d in designs}
@@ -97,7 +98,8 @@ def evaluate_designs(
     # Each design's model is built once, for the size and mass terms and, on "warp" (where a
     # second build is a visible share of a small batch's time), for the rollout too.
     models = [sp.model(d) for d in designs]
-    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress)
+    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
+                     graph=graph)
     r, m = score_episode(ep, designs, motions, reward, models=models)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=m, episode=ep)
 

@@ -204,6 +204,7 @@ def rollout(
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
+    graph: Optional[bool] = typer.Option(None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
     metrics per motion and the world-steps per second."""
@@ -240,7 +241,7 @@ def rollout(
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
     try:
-        ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True)
+        ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, graph=graph)
     except ValueError as e:
         _fail(str(e))
     seconds = time.perf_counter() - start
