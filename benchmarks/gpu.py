@@ -170,8 +170,11 @@ def run_rollout(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
             lines.append(f"| {name} | {'on' if graph else 'off'} | " + " | ".join(cells) + " |")
     note = (f"\nViperX nominal design on `{motion.name}` cut to {T} control steps ({substeps} physics steps each), "
             "closed loop (DiffIK + physics), one batch per N; world-steps/s = N x physics steps / wall time, "
-            "compile excluded, model building and start posture included. mjwarp: MuJoCo-Warp physics with tt's "
-            "batched IK kernel; graph on = each control step's physics replayed as one captured graph.\n")
+            "compile excluded, model building and start posture included. warp: `rollout_tree` with one model entry "
+            "that every world reads; graph on = the whole rollout replayed as one captured graph. mjwarp: "
+            "`mjwarp_rollout` as tt runs it (MuJoCo-Warp physics, tt's batched IK kernel, whose tree model is built "
+            "per world in Python: a visible share at large N); graph on = each control step's physics replayed "
+            "as one captured graph.\n")
     if skipped:
         note += f"\nNot run (section budget): {', '.join(skipped)}.\n"
     return "\n".join(lines) + "\n" + note

@@ -10,7 +10,8 @@
 # tt itself goes in editable with --no-deps. A machine that can reach PyPI needs none of that:
 # there `pip install -e '.[test]' -c constraints.txt` (with a CUDA torch) does it, and the script
 # uses what is installed. When the pieces exceed one call's carry (64 MiB with the repo), carry
-# them over consecutive `stage` calls while the machine stays warm, the last call being `run`.
+# them over consecutive `stage` calls while the machine stays warm (it is kept about 30 s after a
+# call), the last call being `run`; each call names `.whl` in `carry`.
 #
 # Writes to $OUT (at most 8 files of <= 16 MiB): gpu.md (benchmark), gpu.log, train.log,
 # loss.csv, viperx_mini_online_ema.pt (EMA weights, normaliser, config; no optimizer state).
