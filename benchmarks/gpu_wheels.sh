@@ -2,8 +2,8 @@
 # Prepare, on the CPU machine, the wheels `benchmarks/gpu_call.sh` installs on a GPU machine that
 # cannot reach a package index (the H200 lent to tt's sessions has Python 3.12 and its own CUDA
 # torch, but no Warp, MuJoCo, MuJoCo-Warp, Newton, mink, zarr or cma). Versions are the pins of
-# constraints.txt; torch and numpy stay the machine's. Files land in .whl/ (add `/.whl/` to
-# .git/info/exclude), split into pieces of at most $PIECE bytes, because one call carries at most
+# constraints.txt; torch and numpy stay the machine's. Files land in .whl/ (git-ignored; a
+# call names it in `carry`), split into pieces of at most $PIECE bytes, because one call carries at most
 # 64 MiB of working tree (the tracked repo is ~30 MB of it) and warp-lang's wheel alone is 149 MB:
 # carry them over several calls with `gpu_call.sh stage` (see there).
 set -euo pipefail
