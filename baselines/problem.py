@@ -19,7 +19,7 @@ import numpy as np
 
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
-from tt.sim.rollout import BACKENDS as _ROLLOUT_BACKENDS
+from tt.sim.backends import BACKENDS as _ROLLOUT_BACKENDS
 
 #: Rollout backends an optimizer may evaluate candidates with (those `tt.sim.rollout` has).
 BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)

@@ -63,8 +63,12 @@ except ImportError:  # run as a module from the repository root
 RESULTS = Path(__file__).parent / "results"
 SPACE = "viperx"
 RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
-METHODS = (RANDOM, CMAES_B, ZEROTH, DGS)
-LEARNED = (ZEROTH, DGS)
+ZEROTH_SIM, CMAES_INIT = "Zeroth + sim", "CMA-ES init model"
+#: The baselines again, at the hybrids' wall time (part "hybrid").
+RANDOM_T, CMAES_T = "Random (= time)", "CMA-ES batched (= time)"
+METHODS = (RANDOM, CMAES_B, ZEROTH, DGS, ZEROTH_SIM, CMAES_INIT, RANDOM_T, CMAES_T)
+LEARNED = (ZEROTH, DGS, ZEROTH_SIM, CMAES_INIT)
+HYBRIDS = (ZEROTH_SIM, CMAES_INIT)
 SINGLE, MULTI = "single trajectory", "multi trajectory"
 
 #: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
@@ -100,15 +104,22 @@ def load_learned(checkpoint: Path) -> Learned:
 
 
 def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
-    if method == RANDOM:
+    if method in (RANDOM, RANDOM_T):
         return RandomSearch()
-    if method == CMAES_B:
+    if method in (CMAES_B, CMAES_T):
         return CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
+    from tt.guidance.hybrid import ModelInitCMAES, SimVerified
     from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
     if method == ZEROTH:
         return ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder)
+    if method == ZEROTH_SIM:
+        return SimVerified(ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder))
+    if method == CMAES_INIT:
+        return ModelInitCMAES(ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained,
+                                          decoder=learned.decoder),
+                              CMAESConfig(popsize=args.popsize, generations=args.generations))
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder)
@@ -145,6 +156,20 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
         records.append(rec)
         print(json.dumps(rec), flush=True)
     return records
+
+
+def run_hybrid(setting: str, motions: tuple, seed: int, args, learned: Learned) -> list[dict]:
+    """The hybrids and the baselines at equal rollouts on one problem, then the baselines at
+    the budget that takes the slower hybrid's wall time (scaled from their equal-rollout time)."""
+    b = args.hybrid_budget
+    first = run_group("hybrid", setting, motions, "tracking", seed,
+                      [(ZEROTH_SIM, b, 0.0), (CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)], args, learned)
+    t_hybrid = max(r["seconds"] for r in first if r["method"] in HYBRIDS)
+    again = []
+    for base, timed in ((RANDOM, RANDOM_T), (CMAES_B, CMAES_T)):
+        t_base = next(r["seconds"] for r in first if r["method"] == base)
+        again.append((timed, max(args.popsize, int(round(b * t_hybrid / max(t_base, 1e-9)))), 0.0))
+    return first + run_group("hybrid", setting, motions, "tracking", seed, again, args, learned)
 
 
 # ------------------------------------------------------------------------------ statistics
@@ -254,6 +279,56 @@ def plot_lambda(records: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def hybrid_section(records: list[dict], plot: Path) -> str:
+    """The hybrids against Random and CMA-ES at equal rollouts and at equal wall time, per
+    setting and reward, with paired differences (hybrid minus baseline, per seed) and a
+    time-vs-reward plot."""
+    plt = _plt()
+    groups = list(dict.fromkeys((r["setting"], r["reward_name"]) for r in records))
+    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.5), squeeze=False)
+    text = ["## Hybrids: the model proposes, the batched simulator verifies\n",
+            "Random / CMA-ES at the hybrids' rollout budget (equal rollouts), and again at the budget that takes the "
+            "hybrid's wall time (equal wall time: the equal-rollout run's time scaled to the slower hybrid's, per seed). "
+            "Paired differences are the hybrid's validated reward minus the baseline's, seed by seed (95% CI).\n",
+            "![hybrids](codesign_hybrid.png)\n"]
+    for ax, (setting, reward) in zip(axes[0], groups):
+        sub = [r for r in records if r["setting"] == setting and r["reward_name"] == reward]
+        rows = []
+        for method in (RANDOM, CMAES_B, RANDOM_T, CMAES_T, ZEROTH_SIM, CMAES_INIT):
+            mr = [r for r in sub if r["method"] == method]
+            if not mr:
+                continue
+            budgets = sorted({r["n"] for r in mr})
+            rows.append(aggregate(mr, method, reward, {"n": ", ".join(map(str, budgets)) if len(budgets) < 4 else
+                                                       f"{budgets[0]}..{budgets[-1]}"}))
+            t = mean_ci([r["seconds"] for r in mr])
+            v = mean_ci([r["reward"] for r in _ok(mr)])
+            ax.errorbar([t[0]], [v[0]], xerr=[[0 if not math.isfinite(t[1]) else t[1]]],
+                        yerr=[[0 if not math.isfinite(v[1]) else v[1]]], fmt="o" if method in HYBRIDS else "s",
+                        capsize=3, label=method)
+        ax.set_xscale("log")
+        ax.set_xlabel("optimize wall time (s), this CPU")
+        ax.set_ylabel("validated reward (oracle)")
+        ax.set_title(f"{setting}, {reward}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        seeds = sorted({r["seed"] for r in sub})
+        text.append(f"\n### {setting}, {reward} (seeds {', '.join(map(str, seeds))})\n\n"
+                    + markdown_table(rows, columns(reward, [("n", "budget / samples")]), first=("name", "method")) + "\n")
+        for hybrid_ in HYBRIDS:
+            for base in (RANDOM_T, CMAES_T, RANDOM, CMAES_B):
+                d = paired(sub, (hybrid_, None), (base, None), "reward")
+                if d:
+                    m, h = mean_ci(d)
+                    verdict = "above 0" if math.isfinite(h) and m - h > 0 else ("below 0" if math.isfinite(h) and m + h < 0
+                                                                               else "includes 0")
+                    text.append(f"- {hybrid_} minus {base}: {_fmt(m, h)} over {len(d)} seeds (95% CI {verdict})")
+    fig.tight_layout()
+    fig.savefig(plot, dpi=110)
+    plt.close(fig)
+    return "\n".join(text) + "\n"
 
 
 # ------------------------------------------------------------------------------ report
@@ -418,6 +493,9 @@ def report(records: list[dict], info: dict, out: Path) -> str:
                              first=("name", "")) + "\n"
         )
         plot_lambda(lam, out.parent / "codesign_lambda.png")
+    hybrid = [r for r in records if r["part"] == "hybrid"]
+    if hybrid:
+        sections.append(hybrid_section(hybrid, out.parent / "codesign_hybrid.png"))
     if tables:
         plot_method_bars({k: _ok(v) for k, v in tables.items()}, out.with_suffix(".png"), order=METHODS)
     goal = targets(tables, scaling, info)
@@ -486,7 +564,7 @@ def _ints(text: str) -> list[int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
-    ap.add_argument("--parts", default="table,scaling,lambda", help="comma-separated: table, scaling, lambda")
+    ap.add_argument("--parts", default="table,scaling,lambda", help="comma-separated: table, scaling, lambda, hybrid")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
     ap.add_argument("--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none")
@@ -508,6 +586,9 @@ def main() -> None:
     ap.add_argument("--lambda-seeds", type=int, default=2)
     ap.add_argument("--lambda-n", type=int, default=4)
     ap.add_argument("--lambda-start", type=int, default=15, help="first guided step with the simulator gradient")
+    ap.add_argument("--hybrid-seeds", type=int, default=9, help="hybrid: runs per setting")
+    ap.add_argument("--hybrid-budget", type=int, default=64,
+                    help="hybrid: zeroth-sim samples (all verified) and cmaes-init-model / baseline rollout budget")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
     ap.add_argument("--from-log", type=Path, nargs="+", default=None,
@@ -526,9 +607,9 @@ def main() -> None:
 
     checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE)
     parts = [p for p in args.parts.split(",") if p]
-    unknown = sorted(set(parts) - {"table", "scaling", "lambda"})
+    unknown = sorted(set(parts) - {"table", "scaling", "lambda", "hybrid"})
     if unknown:
-        sys.exit(f"--parts: unknown {unknown}; valid: table, scaling, lambda")
+        sys.exit(f"--parts: unknown {unknown}; valid: table, scaling, lambda, hybrid")
     rewards = list(REWARDS) if args.rewards == "all" else [r for r in args.rewards.split(",") if r]
     multi_rewards = list(REWARDS) if args.multi_rewards == "all" else [r for r in args.multi_rewards.split(",") if r]
     # The tracking reward first, then the others (a --max-minutes cut drops the others first).
@@ -537,7 +618,7 @@ def main() -> None:
 
     val = for_space(motion_set("val", arms=1), SPACE)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
-    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds)
+    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds)
     single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
     step = max(1, len(val) // args.multi_motions)
     multi_motions = tuple(val[::step][: args.multi_motions])
@@ -617,7 +698,17 @@ def main() -> None:
         for i in range(args.lambda_seeds):
             entries = [(DGS, args.lambda_n, float(x)) for x in args.lambdas.split(",") if x]
             jobs.append((1, ("lambda", SINGLE, (single_motions[i],), "tracking", i, entries, f"lambda seed {i}")))
+    if "hybrid" in parts:
+        for i in range(args.hybrid_seeds):
+            for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
+                jobs.append((1, ("hybrid", setting, motions, "tracking", i, None, f"hybrid {setting} seed {i}")))
     for _, job in sorted(jobs, key=lambda j: j[0]):
+        if job[0] == "hybrid":
+            if over():
+                skipped.append(job[-1])
+                continue
+            records.extend(run_hybrid(job[1], job[2], job[4], args, learned))
+            continue
         group(*job)
 
     info["wall_seconds"] = time.perf_counter() - start

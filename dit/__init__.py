@@ -4,7 +4,7 @@ from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
 from tt.dit.data import EpisodeTokens
 from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
-from tt.dit.layout import PAD_VALUE, Layout, LayoutError, Role, TokenSpec, TokenTensors, layout_from_schema
+from tt.dit.layout import Layout, LayoutError, TokenSpec, layout_from_schema
 from tt.dit.model import DIT_CONFIGS, DiTConfig, RoboDiT, get_config
 from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, SampleResult, sample
@@ -15,7 +15,6 @@ __all__ = [
     "CONTROL",
     "DIT_CONFIGS",
     "EMA",
-    "PAD_VALUE",
     "ROBOT",
     "CosineDDIM",
     "DiTConfig",
@@ -25,12 +24,10 @@ __all__ = [
     "LayoutError",
     "Normalizer",
     "RoboDiT",
-    "Role",
     "SampleResult",
     "TaskMasks",
     "TaskSpec",
     "TokenSpec",
-    "TokenTensors",
     "TrainConfig",
     "TrainResult",
     "TrainedModel",

@@ -46,7 +46,9 @@ import numpy as np
 import torch
 
 from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
+from tt.dit.layout import Layout, LayoutError
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, TaskSpec
 from tt.sim.controller import IKConfig, check_fixed_base
@@ -397,27 +399,10 @@ class ArmWorlds:
 
 # ------------------------------------------------------------------------------ the loop
 def _models(designs) -> tuple[list[mujoco.MjModel], tuple[str, ...]]:
-    from tt.sim.controller import ee_site_names
-    from tt.sim.designs import Design, get_space
+    from tt.sim.backends.base import resolve_designs
 
-    if len(designs) == 0:
-        raise ValueError("designs is empty; a closed-loop rollout needs at least one design")
-    if all(isinstance(d, Design) for d in designs):
-        spaces = {d.space for d in designs}
-        if len(spaces) > 1:
-            raise ValueError(f"designs mix design spaces {sorted(spaces)}; run one space per call")
-        sp = get_space(spaces.pop())
-        if sp.has_contacts:
-            raise ValueError(f"design space {sp.name!r} has contacts; the closed-loop rollout runs contact-free arms only")
-        return [sp.model(d) for d in designs], sp.ee_sites()
-    for i, m in enumerate(designs):
-        if not isinstance(m, mujoco.MjModel):
-            raise TypeError(f"designs[{i}] is a {type(m).__name__}; expected tt Designs or mujoco.MjModels (not mixed)")
-    sites = ee_site_names(designs[0])
-    for i, m in enumerate(designs):
-        if ee_site_names(m) != sites:
-            raise ValueError(f"designs[{i}] has end effectors {ee_site_names(m)}, designs[0] has {sites}")
-    return list(designs), sites
+    robots = resolve_designs(designs, who="the model's closed-loop rollout", contacts=False)
+    return list(robots.models), robots.ee_sites
 
 
 def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, config: IKConfig = IKConfig(),
@@ -615,7 +600,7 @@ class ModelPolicy:
         self._actuator = act.to(ctx.target_pos.device)  # (D, P): MuJoCo actuator of each control slot
         self.generator = torch.Generator(device=dev).manual_seed(int(self.config.seed))
 
-    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenTensors, int]:
+    def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenBatch, int]:
         """Normalised control-task tokens of worlds `worlds` at control step `step`, and the
         window slot whose command is executed (1, or 0 at step 0)."""
         from tt.tokens.episodes import episode_tokens
@@ -667,7 +652,7 @@ class ModelPolicy:
             values[s.name] = norm.normalize_values(s.name, v.reshape(n, S * P, s.dim), m.reshape(n, S * P))
             ids[s.name] = i.reshape(n, S * P, -1)
             mask[s.name] = m.reshape(n, S * P)
-        return TokenTensors(values, ids, mask), slot
+        return TokenBatch(values, ids, mask), slot
 
     def __call__(self, step: int, worlds: torch.Tensor, state: StepState) -> torch.Tensor:
         from tt.dit.ddim import CosineDDIM

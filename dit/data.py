@@ -23,7 +23,9 @@ from typing import Mapping, Protocol
 import numpy as np
 import torch
 
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenSpec, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES, Role
+from tt.dit.layout import Layout, LayoutError, TokenSpec
 from tt.tokens.normalize import Normalizer
 
 #: Format tag of `EpisodeTokens` files.
@@ -40,7 +42,7 @@ class TokenSource(Protocol):
         """Normalisation statistics over the whole dataset."""
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenTensors:
+               part: tuple[int, int] | None = None) -> TokenBatch:
         """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "consecutive".
         part: (a, b): read only windows a .. b - 1 of the n drawn (a data-parallel rank's
         share); the generator advances as for all n."""
@@ -175,7 +177,7 @@ class EpisodeTokens:
             return start[:, None] + torch.arange(steps)[None, :]
         raise ValueError(f"window kind {kind!r} does not exist; kinds: random, consecutive")
 
-    def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenTensors:
+    def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenBatch:
         """Raw tokens of windows: episodes (n,) long, step_index (n, steps) from `window_steps`."""
         n, steps = step_index.shape
         time = step_index  # (n, steps): time IDs are episode step indices
@@ -193,10 +195,10 @@ class EpisodeTokens:
                 values[name] = self.static_values[name][episodes]
                 ids[name] = self.static_ids[name][episodes]
                 mask[name] = self.static_mask[name][episodes]
-        return TokenTensors(values, ids, mask)
+        return TokenBatch(values, ids, mask)
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenTensors:
+               part: tuple[int, int] | None = None) -> TokenBatch:
         """n windows of uniformly drawn episodes (raw, unnormalised tokens); part: (a, b) reads
         windows a .. b - 1 of them only (the draws are those of all n)."""
         episodes = torch.randint(0, len(self), (n,), generator=generator)

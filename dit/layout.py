@@ -1,53 +1,32 @@
-"""What the DiT sees: token specs (type, width, IDs, role, padded length) and token tensors.
+"""What the DiT sees: token specs (type, width, IDs, role, padded length) and layouts.
 
 The model is generic over a `Layout`, a tuple of `TokenSpec`s, so it works for any schema;
 `layout_from_schema` builds the layout of the RoboToken schema (`tt.tokens.schema`) for a
 design space's largest robot. Sequences are concatenated in layout order, each type padded
 to its `length`.
 
-Roles decide what each task does with a type:
+Each spec's `Role` (`tt.tokens.schema.Role`: embodiment, dynamics, action, condition)
+decides what each diffusion task does with the type; see `Role` and `tt.dit.tasks`.
 
-* ``embodiment``: time-invariant robot tokens (links, joints, actuators); diffused by the
-  motion-to-robot task, clean for control.
-* ``dynamics``: per-step state tokens (track-link poses, joint and actuator observations);
-  diffused by motion-to-robot; for control the window's earliest step is the current
-  state (clean) and later steps are diffused (or left out, see `tt.dit.tasks`).
-* ``action``: per-step controller commands; diffused by both tasks.
-* ``condition``: target poses; never noised.
-
-Token tensors follow `tt.tokens.batch.TokenBatch`: ``values[type]`` (B, L, D) float,
-``ids[type]`` (B, L, K) int64 in the order of ``spec.ids``, ``mask[type]`` (B, L) bool,
-True for a real token and False for padding. Per-step types are time-major: the
-``per_step`` tokens of the window's first step, then those of its second, and so on.
-Time IDs are control-step indices within the episode (as `tt.tokens.episodes` writes
-them), so the time table must have more rows than the longest episode has steps.
+Tokens travel as `tt.tokens.batch.TokenBatch` of torch tensors: ``values[type]`` (B, L, D)
+float, ``ids[type]`` (B, L, K) int64 in the order of ``spec.ids``, ``mask[type]`` (B, L)
+bool, True for a real token and False for padding; `Layout.check` says whether a batch fits.
+Per-step types are time-major: the ``per_step`` tokens of the window's first step, then
+those of its second, and so on. Time IDs are control-step indices within the episode (as
+`tt.tokens.episodes` writes them), so the time table must have more rows than the longest
+episode has steps.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Mapping
 
 import torch
 
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES, Role
 from tt.kernels.errors import TTError
-
-#: Value of every feature of a padding token in normalised space (tt.tokens.schema.PAD_VALUE).
-PAD_VALUE = -1.0
-
-
-class Role(str, Enum):
-    """What a token type is to the diffusion tasks (see the module docstring)."""
-
-    EMBODIMENT = "embodiment"
-    DYNAMICS = "dynamics"
-    ACTION = "action"
-    CONDITION = "condition"
-
-
-#: Roles with a time ID, tokenized once per control step.
-STEP_ROLES = (Role.DYNAMICS, Role.ACTION, Role.CONDITION)
 
 
 class LayoutError(TTError):
@@ -160,59 +139,19 @@ class Layout:
         return Layout(tuple(TokenSpec.from_dict(s) for s in d["specs"]), {k: int(v) for k, v in d["id_sizes"].items()},
                       int(d["steps"]), None if d["schema_version"] is None else int(d["schema_version"]))
 
-
-@dataclass
-class TokenTensors:
-    """Tokens of B sequences laid out for the model (see the module docstring for shapes).
-
-    Field names and conventions match `tt.tokens.batch.TokenBatch`, so a TokenBatch of
-    torch tensors can be passed wherever a TokenTensors is expected.
-    """
-
-    values: dict[str, torch.Tensor]
-    ids: dict[str, torch.Tensor]
-    mask: dict[str, torch.Tensor]
-
-    def __len__(self) -> int:
-        return int(next(iter(self.values.values())).shape[0])
-
-    @property
-    def device(self) -> torch.device:
-        return next(iter(self.values.values())).device
-
-    def to(self, device: str | torch.device) -> "TokenTensors":
-        return TokenTensors({k: v.to(device) for k, v in self.values.items()}, {k: v.to(device) for k, v in self.ids.items()},
-                            {k: v.to(device) for k, v in self.mask.items()})
-
-    def select(self, index) -> "TokenTensors":
-        """Sequences at `index` (slice, index tensor or boolean mask over B)."""
-        return TokenTensors({k: v[index] for k, v in self.values.items()}, {k: v[index] for k, v in self.ids.items()},
-                            {k: v[index] for k, v in self.mask.items()})
-
-    def clone(self) -> "TokenTensors":
-        return TokenTensors({k: v.clone() for k, v in self.values.items()}, {k: v.clone() for k, v in self.ids.items()},
-                            {k: v.clone() for k, v in self.mask.items()})
-
-    @staticmethod
-    def cat(parts: list["TokenTensors"]) -> "TokenTensors":
-        """Concatenate along B."""
-        names = list(parts[0].values)
-        return TokenTensors({k: torch.cat([p.values[k] for p in parts]) for k in names},
-                            {k: torch.cat([p.ids[k] for p in parts]) for k in names},
-                            {k: torch.cat([p.mask[k] for p in parts]) for k in names})
-
-    def check(self, layout: Layout, *, check_ids: bool = True) -> None:
-        """Raise `LayoutError` naming the first type whose shapes, dtypes or IDs do not fit `layout`.
+    def check(self, tokens: TokenBatch, *, check_ids: bool = True) -> None:
+        """Raise `LayoutError` naming the first type of `tokens` (torch) whose shapes, dtypes or IDs
+        do not fit this layout.
 
         The ID range check reads values back from the device; callers on a hot path
         check once per batch, not per diffusion step.
         """
-        missing = [n for n in layout.names if n not in self.values or n not in self.ids or n not in self.mask]
+        missing = [n for n in self.names if n not in tokens.values or n not in tokens.ids or n not in tokens.mask]
         if missing:
-            raise LayoutError(f"tokens lack values, ids or mask of types {missing}; the layout has {list(layout.names)}")
-        b = len(self)
-        for s in layout.specs:
-            v, i, m = self.values[s.name], self.ids[s.name], self.mask[s.name]
+            raise LayoutError(f"tokens lack values, ids or mask of types {missing}; the layout has {list(self.names)}")
+        b = len(tokens)
+        for s in self.specs:
+            v, i, m = tokens.values[s.name], tokens.ids[s.name], tokens.mask[s.name]
             if tuple(v.shape) != (b, s.length, s.dim):
                 raise LayoutError(f"values[{s.name!r}] has shape {tuple(v.shape)}, the layout needs {(b, s.length, s.dim)}")
             if tuple(i.shape) != (b, s.length, len(s.ids)):
@@ -225,9 +164,17 @@ class TokenTensors:
                 lo = i.amin(dim=(0, 1)).tolist()
                 hi = i.amax(dim=(0, 1)).tolist()
                 for k, kind in enumerate(s.ids):
-                    if lo[k] < 0 or hi[k] >= layout.id_sizes[kind]:
-                        raise LayoutError(f"ids[{s.name!r}] kind {kind!r} spans {lo[k]}..{hi[k]}; valid 0..{layout.id_sizes[kind] - 1}")
+                    if lo[k] < 0 or hi[k] >= self.id_sizes[kind]:
+                        raise LayoutError(f"ids[{s.name!r}] kind {kind!r} spans {lo[k]}..{hi[k]}; valid 0..{self.id_sizes[kind] - 1}")
 
+    def check_normalizer(self, normalizer) -> None:
+        """Raise `LayoutError` unless `normalizer` (a `tt.tokens.normalize.Normalizer`) has
+        statistics of the right width for every type of this layout."""
+        for s in self.specs:
+            if s.name not in normalizer.low:
+                raise LayoutError(f"normalisation statistics lack token type {s.name!r}")
+            if normalizer.low[s.name].shape != (s.dim,):
+                raise LayoutError(f"normalisation statistics of {s.name!r} have width {normalizer.low[s.name].shape}, layout dim {s.dim}")
 
 def slot_ids(spec: TokenSpec, slots: int, id_sizes: Mapping[str, int]) -> torch.Tensor:
     """Positional IDs (slots, K) of `slots` consecutive tokens of `spec` (of one control step
@@ -246,7 +193,7 @@ def slot_ids(spec: TokenSpec, slots: int, id_sizes: Mapping[str, int]) -> torch.
     return torch.stack(cols, -1)
 
 
-def with_slot_ids(layout: Layout, tokens: TokenTensors) -> TokenTensors:
+def with_slot_ids(layout: Layout, tokens: TokenBatch) -> TokenBatch:
     """`tokens` with every embodiment padding token carrying its slot's positional ID.
 
     The tokenizer writes ID 0 into padding slots, while real embodiment tokens carry their
@@ -263,7 +210,7 @@ def with_slot_ids(layout: Layout, tokens: TokenTensors) -> TokenTensors:
             continue
         slot = slot_ids(s, s.length, layout.id_sizes).to(tokens.ids[s.name].device)
         ids[s.name] = torch.where(tokens.mask[s.name].unsqueeze(-1), tokens.ids[s.name], slot)
-    return TokenTensors(tokens.values, ids, tokens.mask)
+    return TokenBatch(tokens.values, ids, tokens.mask, tokens.version)
 
 
 def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.device = "cpu"):
@@ -272,7 +219,7 @@ def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.dev
     as `with_slot_ids` gives training batches).
 
     normalizer: the model's `tt.tokens.normalize.Normalizer`; models: compiled MuJoCo models.
-    Returns (tokens, robots): `TokenTensors` of the layout's embodiment types, (N, L, D)
+    Returns (tokens, robots): a torch `TokenBatch` of the layout's embodiment types, (N, L, D)
     each, and the tokenizer's `RobotIndex` per robot. Raises LayoutError for a robot the
     layout cannot hold.
     """
@@ -289,7 +236,7 @@ def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.dev
     except ValueError as e:
         raise LayoutError(f"a robot does not fit the model's layout: {e}") from None
     values = {s.name: normalizer.normalize_values(s.name, padded.values[s.name].float(), padded.mask[s.name]) for s in static}
-    tokens = TokenTensors(values, {s.name: padded.ids[s.name] for s in static}, {s.name: padded.mask[s.name] for s in static})
+    tokens = TokenBatch(values, {s.name: padded.ids[s.name] for s in static}, {s.name: padded.mask[s.name] for s in static})
     return with_slot_ids(layout, tokens), emb.index
 
 
@@ -301,8 +248,7 @@ def layout_from_schema(counts: Mapping[str, int], *, steps: int = 8, max_time: i
     with count 0 or absent are left out). steps: control steps per window; max_time:
     number of time-ID rows, more than the longest episode's steps (1024: 20 s at 50 Hz).
 
-    Roles: schema EMBODIMENT -> embodiment, DYNAMICS -> dynamics except ``control`` ->
-    action, CONDITIONING -> condition. ID sizes come from the schema's bit widths.
+    Roles are the schema's; ID sizes come from the schema's bit widths.
     """
     from tt.tokens import schema as S
 
@@ -338,16 +284,8 @@ def layout_from_schema(counts: Mapping[str, int], *, steps: int = 8, max_time: i
 
 
 def schema_roles() -> dict[str, Role]:
-    """Role of every RoboToken type: schema EMBODIMENT -> embodiment, CONDITIONING ->
-    condition, DYNAMICS -> dynamics, except ``control`` (the commands) -> action."""
+    """Role of every RoboToken type (the schema's own: embodiment, dynamics, ``control`` ->
+    action, ``target_pose`` -> condition)."""
     from tt.tokens import schema as S
 
-    out = {}
-    for t in S.SCHEMA.types:
-        if t.role is S.Role.EMBODIMENT:
-            out[t.name] = Role.EMBODIMENT
-        elif t.role is S.Role.CONDITIONING:
-            out[t.name] = Role.CONDITION
-        else:
-            out[t.name] = Role.ACTION if t.name == "control" else Role.DYNAMICS
-    return out
+    return {t.name: t.role for t in S.SCHEMA.types}

@@ -124,12 +124,12 @@ def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.
 
 
 def _tensors(parts: list[dict]):
-    """Numpy window dicts (`EpisodeBlock.windows`) -> one `tt.dit.layout.TokenTensors`."""
-    from tt.dit.layout import TokenTensors
+    """Numpy window dicts (`EpisodeBlock.windows`) -> one `tt.tokens.batch.TokenBatch`."""
+    from tt.tokens.batch import TokenBatch
 
     names = list(parts[0]["values"])
     cat = lambda key, name, dt: torch.from_numpy(np.concatenate([p[key][name] for p in parts])).to(dt)  # noqa: E731
-    return TokenTensors({n: cat("values", n, torch.float32) for n in names}, {n: cat("ids", n, torch.int64) for n in names},
+    return TokenBatch({n: cat("values", n, torch.float32) for n in names}, {n: cat("ids", n, torch.int64) for n in names},
                         {n: cat("mask", n, torch.bool) for n in names})
 
 
@@ -207,7 +207,7 @@ class StoreTokenSource:
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
                part: tuple[int, int] | None = None):
-        """n raw windows (`tt.dit.layout.TokenTensors`), drawn with `generator` (CPU).
+        """n raw windows (`tt.tokens.batch.TokenBatch`), drawn with `generator` (CPU).
         part: (a, b): only windows a .. b - 1 of the n (a data-parallel rank's share): the
         random numbers drawn are those of all n, and only those windows are built."""
         if steps > self.shortest:
@@ -244,7 +244,7 @@ class EpisodeWindows(torch.utils.data.IterableDataset):
     Each epoch shuffles the blocks (seeded by seed and epoch), gives DataLoader worker w the
     blocks w, w + workers, ...; reads `shuffle_blocks` of them at a time, and yields their
     episodes' windows (`windows_per_episode` each) in random order in batches of `batch_size`
-    `tt.dit.layout.TokenTensors` (values (B, L, width), ids (B, L, k), mask (B, L)).
+    `tt.tokens.batch.TokenBatch` (values (B, L, width), ids (B, L, k), mask (B, L)).
     epochs: None streams forever. drop_last: drop each worker's last, smaller batch.
     """
 
@@ -319,7 +319,7 @@ def _identity(batch):
 
 def make_loader(path: str | Path, *, batch_size: int = 64, steps: int = 8, kind: str = "random", workers: int = 0,
                 seed: int = 0, epochs: int | None = 1, augment: SE2Augment | None = SE2Augment(), **kwargs) -> torch.utils.data.DataLoader:
-    """A DataLoader of `EpisodeWindows` batches (`tt.dit.layout.TokenTensors`); `workers`
+    """A DataLoader of `EpisodeWindows` batches (`tt.tokens.batch.TokenBatch`); `workers`
     processes read in parallel. Extra keyword arguments go to `EpisodeWindows`."""
     ds = EpisodeWindows(path, batch_size=batch_size, steps=steps, kind=kind, augment=augment, seed=seed, epochs=epochs, **kwargs)
     return torch.utils.data.DataLoader(ds, batch_size=None, num_workers=workers, collate_fn=_identity,

@@ -25,7 +25,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from tt.dit.layout import Layout, Role
+from tt.tokens.schema import Role
+from tt.dit.layout import Layout
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import torch
 
 from tt.dit.data import EpisodeTokens
-from tt.dit.layout import Layout, LayoutError, TokenTensors
+from tt.dit.layout import Layout, LayoutError
+from tt.tokens.batch import TokenBatch
 from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig
 from tt.tokens.normalize import Normalizer
 
@@ -131,7 +132,7 @@ class OnlineTokenSource:
         self._current = k
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenTensors:
+               part: tuple[int, int] | None = None) -> TokenBatch:
         """n raw windows from the buffer (refresh 0's if no step was started); part: see
         `tt.dit.data.EpisodeTokens.sample`. Every data-parallel rank generates the same
         refreshes (on its own device) and reads its part of the windows."""

@@ -33,7 +33,7 @@ from typing import Callable, Iterable, Mapping
 import torch
 
 from tt.dit.ddim import CosineDDIM
-from tt.dit.layout import TokenTensors
+from tt.tokens.batch import TokenBatch
 from tt.dit.model import RoboDiT
 from tt.dit.tasks import TaskSpec, output_types, task_masks
 
@@ -47,7 +47,7 @@ class SampleResult:
     the tokens that were diffused; x0_history: per step, the predicted clean tokens
     (detached), when requested."""
 
-    tokens: TokenTensors
+    tokens: TokenBatch
     updated: dict[str, torch.Tensor]
     x0_history: list[dict[str, torch.Tensor]] | None = None
 
@@ -67,7 +67,7 @@ def _guided_masks(guided, updated: dict[str, torch.Tensor]) -> dict[str, torch.T
     return {k: updated[k] for k in names}
 
 
-def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: CosineDDIM | None = None,
+def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: CosineDDIM | None = None,
            num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
            guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
            guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
@@ -84,7 +84,7 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
     given values are kept (inpainting, see the module docstring).
     """
     layout = model.layout
-    tokens.check(layout)
+    layout.check(tokens)
     scheduler = CosineDDIM(task.diffusion_steps) if scheduler is None else scheduler
     if scheduler.train_steps != task.diffusion_steps:
         raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
@@ -141,5 +141,5 @@ def sample(model: RoboDiT, tokens: TokenTensors, task: TaskSpec, *, scheduler: C
             x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, x[n].detach())
     for n, (m, x0_given) in given.items():
         x[n] = torch.where(m.unsqueeze(-1), x0_given, x[n])
-    out = TokenTensors({n: x[n].detach().to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
+    out = TokenBatch({n: x[n].detach().to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
     return SampleResult(out, updated, history)

@@ -30,7 +30,9 @@ import torch
 import torch.nn.functional as F
 
 from tt.dit.ddim import CosineDDIM
-from tt.dit.layout import Layout, Role, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import Role
+from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
 
 
@@ -89,7 +91,7 @@ class TaskMasks:
         return torch.cat([self.visible[n] for n in layout.names], dim=1)
 
 
-def window_start(layout: Layout, tokens: TokenTensors) -> torch.Tensor:
+def window_start(layout: Layout, tokens: TokenBatch) -> torch.Tensor:
     """Earliest time ID of each sequence's real per-step tokens, (B,) long (0 if it has none).
 
     Time IDs may be absolute control steps (`tt.tokens.episodes`) or window-relative; the
@@ -106,7 +108,7 @@ def window_start(layout: Layout, tokens: TokenTensors) -> torch.Tensor:
     return torch.where(start == big, torch.zeros_like(start), start)
 
 
-def task_masks(task: TaskSpec, layout: Layout, tokens: TokenTensors) -> TaskMasks:
+def task_masks(task: TaskSpec, layout: Layout, tokens: TokenBatch) -> TaskMasks:
     """Noise and visibility masks of `task` for `tokens` (time IDs and padding masks are read)."""
     noised, visible = {}, {}
     start = window_start(layout, tokens) if task.name == "control" else None
@@ -150,7 +152,7 @@ class NoisedInputs:
     time: torch.Tensor  # (B,) model time in (0, 1]
 
 
-def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenTensors,
+def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenBatch,
                  generator: torch.Generator | None = None, *, part: tuple[int, int] | None = None) -> NoisedInputs:
     """Draw a diffusion step per sample and noise the tokens `task` diffuses.
 

@@ -17,7 +17,8 @@ from typing import Mapping
 import torch
 
 from tt.dit.data import EpisodeTokens
-from tt.dit.layout import STEP_ROLES, Role, layout_from_schema
+from tt.tokens.schema import STEP_ROLES, Role
+from tt.dit.layout import layout_from_schema
 
 #: A small generic type set: name -> (dim, ids, role, tokens per robot or per step).
 TOY_TYPES: dict[str, tuple[int, tuple[str, ...], Role, int]] = {

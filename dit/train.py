@@ -292,7 +292,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             torch.manual_seed(config.seed)
             model = RoboDiT(layout, get_config(config.size))
         normalizer = episodes.fit_normalizer()
-    normalizer.check(layout)
+    layout.check_normalizer(normalizer)
     model.to(device).train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     ema = EMA(model, power=config.ema_power, max_decay=config.ema_max_decay)
@@ -342,7 +342,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             first, last = shares[task.name]
             part = None if dp is None else (first, last)
             raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen, part=part))
-            raw.check(layout)
+            layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
             noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, part=(first, n))
             parts.append((task, noised))

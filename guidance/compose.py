@@ -25,7 +25,9 @@ from typing import Iterable, Mapping, Sequence
 import torch
 import torch.nn as nn
 
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenSpec, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
+from tt.dit.layout import Layout, LayoutError, TokenSpec
 
 #: Separator between a type name and its motion index in composed layouts.
 SEPARATOR = "@"
@@ -53,7 +55,7 @@ def composed_layout(layout: Layout, motions: int) -> Layout:
     return Layout(tuple(specs), dict(layout.id_sizes), layout.steps, layout.schema_version)
 
 
-def compose_tokens(layout: Layout, parts: Sequence[TokenTensors]) -> TokenTensors:
+def compose_tokens(layout: Layout, parts: Sequence[TokenBatch]) -> TokenBatch:
     """One composed sequence per candidate from M per-motion token sets of n sequences each
     (embodiment values, IDs and masks from the first)."""
     first = parts[0]
@@ -65,7 +67,7 @@ def compose_tokens(layout: Layout, parts: Sequence[TokenTensors]) -> TokenTensor
                 values[c], ids[c], mask[c] = p.values[s.name], p.ids[s.name], p.mask[s.name]
         else:
             values[s.name], ids[s.name], mask[s.name] = first.values[s.name], first.ids[s.name], first.mask[s.name]
-    return TokenTensors(values, ids, mask)
+    return TokenBatch(values, ids, mask)
 
 
 def split_values(layout: Layout, composed: Mapping[str, torch.Tensor], motions: int) -> list[dict[str, torch.Tensor]]:
@@ -82,12 +84,12 @@ def split_values(layout: Layout, composed: Mapping[str, torch.Tensor], motions: 
     return out
 
 
-def split_tokens(layout: Layout, composed: TokenTensors, motions: int) -> list[TokenTensors]:
+def split_tokens(layout: Layout, composed: TokenBatch, motions: int) -> list[TokenBatch]:
     """Per-motion token sets of the model's layout from composed tokens."""
     v = split_values(layout, composed.values, motions)
     i = split_values(layout, composed.ids, motions)
     k = split_values(layout, composed.mask, motions)
-    return [TokenTensors(v[m], i[m], k[m]) for m in range(motions)]
+    return [TokenBatch(v[m], i[m], k[m]) for m in range(motions)]
 
 
 class ComposedModel(nn.Module):

@@ -40,12 +40,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, Role, TokenTensors, slot_ids
+from tt.dit.layout import Layout, LayoutError, slot_ids
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
 from tt.tokens.normalize import Normalizer, is_padding
-from tt.tokens.schema import GEOM_TYPES, SCHEMA
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import GEOM_TYPES, SCHEMA, STEP_ROLES, Role
 
 #: Ways to choose a query's control steps (see the module docstring).
 PLACEMENTS = ("even", "random")
@@ -89,7 +90,7 @@ class RobotQuery:
     target_quat (B, S, A, 4) (w, x, y, z): the targets at those steps, float32.
     """
 
-    tokens: TokenTensors
+    tokens: TokenBatch
     steps: torch.Tensor
     motion_steps: int
     target_pos: torch.Tensor
@@ -162,7 +163,7 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
         else:
             values[spec.name] = torch.zeros(count, spec.length, spec.dim)
             mask[spec.name] = torch.ones(count, spec.length, dtype=torch.bool)
-    tokens = TokenTensors(values, ids, mask).to(device)
+    tokens = TokenBatch(values, ids, mask).to(device)
     return RobotQuery(tokens, steps.to(device), int(motion.steps), pos.float().to(device), quat.float().to(device))
 
 
@@ -183,7 +184,7 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     query = build_query(layout, normalizer, motion, len(models), placement=placement, generator=generator, device=device)
     emb, _ = robot_embodiment(layout, normalizer, models, device)
     # The query's masks stay all-True: in the robot task every slot is visible, padding included.
-    query.tokens = TokenTensors({**query.tokens.values, **emb.values}, {**query.tokens.ids, **emb.ids}, query.tokens.mask)
+    query.tokens = TokenBatch({**query.tokens.values, **emb.values}, {**query.tokens.ids, **emb.ids}, query.tokens.mask)
     static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
     known = {s.name: torch.ones(len(models), s.length, dtype=torch.bool, device=device) for s in static}
     return query, known

@@ -45,11 +45,12 @@ import torch
 import warp as wp
 
 from tt.dit.checkpoint import TrainedModel
-from tt.dit.layout import STEP_ROLES, TokenTensors
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
 
 log = logging.getLogger(__name__)
 
@@ -391,7 +392,7 @@ class SimGradient:
         layout, norm = self.trained.layout, self.trained.normalizer
         base = ctx.queries[0].tokens
         names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
-        tokens = TokenTensors({n: x0[n] for n in names}, {n: base.ids[n] for n in names}, {n: base.mask[n] for n in names})
+        tokens = TokenBatch({n: x0[n] for n in names}, {n: base.ids[n] for n in names}, {n: base.mask[n] for n in names})
         batch = embodiment_batch(layout, norm, tokens)
         n = len(tokens)
         decoded = [self.decoder(batch, i) for i in range(n)]

@@ -33,7 +33,9 @@ import torch
 from tt.baselines.problem import Optimizer, Problem, Result
 from tt.dit.checkpoint import TrainedModel, load_model
 from tt.dit.ddim import CosineDDIM
-from tt.dit.layout import STEP_ROLES, Layout, LayoutError, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import STEP_ROLES
+from tt.dit.layout import Layout, LayoutError
 from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import ROBOT
@@ -126,7 +128,7 @@ class Generation:
     (`tt.guidance.predicted.predicted_metrics`); seconds: sampling wall time.
     """
 
-    tokens: TokenTensors
+    tokens: TokenBatch
     layout: Layout
     reward: np.ndarray
     objective: np.ndarray
@@ -147,7 +149,7 @@ class CandidateSampler:
             device = held.device if held is not None else "cpu"
         self.device = torch.device(device)
         self.model = trained.model.to(self.device).eval()
-        trained.normalizer.check(trained.layout)
+        trained.layout.check_normalizer(trained.normalizer)
 
     def _objective(self, rewards: list[PredictedReward], split) -> Callable[[dict[str, torch.Tensor], bool], torch.Tensor]:
         def objective(x0: dict[str, torch.Tensor], guidance: bool = False) -> torch.Tensor:
@@ -201,7 +203,7 @@ class CandidateSampler:
         seconds = time.perf_counter() - start
         reward = torch.cat(rewards).double().numpy()
         return Generation(
-            tokens=TokenTensors.cat(outs) if len(outs) > 1 else outs[0],
+            tokens=TokenBatch.concatenate(outs) if len(outs) > 1 else outs[0],
             layout=composed.layout,
             reward=reward,
             objective=reward.mean(axis=1),
@@ -275,7 +277,7 @@ class DesignDecoder:
         return Decoded(fit.design, None, fit.residual, fit.distance)
 
 
-def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenTensors):
+def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenBatch):
     """The embodiment tokens of n candidates (normalised, `layout`'s types) as a numpy
     `tt.tokens.TokenBatch` of encoded values, padding detected from the values (as the
     detokenizer expects)."""

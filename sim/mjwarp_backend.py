@@ -64,8 +64,9 @@ import numpy as np
 import torch
 import warp as wp
 
-from tt.sim.controller import IKConfig, actuated_qpos, ee_site_names, model_name
-from tt.sim.designs import Design, get_space
+from tt.sim.backends import Robots, get_backend
+from tt.sim.controller import IKConfig, actuated_qpos, model_name
+from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 from tt.sim.wbc import HOME_KEY, WBCConfig, WholeBodyController, foot_site_names, free_joint, standing_height
@@ -543,27 +544,6 @@ def start_postures(tree, motions, config: IKConfig, *, device: str) -> wp.array:
 # --------------------------------------------------------------------------- inputs
 
 
-def resolve_models(designs: Sequence[Design | mujoco.MjModel]) -> tuple[list[mujoco.MjModel], tuple[str, ...]]:
-    """Compiled models and end-effector site names of the input designs (one kind per call)."""
-    if len(designs) == 0:
-        raise ValueError("designs is empty; a rollout needs at least one design")
-    models, sites = [], None
-    for i, d in enumerate(designs):
-        if isinstance(d, Design):
-            space = get_space(d.space)
-            m, s = space.model(d), space.ee_sites()
-        elif isinstance(d, mujoco.MjModel):
-            m, s = d, ee_site_names(d)
-        else:
-            raise TypeError(f"designs[{i}] is a {type(d).__name__}; expected a tt Design or a mujoco.MjModel")
-        if sites is None:
-            sites = s
-        elif s != sites:
-            raise ValueError(f"designs[{i}] ({model_name(m)!r}) has end effectors {list(s)}, designs[0] has {list(sites)}")
-        models.append(m)
-    return models, sites
-
-
 def padded_motions(motions: Sequence[Motion], arms: int, control_dt: float, *, device: str):
     """`tt.kernels.rollout.MotionArrays` of M motions padded to the longest (last pose
     repeated); raises ValueError for a motion of another rate or arm count."""
@@ -613,7 +593,7 @@ class _Group:
 
 
 def mjwarp_rollout(
-    designs: Sequence[Design | mujoco.MjModel],
+    designs: Sequence[Design | mujoco.MjModel] | Robots,
     motions: Sequence[Motion],
     *,
     config: IKConfig = IKConfig(),
@@ -627,7 +607,8 @@ def mjwarp_rollout(
 ) -> Episode:
     """Run every design on every motion on MuJoCo-Warp; an Episode of W = D * M worlds.
 
-    designs: D tt Designs or MjModels with sites ``ee_0``, ...; fixed-base arms run the
+    designs: D tt Designs or MjModels with sites ``ee_0``, ... (or their `Robots`, as
+        `tt.sim.backends.base.resolve_designs` gives them); fixed-base arms run the
         DiffIK of `config` (tt's batched kernel), floating-base legged robots the
         whole-body controller of `wbc_config`; a `WBCConfig` given as `config` is used as
         `wbc_config` too.
@@ -651,7 +632,8 @@ def mjwarp_rollout(
         raise ValueError(f"floating_controller = {floating_controller!r}; expected one of {FLOATING_CONTROLLERS}")
     if isinstance(config, WBCConfig):
         wbc_config = config  # `tt.sim.rollout.rollout` passes one config for every backend
-    models, sites = resolve_models(designs)
+    robots = designs if isinstance(designs, Robots) else get_backend("mjwarp").resolve(designs)
+    models, sites = list(robots.models), robots.ee_sites
     D, M, A = len(models), len(motions), len(sites)
     floating = [free_joint(m) is not None for m in models]
     for i, m in enumerate(models):
@@ -912,7 +894,6 @@ __all__ = [
     "mjwarp_simulate",
     "padded_motions",
     "record_step",
-    "resolve_models",
     "start_postures",
     "structure_key",
 ]

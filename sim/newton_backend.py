@@ -49,7 +49,8 @@ import numpy as np
 import warp as wp
 
 from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
-from tt.sim.designs import Design, get_space
+from tt.sim.backends import Robots, get_backend
+from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.mjwarp_backend import mat2quat
 from tt.sim.motions.base import Motion
@@ -218,31 +219,18 @@ def _check_newton_model(m: mujoco.MjModel, index: int) -> None:
         raise ValueError(f"{where}: gravity compensation and friction loss are not replicated on Newton")
 
 
-def _design_inputs(designs: Sequence[Design]) -> tuple[list[mujoco.MjModel], list[str], tuple[str, ...]]:
-    """MuJoCo models, MJCF texts and end-effector sites of tt Designs (one space)."""
-    if len(designs) == 0:
-        raise ValueError("designs is empty; the newton backend needs at least one design")
-    spaces = set()
-    models, xmls = [], []
-    for i, d in enumerate(designs):
-        if not isinstance(d, Design):
+def _design_inputs(designs: Sequence[Design] | Robots) -> tuple[list[mujoco.MjModel], list[str], tuple[str, ...]]:
+    """MuJoCo models, MJCF texts and end-effector sites of tt Designs (one contact-free space)."""
+    robots = designs if isinstance(designs, Robots) else get_backend("newton").resolve(designs)
+    for i, xml in enumerate(robots.mjcf):
+        if xml is None:
             raise TypeError(
-                f"designs[{i}] is a {type(d).__name__}; the newton backend imports MJCF text and needs tt Designs "
-                "(an MjModel does not carry its MJCF)"
+                f"designs[{i}] is a {type(robots.models[i]).__name__}; the newton backend imports MJCF text and needs "
+                "tt Designs (an MjModel does not carry its MJCF)"
             )
-        space = get_space(d.space)
-        spaces.add(space.name)
-        xml = space.to_mjcf(d)
-        xmls.append(xml)
-        models.append(mujoco.MjModel.from_xml_string(xml))
-    if len(spaces) > 1:
-        raise ValueError(f"designs mix design spaces {sorted(spaces)}; pass one design space per call")
-    space = get_space(spaces.pop())
-    if space.has_contacts:
-        raise ValueError(f"design space {space.name!r} has contacts; the newton backend runs contact-free arms (use 'mjwarp')")
-    for i, m in enumerate(models):
+    for i, m in enumerate(robots.models):
         _check_newton_model(m, i)
-    return models, xmls, space.ee_sites()
+    return list(robots.models), list(robots.mjcf), robots.ee_sites
 
 
 @dataclass
@@ -456,7 +444,7 @@ class _IKGroup:
 
 
 def newton_rollout(
-    designs: Sequence[Design],
+    designs: Sequence[Design] | Robots,
     motions: Sequence[Motion],
     *,
     config: IKConfig = IKConfig(),
@@ -465,7 +453,8 @@ def newton_rollout(
 ) -> Episode:
     """Run every design on every motion on Newton (Featherstone); an Episode of W = D * M worlds.
 
-    designs: D tt Designs of one contact-free arm space (viperx, aloha, bimanual).
+    designs: D tt Designs of one contact-free arm space (viperx, aloha, bimanual), or their
+        `Robots` (`tt.sim.backends.base.resolve_designs`).
     motions: M motions sampled at ``config.control_dt``, one arm per end effector.
     Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`'s conventions): worlds
     design-major, joint fields zero-padded, records repeated after termination.

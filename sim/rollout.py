@@ -1,15 +1,16 @@
-"""Batched closed-loop rollouts: every design on every motion, one Episode.
+"""Batched closed-loop rollouts: every design on every motion, one Episode; and the warp
+backend's launch code.
 
 `rollout(designs, motions)` runs W = D * M worlds, design-major (world ``d * M + m`` is
 design d on motion m), with the controller of `tt.sim.controller` (mink DiffIK with 80 ms
-look-ahead at 50 Hz) driving the design's position actuators. Backends:
-
-* ``"warp"`` (default): tt's fused Warp kernels (`tt.kernels.rollout`), contact-free
-  trees of hinge/slide joints. Designs are grouped by topology; each group is one batched
-  launch (per chunk of control steps). With a single group the Episode's tensors are
-  zero-copy torch views of the kernel's Warp arrays; with several groups (designs of
-  different DoF) the groups' records are copied into one zero-padded Episode.
-* ``"mujoco"``: the oracle, MuJoCo C + mink one world at a time (`tt.sim.validate`).
+look-ahead at 50 Hz) driving the design's position actuators, on one of the backends of
+`tt.sim.backends` (``warp``, ``mjwarp``, ``newton``, ``mujoco``; the table there says
+where each lives). This module holds the ``"warp"`` one (the default): tt's fused Warp
+kernels (`tt.kernels.rollout`), contact-free trees of hinge/slide joints. Designs are
+grouped by topology; each group is one batched launch (per chunk of control steps). With a
+single group the Episode's tensors are zero-copy torch views of the kernel's Warp arrays;
+with several groups (designs of different DoF) the groups' records are copied into one
+zero-padded Episode.
 
 The Episode's conventions (padding of joint fields to the widest design, repeated records
 after termination or past a motion's end) are the oracle's; see `tt.sim.validate`.
@@ -31,8 +32,9 @@ import mujoco
 import numpy as np
 import torch
 
-from tt.sim.controller import IKConfig, check_fixed_base, ee_site_names, model_name
-from tt.sim.designs import Design, get_space
+from tt.sim.backends import get_backend
+from tt.sim.controller import IKConfig, check_fixed_base
+from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 
@@ -41,64 +43,9 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: Rollout backends by name.
-BACKENDS: tuple[str, ...] = ("warp", "mjwarp", "newton", "mujoco")
-
 #: Default control steps per kernel launch (1 s at 50 Hz): long enough that launch
 #: overhead is negligible, short enough for a live progress bar.
 DEFAULT_CHUNK = 50
-
-
-def _models(designs: Sequence[Design | mujoco.MjModel], backend: str = "warp") -> tuple[list[mujoco.MjModel], tuple[str, ...], str | None]:
-    """Compiled models, end-effector site names and design space name (None for raw models);
-    raises for designs with contacts on the contact-free "warp" backend."""
-    if len(designs) == 0:
-        raise ValueError("designs is empty; rollout needs at least one design")
-    spaces = {d.space for d in designs if isinstance(d, Design)}
-    if len(spaces) > 1:
-        raise ValueError(
-            f"designs mix design spaces {sorted(spaces)}; roll out one design space per call "
-            "(motions and rewards are per space)"
-        )
-    if spaces and any(not isinstance(d, Design) for d in designs):
-        raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
-    if spaces:
-        space = get_space(spaces.pop())
-        if space.has_contacts and backend == "warp":
-            raise ValueError(
-                f"design space {space.name!r} has contacts (has_contacts=True); the 'warp' backend "
-                "simulates contact-free trees only, use backend='mujoco'"
-            )
-        return [space.model(d) for d in designs], space.ee_sites(), space.name
-    models = []
-    for i, m in enumerate(designs):
-        if not isinstance(m, mujoco.MjModel):
-            raise TypeError(f"designs[{i}] is a {type(m).__name__}; expected a tt Design or a mujoco.MjModel")
-        models.append(m)
-    sites = ee_site_names(models[0])
-    for i, m in enumerate(models):
-        if ee_site_names(m) != sites:
-            raise ValueError(f"designs[{i}] ({model_name(m)!r}) has end effectors {ee_site_names(m)}, designs[0] has {sites}")
-    return models, sites, None
-
-
-def _check_motions(motions: Sequence[Motion], config: IKConfig, arms: int) -> None:
-    if len(motions) == 0:
-        raise ValueError("motions is empty; rollout needs at least one motion")
-    for m, motion in enumerate(motions):
-        if not isinstance(motion, Motion):
-            raise TypeError(f"motions[{m}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
-    dts = sorted({float(motion.dt) for motion in motions})
-    if len(dts) > 1:
-        raise ValueError(f"motions have different dt {dts} s; resample them to one rate (tt uses 50 Hz)")
-    if abs(dts[0] - config.control_dt) > 1e-9:
-        raise ValueError(
-            f"motions have dt = {dts[0]} s but IKConfig.control_dt = {config.control_dt} s; "
-            "resample the motions or set control_dt to match"
-        )
-    for m, motion in enumerate(motions):
-        if motion.arms != arms:
-            raise ValueError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
 
 
 def rollout(
@@ -138,28 +85,13 @@ def rollout(
     """
     from tt.kernels.device import resolve_device
 
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown rollout backend {backend!r}; valid: {list(BACKENDS)}")
+    impl = get_backend(backend)
     device = resolve_device(device)
-    if action_noise != 0.0 and backend != "warp":
+    if action_noise != 0.0 and not impl.perturbs:
         raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
-    if backend == "mjwarp":  # validates its own inputs: it also runs designs with contacts
-        from tt.sim.mjwarp_backend import mjwarp_rollout
-
-        return mjwarp_rollout(designs, motions, config=config, device=device, progress=progress, graph=graph)
-    if backend == "newton":
-        from tt.sim.newton_backend import newton_rollout
-
-        return newton_rollout(designs, motions, config=config, device=device, progress=progress)
-    models, sites, space = _models(designs, backend)
-    _check_motions(motions, config, len(sites))
-    if backend == "mujoco":
-        from tt.sim.validate import oracle_rollout
-
-        return oracle_rollout(designs, motions, config=config, progress=progress)
-    return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                         action_noise=action_noise, noise_seed=noise_seed, graph=graph)
+    return impl.run(impl.resolve(designs), motions, config=config, device=device, chunk=chunk, progress=progress,
+                    action_noise=action_noise, noise_seed=noise_seed, graph=graph)
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -316,4 +248,4 @@ def _rollout_warp(
     )
 
 
-__all__ = ["BACKENDS", "DEFAULT_CHUNK", "group_episode", "rollout", "rollout_records"]
+__all__ = ["DEFAULT_CHUNK", "group_episode", "rollout", "rollout_records"]

@@ -53,11 +53,11 @@ from tt.sim.controller import (
     IKConfig,
     actuated_qpos,
     check_fixed_base,
-    ee_site_names,
     ik_step,
     model_name,
 )
-from tt.sim.designs import Design, get_space
+from tt.sim.backends.base import Robots, resolve_designs
+from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 from tt.sim.wbc import HOME_KEY, WBCConfig, WholeBodyController, fallen, foot_site_names, free_joint, standing_height
@@ -67,21 +67,6 @@ logger = logging.getLogger(__name__)
 #: Episode fields recorded per step, and which model size pads each.
 _JOINT_FIELDS = {"qpos": "nq", "qvel": "nv", "ctrl": "nu", "action": "nu", "act_force": "nu", "act_vel": "nu"}
 _POSE_FIELDS = ("ee_pos", "ee_quat", "target_pos", "target_quat")
-
-
-def _as_model(design: Design | mujoco.MjModel, index: int) -> tuple[mujoco.MjModel, tuple[str, ...]]:
-    """Compiled model and end-effector site names of one input design."""
-    if isinstance(design, mujoco.MjModel):
-        return design, ee_site_names(design)
-    if isinstance(design, Design):
-        space = get_space(design.space)
-        model = space.model(design)
-        sites = space.ee_sites()
-        for site in sites:
-            if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
-                raise ValueError(f"designs[{index}] of space {design.space!r} has no site {site!r}")
-        return model, sites
-    raise TypeError(f"designs[{index}] is a {type(design).__name__}; expected a tt Design or a mujoco.MjModel")
 
 
 def _rollout_one(
@@ -167,7 +152,7 @@ def _rollout_one(
 
 
 def oracle_rollout(
-    designs: Sequence[Design | mujoco.MjModel],
+    designs: Sequence[Design | mujoco.MjModel] | Robots,
     motions: Sequence[Motion],
     *,
     config: IKConfig = IKConfig(),
@@ -176,8 +161,8 @@ def oracle_rollout(
 ) -> Episode:
     """Run every design on every motion in MuJoCo C with the mink controllers.
 
-    designs: D tt Designs (built with ``get_space(d.space).model(d)``) or MjModels with
-        sites ``ee_0``, ``ee_1``, ...: fixed-base arms run the DiffIK controller with
+    designs: D tt Designs (of any spaces) or MjModels with sites ``ee_0``, ``ee_1``, ...
+        (or their `Robots`, `tt.sim.backends.base.resolve_designs`): fixed-base arms run the DiffIK controller with
         `config`; floating-base robots (a free joint) with foot sites ``foot_*`` run the
         whole-body controller of `tt.sim.wbc` with `wbc_config` (a free joint without
         feet raises ValueError).
@@ -194,11 +179,12 @@ def oracle_rollout(
     """
     if len(designs) == 0 or len(motions) == 0:
         raise ValueError(f"need at least one design and one motion, got {len(designs)} and {len(motions)}")
+    robots = designs if isinstance(designs, Robots) else resolve_designs(designs, who="the oracle", one_space=False)
     for m, motion in enumerate(motions):
         if not isinstance(motion, Motion):
             raise TypeError(f"motions[{m}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
 
-    built = [_as_model(d, i) for i, d in enumerate(designs)]
+    built = list(zip(robots.models, robots.sites))
     floating = [free_joint(model) is not None for model, _ in built]
     used = {"IKConfig": config} if not all(floating) else {}
     if any(floating):

@@ -148,7 +148,7 @@ def test_query_holds_the_training_window_of_the_episode(problem, trained):
     tokens, slot = policy.query(k, seen["worlds"], StepState(**seen["state"]))
     assert slot == 1
     layout, norm = trained.layout, trained.normalizer
-    tokens.check(layout)
+    layout.check(tokens)
     window = torch.arange(k - 1, k + 7).expand(ep.worlds, 8)
     ref = episode_tokens(ep, policy.robots, step_index=window)
     for s in layout.specs:

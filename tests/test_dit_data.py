@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from tt.dit.data import EpisodeTokens
-from tt.dit.layout import PAD_VALUE, LayoutError, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import PAD_VALUE
+from tt.dit.layout import LayoutError
 from tt.dit.tasks import CONTROL, task_masks
 from tt.dit.toy import toy_episodes
 from tt.tokens.normalize import MIN_RANGE, Normalizer
@@ -29,7 +31,7 @@ def test_windows(episodes):
     assert bool((cons[:, 1:] - cons[:, :-1] == 1).all()) and int(cons.max()) < 20
     window = episodes.window(idx, steps)
     layout = episodes.layout(8)
-    window.check(layout)
+    layout.check(window)
     # Time IDs are episode steps; window step k holds episode step steps[k], entity by entity.
     time = window.ids["state"][..., layout["state"].time_index].reshape(len(idx), 8, -1)
     assert torch.equal(time, steps[:, :, None].expand_as(time))
@@ -81,7 +83,7 @@ def test_concatenate_pads_to_longest():
     assert torch.equal(both.step_values["state"][3:], b.step_values["state"])
     assert torch.equal(both.step_values["state"][:3, :10], a.step_values["state"])
     assert both.layout(8)["body"].length == a.layout(8)["body"].length
-    both.sample(4, 8, "random", torch.Generator().manual_seed(0)).check(both.layout(8))
+    both.layout(8).check(both.sample(4, 8, "random", torch.Generator().manual_seed(0)))
 
 
 def test_normalizer(episodes):
@@ -127,8 +129,8 @@ def test_checkpoint_normalizer_state_loads_unchanged():
     torch.testing.assert_close(want, torch.tensor([[-0.5, 0.5, 0.5], [1.0, -1.0, -1.0]]))
     assert torch.equal(norm.denormalize_values("a", want), x)
     mask = torch.tensor([[True], [False]])
-    out = norm.normalize(TokenTensors({"b": torch.tensor([[[0.25]], [[0.0]]])}, {"b": torch.zeros(2, 1, 1, dtype=torch.long)}, {"b": mask}))
-    assert isinstance(out, TokenTensors)
+    out = norm.normalize(TokenBatch({"b": torch.tensor([[[0.25]], [[0.0]]])}, {"b": torch.zeros(2, 1, 1, dtype=torch.long)}, {"b": mask}))
+    assert isinstance(out, TokenBatch)
     assert torch.equal(out.values["b"], torch.tensor([[[1.0]], [[PAD_VALUE]]]))
     saved = norm.state_dict()
     for part in ("low", "high"):
@@ -168,15 +170,15 @@ def test_from_tokens_package():
     idx = torch.arange(3)
     steps = data.window_steps(idx, 8, "consecutive", torch.Generator().manual_seed(3))
     window = data.window(idx, steps)
-    window.check(layout)
+    layout.check(window)
     assert int(steps[2].max()) < 9  # inside the third episode's 9 executed steps
     # Control tokens of world 1 at its window's third step are the episode's actions there.
     n_act = layout["control"].per_step
     real = window.mask["control"][1, 2 * n_act:3 * n_act]
     got = window.values["control"][1, 2 * n_act:3 * n_act, 0][real]
     torch.testing.assert_close(got, episode.action[1, steps[1, 2], : int(real.sum())])
-    # Statistics are the schema fit of the same tokens as a TokenBatch (fixed ranges for bits
-    # and rotations), and a TokenBatch normalises as the TokenTensors do.
+    # Statistics are the schema fit of the same tokens as a numpy TokenBatch (fixed ranges
+    # for bits and rotations), and the torch window normalises to a TokenBatch again.
     ours = data.fit_normalizer()
     flat = {k: v.reshape(v.shape[0], -1, v.shape[-1]) for k, v in data.step_values.items()}
     valid = torch.arange(t)[None, :] < data.lengths[:, None]
@@ -191,8 +193,7 @@ def test_from_tokens_package():
         np.testing.assert_array_equal(ours.low[k], theirs.low[k], err_msg=k)
         np.testing.assert_array_equal(ours.high[k], theirs.high[k], err_msg=k)
     np.testing.assert_array_equal(ours.low["link"][SCHEMA["link"].slice("irot")], -1.0)
-    tokens = TokenTensors(window.values, window.ids, window.mask)
-    back = ours.normalize(TokenBatch(tokens.values, tokens.ids, tokens.mask))
+    back = ours.normalize(window)
     assert isinstance(back, TokenBatch)
-    for k, v in ours.normalize(tokens).values.items():
-        assert torch.equal(v, back.values[k]), k
+    for k, v in back.values.items():
+        torch.testing.assert_close(v, ours.normalize_values(k, window.values[k], window.mask[k]), rtol=0, atol=0, msg=k)

@@ -14,7 +14,9 @@ import torch
 import torch.nn as nn
 
 from tt.dit.ddim import CosineDDIM
-from tt.dit.layout import Layout, Role, TokenSpec, TokenTensors
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import Role
+from tt.dit.layout import Layout, TokenSpec
 from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
 
@@ -144,13 +146,13 @@ class GaussianEps(nn.Module):
         return {n: math.sqrt(1 - ab) * (values[n] - math.sqrt(ab) * MU) / (ab * STD**2 + 1 - ab) for n in outputs}
 
 
-def _tokens(b: int) -> TokenTensors:
+def _tokens(b: int) -> TokenBatch:
     g = torch.Generator().manual_seed(1)
     values = {s.name: torch.randn(b, s.length, s.dim, generator=g) for s in LAYOUT.specs}
     ids = {"goal": torch.arange(4).repeat(b, 1)[..., None], "shape": torch.arange(2).repeat(b, 1)[..., None],
            "extra": torch.arange(2).repeat(b, 1)[..., None]}
     mask = {s.name: torch.ones(b, s.length, dtype=torch.bool) for s in LAYOUT.specs}
-    return TokenTensors(values, ids, mask)
+    return TokenBatch(values, ids, mask)
 
 
 def _ddim_moments(sched: CosineDDIM, eta: float) -> tuple[float, float]:

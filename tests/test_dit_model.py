@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tt.dit.layout import Layout, LayoutError, Role, TokenSpec, layout_from_schema
+from tt.tokens.schema import Role
+from tt.dit.layout import Layout, LayoutError, TokenSpec, layout_from_schema
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, ROBOT, TaskSpec, output_types, task_masks
@@ -84,15 +85,15 @@ def test_forward_shapes_and_adaln_zero_init(toy, device):
 def test_tokens_check_names_the_problem(toy):
     episodes, layout, _ = toy
     tokens = episodes.sample(2, 8, "random", torch.Generator().manual_seed(0))
-    tokens.check(layout)
+    layout.check(tokens)
     bad = tokens.clone()
     bad.ids["hinge"][0, 0, 0] = layout.id_sizes["joint"]
     with pytest.raises(LayoutError, match=r"ids\['hinge'\] kind 'joint'"):
-        bad.check(layout)
+        layout.check(bad)
     bad = tokens.clone()
     bad.values["state"] = bad.values["state"][:, :-1]
     with pytest.raises(LayoutError, match=r"values\['state'\]"):
-        bad.check(layout)
+        layout.check(bad)
     with pytest.raises(LayoutError, match="no 'time' ID"):
         TokenSpec("pose", 3, ("link",), Role.DYNAMICS, 8, 1)
 

@@ -105,7 +105,7 @@ def test_online_layout_is_the_datasets(source):
     maxima = {k: v for k, v in space_token_maxima("viperx")["maxima"].items() if v > 0}
     assert source.layout(8) == layout_from_schema(maxima, steps=8)
     windows = source.sample(5, 8, "consecutive", torch.Generator().manual_seed(0))
-    windows.check(source.layout(8))
+    source.layout(8).check(windows)
     assert source.stats["refreshes"] >= 1 and source.stats["world_steps"] > 0
 
 

@@ -256,7 +256,8 @@ def test_design_query_holds_the_tokens_training_gives_those_designs():
     # Inpainting asks the motion-to-robot model for the dynamics of given designs; their
     # embodiment slots must look exactly as in a training batch of those designs
     # (normalised values, PAD_VALUE and positional IDs in the padding), and be marked known.
-    from tt.dit.layout import TokenTensors, with_slot_ids
+    from tt.tokens.batch import TokenBatch
+    from tt.dit.layout import with_slot_ids
     from tt.guidance.predicted import design_query
 
     space = get_space("viperx")
@@ -279,7 +280,7 @@ def test_design_query_holds_the_tokens_training_gives_those_designs():
     plain = build_query(layout, norm, motion, 3)
     names = [s.name for s in layout.specs if not s.per_step]
     assert sorted(known) == sorted(names)
-    training = norm.normalize(with_slot_ids(layout, TokenTensors({n: emb.values[n] for n in names},
+    training = norm.normalize(with_slot_ids(layout, TokenBatch({n: emb.values[n] for n in names},
                                                                  {n: emb.ids[n] for n in names},
                                                                  {n: emb.mask[n] for n in names})))
     for n in names:

@@ -296,9 +296,9 @@ def test_decoder_recovers_a_real_design_from_normalised_tokens():
     counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) + 2 for n in emb.types}  # room for padding
     layout = layout_from_schema(counts, steps=8)
     padded = norm.normalize(emb.pad_to({n: counts[n] for n in emb.types}).to_torch())
-    from tt.dit.layout import TokenTensors
+    from tt.tokens.batch import TokenBatch
 
-    tokens = TokenTensors(dict(padded.values), dict(padded.ids), dict(padded.mask))
+    tokens = TokenBatch(dict(padded.values), dict(padded.ids), dict(padded.mask))
     batch = embodiment_batch(layout, norm, tokens)
     table = CandidateTable(space, discrete=[designs[0].discrete, designs[1].discrete])
     decoded = DesignDecoder(space, table=table)(batch, 0)
@@ -342,7 +342,6 @@ def test_zeroth_order_returns_the_design_with_the_best_predicted_tracking(motion
     """End to end: query, sampling, predicted reward, ranking, decoding. Candidate k's
     clean tokens are real design k's embodiment and end-effector poses `offset_k` off the
     targets, so the winner must be the design with the smallest offset, decoded exactly."""
-    from tt.dit.layout import TokenTensors
     from tt.tokens.batch import TokenBatch
     from tt.tokens.design_fit import CandidateTable
     from tt.tokens.tokenize import tokenize_models

@@ -46,7 +46,7 @@ from tt.sim.motions.base import (
     quat_slerp,
     quat_to_rotvec,
 )
-from tt.sim.motions.library import TOSS
+from tt.sim.motions.skills import TOSS
 
 # Limits every library motion must respect. Speed and angular speed are what a
 # ViperX-class arm can follow (its servos turn at ~5 rad/s); the acceleration and jerk

@@ -163,6 +163,46 @@ def test_errors_name_the_problem():
         rollout([quadruped.nominal()], [motion], device="cpu")
 
 
+def test_every_backend_implements_the_interface_and_resolves_designs_like_their_space():
+    """The registry's backends are `RolloutBackend`s; `resolve_designs` (the one design ->
+    model resolver) compiles a Design to the model its space builds, keeps its MJCF, and
+    raises for what a backend cannot run."""
+    import mujoco
+
+    from tt.sim.backends import BACKENDS, RolloutBackend, get_backend, resolve_designs
+
+    assert BACKENDS == ("warp", "mjwarp", "newton", "mujoco")
+    for name in BACKENDS:
+        impl = get_backend(name)
+        assert isinstance(impl, RolloutBackend) and impl.name == name
+        assert impl.perturbs == (name == "warp")
+    viperx, quadruped = get_space("viperx"), get_space("quadruped")
+    designs = viperx.sample(3, seed=4)
+    robots = resolve_designs(designs)
+    for d, m, xml in zip(designs, robots.models, robots.mjcf):
+        ref = viperx.model(d)
+        assert xml == viperx.to_mjcf(d)
+        for field in ("body_pos", "body_quat", "body_mass", "body_inertia", "jnt_axis", "jnt_range", "actuator_gainprm"):
+            np.testing.assert_array_equal(getattr(m, field), getattr(ref, field), err_msg=field)
+    assert robots.ee_sites == ("ee_0",)
+    raw = resolve_designs([viperx.model(designs[0])])
+    assert raw.mjcf == (None,) and raw.sites == (("ee_0",),)
+    with pytest.raises(ValueError, match="designs is empty; the 'warp' backend"):
+        get_backend("warp").resolve([])
+    with pytest.raises(ValueError, match="mix tt Designs and raw MjModels"):
+        resolve_designs([designs[0], viperx.model(designs[1])])
+    with pytest.raises(TypeError, match=r"designs\[1\] is a str"):
+        resolve_designs([designs[0], "robot.xml"])
+    with pytest.raises(ValueError, match="'quadruped' has contacts"):
+        get_backend("newton").resolve([quadruped.nominal()])
+    # The oracle runs any mix world by world; the batched backends need one set of end effectors.
+    mixed = get_backend("mjwarp").resolve([designs[0], get_space("bimanual").nominal()])
+    assert mixed.sites == (("ee_0",), ("ee_0", "ee_1"))
+    with pytest.raises(ValueError, match=r"designs\[1\] .* has end effectors \['ee_0', 'ee_1'\]"):
+        mixed.ee_sites
+    assert isinstance(get_backend("mujoco").resolve([quadruped.nominal()]).models[0], mujoco.MjModel)
+
+
 @pytest.mark.parametrize("space_name, backend, motion_steps", [("viperx", "warp", None), ("quadruped", "mujoco", 20)])
 def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, backend, motion_steps, tt_cli):
     """`tt rollout` (warp by default, the oracle for the quadruped's contacts) writes the

@@ -24,7 +24,6 @@ from tt.tokens.store import (
     ShardReader,
     ShardWriter,
     TokenStore,
-    dataset_info_cmd,
     shard_dirs,
     verify_shard,
 )
@@ -199,7 +198,7 @@ def test_loader_batches_have_layout_shapes_and_padding_masks(dataset):
     for workers in (0, 2):
         seen = 0
         for batch in make_loader(dataset, batch_size=5, steps=8, kind="consecutive", workers=workers, seed=1):
-            batch.check(layout)
+            layout.check(batch)
             seen += len(batch)
             nu = batch.mask["actuator"].sum(1)  # actuators of each window's robot
             assert (batch.mask["control"].sum(1) == 8 * nu).all()
@@ -219,7 +218,7 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     b = src.sample(9, 8, "random", torch.Generator().manual_seed(3))
     for name in a.values:
         assert torch.equal(a.values[name], b.values[name]) and torch.equal(a.ids[name], b.ids[name])
-    a.check(src.layout(8))
+    src.layout(8).check(a)
     plain = StoreTokenSource(dataset, augment=None, windows_per_block=4).sample(9, 8, "random", torch.Generator().manual_seed(3))
     assert not torch.equal(plain.values["target_pose"], a.values["target_pose"])  # augmentation is on by default
     identity = StoreTokenSource(dataset, augment=SE2Augment(0.0, 0.0), windows_per_block=4)
@@ -231,13 +230,16 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     assert result.step == 2 and torch.isfinite(result.losses).all()
 
 
-def test_dataset_info_command(dataset, tmp_path):
+def test_dataset_info_command(dataset, tmp_path, tt_cli):
     png = tmp_path / "rewards.png"
-    text = dataset_info_cmd(dataset, plot=png)
+    code, text = tt_cli(["dataset", "info", str(dataset), "--plot", str(png)])
+    assert code == 0, text
     store = TokenStore(dataset)
     assert f"episodes {store.episodes:,} kept" in text and "shards 2/2" in text and "dyna_joint_obs 7" in text
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    info = json.loads(dataset_info_cmd(dataset, as_json=True))
+    code, out = tt_cli(["dataset", "info", str(dataset), "--json"])
+    assert code == 0, out
+    info = json.loads(out)
     assert info["episodes"] == store.episodes and info["complete"]
     assert info["episodes"] + sum(info["dropped"].values()) == info["episodes_generated"] == 12
     assert info["reward"]["n"] == store.episodes

@@ -5,6 +5,9 @@ tokens and their normalisation for diffusion.
     dyn = episode_tokens(episode, emb.index, steps=8, mode="random")  # dynamics + targets
     norm = Normalizer.fit(batches); x = norm.normalize(emb.tokens)    # [-1, 1]
     results = detokenize(norm.denormalize(x_hat, detect_padding=True))  # MJCF + MjModel
+
+Tokens travel as one container, `TokenBatch` (numpy or torch); `Role` and `PAD_VALUE`
+are defined once, in `schema`. Datasets on disk: `store` (shards), `lock`, `info`.
 """
 
 from tt.tokens.batch import TokenBatch

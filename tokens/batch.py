@@ -1,4 +1,11 @@
-"""`TokenBatch`: RoboTokens of N robots (or N episode samples) as padded fixed-width arrays."""
+"""`TokenBatch`: the one token container, from the tokenizer to the DiT and back.
+
+RoboTokens of N robots (or N episode windows, or N model sequences) as padded fixed-width
+arrays, per token type: numpy arrays on the host (tokenizer, dataset store, files) or
+torch tensors on any device (the DiT, guidance, simulator gradients), never mixed.
+`tt.dit.layout.Layout` says which types and lengths a model takes (`Layout.check`);
+`tt.tokens.normalize.Normalizer` maps values to and from [-1, 1].
+"""
 
 from __future__ import annotations
 
@@ -17,12 +24,17 @@ from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, check_version
 class TokenBatch:
     """Tokens of N samples, per token type (numpy arrays or torch tensors, not mixed).
 
-    values[type]: encoded tokens (N, L_type, SCHEMA[type].width), float
-    ids[type]: positional-embedding IDs (N, L_type, len(SCHEMA[type].ids)), int64
+    values[type]: encoded (or normalised) tokens (N, L_type, D_type), float
+    ids[type]: positional-embedding IDs (N, L_type, K_type), int64, in the order of the
+        type's ID kinds (``SCHEMA[type].ids`` for schema types)
     mask[type]: True where a token is real, False for padding, (N, L_type) bool
-    version: schema version the tokens were written with
+    version: RoboToken schema version the tokens were written with
 
-    Types absent from the dicts have no tokens in this batch. Padding tokens hold zeros.
+    Types absent from the dicts have no tokens in this batch. Schema types are checked
+    against the schema's widths; other types (the DiT's generic test layouts) only for
+    consistent shapes. Per-step types are time-major (the tokens of a window's first step,
+    then its second, ...). The tokenizer's padding tokens hold zeros; normalised padding
+    holds `tt.tokens.schema.PAD_VALUE`.
     """
 
     values: dict
@@ -31,26 +43,43 @@ class TokenBatch:
     version: int = SCHEMA_VERSION
 
     def __post_init__(self) -> None:
+        schema_names = SCHEMA.names()
         for name, v in self.values.items():
-            t = SCHEMA[name]
-            if v.shape[-1] != t.width:
-                raise ValueError(f"values[{name!r}] has width {v.shape[-1]}, schema v{SCHEMA_VERSION} says {t.width}")
             if name not in self.ids or name not in self.mask:
                 raise ValueError(f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, mask={name in self.mask}")
-            if tuple(self.ids[name].shape) != (*v.shape[:2], len(t.ids)):
-                raise ValueError(f"ids[{name!r}] has shape {tuple(self.ids[name].shape)}, expected {(*v.shape[:2], len(t.ids))}")
-            if tuple(self.mask[name].shape) != tuple(v.shape[:2]):
-                raise ValueError(f"mask[{name!r}] has shape {tuple(self.mask[name].shape)}, expected {tuple(v.shape[:2])}")
+            ids_shape, mask_shape = tuple(self.ids[name].shape), tuple(self.mask[name].shape)
+            if name in schema_names:
+                t = SCHEMA[name]
+                if v.shape[-1] != t.width:
+                    raise ValueError(f"values[{name!r}] has width {v.shape[-1]}, schema v{SCHEMA_VERSION} says {t.width}")
+                if ids_shape != (*v.shape[:2], len(t.ids)):
+                    raise ValueError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], len(t.ids))}")
+            elif len(ids_shape) != 3 or ids_shape[:2] != tuple(v.shape[:2]):
+                raise ValueError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], 'K')}")
+            if mask_shape != tuple(v.shape[:2]):
+                raise ValueError(f"mask[{name!r}] has shape {mask_shape}, expected {tuple(v.shape[:2])}")
 
     @property
     def types(self) -> tuple[str, ...]:
-        """Token types present, in schema order."""
-        return tuple(n for n in SCHEMA.names() if n in self.values)
+        """Token types present: schema types in schema order, then any others as given."""
+        schema_names = SCHEMA.names()
+        return tuple(n for n in schema_names if n in self.values) + tuple(n for n in self.values if n not in schema_names)
 
     def __len__(self) -> int:
         for v in self.values.values():
             return int(v.shape[0])
         return 0
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the (torch) values; ``cpu`` for numpy arrays."""
+        for v in self.values.values():
+            return v.device if isinstance(v, torch.Tensor) else torch.device("cpu")
+        raise ValueError("an empty TokenBatch has no device")
+
+    def _map(self, fv, fi, fm) -> "TokenBatch":
+        return TokenBatch({n: fv(self.values[n]) for n in self.types}, {n: fi(self.ids[n]) for n in self.types},
+                          {n: fm(self.mask[n]) for n in self.types}, self.version)
 
     def counts(self) -> dict[str, np.ndarray]:
         """Real tokens per type and sample: type -> (N,) int."""
@@ -64,11 +93,11 @@ class TokenBatch:
         return out
 
     def select(self, index) -> "TokenBatch":
-        """Samples at `index` (int, slice or index array); an int keeps the leading axis."""
+        """Samples at `index`: an int (keeps the leading axis), a slice, an index array or
+        tensor, or a boolean mask over N."""
         if isinstance(index, (int, np.integer)):
             index = slice(int(index), int(index) + 1)
-        return TokenBatch({n: self.values[n][index] for n in self.types}, {n: self.ids[n][index] for n in self.types},
-                          {n: self.mask[n][index] for n in self.types}, self.version)
+        return self._map(lambda x: x[index], lambda x: x[index], lambda x: x[index])
 
     def subset(self, types: Sequence[str]) -> "TokenBatch":
         """Only the token types in `types` (those present)."""
@@ -85,47 +114,70 @@ class TokenBatch:
         check_version(other.version, "merged batch")
         return TokenBatch({**self.values, **other.values}, {**self.ids, **other.ids}, {**self.mask, **other.mask}, self.version)
 
+    def clone(self) -> "TokenBatch":
+        """A copy that shares no memory with this batch."""
+        def c(x):
+            return x.clone() if isinstance(x, torch.Tensor) else np.array(x, copy=True)
+        return self._map(c, c, c)
+
+    def to(self, device: str | torch.device) -> "TokenBatch":
+        """Torch tensors on `device`, dtypes kept (numpy arrays become tensors first)."""
+        def t(x):
+            return (x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))).to(device)
+        return self._map(t, t, t)
+
     def to_torch(self, device: str = "cpu", dtype: torch.dtype = torch.float32) -> "TokenBatch":
-        """Torch tensors on `device` (values in `dtype`)."""
+        """Torch tensors on `device` (values in `dtype`, ids int64, mask bool)."""
         def t(x, dt):
             return x.to(device=device, dtype=dt) if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), device=device, dtype=dt)
-        return TokenBatch({n: t(self.values[n], dtype) for n in self.types}, {n: t(self.ids[n], torch.int64) for n in self.types},
-                          {n: t(self.mask[n], torch.bool) for n in self.types}, self.version)
+        return self._map(lambda x: t(x, dtype), lambda x: t(x, torch.int64), lambda x: t(x, torch.bool))
 
     def to_numpy(self, dtype=np.float32) -> "TokenBatch":
         """Numpy arrays on the host (values in `dtype`)."""
-        return TokenBatch({n: _np(self.values[n]).astype(dtype) for n in self.types}, {n: _np(self.ids[n]).astype(np.int64) for n in self.types},
-                          {n: _np(self.mask[n]).astype(bool) for n in self.types}, self.version)
+        return self._map(lambda x: _np(x).astype(dtype), lambda x: _np(x).astype(np.int64), lambda x: _np(x).astype(bool))
 
     def pad_to(self, lengths: dict[str, int]) -> "TokenBatch":
-        """Pad (never truncate) each type to ``lengths[type]`` tokens; absent types become empty
-        arrays of that length when named in `lengths`. Raises naming a type that is too long."""
+        """Pad (never truncate) each type to ``lengths[type]`` tokens, as numpy arrays; absent
+        schema types become empty arrays of that length when named in `lengths`. Raises
+        naming a type that is too long."""
         values, ids, mask = {}, {}, {}
         n = len(self)
-        for name in SCHEMA.names():
+        for name in SCHEMA.names() + tuple(k for k in self.values if k not in SCHEMA.names()):
             if name not in lengths and name not in self.values:
                 continue
-            t = SCHEMA[name]
             cur = self.values[name].shape[1] if name in self.values else 0
             want = lengths.get(name, cur)
             if cur > want:
                 raise ValueError(f"token type {name!r} has {cur} tokens, more than the requested length {want}")
-            v = _np(self.values[name]) if name in self.values else np.zeros((n, 0, t.width), np.float32)
-            i = _np(self.ids[name]) if name in self.ids else np.zeros((n, 0, len(t.ids)), np.int64)
-            m = _np(self.mask[name]) if name in self.mask else np.zeros((n, 0), bool)
-            values[name] = np.concatenate([v, np.zeros((n, want - cur, t.width), v.dtype)], 1)
-            ids[name] = np.concatenate([i, np.zeros((n, want - cur, len(t.ids)), i.dtype)], 1)
+            if name in self.values:
+                v, i, m = _np(self.values[name]), _np(self.ids[name]), _np(self.mask[name])
+            else:
+                t = SCHEMA[name]
+                v, i, m = np.zeros((n, 0, t.width), np.float32), np.zeros((n, 0, len(t.ids)), np.int64), np.zeros((n, 0), bool)
+            values[name] = np.concatenate([v, np.zeros((n, want - cur, v.shape[-1]), v.dtype)], 1)
+            ids[name] = np.concatenate([i, np.zeros((n, want - cur, i.shape[-1]), i.dtype)], 1)
             mask[name] = np.concatenate([m, np.zeros((n, want - cur), bool)], 1)
         return TokenBatch(values, ids, mask, self.version)
 
     @staticmethod
     def concatenate(batches: Sequence["TokenBatch"]) -> "TokenBatch":
-        """Stack batches along N, padding every type to the longest (numpy)."""
+        """Stack batches along N. Torch batches (equal lengths per type, as a layout gives
+        them) stay torch tensors on their device; numpy batches are padded to the longest
+        of each type."""
         if not batches:
             raise ValueError("concatenate needs at least one TokenBatch")
         for b in batches:
             check_version(b.version, "a concatenated batch")
+        if all(isinstance(v, torch.Tensor) for b in batches for v in b.values.values()) and batches[0].values:
+            names = batches[0].types
+            for b in batches[1:]:
+                if b.types != names:
+                    raise ValueError(f"cannot concatenate torch batches of types {list(names)} and {list(b.types)}")
+            return TokenBatch({n: torch.cat([b.values[n] for b in batches]) for n in names},
+                              {n: torch.cat([b.ids[n] for b in batches]) for n in names},
+                              {n: torch.cat([b.mask[n] for b in batches]) for n in names}, batches[0].version)
         names = [n for n in SCHEMA.names() if any(n in b.values for b in batches)]
+        names += [n for b in batches for n in b.values if n not in SCHEMA.names() and n not in names]
         lengths = {n: max(b.values[n].shape[1] if n in b.values else 0 for b in batches) for n in names}
         padded = [b.pad_to(lengths) for b in batches]
         return TokenBatch({n: np.concatenate([p.values[n] for p in padded]) for n in names},

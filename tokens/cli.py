@@ -27,17 +27,15 @@ def _load_robots(path: Path) -> list[tuple[str, str, mujoco.MjModel]]:
     if not path.exists():
         raise TokenCommandError(f"{path} does not exist")
     if path.suffix == ".json":
-        from tt.sim.designs import DesignError, get_space, load_designs
+        from tt.sim.backends.base import resolve_designs
+        from tt.sim.designs import DesignError, load_designs
 
         try:
             designs = load_designs(path)
+            robots = resolve_designs(designs, who=f"tokenizing {path}", one_space=False)
         except (DesignError, ValueError) as e:
             raise TokenCommandError(str(e)) from None
-        out = []
-        for i, d in enumerate(designs):
-            text = get_space(d.space).to_mjcf(d)
-            out.append((f"{d.space}#{i}", text, mujoco.MjModel.from_xml_string(text)))
-        return out
+        return [(f"{d.space}#{i}", text, model) for i, (d, text, model) in enumerate(zip(designs, robots.mjcf, robots.models))]
     try:
         # From the path, so meshes and includes resolve next to the file.
         model = mujoco.MjModel.from_xml_path(str(path))

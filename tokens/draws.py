@@ -46,7 +46,7 @@ class GenerateConfig:
     min_steps: episodes with fewer executed control steps are dropped (paper: 100 = 2 s).
     max_motion_steps: cut training motions to this many steps (None: whole motions).
     max_yaw [rad], max_shift [m]: ranges of the per-episode planar motion augmentation.
-    backend: rollout backend (`tt.sim.rollout.BACKENDS`). reward: reward stored per
+    backend: rollout backend (`tt.sim.backends.BACKENDS`). reward: reward stored per
     episode and optimised by CMA-ES (`tt.sim.rewards.REWARDS`).
     action_noise: control perturbation, the standard deviation [rad or m] of the Gaussian
     noise on every executed command (clean commands are logged); 0: none ("warp" backend
@@ -73,7 +73,7 @@ class GenerateConfig:
     def __post_init__(self) -> None:
         from tt.sim.rewards import REWARDS
         from tt.sim.designs import get_space
-        from tt.sim.rollout import BACKENDS
+        from tt.sim.backends import BACKENDS
 
         get_space(self.space)  # raises listing the valid spaces
         for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):

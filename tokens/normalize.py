@@ -9,10 +9,11 @@ A fit widens ranges narrower than `MIN_RANGE` about their middle, so a value tha
 constant over the data maps to 0. Padding tokens get `PAD_VALUE` in every value;
 `is_padding` finds them again in (noisy) model output.
 
-One `Normalizer` serves the tokenizer's numpy batches and the DiT's torch tensors
-(`tt.tokens.TokenBatch`, `tt.dit.layout.TokenTensors`, or one type's values at a time,
-differentiably), and is what datasets store (`to_dict`, JSON) and DiT checkpoints store
-(`state_dict`, float32 tensors).
+One `Normalizer` serves the tokenizer's numpy batches and the DiT's torch tensors (a
+`tt.tokens.batch.TokenBatch` of either, or one type's values at a time, differentiably),
+and is what datasets store (`to_dict`, JSON) and DiT checkpoints store (`state_dict`,
+float32 tensors). It knows token types and widths, not model layouts:
+`tt.dit.layout.Layout.check_normalizer` checks statistics against a layout.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import dataclasses
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Iterable, TypeVar
 
 import numpy as np
 import torch
@@ -39,11 +39,6 @@ CONSTANT_RANGE = 1e-6
 #: this: far above model noise on padding (sigma 0.05 -> RMS 0.05), far below real tokens,
 #: whose rotation entries alone keep them ~0.6 RMS away.
 PADDING_RMS = 0.3
-
-#: Token containers: `TokenBatch` or `tt.dit.layout.TokenTensors` (dataclasses with values,
-#: ids and mask dicts).
-Tokens = TypeVar("Tokens")
-
 
 def _fixed_range(tname: str) -> tuple[np.ndarray, np.ndarray]:
     """Per-value [low, high] fixed by the schema (NaN where the data decides)."""
@@ -90,7 +85,7 @@ class Normalizer:
     def fit(data, quantile: float = 0.0) -> "Normalizer":
         """Statistics over the real tokens of a dataset.
 
-        data: a `TokenBatch` or `TokenTensors`; a mapping type -> (values (..., D), mask
+        data: a `TokenBatch`; a mapping type -> (values (..., D), mask
         (...) True for real tokens); numpy or torch; or an iterable of these, streamed.
         quantile: 0 uses minimum and maximum (streaming); q > 0 uses the q and 1 - q
         quantiles (keeps every value in memory), so rare outliers do not squash the rest.
@@ -98,7 +93,7 @@ class Normalizer:
         """
         if not 0.0 <= quantile < 0.5:
             raise ValueError(f"quantile must be in [0, 0.5), got {quantile}")
-        parts = [data] if isinstance(data, Mapping) or hasattr(data, "values") and hasattr(data, "mask") else data
+        parts = [data] if isinstance(data, (Mapping, TokenBatch)) else data
         lo: dict[str, np.ndarray] = {}
         hi: dict[str, np.ndarray] = {}
         kept: dict[str, list[np.ndarray]] = {}
@@ -106,8 +101,7 @@ class Normalizer:
             if isinstance(part, Mapping):
                 items = [(name, v, m) for name, (v, m) in part.items()]
             else:
-                if hasattr(part, "version"):
-                    check_version(part.version, "tokens given to Normalizer.fit")
+                check_version(part.version, "tokens given to Normalizer.fit")
                 items = [(name, v, part.mask[name]) for name, v in part.values.items()]
             for name, values, mask in items:
                 v = _np(values).astype(np.float64)[_np(mask).astype(bool)]  # (n, D)
@@ -134,17 +128,6 @@ class Normalizer:
             low[name] = np.where(narrow, mid - MIN_RANGE / 2, l)
             high[name] = np.where(narrow, mid + MIN_RANGE / 2, h)
         return Normalizer(low, high)
-
-    def check(self, layout) -> None:
-        """Raise `tt.dit.layout.LayoutError` unless every type of `layout` (a
-        `tt.dit.layout.Layout`) has statistics of its width."""
-        from tt.dit.layout import LayoutError  # the DiT builds on tokens, not the reverse
-
-        for s in layout.specs:
-            if s.name not in self.low:
-                raise LayoutError(f"normalisation statistics lack token type {s.name!r}")
-            if self.low[s.name].shape != (s.dim,):
-                raise LayoutError(f"normalisation statistics of {s.name!r} have width {self.low[s.name].shape}, layout dim {s.dim}")
 
     # ---------------------------------------------------------------- the map
     def _affine(self, name: str, like):
@@ -190,16 +173,15 @@ class Normalizer:
         lo, scale, offset = self._affine(name, y)
         return (y + offset) / scale + lo
 
-    def normalize(self, tokens: Tokens) -> Tokens:
-        """Every type of `tokens` (a `TokenBatch` or `TokenTensors`) -> normalised, padding
+    def normalize(self, tokens: TokenBatch) -> TokenBatch:
+        """Every type of `tokens` (a `TokenBatch`) -> normalised, padding
         tokens -> PAD_VALUE (values beyond the dataset's range go beyond [-1, 1]). The
         result is of the same class; ids and mask are shared, not copied."""
-        if hasattr(tokens, "version"):
-            check_version(tokens.version, "normalized tokens")
+        check_version(tokens.version, "normalized tokens")
         values = {k: self.normalize_values(k, v, tokens.mask[k]) for k, v in tokens.values.items()}
         return dataclasses.replace(tokens, values=values)
 
-    def denormalize(self, tokens: Tokens, detect_padding: bool = False, clip: bool = False) -> Tokens:
+    def denormalize(self, tokens: TokenBatch, detect_padding: bool = False, clip: bool = False) -> TokenBatch:
         """Normalised `tokens` -> encoded values, of the same class.
 
         detect_padding: replace the mask with `is_padding` of the input (for model output);

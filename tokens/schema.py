@@ -88,13 +88,25 @@ class Encoding(Enum):
     ROTATION = "rotation"
 
 
-class Role(Enum):
-    """Embodiment tokens are time-invariant; dynamics tokens have a time ID; conditioning
-    tokens are never noised."""
+class Role(str, Enum):
+    """What a token type is, to the tokenizer and to the diffusion tasks (`tt.dit.tasks`).
+
+    EMBODIMENT: time-invariant robot tokens (links, joints, actuators); diffused by the
+    motion-to-robot task, clean for control. DYNAMICS: per-step state tokens (track-link
+    poses, joint and actuator observations); diffused by motion-to-robot, and for control
+    the window's earliest step is the clean current state. ACTION: per-step controller
+    commands; diffused by both tasks. CONDITION: target poses; never noised. Every role but
+    EMBODIMENT has a time ID (`STEP_ROLES`).
+    """
 
     EMBODIMENT = "embodiment"
     DYNAMICS = "dynamics"
-    CONDITIONING = "conditioning"
+    ACTION = "action"
+    CONDITION = "condition"
+
+
+#: Roles with a time ID, tokenized once per control step.
+STEP_ROLES = (Role.DYNAMICS, Role.ACTION, Role.CONDITION)
 
 
 @dataclass(frozen=True)
@@ -305,7 +317,7 @@ ACTUATOR_OBS = TokenType(
 
 CONTROL = TokenType(
     "control",
-    Role.DYNAMICS,
+    Role.ACTION,
     (Attribute("target", 1, unit="rad or m"),),
     ids=("actuator", "time"),
     doc="The (clean) controller command of one actuator at one control step.",
@@ -313,7 +325,7 @@ CONTROL = TokenType(
 
 TARGET_POSE = TokenType(
     "target_pose",
-    Role.CONDITIONING,
+    Role.CONDITION,
     _pose_attrs(),
     ids=("track_link", "time"),
     doc="Target world pose of a track link at one control step.",
@@ -363,7 +375,6 @@ SCHEMA = Schema(
 )
 
 EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
-DYNAMICS_TYPES = SCHEMA.names(Role.DYNAMICS)
 
 
 class SchemaVersionError(TTError):

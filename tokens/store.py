@@ -29,6 +29,10 @@ Why shards are directories renamed into place: a shard is written under ``.parti
 its files checksummed into ``manifest.json``, fsync'ed, and the directory renamed to
 ``shards/sNNNNNN`` (one atomic rename), so ``shards/`` never holds a half-written shard
 after a crash, and a shard damaged later (a truncated or altered file) fails `verify_shard`.
+
+Beside it: `tt.tokens.lock` (one writer per dataset), `tt.tokens.info` (what
+``tt dataset info`` reports); the writer of whole datasets is `tt.generate` (the app), the
+training reader `tt.dit.loader`.
 """
 
 from __future__ import annotations
@@ -39,7 +43,6 @@ import logging
 import os
 import re
 import shutil
-import socket
 import uuid
 import zlib
 from dataclasses import dataclass, field
@@ -51,14 +54,12 @@ import numpy as np
 
 from tt.kernels.errors import TTError
 from tt.kernels.version import tt_version
-from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, Role, check_version
+from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, check_version
 
 logger = logging.getLogger(__name__)
 
 #: Format tag in the root attributes; bumps when the layout above changes.
 FORMAT = "tt.dataset/1"
-#: Per-step token types (dynamics and conditioning), in schema order.
-STEP_TYPES: tuple[str, ...] = tuple(n for n in SCHEMA.names() if SCHEMA[n].role is not Role.EMBODIMENT)
 #: Control steps per chunk of the per-step arrays (~60 ViperX episodes): big enough that a
 #: block read is a few large reads, small enough that a random window reads little.
 STEP_CHUNK = 16384
@@ -151,64 +152,6 @@ def _jsonable(x):
     if isinstance(x, np.generic):
         return x.item()
     return x
-
-
-# ------------------------------------------------------------------------------ lock
-class DatasetLock:
-    """One writer per dataset: ``DATASET/.lock`` holds host and pid of the running `tt generate`.
-
-    A lock left by a process that no longer runs on this host (killed) is taken over.
-    """
-
-    def __init__(self, path: str | Path):
-        self.file = Path(path) / ".lock"
-        self.held = False
-
-    def __enter__(self) -> "DatasetLock":
-        me = {"host": socket.gethostname(), "pid": os.getpid()}
-        for _ in range(2):
-            try:
-                fd = os.open(self.file, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                try:
-                    other = json.loads(self.file.read_text())
-                except (OSError, json.JSONDecodeError):
-                    other = {}
-                if other.get("host") == me["host"] and _pid_alive(int(other.get("pid", -1))):
-                    raise DatasetError(f"{self.file.parent} is being written by process {other['pid']} on this host; "
-                                       "wait for it or stop it first") from None
-                if other.get("host") not in (None, me["host"]):
-                    raise DatasetError(f"{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if that "
-                                       f"run is gone, delete {self.file}") from None
-                self.file.unlink(missing_ok=True)  # stale: its process is gone
-                continue
-            with os.fdopen(fd, "w") as f:
-                json.dump(me, f)
-            self.held = True
-            return self
-        raise DatasetError(f"could not take the lock {self.file}")
-
-    def __exit__(self, *exc) -> None:
-        if self.held:
-            self.file.unlink(missing_ok=True)
-            self.held = False
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    # A zombie (killed, not yet reaped by its parent) still answers kill(0).
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"
-    except OSError:
-        return True
 
 
 # ------------------------------------------------------------------------------ shards on disk
@@ -741,131 +684,9 @@ class TokenStore:
         return out
 
 
-# ------------------------------------------------------------------------------ tt dataset info
-def dataset_info(path: str | Path, *, verify: str = "size") -> dict:
-    """Counts, token maxima, normalisation statistics and reward summary of a dataset, as a dict."""
-    store = TokenStore(path, verify=verify)
-    table = store.episode_table()
-    attrs = store.attrs
-    generated = sum(int(r.attrs.get("generated", r.episodes)) for r in store.readers)
-    dropped: dict[str, int] = {}
-    for r in store.readers:
-        for k, v in r.attrs.get("dropped", {}).items():
-            dropped[k] = dropped.get(k, 0) + int(v)
-    size = sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
-    reward = table.get("reward", np.zeros(0))
-    out = {
-        "path": str(path), "format": attrs["format"], "schema_version": attrs["schema_version"],
-        "tt_version": attrs.get("tt_version"), "space": attrs.get("space"), "config": attrs.get("config", {}),
-        "complete": bool(attrs.get("complete", False)), "shards": len(store.readers),
-        "shards_expected": attrs.get("config", {}).get("shards"), "damaged": store.damaged,
-        "designs": sum(r.attrs["designs"] for r in store.readers), "episodes": store.episodes,
-        "episodes_generated": generated, "dropped": dropped, "steps": sum(int(r.attrs["steps"]) for r in store.readers),
-        "bytes": size, "maxima": store.maxima,
-    }
-    if len(table.get("length", [])):
-        out["length"] = _summary(table["length"].astype(np.float64))
-    for k in ("reward", "pos_err", "orn_err", "survival"):
-        if k in table and len(table[k]):
-            out[k] = _summary(table[k].astype(np.float64))
-    if store.readers:
-        norm = store.normalizer()
-        out["statistics"] = {n: {"low": norm.low[n].tolist(), "high": norm.high[n].tolist()} for n in norm.low}
-    out["_reward_values"] = reward
-    return out
-
-
-def _summary(x: np.ndarray) -> dict[str, float]:
-    x = x[np.isfinite(x)]
-    if not len(x):
-        return {"n": 0}
-    return {"n": int(len(x)), "mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()),
-            "p50": float(np.median(x)), "max": float(x.max())}
-
-
-def _text_histogram(x: np.ndarray, bins: int = 12, width: int = 40) -> list[str]:
-    x = x[np.isfinite(x)]
-    if not len(x):
-        return ["  (no episodes)"]
-    counts, edges = np.histogram(x, bins=bins)
-    top = max(int(counts.max()), 1)
-    return [f"  {edges[i]:9.2f} .. {edges[i + 1]:9.2f} | {'#' * int(round(width * c / top)):<{width}} {c}" for i, c in enumerate(counts)]
-
-
-def plot_rewards(rewards: np.ndarray, out: str | Path, title: str = "episode rewards") -> Path:
-    """Histogram of episode rewards as a PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    x = rewards[np.isfinite(rewards)]
-    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=120)
-    ax.hist(x, bins=50, color="#4477aa")
-    ax.set_xlabel("episode reward (tracking, sum over steps)")
-    ax.set_ylabel("episodes")
-    ax.set_title(f"{title} (n = {len(x)})")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return Path(out)
-
-
-def _fmt_bytes(n: float) -> str:
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if n < 1024 or unit == "TiB":
-            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
-        n /= 1024
-    return f"{n:.1f} TiB"
-
-
-def dataset_info_cmd(path: str | Path, *, plot: str | Path | None = None, as_json: bool = False, verify: str = "size") -> str:
-    """``tt dataset info DATASET [--plot rewards.png] [--json]``: the dataset's counts, token
-    maxima, statistics and reward histogram as text (or JSON); `plot` writes the histogram PNG.
-    Raises `DatasetError` for a folder that is not a dataset."""
-    info = dataset_info(path, verify=verify)
-    rewards = info.pop("_reward_values")
-    if plot is not None:
-        plot_rewards(rewards, plot, title=f"{info['space']} dataset {Path(path).name}")
-    if as_json:
-        return json.dumps(info, indent=1)
-    cfg = info["config"]
-    lines = [f"{info['path']}: {info['format']}, RoboToken schema v{info['schema_version']}, tt {info['tt_version']}",
-             f"space {info['space']}; seed {cfg.get('seed')}; bias {cfg.get('bias') or 'none'}; "
-             f"{cfg.get('episodes_per_design')} episodes per design; min {cfg.get('min_steps')} steps",
-             f"shards {info['shards']}/{info['shards_expected']}" + ("" if info["complete"] else " (incomplete: run `tt generate` again)")
-             + (f"; damaged: {sorted(info['damaged'])}" if info["damaged"] else ""),
-             f"designs {info['designs']:,}; episodes {info['episodes']:,} kept of {info['episodes_generated']:,} generated"
-             + "".join(f"; dropped {v:,} {k}" for k, v in sorted(info["dropped"].items()) if v),
-             f"steps {info['steps']:,}; size on disk {_fmt_bytes(info['bytes'])}"]
-    if "length" in info:
-        ln = info["length"]
-        lines.append(f"episode length [steps]: mean {ln['mean']:.1f}, min {ln['min']:.0f}, median {ln['p50']:.0f}, max {ln['max']:.0f}")
-    for k, unit in (("pos_err", "cm"), ("orn_err", "deg"), ("survival", "")):
-        if k in info and info[k].get("n"):
-            lines.append(f"{k} [{unit or '1'}]: mean {info[k]['mean']:.3f}, median {info[k]['p50']:.3f}")
-    lines.append("token maxima (per robot | per step):")
-    lines.append("  " + ", ".join(f"{k} {v}" for k, v in info["maxima"].items()))
-    if "statistics" in info:
-        lines.append("normalisation ranges (low .. high of each attribute, first value):")
-        for name, st in info["statistics"].items():
-            t = SCHEMA[name]
-            parts = []
-            for a in t.attributes:
-                sl = t.slice(a.name)
-                parts.append(f"{a.name} {st['low'][sl.start]:.3g}..{st['high'][sl.start]:.3g}")
-            lines.append(f"  {name}: " + ", ".join(parts))
-    lines.append("episode rewards (tracking):")
-    lines += _text_histogram(rewards)
-    if plot is not None:
-        lines.append(f"wrote {plot}")
-    return "\n".join(lines)
-
-
 __all__ = [
-    "BLOCK_EPISODES", "DatasetError", "DatasetLock", "EpisodeBlock", "FORMAT", "STEP_TYPES", "ShardPart", "ShardReader",
-    "ShardWriter", "TokenStore", "clear_partial", "create_root", "dataset_info", "dataset_info_cmd", "discard_shard",
-    "is_dataset", "merge_stats", "normalizer_from_stats", "plot_rewards", "read_manifest", "read_root", "shard_dirs",
+    "BLOCK_EPISODES", "DatasetError", "EpisodeBlock", "FORMAT", "ShardPart", "ShardReader",
+    "ShardWriter", "TokenStore", "clear_partial", "create_root", "discard_shard",
+    "is_dataset", "merge_stats", "normalizer_from_stats", "read_manifest", "read_root", "shard_dirs",
     "shard_name", "update_root", "verify_shard",
 ]

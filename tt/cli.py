@@ -216,7 +216,7 @@ def rollout(
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.controller import IKConfig
     from tt.sim.designs import DesignError, get_space, load_designs
-    from tt.sim.rollout import BACKENDS
+    from tt.sim.backends import BACKENDS
 
     try:
         sp = get_space(space)
@@ -479,12 +479,21 @@ def dataset_info(
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
 ) -> None:
     """Counts, token-type maxima, normalisation statistics and the reward histogram of a dataset."""
-    from tt.tokens.store import dataset_info_cmd
+    import json
+
+    from tt.tokens.info import dataset_info as summarize, info_text
+    from tt.viz.plots import save_reward_histogram
 
     try:
-        typer.echo(dataset_info_cmd(path, plot=plot, as_json=json_out))
+        info, rewards = summarize(path)
+        if plot is not None:
+            save_reward_histogram(plot, rewards, title=f"{info['space']} dataset {Path(path).name}")
     except ValueError as e:
         _fail(str(e))
+    if json_out:
+        typer.echo(json.dumps(info, indent=1))
+        return
+    typer.echo(info_text(info, rewards) + (f"\nwrote {plot}" if plot is not None else ""))
 
 
 @app.command()

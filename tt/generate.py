@@ -70,9 +70,10 @@ from tt.tokens.draws import (
     training_motions,
 )
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA
+from tt.tokens.info import format_bytes
+from tt.tokens.lock import DatasetLock
 from tt.tokens.store import (
     DatasetError,
-    DatasetLock,
     ShardPart,
     ShardWriter,
     clear_partial,
@@ -345,7 +346,7 @@ class GenerateReport:
         t, r = self.totals, self.run
         drops = ", ".join(f"{v:,} {k}" for k, v in sorted(t["dropped"].items()) if v) or "none"
         lines = [f"dataset {self.path}: {t['shards']} shards, {t['designs']:,} designs, {t['kept']:,} episodes kept of "
-                 f"{t['generated']:,} generated (dropped: {drops}), {t['steps']:,} steps, {_fmt_bytes(t['bytes'])}"]
+                 f"{t['generated']:,} generated (dropped: {drops}), {t['steps']:,} steps, {format_bytes(t['bytes'])}"]
         if r["shards"]:
             stage = r["stage_seconds"]
             total = sum(stage.values()) or 1.0
@@ -357,12 +358,6 @@ class GenerateReport:
         if r["regenerated"]:
             lines.append("regenerated damaged shards: " + "; ".join(f"{k}: {v}" for k, v in sorted(r["regenerated"].items())))
         return "\n".join(lines)
-
-
-def _fmt_bytes(n: float) -> str:
-    from tt.tokens.store import _fmt_bytes as f
-
-    return f(n)
 
 
 def _check_config(stored: Mapping, wanted: Mapping, path: Path) -> None:

@@ -1,4 +1,5 @@
-"""PNG plots for benchmarks and reports: grouped bars, scatter plots and curves, each with
+"""PNG plots for benchmarks, reports and datasets: grouped bars, scatter plots, curves and
+reward histograms (`tt dataset info --plot`), each with
 a title, axis labels (put units in them: ``"position error [cm]"``) and confidence intervals.
 
 Figures are built with matplotlib's object API (no pyplot, no global state), so they
@@ -224,3 +225,26 @@ def save_curve(path: str | Path, x: Sequence[float], curves: Mapping[str, Sequen
                **kwargs) -> Path:
     """Write `curve_figure` (same arguments) to the PNG at `path`; returns the path."""
     return _finish(curve_figure(x, curves, **kwargs), path, dpi)
+
+
+# ---------------------------------------------------------------- histograms
+def reward_histogram_figure(rewards: Sequence[float], *, title: str, bins: int = 50,
+                            xlabel: str = "episode reward (tracking, sum over steps)",
+                            size: tuple[float, float] = (6.0, 3.5)) -> Figure:
+    """Histogram of per-episode rewards (non-finite ones left out; the title gives n)."""
+    _require_text(title=title, xlabel=xlabel)
+    x = np.asarray(rewards, dtype=np.float64).reshape(-1)
+    x = x[np.isfinite(x)]
+    fig = Figure(figsize=size, layout="constrained")
+    ax = fig.add_subplot()
+    ax.hist(x, bins=bins, color="#4477aa")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("episodes")
+    ax.set_title(f"{title} (n = {len(x)})")
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def save_reward_histogram(path: str | Path, rewards: Sequence[float], *, dpi: int = 120, **kwargs) -> Path:
+    """Write `reward_histogram_figure` (same arguments) to the PNG at `path`; returns the path."""
+    return _finish(reward_histogram_figure(rewards, **kwargs), path, dpi)

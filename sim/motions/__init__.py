@@ -3,6 +3,11 @@
 ``get_motion("toss")`` is the canonical toss, ``get_motion("toss", seed=7)`` (or
 ``"toss:7"``) a variant; ``motion_set("train", arms=1)`` / ``motion_set("val", arms=1)``
 are the fixed splits; ``load_motion_file(path)`` reads ``.npz`` files and UMI zarr stores.
+
+Where things live: `base` (the `Motion` type, quaternion helpers), `script` (the smooth
+keyframe builder skills are written in), `workspace` (where targets may go), `skills` (the
+15 skills and the seed splits), `registry` (the library by name), `io` (files,
+resampling, SE(2) augmentation, per-space placement), `stats` (speed and extent figures).
 """
 
 from tt.sim.motions.base import MOTION_DT, MOTION_HZ, Motion, MotionError
@@ -23,26 +28,9 @@ from tt.sim.motions.io import (
     umi_episode_count,
 )
 from tt.sim.motions.stats import MotionStats, motion_stats
-from tt.sim.motions.library import (
-    BIMANUAL,
-    BIMANUAL_CENTER,
-    BIMANUAL_MOUNT_Y,
-    SINGLE_ARM,
-    SINGLE_ARM_CENTER,
-    SKILLS,
-    SPLITS,
-    TRAIN_SEEDS,
-    VAL_SEEDS,
-    MotionInfo,
-    Skill,
-    SkillParam,
-    Workspace,
-    get_motion,
-    list_motions,
-    motion_set,
-    split_of,
-    workspaces,
-)
+from tt.sim.motions.registry import SKILLS, MotionInfo, get_motion, list_motions, motion_set
+from tt.sim.motions.skills import SPLITS, TRAIN_SEEDS, VAL_SEEDS, Skill, SkillParam, split_of
+from tt.sim.motions.workspace import BIMANUAL, BIMANUAL_CENTER, BIMANUAL_MOUNT_Y, SINGLE_ARM, SINGLE_ARM_CENTER, Workspace, workspaces
 
 __all__ = [
     "motion_stats",

@@ -262,7 +262,7 @@ def load_motion_file(path: str | Path, **kwargs: Any) -> Motion:
 
 def resolve_motion(spec: str) -> Motion:
     """A motion from a library name (``toss``, ``toss:7``) or a file path."""
-    from tt.sim.motions.library import SKILLS, get_motion
+    from tt.sim.motions.registry import SKILLS, get_motion
 
     if spec.split(":")[0] in SKILLS:
         return get_motion(spec)

@@ -1,25 +1,14 @@
-"""Procedural manipulation skills: seeded end-effector trajectories at 50 Hz.
+"""The skill library: 10 single-arm and 5 bimanual procedural manipulation skills, and
+their seeds' train / validation split.
 
-Every skill is a short script of phases (holds, minimum-jerk moves, oscillations under a
-smooth envelope, minimum-jerk-timed paths). Each phase starts and ends at rest, or adds
-offsets that vanish with their first two derivatives at its ends, so every trajectory is
-C2 in position and orientation.
-
-Frames. Positions are in the world frame [m], z up. The end-effector frame has its x axis
-along the approach direction (the way the gripper points); the identity quaternion means
-"pointing forward (+x), level". Orientations are scripted as intrinsic yaw-pitch-roll,
-q = Rz(yaw) Ry(pitch) Rx(roll): pitch +90 deg points the gripper straight down, roll turns
-it about its own approach axis (a screw, a pour).
-
-Geometry. Single-arm skills are sized for a ViperX-300S-like arm standing upright at the
-world origin (`SINGLE_ARM`); bimanual skills for two such arms mounted at y = +-0.3 m
-(`BIMANUAL`), end effector 0 on the +y arm. `Workspace.contains` is the reachability
-check the tests apply to every library motion.
+Every skill is a short `tt.sim.motions.script.Script` of phases sized for the workspaces
+of `tt.sim.motions.workspace`; a `Skill` holds its script and its continuous parameters.
 
 Seeds. A skill has a few continuous parameters, each with a nominal value and a range.
 Seed 0 is the canonical motion (all nominal); any other seed draws every parameter not
 given explicitly uniformly from its range with a generator seeded by (skill, seed), so a
-(skill, seed) pair always yields the same motion.
+(skill, seed) pair always yields the same motion. `TRAIN_SEEDS` and `VAL_SEEDS` split the
+seeds; the registry by name is `tt.sim.motions.registry`.
 """
 
 from __future__ import annotations
@@ -30,219 +19,23 @@ from typing import Callable
 
 import numpy as np
 
-from tt.sim.motions.base import MOTION_DT, Motion, MotionError, quat_mul, quat_rotate
+from tt.sim.motions.base import MOTION_DT, Motion, MotionError
+from tt.sim.motions.script import DEG, Script, azimuth, bezier, bump, envelope, mirror_pose
+from tt.sim.motions.workspace import BIMANUAL_MOUNT_Y
 
-# ------------------------------------------------------------------ workspaces
-
-
-@dataclass(frozen=True)
-class Workspace:
-    """Where one arm's end-effector targets may go.
-
-    mount: arm base position [m]; shoulder: shoulder joint position [m] (the arm's centre
-    of reach); low, high: axis-aligned box for target positions [m]; center: middle of
-    the region the skills work in [m]; reach: largest target distance from the shoulder
-    [m] (below the arm's full stretch, so the wrist keeps some bend); hand: wrist-centre to
-    gripper-tip length [m]; wrist_reach: largest wrist-centre distance from the shoulder
-    [m] (upper arm + forearm less a margin); max_approach_z: largest upward component of
-    the approach axis (grippers point forward or down, not up).
-    """
-
-    mount: tuple[float, float, float]
-    shoulder: tuple[float, float, float]
-    low: tuple[float, float, float]
-    high: tuple[float, float, float]
-    center: tuple[float, float, float]
-    reach: float = 0.62
-    hand: float = 0.17
-    wrist_reach: float = 0.58
-    max_approach_z: float = 0.5
-
-    def contains(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
-        """Whether each target pose is inside this workspace.
-
-        pos: positions [m], shape (..., 3); quat: (w, x, y, z), shape (..., 4).
-        Returns a bool array of shape (...).
-        """
-        pos = np.asarray(pos, dtype=np.float64)
-        approach = quat_rotate(quat, np.array([1.0, 0.0, 0.0]))
-        in_box = np.all((pos >= np.array(self.low) - 1e-9) & (pos <= np.array(self.high) + 1e-9), axis=-1)
-        tip = np.linalg.norm(pos - np.array(self.shoulder), axis=-1) <= self.reach
-        wrist = np.linalg.norm(pos - self.hand * approach - np.array(self.shoulder), axis=-1) <= self.wrist_reach
-        upright = approach[..., 2] <= self.max_approach_z
-        return in_box & tip & wrist & upright
+#: Seeds of the training variants of every skill (seed 0 is the canonical motion).
+TRAIN_SEEDS: tuple[int, ...] = tuple(range(10))
+#: Seeds of the validation variants of every skill; disjoint from `TRAIN_SEEDS`.
+VAL_SEEDS: tuple[int, ...] = (100, 101, 102)
+SPLITS: dict[str, tuple[int, ...]] = {"train": TRAIN_SEEDS, "val": VAL_SEEDS}
 
 
-#: Height of the nominal ViperX shoulder joint above its mount [m].
-SHOULDER_HEIGHT = 0.127
-
-#: The single arm: upright at the world origin, working in front of it.
-SINGLE_ARM = Workspace(
-    mount=(0.0, 0.0, 0.0),
-    shoulder=(0.0, 0.0, SHOULDER_HEIGHT),
-    low=(0.15, -0.35, 0.05),
-    high=(0.55, 0.35, 0.55),
-    center=(0.35, 0.0, 0.25),
-)
-
-#: Middle of the single arm's working region [m].
-SINGLE_ARM_CENTER = SINGLE_ARM.center
-
-#: Lateral mount offset of the bimanual arms [m]: arm 0 at +y, arm 1 at -y.
-BIMANUAL_MOUNT_Y = 0.3
-
-#: The two arms of the bimanual robot; targets of arm 0 stay at y >= 0, of arm 1 at y <= 0.
-BIMANUAL = (
-    Workspace(
-        mount=(0.0, BIMANUAL_MOUNT_Y, 0.0),
-        shoulder=(0.0, BIMANUAL_MOUNT_Y, SHOULDER_HEIGHT),
-        low=(0.15, 0.0, 0.05),
-        high=(0.5, 0.55, 0.5),
-        center=(0.33, 0.15, 0.25),
-    ),
-    Workspace(
-        mount=(0.0, -BIMANUAL_MOUNT_Y, 0.0),
-        shoulder=(0.0, -BIMANUAL_MOUNT_Y, SHOULDER_HEIGHT),
-        low=(0.15, -0.55, 0.05),
-        high=(0.5, 0.0, 0.5),
-        center=(0.33, -0.15, 0.25),
-    ),
-)
-
-#: Middle of the shared bimanual workspace [m] (between the arms).
-BIMANUAL_CENTER = (0.33, 0.0, 0.25)
-
-
-def workspaces(arms: int) -> tuple[Workspace, ...]:
-    """The workspace of each end effector of a robot with `arms` (1 or 2) end effectors."""
-    if arms == 1:
-        return (SINGLE_ARM,)
-    if arms == 2:
-        return BIMANUAL
-    raise MotionError(f"arms must be 1 or 2, got {arms}")
-
-
-# ------------------------------------------------------------------ smooth building blocks
-
-_DEG = np.pi / 180.0
-_POSE_KEYS = ("x", "y", "z", "pitch", "yaw", "roll")
-
-
-def min_jerk(s: np.ndarray) -> np.ndarray:
-    """Minimum-jerk profile 10s^3 - 15s^4 + 6s^5 on s in [0, 1] (clipped); zero slope and curvature at both ends."""
-    s = np.clip(s, 0.0, 1.0)
-    return s**3 * (10.0 - 15.0 * s + 6.0 * s**2)
-
-
-def bump(s: np.ndarray) -> np.ndarray:
-    """Smooth bump 64 s^3 (1-s)^3 on [0, 1]: 0 at the ends with two vanishing derivatives, 1 at s = 0.5."""
-    s = np.clip(s, 0.0, 1.0)
-    return 64.0 * s**3 * (1.0 - s) ** 3
-
-
-def envelope(t: np.ndarray, duration: float, ramp: float) -> np.ndarray:
-    """Plateau of height 1 with minimum-jerk ramps of `ramp` [s] at both ends of [0, duration] [s]."""
-    return min_jerk(t / ramp) * min_jerk((duration - t) / ramp)
-
-
-def pose_quat(pitch: np.ndarray, yaw: np.ndarray, roll: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) of Rz(yaw) Ry(pitch) Rx(roll), angles [rad] of shape (...)."""
-    pitch, yaw, roll = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (pitch, yaw, roll)))
-    zero = np.zeros_like(pitch)
-    qz = np.stack([np.cos(yaw / 2), zero, zero, np.sin(yaw / 2)], axis=-1)
-    qy = np.stack([np.cos(pitch / 2), zero, np.sin(pitch / 2), zero], axis=-1)
-    qx = np.stack([np.cos(roll / 2), np.sin(roll / 2), zero, zero], axis=-1)
-    return quat_mul(quat_mul(qz, qy), qx)
-
-
-def mirror_pose(pose: dict[str, float]) -> dict[str, float]:
-    """The pose mirrored through the world xz plane (y, yaw and roll change sign)."""
-    flip = {"y", "yaw", "roll"}
-    return {k: (-v if k in flip else v) for k, v in pose.items()}
-
-
-# A phase maps local times t (n,) [s] and fractions tau = t / duration (n,) to poses (n, A, 6).
-_PhaseFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-
-class _Script:
-    """Keyframed trajectory of A end effectors, built phase by phase; all arms share phase times.
-
-    A pose is (x, y, z [m], pitch, yaw, roll [rad]); poses are given as dicts in degrees
-    for angles, holding only the keys that change.
-    """
-
-    def __init__(self, *starts: dict[str, float]):
-        self._pose = np.array([self._vector(s, None) for s in starts])  # (A, 6)
-        self._phases: list[tuple[float, _PhaseFn]] = []
-
-    @staticmethod
-    def _vector(update: dict[str, float] | None, base: np.ndarray | None) -> np.ndarray:
-        out = np.zeros(6) if base is None else base.copy()
-        for k, v in (update or {}).items():
-            i = _POSE_KEYS.index(k)
-            out[i] = v * _DEG if i >= 3 else v
-        return out
-
-    @property
-    def arms(self) -> int:
-        return self._pose.shape[0]
-
-    def pose(self, arm: int = 0) -> dict[str, float]:
-        """The current keyframe pose of `arm` (angles in degrees)."""
-        return {k: float(v / _DEG if i >= 3 else v) for i, (k, v) in enumerate(zip(_POSE_KEYS, self._pose[arm]))}
-
-    def hold(self, duration: float) -> None:
-        """Stay at the current pose for `duration` [s]."""
-        self.move(duration)
-
-    def move(self, duration: float, *targets: dict[str, float] | None, wave: _PhaseFn | None = None) -> None:
-        """Minimum-jerk move of each arm to its updated pose over `duration` [s].
-
-        targets: one pose update per arm (None keeps that arm still); wave: optional
-        offsets (n, A, 6) added on top, which must vanish with two derivatives at the ends.
-        """
-        if targets and len(targets) != self.arms:
-            raise ValueError(f"move needs {self.arms} targets, got {len(targets)}")
-        start = self._pose.copy()
-        end = np.array([self._vector(tg, start[a]) for a, tg in enumerate(targets or [None] * self.arms)])
-
-        def phase(t: np.ndarray, tau: np.ndarray) -> np.ndarray:
-            out = start + (end - start) * min_jerk(tau)[:, None, None]
-            return out if wave is None else out + wave(t, tau)
-
-        self._phases.append((float(duration), phase))
-        self._pose = end
-
-    def path(self, duration: float, fn: Callable[[np.ndarray], np.ndarray]) -> None:
-        """Follow `fn(s) -> poses (n, A, 6)` for s = min_jerk(tau), starting at rest at the current pose."""
-        first = fn(np.zeros(1))[0]
-        if not np.allclose(first, self._pose, atol=1e-9):
-            raise ValueError(f"path starts at {first}, the script is at {self._pose}")
-        self._phases.append((float(duration), lambda t, tau: fn(min_jerk(tau))))
-        self._pose = fn(np.ones(1))[0]
-
-    def build(self, dt: float = MOTION_DT) -> tuple[np.ndarray, np.ndarray]:
-        """Sample at period `dt` [s] from 0 to the end of the last phase: pos (T, A, 3), quat (T, A, 4)."""
-        durations = np.array([d for d, _ in self._phases])
-        bounds = np.concatenate([[0.0], np.cumsum(durations)])
-        t = np.arange(int(round(bounds[-1] / dt)) + 1) * dt
-        which = np.clip(np.searchsorted(bounds, t, side="right") - 1, 0, len(self._phases) - 1)
-        poses = np.empty((t.size, self.arms, 6))
-        for i, (d, fn) in enumerate(self._phases):
-            sel = which == i
-            local = np.minimum(t[sel] - bounds[i], d)
-            poses[sel] = fn(local, local / d)
-        quat = pose_quat(poses[..., 3], poses[..., 4], poses[..., 5])
-        return poses[..., :3], quat
-
-
-def _azimuth(x: float, y: float, mount_y: float = 0.0) -> float:
-    """Yaw [deg] that points a gripper from an arm's mount at (0, mount_y) towards (x, y)."""
-    return float(np.degrees(np.arctan2(y - mount_y, x)))
-
-
-# ------------------------------------------------------------------ skills
+def split_of(seed: int) -> str:
+    """``"train"``, ``"val"`` or ``"extra"`` (a seed in neither split)."""
+    for split, seeds in SPLITS.items():
+        if seed in seeds:
+            return split
+    return "extra"
 
 
 @dataclass(frozen=True)
@@ -265,7 +58,7 @@ class Skill:
     arms: int
     summary: str
     params: tuple[SkillParam, ...]
-    script: Callable[..., _Script]
+    script: Callable[..., Script]
 
     def draw(self, seed: int) -> dict[str, float]:
         """Parameter values for `seed`: nominal for 0, else uniform in each range."""
@@ -306,32 +99,32 @@ def _p(name: str, nominal: float, low: float, high: float, unit: str, doc: str) 
 # ---- single arm
 
 
-def _toss(y, pivot_z, radius, back, forward, swing_time, flick) -> _Script:
+def _toss(y, pivot_z, radius, back, forward, swing_time, flick) -> Script:
     # Underhand swing: the hand moves on a circle below a pivot, like an arm swinging from
     # the shoulder; min-jerk timing puts the peak speed (the release) mid-swing, where the
     # velocity points forward and up by (forward - back) / 2.
     px = 0.32
-    yaw = _azimuth(px, y)
+    yaw = azimuth(px, y)
     pitch0 = 80.0
 
     def arc(psi_deg: float) -> tuple[float, float]:
-        psi = psi_deg * _DEG
+        psi = psi_deg * DEG
         return px + radius * np.sin(psi), pivot_z - radius * np.cos(psi)
 
     wx, wz = arc(-back)
-    s = _Script({"x": 0.32, "y": y, "z": pivot_z - radius + 0.06, "pitch": 70.0, "yaw": yaw})
+    s = Script({"x": 0.32, "y": y, "z": pivot_z - radius + 0.06, "pitch": 70.0, "yaw": yaw})
     s.hold(0.4)
     s.move(1.0, {"x": wx, "z": wz, "pitch": pitch0})
     s.hold(0.25)
 
     def swing(u: np.ndarray) -> np.ndarray:
-        psi = (-back + (forward + back) * u) * _DEG
+        psi = (-back + (forward + back) * u) * DEG
         out = np.empty((u.size, 1, 6))
         out[:, 0, 0] = px + radius * np.sin(psi)
         out[:, 0, 1] = y
         out[:, 0, 2] = pivot_z - radius * np.cos(psi)
-        out[:, 0, 3] = (pitch0 - flick * u) * _DEG
-        out[:, 0, 4] = yaw * _DEG
+        out[:, 0, 3] = (pitch0 - flick * u) * DEG
+        out[:, 0, 4] = yaw * DEG
         out[:, 0, 5] = 0.0
         return out
 
@@ -357,12 +150,12 @@ TOSS = Skill(
 )
 
 
-def _scrub(cx, cy, z, amplitude, frequency, direction, drift, scrub_time) -> _Script:
+def _scrub(cx, cy, z, amplitude, frequency, direction, drift, scrub_time) -> Script:
     # Strokes along `direction` in the table plane, the wrist rolling a little with each
     # stroke, while the hand drifts sideways to cover a patch.
-    d = direction * _DEG
-    yaw = _azimuth(cx, cy)
-    s = _Script({"x": cx, "y": cy - drift / 2, "z": z + 0.15, "pitch": 80.0, "yaw": yaw})
+    d = direction * DEG
+    yaw = azimuth(cx, cy)
+    s = Script({"x": cx, "y": cy - drift / 2, "z": z + 0.15, "pitch": 80.0, "yaw": yaw})
     s.hold(0.4)
     s.move(0.9, {"z": z})
 
@@ -373,7 +166,7 @@ def _scrub(cx, cy, z, amplitude, frequency, direction, drift, scrub_time) -> _Sc
         out[:, 0, 0] = env * amplitude * np.cos(d) * phase
         out[:, 0, 1] = env * amplitude * np.sin(d) * phase
         out[:, 0, 2] = env * 0.005 * np.cos(4 * np.pi * frequency * t)  # pressure pulses twice per stroke
-        out[:, 0, 5] = env * 8.0 * _DEG * phase
+        out[:, 0, 5] = env * 8.0 * DEG * phase
         return out
 
     s.move(scrub_time, {"y": cy + drift / 2}, wave=strokes)
@@ -398,9 +191,9 @@ SCRUB = Skill(
 )
 
 
-def _drawer_open(hx, hy, hz, pull, pull_time, handle_roll, pitch) -> _Script:
-    yaw = _azimuth(hx, hy)
-    s = _Script({"x": 0.30, "y": hy, "z": hz + 0.08, "pitch": 35.0, "yaw": yaw})
+def _drawer_open(hx, hy, hz, pull, pull_time, handle_roll, pitch) -> Script:
+    yaw = azimuth(hx, hy)
+    s = Script({"x": 0.30, "y": hy, "z": hz + 0.08, "pitch": 35.0, "yaw": yaw})
     s.hold(0.4)
     s.move(1.2, {"x": hx - 0.07, "z": hz, "pitch": pitch, "roll": handle_roll})
     s.move(0.7, {"x": hx})
@@ -428,11 +221,11 @@ DRAWER_OPEN = Skill(
 )
 
 
-def _screw(sx, sy, sz, turn, drop, turn_time) -> _Script:
+def _screw(sx, sy, sz, turn, drop, turn_time) -> Script:
     # Ratchet: grip, turn about the approach axis while the thread pulls the hand down,
     # release, turn back lifted a little, repeat.
-    yaw = _azimuth(sx, sy)
-    s = _Script({"x": sx, "y": sy, "z": sz + 0.10, "pitch": 90.0, "yaw": yaw, "roll": -turn / 2})
+    yaw = azimuth(sx, sy)
+    s = Script({"x": sx, "y": sy, "z": sz + 0.10, "pitch": 90.0, "yaw": yaw, "roll": -turn / 2})
     s.hold(0.3)
     s.move(0.8, {"z": sz})
     z = sz
@@ -467,9 +260,9 @@ SCREW = Skill(
 )
 
 
-def _wipe(wx, wy, wz, radius, period, sweep, wipe_time) -> _Script:
+def _wipe(wx, wy, wz, radius, period, sweep, wipe_time) -> Script:
     # Circles on a vertical surface (a whiteboard facing the robot) while sweeping sideways.
-    s = _Script({"x": 0.30, "y": wy - sweep / 2, "z": wz, "pitch": 20.0})
+    s = Script({"x": 0.30, "y": wy - sweep / 2, "z": wz, "pitch": 20.0})
     s.hold(0.3)
     s.move(1.0, {"x": wx, "pitch": 0.0})
 
@@ -479,7 +272,7 @@ def _wipe(wx, wy, wz, radius, period, sweep, wipe_time) -> _Script:
         out = np.zeros((t.size, 1, 6))
         out[:, 0, 1] = env * radius * np.sin(w * t)
         out[:, 0, 2] = env * radius * (1.0 - np.cos(w * t)) - env * radius
-        out[:, 0, 5] = env * 10.0 * _DEG * np.sin(w * t)
+        out[:, 0, 5] = env * 10.0 * DEG * np.sin(w * t)
         return out
 
     s.move(wipe_time, {"y": wy + sweep / 2}, wave=circles)
@@ -503,16 +296,16 @@ WIPE = Skill(
 )
 
 
-def _pour(sx, sy, gx, gy, gz, tilt, tilt_time, pour_time) -> _Script:
+def _pour(sx, sy, gx, gy, gz, tilt, tilt_time, pour_time) -> Script:
     # A cup held from the side, gripper level: carry it over the target, roll about the
     # approach axis to pour, roll back, carry it home.
-    s = _Script({"x": sx, "y": sy, "z": 0.12, "pitch": 10.0, "yaw": _azimuth(sx, sy)})
+    s = Script({"x": sx, "y": sy, "z": 0.12, "pitch": 10.0, "yaw": azimuth(sx, sy)})
     s.hold(0.3)
-    s.move(1.4, {"x": gx, "y": gy, "z": gz, "yaw": _azimuth(gx, gy)})
+    s.move(1.4, {"x": gx, "y": gy, "z": gz, "yaw": azimuth(gx, gy)})
     s.move(tilt_time, {"roll": tilt, "pitch": 20.0, "z": gz - 0.02})
     s.hold(pour_time)
     s.move(tilt_time, {"roll": 0.0, "pitch": 10.0, "z": gz})
-    s.move(1.4, {"x": sx, "y": sy, "z": 0.12, "yaw": _azimuth(sx, sy)})
+    s.move(1.4, {"x": sx, "y": sy, "z": 0.12, "yaw": azimuth(sx, sy)})
     s.hold(0.3)
     return s
 
@@ -533,11 +326,11 @@ POUR = Skill(
 )
 
 
-def _reach_place(ax, ay, bx, by, bz, lift, turn, transfer_time) -> _Script:
+def _reach_place(ax, ay, bx, by, bz, lift, turn, transfer_time) -> Script:
     # Pick with the gripper pointing down, carry along an arc over the table, turn the
     # object about the vertical on the way, set it down.
     az = 0.06
-    s = _Script({"x": ax, "y": ay, "z": az + lift, "pitch": 90.0})
+    s = Script({"x": ax, "y": ay, "z": az + lift, "pitch": 90.0})
     s.hold(0.3)
     s.move(0.8, {"z": az})
     s.hold(0.4)  # grasp
@@ -547,8 +340,8 @@ def _reach_place(ax, ay, bx, by, bz, lift, turn, transfer_time) -> _Script:
         out[:, 0, 0] = ax + (bx - ax) * u
         out[:, 0, 1] = ay + (by - ay) * u
         out[:, 0, 2] = az + (bz - az) * u + 4.0 * lift * u * (1.0 - u)
-        out[:, 0, 3] = 90.0 * _DEG
-        out[:, 0, 4] = turn * u * _DEG
+        out[:, 0, 3] = 90.0 * DEG
+        out[:, 0, 4] = turn * u * DEG
         return out
 
     s.path(transfer_time, carry)
@@ -574,23 +367,12 @@ REACH_PLACE = Skill(
 )
 
 
-def _bezier(points: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Cubic Bezier through control points (4, D) at parameters u (n,): (n, D).
-
-    A Bezier curve stays in the convex hull of its control points, so control points
-    inside the workspace box keep the whole curve inside it.
-    """
-    u = u[:, None]
-    b = np.concatenate([(1 - u) ** 3, 3 * u * (1 - u) ** 2, 3 * u**2 * (1 - u), u**3], axis=1)
-    return b @ points
-
-
-def _fling_script(y: float, depth: float, height: float, fling_time: float, arms: int, mount_y: float) -> _Script:
+def _fling_script(y: float, depth: float, height: float, fling_time: float, arms: int, mount_y: float) -> Script:
     """Cloth fling for one arm or a mirrored pair; `y` is arm 0's lateral position."""
     grab_x = 0.40
     back = {"x": 0.22, "z": height, "pitch": 20.0}
-    start = {"x": grab_x, "y": y, "z": 0.08, "pitch": 90.0, "yaw": _azimuth(grab_x, y, mount_y) * 0.5}
-    s = _Script(*([start, mirror_pose(start)][:arms]))
+    start = {"x": grab_x, "y": y, "z": 0.08, "pitch": 90.0, "yaw": azimuth(grab_x, y, mount_y) * 0.5}
+    s = Script(*([start, mirror_pose(start)][:arms]))
     s.hold(0.3)
     s.hold(0.3)  # grasp the corner
     s.move(1.2, *([back, mirror_pose(back)][:arms]))
@@ -604,13 +386,13 @@ def _fling_script(y: float, depth: float, height: float, fling_time: float, arms
     yaw0 = s.pose(0)["yaw"]
 
     def fling(u: np.ndarray) -> np.ndarray:
-        c = _bezier(ctrl, u)  # (n, 3): x, z, pitch
+        c = bezier(ctrl, u)  # (n, 3): x, z, pitch
         out = np.zeros((u.size, arms, 6))
         out[:, 0, 0] = c[:, 0]
         out[:, 0, 1] = y
         out[:, 0, 2] = c[:, 1]
-        out[:, 0, 3] = c[:, 2] * _DEG
-        out[:, 0, 4] = yaw0 * _DEG
+        out[:, 0, 3] = c[:, 2] * DEG
+        out[:, 0, 4] = yaw0 * DEG
         if arms == 2:
             out[:, 1] = out[:, 0] * np.array([1, -1, 1, 1, -1, -1])
         return out
@@ -623,7 +405,7 @@ def _fling_script(y: float, depth: float, height: float, fling_time: float, arms
     return s
 
 
-def _fling(y, depth, height, fling_time) -> _Script:
+def _fling(y, depth, height, fling_time) -> Script:
     return _fling_script(y, depth, height, fling_time, 1, 0.0)
 
 
@@ -639,9 +421,9 @@ FLING = Skill(
 )
 
 
-def _stir(cx, cy, z, radius, period, tilt, stir_time) -> _Script:
-    yaw = _azimuth(cx, cy)
-    s = _Script({"x": cx, "y": cy, "z": z + 0.12, "pitch": 90.0 - tilt, "yaw": yaw})
+def _stir(cx, cy, z, radius, period, tilt, stir_time) -> Script:
+    yaw = azimuth(cx, cy)
+    s = Script({"x": cx, "y": cy, "z": z + 0.12, "pitch": 90.0 - tilt, "yaw": yaw})
     s.hold(0.3)
     s.move(0.8, {"z": z})
 
@@ -652,7 +434,7 @@ def _stir(cx, cy, z, radius, period, tilt, stir_time) -> _Script:
         out[:, 0, 0] = env * radius * np.cos(w * t) - env * radius
         out[:, 0, 1] = env * radius * np.sin(w * t)
         # The spoon tilts into the direction of travel.
-        out[:, 0, 3] = env * 6.0 * _DEG * np.sin(w * t)
+        out[:, 0, 3] = env * 6.0 * DEG * np.sin(w * t)
         return out
 
     s.move(stir_time, wave=circles)
@@ -676,11 +458,11 @@ STIR = Skill(
 )
 
 
-def _hammer(nx, ny, nz, raise_height, swing, strike_time) -> _Script:
+def _hammer(nx, ny, nz, raise_height, swing, strike_time) -> Script:
     # The held hammer points forward; each blow raises the hand while pitching the wrist
     # up, then strikes down, pitching the head into the nail.
-    yaw = _azimuth(nx, ny)
-    s = _Script({"x": nx - 0.05, "y": ny, "z": nz + 0.10, "pitch": 15.0, "yaw": yaw})
+    yaw = azimuth(nx, ny)
+    s = Script({"x": nx - 0.05, "y": ny, "z": nz + 0.10, "pitch": 15.0, "yaw": yaw})
     s.hold(0.3)
     s.move(0.8, {"x": nx, "z": nz})
     for _ in range(4):
@@ -710,7 +492,7 @@ HAMMER = Skill(
 # ---- bimanual
 
 
-def _bi_fling(y, depth, height, fling_time) -> _Script:
+def _bi_fling(y, depth, height, fling_time) -> Script:
     return _fling_script(y, depth, height, fling_time, 2, BIMANUAL_MOUNT_Y)
 
 
@@ -726,12 +508,12 @@ BI_FLING = Skill(
 )
 
 
-def _bi_lift(cx, cy, half_width, lift, carry, hold_time) -> _Script:
+def _bi_lift(cx, cy, half_width, lift, carry, hold_time) -> Script:
     # Grippers point at each other and squeeze a box from its sides.
     z = 0.10
     a0 = {"x": cx, "y": cy + half_width + 0.08, "z": z, "pitch": 20.0, "yaw": -90.0}
     a1 = mirror_pose(a0) | {"y": cy - half_width - 0.08}
-    s = _Script(a0, a1)
+    s = Script(a0, a1)
     s.hold(0.3)
     s.move(0.8, {"y": cy + half_width}, {"y": cy - half_width})
     s.hold(0.4)
@@ -758,12 +540,12 @@ BI_LIFT = Skill(
 )
 
 
-def _bi_handover(px, py, hx, hz, gap, qx, qy) -> _Script:
+def _bi_handover(px, py, hx, hz, gap, qx, qy) -> Script:
     # Arm 0 picks an object on its side and presents it sideways at the middle; arm 1 takes
     # it there and places it on its own side. Asymmetric, so the arms are scripted apart.
     a0 = {"x": px, "y": py, "z": 0.16, "pitch": 90.0}
     a1 = {"x": 0.30, "y": -0.25, "z": 0.25, "pitch": 60.0, "yaw": 30.0}
-    s = _Script(a0, a1)
+    s = Script(a0, a1)
     s.hold(0.3)
     s.move(0.8, {"z": 0.06}, None)
     s.hold(0.4)  # arm 0 grasps
@@ -795,12 +577,12 @@ BI_HANDOVER = Skill(
 )
 
 
-def _bi_fold(fx, width, length, height, fold_time) -> _Script:
+def _bi_fold(fx, width, length, height, fold_time) -> Script:
     # Fold a cloth in half towards the robot: grab the far corners, carry them up and over
     # on a Bezier arc, lay them on the near edge.
     z0 = 0.06
     a0 = {"x": fx, "y": width, "z": z0 + 0.10, "pitch": 90.0}
-    s = _Script(a0, mirror_pose(a0))
+    s = Script(a0, mirror_pose(a0))
     s.hold(0.3)
     s.move(0.8, {"z": z0}, {"z": z0})
     s.hold(0.4)
@@ -812,12 +594,12 @@ def _bi_fold(fx, width, length, height, fold_time) -> _Script:
     ])
 
     def fold(u: np.ndarray) -> np.ndarray:
-        c = _bezier(ctrl, u)
+        c = bezier(ctrl, u)
         out = np.zeros((u.size, 2, 6))
         out[:, 0, 0] = c[:, 0]
         out[:, 0, 1] = width
         out[:, 0, 2] = c[:, 1]
-        out[:, 0, 3] = c[:, 2] * _DEG
+        out[:, 0, 3] = c[:, 2] * DEG
         out[:, 1] = out[:, 0] * np.array([1, -1, 1, 1, -1, -1])
         return out
 
@@ -842,14 +624,14 @@ BI_FOLD = Skill(
 )
 
 
-def _bi_jar(jx, jz, turn, turn_time, hold_pitch) -> _Script:
+def _bi_jar(jx, jz, turn, turn_time, hold_pitch) -> Script:
     # Arm 1 holds a jar from its side; arm 0 grips the lid from above and unscrews it with
     # ratchet turns, then lifts it off and sets it aside.
     jy = 0.03  # jar axis, on arm 0's side so the lid stays in its half
     lid_z = jz + 0.07
     a0 = {"x": jx, "y": jy, "z": lid_z + 0.08, "pitch": 90.0, "roll": turn / 2}
     a1 = {"x": jx, "y": jy - 0.14, "z": jz, "pitch": hold_pitch, "yaw": 90.0}
-    s = _Script(a0, a1)
+    s = Script(a0, a1)
     s.hold(0.3)
     s.move(0.8, {"z": lid_z}, {"y": jy - 0.05})
     s.hold(0.3)
@@ -883,184 +665,7 @@ BI_JAR = Skill(
 )
 
 
-#: Every skill by name, single-arm first.
-SKILLS: dict[str, Skill] = {
-    s.name: s
-    for s in (
-        TOSS, SCRUB, DRAWER_OPEN, SCREW, WIPE, POUR, REACH_PLACE, FLING, STIR, HAMMER,
-        BI_FLING, BI_LIFT, BI_HANDOVER, BI_FOLD, BI_JAR,
-    )
-}
-
-
-# ------------------------------------------------------------------ public skill functions
-
-
-def toss(seed: int = 0, **params: float) -> Motion:
-    """Underhand toss (parameters: `TOSS.params`)."""
-    return TOSS.motion(seed, **params)
-
-
-def scrub(seed: int = 0, **params: float) -> Motion:
-    """Table scrub (parameters: `SCRUB.params`)."""
-    return SCRUB.motion(seed, **params)
-
-
-def drawer_open(seed: int = 0, **params: float) -> Motion:
-    """Open a drawer (parameters: `DRAWER_OPEN.params`)."""
-    return DRAWER_OPEN.motion(seed, **params)
-
-
-def screw(seed: int = 0, **params: float) -> Motion:
-    """Ratchet screwing about the approach axis (parameters: `SCREW.params`)."""
-    return SCREW.motion(seed, **params)
-
-
-def wipe(seed: int = 0, **params: float) -> Motion:
-    """Wipe a vertical surface (parameters: `WIPE.params`)."""
-    return WIPE.motion(seed, **params)
-
-
-def pour(seed: int = 0, **params: float) -> Motion:
-    """Pour from a held cup (parameters: `POUR.params`)."""
-    return POUR.motion(seed, **params)
-
-
-def reach_place(seed: int = 0, **params: float) -> Motion:
-    """Pick and place (parameters: `REACH_PLACE.params`)."""
-    return REACH_PLACE.motion(seed, **params)
-
-
-def fling(seed: int = 0, **params: float) -> Motion:
-    """One-arm cloth fling (parameters: `FLING.params`)."""
-    return FLING.motion(seed, **params)
-
-
-def stir(seed: int = 0, **params: float) -> Motion:
-    """Stir a pot (parameters: `STIR.params`)."""
-    return STIR.motion(seed, **params)
-
-
-def hammer(seed: int = 0, **params: float) -> Motion:
-    """Hammer a nail (parameters: `HAMMER.params`)."""
-    return HAMMER.motion(seed, **params)
-
-
-def bi_fling(seed: int = 0, **params: float) -> Motion:
-    """Two-arm cloth fling (parameters: `BI_FLING.params`)."""
-    return BI_FLING.motion(seed, **params)
-
-
-def bi_lift(seed: int = 0, **params: float) -> Motion:
-    """Two-arm box lift (parameters: `BI_LIFT.params`)."""
-    return BI_LIFT.motion(seed, **params)
-
-
-def bi_handover(seed: int = 0, **params: float) -> Motion:
-    """Handover between the arms (parameters: `BI_HANDOVER.params`)."""
-    return BI_HANDOVER.motion(seed, **params)
-
-
-def bi_fold(seed: int = 0, **params: float) -> Motion:
-    """Two-arm cloth fold (parameters: `BI_FOLD.params`)."""
-    return BI_FOLD.motion(seed, **params)
-
-
-def bi_jar(seed: int = 0, **params: float) -> Motion:
-    """Open a jar with two arms (parameters: `BI_JAR.params`)."""
-    return BI_JAR.motion(seed, **params)
-
-
-# ------------------------------------------------------------------ registry and splits
-
-#: Seeds of the training variants of every skill (seed 0 is the canonical motion).
-TRAIN_SEEDS: tuple[int, ...] = tuple(range(10))
-#: Seeds of the validation variants of every skill; disjoint from `TRAIN_SEEDS`.
-VAL_SEEDS: tuple[int, ...] = (100, 101, 102)
-SPLITS: dict[str, tuple[int, ...]] = {"train": TRAIN_SEEDS, "val": VAL_SEEDS}
-
-
-def split_of(seed: int) -> str:
-    """``"train"``, ``"val"`` or ``"extra"`` (a seed in neither split)."""
-    for split, seeds in SPLITS.items():
-        if seed in seeds:
-            return split
-    return "extra"
-
-
-def _seed_ranges(seeds: tuple[int, ...]) -> str:
-    return f"{seeds[0]}-{seeds[-1]}" if seeds == tuple(range(seeds[0], seeds[-1] + 1)) else ",".join(map(str, seeds))
-
-
-@dataclass(frozen=True)
-class MotionInfo:
-    """One row of `list_motions`: a skill, its canonical motion's size, and its split seeds."""
-
-    name: str
-    arms: int
-    duration: float
-    steps: int
-    params: tuple[str, ...]
-    train_seeds: tuple[int, ...]
-    val_seeds: tuple[int, ...]
-    summary: str
-
-    def row(self) -> dict[str, str | int | float]:
-        """Flat, printable columns: name, arms, duration_s, steps, train, val, params, summary."""
-        return {
-            "name": self.name,
-            "arms": self.arms,
-            "duration_s": round(self.duration, 2),
-            "steps": self.steps,
-            "train": f"seeds {_seed_ranges(self.train_seeds)}",
-            "val": f"seeds {_seed_ranges(self.val_seeds)}",
-            "params": ", ".join(self.params),
-            "summary": self.summary,
-        }
-
-
-def list_motions(arms: int | None = None) -> list[MotionInfo]:
-    """Every library skill (or those with `arms` end effectors), single-arm first."""
-    if arms not in (None, 1, 2):
-        raise MotionError(f"arms must be 1, 2 or None, got {arms!r}")
-    out = []
-    for sk in SKILLS.values():
-        if arms is not None and sk.arms != arms:
-            continue
-        m = sk.motion(0)
-        out.append(MotionInfo(sk.name, sk.arms, m.duration, m.steps, tuple(p.name for p in sk.params),
-                              TRAIN_SEEDS, VAL_SEEDS, sk.summary))
-    return out
-
-
-def get_motion(name: str, seed: int | None = None) -> Motion:
-    """The library motion `name` with `seed` (default 0, the canonical one).
-
-    `name` may carry its seed as ``"toss:7"``; raises `MotionError` listing the valid
-    names for an unknown one. The motion's ``meta`` holds skill, seed, split and params.
-    """
-    skill, sep, tail = str(name).partition(":")
-    if sep:
-        try:
-            named_seed = int(tail)
-        except ValueError:
-            raise MotionError(f"motion {name!r}: the part after ':' must be an integer seed") from None
-        if seed is not None and seed != named_seed:
-            raise MotionError(f"motion {name!r} names seed {named_seed} but seed={seed} was passed")
-        seed = named_seed
-    if skill not in SKILLS:
-        raise MotionError(f"unknown motion {skill!r}; valid: {', '.join(SKILLS)}")
-    return SKILLS[skill].motion(0 if seed is None else seed)
-
-
-def motion_set(split: str, arms: int | None = None) -> list[Motion]:
-    """All motions of a split: every skill (with `arms` end effectors, or all) at every split seed.
-
-    train: seeds `TRAIN_SEEDS` of every skill; val: seeds `VAL_SEEDS`. Ordered by skill
-    (as in `SKILLS`), then seed; the same call always returns the same motions.
-    """
-    if split not in SPLITS:
-        raise MotionError(f"unknown split {split!r}; valid: {list(SPLITS)}")
-    if arms not in (None, 1, 2):
-        raise MotionError(f"arms must be 1, 2 or None, got {arms!r}")
-    return [get_motion(sk.name, seed) for sk in SKILLS.values() if arms in (None, sk.arms) for seed in SPLITS[split]]
+__all__ = [
+    "BI_FLING", "BI_FOLD", "BI_HANDOVER", "BI_JAR", "BI_LIFT", "DRAWER_OPEN", "FLING", "HAMMER", "POUR", "REACH_PLACE",
+    "SCREW", "SCRUB", "SPLITS", "STIR", "TOSS", "TRAIN_SEEDS", "VAL_SEEDS", "WIPE", "Skill", "SkillParam", "split_of",
+]

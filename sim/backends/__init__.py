@@ -1,0 +1,123 @@
+"""Rollout backends by name: one interface (`RolloutBackend`), one resolver, four simulators.
+
+``rollout(designs, motions, backend=name)`` (`tt.sim.rollout`) resolves the designs with
+the backend's `resolve` (`tt.sim.backends.base.resolve_designs`, the only design -> model
+resolver) and hands the `Robots` to its `run`. The implementations:
+
+| name | simulator | implementation |
+|---|---|---|
+| ``warp`` | tt's fused Warp kernels, contact-free trees (default) | `tt.sim.rollout` (launch code) over `tt.kernels.rollout` |
+| ``mjwarp`` | MuJoCo-Warp, contacts too; the batched reference | `tt.sim.mjwarp_backend` |
+| ``newton`` | Newton's Featherstone solver, contact-free arms | `tt.sim.newton_backend` |
+| ``mujoco`` | the oracle: MuJoCo C + mink, one world at a time | `tt.sim.validate` |
+
+The simulators import lazily (MuJoCo-Warp and Newton take seconds to import).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import mujoco
+
+from tt.sim.backends.base import Robots, RolloutBackend, check_motions, resolve_designs
+from tt.sim.controller import IKConfig
+from tt.sim.designs import Design
+from tt.sim.episode import Episode
+from tt.sim.motions.base import Motion
+
+
+class WarpBackend:
+    """tt's fused Warp kernels (FK + DLS IK at 50 Hz, CRBA/RNEA dynamics at 500 Hz), one
+    batched launch per topology group; contact-free fixed-base trees."""
+
+    name = "warp"
+    perturbs = True
+
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
+        return resolve_designs(designs, who="the 'warp' backend", contacts=False, hint="use backend='mjwarp' or 'mujoco'")
+
+    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
+            progress: bool, action_noise: float, noise_seed: int, graph: bool | None = None) -> Episode:
+        from tt.sim.rollout import _rollout_warp
+
+        sites = robots.ee_sites
+        check_motions(motions, config.control_dt, len(sites))
+        return _rollout_warp(list(robots.models), sites, motions, config=config, device=device, chunk=chunk,
+                             progress=progress, action_noise=action_noise, noise_seed=noise_seed, graph=graph)
+
+
+class MjWarpBackend:
+    """MuJoCo-Warp: MuJoCo's own physics (contacts, floating bases) batched on Warp."""
+
+    name = "mjwarp"
+    perturbs = False
+
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
+        return resolve_designs(designs, who="the 'mjwarp' backend", one_space=False)
+
+    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
+            progress: bool, action_noise: float, noise_seed: int, graph: bool | None = None) -> Episode:
+        from tt.sim.mjwarp_backend import mjwarp_rollout
+
+        return mjwarp_rollout(robots, motions, config=config, device=device, progress=progress, graph=graph)
+
+
+class NewtonBackend:
+    """Newton's Featherstone solver on the designs' MJCF; contact-free fixed-base arms."""
+
+    name = "newton"
+    perturbs = False
+
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
+        return resolve_designs(designs, who="the 'newton' backend", contacts=False, hint="use backend='mjwarp'")
+
+    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
+            progress: bool, action_noise: float, noise_seed: int, graph: bool | None = None) -> Episode:
+        from tt.sim.newton_backend import newton_rollout
+
+        return newton_rollout(robots, motions, config=config, device=device, progress=progress)
+
+
+class OracleBackend:
+    """The oracle (MuJoCo C + mink, world by world), the reference of every other backend."""
+
+    name = "mujoco"
+    perturbs = False
+
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
+        return resolve_designs(designs, who="the 'mujoco' backend")
+
+    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
+            progress: bool, action_noise: float, noise_seed: int, graph: bool | None = None) -> Episode:
+        from tt.sim.validate import oracle_rollout
+
+        check_motions(motions, config.control_dt, len(robots.ee_sites))
+        return oracle_rollout(robots, motions, config=config, progress=progress)
+
+
+_REGISTRY: dict[str, RolloutBackend] = {b.name: b for b in (WarpBackend(), MjWarpBackend(), NewtonBackend(), OracleBackend())}
+
+#: Rollout backends by name.
+BACKENDS: tuple[str, ...] = tuple(_REGISTRY)
+
+
+def get_backend(name: str) -> RolloutBackend:
+    """The backend called `name`; raises ValueError listing the valid names."""
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown rollout backend {name!r}; valid: {list(BACKENDS)}")
+    return _REGISTRY[name]
+
+
+__all__ = [
+    "BACKENDS",
+    "MjWarpBackend",
+    "NewtonBackend",
+    "OracleBackend",
+    "Robots",
+    "RolloutBackend",
+    "WarpBackend",
+    "check_motions",
+    "get_backend",
+    "resolve_designs",
+]
