@@ -105,7 +105,12 @@ class Clock:
 
 # ------------------------------------------------------------------------------ sections
 def run_tests(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
+    import importlib.util
+
     cmd = [sys.executable, "-m", "pytest", *plan.test_args]
+    if device.startswith("cuda") and importlib.util.find_spec("xdist") is not None:
+        # Each test module compiles its own Warp modules for CUDA: spread them over the cores.
+        cmd += ["-n", str(min(8, os.cpu_count() or 1))]
     t0 = time.perf_counter()
     try:
         res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=max(5.0, clock.left()))
