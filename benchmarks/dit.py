@@ -12,7 +12,7 @@ types per control step, times the 8-step window).
 * Sampling: motion-to-robot DDIM (100 steps, eta 0) for 1, 16 and 128 candidates. Every
   step costs the same, so each case times ``measure`` steps after one warm-up step and
   reports ``per step x 100``; the table says how many steps were timed.
-* Control (the model as controller, `tt.dit.controller`): one control step is the control
+* Control (the model as controller, `tt.dit.policies`): one control step is the control
   task's 5 DDIM steps over a batch of worlds; timed for 1, 16 and 128 worlds (network and
   sampler only; building the query and the physics come on top).
 
@@ -195,7 +195,7 @@ def main() -> None:
         *table,
         "",
         "Sampling time for 100 steps is the timed per-step cost times 100 (all steps cost the same). A control",
-        "step is the model's share of one step of the model-as-controller (`tt.dit.controller`): 5 DDIM steps of",
+        "step is the model's share of one step of the model-as-controller (`tt.dit.policies`): 5 DDIM steps of",
         "the control task over a batch of worlds.",
         "",
     ]

@@ -16,7 +16,7 @@
     exactly, and that project onto a ViperX design (nearest structure, continuous choices
     fitted), with the projection's distance; and the distribution of the designs' DoF count
     and mount against the training episodes'.
-(c) The model as controller (`tt.dit.controller`, 5 DDIM steps per control step, Warp
+(c) The model as controller (`tt.dit.policies`, 5 DDIM steps per control step, Warp
     physics) on held-out ViperX designs (sampled with a seed no training shard used) x
     validation motions, against the MuJoCo + mink oracle on the same designs and motions:
     mean tracking reward as a share of the oracle's, the paper's tracking metrics, and
@@ -545,7 +545,7 @@ def teacher_forced(trained, task, args) -> dict:
 
 def section_c(trained, task, args, space) -> str:
     from tt.baselines.evaluate import score_episode
-    from tt.dit.controller import ControllerConfig, model_rollout
+    from tt.dit.policies import ControllerConfig, model_rollout
     from tt.sim.validate import oracle_rollout
 
     designs = space.sample(args.designs, seed=args.design_seed)
@@ -577,7 +577,7 @@ def section_c(trained, task, args, space) -> str:
         "",
         f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`; the "
         f"training shards draw from other seeds) x {len(motions)} validation motions ({', '.join(m.name for m in motions)}; "
-        f"{length}: {steps[0]}..{steps[-1]} steps). Model: `tt.dit.controller.ModelPolicy`, "
+        f"{length}: {steps[0]}..{steps[-1]} steps). Model: `tt.dit.policies.ModelPolicy`, "
         f"{ControllerConfig().num_steps} DDIM steps per control step, batched over the running worlds, Warp physics. "
         "Oracle: MuJoCo C + mink DiffIK (`tt.sim.validate`). Both start at the oracle's start posture.",
         "",
@@ -648,7 +648,7 @@ def main() -> None:
 
     wp.config.log_level = wp.LOG_WARNING
     from tt.dit.checkpoint import latest_checkpoint, load_checkpoint, load_model
-    from tt.dit.controller import control_task
+    from tt.dit.policies import control_task
     from tt.sim.designs import get_space
 
     ckpt = Path(args.checkpoint)

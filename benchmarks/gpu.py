@@ -145,7 +145,7 @@ def run_rollout(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
     marrays = motion_arrays(motion.pos[None], motion.quat[None], [T], device=device)
 
     def warp(n: int, graph: bool) -> None:
-        rollout_tree(tree, marrays, n, T, config=config, device=device, graph=graph)
+        rollout_tree(tree, marrays, n, T, **config.rollout_args(), device=device, graph=graph)
 
     def mjwarp(n: int, graph: bool) -> None:
         # n worlds of one structure: the design on n copies of the motion.

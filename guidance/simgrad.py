@@ -4,8 +4,9 @@ The simulator's gradient of a candidate's reward, in three links:
 
 1. Design -> model fields. A design's continuous choices c (link lengths, offsets, ...)
    build an MJCF, MuJoCo compiles it, and tt's Warp kernels read the compiled model as
-   `tt.kernels.model.TreeModel` fields (body offsets, masses, inertias, joint axes,
-   gains, site poses, and the float64 kinematic copies the start posture is solved with),
+   the members of the `tt.kernels.model.TreeArrays` struct (body offsets, masses,
+   inertias, joint axes, gains, site poses: `ENTITY_FIELDS`, taken from the struct) and
+   of `Kinematics64` (the float64 kinematic copies the start posture is solved with),
    plus the robot's size and mass. The compiler is not differentiable, so the Jacobian
    dF/dc comes from central differences of the compile (step 1e-4 of each choice's range,
    kept inside the bounds); F(c) = F(c0) + dF/dc (c - c0) around the candidate.
@@ -37,7 +38,7 @@ from __future__ import annotations
 
 import logging
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -45,6 +46,7 @@ import torch
 import warp as wp
 
 from tt.dit.checkpoint import TrainedModel
+from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
@@ -54,15 +56,12 @@ from tt.tokens.schema import STEP_ROLES
 
 log = logging.getLogger(__name__)
 
-#: `TreeModel` fields (float32) that may depend on a design's continuous choices.
-FIELDS = (
-    "body_pos", "body_quat", "body_mass", "body_ipos", "body_iquat", "body_inertia",
-    "dof_axis", "dof_pos", "dof_ref", "dof_armature", "dof_damping", "dof_stiffness", "dof_springref",
-    "dof_range", "dof_limit_kb", "dof_solimp", "dof_invweight0",
-    "act_gain", "act_bias", "act_gear", "act_ctrlrange", "act_forcerange", "ee_pos", "ee_quat",
-)  # fmt: skip
-#: Float64 kinematic copies (`TreeModel.kinematics64`) the start posture reads.
-FIELDS64 = ("body_pos", "body_quat", "dof_axis", "dof_pos", "dof_ref", "dof_range", "ee_pos", "ee_quat")
+#: `tt.kernels.model.TreeArrays` members (float32) that may depend on a design's continuous
+#: choices: every per-body, per-dof, per-actuator and per-end-effector field (the struct is
+#: the one list; gravity, timestep and the limit flags are per-world options).
+FIELDS = ENTITY_FIELDS
+#: Float64 kinematic copies (`TreeModel.kinematics64`, `Kinematics64`) the start posture reads.
+FIELDS64 = KINEMATICS64_FIELDS
 #: Quaternion fields (q and -q are one rotation; differences align their signs first).
 _QUATS = ("body_quat", "body_iquat", "ee_quat")
 #: Finite-difference step as a fraction of each continuous choice's range.
@@ -163,7 +162,7 @@ def _stencil(space: DesignSpace, design: Design, rel_step: float) -> tuple[list[
 
 def _host_fields(tree, models) -> dict:
     """Per-world host copies of the differentiable fields, size and mass (one row per model)."""
-    out = {name: getattr(tree, name).numpy().astype(np.float64) for name in FIELDS}
+    out = {name: getattr(tree.arrays, name).numpy().astype(np.float64) for name in FIELDS}
     out.update({("64", name): getattr(tree.kinematics64, name).numpy() for name in FIELDS64})
     out["size"] = robot_size(models, dtype=torch.float64).numpy()
     out["mass"] = robot_mass(models, dtype=torch.float64).numpy()
@@ -203,16 +202,17 @@ class _Rollout(WarpProgram):
 
     def __init__(self, tree, motions, steps: int, config: IKConfig, device: str):
         self.tree, self.motions, self.steps, self.config, self.device = tree, motions, steps, config, device
-        self.dtypes = [getattr(tree, n).dtype for n in FIELDS] + [getattr(tree.kinematics64, n).dtype for n in FIELDS64]
+        self.dtypes = [getattr(tree.arrays, n).dtype for n in FIELDS] + [getattr(tree.kinematics64, n).dtype for n in FIELDS64]
 
     def record(self, arrays: list[wp.array]) -> list[wp.array]:
         from tt.kernels.rollout import rollout_tree
 
         k = len(FIELDS)
-        model = replace(self.tree, **dict(zip(FIELDS, arrays[:k])),
-                        kinematics64=replace(self.tree.kinematics64, **dict(zip(FIELDS64, arrays[k:]))))
-        W = self.tree.body_pos.shape[0]
-        out = rollout_tree(model, self.motions, W, self.steps, config=self.config, differentiable=True, device=self.device)
+        # The arrays come from `WarpFunction` with requires_grad set, so the new structs
+        # carry their gradients.
+        model = self.tree.with_fields(dict(zip(FIELDS, arrays[:k])), dict(zip(FIELDS64, arrays[k:])))
+        out = rollout_tree(model, self.motions, self.tree.world_count, self.steps, **self.config.rollout_args(),
+                           differentiable=True, device=self.device)
         return [out.ee_pos, out.ee_quat, out.act_force, out.act_vel, out.alive, out.target_pos, out.target_quat]
 
 

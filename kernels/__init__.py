@@ -1,35 +1,61 @@
-"""tt.kernels: Warp kernels that batch-simulate procedural robots.
+"""tt.kernels: Warp kernels that batch-simulate procedural robots, and their launch wrappers.
 
-Contact-free kinematic trees of hinge and slide joints (tt's arm design spaces), W worlds
-at a time, one thread per world, compiled once per topology:
+The bottom layer: it imports nothing of tt's above it, and it takes numbers, not
+configs (the layers above turn their settings into the structs and arguments here, e.g.
+`tt.sim.controller.IKConfig.ik_weights`). Contact-free kinematic trees of hinge and slide
+joints (tt's arm design spaces), W worlds at a time, one thread per world, compiled once
+per topology:
 
-* `model`: `TreeModel` (per-world model arrays built from MuJoCo models) and `Topology`.
+* `model`: `TreeModel` (a topology, the per-world model arrays as one flat `@wp.struct`,
+  `TreeArrays`, that every tree kernel takes, and their float64 kinematic copies,
+  `Kinematics64`), built from MuJoCo models; `Topology`.
 * `fk`: forward kinematics and end-effector Jacobians (MuJoCo's conventions).
 * `dynamics`: mass matrix, bias forces, actuators, joint limits, Euler step (MuJoCo's).
-* `ik`: the oracle's damped-least-squares DiffIK step (mink's conventions).
+* `ik`: the oracle's damped-least-squares DiffIK step (mink's conventions), `IKWeights`.
 * `rollout`: the fused closed-loop rollout (controller at 50 Hz, physics at the model's
-  timestep), differentiable under `wp.Tape`.
+  timestep), differentiable under `wp.Tape`; the float64 start posture on its own.
+* `control_step`: one control period of externally commanded worlds (the DiT controller's physics).
 * `pose`: pose errors and the tracking reward; `lie`, `ltdl`: their building blocks.
+
+For the other simulators' backends (`tt.sim.mjwarp_backend`, `tt.sim.newton_backend`):
+
+* `wbc`: the quadruped's batched whole-body IK step (float64, any mix of designs).
+* `control`: IK targets from motions, actuator commands from joint commands.
+* `records`: Episode-shaped records of a step, with the oracle's termination rules.
+* `flat_joints`: MuJoCo's actuators, states and site poses on Newton's flat joint vectors.
 """
 
 from tt.kernels.dynamics import simulate
 from tt.kernels.fk import forward_kinematics
-from tt.kernels.ik import ik_step
-from tt.kernels.model import Topology, TreeModel, build_tree_model, topology_key, topology_of
+from tt.kernels.ik import IKWeights, ik_step, ik_weights
+from tt.kernels.model import (
+    Kinematics64,
+    Topology,
+    TreeArrays,
+    TreeModel,
+    build_tree_model,
+    topology_key,
+    topology_of,
+)
 from tt.kernels.pose import tracking_reward
-from tt.kernels.rollout import MotionArrays, RolloutArrays, motion_arrays, rollout_tree
+from tt.kernels.rollout import MotionArrays, RolloutArrays, motion_arrays, rollout_tree, start_postures
 
 __all__ = [
+    "IKWeights",
+    "Kinematics64",
     "MotionArrays",
     "RolloutArrays",
     "Topology",
+    "TreeArrays",
     "TreeModel",
     "build_tree_model",
     "forward_kinematics",
     "ik_step",
+    "ik_weights",
     "motion_arrays",
     "rollout_tree",
     "simulate",
+    "start_postures",
     "topology_key",
     "topology_of",
     "tracking_reward",

@@ -14,7 +14,7 @@ One physics step of a world (all in thread-local memory, see `dynamics_funcs`):
 6. Joint limits as MuJoCo's soft constraints (solref / solimp): a limit row is active when
    q is past its range; its force minimises MuJoCo's dual objective
    1/2 f (A + R) f + f (J qacc_smooth - aref), f >= 0 (A = J M^-1 J^T), solved by
-   projected Gauss-Seidel (at most `TreeModel.limit_sweeps` sweeps, until the forces change
+   projected Gauss-Seidel (at most `TreeArrays.limit_sweeps` sweeps, until the forces change
    by less than 1e-6 relative), which for the one or two rows a robot's limits produce at a
    time converges to the solution of MuJoCo's Newton solver.
 7. Euler with implicit joint damping, as MuJoCo integrates it:
@@ -40,6 +40,7 @@ from tt.kernels.model import (
     MJ_MINVAL,
     MODULE_OPTIONS,
     Topology,
+    TreeArrays,
     TreeModel,
     local_types,
     module_name,
@@ -96,14 +97,15 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
 
     differentiable: the variant for kernels with adjoints: the joint-limit solve runs a
     fixed `LIMIT_SWEEPS_DIFFERENTIABLE` sweeps in unrolled loops (exact adjoint) instead
-    of dynamic loops that stop at convergence (`TreeModel.limit_sweeps` at most).
+    of dynamic loops that stop at convergence (`TreeArrays.limit_sweeps` at most).
 
-    step(mid, model fields..., q, qd, ctrl) -> (q', qd', act_force, act_vel, active_limits):
-        one Euler step of world-model entry `mid` from joint positions q and velocities qd
+    step(mid, model, q, qd, ctrl) -> (q', qd', act_force, act_vel, active_limits):
+        one Euler step of world-model entry `mid` of `model` (`TreeArrays`) from joint
+        positions q and velocities qd
         (NV,) under actuator commands ctrl (NU,); act_force [N m or N] and act_vel are the
         actuator forces and velocities at the start of the step (MuJoCo's
         actuator_force / actuator_velocity after mj_step); active_limits counts limit rows.
-    actuation(mid, act fields..., q, qd, ctrl) -> (joint forces, act_force, act_vel).
+    actuation(mid, model, q, qd, ctrl) -> (joint forces, act_force, act_vel).
     mass_matrix(...), bias_forces(...), factor(A) -> (L, D), solve(L, D, b): the stages.
     """
     T = local_types(topology)
@@ -121,27 +123,18 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
     solve = LTDL.solve
 
     @wp.func
-    def body_inertias(
-        mid: int,
-        body_mass: wp.array2d(dtype=float),
-        body_ipos: wp.array2d(dtype=wp.vec3),
-        body_iquat: wp.array2d(dtype=wp.vec4),
-        body_inertia: wp.array2d(dtype=wp.vec3),
-        xpos: T.body_vec3,
-        xquat: T.body_vec4,
-        ref: wp.vec3,
-    ):
+    def body_inertias(mid: int, model: TreeArrays, xpos: T.body_vec3, xquat: T.body_vec4, ref: wp.vec3):
         # Per body: mass, first moment m c and rotational inertia about `ref`, world axes.
         bm = T.body_scalar()
         bh = T.body_vec3()
         bJ = T.body_mat9()
         for b in range(1, NB):
-            m = body_mass[mid, b]
+            m = model.body_mass[mid, b]
             R = wp.quat_to_matrix(wp.quat(xquat[b][1], xquat[b][2], xquat[b][3], xquat[b][0]))
-            iq = body_iquat[mid, b]
+            iq = model.body_iquat[mid, b]
             Ri = R @ wp.quat_to_matrix(wp.quat(iq[1], iq[2], iq[3], iq[0]))
-            c = xpos[b] + R @ body_ipos[mid, b] - ref
-            Ic = Ri @ wp.diag(body_inertia[mid, b]) @ wp.transpose(Ri)
+            c = xpos[b] + R @ model.body_ipos[mid, b] - ref
+            Ic = Ri @ wp.diag(model.body_inertia[mid, b]) @ wp.transpose(Ri)
             J = Ic + m * (wp.dot(c, c) * wp.identity(n=3, dtype=float) - wp.outer(c, c))
             bm[b] = m
             bh[b] = m * c
@@ -248,30 +241,20 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         return bias
 
     @wp.func
-    def actuation(
-        mid: int,
-        act_gain: wp.array2d(dtype=float),
-        act_bias: wp.array2d(dtype=wp.vec3),
-        act_gear: wp.array2d(dtype=float),
-        act_ctrlrange: wp.array2d(dtype=wp.vec2),
-        act_forcerange: wp.array2d(dtype=wp.vec2),
-        q: T.dof_vec,
-        qd: T.dof_vec,
-        ctrl: T.act_vec,
-    ):
+    def actuation(mid: int, model: TreeArrays, q: T.dof_vec, qd: T.dof_vec, ctrl: T.act_vec):
         # Joint forces of the actuators, and each actuator's force and velocity.
         qfrc = T.dof_vec()
         act_force = T.act_vec()
         act_vel = T.act_vec()
         for u in range(NU):
             d = wp.static(ACT_DOF[u])
-            gear = act_gear[mid, u]
-            cr = act_ctrlrange[mid, u]
-            fr = act_forcerange[mid, u]
-            b = act_bias[mid, u]
+            gear = model.act_gear[mid, u]
+            cr = model.act_ctrlrange[mid, u]
+            fr = model.act_forcerange[mid, u]
+            b = model.act_bias[mid, u]
             vel = gear * qd[d]
             c = wp.clamp(ctrl[u], cr[0], cr[1])
-            force = wp.clamp(act_gain[mid, u] * c + b[0] + b[1] * gear * q[d] + b[2] * vel, fr[0], fr[1])
+            force = wp.clamp(model.act_gain[mid, u] * c + b[0] + b[1] * gear * q[d] + b[2] * vel, fr[0], fr[1])
             act_force[u] = force
             act_vel[u] = vel
             qfrc[d] = qfrc[d] + gear * force
@@ -303,11 +286,7 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
     @wp.func
     def limit_forces(
         mid: int,
-        dof_range: wp.array2d(dtype=wp.vec2),
-        dof_limit_kb: wp.array2d(dtype=wp.vec2),
-        dof_solimp: wp.array3d(dtype=float),
-        dof_invweight0: wp.array2d(dtype=float),
-        limit_sweeps: wp.array(dtype=wp.int32),
+        model: TreeArrays,
         M: T.dof_mat,
         q: T.dof_vec,
         qd: T.dof_vec,
@@ -318,7 +297,7 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         dist = T.dof_vec()
         active = int(0)
         for d in range(NV):
-            r = dof_range[mid, d]
+            r = model.dof_range[mid, d]
             lo = q[d] - r[0]
             hi = r[1] - q[d]
             if lo < 0.0 and lo <= hi:
@@ -346,7 +325,7 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
                     for i in range(NV):
                         Minv[i, d] = col[i]
         else:
-            for d in range(dof_range.shape[1]):
+            for d in range(model.dof_range.shape[1]):
                 if sign[d] != 0.0:
                     col = minv_column(Lm, Dm, d)
                     for i in range(NV):
@@ -356,25 +335,25 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         reg = T.dof_vec()
         for d in range(NV):
             if sign[d] != 0.0:
-                kb = dof_limit_kb[mid, d]
+                kb = model.dof_limit_kb[mid, d]
                 imp = limit_impedance(
                     dist[d],
-                    dof_solimp[mid, d, 0],
-                    dof_solimp[mid, d, 1],
-                    dof_solimp[mid, d, 2],
-                    dof_solimp[mid, d, 3],
-                    dof_solimp[mid, d, 4],
+                    model.dof_solimp[mid, d, 0],
+                    model.dof_solimp[mid, d, 1],
+                    model.dof_solimp[mid, d, 2],
+                    model.dof_solimp[mid, d, 3],
+                    model.dof_solimp[mid, d, 4],
                 )
                 vel = sign[d] * qd[d]
                 aref = -kb[1] * vel - kb[0] * imp * dist[d]
                 offset[d] = sign[d] * acc0[d] - aref
-                reg[d] = wp.max(MJ_MINVAL, (1.0 - imp) * dof_invweight0[mid, d] / imp)
+                reg[d] = wp.max(MJ_MINVAL, (1.0 - imp) * model.dof_invweight0[mid, d] / imp)
         f = T.dof_vec()
         if wp.static(DIFFERENTIABLE):
             for sweep in range(LIMIT_SWEEPS_DIFFERENTIABLE):
                 f, change, size = pgs_sweep(sign, offset, reg, Minv, f)
         else:
-            for sweep in range(limit_sweeps[mid % limit_sweeps.shape[0]]):
+            for sweep in range(model.limit_sweeps[mid % model.limit_sweeps.shape[0]]):
                 f, change, size = pgs_sweep(sign, offset, reg, Minv, f)
                 # Converged (one sweep already is, for a single row): stop early.
                 if change <= 1.0e-6 * size:
@@ -384,64 +363,31 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         return qfrc, active
 
     @wp.func
-    def step(
-        mid: int,
-        # Model:
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        body_mass: wp.array2d(dtype=float),
-        body_ipos: wp.array2d(dtype=wp.vec3),
-        body_iquat: wp.array2d(dtype=wp.vec4),
-        body_inertia: wp.array2d(dtype=wp.vec3),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_armature: wp.array2d(dtype=float),
-        dof_damping: wp.array2d(dtype=float),
-        dof_stiffness: wp.array2d(dtype=float),
-        dof_springref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        dof_limit_kb: wp.array2d(dtype=wp.vec2),
-        dof_solimp: wp.array3d(dtype=float),
-        dof_invweight0: wp.array2d(dtype=float),
-        act_gain: wp.array2d(dtype=float),
-        act_bias: wp.array2d(dtype=wp.vec3),
-        act_gear: wp.array2d(dtype=float),
-        act_ctrlrange: wp.array2d(dtype=wp.vec2),
-        act_forcerange: wp.array2d(dtype=wp.vec2),
-        gravity: wp.array(dtype=wp.vec3),
-        timestep: wp.array(dtype=float),
-        limit_enabled: wp.array(dtype=wp.int32),
-        limit_sweeps: wp.array(dtype=wp.int32),
-        # In:
-        q: T.dof_vec,
-        qd: T.dof_vec,
-        ctrl: T.act_vec,
-    ):
-        h = timestep[mid % timestep.shape[0]]
-        xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+    def step(mid: int, model: TreeArrays, q: T.dof_vec, qd: T.dof_vec, ctrl: T.act_vec):
+        h = model.timestep[mid % model.timestep.shape[0]]
+        xpos, xquat, axis, anchor = K.kinematics(mid, model, q)
         ref = xpos[1]
-        bm, bh, bJ = body_inertias(mid, body_mass, body_ipos, body_iquat, body_inertia, xpos, xquat, ref)
+        bm, bh, bJ = body_inertias(mid, model, xpos, xquat, ref)
         s_ang, s_lin = motion_subspace(axis, anchor, ref)
         M = mass_matrix(bm, bh, bJ, s_ang, s_lin)
         for d in range(NV):
-            M[d, d] = M[d, d] + dof_armature[mid, d]
-        bias = bias_forces(bm, bh, bJ, s_ang, s_lin, qd, gravity[mid % gravity.shape[0]])
+            M[d, d] = M[d, d] + model.dof_armature[mid, d]
+        bias = bias_forces(bm, bh, bJ, s_ang, s_lin, qd, model.gravity[mid % model.gravity.shape[0]])
         qfrc = T.dof_vec()
         for d in range(NV):
-            qfrc[d] = -bias[d] - dof_damping[mid, d] * qd[d] - dof_stiffness[mid, d] * (q[d] - dof_springref[mid, d])
-        qfrc_act, act_force, act_vel = actuation(
-            mid, act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange, q, qd, ctrl
-        )
+            qfrc[d] = (
+                -bias[d]
+                - model.dof_damping[mid, d] * qd[d]
+                - model.dof_stiffness[mid, d] * (q[d] - model.dof_springref[mid, d])
+            )
+        qfrc_act, act_force, act_vel = actuation(mid, model, q, qd, ctrl)
         qfrc = qfrc + qfrc_act
         active = int(0)
-        if limit_enabled[mid % limit_enabled.shape[0]] != 0:
-            qfrc_limit, active = limit_forces(
-                mid, dof_range, dof_limit_kb, dof_solimp, dof_invweight0, limit_sweeps, M, q, qd, qfrc
-            )
+        if model.limit_enabled[mid % model.limit_enabled.shape[0]] != 0:
+            qfrc_limit, active = limit_forces(mid, model, M, q, qd, qfrc)
             qfrc = qfrc + qfrc_limit
         for d in range(NV):
-            M[d, d] = M[d, d] + h * dof_damping[mid, d]
+            M[d, d] = M[d, d] + h * model.dof_damping[mid, d]
         L, D = factor(M)
         qacc = solve(L, D, qfrc)
         qd_new = qd + h * qacc
@@ -461,38 +407,6 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
     )
 
 
-def model_inputs(model: TreeModel) -> list:
-    """The model arrays `dynamics_funcs(...).step` reads, in its argument order."""
-    return [
-        model.body_pos,
-        model.body_quat,
-        model.body_mass,
-        model.body_ipos,
-        model.body_iquat,
-        model.body_inertia,
-        model.dof_axis,
-        model.dof_pos,
-        model.dof_ref,
-        model.dof_armature,
-        model.dof_damping,
-        model.dof_stiffness,
-        model.dof_springref,
-        model.dof_range,
-        model.dof_limit_kb,
-        model.dof_solimp,
-        model.dof_invweight0,
-        model.act_gain,
-        model.act_bias,
-        model.act_gear,
-        model.act_ctrlrange,
-        model.act_forcerange,
-        model.gravity,
-        model.timestep,
-        model.limit_enabled,
-        model.limit_sweeps,
-    ]
-
-
 def make_simulate_kernel(topology: Topology, module: str):
     """The open-loop simulation kernel of one topology, registered in Warp module `module`."""
     T = local_types(topology)
@@ -502,32 +416,7 @@ def make_simulate_kernel(topology: Topology, module: str):
     @wp.kernel(module=module)
     def _simulate(
         # Model:
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        body_mass: wp.array2d(dtype=float),
-        body_ipos: wp.array2d(dtype=wp.vec3),
-        body_iquat: wp.array2d(dtype=wp.vec4),
-        body_inertia: wp.array2d(dtype=wp.vec3),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_armature: wp.array2d(dtype=float),
-        dof_damping: wp.array2d(dtype=float),
-        dof_stiffness: wp.array2d(dtype=float),
-        dof_springref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        dof_limit_kb: wp.array2d(dtype=wp.vec2),
-        dof_solimp: wp.array3d(dtype=float),
-        dof_invweight0: wp.array2d(dtype=float),
-        act_gain: wp.array2d(dtype=float),
-        act_bias: wp.array2d(dtype=wp.vec3),
-        act_gear: wp.array2d(dtype=float),
-        act_ctrlrange: wp.array2d(dtype=wp.vec2),
-        act_forcerange: wp.array2d(dtype=wp.vec2),
-        gravity: wp.array(dtype=wp.vec3),
-        timestep: wp.array(dtype=float),
-        limit_enabled: wp.array(dtype=wp.int32),
-        limit_sweeps: wp.array(dtype=wp.int32),
+        model: TreeArrays,
         # Data in:
         qpos_in: wp.array2d(dtype=float),
         qvel_in: wp.array2d(dtype=float),
@@ -539,7 +428,7 @@ def make_simulate_kernel(topology: Topology, module: str):
         limit_count_out: wp.array2d(dtype=wp.int32),
     ):
         worldid = wp.tid()
-        mid = worldid % body_pos.shape[0]
+        mid = worldid % model.body_pos.shape[0]
         q = T.dof_vec()
         qd = T.dof_vec()
         for d in range(NV):
@@ -551,15 +440,7 @@ def make_simulate_kernel(topology: Topology, module: str):
             ctrl = T.act_vec()
             for u in range(NU):
                 ctrl[u] = ctrl_in[worldid, s, u]
-            q, qd, force, vel, active = F.step(
-                mid,
-                body_pos, body_quat, body_mass, body_ipos, body_iquat, body_inertia,
-                dof_axis, dof_pos, dof_ref, dof_armature, dof_damping, dof_stiffness, dof_springref,
-                dof_range, dof_limit_kb, dof_solimp, dof_invweight0,
-                act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange,
-                gravity, timestep, limit_enabled, limit_sweeps,
-                q, qd, ctrl,
-            )  # fmt: skip
+            q, qd, force, vel, active = F.step(mid, model, q, qd, ctrl)
             for d in range(NV):
                 qpos_out[worldid, s + 1, d] = q[d]
                 qvel_out[worldid, s + 1, d] = qd[d]
@@ -611,7 +492,7 @@ def simulate(
     wp.launch(
         simulate_kernel(topo),
         dim=W,
-        inputs=[*model_inputs(model), qpos, qvel, ctrl],
+        inputs=[model.arrays, qpos, qvel, ctrl],
         outputs=[out.qpos, out.qvel, out.act_force, out.limit_count],
         device=device,
     )

@@ -20,7 +20,13 @@ import numpy as np
 import warp as wp
 
 from tt.kernels.lie import lie_funcs, wxyz
-from tt.kernels.model import JOINT_HINGE, MODULE_OPTIONS, Topology, TreeModel, local_types, module_name
+from tt.kernels.model import JOINT_HINGE, MODULE_OPTIONS, Kinematics64, Topology, TreeArrays, TreeModel, local_types, module_name
+
+
+def model_struct(dtype=wp.float32):
+    """The model struct the functions of precision `dtype` read: `TreeArrays` (float32) or
+    `Kinematics64` (float64)."""
+    return Kinematics64 if dtype == wp.float64 else TreeArrays
 
 
 def kinematics_funcs(topology: Topology, dtype=wp.float32) -> SimpleNamespace:
@@ -30,13 +36,14 @@ def kinematics_funcs(topology: Topology, dtype=wp.float32) -> SimpleNamespace:
 
 @functools.cache
 def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
-    """Warp functions of one topology in scalar type `dtype`; they read model arrays of that
-    precision (float32: the `TreeModel` fields; float64: `TreeModel.kinematics64`).
+    """Warp functions of one topology in scalar type `dtype`; they read the model struct of
+    that precision (float32: `TreeArrays`, ``TreeModel.arrays``; float64: `Kinematics64`,
+    ``TreeModel.kinematics64``), passed in as ``model``.
 
-    kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+    kinematics(mid, model, q)
         -> (xpos (NB, 3) [m], xquat (NB, 4) (w, x, y, z), axis (NV, 3), anchor (NV, 3) [m]):
         body frames, and each dof's world axis and anchor, for joint positions q (NV,).
-    site_pose[e](xpos, xquat, ee_pos, ee_quat, mid) -> (pos vec3 [m], quat) of
+    site_pose[e](xpos, xquat, model, mid) -> (pos vec3 [m], quat) of
         end effector e (one function per end effector; call as ``wp.static(F.site_pose[e])``).
     site_jacobian[e](axis, anchor, point) -> (6, NV) world-frame Jacobian of end effector e
         at world point `point` (its site position).
@@ -44,6 +51,7 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
     T = local_types(topology, dtype)
     LIE = lie_funcs(dtype)
     S, vec3, vec4 = T.scalar, T.vec3, T.vec4
+    Model = model_struct(dtype)
     NB = topology.body_count
     NV = topology.dof_count
     PARENT = topology.body_parent
@@ -56,15 +64,7 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
     )
 
     @wp.func
-    def kinematics(
-        mid: int,
-        body_pos: wp.array2d(dtype=vec3),
-        body_quat: wp.array2d(dtype=vec4),
-        dof_axis: wp.array2d(dtype=vec3),
-        dof_pos: wp.array2d(dtype=vec3),
-        dof_ref: wp.array2d(dtype=S),
-        q: T.dof_vec,
-    ):
+    def kinematics(mid: int, model: Model, q: T.dof_vec):
         xpos = T.body_vec3()
         xquat = T.body_vec4()
         axis = T.dof_vec3()
@@ -73,21 +73,21 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
         for b in range(1, NB):
             p = wp.static(PARENT[b])
             rot_p = LIE.quat_wxyz(xquat[p])
-            pos = xpos[p] + wp.quat_rotate(rot_p, body_pos[mid, b])
-            rot = rot_p * LIE.quat_wxyz(body_quat[mid, b])
+            pos = xpos[p] + wp.quat_rotate(rot_p, model.body_pos[mid, b])
+            rot = rot_p * LIE.quat_wxyz(model.body_quat[mid, b])
             if wp.static(BDOF[b] >= 0):
                 d = wp.static(BDOF[b])
-                jaxis = dof_axis[mid, d]
-                jpos = dof_pos[mid, d]
+                jaxis = model.dof_axis[mid, d]
+                jpos = model.dof_pos[mid, d]
                 a = wp.quat_rotate(rot, jaxis)
                 c = pos + wp.quat_rotate(rot, jpos)
                 axis[d] = a
                 anchor[d] = c
                 if wp.static(DTYPE[d] == JOINT_HINGE):
-                    rot = rot * wp.quat_from_axis_angle(jaxis, q[d] - dof_ref[mid, d])
+                    rot = rot * wp.quat_from_axis_angle(jaxis, q[d] - model.dof_ref[mid, d])
                     pos = c - wp.quat_rotate(rot, jpos)
                 else:
-                    pos = pos + a * (q[d] - dof_ref[mid, d])
+                    pos = pos + a * (q[d] - model.dof_ref[mid, d])
             xpos[b] = pos
             xquat[b] = LIE.wxyz(wp.normalize(rot))
         return xpos, xquat, axis, anchor
@@ -97,15 +97,9 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
         SUPPORT = EE_SUPPORT[e]
 
         @wp.func
-        def site_pose(
-            xpos: T.body_vec3,
-            xquat: T.body_vec4,
-            ee_pos: wp.array2d(dtype=vec3),
-            ee_quat: wp.array2d(dtype=vec4),
-            mid: int,
-        ):
+        def site_pose(xpos: T.body_vec3, xquat: T.body_vec4, model: Model, mid: int):
             rot = LIE.quat_wxyz(xquat[B])
-            return xpos[B] + wp.quat_rotate(rot, ee_pos[mid, e]), rot * LIE.quat_wxyz(ee_quat[mid, e])
+            return xpos[B] + wp.quat_rotate(rot, model.ee_pos[mid, e]), rot * LIE.quat_wxyz(model.ee_quat[mid, e])
 
         @wp.func
         def site_jacobian(axis: T.dof_vec3, anchor: T.dof_vec3, point: vec3):
@@ -147,13 +141,7 @@ def make_fk_kernel(topology: Topology, module: str):
     @wp.kernel(module=module)
     def _forward_kinematics(
         # Model:
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        ee_pos: wp.array2d(dtype=wp.vec3),
-        ee_quat: wp.array2d(dtype=wp.vec4),
+        model: TreeArrays,
         # Data in:
         qpos_in: wp.array2d(dtype=float),
         # Data out:
@@ -164,16 +152,16 @@ def make_fk_kernel(topology: Topology, module: str):
         site_jac_out: wp.array4d(dtype=float),
     ):
         worldid = wp.tid()
-        mid = worldid % body_pos.shape[0]
+        mid = worldid % model.body_pos.shape[0]
         q = T.dof_vec()
         for d in range(NV):
             q[d] = qpos_in[worldid, d]
-        xpos, xquat, axis, anchor = F.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
+        xpos, xquat, axis, anchor = F.kinematics(mid, model, q)
         for b in range(NB):
             xpos_out[worldid, b] = xpos[b]
             xquat_out[worldid, b] = xquat[b]
         for e in range(NE):
-            p, r = wp.static(F.site_pose[e])(xpos, xquat, ee_pos, ee_quat, mid)
+            p, r = wp.static(F.site_pose[e])(xpos, xquat, model, mid)
             site_pos_out[worldid, e] = p
             site_quat_out[worldid, e] = wxyz(r)
             jac = wp.static(F.site_jacobian[e])(axis, anchor, p)
@@ -218,7 +206,7 @@ def forward_kinematics(
     wp.launch(
         fk_kernel(topo),
         dim=W,
-        inputs=[model.body_pos, model.body_quat, model.dof_axis, model.dof_pos, model.dof_ref, model.ee_pos, model.ee_quat, qpos],
+        inputs=[model.arrays, qpos],
         outputs=[out.xpos, out.xquat, out.site_pos, out.site_quat, out.site_jac],
         device=device,
     )

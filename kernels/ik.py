@@ -1,6 +1,7 @@
 """Batched damped-least-squares differential IK: the oracle's mink step, per world.
 
-`tt.sim.controller` specifies the controller (`IKConfig`, `ik_step`): one mink
+`tt.sim.controller` specifies the controller (`IKConfig`, `ik_step`) and turns its
+settings into the numbers these kernels read (`IKConfig.ik_weights`): one mink
 `solve_ik` step with a frame task per end-effector site, a posture task toward qpos0,
 global damping and no inequality limits, then a clip to the joint range. For each site
 with world pose T_b = (R, p) and target T_t:
@@ -23,18 +24,18 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from tt.kernels.fk import kinematics_funcs
+from tt.kernels.fk import kinematics_funcs, model_struct
 from tt.kernels.lie import lie_funcs
 from tt.kernels.ltdl import chain, ltdl_funcs
-from tt.kernels.model import MODULE_OPTIONS, Topology, TreeModel, local_types, module_name
-from tt.sim.controller import IKConfig
+from tt.kernels.model import MODULE_OPTIONS, Topology, TreeArrays, TreeModel, local_types, module_name
 
 
 @wp.struct
 class IKWeights:
-    """The numbers of an `IKConfig` that the IK step reads (see `tt.sim.controller`)."""
+    """The task weights the IK step reads (`tt.sim.controller.IKConfig` documents them and
+    builds this with `IKConfig.ik_weights`)."""
 
-    # float64, so that the float64 start-posture iteration sees the config's exact numbers.
+    # float64, so that the float64 start-posture iteration sees the settings' exact numbers.
     position_cost: wp.float64  # [1/m]
     orientation_cost: wp.float64  # [1/rad]
     posture_cost: wp.float64  # [1/rad]
@@ -42,14 +43,15 @@ class IKWeights:
     damping: wp.float64  # unitless
 
 
-def ik_weights(config: IKConfig) -> IKWeights:
-    """The `IKWeights` of an `IKConfig`."""
+def ik_weights(*, position_cost: float, orientation_cost: float, posture_cost: float, lm_damping: float,
+               damping: float) -> IKWeights:
+    """An `IKWeights` from its numbers (units as in the struct)."""
     w = IKWeights()
-    w.position_cost = float(config.position_cost)
-    w.orientation_cost = float(config.orientation_cost)
-    w.posture_cost = float(config.posture_cost)
-    w.lm_damping = float(config.lm_damping)
-    w.damping = float(config.damping)
+    w.position_cost = float(position_cost)
+    w.orientation_cost = float(orientation_cost)
+    w.posture_cost = float(posture_cost)
+    w.lm_damping = float(lm_damping)
+    w.damping = float(damping)
     return w
 
 
@@ -62,26 +64,24 @@ def ik_funcs(topology: Topology, dtype=wp.float32) -> SimpleNamespace:
 def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
     """Warp functions of one topology, computing in scalar type `dtype`.
 
-    command(mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q,
-            target_pos, target_quat, weights) -> q_cmd (NV,):
+    command(mid, model, xpos, xquat, axis, anchor, q, target_pos, target_quat, weights) -> q_cmd (NV,):
         the joint position command for joint positions q, their kinematics (from
         `kinematics_funcs(...).kinematics`) and site targets target_pos (NE, 3) [m],
-        target_quat (NE, 4) (w, x, y, z).
+        target_quat (NE, 4) (w, x, y, z); `model` is the model struct of the precision
+        (`tt.kernels.fk.model_struct`), of which it reads dof_range, dof_ref and the sites.
     """
     T = local_types(topology, dtype)
     K = kinematics_funcs(topology, dtype)
     LIE = lie_funcs(dtype)
     S, vec3 = T.scalar, T.vec3
+    Model = model_struct(dtype)
     NV, NE = topology.dof_count, topology.ee_count
     DENSE = ltdl_funcs(chain(NV), T.dof_mat, T.dof_vec)
 
     @wp.func
     def command(
         mid: int,
-        dof_range: wp.array2d(dtype=T.vec2),
-        dof_ref: wp.array2d(dtype=S),
-        ee_pos: wp.array2d(dtype=T.vec3),
-        ee_quat: wp.array2d(dtype=T.vec4),
+        model: Model,
         xpos: T.body_vec3,
         xquat: T.body_vec4,
         axis: T.dof_vec3,
@@ -97,7 +97,7 @@ def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
         g = T.dof_vec()
         mu = S(0.0)
         for e in range(NE):
-            p, r = wp.static(K.site_pose[e])(xpos, xquat, ee_pos, ee_quat, mid)
+            p, r = wp.static(K.site_pose[e])(xpos, xquat, model, mid)
             jac = wp.static(K.site_jacobian[e])(axis, anchor, p)
             rinv = wp.quat_inverse(r)
             ev, ew = LIE.se3_log(rinv * LIE.quat_wxyz(target_quat[e]), wp.quat_rotate(rinv, target_pos[e] - p))
@@ -120,13 +120,13 @@ def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
             mu += S(weights.lm_damping) * (cp2 * wp.dot(ev, ev) + co2 * wp.dot(ew, ew))
         cq2 = S(weights.posture_cost) * S(weights.posture_cost)
         for i in range(NV):
-            g[i] = g[i] - cq2 * (q[i] - dof_ref[mid, i])
+            g[i] = g[i] - cq2 * (q[i] - model.dof_ref[mid, i])
             H[i, i] = H[i, i] + cq2 + S(weights.damping) + mu
         L, D = DENSE.factor(H)
         dq = DENSE.solve(L, D, g)
         q_cmd = T.dof_vec()
         for i in range(NV):
-            r_i = dof_range[mid, i]
+            r_i = model.dof_range[mid, i]
             q_cmd[i] = wp.clamp(q[i] + dq[i], r_i[0], r_i[1])
         return q_cmd
 
@@ -143,14 +143,7 @@ def make_ik_kernel(topology: Topology, module: str):
     @wp.kernel(module=module)
     def _ik_step(
         # Model:
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        ee_pos: wp.array2d(dtype=wp.vec3),
-        ee_quat: wp.array2d(dtype=wp.vec4),
+        model: TreeArrays,
         # In:
         weights: IKWeights,
         qpos_in: wp.array2d(dtype=float),
@@ -160,7 +153,7 @@ def make_ik_kernel(topology: Topology, module: str):
         q_cmd_out: wp.array2d(dtype=float),
     ):
         worldid = wp.tid()
-        mid = worldid % body_pos.shape[0]
+        mid = worldid % model.body_pos.shape[0]
         q = T.dof_vec()
         for d in range(NV):
             q[d] = qpos_in[worldid, d]
@@ -169,10 +162,8 @@ def make_ik_kernel(topology: Topology, module: str):
         for e in range(NE):
             tpos[e] = target_pos_in[worldid, e]
             tquat[e] = target_quat_in[worldid, e]
-        xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
-        q_cmd = F.command(
-            mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights
-        )
+        xpos, xquat, axis, anchor = K.kinematics(mid, model, q)
+        q_cmd = F.command(mid, model, xpos, xquat, axis, anchor, q, tpos, tquat, weights)
         for d in range(NV):
             q_cmd_out[worldid, d] = q_cmd[d]
 
@@ -192,13 +183,14 @@ def ik_step(
     qpos: wp.array,
     target_pos: wp.array,
     target_quat: wp.array,
-    config: IKConfig = IKConfig(),
+    weights: IKWeights,
     q_cmd_out: wp.array | None = None,
     *,
     device: str | None = None,
 ) -> wp.array:
     """One DiffIK step of W worlds (the batched `tt.sim.controller.ik_step`).
 
+    weights: the task weights (`IKConfig.ik_weights()` of the controller's settings).
     qpos: measured joint positions [rad or m], (W, NV) float32.
     target_pos: site targets [m], (W, NE) vec3; target_quat: (W, NE) vec4 (w, x, y, z), in
     site order ``ee_0, ee_1, ...`` (the caller applies the look-ahead).
@@ -218,10 +210,7 @@ def ik_step(
     wp.launch(
         ik_kernel(topo),
         dim=W,
-        inputs=[
-            model.body_pos, model.body_quat, model.dof_axis, model.dof_pos, model.dof_ref, model.dof_range,
-            model.ee_pos, model.ee_quat, ik_weights(config), qpos, target_pos, target_quat,
-        ],  # fmt: skip
+        inputs=[model.arrays, weights, qpos, target_pos, target_quat],
         outputs=[q_cmd_out],
         device=device,
     )

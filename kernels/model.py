@@ -8,6 +8,15 @@ hangs from which, joint types, which joints the actuators drive, which bodies ca
 end-effector sites) is a `Topology`, and kernels are compiled once per topology with it
 unrolled into straight-line code.
 
+The per-world arrays are one flat `@wp.struct`, `TreeArrays`: every tree kernel and
+`wp.func` takes it as its ``model`` parameter (passed in, never returned from a
+`wp.func`, a case whose adjoints Warp has had bugs in), and gradients under `wp.Tape`
+reach its members' ``.grad``. It is the one list of the model's fields: adding one is an edit of
+`TreeArrays` and of `build_tree_model`, which fills it; `ENTITY_FIELDS` (the fields a
+design's continuous choices may change, which `tt.guidance.simgrad` differentiates) is
+derived from it. `Kinematics64` holds float64 copies of the kinematic fields for the
+start posture.
+
 MuJoCo lets one body carry several joints, each expressed in the frame left by the joints
 before it. tt splits such a body into a chain of bodies with one joint each (the first
 keeps the body's offset, the last its mass and sites), which is the same kinematics, so
@@ -18,7 +27,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import mujoco
@@ -234,23 +243,10 @@ def _limit_kb(m: mujoco.MjModel) -> np.ndarray:
     return out
 
 
-@dataclass
-class KinematicFields:
-    """The fields that kinematics and IK read, in one precision (see `TreeModel`)."""
-
-    body_pos: wp.array
-    body_quat: wp.array
-    dof_axis: wp.array
-    dof_pos: wp.array
-    dof_ref: wp.array
-    dof_range: wp.array
-    ee_pos: wp.array
-    ee_quat: wp.array
-
-
-@dataclass
-class TreeModel:
-    """W worlds of one `Topology`, as Warp arrays (float32).
+@wp.struct
+class TreeArrays:
+    """The per-world arrays of a `TreeModel` (float32), one flat struct that every tree
+    kernel takes as its ``model`` parameter; the one list of the model's fields.
 
     Per-world fields have a leading dimension of 1 or W; kernels read entry
     ``worldid % field.shape[0]``. Quaternions are (w, x, y, z) vec4, as in MuJoCo and tt's
@@ -258,7 +254,6 @@ class TreeModel:
     NB = topology.body_count (tree bodies, world included), NV = topology.dof_count,
     NU = topology.actuator_count, NE = topology.ee_count.
 
-    topology: the shared structure (see `Topology`).
     body_pos: body frame position in the parent frame [m], (W, NB) vec3.
     body_quat: body frame orientation in the parent frame, (W, NB) vec4.
     body_mass: body mass [kg], (W, NB) float.
@@ -290,48 +285,120 @@ class TreeModel:
     limit_enabled: 1 when joint-limit constraints are simulated (MuJoCo's limit flag), (W,) int32.
     limit_sweeps: projected Gauss-Seidel sweeps of the joint-limit force solve (one is exact
         for a single active limit), (1,) int32.
-    kinematics64: float64 copies of the kinematic fields (from the MuJoCo models, not from
-        the float32 fields) for the start posture, whose IK iteration amplifies round-off.
+
+    Gradients (`wp.Tape`) flow to the members' ``.grad`` arrays: give the arrays
+    ``requires_grad`` before assigning them to the struct (`tree_arrays`).
+    """
+
+    body_pos: wp.array2d(dtype=wp.vec3)
+    body_quat: wp.array2d(dtype=wp.vec4)
+    body_mass: wp.array2d(dtype=float)
+    body_ipos: wp.array2d(dtype=wp.vec3)
+    body_iquat: wp.array2d(dtype=wp.vec4)
+    body_inertia: wp.array2d(dtype=wp.vec3)
+    dof_axis: wp.array2d(dtype=wp.vec3)
+    dof_pos: wp.array2d(dtype=wp.vec3)
+    dof_ref: wp.array2d(dtype=float)
+    dof_armature: wp.array2d(dtype=float)
+    dof_damping: wp.array2d(dtype=float)
+    dof_stiffness: wp.array2d(dtype=float)
+    dof_springref: wp.array2d(dtype=float)
+    dof_range: wp.array2d(dtype=wp.vec2)
+    dof_limit_kb: wp.array2d(dtype=wp.vec2)
+    dof_solimp: wp.array3d(dtype=float)
+    dof_invweight0: wp.array2d(dtype=float)
+    act_gain: wp.array2d(dtype=float)
+    act_bias: wp.array2d(dtype=wp.vec3)
+    act_gear: wp.array2d(dtype=float)
+    act_ctrlrange: wp.array2d(dtype=wp.vec2)
+    act_forcerange: wp.array2d(dtype=wp.vec2)
+    ee_pos: wp.array2d(dtype=wp.vec3)
+    ee_quat: wp.array2d(dtype=wp.vec4)
+    gravity: wp.array(dtype=wp.vec3)
+    timestep: wp.array(dtype=float)
+    limit_enabled: wp.array(dtype=wp.int32)
+    limit_sweeps: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class Kinematics64:
+    """float64 copies of the kinematic fields of `TreeArrays` (same names, meanings and
+    shapes), built from the MuJoCo models rather than from the float32 fields: the start
+    posture's IK iteration amplifies round-off, so it runs on these."""
+
+    body_pos: wp.array2d(dtype=wp.vec3d)
+    body_quat: wp.array2d(dtype=wp.vec4d)
+    dof_axis: wp.array2d(dtype=wp.vec3d)
+    dof_pos: wp.array2d(dtype=wp.vec3d)
+    dof_ref: wp.array2d(dtype=wp.float64)
+    dof_range: wp.array2d(dtype=wp.vec2d)
+    ee_pos: wp.array2d(dtype=wp.vec3d)
+    ee_quat: wp.array2d(dtype=wp.vec4d)
+
+
+#: Names of the `TreeArrays` members, in declaration order.
+TREE_FIELDS: tuple[str, ...] = tuple(TreeArrays.vars)
+#: The members that hold one value per body, dof, actuator or end effector (the fields a
+#: design's continuous choices may change); the rest are per-world options.
+ENTITY_FIELDS: tuple[str, ...] = tuple(n for n, v in TreeArrays.vars.items() if v.type.ndim >= 2)
+#: Names of the `Kinematics64` members.
+KINEMATICS64_FIELDS: tuple[str, ...] = tuple(Kinematics64.vars)
+
+
+def _struct(cls, fields: dict, names: Sequence[str]):
+    missing = sorted(set(names) - set(fields))
+    extra = sorted(set(fields) - set(names))
+    if missing or extra:
+        raise ValueError(f"{cls.key} fields: missing {missing}, unknown {extra}")
+    out = cls()
+    for name in names:
+        setattr(out, name, fields[name])
+    return out
+
+
+def tree_arrays(**fields: wp.array) -> TreeArrays:
+    """A `TreeArrays` from one array per member (every member, no others)."""
+    return _struct(TreeArrays, fields, TREE_FIELDS)
+
+
+def kinematics64(**fields: wp.array) -> Kinematics64:
+    """A `Kinematics64` from one array per member (every member, no others)."""
+    return _struct(Kinematics64, fields, KINEMATICS64_FIELDS)
+
+
+@dataclass
+class TreeModel:
+    """W worlds of one `Topology`: the topology, the kernels' arrays and host-side facts.
+
+    topology: the shared structure (see `Topology`).
+    arrays: the per-world float32 model fields (`TreeArrays`, documented there); kernels
+        take it as one parameter.
+    kinematics64: float64 copies of the kinematic fields for the start posture (`Kinematics64`).
+    device: the Warp device the arrays live on.
+    timestep_host: host copies of the timesteps [s], (W,), for launch planning without a
+        device round trip.
     """
 
     topology: Topology
-    body_pos: wp.array
-    body_quat: wp.array
-    body_mass: wp.array
-    body_ipos: wp.array
-    body_iquat: wp.array
-    body_inertia: wp.array
-    dof_axis: wp.array
-    dof_pos: wp.array
-    dof_ref: wp.array
-    dof_armature: wp.array
-    dof_damping: wp.array
-    dof_stiffness: wp.array
-    dof_springref: wp.array
-    dof_range: wp.array
-    dof_limit_kb: wp.array
-    dof_solimp: wp.array
-    dof_invweight0: wp.array
-    act_gain: wp.array
-    act_bias: wp.array
-    act_gear: wp.array
-    act_ctrlrange: wp.array
-    act_forcerange: wp.array
-    ee_pos: wp.array
-    ee_quat: wp.array
-    gravity: wp.array
-    timestep: wp.array
-    limit_enabled: wp.array
-    limit_sweeps: wp.array
-    kinematics64: KinematicFields | None = None
+    arrays: TreeArrays
+    kinematics64: Kinematics64
     device: str = "cpu"
-    #: Host copies of the timesteps, for launch planning without a device round trip.
     timestep_host: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def world_count(self) -> int:
         """Number of distinct model entries (1 or W)."""
-        return self.body_pos.shape[0]
+        return self.arrays.body_pos.shape[0]
+
+    def with_fields(self, fields: dict[str, wp.array], fields64: dict[str, wp.array] | None = None) -> "TreeModel":
+        """A copy whose structs hold `fields` (member name -> array) in place of their own
+        members, and `fields64` in place of `Kinematics64` members; the rest are shared.
+        New structs are built, so this model is unchanged. Arrays that a tape should
+        differentiate must have ``requires_grad`` already."""
+        arrays = tree_arrays(**{n: fields.get(n, getattr(self.arrays, n)) for n in TREE_FIELDS})
+        f64 = fields64 or {}
+        k64 = kinematics64(**{n: f64.get(n, getattr(self.kinematics64, n)) for n in KINEMATICS64_FIELDS})
+        return replace(self, arrays=arrays, kinematics64=k64)
 
 
 def build_tree_model(
@@ -422,19 +489,18 @@ def build_tree_model(
     def arr64(x, dtype):
         return wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=dtype, device=device)
 
-    kinematics64 = KinematicFields(
+    k64 = kinematics64(
         body_pos=arr64(body_pos, wp.vec3d),
-        body_quat=arr64(body_quat, wp.types.vector(4, wp.float64)),
+        body_quat=arr64(body_quat, wp.vec4d),
         dof_axis=arr64(np.stack([m.jnt_axis for m in models]), wp.vec3d),
         dof_pos=arr64(np.stack([m.jnt_pos for m in models]), wp.vec3d),
         dof_ref=arr64(np.stack([m.qpos0 for m in models]), wp.float64),
         dof_range=arr64(dof_range, wp.vec2d),
         ee_pos=arr64(ee_pos, wp.vec3d),
-        ee_quat=arr64(ee_quat, wp.types.vector(4, wp.float64)),
+        ee_quat=arr64(ee_quat, wp.vec4d),
     )
-
-    return TreeModel(
-        topology=topo,
+    # The arrays get requires_grad at allocation, before they enter the struct.
+    arrays = tree_arrays(
         body_pos=arr(body_pos, wp.vec3),
         body_quat=arr(body_quat, wp.vec4),
         body_mass=arr(body_mass, float),
@@ -463,7 +529,11 @@ def build_tree_model(
         timestep=arr(np.array([m.opt.timestep for m in models]), float),
         limit_enabled=wp.array(limit_enabled, dtype=wp.int32, device=device),
         limit_sweeps=wp.array([limit_sweeps], dtype=wp.int32, device=device),
-        kinematics64=kinematics64,
+    )
+    return TreeModel(
+        topology=topo,
+        arrays=arrays,
+        kinematics64=k64,
         device=device,
         timestep_host=np.array([m.opt.timestep for m in models]),
     )

@@ -3,7 +3,7 @@
 Per world and control step t (the oracle's loop, `tt.sim.validate`, step for step):
 
 1. state (q, qd) at the start of the step; at t = 0 the oracle's start posture, at rest:
-   `IKConfig.init_iterations` kinematic IK steps from qpos0 toward the motion's first pose;
+   ``init_iterations`` kinematic IK steps from qpos0 toward the motion's first pose;
 2. IK target: the motion pose at min(t + lookahead, T_m - 1); q_cmd = DiffIK step
    (`tt.kernels.ik`); action = clip(q_cmd of each actuated joint, ctrlrange); the command
    executed is ctrl = action, or with control perturbation (``action_noise`` sigma > 0)
@@ -33,7 +33,12 @@ to the model's continuous fields (link offsets `body_pos`, mount pose, masses, g
 be taken with `wp.Tape`.
 
 Kernels are compiled once per `Topology` (`rollout_kernels`), the differentiable rollout in
-a separate module that is built only when first asked for (`grad_kernels`).
+a separate module that is built only when first asked for (`grad_kernels`), and the start
+posture alone in a third (`start_postures`, for the backends that run other physics).
+
+The launch wrappers take numbers, not configs: the IK's `IKWeights` struct and the
+controller's timing and termination as plain arguments; `tt.sim.controller.IKConfig`
+turns its settings into them (`IKConfig.ik_weights`, `IKConfig.rollout_args`).
 """
 
 import functools
@@ -43,13 +48,12 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from tt.kernels.dynamics import dynamics_funcs, model_inputs
+from tt.kernels.dynamics import dynamics_funcs
 from tt.kernels.fk import kinematics_funcs
-from tt.kernels.ik import IKWeights, ik_funcs, ik_weights
+from tt.kernels.ik import IKWeights, ik_funcs
 from tt.kernels.lie import wxyz
-from tt.kernels.model import MODULE_OPTIONS, Topology, TreeModel, local_types, module_name
+from tt.kernels.model import MODULE_OPTIONS, Kinematics64, Topology, TreeArrays, TreeModel, local_types, module_name
 from tt.kernels.pose import position_error
-from tt.sim.controller import IKConfig
 
 
 @wp.func
@@ -77,34 +81,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
     @wp.kernel(module=module)
     def _rollout(
         # Model:
-        body_pos: wp.array2d(dtype=wp.vec3),
-        body_quat: wp.array2d(dtype=wp.vec4),
-        body_mass: wp.array2d(dtype=float),
-        body_ipos: wp.array2d(dtype=wp.vec3),
-        body_iquat: wp.array2d(dtype=wp.vec4),
-        body_inertia: wp.array2d(dtype=wp.vec3),
-        dof_axis: wp.array2d(dtype=wp.vec3),
-        dof_pos: wp.array2d(dtype=wp.vec3),
-        dof_ref: wp.array2d(dtype=float),
-        dof_armature: wp.array2d(dtype=float),
-        dof_damping: wp.array2d(dtype=float),
-        dof_stiffness: wp.array2d(dtype=float),
-        dof_springref: wp.array2d(dtype=float),
-        dof_range: wp.array2d(dtype=wp.vec2),
-        dof_limit_kb: wp.array2d(dtype=wp.vec2),
-        dof_solimp: wp.array3d(dtype=float),
-        dof_invweight0: wp.array2d(dtype=float),
-        act_gain: wp.array2d(dtype=float),
-        act_bias: wp.array2d(dtype=wp.vec3),
-        act_gear: wp.array2d(dtype=float),
-        act_ctrlrange: wp.array2d(dtype=wp.vec2),
-        act_forcerange: wp.array2d(dtype=wp.vec2),
-        gravity: wp.array(dtype=wp.vec3),
-        timestep: wp.array(dtype=float),
-        limit_enabled: wp.array(dtype=wp.int32),
-        limit_sweeps: wp.array(dtype=wp.int32),
-        ee_pos: wp.array2d(dtype=wp.vec3),
-        ee_quat: wp.array2d(dtype=wp.vec4),
+        model: TreeArrays,
         # In:
         weights: IKWeights,
         lookahead: int,
@@ -135,7 +112,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
         action_out: wp.array3d(dtype=float),  # written only when noise_std > 0
     ):
         worldid = wp.tid()
-        mid = worldid % body_pos.shape[0]
+        mid = worldid % model.body_pos.shape[0]
         motionid = worldid % motion_pos_in.shape[0]
         motion_steps = motion_steps_in[motionid]
         slots = qpos_state.shape[1]
@@ -176,13 +153,11 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                 for e in range(NE):
                     tpos[e] = motion_pos_in[motionid, goal, e]
                     tquat[e] = motion_quat_in[motionid, goal, e]
-                xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
-                q_cmd = IK.command(
-                    mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights
-                )
+                xpos, xquat, axis, anchor = K.kinematics(mid, model, q)
+                q_cmd = IK.command(mid, model, xpos, xquat, axis, anchor, q, tpos, tquat, weights)
                 ctrl = T.act_vec()
                 for u in range(NU):
-                    cr = act_ctrlrange[mid, u]
+                    cr = model.act_ctrlrange[mid, u]
                     ctrl[u] = wp.clamp(q_cmd[wp.static(ACT_DOF[u])], cr[0], cr[1])
                 if noise_std > 0.0:
                     # Control perturbation: log the clean command, execute a noisy one.
@@ -191,7 +166,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                         action_out[worldid, t, u] = ctrl[u]
                         u1 = wp.randf(rng)
                         u2 = wp.randf(rng)
-                        cr = act_ctrlrange[mid, u]
+                        cr = model.act_ctrlrange[mid, u]
                         ctrl[u] = wp.clamp(ctrl[u] + noise_std * _standard_normal(u1, u2), cr[0], cr[1])
 
                 # Physics, with the command held.
@@ -202,15 +177,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                     for d in range(NV):
                         qk[d] = qpos_state[worldid, s % slots, d]
                         qdk[d] = qvel_state[worldid, s % slots, d]
-                    qn, qdn, force, vel, active = Dyn.step(
-                        mid,
-                        body_pos, body_quat, body_mass, body_ipos, body_iquat, body_inertia,
-                        dof_axis, dof_pos, dof_ref, dof_armature, dof_damping, dof_stiffness, dof_springref,
-                        dof_range, dof_limit_kb, dof_solimp, dof_invweight0,
-                        act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange,
-                        gravity, timestep, limit_enabled, limit_sweeps,
-                        qk, qdk, ctrl,
-                    )  # fmt: skip
+                    qn, qdn, force, vel, active = Dyn.step(mid, model, qk, qdk, ctrl)
                     for d in range(NV):
                         qpos_state[worldid, (s + 1) % slots, d] = qn[d]
                         qvel_state[worldid, (s + 1) % slots, d] = qdn[d]
@@ -224,15 +191,15 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                     qd1[d] = qvel_state[worldid, s1 % slots, d]
                     qpos_out[worldid, t, d] = q1[d]
                     qvel_out[worldid, t, d] = qd1[d]
-                qfrc, force1, vel1 = Dyn.actuation(mid, act_gain, act_bias, act_gear, act_ctrlrange, act_forcerange, q1, qd1, ctrl)
+                qfrc, force1, vel1 = Dyn.actuation(mid, model, q1, qd1, ctrl)
                 for u in range(NU):
                     ctrl_out[worldid, t, u] = ctrl[u]
                     act_force_out[worldid, t, u] = force1[u]
                     act_vel_out[worldid, t, u] = vel1[u]
-                xpos1, xquat1, axis1, anchor1 = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q1)
+                xpos1, xquat1, axis1, anchor1 = K.kinematics(mid, model, q1)
                 error = float(0.0)
                 for e in range(NE):
-                    p, r = wp.static(K.site_pose[e])(xpos1, xquat1, ee_pos, ee_quat, mid)
+                    p, r = wp.static(K.site_pose[e])(xpos1, xquat1, model, mid)
                     ee_pos_out[worldid, t, e] = p
                     ee_quat_out[worldid, t, e] = wxyz(r)
                     error += position_error(p, motion_pos_in[motionid, record, e])
@@ -243,8 +210,8 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
 
 
 def make_initial_posture_kernel(topology: Topology, module: str):
-    """The start-posture kernel of one topology (`IKConfig.init_iterations` kinematic IK
-    steps from qpos0 toward the motion's first pose), registered in module `module`.
+    """The start-posture kernel of one topology (``iterations`` kinematic IK steps from
+    qpos0 toward the motion's first pose), registered in module `module`.
 
     It computes in float64 from float64 model fields and first poses: fifty IK steps toward
     a pose the robot may not reach can wander chaotically (differences of 1e-7 rad grow to
@@ -260,14 +227,7 @@ def make_initial_posture_kernel(topology: Topology, module: str):
     @wp.kernel(module=module)
     def _initial_posture(
         # Model (float64 kinematic fields):
-        body_pos: wp.array2d(dtype=T.vec3),
-        body_quat: wp.array2d(dtype=T.vec4),
-        dof_axis: wp.array2d(dtype=T.vec3),
-        dof_pos: wp.array2d(dtype=T.vec3),
-        dof_ref: wp.array2d(dtype=S),
-        dof_range: wp.array2d(dtype=T.vec2),
-        ee_pos: wp.array2d(dtype=T.vec3),
-        ee_quat: wp.array2d(dtype=T.vec4),
+        model: Kinematics64,
         # In:
         weights: IKWeights,
         iterations: int,
@@ -278,7 +238,7 @@ def make_initial_posture_kernel(topology: Topology, module: str):
         qpos_state_out: wp.array3d(dtype=float),
     ):
         worldid = wp.tid()
-        mid = worldid % body_pos.shape[0]
+        mid = worldid % model.body_pos.shape[0]
         motionid = worldid % motion_pos_in.shape[0]
         slots = q_iter.shape[1]
         tpos = T.ee_vec3()
@@ -287,15 +247,13 @@ def make_initial_posture_kernel(topology: Topology, module: str):
             tpos[e] = motion_pos_in[motionid, e]
             tquat[e] = motion_quat_in[motionid, e]
         for d in range(NV):
-            q_iter[worldid, 0, d] = dof_ref[mid, d]
+            q_iter[worldid, 0, d] = model.dof_ref[mid, d]
         for i in range(iterations):
             q = T.dof_vec()
             for d in range(NV):
                 q[d] = q_iter[worldid, i % slots, d]
-            xpos, xquat, axis, anchor = K.kinematics(mid, body_pos, body_quat, dof_axis, dof_pos, dof_ref, q)
-            q_cmd = IK.command(
-                mid, dof_range, dof_ref, ee_pos, ee_quat, xpos, xquat, axis, anchor, q, tpos, tquat, weights
-            )
+            xpos, xquat, axis, anchor = K.kinematics(mid, model, q)
+            q_cmd = IK.command(mid, model, xpos, xquat, axis, anchor, q, tpos, tquat, weights)
             for d in range(NV):
                 q_iter[worldid, (i + 1) % slots, d] = q_cmd[d]
         for d in range(NV):
@@ -348,6 +306,36 @@ def load_differentiable(topology: Topology, device: str) -> SimpleNamespace:
     finally:
         wp.config.enable_vector_component_overwrites = previous
     return kernels
+
+
+@functools.cache
+def start_posture_kernel(topology: Topology):
+    """The float64 start-posture kernel of a topology (`make_initial_posture_kernel`) in a
+    module of its own, so that callers that only need the start posture (the mjwarp and
+    newton backends, the model controller's loop) do not compile the fused rollout."""
+    module = module_name(topology, "start_posture")
+    wp.set_module_options(MODULE_OPTIONS, module)
+    return make_initial_posture_kernel(topology, module)
+
+
+def start_postures(model: TreeModel, motions: "MotionArrays", weights: IKWeights, iterations: int, *,
+                   device: str | None = None) -> wp.array:
+    """Start postures (W, NV) float32 of the worlds of `model` (world i runs model entry i
+    and motion i % M): `iterations` float64 IK steps from qpos0 toward each world's first
+    motion pose (``motions.first_pos``, ``first_quat``), as
+    `tt.sim.controller.DiffIKController.initial_q` does."""
+    device = device or model.device
+    W, NV = model.world_count, model.topology.dof_count
+    q_iter = wp.zeros((W, 1, NV), dtype=wp.float64, device=device)
+    out = wp.zeros((W, 1, NV), dtype=float, device=device)
+    wp.launch(
+        start_posture_kernel(model.topology),
+        dim=W,
+        inputs=[model.kinematics64, weights, int(iterations), motions.first_pos, motions.first_quat],
+        outputs=[q_iter, out],
+        device=device,
+    )
+    return out.reshape((W, NV))
 
 
 @wp.kernel(enable_backward=False)
@@ -446,7 +434,11 @@ def rollout_tree(
     world_count: int,
     steps: int,
     *,
-    config: IKConfig = IKConfig(),
+    weights: IKWeights,
+    control_dt: float,
+    lookahead_steps: int,
+    termination_pos_error: float,
+    init_iterations: int,
     differentiable: bool = False,
     initial_qpos: np.ndarray | None = None,
     chunk: int | None = None,
@@ -462,6 +454,11 @@ def rollout_tree(
     World w runs model entry w % model.world_count on motion w % M (M = motions.count; with
     one model entry per world and worlds design-major, world d * M + m is design d on
     motion m). `motions` comes from `motion_arrays`.
+    weights, control_dt [s], lookahead_steps, termination_pos_error [m], init_iterations:
+        the controller (`IKWeights`; control period, a whole number of every model's
+        timesteps; IK target index t + lookahead_steps; summed end-effector position
+        error past which a world terminates; start-posture IK steps), as
+        `tt.sim.controller.IKConfig.rollout_args` gives them.
     differentiable: use the kernel with adjoints and a state slot per physics step, so the
         call can be recorded on a `wp.Tape` (memory grows with W * steps * substeps).
         Gradients flow through the controller and the physics to the float32 model fields;
@@ -491,12 +488,12 @@ def rollout_tree(
     topo = model.topology
     device = device or model.device
     dt = model.timestep_host
-    ratio = config.control_dt / dt
+    ratio = control_dt / dt
     substeps = np.rint(ratio).astype(int)
     if np.any(substeps < 1) or np.any(np.abs(ratio - substeps) > 1e-6 * ratio) or len(set(substeps.tolist())) != 1:
         raise ValueError(
-            f"model timesteps {sorted(set(dt.tolist()))} s must all divide IKConfig.control_dt "
-            f"{config.control_dt} s into one whole number of physics steps"
+            f"model timesteps {sorted(set(dt.tolist()))} s must all divide control_dt "
+            f"{control_dt} s into one whole number of physics steps"
         )
     substeps = int(substeps[0])
     _check_noise(action_noise, noise_seed)
@@ -538,7 +535,7 @@ def rollout_tree(
     noise_world = wp.array(world_ids.astype(np.int32), dtype=wp.int32, device=device)
     kernels = load_differentiable(topo, device) if differentiable else rollout_kernels(topo)
     # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
-    iterations = int(config.init_iterations)
+    iterations = int(init_iterations)
     q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
     if initial_qpos is not None:
         start = np.zeros((W, slots, NV), np.float32)
@@ -552,8 +549,7 @@ def rollout_tree(
             kernels.rollout,
             dim=W,
             inputs=[
-                *model_inputs(model), model.ee_pos, model.ee_quat,
-                ik_weights(config), config.lookahead_steps, substeps, float(config.termination_pos_error),
+                model.arrays, weights, int(lookahead_steps), substeps, float(termination_pos_error),
                 t0, t1, motions.pos, motions.quat, motions.steps,
                 float(action_noise), int(noise_seed), noise_world,
                 out.qpos_state, out.qvel_state,
@@ -566,14 +562,10 @@ def rollout_tree(
         )
 
     def start_posture() -> None:
-        k64 = model.kinematics64
         wp.launch(
             kernels.initial_posture,
             dim=W,
-            inputs=[
-                k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range,
-                k64.ee_pos, k64.ee_quat, ik_weights(config), iterations, motions.first_pos, motions.first_quat,
-            ],  # fmt: skip
+            inputs=[model.kinematics64, weights, iterations, motions.first_pos, motions.first_quat],
             outputs=[q_iter, out.qpos_state],
             device=device,
         )

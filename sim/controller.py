@@ -1,6 +1,8 @@
 """The arm controller: mink differential IK with look-ahead, as one damped least squares step.
 
-This module is the specification that tt's batched IK kernels reproduce. The controller
+This module is the specification that tt's batched IK kernels (`tt.kernels.ik`) reproduce,
+and the place where its settings become the numbers those kernels take
+(`IKConfig.ik_weights`, `IKConfig.rollout_args`). The controller
 runs at the motion rate (50 Hz); at control step ``k`` it reads the measured joint
 positions ``q``, takes the motion pose at index ``min(k + lookahead_steps, T - 1)`` as the
 target of every end-effector site, solves one mink IK step for a joint displacement
@@ -122,6 +124,23 @@ class IKConfig:
     def lookahead_steps(self) -> int:
         """Look-ahead in control steps, ``round(lookahead_time / control_dt)`` (4 at 50 Hz)."""
         return int(round(self.lookahead_time / self.control_dt))
+
+    def ik_weights(self):
+        """The task weights as the kernels' struct (`tt.kernels.ik.IKWeights`)."""
+        from tt.kernels.ik import ik_weights
+
+        return ik_weights(
+            position_cost=self.position_cost, orientation_cost=self.orientation_cost, posture_cost=self.posture_cost,
+            lm_damping=self.lm_damping, damping=self.damping,
+        )
+
+    def rollout_args(self) -> dict:
+        """The controller's numbers as keyword arguments of `tt.kernels.rollout.rollout_tree`:
+        weights, control_dt, lookahead_steps, termination_pos_error, init_iterations."""
+        return dict(
+            weights=self.ik_weights(), control_dt=float(self.control_dt), lookahead_steps=self.lookahead_steps,
+            termination_pos_error=float(self.termination_pos_error), init_iterations=int(self.init_iterations),
+        )
 
     def substeps(self, model: mujoco.MjModel) -> int:
         """Physics steps per control step; raises ValueError if the periods do not divide."""

@@ -16,7 +16,7 @@ Control, per world and control step (the oracle's loop, `tt.sim.validate`, step 
 * fixed-base arms: tt's batched DiffIK kernel (`tt.kernels.ik.ik_step`, the oracle's mink
   step, with forward kinematics on MuJoCo-Warp's ``qpos``), one launch per structure
   group; the start posture is the oracle's float64 IK from ``qpos0`` toward the first
-  pose (the kernel `tt.kernels.rollout.make_initial_posture_kernel` builds). An arm
+  pose (`tt.kernels.rollout.start_postures`). An arm
   whose model has contacts gets its IK from a copy with contacts disabled (the IK reads
   only the kinematic tree); MuJoCo-Warp simulates the contacts;
 * floating-base legged robots (the quadruped): tt's batched whole-body kernels
@@ -34,8 +34,9 @@ terminated keep stepping in lockstep with the others but their records repeat th
 one, alive False, which is what the oracle records.
 
 Records are written straight into one Episode-shaped set of Warp arrays (zero-padded to
-the widest design across structure groups), and the Episode's tensors are zero-copy
-torch views of them.
+the widest design across structure groups, `tt.kernels.records`), and the Episode's
+tensors are zero-copy torch views of them. This module is host code: every kernel it
+launches lives in `tt.kernels` (`records`, `control`, `ik`, `wbc`, `rollout`'s start posture).
 
 `mjwarp_simulate` runs open-loop commands (the dynamics reference of the tests).
 
@@ -64,6 +65,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from tt.kernels.records import RecordArrays
 from tt.sim.backends import Robots, get_backend
 from tt.sim.controller import IKConfig, actuated_qpos, model_name
 from tt.sim.designs import Design
@@ -190,355 +192,25 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
     return batched
 
 
-# --------------------------------------------------------------------------- kernels
-
-
-@wp.func
-def mat2quat(m: wp.mat33) -> wp.vec4:
-    """(w, x, y, z) of a rotation matrix, MuJoCo's `mju_mat2Quat` branch for branch (so the
-    sign of the quaternion is the one the oracle records)."""
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    q = wp.vec4()
-    if tr > 0.0:
-        w = 0.5 * wp.sqrt(1.0 + tr)
-        q = wp.vec4(w, 0.25 * (m[2, 1] - m[1, 2]) / w, 0.25 * (m[0, 2] - m[2, 0]) / w, 0.25 * (m[1, 0] - m[0, 1]) / w)
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        x = 0.5 * wp.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = wp.vec4(0.25 * (m[2, 1] - m[1, 2]) / x, x, 0.25 * (m[0, 1] + m[1, 0]) / x, 0.25 * (m[0, 2] + m[2, 0]) / x)
-    elif m[1, 1] > m[2, 2]:
-        y = 0.5 * wp.sqrt(1.0 - m[0, 0] + m[1, 1] - m[2, 2])
-        q = wp.vec4(0.25 * (m[0, 2] - m[2, 0]) / y, 0.25 * (m[0, 1] + m[1, 0]) / y, y, 0.25 * (m[1, 2] + m[2, 1]) / y)
-    else:
-        z = 0.5 * wp.sqrt(1.0 - m[0, 0] - m[1, 1] + m[2, 2])
-        q = wp.vec4(0.25 * (m[1, 0] - m[0, 1]) / z, 0.25 * (m[0, 2] + m[2, 0]) / z, 0.25 * (m[1, 2] + m[2, 1]) / z, z)
-    return wp.normalize(q)
-
-
-@wp.kernel(module="unique")
-def _lookahead_targets(
-    # In:
-    t: int,
-    lookahead: int,
-    world_motion: wp.array(dtype=int),
-    motion_steps_in: wp.array(dtype=wp.int32),
-    motion_pos_in: wp.array3d(dtype=wp.vec3),
-    motion_quat_in: wp.array3d(dtype=wp.vec4),
-    # Out:
-    target_pos_out: wp.array2d(dtype=wp.vec3),
-    target_quat_out: wp.array2d(dtype=wp.vec4),
-):
-    worldid, e = wp.tid()
-    motionid = world_motion[worldid]
-    goal = wp.min(t + lookahead, motion_steps_in[motionid] - 1)
-    target_pos_out[worldid, e] = motion_pos_in[motionid, goal, e]
-    target_quat_out[worldid, e] = motion_quat_in[motionid, goal, e]
-
-
-@wp.kernel(module="unique")
-def _joint_command(
-    # Model:
-    actuator_qpos: wp.array(dtype=int),
-    ctrl_range: wp.array2d(dtype=wp.vec2),
-    # In:
-    q_cmd_in: wp.array2d(dtype=float),
-    # Out:
-    ctrl_out: wp.array2d(dtype=float),
-):
-    worldid, u = wp.tid()
-    r = ctrl_range[worldid % ctrl_range.shape[0], u]
-    ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
-
-
-@wp.kernel(module="unique")
-def _live_joint_command(
-    # Model:
-    actuator_qpos: wp.array(dtype=int),
-    ctrl_range: wp.array2d(dtype=wp.vec2),
-    # In:
-    t: int,
-    world_row: wp.array(dtype=int),
-    alive_in: wp.array2d(dtype=wp.bool),
-    q_cmd_in: wp.array2d(dtype=float),
-    # Out:
-    ctrl_out: wp.array2d(dtype=float),
-):
-    worldid, u = wp.tid()
-    # A terminated world keeps its last command: the oracle stops it, and its state may
-    # have diverged. (alive_in holds the Episode's records; step t - 1 is the last written.)
-    if t > 0:
-        if not alive_in[world_row[worldid], t - 1]:
-            return
-    r = ctrl_range[worldid % ctrl_range.shape[0], u]
-    ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
-
-
-@wp.kernel(module="unique")
-def _site_poses(
-    # Model:
-    site_ids: wp.array(dtype=int),
-    # Data in:
-    site_xpos_in: wp.array2d(dtype=wp.vec3),
-    site_xmat_in: wp.array2d(dtype=wp.mat33),
-    # Out:
-    ee_pos_out: wp.array2d(dtype=wp.vec3),
-    ee_quat_out: wp.array2d(dtype=wp.vec4),
-):
-    worldid, e = wp.tid()
-    sid = site_ids[e]
-    ee_pos_out[worldid, e] = site_xpos_in[worldid, sid]
-    ee_quat_out[worldid, e] = mat2quat(site_xmat_in[worldid, sid])
-
-
-@wp.kernel(module="unique")
-def _record_step(
-    # In:
-    t: int,
-    threshold: float,
-    base_qpos: int,
-    fall_height: wp.array(dtype=float),
-    fall_cos_tilt: float,
-    world_row: wp.array(dtype=int),
-    world_motion: wp.array(dtype=int),
-    motion_steps_in: wp.array(dtype=wp.int32),
-    motion_pos_in: wp.array3d(dtype=wp.vec3),
-    motion_quat_in: wp.array3d(dtype=wp.vec4),
-    qpos_in: wp.array2d(dtype=float),
-    qvel_in: wp.array2d(dtype=float),
-    ctrl_in: wp.array2d(dtype=float),
-    act_force_in: wp.array2d(dtype=float),
-    act_vel_in: wp.array2d(dtype=float),
-    ee_pos_in: wp.array2d(dtype=wp.vec3),
-    ee_quat_in: wp.array2d(dtype=wp.vec4),
-    # Out:
-    qpos_out: wp.array3d(dtype=float),
-    qvel_out: wp.array3d(dtype=float),
-    ctrl_out: wp.array3d(dtype=float),
-    act_force_out: wp.array3d(dtype=float),
-    act_vel_out: wp.array3d(dtype=float),
-    ee_pos_out: wp.array3d(dtype=wp.vec3),
-    ee_quat_out: wp.array3d(dtype=wp.vec4),
-    target_pos_out: wp.array3d(dtype=wp.vec3),
-    target_quat_out: wp.array3d(dtype=wp.vec4),
-    alive_out: wp.array2d(dtype=wp.bool),
-    fallen_out: wp.array2d(dtype=wp.bool),
-):
-    i = wp.tid()
-    w = world_row[i]
-    motionid = world_motion[i]
-    steps = motion_steps_in[motionid]
-    record = wp.min(t, steps - 1)
-    ne = ee_pos_in.shape[1]
-    for e in range(ne):
-        target_pos_out[w, t, e] = motion_pos_in[motionid, record, e]
-        target_quat_out[w, t, e] = motion_quat_in[motionid, record, e]
-    stopped = t >= steps
-    if t > 0:
-        if not alive_out[w, t - 1]:
-            stopped = True
-    if stopped:
-        # Past termination or the motion's end: repeat the last record (the oracle's rule).
-        for d in range(qpos_in.shape[1]):
-            qpos_out[w, t, d] = qpos_out[w, t - 1, d]
-        for d in range(qvel_in.shape[1]):
-            qvel_out[w, t, d] = qvel_out[w, t - 1, d]
-        for u in range(ctrl_in.shape[1]):
-            ctrl_out[w, t, u] = ctrl_out[w, t - 1, u]
-            act_force_out[w, t, u] = act_force_out[w, t - 1, u]
-            act_vel_out[w, t, u] = act_vel_out[w, t - 1, u]
-        for e in range(ne):
-            ee_pos_out[w, t, e] = ee_pos_out[w, t - 1, e]
-            ee_quat_out[w, t, e] = ee_quat_out[w, t - 1, e]
-        fallen_out[w, t] = fallen_out[w, t - 1]
-        alive_out[w, t] = False
-    else:
-        for d in range(qpos_in.shape[1]):
-            qpos_out[w, t, d] = qpos_in[i, d]
-        for d in range(qvel_in.shape[1]):
-            qvel_out[w, t, d] = qvel_in[i, d]
-        for u in range(ctrl_in.shape[1]):
-            ctrl_out[w, t, u] = ctrl_in[i, u]
-            act_force_out[w, t, u] = act_force_in[i, u]
-            act_vel_out[w, t, u] = act_vel_in[i, u]
-        error = float(0.0)
-        for e in range(ne):
-            p = ee_pos_in[i, e]
-            ee_pos_out[w, t, e] = p
-            ee_quat_out[w, t, e] = ee_quat_in[i, e]
-            error += wp.length(motion_pos_in[motionid, record, e] - p)
-        fell = False
-        if base_qpos >= 0:
-            z = qpos_in[i, base_qpos + 2]
-            qw = qpos_in[i, base_qpos + 3]
-            qx = qpos_in[i, base_qpos + 4]
-            qy = qpos_in[i, base_qpos + 5]
-            qz = qpos_in[i, base_qpos + 6]
-            norm2 = qw * qw + qx * qx + qy * qy + qz * qz
-            # cos of the base z axis's angle to the world's: R_zz of the normalised quaternion.
-            cos_tilt = (qw * qw - qx * qx - qy * qy + qz * qz) / wp.max(norm2, 1.0e-30)
-            finite = wp.isfinite(z) and wp.isfinite(norm2)
-            # `not (>=)` so that a NaN height or tilt counts as a fall, like a low one.
-            fell = (not finite) or (not (z >= fall_height[i])) or (not (cos_tilt >= fall_cos_tilt))
-        fallen_out[w, t] = fell
-        # `<=` so that a NaN error (a diverged state) terminates like a large one.
-        alive_out[w, t] = (error <= threshold) and (not fell)
-
-
 # --------------------------------------------------------------------------- records
 
 
-@dataclass
-class EpisodeArrays:
-    """Records of W worlds over T control steps as Warp arrays (meanings: `Episode`).
-
-    qpos (W, T, NQ), qvel (W, T, NV), ctrl / act_force / act_vel (W, T, NU) float;
-    ee_pos, target_pos (W, T, NE) vec3 [m]; ee_quat, target_quat (W, T, NE) vec4 (w, x, y, z);
-    alive, fallen (W, T) bool. NQ, NV, NU are the widest design's; narrower designs
-    leave their extra columns zero (the oracle's padding).
-    """
-
-    qpos: wp.array
-    qvel: wp.array
-    ctrl: wp.array
-    act_force: wp.array
-    act_vel: wp.array
-    ee_pos: wp.array
-    ee_quat: wp.array
-    target_pos: wp.array
-    target_quat: wp.array
-    alive: wp.array
-    fallen: wp.array
-
-    @classmethod
-    def zeros(cls, W: int, T: int, nq: int, nv: int, nu: int, ne: int, *, device: str) -> "EpisodeArrays":
-        def z(shape, dtype):
-            return wp.zeros(shape, dtype=dtype, device=device)
-
-        return cls(
-            qpos=z((W, T, nq), float), qvel=z((W, T, nv), float), ctrl=z((W, T, max(nu, 1)), float),
-            act_force=z((W, T, max(nu, 1)), float), act_vel=z((W, T, max(nu, 1)), float),
-            ee_pos=z((W, T, ne), wp.vec3), ee_quat=z((W, T, ne), wp.vec4),
-            target_pos=z((W, T, ne), wp.vec3), target_quat=z((W, T, ne), wp.vec4),
-            alive=z((W, T), wp.bool), fallen=z((W, T), wp.bool),
-        )  # fmt: skip
-
-    def episode(self, D: int, M: int, nu: int, dt: float) -> Episode:
-        """The Episode of these records (zero-copy torch views), worlds design-major."""
-        f = {name: wp.to_torch(getattr(self, name)) for name in (f.name for f in dataclasses.fields(self))}
-        for name in ("ctrl", "act_force", "act_vel"):
-            f[name] = f[name][..., :nu]  # a design without actuators keeps one padding column
-        tdev = f["qpos"].device
-        return Episode(
-            qpos=f["qpos"], qvel=f["qvel"], ctrl=f["ctrl"], action=f["ctrl"],
-            act_force=f["act_force"], act_vel=f["act_vel"],
-            ee_pos=f["ee_pos"], ee_quat=f["ee_quat"], target_pos=f["target_pos"], target_quat=f["target_quat"],
-            alive=f["alive"], fallen=f["fallen"],
-            design_index=torch.arange(D, device=tdev).repeat_interleave(M),
-            motion_index=torch.arange(M, device=tdev).repeat(D),
-            dt=dt,
-        )  # fmt: skip
-
-
-def record_step(
-    records: EpisodeArrays,
-    t: int,
-    *,
-    threshold: float,
-    world_row: wp.array,
-    world_motion: wp.array,
-    motions,
-    qpos: wp.array,
-    qvel: wp.array,
-    ctrl: wp.array,
-    act_force: wp.array,
-    act_vel: wp.array,
-    ee_pos: wp.array,
-    ee_quat: wp.array,
-    base_qpos: int = -1,
-    fall_height: wp.array | None = None,
-    fall_tilt: float = math.pi,
-    device: str,
-) -> None:
-    """Write control step t of a group of Wg worlds into `records` (rows `world_row`).
-
-    qpos (Wg, nq), qvel (Wg, nv), ctrl / act_force / act_vel (Wg, nu) float and ee_pos
-    (Wg, NE) vec3, ee_quat (Wg, NE) vec4: the state after the step's physics and what
-    belongs to it. motions: `tt.kernels.rollout.MotionArrays`; world_motion (Wg,) int: each
-    world's motion. base_qpos: qpos address of a floating base (-1: fixed base, never
-    fallen); fall_height (Wg,) [m] and fall_tilt [rad]: the fall test of `tt.sim.wbc.fallen`.
-    """
-    Wg = qpos.shape[0]
-    if fall_height is None:
-        fall_height = wp.zeros(1, dtype=float, device=device)
-    wp.launch(
-        _record_step,
-        dim=Wg,
-        inputs=[
-            t, float(threshold), int(base_qpos), fall_height, float(math.cos(fall_tilt)), world_row, world_motion,
-            motions.steps, motions.pos, motions.quat, qpos, qvel, ctrl, act_force, act_vel, ee_pos, ee_quat,
-        ],  # fmt: skip
-        outputs=[
-            records.qpos, records.qvel, records.ctrl, records.act_force, records.act_vel, records.ee_pos,
-            records.ee_quat, records.target_pos, records.target_quat, records.alive, records.fallen,
-        ],  # fmt: skip
-        device=device,
-    )
-
-
-def joint_command(q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.array, ctrl: wp.array, *, device: str) -> None:
-    """ctrl (Wg, NU) = clip(q_cmd[:, actuator_qpos], ctrl_range): the position command of each
-    actuator from the IK's joint command q_cmd (Wg, NQ); actuator_qpos (NU,) int is the qpos
-    address each actuator drives (`tt.sim.controller.actuated_qpos`), ctrl_range (1 or Wg, NU)
-    vec2 its clamp (`ctrl_ranges`)."""
-    if ctrl.shape[1] and actuator_qpos.shape[0]:
-        wp.launch(_joint_command, dim=(q_cmd.shape[0], actuator_qpos.shape[0]), inputs=[actuator_qpos, ctrl_range, q_cmd], outputs=[ctrl], device=device)
-
-
-def lookahead_targets(t: int, lookahead: int, world_motion: wp.array, motions, target_pos: wp.array, target_quat: wp.array, *, device: str) -> None:
-    """IK targets of control step t: motion pose min(t + lookahead, T_m - 1) of each world's
-    motion, into target_pos (Wg, NE) vec3 and target_quat (Wg, NE) vec4."""
-    wp.launch(
-        _lookahead_targets,
-        dim=target_pos.shape,
-        inputs=[t, lookahead, world_motion, motions.steps, motions.pos, motions.quat],
-        outputs=[target_pos, target_quat],
-        device=device,
-    )
-
-
-@functools.cache
-def start_posture_kernel(topology):
-    """The oracle's float64 start-posture kernel of a topology
-    (`tt.kernels.rollout.make_initial_posture_kernel`) in a module of its own, so that
-    backends that only need the start posture do not compile the fused rollout."""
-    from tt.kernels.model import MODULE_OPTIONS, module_name
-    from tt.kernels.rollout import make_initial_posture_kernel
-
-    module = module_name(topology, "start_posture")
-    wp.set_module_options(MODULE_OPTIONS, module)
-    return make_initial_posture_kernel(topology, module)
-
-
-def start_postures(tree, motions, config: IKConfig, *, device: str) -> wp.array:
-    """Start postures (Wg, NV) float32 of the worlds of a `TreeModel` (world i runs model
-    entry i and motion i % M): ``config.init_iterations`` float64 IK steps from qpos0
-    toward each world's first motion pose, as `tt.sim.controller.DiffIKController.initial_q`."""
-    from tt.kernels.ik import ik_weights
-
-    W, NV = tree.world_count, tree.topology.dof_count
-    q_iter = wp.zeros((W, 1, NV), dtype=wp.float64, device=device)
-    out = wp.zeros((W, 1, NV), dtype=float, device=device)
-    k64 = tree.kinematics64
-    wp.launch(
-        start_posture_kernel(tree.topology),
-        dim=W,
-        inputs=[
-            k64.body_pos, k64.body_quat, k64.dof_axis, k64.dof_pos, k64.dof_ref, k64.dof_range, k64.ee_pos,
-            k64.ee_quat, ik_weights(config), int(config.init_iterations), motions.first_pos, motions.first_quat,
-        ],  # fmt: skip
-        outputs=[q_iter, out],
-        device=device,
-    )
-    return out.reshape((W, NV))
+def records_episode(records: RecordArrays, D: int, M: int, nu: int, dt: float) -> Episode:
+    """The Episode of `records` (zero-copy torch views), worlds design-major: D designs x M
+    motions, nu the widest design's actuator count, dt the control period [s]."""
+    f = {name: wp.to_torch(getattr(records, name)) for name in (f.name for f in dataclasses.fields(records))}
+    for name in ("ctrl", "act_force", "act_vel"):
+        f[name] = f[name][..., :nu]  # a design without actuators keeps one padding column
+    tdev = f["qpos"].device
+    return Episode(
+        qpos=f["qpos"], qvel=f["qvel"], ctrl=f["ctrl"], action=f["ctrl"],
+        act_force=f["act_force"], act_vel=f["act_vel"],
+        ee_pos=f["ee_pos"], ee_quat=f["ee_quat"], target_pos=f["target_pos"], target_quat=f["target_quat"],
+        alive=f["alive"], fallen=f["fallen"],
+        design_index=torch.arange(D, device=tdev).repeat_interleave(M),
+        motion_index=torch.arange(M, device=tdev).repeat(D),
+        dt=dt,
+    )  # fmt: skip
 
 
 # --------------------------------------------------------------------------- inputs
@@ -659,7 +331,7 @@ def mjwarp_rollout(
         g.rows = np.array([d * M + j for d in g.members for j in range(M)], dtype=np.int64)
     logger.debug("mjwarp rollout: %d designs in %d structure group(s), %d motions, T=%d", D, len(groups), M, T)
 
-    records = EpisodeArrays.zeros(
+    records = RecordArrays.zeros(
         D * M, T, max(m.nq for m in models), max(m.nv for m in models), max(m.nu for m in models), A, device=device
     )
     bar = None
@@ -677,7 +349,7 @@ def mjwarp_rollout(
             )  # fmt: skip
     if bar is not None:
         bar.close()
-    return records.episode(D, M, max(m.nu for m in models), control_dt)
+    return records_episode(records, D, M, max(m.nu for m in models), control_dt)
 
 
 def _ik_model(m: mujoco.MjModel) -> mujoco.MjModel:
@@ -699,7 +371,7 @@ def _run_group(
     steps: int,
     motion_count: int,
     config: IKConfig,
-    records: EpisodeArrays,
+    records: RecordArrays,
     device: str,
     nconmax: int | None,
     njmax: int | None,
@@ -711,9 +383,13 @@ def _run_group(
     ``i % motion_count``) and write their records into rows ``g.rows``."""
     import mujoco_warp as mjw
 
+    from tt.kernels.control import joint_command, live_joint_command, lookahead_targets
     from tt.kernels.ik import ik_step
     from tt.kernels.model import build_tree_model
-    from tt.kernels.wbc import build_wbc_model, make_wbc_data, wbc_initial_q, wbc_step
+    from tt.kernels.records import record_step, site_poses
+    from tt.kernels.rollout import start_postures
+    from tt.kernels.wbc import make_wbc_data, wbc_initial_q, wbc_step
+    from tt.sim.wbc_model import build_wbc_model
 
     m0 = group_models[0]
     Wg, A = len(group_models), len(sites)
@@ -757,7 +433,7 @@ def _run_group(
             wbc_data = make_wbc_data(wbc, Wg, device=device)
             first_pos = wp.array(motions.first_pos.numpy()[world_motions], dtype=wp.vec3d, device=device)
             first_quat = wp.array(motions.first_quat.numpy()[world_motions], dtype=wp.vec4d, device=device)
-            qpos0 = wbc_initial_q(wbc, first_pos, first_quat, data=wbc_data, device=device).numpy()
+            qpos0 = wbc_initial_q(wbc, first_pos, first_quat, config.init_iterations, data=wbc_data, device=device).numpy()
             ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
             act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
             q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
@@ -765,7 +441,8 @@ def _run_group(
     else:
         kinematic = {id(m): _ik_model(m) for m in group_models}
         tree = build_tree_model([kinematic[id(m)] for m in group_models], sites, device=device)
-        wp.copy(data.qpos, start_postures(tree, motions, config, device=device))
+        weights = config.ik_weights()
+        wp.copy(data.qpos, start_postures(tree, motions, weights, config.init_iterations, device=device))
         ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
         act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
         q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
@@ -788,10 +465,7 @@ def _run_group(
         if g.floating and floating_controller == "kernel":
             lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
             wbc_step(wbc, data.qpos, target_pos, target_quat, q_cmd, data=wbc_data, device=device)
-            wp.launch(
-                _live_joint_command, dim=(Wg, m0.nu), inputs=[act_qpos_w, ranges_w, t, world_row, records.alive, q_cmd],
-                outputs=[data.ctrl], device=device,
-            )  # fmt: skip
+            live_joint_command(q_cmd, act_qpos_w, ranges_w, t, world_row, records.alive, data.ctrl, device=device)
         elif g.floating:
             q = data.qpos.numpy().astype(np.float64)
             # Terminated worlds keep their last command: the oracle stops them, and mink
@@ -809,13 +483,13 @@ def _run_group(
             data.ctrl.assign(ctrl.astype(np.float32))
         else:
             lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
-            ik_step(tree, data.qpos, target_pos, target_quat, config, q_cmd, device=device)
+            ik_step(tree, data.qpos, target_pos, target_quat, weights, q_cmd, device=device)
             joint_command(q_cmd, act_qpos_w, ranges_w, data.ctrl, device=device)
         if graph:
             wp.capture_launch(physics_graph)
         else:
             physics()
-        wp.launch(_site_poses, dim=(Wg, A), inputs=[site_ids, data.site_xpos, data.site_xmat], outputs=[ee_pos, ee_quat], device=device)
+        site_poses(site_ids, data.site_xpos, data.site_xmat, ee_pos, ee_quat, device=device)
         record_step(
             records, t, threshold=config.termination_pos_error, world_row=world_row, world_motion=world_motion,
             motions=motions, qpos=data.qpos, qvel=data.qvel, ctrl=data.ctrl, act_force=data.actuator_force,
@@ -885,15 +559,11 @@ def mjwarp_simulate(
 
 __all__ = [
     "FLOATING_CONTROLLERS",
-    "EpisodeArrays",
     "batch_model",
-    "joint_command",
     "ctrl_ranges",
-    "lookahead_targets",
     "mjwarp_rollout",
     "mjwarp_simulate",
     "padded_motions",
-    "record_step",
-    "start_postures",
+    "records_episode",
     "structure_key",
 ]

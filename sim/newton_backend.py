@@ -29,7 +29,10 @@ Contacts are off (arms only: Featherstone has no equality constraints, which the
 quadruped's linkage legs need). The controller is the oracle's DiffIK computed by tt's
 batched IK kernel on Newton's ``joint_q`` (one launch per topology group), the start
 posture the oracle's float64 IK; end-effector poses are read from Newton's body frames
-(``State.body_q`` after `newton.eval_fk`) and the MuJoCo site offsets.
+(``State.body_q`` after `newton.eval_fk`) and the MuJoCo site offsets. This module is host
+code: the kernels it launches live in `tt.kernels` (`flat_joints`: actuators, state and
+site poses on Newton's flat joint vectors; `control`, `records`: the IK targets, actuator
+commands and Episode records shared with the ``mjwarp`` backend).
 
 Open-loop simulation (`newton_simulate`) can be recorded on a `wp.Tape` with
 ``requires_grad=True``: one State per physics step, gradients of the trajectory with
@@ -40,7 +43,6 @@ respect to the commands flow through Featherstone (MuJoCo-Warp's do not, see
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -48,11 +50,11 @@ import mujoco
 import numpy as np
 import warp as wp
 
+from tt.kernels.flat_joints import actuator_record, apply_actuators, body_site_poses, gather_state
 from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
 from tt.sim.backends import Robots, get_backend
 from tt.sim.designs import Design
 from tt.sim.episode import Episode
-from tt.sim.mjwarp_backend import mat2quat
 from tt.sim.motions.base import Motion
 
 logger = logging.getLogger(__name__)
@@ -60,111 +62,6 @@ logger = logging.getLogger(__name__)
 _HINGE_OR_SLIDE = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 #: MuJoCo's bounds on constraint impedance and its smallest positive value.
 _MJ_MINIMP, _MJ_MAXIMP, _MJ_MINVAL = 1e-4, 0.9999, 1e-15
-
-
-# --------------------------------------------------------------------------- kernels
-
-
-@wp.kernel(module="unique")
-def _apply_actuators(
-    # Model:
-    q_start: wp.array(dtype=int),
-    qd_start: wp.array(dtype=int),
-    act_qpos: wp.array(dtype=int),
-    act_gain: wp.array2d(dtype=float),
-    act_bias: wp.array2d(dtype=wp.vec3),
-    act_gear: wp.array2d(dtype=float),
-    act_forcerange: wp.array2d(dtype=wp.vec2),
-    # In:
-    ctrl_in: wp.array2d(dtype=float),
-    joint_q_in: wp.array(dtype=float),
-    joint_qd_in: wp.array(dtype=float),
-    # Out:
-    joint_f_out: wp.array(dtype=float),
-):
-    i, u = wp.tid()
-    a = act_qpos[u]
-    gear = act_gear[i, u]
-    length = gear * joint_q_in[q_start[i] + a]
-    velocity = gear * joint_qd_in[qd_start[i] + a]
-    b = act_bias[i, u]
-    r = act_forcerange[i, u]
-    force = wp.clamp(act_gain[i, u] * ctrl_in[i, u] + b[0] + b[1] * length + b[2] * velocity, r[0], r[1])
-    joint_f_out[qd_start[i] + a] = gear * force
-
-
-@wp.kernel(module="unique")
-def _gather_state(
-    # Model:
-    q_start: wp.array(dtype=int),
-    qd_start: wp.array(dtype=int),
-    # In:
-    joint_q_in: wp.array(dtype=float),
-    joint_qd_in: wp.array(dtype=float),
-    # Out:
-    qpos_out: wp.array2d(dtype=float),
-    qvel_out: wp.array2d(dtype=float),
-):
-    i, d = wp.tid()
-    qpos_out[i, d] = joint_q_in[q_start[i] + d]
-    qvel_out[i, d] = joint_qd_in[qd_start[i] + d]
-
-
-@wp.kernel(module="unique")
-def _scatter_qpos(
-    # Model:
-    q_start: wp.array(dtype=int),
-    # In:
-    qpos_in: wp.array2d(dtype=float),
-    # Out:
-    joint_q_out: wp.array(dtype=float),
-):
-    i, d = wp.tid()
-    joint_q_out[q_start[i] + d] = qpos_in[i, d]
-
-
-@wp.kernel(module="unique")
-def _actuator_record(
-    # Model:
-    act_qpos: wp.array(dtype=int),
-    act_gain: wp.array2d(dtype=float),
-    act_bias: wp.array2d(dtype=wp.vec3),
-    act_gear: wp.array2d(dtype=float),
-    act_forcerange: wp.array2d(dtype=wp.vec2),
-    # In:
-    ctrl_in: wp.array2d(dtype=float),
-    qpos_in: wp.array2d(dtype=float),
-    qvel_in: wp.array2d(dtype=float),
-    # Out:
-    act_force_out: wp.array2d(dtype=float),
-    act_vel_out: wp.array2d(dtype=float),
-):
-    i, u = wp.tid()
-    a = act_qpos[u]
-    gear = act_gear[i, u]
-    velocity = gear * qvel_in[i, a]
-    b = act_bias[i, u]
-    r = act_forcerange[i, u]
-    act_force_out[i, u] = wp.clamp(act_gain[i, u] * ctrl_in[i, u] + b[0] + b[1] * gear * qpos_in[i, a] + b[2] * velocity, r[0], r[1])
-    act_vel_out[i, u] = velocity
-
-
-@wp.kernel(module="unique")
-def _site_poses(
-    # Model:
-    ee_body: wp.array2d(dtype=int),
-    ee_offset: wp.array2d(dtype=wp.transform),
-    # Data in:
-    body_q_in: wp.array(dtype=wp.transform),
-    # Out:
-    ee_pos_out: wp.array2d(dtype=wp.vec3),
-    ee_quat_out: wp.array2d(dtype=wp.vec4),
-):
-    i, e = wp.tid()
-    x = wp.transform_multiply(body_q_in[ee_body[i, e]], ee_offset[i, e])
-    ee_pos_out[i, e] = wp.transform_get_translation(x)
-    # Through the rotation matrix, so the quaternion's sign follows MuJoCo's rule (the oracle's).
-    ee_quat_out[i, e] = mat2quat(wp.quat_to_matrix(wp.transform_get_rotation(x)))
 
 
 # --------------------------------------------------------------------------- model
@@ -410,20 +307,15 @@ class _IKGroup:
 
     def gather(self, state, device: str) -> None:
         """qpos, qvel of the group's worlds from Newton's flat joint vectors."""
-        wp.launch(
-            _gather_state, dim=(self.world_count, self.nq), inputs=[self.q_start, self.qd_start, state.joint_q, state.joint_qd],
-            outputs=[self.qpos, self.qvel], device=device,
-        )  # fmt: skip
+        gather_state(self.q_start, self.qd_start, state.joint_q, state.joint_qd, self.qpos, self.qvel, device=device)
 
     def apply_actuators(self, state, control, device: str) -> None:
         """MuJoCo's servo forces at `state` into ``control.joint_f``."""
         if self.nu:
             a = self.act
-            wp.launch(
-                _apply_actuators, dim=(self.world_count, self.nu),
-                inputs=[self.q_start, self.qd_start, a.act_qpos, a.gain, a.bias, a.gear, a.forcerange, self.ctrl,
-                        state.joint_q, state.joint_qd],
-                outputs=[control.joint_f], device=device,
+            apply_actuators(
+                self.q_start, self.qd_start, a.act_qpos, a.gain, a.bias, a.gear, a.forcerange, self.ctrl,
+                state.joint_q, state.joint_qd, control.joint_f, device=device,
             )  # fmt: skip
 
     def observe(self, state, device: str) -> None:
@@ -432,15 +324,11 @@ class _IKGroup:
         self.gather(state, device)
         if self.nu:
             a = self.act
-            wp.launch(
-                _actuator_record, dim=(self.world_count, self.nu),
-                inputs=[a.act_qpos, a.gain, a.bias, a.gear, a.forcerange, self.ctrl, self.qpos, self.qvel],
-                outputs=[self.act_force, self.act_vel], device=device,
+            actuator_record(
+                a.act_qpos, a.gain, a.bias, a.gear, a.forcerange, self.ctrl, self.qpos, self.qvel,
+                self.act_force, self.act_vel, device=device,
             )  # fmt: skip
-        wp.launch(
-            _site_poses, dim=self.ee_body.shape, inputs=[self.ee_body, self.ee_offset, state.body_q],
-            outputs=[self.ee_pos, self.ee_quat], device=device,
-        )  # fmt: skip
+        body_site_poses(self.ee_body, self.ee_offset, state.body_q, self.ee_pos, self.ee_quat, device=device)
 
 
 def newton_rollout(
@@ -461,10 +349,13 @@ def newton_rollout(
     """
     import newton
 
+    from tt.kernels.control import joint_command, lookahead_targets
     from tt.kernels.device import resolve_device
     from tt.kernels.ik import ik_step
     from tt.kernels.model import topology_key
-    from tt.sim.mjwarp_backend import EpisodeArrays, joint_command, lookahead_targets, padded_motions, record_step, start_postures
+    from tt.kernels.records import RecordArrays, record_step
+    from tt.kernels.rollout import start_postures
+    from tt.sim.mjwarp_backend import padded_motions, records_episode
 
     device = resolve_device(device)
     models, xmls, sites = _design_inputs(designs)
@@ -486,15 +377,16 @@ def newton_rollout(
     state, state_next = model.state(), model.state()
     control = model.control()
     control.joint_f.zero_()
-    records = EpisodeArrays.zeros(
+    records = RecordArrays.zeros(
         D * M, T, max(m.nq for m in models), max(m.nv for m in models), max(m.nu for m in models), A, device=device
     )
     groups = []
+    weights = config.ik_weights()
     joint_q = state.joint_q.numpy()
     for ds in members.values():
         rows = np.array([d * M + j for d in ds for j in range(M)], dtype=np.int64)
         g = _IKGroup.build(worlds, rows, [models[d] for d in ds for _ in range(M)], sites, M, device=device)
-        start = start_postures(g.tree, marrays, config, device=device).numpy()
+        start = start_postures(g.tree, marrays, weights, config.init_iterations, device=device).numpy()
         for i, w in enumerate(rows):
             joint_q[worlds.q_start[w] : worlds.q_start[w] + g.nq] = start[i]
         groups.append(g)
@@ -510,7 +402,7 @@ def newton_rollout(
         for g in groups:
             g.gather(state, device)
             lookahead_targets(t, config.lookahead_steps, g.world_motion, marrays, g.target_pos, g.target_quat, device=device)
-            ik_step(g.tree, g.qpos, g.target_pos, g.target_quat, config, g.q_cmd, device=device)
+            ik_step(g.tree, g.qpos, g.target_pos, g.target_quat, weights, g.q_cmd, device=device)
             joint_command(g.q_cmd, g.act.act_qpos, g.ranges, g.ctrl, device=device)
         for _ in range(substeps):
             for g in groups:
@@ -529,7 +421,7 @@ def newton_rollout(
             bar.update(1)
     if bar is not None:
         bar.close()
-    return records.episode(D, M, max(m.nu for m in models), config.control_dt)
+    return records_episode(records, D, M, max(m.nu for m in models), config.control_dt)
 
 
 def _ee_frames(worlds: NewtonWorlds, rows: np.ndarray, models: Sequence[mujoco.MjModel], sites, *, device: str) -> dict:
@@ -658,11 +550,9 @@ def newton_simulate(
         control = controls[s] if requires_grad else controls[0]
         for p in packs:
             a = p["act"]
-            wp.launch(
-                _apply_actuators, dim=(p["Wg"], p["nu"]),
-                inputs=[p["q_start"], p["qd_start"], a.act_qpos, a.gain, a.bias, a.gear, a.forcerange,
-                        p["ctrl_all"][:, s], src.joint_q, src.joint_qd],
-                outputs=[control.joint_f], device=device,
+            apply_actuators(
+                p["q_start"], p["qd_start"], a.act_qpos, a.gain, a.bias, a.gear, a.forcerange, p["ctrl_all"][:, s],
+                src.joint_q, src.joint_qd, control.joint_f, device=device,
             )  # fmt: skip
         solver.step(src, dst, control, None, dt)
         store(s + 1, dst)

@@ -153,7 +153,7 @@ def rollout_records(
         world_ids = np.array([d * M + j for d in members for j in range(M)])
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
-            config=config, chunk=chunk, progress=bar.update if bar else None,
+            **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
             action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, graph=graph,
         )  # fmt: skip
         results.append((members, arrays))

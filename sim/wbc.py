@@ -7,7 +7,8 @@ controller of `tt.sim.controller` it runs at the motion rate (50 Hz) with the sa
 look-ahead and returns joint position targets ``clip(q + dq, joint range)``; only the
 actuated joints' entries reach the actuators (through ``actuator_trnid``). See
 `WBCConfig` for the exact problem, which is again one unconstrained linear least squares
-(``solve_ik(..., limits=[])``) that a batched kernel can reproduce.
+(``solve_ik(..., limits=[])``) that a batched kernel can reproduce (`tt.kernels.wbc`;
+`tt.sim.wbc_model.build_wbc_model` gives it these settings as numbers and arrays).
 """
 
 from __future__ import annotations
@@ -141,6 +142,15 @@ class WBCConfig(IKConfig):
             raise ValueError(f"WBCConfig.fall_height_fraction = {self.fall_height_fraction!r}; must be in (0, 1)")
         if not 0.0 < self.fall_tilt < math.pi:
             raise ValueError(f"WBCConfig.fall_tilt = {self.fall_tilt!r} rad; must be in (0, pi)")
+
+    def wbc_weights(self):
+        """The task weights as the whole-body kernels' struct (`tt.kernels.wbc.WBCWeights`)."""
+        from tt.kernels.wbc import wbc_weights
+
+        return wbc_weights(
+            position_cost=self.position_cost, orientation_cost=self.orientation_cost, lm_damping=self.lm_damping,
+            damping=self.damping, foot_cost=self.foot_cost, com_cost=self.com_cost, equality_cost=self.equality_cost,
+        )
 
 
 def free_joint(model: mujoco.MjModel) -> int | None:

@@ -25,7 +25,8 @@ import torch
 import warp as wp
 
 from tt.sim.designs import get_space
-from tt.sim.mjwarp_backend import batch_model, mat2quat, mjwarp_simulate, structure_key
+from tt.kernels.records import mat2quat
+from tt.sim.mjwarp_backend import batch_model, mjwarp_simulate, structure_key
 from tt.sim.motions import for_space, get_motion
 from tt.sim.motions.base import Motion
 from tt.sim.newton_backend import newton_simulate

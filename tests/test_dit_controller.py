@@ -1,4 +1,4 @@
-"""The DiT as a closed-loop controller (`tt.dit.controller`).
+"""The DiT as a closed-loop controller (`tt.dit.closed_loop`, `tt.dit.policies`).
 
 References: the "warp" rollout backend (the DiffIK policy in the loop must reproduce it),
 MuJoCo C (the commands recorded must be the ones physics ran: replaying them through
@@ -19,7 +19,8 @@ import pytest
 import torch
 
 from tt.dit.checkpoint import TrainedModel
-from tt.dit.controller import ControllerConfig, IKPolicy, ModelPolicy, closed_loop_rollout
+from tt.dit.closed_loop import closed_loop_rollout
+from tt.dit.policies import ControllerConfig, IKPolicy, ModelPolicy
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import layout_from_schema
 from tt.dit.model import RoboDiT, get_config
@@ -101,7 +102,7 @@ def test_commands_are_what_physics_ran(problem, trained):
     of mj_step from the start posture) gives the recorded states, and each record's actuator
     forces, velocities and end-effector pose are MuJoCo's at the recorded state and command."""
     space, designs, motions, _ = problem
-    from tt.dit.controller import ArmWorlds
+    from tt.dit.closed_loop import ArmWorlds
 
     ep = closed_loop_rollout(designs, motions, ModelPolicy(trained), device="cpu", steps=STEPS)
     models = [space.model(d) for d in designs]
@@ -141,7 +142,7 @@ def test_query_holds_the_training_window_of_the_episode(problem, trained):
 
     rec_policy = Recording()
     ep = closed_loop_rollout(designs, motions, rec_policy, device="cpu", steps=STEPS)
-    from tt.dit.controller import StepState
+    from tt.dit.closed_loop import StepState
 
     policy = ModelPolicy(trained)
     policy.reset(rec_policy.ctx)
@@ -253,7 +254,7 @@ def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
     from tt.baselines.evaluate import score_episode
     from tt.cli import app
     from tt.dit.checkpoint import save_checkpoint
-    from tt.dit.controller import model_rollout
+    from tt.dit.policies import model_rollout
     from tt.dit.ema import EMA
     from tt.sim.designs import save_designs
     from tt.sim.motions import save_npz

@@ -11,7 +11,7 @@ import pytest
 import warp as wp
 
 from tt.kernels.fk import forward_kinematics, kinematics_outputs
-from tt.kernels.model import build_tree_model, topology_key, topology_of
+from tt.kernels.model import ENTITY_FIELDS, TREE_FIELDS, build_tree_model, topology_key, topology_of, tree_arrays
 from tt.sim.designs import get_space
 
 POS_TOL = 1e-5  # [m]
@@ -114,3 +114,34 @@ def test_multi_joint_body_is_split_into_a_chain(device):
     mujoco.mj_jacSite(m, d, jacp, jacr, 0)
     np.testing.assert_allclose(out.site_pos.numpy()[0, 0], d.site_xpos[0], atol=POS_TOL)
     np.testing.assert_allclose(out.site_jac.numpy()[0, 0], np.vstack([jacp, jacr]), atol=POS_TOL)
+
+
+def test_tree_arrays_struct_holds_every_field_and_with_fields_replaces_only_the_named_ones():
+    space = get_space("viperx")
+    models = [space.model(d) for d in (space.nominal(), space.nominal())]
+    tree = build_tree_model(models, space.ee_sites(), device="cpu", requires_grad=True)
+    # Every struct member is an array of the model's world count, gradients allocated on
+    # the float fields (the tape differentiates through them).
+    for name in TREE_FIELDS:
+        a = getattr(tree.arrays, name)
+        assert a.shape[0] == (1 if name == "limit_sweeps" else 2), name
+        if name in ENTITY_FIELDS:
+            assert a.requires_grad, name
+    assert set(ENTITY_FIELDS) < set(TREE_FIELDS)
+    assert {"gravity", "timestep", "limit_enabled", "limit_sweeps"} == set(TREE_FIELDS) - set(ENTITY_FIELDS)
+    np.testing.assert_allclose(tree.arrays.body_mass.numpy()[0, 1:], models[0].body_mass[1:], rtol=1e-6)
+    np.testing.assert_array_equal(tree.kinematics64.dof_ref.numpy()[0], models[0].qpos0)
+    moved = tree.arrays.body_pos.numpy() + 0.01
+    other = tree.with_fields({"body_pos": wp.array(moved, dtype=wp.vec3)},
+                             {"dof_ref": wp.array(np.ones((2, models[0].nv)), dtype=wp.float64)})
+    np.testing.assert_array_equal(other.arrays.body_pos.numpy(), moved)
+    np.testing.assert_array_equal(other.kinematics64.dof_ref.numpy(), 1.0)
+    assert other.arrays.body_quat is tree.arrays.body_quat  # the rest is shared
+    assert not np.array_equal(tree.arrays.body_pos.numpy(), moved)  # the original is unchanged
+    np.testing.assert_array_equal(tree.kinematics64.dof_ref.numpy()[0], models[0].qpos0)
+    q = np.zeros((2, models[0].nv), np.float32)
+    base = forward_kinematics(tree, wp.array(q, dtype=float)).site_pos.numpy()
+    shifted = forward_kinematics(other, wp.array(q, dtype=float)).site_pos.numpy()
+    assert np.abs(shifted - base).max() > 1e-3  # the kernels read the new struct
+    with pytest.raises(ValueError, match="missing"):
+        tree_arrays(body_pos=tree.arrays.body_pos)

@@ -107,13 +107,13 @@ def _check_design_gradients(space, design, motion, config: IKConfig) -> None:
     tape = wp.Tape()
     reward = wp.zeros(1, dtype=float, requires_grad=True)
     with tape:
-        out = rollout_tree(tree, motions, 1, STEPS, config=config, differentiable=True, initial_qpos=q0[None])
+        out = rollout_tree(tree, motions, 1, STEPS, **config.rollout_args(), differentiable=True, initial_qpos=q0[None])
         counted = wp.array(out.alive.numpy().astype(np.int32), dtype=wp.int32)
         tracking_reward(out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, counted, reward)
     assert out.alive.numpy().all()
     tape.backward(loss=reward)
-    grad_pos = tree.body_pos.grad.numpy()[0].copy()
-    grad_quat = tree.body_quat.grad.numpy()[0].copy()
+    grad_pos = tree.arrays.body_pos.grad.numpy()[0].copy()
+    grad_quat = tree.arrays.body_quat.grad.numpy()[0].copy()
 
     eps = 1e-5
     # Link offsets of every moving body and the mount position.
@@ -206,7 +206,7 @@ def test_gradients_through_active_joint_limits_match_float64_finite_differences(
     reward = wp.zeros(1, dtype=float, requires_grad=True)
     tape = wp.Tape()
     with tape:
-        out = rollout_tree(tree, motions, 1, STEPS, config=config, differentiable=True, initial_qpos=q0[None])
+        out = rollout_tree(tree, motions, 1, STEPS, **config.rollout_args(), differentiable=True, initial_qpos=q0[None])
         counted = wp.array(out.alive.numpy().astype(np.int32), dtype=wp.int32)
         tracking_reward(out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, counted, reward)
     tape.backward(loss=reward)
@@ -220,7 +220,7 @@ def test_gradients_through_active_joint_limits_match_float64_finite_differences(
     assert active >= STEPS // 4
     checks = [("body_pos", (2, 0)), ("body_pos", (1, 2)), ("act_gain", (0,)), ("act_gain", (1,)), ("dof_damping", (1,))]
     for name, index in checks:
-        adjoint = float(getattr(tree, name).grad.numpy()[0][index])
+        adjoint = float(getattr(tree.arrays, name).grad.numpy()[0][index])
         values = []
         for sign in (1.0, -1.0):
             m = mujoco.MjModel.from_xml_string(_LIMITED_ARM)
@@ -236,5 +236,5 @@ def test_gradients_through_active_joint_limits_match_float64_finite_differences(
         fd = (values[0] - values[1]) / (2 * step)
         if name == "act_gain":
             # kp enters as gain and as bias b1 = -kp: the chain rule adds the bias gradient.
-            adjoint -= float(tree.act_bias.grad.numpy()[0][index[0]][1])
+            adjoint -= float(tree.arrays.act_bias.grad.numpy()[0][index[0]][1])
         assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (name, index, adjoint, fd)

@@ -26,10 +26,11 @@ import pytest
 import warp as wp
 
 from tt.kernels.model import topology_key
-from tt.kernels.wbc import build_wbc_model, make_wbc_data, wbc_initial_q, wbc_step
+from tt.kernels.wbc import make_wbc_data, wbc_initial_q, wbc_step
 from tt.sim.controller import actuated_qpos
 from tt.sim.designs import get_space
 from tt.sim.wbc import WBCConfig, WholeBodyController
+from tt.sim.wbc_model import build_wbc_model
 
 TOL = 1e-3  # [rad or m]: the bound, float32 in and out
 TOL64 = 1e-7  # float64 in and out (see the module docstring)
@@ -219,6 +220,7 @@ def test_start_posture_matches_the_oracles(space, device):
         tree,
         wp.array(np.array([t[0] for t in targets], np.float32)[:, None], dtype=wp.vec3, device=device),
         wp.array(np.array([t[1] for t in targets], np.float32)[:, None], dtype=wp.vec4, device=device),
+        WBCConfig().init_iterations,
     ).numpy()
     for i, m in enumerate(models):
         np.testing.assert_allclose(out[i, : m.nq], ref[i], atol=1e-8, rtol=0)

@@ -272,7 +272,8 @@ def test_graph_replay_matches_plain_launches(backend, device):
     with pytest.raises(ValueError, match="graph=True with differentiable"):
         from tt.kernels.model import build_tree_model
         from tt.kernels.rollout import motion_arrays, rollout_tree
+        from tt.sim.controller import IKConfig
 
         tree = build_tree_model([space.model(designs[0])], space.ee_sites(), device=device)
         marrays = motion_arrays(first.pos[None, :4], first.quat[None, :4], [4], device=device)
-        rollout_tree(tree, marrays, 1, 4, differentiable=True, graph=True)
+        rollout_tree(tree, marrays, 1, 4, **IKConfig().rollout_args(), differentiable=True, graph=True)

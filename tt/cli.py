@@ -163,7 +163,7 @@ def validate(
         else:
             from tt.baselines.evaluate import score_episode
             from tt.dit.checkpoint import default_checkpoint
-            from tt.dit.controller import model_rollout
+            from tt.dit.policies import model_rollout
 
             ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name)
             ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
