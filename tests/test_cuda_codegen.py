@@ -112,8 +112,9 @@ def _check(paths: list[Path], count: int) -> None:
 
 def test_every_kind_of_tt_module_compiles_for_sm80_and_sm90():
     """Every kind for both architectures but the differentiable rollout: its adjoint makes it
-    by far the largest module (more than 5 CPU minutes of NVRTC for one architecture, where
-    the rollout takes well under one), so it has a slow test of its own
+    by far the largest module (its sm_90 build had not finished after 8 CPU minutes, 50
+    minutes wall at load ~12, where the forward rollout takes about one), so it has a slow
+    test of its own
     (`test_the_differentiable_rollout_compiles_for_sm80_and_sm90`).
 
     Measured once, cold, on the shared 2-core machine at load average ~12 (2026-12-01): 14
