@@ -40,19 +40,18 @@ def _aot_dir() -> Path:
 
 def _topology_modules() -> dict[str, str]:
     """Kind -> Warp module of the per-topology families, for the nominal ViperX."""
-    from tt.dit.controller import _step_kernel
+    from tt.kernels.control_step import control_step_kernel
     from tt.kernels.ik import ik_kernel
     from tt.kernels.model import topology_of
-    from tt.kernels.rollout import grad_kernels, rollout_kernels
+    from tt.kernels.rollout import grad_kernels, rollout_kernels, start_posture_kernel
     from tt.sim.designs import get_space
-    from tt.sim.mjwarp_backend import start_posture_kernel
 
     space = get_space("viperx")
     topo = topology_of(space.model(space.nominal()), space.ee_sites())
     return {
         "rollout": rollout_kernels(topo).module,
         "rollout_grad (simulator gradients)": grad_kernels(topo).module,
-        "model controller": _step_kernel(topo).module.name,
+        "model controller": control_step_kernel(topo).module.name,
         "start posture (mjwarp, newton)": start_posture_kernel(topo).module.name,
         "DiffIK step (mjwarp, newton)": ik_kernel(topo).module.name,
     }
@@ -60,15 +59,17 @@ def _topology_modules() -> dict[str, str]:
 
 def _static_modules() -> dict[str, str]:
     """Kind -> Warp module of the kernels defined at import time (and the reward factory)."""
+    import tt.kernels.control as control
+    import tt.kernels.flat_joints as flat_joints
+    import tt.kernels.records as records
     import tt.kernels.rollout as rollout
     import tt.kernels.wbc as wbc
-    import tt.sim.mjwarp_backend as mjwarp_backend
-    import tt.sim.newton_backend as newton_backend
     from tt.kernels.pose import _tracking_reward_kernel
 
     modules = {"whole-body control": wbc._MODULE, "perturbation noise": rollout._noise_draws.module.name,
                "tracking reward": _tracking_reward_kernel(1).module.name}
-    for source in (mjwarp_backend, newton_backend):
+    # The mjwarp backend's controller and record kernels, the newton backend's joint kernels.
+    for source in (control, records, flat_joints):
         for name, value in sorted(vars(source).items()):
             if isinstance(value, wp.Kernel):
                 modules[f"{source.__name__.rsplit('.', 1)[-1]}.{name}"] = value.module.name
@@ -164,7 +165,8 @@ def test_a_cuda_only_codegen_error_fails_the_check(tmp_path):
 def test_every_kernel_source_is_covered():
     """Every source file that defines Warp kernels is one the check above compiles from."""
     covered = {"kernels/rollout.py", "kernels/wbc.py", "kernels/pose.py", "kernels/fk.py", "kernels/ik.py",
-               "kernels/dynamics.py", "dit/controller.py", "sim/mjwarp_backend.py", "sim/newton_backend.py"}
+               "kernels/dynamics.py", "kernels/control_step.py", "kernels/control.py", "kernels/records.py",
+               "kernels/flat_joints.py"}
     # fk and dynamics: their kernels' functions are the rollout's (`kinematics_funcs`,
     # `dynamics_funcs`), which the rollout module compiles.
     found = set()
