@@ -154,7 +154,8 @@ class CMAES(Optimizer):
         """Objective (mean reward over the problem's motions) of each design, (D,): one batched
         rollout, or in the sequential mode one oracle rollout after another."""
         if not self.config.sequential:
-            ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
+            ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device,
+                                  threads=problem.threads)
             return ev.objective
         out = []
         for d in designs:

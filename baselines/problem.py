@@ -44,6 +44,7 @@ class Problem:
     end-effector count). reward: reward name (`tt.sim.rewards.REWARDS`). budget:
     candidate designs per motion. seed: random seed. backend: rollout backend used to
     evaluate candidates in batches. device: Warp/torch device, None for the default.
+    threads: CPU threads of the "warp" backend's batched rollouts, None for every core.
     """
 
     space: str
@@ -53,6 +54,7 @@ class Problem:
     seed: int = 0
     backend: str | None = None
     device: str | None = None
+    threads: int | None = None
 
     def __post_init__(self) -> None:
         from tt.sim.rewards import get_reward
@@ -89,6 +91,10 @@ class Problem:
             from tt.kernels.device import resolve_device
 
             resolve_device(self.device)  # raises on a device that does not exist, listing valid ones
+        if self.threads is not None and (
+            not isinstance(self.threads, (int, np.integer)) or isinstance(self.threads, bool) or self.threads < 1
+        ):
+            raise ValueError(f"Problem.threads = {self.threads!r}; must be an integer >= 1, or None for every core")
 
     @property
     def design_space(self):

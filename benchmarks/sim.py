@@ -1,28 +1,35 @@
-"""Rollout speed: world-steps per second of every backend on N random ViperX designs x the toss.
+"""Rollout speed: world-steps per second of every backend, side by side in one process.
 
-A world-step is one physics step (0.002 s) of one world; the toss is 223 control steps of
-10 physics steps each. Backends, measured in one run:
+Workload: N random ViperX designs (seed 0, nested: N = 64 is the first 64 of the largest N)
+x the toss (223 control steps at 50 Hz, 10 physics steps of 0.002 s each); a world-step is
+one physics step of one world. Every backend runs the same compiled MjModels:
 
-* oracle: MuJoCo C + mink (`tt.sim.validate`), one robot at a time in Python; measured
-  on a few worlds, its per-world rate holds at every N (it does not batch). It stops a
-  world at termination, so only executed steps count.
-* mujoco.rollout: MuJoCo C's threaded open-loop rollout (2 threads), physics only, the same
-  models under piecewise-constant commands (new targets every 0.1 s): the C ceiling
-  without a controller.
-* mjwarp, newton, warp: tt's closed-loop rollouts (`tt.sim.rollout.rollout`) on the Warp
-  CPU device: MuJoCo-Warp, Newton Featherstone, tt's fused kernels. They step every world
-  for the whole motion.
+* oracle: MuJoCo C + mink (`tt.sim.validate`), one world after another; measured on
+  ``--oracle-worlds`` designs (>= 32 by default), its per-world rate holds at every N. It
+  stops a world at termination, so only executed steps count.
+* mujoco.rollout: MuJoCo C's threaded open-loop rollout with every core, physics only,
+  under piecewise-constant commands (new targets every 0.1 s): the C ceiling without a
+  controller. At large N it steps fewer than the toss's 2,230 physics steps
+  (``--mujoco-world-steps`` per size; its rate does not depend on the episode length).
+* warp: tt's fused kernels (`tt.kernels.rollout.rollout_tree`, controller + physics +
+  records), at every thread count of ``--threads`` (default 1, 2, 4, ... and every core).
+  Its rate is timed between the ends of the first and the last 50-step launch chunk of
+  each topology group, so it leaves out model building and the start posture (reported
+  under setup), and the thread counts share one built model.
+* mjwarp, newton: MuJoCo-Warp and Newton through `tt.sim.rollout.rollout`, rate from a
+  short and a long run (the difference cancels setup), each within ``--budget`` s; they
+  run last, in whatever is left of ``--deadline``.
 
-The closed-loop rates exclude setup (model building, start posture): each combination
-runs a short motion (the first 10 control steps) and a long one (the whole toss, or as
-many steps as fit the time budget), and the rate is the difference in world-steps over the
-difference in time (runs shorter than 2 s: the best of 5); setup is the short run's time
-less its share of stepping. Compile
-times come from a separate process per backend with an empty Warp kernel cache: the first
-call (compile + run) and a second, warm call, on one design of each ViperX topology.
+The CLI figure: `tt rollout --design designs.json` in a fresh process at N = ``--cli-n``
+for 1 and all threads, against `--backend mujoco` on ``--oracle-worlds`` designs, as the
+CLI reports it (model building, Warp module cache load, rollout and scoring included).
 
-Writes benchmarks/results/sim.md. Usage:
-    python benchmarks/sim.py [--sizes 1 64 1024 4096] [--budget 300] [--oracle-worlds 32]
+The load average is recorded at the start, with every measurement and at the end: on a
+shared machine every rate is a lower bound. A projection to 32 cores is labelled as one.
+
+Writes ``--out`` (default benchmarks/results/sim.md). Usage:
+    python benchmarks/sim.py                # the full run: about 7-9 min on an idle 2-core machine
+    python benchmarks/sim.py --quick        # smoke test of every path: tiny sizes, short motion
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -43,13 +51,25 @@ try:
 except ImportError:  # run as a module from the repository root
     from benchmarks.machine import machine_header
 
-SHORT_STEPS = 10  # control steps of the short run
-CLOSED_LOOP = ("mjwarp", "newton", "warp")
+SUBSTEPS = 10  # physics steps per control step (0.002 s physics, 50 Hz control)
+SHORT_STEPS = 10  # control steps of the short run (mjwarp, newton)
+CHUNK = 50  # control steps per warp launch (tt.sim.rollout.DEFAULT_CHUNK)
+OTHERS = ("mjwarp", "newton")
+#: Targets of the issue at N = 4,096 (ratios of world-steps/s).
+TARGETS = {"vs_mujoco_rollout": 2.5, "vs_oracle": 15.0, "thread_speedup": 1.8}
 
 
-def _log(record: dict) -> None:
-    """One machine-readable line per measurement."""
+def _log(record: dict) -> dict:
+    """One machine-readable line per measurement, with the load average when it was taken."""
+    record = {**record, "load1": round(os.getloadavg()[0], 2)}
     print(json.dumps(record), flush=True)
+    return record
+
+
+def _cores() -> int:
+    from tt.kernels.rollout import cpu_threads
+
+    return cpu_threads()
 
 
 def _toss(steps: int | None = None):
@@ -59,93 +79,34 @@ def _toss(steps: int | None = None):
     toss = for_space([get_motion("toss")], "viperx")[0]
     if steps is None or steps >= toss.steps:
         return toss
-    return Motion(f"toss[:{steps}]", toss.pos[:steps], toss.quat[:steps])
-
-
-def _one_per_topology(designs):
-    from tt.kernels.model import topology_key
-    from tt.sim.designs import get_space
-
-    space = get_space("viperx")
-    seen = {}
-    for d in designs:
-        seen.setdefault(topology_key(space.model(d), space.ee_sites()), d)
-    return list(seen.values())
-
-
-def _closed_loop(backend: str, designs, steps: int) -> float:
-    """Wall seconds of one closed-loop rollout of `designs` on the first `steps` of the toss."""
-    from tt.sim.rollout import rollout
-
-    motion = _toss(steps)
-    start = time.perf_counter()
-    rollout(designs, [motion], backend=backend, device="cpu")
-    return time.perf_counter() - start
-
-
-# --------------------------------------------------------------------------- compile probe
-
-
-def _probe(backend: str, cache: str) -> None:
-    """Child process: first and warm call with an empty kernel cache; prints one JSON line."""
-    import warp as wp
-
-    wp.config.kernel_cache_dir = cache
-    wp.config.quiet = True
-    from tt.sim.designs import get_space
-
-    designs = _one_per_topology(get_space("viperx").sample(64, seed=0))
-    first = _closed_loop(backend, designs, SHORT_STEPS)
-    warm = _closed_loop(backend, designs, SHORT_STEPS)
-    print(json.dumps({"probe": backend, "first_s": first, "warm_s": warm, "designs": len(designs)}), flush=True)
-
-
-def _compile_times(backends) -> dict:
-    out = {}
-    for backend in backends:
-        with tempfile.TemporaryDirectory(prefix=f"tt_warp_cache_{backend}_") as cache:
-            proc = subprocess.run(
-                [sys.executable, __file__, "--probe", backend, "--cache", cache], capture_output=True, text=True, check=False
-            )
-        lines = [line for line in proc.stdout.splitlines() if line.startswith('{"probe"')]
-        if proc.returncode != 0 or not lines:
-            raise RuntimeError(f"compile probe for {backend} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
-        out[backend] = json.loads(lines[-1])
-        _log(out[backend])
-    return out
+    return Motion(f"toss[:{steps}]", toss.pos[:steps], toss.quat[:steps], toss.dt)
 
 
 # --------------------------------------------------------------------------- measurements
 
 
-def _oracle(designs) -> dict:
-    from tt.sim.validate import oracle_rollout
+def _oracle(models, motion) -> dict:
+    from tt.sim.rollout import rollout
 
-    motion = _toss()
     start = time.perf_counter()
-    ep = oracle_rollout(designs, [motion])
+    ep = rollout(models, [motion], backend="mujoco")
     seconds = time.perf_counter() - start
     alive = ep.alive.numpy()
     # Executed control steps: the alive ones, plus the step that terminated a world early.
     executed = int(alive.sum() + np.sum(alive.sum(axis=1) < motion.steps))
-    world_steps = executed * 10
-    rec = {"backend": "oracle", "worlds": len(designs), "world_steps": world_steps, "seconds": seconds,
-           "rate": world_steps / seconds}  # fmt: skip
-    _log(rec)
-    return rec
+    world_steps = executed * SUBSTEPS
+    return _log({"backend": "oracle", "worlds": len(models), "world_steps": world_steps, "seconds": seconds,
+                 "rate": world_steps / seconds})  # fmt: skip
 
 
-def _mujoco_rollout(designs, physics_steps: int, threads: int = 2, chunk: int = 256) -> dict:
+def _mujoco_rollout(models, physics_steps: int, threads: int, chunk: int = 256) -> dict:
     """MuJoCo C's threaded rollout: physics only, open loop; one call per structure group
     and chunk of worlds (bounds the state output's memory)."""
     import mujoco
     from mujoco import rollout as mj_rollout
 
-    from tt.sim.designs import get_space
     from tt.sim.mjwarp_backend import structure_key
 
-    space = get_space("viperx")
-    models = [space.model(d) for d in designs]
     groups: dict[tuple, list[int]] = {}
     for i, m in enumerate(models):
         groups.setdefault(structure_key(m), []).append(i)
@@ -170,70 +131,124 @@ def _mujoco_rollout(designs, physics_steps: int, threads: int = 2, chunk: int = 
                 start = time.perf_counter()
                 pool.rollout(group, datas, initial, ctrl)
                 seconds += time.perf_counter() - start
-    world_steps = len(designs) * physics_steps
-    rec = {"backend": "mujoco.rollout", "worlds": len(designs), "world_steps": world_steps, "seconds": seconds,
-           "rate": world_steps / seconds}  # fmt: skip
-    _log(rec)
-    return rec
+    world_steps = len(models) * physics_steps
+    return _log({"backend": "mujoco.rollout", "threads": threads, "worlds": len(models), "physics_steps": physics_steps,
+                 "world_steps": world_steps, "seconds": seconds, "rate": world_steps / seconds})  # fmt: skip
 
 
-def _predict(points: list[tuple[int, float]], n: int) -> float:
-    """A quantity at size n from its values at the last one or two sizes: the line through
-    two points (at least the last value), proportional to N through one."""
-    if len(points) == 1:
-        n0, v0 = points[0]
-        return v0 * n / n0
-    (n0, v0), (n1, v1) = points[-2:]
-    return max(v1, v1 + (v1 - v0) / (n1 - n0) * (n - n1))
+def _warp_groups(models, motion):
+    """Per topology group of `models`: the built `TreeModel` and its build time; the toss's
+    `MotionArrays`."""
+    from tt.kernels.model import build_tree_model, topology_key
+    from tt.kernels.rollout import motion_arrays
+    from tt.sim.designs import get_space
+
+    sites = get_space("viperx").ee_sites()
+    groups: dict[tuple, list] = {}
+    for m in models:
+        groups.setdefault(topology_key(m, sites), []).append(m)
+    built = []
+    for members in groups.values():
+        start = time.perf_counter()
+        tree = build_tree_model(members, sites, device="cpu")
+        built.append((tree, len(members), time.perf_counter() - start))
+    marrays = motion_arrays(motion.pos[None], motion.quat[None], [motion.steps], device="cpu")
+    return built, marrays
 
 
-def _closed_loop_rate(backend: str, designs, full_steps: int, budget: float, history: list[dict]) -> dict:
-    """Stepping rate and setup time of one closed-loop combination, within about `budget`
-    seconds; `history` holds this backend's records at smaller sizes."""
+def _warp(built, marrays, steps: int, threads: int, repeats: int) -> dict:
+    """Stepping rate of tt's fused kernels: world-steps of the launch chunks after each group's
+    first, over the time from the end of its first chunk to the end of its last (the best
+    of `repeats` runs); setup: build time + start posture + the first chunk less its share
+    of stepping. ``rate`` counts every world's every step, as `tt rollout` does; a world
+    past termination only repeats its last record, so ``rate_executed`` counts the steps
+    that ran physics (the oracle's count)."""
+    from tt.kernels.rollout import rollout_tree
+    from tt.sim.controller import IKConfig
+
+    best = None
+    for _ in range(repeats):
+        stepped, executed, timed, first_chunks, calls = 0, 0, 0.0, 0.0, 0.0
+        for tree, n, _build in built:
+            marks: list[float] = []
+            start = time.perf_counter()
+            out = rollout_tree(tree, marrays, n, steps, **IKConfig().rollout_args(), chunk=CHUNK, threads=threads, device="cpu",
+                               progress=lambda k: marks.append(time.perf_counter()))  # fmt: skip
+            calls += time.perf_counter() - start
+            if len(marks) < 2:
+                raise ValueError(f"the warp rate needs at least two launch chunks: give >= {CHUNK + 1} control steps")
+            alive = out.alive.numpy().sum(axis=1)
+            ran = alive + (alive < steps)  # the alive steps and the one that terminated a world
+            stepped += n * SUBSTEPS * (steps - CHUNK)
+            executed += int(np.clip(ran - CHUNK, 0, steps - CHUNK).sum()) * SUBSTEPS
+            timed += marks[-1] - marks[0]
+            first_chunks += marks[0] - start
+        run = (stepped / timed, first_chunks, calls, executed / timed, executed / stepped)
+        best = run if best is None or run[0] > best[0] else best
+    rate, first_chunks, calls, rate_executed, share = best
+    worlds = sum(n for _, n, _ in built)
+    build = sum(b for _, _, b in built)
+    setup = build + max(first_chunks - worlds * SUBSTEPS * min(CHUNK, steps) / rate, 0.0)
+    return _log({"backend": "warp", "threads": threads, "worlds": worlds, "groups": len(built), "control_steps": steps,
+                 "rate": rate, "rate_executed": rate_executed, "executed_share": share, "setup_s": setup,
+                 "build_s": build, "seconds": calls})  # fmt: skip
+
+
+def _closed_loop(backend: str, designs, steps: int) -> float:
+    from tt.sim.rollout import rollout
+
+    motion = _toss(steps)
+    start = time.perf_counter()
+    rollout(designs, [motion], backend=backend, device="cpu")
+    return time.perf_counter() - start
+
+
+def _closed_loop_rate(backend: str, designs, full_steps: int, budget: float) -> dict:
+    """mjwarp / newton: rate from a short and a long run (the difference cancels setup); the
+    long run is cut to fit `budget` seconds."""
     n = len(designs)
-    rec = {"backend": backend, "worlds": n}
-    step_est = None  # seconds per control step
-    if history:
-        setup_est = _predict([(h["worlds"], h["setup_s"]) for h in history], n)
-        step_est = _predict([(h["worlds"], h["worlds"] * 10 / h["rate"]) for h in history], n)
-        if setup_est + SHORT_STEPS * step_est > budget:
-            rec["skipped"] = (
-                f"predicted {setup_est / 60:.0f} min of setup and {step_est:.0f} s per control step "
-                f"(from N = {', '.join(str(h['worlds']) for h in history[-2:])}), over the {budget:.0f} s budget"
-            )
-            _log(rec)
-            return rec
     short = _closed_loop(backend, designs, SHORT_STEPS)
     per_step = short / SHORT_STEPS  # an upper bound: includes setup
-    if step_est is not None:
-        per_step = min(per_step, step_est)
     long_steps = full_steps
     if short + long_steps * per_step > budget:
         long_steps = min(full_steps, int(max(3 * SHORT_STEPS, (budget - short) / per_step)))
     long = _closed_loop(backend, designs, long_steps)
-    if long < 2.0:
-        # Fast combinations: the best of 5 of each run, so timer noise and other jobs'
-        # bursts do not decide a difference of milliseconds.
-        short = min([short] + [_closed_loop(backend, designs, SHORT_STEPS) for _ in range(4)])
-        long = min([long] + [_closed_loop(backend, designs, long_steps) for _ in range(4)])
-    world_steps = n * 10 * (long_steps - SHORT_STEPS)
-    rate = world_steps / max(long - short, 1e-9)
-    rec.update(
-        rate=rate,
-        setup_s=max(short - n * 10 * SHORT_STEPS / rate, 0.0),
-        control_steps=long_steps,
-        truncated=long_steps < full_steps,
-        seconds_short=short,
-        seconds_long=long,
-    )
-    _log(rec)
-    return rec
+    if long < 2.0:  # fast combinations: the best of 3 of each run
+        short = min([short] + [_closed_loop(backend, designs, SHORT_STEPS) for _ in range(2)])
+        long = min([long] + [_closed_loop(backend, designs, long_steps) for _ in range(2)])
+    rate = n * SUBSTEPS * (long_steps - SHORT_STEPS) / max(long - short, 1e-9)
+    return _log({"backend": backend, "worlds": n, "rate": rate, "control_steps": long_steps,
+                 "truncated": long_steps < full_steps, "setup_s": max(short - n * SUBSTEPS * SHORT_STEPS / rate, 0.0)})
+
+
+_CLI_RATE = re.compile(r"(\d+) worlds, ([\d,]+) world-steps in ([\d.]+) s: ([\d,]+) world-steps/s")
+
+
+def _cli(designs_json: Path, backend: str, threads: int | None, motion_file: Path | None) -> dict:
+    """`tt rollout --design designs.json` in a fresh process; the rate it prints."""
+    args = [sys.executable, "-c", "from tt.cli import main; main()", "rollout", "--design", str(designs_json),
+            "--backend", backend, "--device", "cpu"]  # fmt: skip
+    if threads is not None:
+        args += ["--threads", str(threads)]
+    if motion_file is not None:
+        args += ["--motion-file", str(motion_file)]
+    start = time.perf_counter()
+    proc = subprocess.run(args, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - start
+    match = _CLI_RATE.search(proc.stdout)
+    if proc.returncode != 0 or match is None:
+        raise RuntimeError(f"`tt rollout` failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+    worlds, steps, seconds, rate = match.groups()
+    return _log({"cli": backend, "threads": threads, "worlds": int(worlds), "world_steps": int(steps.replace(",", "")),
+                 "seconds": float(seconds), "rate": float(rate.replace(",", "")), "process_wall_s": wall})  # fmt: skip
 
 
 # --------------------------------------------------------------------------- report
 
 
-def _fmt_rate(rate: float) -> str:
+def _fmt_rate(rate: float | None) -> str:
+    if rate is None:
+        return "-"
     if rate >= 1e6:
         return f"{rate / 1e6:.2f} M"
     if rate >= 1e3:
@@ -241,142 +256,293 @@ def _fmt_rate(rate: float) -> str:
     return f"{rate:.0f}"
 
 
-def _report(args, results, compile_times, oracle, load_before, load_after, wall) -> str:
-    sizes = args.sizes
-    full = _toss().steps
-    header = ["backend"] + [f"N = {n}" for n in sizes]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+def _row(cells) -> str:
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def _check(value: float | None, target: float) -> str:
+    if value is None:
+        return "not measured"
+    return f"{value:.2f}x (target >= {target}x: {'met' if value >= target else 'NOT met'})"
+
+
+def _report(args, r: dict) -> str:
+    from tt.sim.designs.base import PARALLEL_MODELS_MIN
+
+    sizes, threads, cores = args.sizes, args.threads, r["cores"]
+    top = max(threads)
+    lines = [_row(["backend"] + [f"N = {n}" for n in sizes]), "|" + "---|" * (len(sizes) + 1)]
+    oracle = r["oracle"]["rate"]
+    lines.append(_row([f"oracle (MuJoCo C + mink, one world at a time; {r['oracle']['worlds']} worlds)"]
+                      + [_fmt_rate(oracle)] * len(sizes)))  # fmt: skip
+    lines.append(_row([f"mujoco.rollout (C, {cores} threads, physics only, open loop)"]
+                      + [_fmt_rate(r["mujoco"][n]["rate"]) for n in sizes]))  # fmt: skip
+    for k in threads:
+        lines.append(_row([f"warp, tt's fused kernels (closed loop), {k} thread{'s' if k > 1 else ''}"]
+                          + [_fmt_rate(r["warp"][n][k]["rate"]) for n in sizes]))  # fmt: skip
+    lines.append(_row([f"warp, {top} thread{'s' if top > 1 else ''}, executed world-steps only"]
+                      + [_fmt_rate(r["warp"][n][top]["rate_executed"]) for n in sizes]))  # fmt: skip
+    lines.append(_row(["share of warp world-steps executed (the rest repeat a terminated world's record)"]
+                      + [f"{100 * r['warp'][n][top]['executed_share']:.0f} %" for n in sizes]))  # fmt: skip
     notes = []
-    rates: dict[tuple[str, int], float] = {}
-    lines.append("| oracle (MuJoCo C + mink, 1 world at a time) | " + " | ".join(
-        [_fmt_rate(oracle["rate"]) + (" (measured)" if n == min(sizes) else "") for n in sizes]) + " |")  # fmt: skip
-    for n in sizes:
-        rates[("oracle", n)] = oracle["rate"]
-    row = ["mujoco.rollout (C, 2 threads, open loop)"]
-    for n in sizes:
-        rec = results["mujoco.rollout"][n]
-        rates[("mujoco.rollout", n)] = rec["rate"]
-        row.append(_fmt_rate(rec["rate"]))
-    lines.append("| " + " | ".join(row) + " |")
-    for backend in CLOSED_LOOP:
-        row = [f"{backend} (closed loop)"]
+    for b in OTHERS:
+        if b not in args.backends:
+            continue
+        cells = []
         for n in sizes:
-            rec = results[backend].get(n)
+            rec = r["others"].get((b, n))
             if rec is None or "rate" not in rec:
-                row.append("skipped")
+                cells.append("skipped")
                 if rec is not None:
-                    notes.append(f"- {backend}, N = {n}: skipped: {rec['skipped']}.")
+                    notes.append(f"- {b}, N = {n}: skipped: {rec['skipped']}.")
                 continue
-            rates[(backend, n)] = rec["rate"]
-            cell = _fmt_rate(rec["rate"])
+            cells.append(_fmt_rate(rec["rate"]) + (" *" if rec["truncated"] else ""))
             if rec["truncated"]:
-                cell += " *"
-                notes.append(f"- {backend}, N = {n}: * toss truncated to its first {rec['control_steps']} of {full} control steps.")
-            row.append(cell)
-        lines.append("| " + " | ".join(row) + " |")
-    table = "\n".join(lines)
+                notes.append(f"- {b}, N = {n}: * toss cut to its first {rec['control_steps']} control steps.")
+        lines.append(_row([f"{b} (closed loop, 1 Warp CPU thread)"] + cells))
+    for n in sizes:
+        rec = r["mujoco"][n]
+        if rec["physics_steps"] < r["full_steps"] * SUBSTEPS:
+            notes.append(f"- mujoco.rollout, N = {n}: {rec['physics_steps']} of the toss's {r['full_steps'] * SUBSTEPS} physics steps.")
+    rates = "\n".join(lines)
 
-    ratio_lines = ["| backend | " + " | ".join(f"N = {n}" for n in sizes) + " |", "|" + "---|" * (len(sizes) + 1)]
-    for backend in ("mujoco.rollout", *CLOSED_LOOP):
-        cells = []
-        for n in sizes:
-            r = rates.get((backend, n))
-            c = rates.get(("mujoco.rollout", n))
-            cells.append("-" if r is None else f"{r / oracle['rate']:.3g}x / {r / c:.2g}x")
-        ratio_lines.append(f"| {backend} | " + " | ".join(cells) + " |")
-    ratios = "\n".join(ratio_lines)
+    ratio = [_row(["ratio"] + [f"N = {n}" for n in sizes]), "|" + "---|" * (len(sizes) + 1)]
+    ratio.append(_row([f"warp ({top} threads) / mujoco.rollout ({cores} threads)"]
+                      + [f"{r['warp'][n][top]['rate'] / r['mujoco'][n]['rate']:.2f}x" for n in sizes]))  # fmt: skip
+    ratio.append(_row([f"warp ({top} threads) / oracle"] + [f"{r['warp'][n][top]['rate'] / oracle:.1f}x" for n in sizes]))
+    ratio.append(_row(["the same on executed world-steps only: warp / mujoco.rollout"]
+                      + [f"{r['warp'][n][top]['rate_executed'] / r['mujoco'][n]['rate']:.2f}x" for n in sizes]))  # fmt: skip
+    ratio.append(_row(["the same on executed world-steps only: warp / oracle"]
+                      + [f"{r['warp'][n][top]['rate_executed'] / oracle:.1f}x" for n in sizes]))  # fmt: skip
+    for k in threads[1:]:
+        ratio.append(_row([f"warp speed-up, 1 -> {k} threads"]
+                          + [f"{r['warp'][n][k]['rate'] / r['warp'][n][1]['rate']:.2f}x" for n in sizes]))  # fmt: skip
+    ratios = "\n".join(ratio)
 
-    setup_lines = ["| backend | " + " | ".join(f"N = {n}" for n in sizes) + " | first call (s) | warm call (s) | compile (s) |",
-                   "|" + "---|" * (len(sizes) + 4)]  # fmt: skip
-    for backend in CLOSED_LOOP:
-        cells = []
-        for n in sizes:
-            rec = results[backend].get(n)
-            cells.append("-" if rec is None or "rate" not in rec else f"{rec['setup_s']:.1f}")
-        ct = compile_times.get(backend)
-        extra = ["-", "-", "-"] if ct is None else [f"{ct['first_s']:.1f}", f"{ct['warm_s']:.1f}", f"{ct['first_s'] - ct['warm_s']:.0f}"]
-        setup_lines.append(f"| {backend} | " + " | ".join(cells + extra) + " |")
-    setup = "\n".join(setup_lines)
+    setup = [_row(["N", "model building (MJCF + compile) [s]", "warp setup: TreeModel + start posture [s]",
+                   "warp stepping, 1 thread [s]"]), "|---|---|---|---|"]  # fmt: skip
+    for n in sizes:
+        w = r["warp"][n][1]
+        setup.append(_row([n, f"{r['build_s_per_design'] * n:.2f}", f"{w['setup_s']:.2f}",
+                           f"{n * SUBSTEPS * r['full_steps'] / w['rate']:.2f}"]))  # fmt: skip
+    setup_t = "\n".join(setup)
 
+    # Per-core cost and a projection.
+    n_ref = 4096 if 4096 in sizes else max(sizes)
+    one, many = r["warp"][n_ref][1]["rate"], r["warp"][n_ref][top]["rate"]
+    efficiency = many / (top * one) if top > 1 else 1.0
+    scaling = [_row(["threads", f"warp world-steps/s at N = {n_ref}", "per thread", "parallel efficiency"]), "|---|---|---|---|"]
+    for k in threads:
+        rate = r["warp"][n_ref][k]["rate"]
+        scaling.append(_row([k, _fmt_rate(rate), _fmt_rate(rate / k), f"{rate / (k * one):.2f}"]))
+    scaling.append(_row(["32 (PROJECTION, not measured)", _fmt_rate(32 * one * efficiency), _fmt_rate(one * efficiency),
+                         f"{efficiency:.2f} (assumed: the {top}-thread efficiency)"]))  # fmt: skip
+    scaling_t = "\n".join(scaling)
+
+    targets = []
+    if 4096 in sizes:
+        w, m = r["warp"][4096], r["mujoco"][4096]["rate"]
+        targets += [
+            f"- warp ({top} threads) / mujoco.rollout ({cores} threads): {_check(w[top]['rate'] / m, TARGETS['vs_mujoco_rollout'])}",
+            f"- warp ({top} threads) / oracle: {_check(w[top]['rate'] / oracle, TARGETS['vs_oracle'])}",
+            f"- on executed world-steps only: warp / mujoco.rollout "
+            f"{_check(w[top]['rate_executed'] / m, TARGETS['vs_mujoco_rollout'])}, warp / oracle "
+            f"{_check(w[top]['rate_executed'] / oracle, TARGETS['vs_oracle'])}",
+            f"- warp 1 -> {top} threads: {_check(w[top]['rate'] / w[1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
+        ]
+    cli_t = ""
+    if r.get("cli"):
+        c = r["cli"]
+        rows = [_row(["command", "worlds", "world-steps/s (as printed, setup included)", "process wall [s]"]), "|---|---|---|---|"]
+        for rec in c["warp"].values():
+            rows.append(_row([f"`tt rollout --design designs.json --threads {rec['threads']}`", rec["worlds"],
+                              _fmt_rate(rec["rate"]), f"{rec['process_wall_s']:.1f}"]))  # fmt: skip
+        o = c["mujoco"]
+        rows.append(_row(["`tt rollout --design designs.json --backend mujoco`", o["worlds"], _fmt_rate(o["rate"]),
+                          f"{o['process_wall_s']:.1f}"]))  # fmt: skip
+        n_cli = args.cli_n
+        best = c["warp"][top]["rate"]
+        mref = r["mujoco"].get(n_cli, {}).get("rate")
+        cli_checks = [
+            f"- CLI warp ({top} threads) / CLI oracle: {_check(best / o['rate'], TARGETS['vs_oracle'])}",
+            f"- CLI warp ({top} threads) / mujoco.rollout ({cores} threads, N = {n_cli}, stepping only): "
+            + _check(best / mref if mref else None, TARGETS["vs_mujoco_rollout"]),
+            f"- CLI warp 1 -> {top} threads: {_check(best / c['warp'][1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
+        ]
+        cli_t = (
+            f"## Through the CLI, setup included (N = {n_cli})\n\n"
+            "Each command runs in a fresh process; the rate is what `tt rollout` prints: world-steps over the "
+            "time of the evaluation (loading designs.json excluded; model building, Warp module cache load, "
+            "rollout and scoring included).\n\n" + "\n".join(rows) + "\n\n" + "\n".join(cli_checks) + "\n\n"
+        )
+    lb, la = r["load_before"], r["load_after"]
+    loads = [rec["load1"] for rec in r["records"] if "load1" in rec]
     text = (
         "# Rollout speed: world-steps per second\n\n"
         + machine_header("cpu")
-        + f"- load average (1, 5, 15 min): {load_before[0]:.1f}, {load_before[1]:.1f}, {load_before[2]:.1f} at the start, "
-        f"{load_after[0]:.1f}, {load_after[1]:.1f}, {load_after[2]:.1f} at the end: the machine was shared with other "
-        f"jobs, so every rate is a lower bound; {wall / 60:.0f} min wall in all\n"
-        f"- workload: N random ViperX designs (seed 0, nested: N = 64 is the first 64 of the 4096) x the toss "
-        f"({full} control steps at 50 Hz, 10 physics steps of 0.002 s each); a world-step is one physics step of one world\n"
-        f"- Warp device: cpu (no GPU here)\n\n"
-        "## World-steps per second\n\n" + table + "\n\n"
-        + ("\n".join(notes) + "\n\n" if notes else "")
-        + f"The oracle row was measured on {oracle['worlds']} worlds ({oracle['world_steps']} executed world-steps in "
-        f"{oracle['seconds']:.1f} s) and holds at every N: it runs one world after another. mujoco.rollout runs "
-        "physics only (no controller, no records); mjwarp, newton and warp run the oracle's controller at 50 Hz and "
-        "record Episodes. Closed-loop rates exclude setup (next table).\n\n"
-        "On the CPU, mjwarp and newton are bound by Python's cost of launching Warp kernels, not by arithmetic: "
-        "`mjw.step` launches about 80 kernels per physics step and Featherstone about 15, and ViperX designs come in "
-        "3 topologies, which mjwarp runs as 3 batched models one after another (newton holds every world in one "
-        "model; tt's IK runs once per topology in both). At small N that overhead is all there is, so their rates "
-        "grow with N; tt's warp backend runs a whole chunk of control steps of a world in one thread of one launch. "
-        "On a GPU these launch counts are what CUDA graphs remove; this table says nothing about GPU speed.\n\n"
-        "## Speed-up: vs the oracle / vs mujoco.rollout (2 threads)\n\n" + ratios + "\n\n"
-        "## Setup and compile time\n\n"
-        "Setup [s] per N (model building and start posture; newton imports one MJCF per design), then the compile "
-        "probe: a fresh process with an empty Warp kernel cache runs 3 designs (one per ViperX topology) x 10 control "
-        "steps twice; compile = first call - warm call.\n\n" + setup + "\n\n"
-        "MuJoCo-Warp 3.17 returns all-zero gradients under `wp.Tape` (it is not differentiable through `mjw.step`); "
-        "Newton's Featherstone and tt's warp kernels differentiate (tests/test_backends.py, "
-        "tests/test_kernels_rollout.py).\n"
+        + f"- command: `{r['command']}`\n"
+        f"- load average (1, 5, 15 min): {lb[0]:.1f}, {lb[1]:.1f}, {lb[2]:.1f} at the start, {la[0]:.1f}, {la[1]:.1f}, "
+        f"{la[2]:.1f} at the end, 1-min load {min(loads):.1f}-{max(loads):.1f} during the measurements "
+        f"(on {cores} cores; above ~0 other jobs competed and every rate is a lower bound); "
+        f"{r['wall'] / 60:.1f} min wall\n"
+        f"- workload: N random ViperX designs (seed 0, nested) x {r['motion']} ({r['full_steps']} control steps at 50 Hz, "
+        f"{SUBSTEPS} physics steps of 0.002 s each); a world-step is one physics step of one world; all backends run "
+        "the same compiled MjModels in this one process\n\n"
+        "## World-steps per second\n\n" + rates + "\n\n" + ("\n".join(notes) + "\n\n" if notes else "")
+        + "The oracle's rate holds at every N (it runs one world after another) and counts the steps it executed "
+        "(it stops a world at termination). mujoco.rollout is physics only (no controller, no records) and steps "
+        "every world. warp, mjwarp and newton run the oracle's controller at 50 Hz and record Episodes; their rates "
+        "count every world's every step, as `tt rollout` does, although a world past termination only repeats its "
+        "last record: the warp rows on executed world-steps are the like-for-like comparison with the oracle. "
+        "warp's rate excludes setup (next tables).\n\n"
+        "## Ratios\n\n" + ratios + "\n\n"
+        + ("## Targets at N = 4,096\n\n" + "\n".join(targets) + "\n\n" if targets else "")
+        + cli_t
+        + f"## Thread scaling at N = {n_ref}\n\n" + scaling_t + "\n\n"
+        "The 32-core row is a projection, not a measurement: the 1-thread rate times 32 times the measured "
+        f"{top}-thread parallel efficiency (it assumes the per-core rate and that efficiency hold on 32 cores).\n\n"
+        "## Setup\n\n"
+        f"Model building is `space.models(designs, processes={cores})` (MJCF text + MuJoCo compile, in worker "
+        f"processes from {PARALLEL_MODELS_MIN} designs on; {1000 * r['build_s_per_design']:.2f} ms per design here, "
+        "measured once on all the designs); warp setup is `build_tree_model` per topology group plus "
+        "the start-posture kernel (50 float64 IK steps per world).\n\n" + setup_t + "\n"
     )
     return text
 
 
-def main() -> None:
+# --------------------------------------------------------------------------- main
+
+
+def _thread_counts(cores: int) -> list[int]:
+    counts, k = [], 1
+    while k < cores:
+        counts.append(k)
+        k *= 2
+    return counts + [cores]
+
+
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096])
-    ap.add_argument("--budget", type=float, default=300.0, help="seconds allowed per closed-loop combination")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
+    ap.add_argument("--threads", type=int, nargs="+", default=None, help="warp thread counts (default 1, 2, 4, ..., all)")
     ap.add_argument("--oracle-worlds", type=int, default=32)
-    ap.add_argument("--backends", nargs="+", default=list(CLOSED_LOOP))
-    ap.add_argument("--no-compile-probe", action="store_true")
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "sim.md")
-    ap.add_argument("--probe", help=argparse.SUPPRESS)
-    ap.add_argument("--cache", help=argparse.SUPPRESS)
-    args = ap.parse_args()
-    if args.probe:
-        _probe(args.probe, args.cache)
-        return
-    args.sizes = sorted(args.sizes)
+    ap.add_argument("--mujoco-world-steps", type=float, default=8e6, help="world-steps per mujoco.rollout size (at least 1,000 physics steps)")
+    ap.add_argument("--backends", nargs="*", default=None,
+                    help="besides oracle, mujoco.rollout and warp: any of mjwarp, newton (default both; --quick: none)")
+    ap.add_argument("--others-max-n", type=int, default=1024, help="largest N for mjwarp and newton")
+    ap.add_argument("--budget", type=float, default=20.0, help="seconds per mjwarp / newton combination")
+    ap.add_argument("--deadline", type=float, default=480.0, help="mjwarp / newton are skipped past this many seconds")
+    ap.add_argument("--cli-n", type=int, default=None, help="designs of the CLI figure (default 4096, --quick: 8; 0: none)")
+    ap.add_argument("--steps", type=int, default=None, help="control steps of the toss (default: all 223)")
+    ap.add_argument("--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8")
+    ap.add_argument("--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.sizes, args.oracle_worlds = [1, 8], 2
+        args.cli_n = 8 if args.cli_n is None else args.cli_n
+        args.steps = args.steps or CHUNK + 10
+        args.mujoco_world_steps, args.budget, args.others_max_n = 2e4, 5.0, 1
+    args.sizes = sorted(set(args.sizes))
+    args.cli_n = 4096 if args.cli_n is None else args.cli_n
+    if args.backends is None:
+        args.backends = [] if args.quick else list(OTHERS)
+    for b in args.backends:
+        if b not in OTHERS:
+            ap.error(f"--backends {b!r}: choose from {list(OTHERS)}")
+    if args.out is None:
+        args.out = Path(tempfile.mkdtemp(prefix="tt_sim_quick_")) / "sim.md" if args.quick else Path(__file__).parent / "results" / "sim.md"
 
     import warp as wp
 
     wp.config.quiet = True
-    from tt.sim.designs import get_space
+    from tt.sim.designs import get_space, save_designs
 
-    load_before = os.getloadavg()
     begin = time.perf_counter()
-    compile_times = {} if args.no_compile_probe else _compile_times(args.backends)
+    load_before = os.getloadavg()
+    cores = _cores()
+    args.threads = sorted(set(args.threads or _thread_counts(cores)) | {1})
+    space = get_space("viperx")
+    motion = _toss(args.steps)
+    full = motion.steps
+    designs = space.sample(max(args.sizes + [args.oracle_worlds, args.cli_n]), seed=0)
+    start = time.perf_counter()
+    models = space.models(designs[: max(args.sizes + [args.oracle_worlds])], processes=cores)
+    build_per_design = (time.perf_counter() - start) / len(models)
+    records: list[dict] = [_log({"model_building_s_per_design": build_per_design, "designs": len(models),
+                                 "processes": cores})]
 
-    designs = get_space("viperx").sample(max(args.sizes), seed=0)
-    full = _toss().steps
-    # Load every module once in this process (from the warm cache), so no timing below compiles.
-    warmup = _one_per_topology(designs)
-    for backend in args.backends:
-        _closed_loop(backend, warmup, 2)
+    # Load every warp module once (from the cache), so that no timing below compiles.
+    from tt.sim.rollout import rollout
 
-    oracle = _oracle(designs[: args.oracle_worlds])
-    results: dict[str, dict[int, dict]] = {"mujoco.rollout": {}, **{b: {} for b in CLOSED_LOOP}}
-    history: dict[str, list[dict]] = {b: [] for b in args.backends}
+    rollout(models[:64], [_toss(2)], device="cpu", threads=1)
+
+    results: dict = {"cores": cores, "full_steps": full, "motion": motion.name, "build_s_per_design": build_per_design,
+                     "load_before": load_before, "records": records, "mujoco": {}, "warp": {}, "others": {}}  # fmt: skip
+    results["oracle"] = _oracle(models[: args.oracle_worlds], motion)
+    records.append(results["oracle"])
     for n in args.sizes:
-        results["mujoco.rollout"][n] = _mujoco_rollout(designs[:n], full * 10)
-        for backend in args.backends:
-            rec = _closed_loop_rate(backend, designs[:n], full, args.budget, history[backend])
-            results[backend][n] = rec
-            if "rate" in rec:
-                history[backend].append(rec)
-    text = _report(args, results, compile_times, oracle, load_before, os.getloadavg(), time.perf_counter() - begin)
+        physics = min(full * SUBSTEPS, max(1000, int(args.mujoco_world_steps / n)))
+        results["mujoco"][n] = _mujoco_rollout(models[:n], physics, cores)
+        records.append(results["mujoco"][n])
+        built, marrays = _warp_groups(models[:n], motion)
+        results["warp"][n] = {}
+        for k in args.threads:
+            repeats = 3 if n * full * SUBSTEPS < 2e6 else 1
+            results["warp"][n][k] = _warp(built, marrays, full, k, repeats)
+            records.append(results["warp"][n][k])
+        del built, marrays
+
+    if args.cli_n:
+        with tempfile.TemporaryDirectory(prefix="tt_sim_cli_") as tmp:
+            tmp = Path(tmp)
+            save_designs(designs[: args.cli_n], tmp / "designs.json")
+            save_designs(designs[: args.oracle_worlds], tmp / "oracle.json")
+            motion_file = None
+            if motion.steps < _toss().steps:
+                from tt.sim.motions import save_npz
+
+                motion_file = tmp / "motion.npz"
+                save_npz(motion, motion_file)
+            cli = {"warp": {}}
+            for k in sorted({1, max(args.threads)}):
+                cli["warp"][k] = _cli(tmp / "designs.json", "warp", k, motion_file)
+                records.append(cli["warp"][k])
+            cli["mujoco"] = _cli(tmp / "oracle.json", "mujoco", None, motion_file)
+            records.append(cli["mujoco"])
+            results["cli"] = cli
+
+    # mjwarp and newton last, in what is left of the deadline.
+    for b in args.backends:
+        left = args.deadline - (time.perf_counter() - begin)
+        if left < 3 * args.budget:  # its module load (a compile, when not cached) must fit too
+            for n in args.sizes:
+                results["others"][(b, n)] = {"skipped": f"{left:.0f} s left of the {args.deadline:.0f} s deadline"}
+            continue
+        try:
+            # Designs, not models: Newton imports each design's MJCF (the same models).
+            _closed_loop(b, designs[:1], 2)  # module load (or compile) outside the timings
+        except Exception as e:  # noqa: BLE001 - a backend that cannot run is reported, not fatal
+            for n in args.sizes:
+                results["others"][(b, n)] = {"skipped": f"{type(e).__name__}: {e}"}
+            continue
+        for n in args.sizes:
+            left = args.deadline - (time.perf_counter() - begin)
+            if n > args.others_max_n:
+                results["others"][(b, n)] = {"skipped": f"N > --others-max-n {args.others_max_n}"}
+            elif left < args.budget:
+                results["others"][(b, n)] = {"skipped": f"{left:.0f} s left of the {args.deadline:.0f} s deadline"}
+            else:
+                results["others"][(b, n)] = _closed_loop_rate(b, designs[:n], full, args.budget)
+                records.append(results["others"][(b, n)])
+
+    results["load_after"] = os.getloadavg()
+    results["wall"] = time.perf_counter() - begin
+    results["command"] = "python benchmarks/sim.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    text = _report(args, results)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
     print(text)
+    print(f"wrote {args.out}", flush=True)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ dict:
 
     format           "tt.dit.checkpoint/1"
     schema_version   RoboToken schema version of the layout (None: not a schema layout)
+    space            design space of the training episodes (None: not recorded)
     model            layout and DiTConfig (`RoboDiT.describe`)
     state_dict       network weights
     ema              EMA weights and update count (`EMA.state_dict`)
@@ -26,8 +27,8 @@ finds a space's.
 
 from __future__ import annotations
 
-import os
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,7 @@ import torch
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
+from tt.kernels.files import CorruptFileError, atomic_write, check_readable, reason
 from tt.tokens.normalize import Normalizer
 
 #: Format tag of checkpoint files.
@@ -109,43 +111,59 @@ def default_checkpoint(space: str, folder: str | Path | None = None) -> Path:
     )
 
 
+#: Entries a checkpoint needs to sample (`load_model`) and, in addition, to resume training.
+SAMPLE_KEYS = ("model", "state_dict", "ema", "normalizer", "step")
+RESUME_KEYS = SAMPLE_KEYS + ("optimizer", "train_config", "rng", "losses")
+
+
 def save_checkpoint(path: str | Path, state: dict) -> Path:
-    """Write `state` (see the module docstring) atomically: a crash leaves the old file or the new one."""
+    """Write `state` (see the module docstring) atomically and durably: written beside the
+    target, fsync'ed, renamed, the folder fsync'ed (`tt.kernels.files.atomic_write`), so a
+    crash at any point leaves the old file or the complete new one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".pt.tmp")
-    torch.save({"format": CHECKPOINT_FORMAT, **state}, tmp)
-    os.replace(tmp, path)
+    with atomic_write(path) as f:
+        torch.save({"format": CHECKPOINT_FORMAT, **state}, f)
     return path
 
 
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
-    """Read a checkpoint; raises FileNotFoundError, ValueError (not a tt checkpoint) or
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu", *, need: tuple[str, ...] = ()) -> dict:
+    """Read a checkpoint; raises FileNotFoundError, `CorruptFileError` (empty, truncated,
+    not a tt checkpoint, or lacking one of the entries `need`) or
     `tt.tokens.schema.SchemaVersionError` (written for another RoboToken schema)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} does not exist")
-    state = torch.load(path, map_location=map_location, weights_only=True)
+    path = check_readable(path, "checkpoint")
+    try:
+        with warnings.catch_warnings():  # torch warns about pickle protocols of foreign files
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # torch raises RuntimeError, EOFError, UnpicklingError, ... for damaged files
+        raise CorruptFileError(f"checkpoint {path} cannot be read: {reason(e)}") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
-        raise ValueError(f"{path} is not a tt DiT checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")
+        raise CorruptFileError(f"{path} is not a tt DiT checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")
     version = state.get("schema_version")
     if version is not None:
         from tt.tokens.schema import check_version
 
         check_version(version, f"checkpoint {path}")
+    missing = [k for k in need if k not in state]
+    if missing:
+        raise CorruptFileError(f"checkpoint {path} lacks the entries {missing} (a damaged or partial tt checkpoint)")
     return state
 
 
 @dataclass
 class TrainedModel:
     """A network ready to sample: model (EMA weights unless asked otherwise, eval mode),
-    its normaliser, layout and the step it was saved at."""
+    its normaliser, layout, the step it was saved at, the design space it was trained on
+    (None: not recorded, as in checkpoints written before spaces were) and its file."""
 
     model: RoboDiT
     normalizer: Normalizer
     layout: Layout
     step: int
+    space: str | None = None
+    path: Path | None = None
 
 
 def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> TrainedModel:
@@ -156,12 +174,16 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
         if found is None:
             raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
         path = found
-    state = load_checkpoint(path)
-    model = RoboDiT.from_description(state["model"])
-    model.load_state_dict(state["state_dict"])
-    if ema:
-        averaged = EMA(model)
-        averaged.load_state_dict(state["ema"])
-        averaged.copy_to(model)
+    state = load_checkpoint(path, need=SAMPLE_KEYS)
+    try:
+        model = RoboDiT.from_description(state["model"])
+        model.load_state_dict(state["state_dict"])
+        if ema:
+            averaged = EMA(model)
+            averaged.load_state_dict(state["ema"])
+            averaged.copy_to(model)
+        normalizer = Normalizer.from_state_dict(state["normalizer"])
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError) as e:
+        raise CorruptFileError(f"checkpoint {path}: its network does not load ({reason(e)})") from None
     model.to(device).eval()
-    return TrainedModel(model, Normalizer.from_state_dict(state["normalizer"]), model.layout, int(state["step"]))
+    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path)

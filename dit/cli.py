@@ -11,7 +11,7 @@ from tt.dit.train import DataParallel, TrainConfig, TrainResult, train
 def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "small", out: str | Path = "runs/dit",
               steps: int = 10_000, batch_size: int = 64, lr: float | None = None, device: str | None = None,
               seed: int = 0, checkpoint_every: int = 1000, resume: bool = True, init: str | Path | None = None,
-              online: OnlineConfig | None = None, progress: bool = True) -> TrainResult:
+              online: OnlineConfig | None = None, progress: bool = True, **recipe) -> TrainResult:
     """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
 
     data: episode token file (`tt.dit.data.EpisodeTokens.save`); task: robot | control |
@@ -19,7 +19,9 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
     lr: None for the paper's value of the size; device: None for the default device;
     resume: continue from the run folder's latest checkpoint if it has one; init: start a new
     run (step 0) from this checkpoint's EMA weights and normaliser; online: generate the
-    training episodes with the batched sim instead of reading `data` (`tt.dit.online`).
+    training episodes with the batched sim instead of reading `data` (`tt.dit.online`);
+    recipe: further `TrainConfig` fields (prediction, weighting, type_weights, bf16_cpu,
+    robot_diffusion_steps, ...).
     Raises ValueError (bad arguments, mismatched run folder), FileNotFoundError and
     `tt.tokens.schema.SchemaVersionError`.
     """
@@ -30,7 +32,7 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
 
     config = TrainConfig(data=str(data) if data is not None else "", out=str(out), task=task, size=size, steps=steps, batch_size=batch_size,
                          lr=lr, device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume,
-                         init=str(init) if init else "", online=online)
+                         init=str(init) if init else "", online=online, **recipe)
     bar = tqdm(total=steps, desc=f"train {size} {task}", unit="step", disable=not progress, dynamic_ncols=True)
     state = {"first": True}
 

@@ -23,9 +23,10 @@ from typing import Mapping, Protocol
 import numpy as np
 import torch
 
+from tt.dit.layout import Layout, LayoutError, TokenSpec
+from tt.kernels.files import CorruptFileError, read_npz, reason
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES, Role
-from tt.dit.layout import Layout, LayoutError, TokenSpec
 from tt.tokens.normalize import Normalizer
 
 #: Format tag of `EpisodeTokens` files.
@@ -322,36 +323,49 @@ class EpisodeTokens:
 
     @staticmethod
     def load(path: str | Path) -> "EpisodeTokens":
-        """Read a file written by `save`; raises SchemaVersionError for another schema version."""
+        """Read a file written by `save`; raises FileNotFoundError, `CorruptFileError` naming the
+        file and the entry that is missing, malformed or not finite, or SchemaVersionError."""
         path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(f"episode token file {path} does not exist")
-        with np.load(path, allow_pickle=False) as f:
-            if "header" not in f.files:
-                raise ValueError(f"{path} is not an episode token file (no header)")
+        f = read_npz(path, "episode token file")
+        what = f"episode token file {path}"
+        if "header" not in f:
+            raise CorruptFileError(f"{what} is not an episode token file (no 'header' entry)")
+        try:
             header = json.loads(str(f["header"]))
-            if header.get("format") != FILE_FORMAT:
-                raise ValueError(f"{path} has format {header.get('format')!r}, this code reads {FILE_FORMAT!r}")
-            if header["schema_version"] is not None:
-                from tt.tokens.schema import check_version
+        except (json.JSONDecodeError, RecursionError):
+            raise CorruptFileError(f"{what}: its 'header' entry is not valid JSON") from None
+        if not isinstance(header, dict) or header.get("format") != FILE_FORMAT:
+            found = header.get("format") if isinstance(header, dict) else type(header).__name__
+            raise CorruptFileError(f"{what} has format {found!r}, this code reads {FILE_FORMAT!r}")
+        missing = [k for k in ("roles", "id_names", "id_sizes", "schema_version", "order") if k not in header]
+        if missing or "lengths" not in f:
+            raise CorruptFileError(f"{what} lacks {missing + ([] if 'lengths' in f else ['lengths'])}")
+        if header["schema_version"] is not None:
+            from tt.tokens.schema import check_version
 
-                check_version(header["schema_version"], str(path))
-            groups: dict[str, dict[str, torch.Tensor]] = {}
-            for key in f.files:
-                if "/" in key:
-                    group, name = key.split("/", 1)
-                    groups.setdefault(group, {})[name] = torch.from_numpy(f[key])
-            lengths = torch.from_numpy(f["lengths"])
-        return EpisodeTokens(
-            roles={k: Role(v) for k, v in header["roles"].items()},
-            id_names={k: tuple(v) for k, v in header["id_names"].items()},
-            id_sizes={k: int(v) for k, v in header["id_sizes"].items()},
-            static_values=groups.get("static_values", {}), static_ids=groups.get("static_ids", {}),
-            static_mask=groups.get("static_mask", {}), step_values=groups.get("step_values", {}),
-            step_ids=groups.get("step_ids", {}), step_mask=groups.get("step_mask", {}), lengths=lengths,
-            schema_version=header["schema_version"], order=tuple(header["order"]),
-        )
-
+            check_version(header["schema_version"], what)
+        groups: dict[str, dict[str, torch.Tensor]] = {}
+        for key, a in f.items():
+            if "/" in key:
+                group, name = key.split("/", 1)
+                if a.dtype.kind not in "fiub":
+                    raise CorruptFileError(f"{what}: entry {key!r} has dtype {a.dtype}, not numbers")
+                if group.endswith("_values") and not np.isfinite(a).all():
+                    raise CorruptFileError(f"{what}: entry {key!r} has NaN or infinite values")
+                groups.setdefault(group, {})[name] = torch.from_numpy(a)
+        try:
+            return EpisodeTokens(
+                roles={k: Role(v) for k, v in header["roles"].items()},
+                id_names={k: tuple(v) for k, v in header["id_names"].items()},
+                id_sizes={k: int(v) for k, v in header["id_sizes"].items()},
+                static_values=groups.get("static_values", {}), static_ids=groups.get("static_ids", {}),
+                static_mask=groups.get("static_mask", {}), step_values=groups.get("step_values", {}),
+                step_ids=groups.get("step_ids", {}), step_mask=groups.get("step_mask", {}),
+                lengths=torch.from_numpy(f["lengths"]), schema_version=header["schema_version"],
+                order=tuple(header["order"]),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:
+            raise CorruptFileError(f"{what} is malformed: {reason(e)}") from None
 
 
 def _schema_ids(name: str) -> tuple[str, ...]:

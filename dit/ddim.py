@@ -16,6 +16,25 @@ Reverse step from t to t' < t (t' = -1 means the end, alpha_bar_{-1} = 1):
 The direction term uses the model's eps, not one recomputed from the clipped x0_hat.
 eta = 0 is deterministic DDIM, eta = 1 has the DDPM posterior variance.
 
+What the network predicts (``prediction``, `PREDICTIONS`): the noise eps (the paper's
+choice), the clean sample x0, or the velocity v = sqrt(alpha_bar_t) eps - sqrt(1 - alpha_bar_t) x0
+(Salimans & Ho 2022). Any of them gives the other two at a known x_t:
+  from x0: eps = (x_t - sqrt(alpha_bar_t) x0) / sqrt(1 - alpha_bar_t)
+  from v:  eps = sqrt(alpha_bar_t) v + sqrt(1 - alpha_bar_t) x_t
+so the sampler turns the output into eps (`eps_from_output`) and steps as above.
+
+Loss weighting over noise levels (`loss_weight`, `WEIGHTINGS`), with SNR_t = alpha_bar_t /
+(1 - alpha_bar_t). A weighting is defined on the x0 error and carried over to the predicted
+quantity: at a fixed x_t, |x0 - x0_hat|^2 = |eps - eps_hat|^2 / SNR = |v - v_hat|^2 / (1 + SNR),
+so a weight w_x0 on the x0 loss is w_x0 / SNR on the eps loss and w_x0 / (1 + SNR) on the v loss.
+  none:    1 on whatever is predicted (the plain loss);
+  min_snr: w_x0 = min(SNR, gamma) (Hang et al. 2023, gamma = 5): eps min(SNR, gamma) / SNR,
+           v min(SNR, gamma) / (SNR + 1), x0 min(SNR, gamma);
+  edm:     w_x0 = (sigma^2 + sigma_data^2) / (sigma sigma_data)^2 with sigma^2 = 1 / SNR (Karras
+           et al. 2022, sigma_data = 0.5), capped at `EDM_WEIGHT_CAP` times its value at
+           SNR = 1 on the predicted quantity: EDM draws log-normal noise levels and rarely
+           visits the cosine schedule's noisiest steps, where the uncapped weight reaches 1e6.
+
 Guidance (classifier-guided DDIM, Dhariwal & Nichol 2021): to ascend a reward R, shift
 eps_hat = eps - sqrt(1 - alpha_bar_t) s grad R (`guided_eps`) and step with eps_hat.
 """
@@ -30,6 +49,16 @@ import torch
 COSINE_OFFSET = 0.008
 #: Largest beta, so the last steps stay invertible.
 MAX_BETA = 0.999
+#: What a network may predict (see the module docstring).
+PREDICTIONS = ("eps", "x0", "v")
+#: Noise-level loss weightings (see the module docstring).
+WEIGHTINGS = ("none", "min_snr", "edm")
+#: gamma of min-SNR weighting (Hang et al. 2023).
+MIN_SNR_GAMMA = 5.0
+#: sigma_data of EDM weighting: normalised tokens span +-1.
+EDM_SIGMA_DATA = 0.5
+#: Cap of the EDM weight, relative to its value at SNR = 1.
+EDM_WEIGHT_CAP = 10.0
 
 
 def cosine_alpha_bar(u: torch.Tensor, s: float = COSINE_OFFSET) -> torch.Tensor:
@@ -111,6 +140,51 @@ class CosineDDIM:
         ab = self.alpha_bar(t)
         return (x_t - self._coef(ab.sqrt(), x_t) * x0) / self._coef((1 - ab).sqrt(), x_t)
 
+    def snr(self, t: torch.Tensor | int) -> torch.Tensor:
+        """SNR_t = alpha_bar_t / (1 - alpha_bar_t), float64 (shape of t)."""
+        ab = self.alpha_bar(t)
+        return ab / (1 - ab)
+
+    def training_target(self, x0: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, prediction: str) -> torch.Tensor:
+        """What a network predicting `prediction` regresses onto for x_t = add_noise(x0, eps, t)."""
+        _check_prediction(prediction)
+        if prediction == "eps":
+            return eps
+        if prediction == "x0":
+            return x0
+        ab = self.alpha_bar(t)
+        return self._coef(ab.sqrt(), x0) * eps - self._coef((1 - ab).sqrt(), x0) * x0
+
+    def eps_from_output(self, out: torch.Tensor, x_t: torch.Tensor, t: torch.Tensor | int, prediction: str) -> torch.Tensor:
+        """The eps a network output `out` of kind `prediction` stands for at x_t (see the module docstring)."""
+        _check_prediction(prediction)
+        if prediction == "eps":
+            return out
+        if prediction == "x0":
+            return self.predict_eps(x_t, out, t)
+        ab = self.alpha_bar(t)
+        return self._coef(ab.sqrt(), x_t) * out + self._coef((1 - ab).sqrt(), x_t) * x_t
+
+    def loss_weight(self, t: torch.Tensor | int, weighting: str, prediction: str, *, gamma: float = MIN_SNR_GAMMA,
+                    sigma_data: float = EDM_SIGMA_DATA) -> torch.Tensor:
+        """Per-sample loss weight (shape of t, float64) of `weighting` for a network predicting
+        `prediction` (see the module docstring)."""
+        _check_prediction(prediction)
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"loss weighting {weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        snr = self.snr(t)
+        if weighting == "none":
+            return torch.ones_like(snr)
+        to_target = {"eps": 1.0 / snr, "x0": torch.ones_like(snr), "v": 1.0 / (1.0 + snr)}[prediction]
+        if weighting == "min_snr":
+            if not gamma > 0:
+                raise ValueError(f"min-SNR gamma must be > 0, got {gamma}")
+            return snr.clamp(max=gamma) * to_target
+        sd2 = sigma_data**2
+        w_x0 = (1.0 / snr + sd2) * snr / sd2
+        at_one = {"eps": 1.0, "x0": 1.0, "v": 0.5}[prediction] * (1.0 + sd2) / sd2
+        return (w_x0 * to_target).clamp(max=EDM_WEIGHT_CAP * at_one)
+
     def sigma(self, t: int, t_prev: int, eta: float) -> float:
         """DDIM noise scale of the step t -> t_prev (see the module docstring)."""
         ab, ab_prev = float(self.alpha_bar(t)), float(self.alpha_bar(t_prev))
@@ -135,3 +209,8 @@ class CosineDDIM:
                 noise = torch.randn(x_t.shape, generator=generator, device=x_t.device, dtype=x_t.dtype)
             x_prev = x_prev + sig * noise
         return x_prev, x0
+
+
+def _check_prediction(prediction: str) -> None:
+    if prediction not in PREDICTIONS:
+        raise ValueError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from tt.tokens.schema import SCHEMA
-from tt.tokens.store import BLOCK_EPISODES, EpisodeBlock, TokenStore, is_dataset
+from tt.tokens.store import BLOCK_EPISODES, DatasetError, EpisodeBlock, TokenStore, is_dataset
 
 logger = logging.getLogger(__name__)
 
@@ -174,6 +174,10 @@ class StoreTokenSource:
     def __init__(self, path: str | Path, *, augment: SE2Augment | None = SE2Augment(), windows_per_block: int = 16,
                  block_episodes: int = BLOCK_EPISODES, cache_bytes: int = 1 << 30, max_time: int = 1024, verify: str = "size"):
         self.store = TokenStore(path, verify=verify)
+        if self.store.episodes == 0 and self.store.damaged:
+            raise DatasetError(f"dataset {path}: every shard with episodes fails verification "
+                               f"({'; '.join(f'shard {i}: {w}' for i, w in sorted(self.store.damaged.items())[:3])}); "
+                               "re-run the `tt generate` command that wrote it to regenerate them")
         if self.store.episodes == 0:
             raise ValueError(f"dataset {path} holds no episodes yet; run `tt generate` first")
         if not self.store.attrs.get("complete"):
@@ -191,6 +195,11 @@ class StoreTokenSource:
 
     def __len__(self) -> int:
         return self.store.episodes
+
+    @property
+    def design_space(self) -> str | None:
+        """Name of the design space the dataset was generated from (recorded in checkpoints)."""
+        return self.store.attrs.get("space")
 
     def layout(self, steps: int = 8):
         """`tt.dit.layout.Layout` of the design space's largest robot, windows of `steps` steps."""

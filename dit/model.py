@@ -140,12 +140,19 @@ class RoboDiT(nn.Module):
     """Diffusion transformer over the token types of `layout` (see the module docstring).
 
     Output heads exist for every type that some task diffuses (all roles but condition).
+    prediction: what the heads output, "eps", "x0" or "v" (`tt.dit.ddim.PREDICTIONS`; the
+    sampler turns it into eps).
     """
 
-    def __init__(self, layout: Layout, config: DiTConfig):
+    def __init__(self, layout: Layout, config: DiTConfig, *, prediction: str = "eps"):
         super().__init__()
+        from tt.dit.ddim import PREDICTIONS
+
+        if prediction not in PREDICTIONS:
+            raise ValueError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         self.layout = layout
         self.config = config
+        self.prediction = prediction
         h = config.hidden
         self.in_proj = nn.ModuleDict({s.name: nn.Linear(s.dim, h) for s in layout.specs})
         kinds = sorted({k for s in layout.specs for k in s.ids})
@@ -200,13 +207,14 @@ class RoboDiT(nn.Module):
     def forward(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
                 noised: Mapping[str, torch.Tensor], time: torch.Tensor, attend: torch.Tensor | None = None,
                 outputs: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
-        """Predicted noise per type.
+        """Predicted noise (or x0, or v: `prediction`) per type.
 
         values: type -> (B, L, D) normalised values, noised where `noised` is True;
         ids: type -> (B, L, K) int64; noised: type -> (B, L) bool; time: (B,) diffusion
         time in (0, 1] (`CosineDDIM.model_time`); attend: (B, N) bool, False for tokens no
         token may attend to (masked padding), None to attend to all; outputs: types to
-        predict (default: every type with a head). Returns type -> eps (B, L, D).
+        predict (default: every type with a head). Returns type -> (B, L, D), the predicted
+        eps, x0 or v (`prediction`).
         """
         x = self.embed(values, ids, noised)  # (B, N, H)
         c = self.time_embed(time)  # (B, H)
@@ -222,8 +230,9 @@ class RoboDiT(nn.Module):
 
     def describe(self) -> dict:
         """Layout and config, enough to rebuild the module (`from_description`)."""
-        return {"layout": self.layout.to_dict(), "config": asdict(self.config)}
+        return {"layout": self.layout.to_dict(), "config": asdict(self.config), "prediction": self.prediction}
 
     @staticmethod
     def from_description(d: Mapping) -> "RoboDiT":
-        return RoboDiT(Layout.from_dict(d["layout"]), DiTConfig(**d["config"]))
+        # Checkpoints written before the prediction choice predict eps.
+        return RoboDiT(Layout.from_dict(d["layout"]), DiTConfig(**d["config"]), prediction=d.get("prediction", "eps"))

@@ -51,7 +51,14 @@ class OnlineConfig:
     augmented training motions per refresh (every design runs every motion);
     refresh_every: optimizer steps between refreshes; buffer: refreshes whose episodes
     windows are drawn from; seed: root of every draw; action_noise, min_steps,
-    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows.
+    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows;
+    absorbing: a terminated episode stays in the data to the motion's end. The rollout's
+    records after termination repeat the terminal state (its end effector already past the
+    threshold) beside the motion's true targets (`tt.kernels.rollout`), so windows that reach
+    past the end teach the model which designs fail and where, which the motion-to-robot
+    query's evenly placed steps ask about; without it (the default, as `tt generate`) windows
+    stop at the end and episodes shorter than `min_steps` are dropped, so the data never shows
+    a design failing.
     """
 
     space: str = "viperx"
@@ -64,6 +71,7 @@ class OnlineConfig:
     min_steps: int = 100
     max_motion_steps: int | None = None
     max_time: int = 1024
+    absorbing: bool = False
 
     def __post_init__(self) -> None:
         from tt.sim.designs import get_space
@@ -110,6 +118,11 @@ class OnlineTokenSource:
     def __len__(self) -> int:
         return 0 if self._data is None else len(self._data)
 
+    @property
+    def design_space(self) -> str:
+        """Name of the design space the episodes are of (recorded in checkpoints)."""
+        return self.config.space
+
     def layout(self, steps: int = 8) -> Layout:
         """The layout of the space's largest robot (what a `tt generate` dataset of it has)."""
         from tt.dit.layout import layout_from_schema
@@ -141,20 +154,29 @@ class OnlineTokenSource:
         return self._data.sample(n, steps, kind, generator, part=part)
 
     # -------------------------------------------------------------- one refresh
+    def draw(self, k: int) -> tuple[list, list]:
+        """The designs and augmented, placed training motions of refresh `k` (every design
+        runs every motion), a function of (seed, k)."""
+        from tt.tokens.draws import _rng, _seed_int, episode_motion, training_motions
+
+        cfg = self.config
+        designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
+        rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
+        base = training_motions(cfg.space)
+        motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
+        motions = [episode_motion(self._generate, base[m], s) for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))]
+        return designs, motions
+
     def _refresh(self, k: int) -> EpisodeTokens:
         if k in self._refreshes:
             return self._refreshes[k]
         from tt.sim.controller import IKConfig
         from tt.sim.rollout import group_episode, rollout_records
         from tt.tokens.episodes import episode_tokens
-        from tt.tokens.draws import _rng, _seed_int, episode_motion, finite_worlds, training_motions
+        from tt.tokens.draws import _seed_int, finite_worlds
 
         cfg, t0 = self.config, time.perf_counter()
-        designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
-        rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
-        base = training_motions(cfg.space)
-        motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
-        motions = [episode_motion(self._generate, base[m], s) for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))]
+        designs, motions = self.draw(k)
         too_long = max(m.steps for m in motions)
         if too_long > cfg.max_time:
             raise LayoutError(f"a training motion has {too_long} steps, the layout's time IDs {cfg.max_time} rows; "
@@ -169,6 +191,8 @@ class OnlineTokenSource:
                                dt=IKConfig().control_dt)
             lengths = ep.lengths()
             world_steps += int(lengths.sum())
+            if cfg.absorbing:
+                lengths = torch.tensor([m.steps for m in motions], device=lengths.device)[ep.motion_index.to(lengths.device)]
             keep = torch.as_tensor(finite_worlds(ep), device=lengths.device) & (lengths >= cfg.min_steps)
             dropped += int((~keep).sum())
             if not bool(keep.any()):

@@ -18,6 +18,9 @@ subset of types; eps' replaces eps only on guided tokens (``guided``: which type
 per-type (B, L) masks; default all diffused types) and never on tokens that are not
 diffused. x0_hat is clipped to the data range (+-1), as the step uses it.
 
+The network may predict eps, x0 or v (its ``prediction``, `tt.dit.ddim.PREDICTIONS`); its
+output is turned into eps (`CosineDDIM.eps_from_output`) before anything else reads it.
+
 Inpainting (``known``): tokens the task diffuses but whose clean values are given, e.g. a
 design's embodiment tokens when the motion-to-robot model is asked only for that design's
 dynamics. Before each network call they are set to their given value noised to the
@@ -114,6 +117,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     steps = scheduler.timesteps(num_steps)
     history = [] if keep_x0 else None
     use_grad = guide is not None and guide_grad
+    prediction = getattr(model, "prediction", "eps")
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=bf16 and device.type == "cuda")
     for i, t in enumerate(steps):
         t_prev = steps[i + 1] if i + 1 < len(steps) else -1
@@ -123,8 +127,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
             x[n] = torch.where(m.unsqueeze(-1), scheduler.add_noise(x0_given, noise, t), x[n])
         x_in = {n: (v.detach().requires_grad_(n in updated) if use_grad else v) for n, v in x.items()}
         with torch.set_grad_enabled(use_grad), autocast:
-            eps = {n: e.float() for n, e in model(x_in, tokens.ids, masks.noised, time, masks.attend, outputs=wanted).items()}
+            out = model(x_in, tokens.ids, masks.noised, time, masks.attend, outputs=wanted)
         with torch.set_grad_enabled(use_grad):
+            eps = {n: scheduler.eps_from_output(e.float(), x_in[n], t, prediction) for n, e in out.items()}
             x0 = {n: scheduler.predict_x0(x_in[n], eps[n], t) for n in wanted}
             if guide is not None:
                 new = guide(i, x_in, eps, x0)

@@ -15,16 +15,18 @@ A unified model trains both: each sample carries its own noise mask (fed to the 
 the noised-flag embedding), attention mask and diffusion time, so one forward pass
 serves a batch that mixes the tasks.
 
-Objective: epsilon prediction. For each type, the elementwise loss (Huber with delta 1,
-as in the authors' configuration, or MSE) between predicted and true noise, averaged
-over the diffused entries of that type; the total is the sum over types, so each type
-weighs the same whatever its token count.
+Objective: epsilon prediction by default (or x0 or v, `tt.dit.ddim.PREDICTIONS`). For each
+type, the elementwise loss (Huber with delta 1, as in the authors' configuration, or MSE)
+between the network's output and its target, times each sample's noise-level weight
+(`tt.dit.ddim.CosineDDIM.loss_weight`: 1 unless a weighting is chosen), averaged over the
+diffused entries of that type; the total is the sum over types, so each type weighs the same
+whatever its token count, unless per-type weights scale the terms.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -150,13 +152,19 @@ class NoisedInputs:
     eps: dict[str, torch.Tensor]  # type -> (B, L, D), the noise added (0 where not noised)
     masks: TaskMasks
     time: torch.Tensor  # (B,) model time in (0, 1]
+    target: dict[str, torch.Tensor] | None = None  # type -> (B, L, D), what the network regresses onto (None: eps)
+    weight: torch.Tensor | None = None  # (B,) noise-level loss weight (None: 1)
+    step: torch.Tensor | None = None  # (B,) long, the diffusion step drawn
 
 
 def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenBatch,
-                 generator: torch.Generator | None = None, *, part: tuple[int, int] | None = None) -> NoisedInputs:
+                 generator: torch.Generator | None = None, *, prediction: str = "eps", weighting: str = "none",
+                 gamma: float = 5.0, part: tuple[int, int] | None = None) -> NoisedInputs:
     """Draw a diffusion step per sample and noise the tokens `task` diffuses.
 
-    tokens: normalised values (padding at PAD_VALUE); generator: on the tokens' device.
+    tokens: normalised values (padding at PAD_VALUE); generator: on the tokens' device;
+    prediction: what the network predicts (the targets); weighting, gamma: the noise-level
+    loss weight (`CosineDDIM.loss_weight`).
     part: (first, batch): `tokens` are rows first .. first + len(tokens) - 1 of a batch of
         `batch` windows; the draws are that batch's (every row's noise is what a process
         noising the whole batch would draw), so data-parallel ranks together noise exactly
@@ -169,14 +177,17 @@ def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: 
     rows = slice(first, first + b)
     masks = task_masks(task, layout, tokens)
     t = scheduler.sample_train_steps(batch, generator, device=device)[rows]
-    values, eps = {}, {}
+    values, eps, target = {}, {}, {}
     for s in layout.specs:
         x0 = tokens.values[s.name]
         noise = torch.randn((batch, *x0.shape[1:]), generator=generator, device=device, dtype=x0.dtype)[rows]
         m = masks.noised[s.name].unsqueeze(-1)
         values[s.name] = torch.where(m, scheduler.add_noise(x0, noise, t), x0)
         eps[s.name] = torch.where(m, noise, torch.zeros_like(noise))
-    return NoisedInputs(values, dict(tokens.ids), eps, masks, scheduler.model_time(t).to(device))
+        aim = scheduler.training_target(x0, noise, t, prediction)
+        target[s.name] = torch.where(m, aim, torch.zeros_like(aim))
+    weight = scheduler.loss_weight(t, weighting, prediction, gamma=gamma).to(device=device, dtype=torch.float32)
+    return NoisedInputs(values, dict(tokens.ids), eps, masks, scheduler.model_time(t).to(device), target, weight, t)
 
 
 def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -187,18 +198,23 @@ def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.T
     raise ValueError(f"loss {kind!r} does not exist; losses: huber, mse")
 
 
-def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *,
-                   loss: str = "huber", forward=None, global_count=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *, loss: str = "huber",
+                   type_weights: Mapping[str, float] | None = None, forward=None,
+                   global_count=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Loss over one forward pass of all `parts` (one per task) stacked along the batch.
 
+    type_weights: type name -> factor on its term (absent types: 1).
     forward: the module to call (default `model`; a `DistributedDataParallel` wrapper of it);
     global_count: maps a 0-d count of loss tokens on this process to the count over the whole
     data-parallel batch (an all-reduce), so each type's term is this process's share of the
     whole batch's mean: the ranks' terms sum to the single-process loss.
-    Returns (total, per-type loss terms, detached 0-d tensors).
+    Returns (total, per-type loss terms before `type_weights`, detached 0-d tensors).
     """
+    type_weights = dict(type_weights or {})
+    unknown = sorted(set(type_weights) - set(model.layout.names))
+    if unknown:
+        raise ValueError(f"type_weights name {unknown}, not token types of the model's layout: {list(model.layout.names)}")
     layout = model.layout
-    forward = model if forward is None else forward
     names = layout.names
     values = {n: torch.cat([p.values[n] for _, p in parts]) for n in names}
     noised = {n: torch.cat([p.masks.noised[n] for _, p in parts]) for n in names}
@@ -209,15 +225,17 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
         attend = torch.cat([p.masks.attend_full(layout) for _, p in parts])
     ids = {n: torch.cat([p.ids[n] for _, p in parts]) for n in names}
     wanted = sorted({n for task, _ in parts for n in output_types(task, layout)}, key=names.index)
-    pred = forward(values, ids, noised, time, attend, outputs=wanted)
+    pred = (model if forward is None else forward)(values, ids, noised, time, attend, outputs=wanted)
     total = torch.zeros((), device=time.device)
     per_type = {}
+    weight = torch.cat([p.weight if p.weight is not None else torch.ones(len(p.time), device=p.time.device)
+                        for _, p in parts])  # (B,)
     for n in wanted:
-        target = torch.cat([p.eps[n] for _, p in parts])
+        target = torch.cat([(p.target if p.target is not None else p.eps)[n] for _, p in parts])
         lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)
         err = _elementwise(loss, pred[n].float(), target.float()).mean(-1)  # (B, L)
         count = lmask.sum() if global_count is None else global_count(lmask.sum())
-        term = (err * lmask).sum() / count.clamp_min(1)
+        term = (err * weight[:, None] * lmask).sum() / count.clamp_min(1)
         per_type[n] = term
-        total = total + term
+        total = total + type_weights.get(n, 1.0) * term
     return total, {k: v.detach() for k, v in per_type.items()}

@@ -28,13 +28,15 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, fields
+import os
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable
 
 import torch
 
 from tt.dit.checkpoint import (
+    RESUME_KEYS,
     checkpoint_path,
     latest_checkpoint,
     list_checkpoints,
@@ -50,6 +52,7 @@ from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
+from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +77,13 @@ class TrainConfig:
     run the forward pass through `torch.compile` (the first steps pay the compile); online:
     train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
     of `data` (a dict is read as `OnlineConfig` fields).
+
+    Sample-efficiency choices (defaults: the paper's recipe): prediction: what the network
+    predicts, "eps", "x0" or "v" (`tt.dit.ddim.PREDICTIONS`); weighting: noise-level loss
+    weighting "none", "min_snr" (gamma `min_snr_gamma`) or "edm" (`CosineDDIM.loss_weight`);
+    type_weights: token type -> factor on its loss term (e.g. more on ``track_link_obs``, what
+    the rewards read); bf16_cpu: autocast to bfloat16 on the CPU too (``bf16`` alone autocasts
+    on CUDA only).
     """
 
     data: str = ""
@@ -102,10 +112,30 @@ class TrainConfig:
     init: str = ""
     compile: bool = False
     online: OnlineConfig | None = None
+    prediction: str = "eps"
+    weighting: str = "none"
+    min_snr_gamma: float = 5.0
+    type_weights: dict[str, float] = field(default_factory=dict)
+    bf16_cpu: bool = False
 
     def __post_init__(self) -> None:
+        from tt.dit.ddim import PREDICTIONS, WEIGHTINGS
+
         if isinstance(self.online, dict):
             self.online = OnlineConfig(**self.online)
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+        if self.weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        if not self.min_snr_gamma > 0:
+            raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
+        self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
+        bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise ValueError(f"type_weights must be finite and >= 0, got {bad}")
+        if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
+            raise ValueError(f"robot_diffusion_steps and control_diffusion_steps must be >= 1, got "
+                             f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
         if self.online is not None and self.data:
             raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
         if self.task not in ("robot", "control", "both"):
@@ -240,12 +270,69 @@ def _resolve_device(device: str | None) -> torch.device:
     return torch.device(device)
 
 
-def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
+#: TrainConfig fields a resumed run must share with the run it continues, and their flags.
+#: (steps may grow, checkpoints and devices may change: none of these change a step's result.)
+RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size": "--batch-size", "lr": "--lr",
+              "seed": "--seed", "online": "--online ...", "window": "window", "warmup_steps": "warmup_steps",
+              "weight_decay": "weight_decay", "grad_clip": "grad_clip", "ema_power": "ema_power",
+              "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
+              "control_diffusion_steps": "control_diffusion_steps", "future_states": "future_states", "loss": "loss",
+              "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
+              "type_weights": "--type-weight"}
+
+
+def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
+    """Refuse to resume run `out` (trained with TrainConfig dict `stored`) with other arguments,
+    as `tt generate` refuses to resume a dataset with other arguments; `ValueError` naming the flag."""
+    if not stored:
+        return
+    saved = TrainConfig.from_dict(stored)
+    for name, flag in RUN_FIELDS.items():
+        before, now = getattr(saved, name), getattr(config, name)
+        if name == "lr":
+            before, now = saved.learning_rate, config.learning_rate
+        elif name == "data":
+            before, now = (str(Path(v).resolve()) if v else "" for v in (before, now))
+        elif name == "online":
+            before, now = (asdict(v) if v is not None else None for v in (before, now))
+        if before != now:
+            raise ValueError(f"run {out} was trained with {flag} {before!r}, this run asks for {now!r}; resume it with "
+                             "its own arguments, or give another --out (or --no-resume to start it over)")
+
+
+def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
+    """(path, state) of the newest checkpoint of run `out` that reads completely, or (None, None).
+
+    A damaged newer checkpoint (truncated by a full disk, say) is renamed ``*.pt.damaged``,
+    out of the run's list but kept, and the next older one is used; a warning says so.
+    """
+    folder = out / "checkpoints"
+    if folder.is_dir():
+        for tmp in folder.glob(".step_*.pt.tmp-*"):  # left by a process killed while writing
+            tmp.unlink(missing_ok=True)
+    damaged = []
+    for path in reversed(list_checkpoints(out)):
+        try:
+            return path, load_checkpoint(path, need=RESUME_KEYS)
+        except CorruptFileError as e:
+            damaged.append(path)
+            keep = path.with_name(path.name + ".damaged")
+            os.replace(path, keep)
+            log.warning("%s; moved it to %s and resuming from the checkpoint before it", e, keep.name)
+    if damaged:
+        raise CorruptFileError(f"run {out}: every checkpoint is damaged ({', '.join(p.name for p in damaged)}, now "
+                               "*.pt.damaged); start it over with --no-resume or give another --out")
+    return None, None
+
+
+def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
           on_step: Callable[[int, float], None] | None = None) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
 
-    episodes: training data in memory (else loaded from ``config.data``); on_step: called
-    after every optimizer step with (step, loss), e.g. to drive a progress bar.
+    episodes: training data in memory (else loaded from ``config.data``); space: the design
+    space the episodes are of, recorded in the checkpoint (None: the source's
+    ``design_space``, if it has one); on_step: called after every optimizer step with
+    (step, loss), e.g. to drive a progress bar.
     """
     dp = DataParallel.from_env()
     device = _resolve_device(config.device)
@@ -264,17 +351,20 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raise ValueError("TrainConfig.data is empty: give a dataset or an episode token file, online=, or episodes=")
         from tt.dit.loader import open_token_source
 
-        episodes = open_token_source(config.data)
+        episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
     layout = episodes.layout(config.window)
-    resume_from = latest_checkpoint(out) if config.resume else None
+    space = space if space is not None else getattr(episodes, "design_space", None)
+    resume_from, state = newest_intact_checkpoint(out) if config.resume else (None, None)
 
     if resume_from is not None:
-        state = load_checkpoint(resume_from)
+        check_same_run(state.get("train_config") or {}, config, out)
         model = RoboDiT.from_description(state["model"])
         if model.layout != layout:
             raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
         if model.config != get_config(config.size):
             raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.prediction != config.prediction:
+            raise ValueError(f"run {out} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
         model.load_state_dict(state["state_dict"])
         normalizer = Normalizer.from_state_dict(state["normalizer"])
     elif config.init:
@@ -285,12 +375,15 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             raise LayoutError(f"--init {config.init} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
         if model.config != get_config(config.size):
             raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.prediction != config.prediction:
+            raise ValueError(f"--init {config.init} predicts {model.prediction!r}, config asks for prediction "
+                             f"{config.prediction!r}")
         log.info("starting from the EMA weights of %s (step %d)", config.init, start.step)
     else:
         state = None
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
             torch.manual_seed(config.seed)
-            model = RoboDiT(layout, get_config(config.size))
+            model = RoboDiT(layout, get_config(config.size), prediction=config.prediction)
         normalizer = episodes.fit_normalizer()
     layout.check_normalizer(normalizer)
     model.to(device).train()
@@ -329,7 +422,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
     if config.compile:
         forward = torch.compile(forward)
     schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
-    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=config.bf16 and device.type == "cuda")
+    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16,
+                              enabled=config.bf16 and (device.type == "cuda" or config.bf16_cpu))
     log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
              config.size, model.parameter_count(), device, config.task, step, config.steps)
     last = latest_checkpoint(out)
@@ -339,17 +433,19 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             start_step(step)
         parts = []
         for task, n in tasks:
-            first, last = shares[task.name]
-            part = None if dp is None else (first, last)
+            first, end = shares[task.name]
+            part = None if dp is None else (first, end)
             raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen, part=part))
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
-            noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, part=(first, n))
+            noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, prediction=config.prediction,
+                                  weighting=config.weighting, gamma=config.min_snr_gamma, part=(first, n))
             parts.append((task, noised))
         for g in optimizer.param_groups:
             g["lr"] = config.learning_rate * lr_factor(step, config.warmup_steps, config.steps)
         with autocast:
-            loss, per_type = diffusion_loss(model, parts, loss=config.loss, forward=forward, global_count=global_count)
+            loss, per_type = diffusion_loss(model, parts, loss=config.loss, type_weights=config.type_weights,
+                                            forward=forward, global_count=global_count)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
@@ -370,6 +466,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None,
             if writer:
                 save_checkpoint(last, {
                     "schema_version": layout.schema_version,
+                    "space": space,
                     "model": model.describe(),
                     "state_dict": model.state_dict(),
                     "ema": ema.state_dict(),

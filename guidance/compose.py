@@ -105,6 +105,7 @@ class ComposedModel(nn.Module):
         self.motions = int(motions)
         self.base_layout: Layout = model.layout
         self.layout = composed_layout(self.base_layout, self.motions)
+        self.prediction = getattr(model, "prediction", "eps")
 
     def _batch(self, composed: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """Copies stacked motion-major along B: rows m * n .. (m + 1) * n - 1 are copy m."""

@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from tt.dit.layout import Layout, LayoutError, slot_ids
+from tt.kernels.errors import TTError
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
@@ -188,6 +189,119 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
     known = {s.name: torch.ones(len(models), s.length, dtype=torch.bool, device=device) for s in static}
     return query, known
+
+
+# ------------------------------------------------------------------------------ critic
+class CheckpointSpaceError(TTError):
+    """A checkpoint trained on one design space asked about designs of another."""
+
+
+def check_space(trained, space: str) -> None:
+    """Raise `CheckpointSpaceError` when `trained` (a `tt.dit.checkpoint.TrainedModel`) was
+    trained on a design space other than `space` (a checkpoint that recorded none passes;
+    its layout still has to hold the robots)."""
+    if trained.space is not None and trained.space != space:
+        where = f"checkpoint {trained.path}" if trained.path is not None else "the model"
+        raise CheckpointSpaceError(f"{where} was trained on design space {trained.space!r}, the designs are of space "
+                                   f"{space!r}; give a checkpoint trained on {space!r} (--checkpoint)")
+
+
+@dataclass
+class DesignPrediction:
+    """The model's prediction for D given designs x M motions.
+
+    reward: (D, M) predicted episode reward (reported alphas), the mean over `samples`
+    samples; metrics: name -> (D, M) predicted metrics (`predicted_metrics`), means over the
+    samples (NaN-free ones); samples: K; seconds: wall time of sampling and scoring.
+    """
+
+    reward: np.ndarray
+    metrics: dict[str, np.ndarray]
+    samples: int
+    seconds: float
+
+
+def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: int = 1, num_steps: int | None = None,
+                    seed: int = 0, placement: str = "even", chunk: int | None = None,
+                    device: str | torch.device | None = None) -> DesignPrediction:
+    """The model as a critic: predicted dynamics and reward of each design on each motion.
+
+    Each design's embodiment tokens are fixed by inpainting (`design_query`), the model
+    predicts the dynamics at the query's steps (`tt.dit.sampling.sample`, the robot task),
+    and `PredictedReward` scores them; with samples K, K samples per pair are averaged. All
+    D x M x K sequences go through one sampling call (``chunk``: at most that many sequences
+    per call, for memory).
+
+    trained: `tt.dit.checkpoint.TrainedModel`; designs: D `tt.sim.designs.Design` of one
+    space, the space the checkpoint was trained on (`check_space`); motions: M motions
+    placed for the space; cfg: the reward; num_steps: DDIM steps (None: all of the robot
+    task's); seed: of the sampling noise; device: None for the model's.
+    Raises CheckpointSpaceError, LayoutError (a robot or motion the layout cannot hold) and
+    ValueError (bad arguments).
+    """
+    import time
+
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import ROBOT
+    from tt.sim.designs import get_space
+
+    designs, motions = list(designs), list(motions)
+    if not designs or not motions:
+        raise ValueError(f"predict needs at least one design and one motion, got {len(designs)} and {len(motions)}")
+    if samples < 1:
+        raise ValueError(f"samples must be >= 1, got {samples}")
+    if chunk is not None and chunk < 1:
+        raise ValueError(f"chunk must be >= 1 or None, got {chunk}")
+    spaces = sorted({d.space for d in designs})
+    if len(spaces) > 1:
+        raise ValueError(f"designs from several spaces in one call: {spaces}")
+    check_space(trained, spaces[0])
+    if device is None:
+        held = next(iter(trained.model.parameters()), None)
+        device = held.device if held is not None else "cpu"
+    device = torch.device(device)
+    start = time.perf_counter()
+    model = trained.model.to(device).eval()
+    layout, norm = trained.layout, trained.normalizer
+    sp = get_space(spaces[0])
+    D, M, K = len(designs), len(motions), int(samples)
+    models = [sp.model(d) for d in designs]
+    repeated = [m for m in models for _ in range(K)]  # row i * K + k: design i, sample k
+    queries, tokens, known = [], [], []
+    for m in motions:
+        q, kn = design_query(layout, norm, m, repeated, placement=placement,
+                             generator=torch.Generator().manual_seed(int(seed)), device=device)
+        queries.append(q)
+        tokens.append(q.tokens)
+        known.append(kn)
+    tokens = TokenBatch.concatenate(tokens)  # (M * D * K) sequences, motion-major
+    known = {n: torch.cat([k[n] for k in known]) for n in known[0]}
+    total = len(tokens)
+    chunk = total if chunk is None else min(int(chunk), total)
+    generator = torch.Generator(device=device).manual_seed(int(seed))
+    scheduler = CosineDDIM(ROBOT.diffusion_steps)
+    values = []
+    for c0 in range(0, total, chunk):
+        rows = slice(c0, min(c0 + chunk, total))
+        part = tokens.select(rows)
+        res = sample(model, part, ROBOT, scheduler=scheduler, num_steps=num_steps, generator=generator,
+                     known={n: k[rows] for n, k in known.items()})
+        values.append(res.tokens.values)
+    values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
+    reward = np.zeros((D, M))
+    metrics: dict[str, np.ndarray] = {}
+    for j, q in enumerate(queries):
+        rows = slice(j * D * K, (j + 1) * D * K)
+        scorer = PredictedReward(layout, norm, cfg, q)
+        per = predicted_metrics(scorer, {n: v[rows] for n, v in values.items()})
+        for name, v in per.items():
+            arr = v.double().cpu().numpy().reshape(D, K)
+            counted = np.isfinite(arr)
+            mean = np.where(counted, arr, 0.0).sum(1) / np.maximum(counted.sum(1), 1)
+            metrics.setdefault(name, np.full((D, M), np.nan))[:, j] = np.where(counted.any(1), mean, np.nan)
+        reward[:, j] = metrics["reward"][:, j]
+    return DesignPrediction(reward, metrics, K, time.perf_counter() - start)
 
 
 # ------------------------------------------------------------------------------ geometry
@@ -340,12 +454,16 @@ def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> d
 
 __all__ = [
     "PLACEMENTS",
+    "CheckpointSpaceError",
+    "DesignPrediction",
     "PredictedReward",
     "RobotQuery",
     "build_query",
+    "check_space",
     "design_query",
     "matrix_to_quat",
     "orthonormalize",
+    "predict_designs",
     "predicted_metrics",
     "query_steps",
     "token_mass",

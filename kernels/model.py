@@ -422,8 +422,20 @@ def build_tree_model(
     device = resolve_device(device)
     if len(models) == 0:
         raise ValueError("models is empty; build_tree_model needs at least one MuJoCo model")
-    key0 = topology_key(models[0], ee_sites)
+    # Each distinct model object is read once and the worlds gather its rows: a rollout of
+    # D designs on M motions passes each model M times.
+    entry_of: dict[int, int] = {}
+    position: list[int] = []  # index in `models` of each distinct model (for messages)
+    world_entry = np.empty(len(models), dtype=np.int64)
     for i, m in enumerate(models):
+        if id(m) not in entry_of:
+            entry_of[id(m)] = len(position)
+            position.append(i)
+        world_entry[i] = entry_of[id(m)]
+    models = [models[i] for i in position]
+    key0 = topology_key(models[0], ee_sites)
+    for k, m in enumerate(models):
+        i = position[k]
         check_supported(m, i)
         if i and topology_key(m, ee_sites) != key0:
             raise ValueError(
@@ -477,17 +489,18 @@ def build_tree_model(
     gain = np.stack([m.actuator_gainprm[:, 0] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
     bias = np.stack([m.actuator_biasprm[:, :3] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
     limit_enabled = np.array([0 if flag_off(m, D.mjDSBL_LIMIT) else 1 for m in models], dtype=np.int32)
-    for i, m in enumerate(models):
+    for i, m in zip(position, models):
         if flag_off(m, D.mjDSBL_EULERDAMP) and np.any(m.dof_damping > 0):
             raise ValueError(f"model {i}: the eulerdamp flag is disabled; tt replicates Euler with implicit damping only")
         if m.opt.timestep <= 0:
             raise ValueError(f"model {i}: timestep {m.opt.timestep} must be positive")
 
     def arr(x, dtype):
-        return wp.array(np.ascontiguousarray(x, dtype=np.float32), dtype=dtype, device=device, requires_grad=requires_grad)
+        x = np.asarray(x, dtype=np.float32)[world_entry]
+        return wp.array(np.ascontiguousarray(x), dtype=dtype, device=device, requires_grad=requires_grad)
 
     def arr64(x, dtype):
-        return wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=dtype, device=device)
+        return wp.array(np.ascontiguousarray(np.asarray(x, dtype=np.float64)[world_entry]), dtype=dtype, device=device)
 
     k64 = kinematics64(
         body_pos=arr64(body_pos, wp.vec3d),
@@ -527,7 +540,7 @@ def build_tree_model(
         ee_quat=arr(ee_quat, wp.vec4),
         gravity=arr(gravity, wp.vec3),
         timestep=arr(np.array([m.opt.timestep for m in models]), float),
-        limit_enabled=wp.array(limit_enabled, dtype=wp.int32, device=device),
+        limit_enabled=wp.array(limit_enabled[world_entry], dtype=wp.int32, device=device),
         limit_sweeps=wp.array([limit_sweeps], dtype=wp.int32, device=device),
     )
     return TreeModel(
@@ -535,7 +548,7 @@ def build_tree_model(
         arrays=arrays,
         kinematics64=k64,
         device=device,
-        timestep_host=np.array([m.opt.timestep for m in models]),
+        timestep_host=np.array([m.opt.timestep for m in models])[world_entry],
     )
 
 

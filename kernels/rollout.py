@@ -39,9 +39,21 @@ posture alone in a third (`start_postures`, for the backends that run other phys
 The launch wrappers take numbers, not configs: the IK's `IKWeights` struct and the
 controller's timing and termination as plain arguments; `tt.sim.controller.IKConfig`
 turns its settings into them (`IKConfig.ik_weights`, `IKConfig.rollout_args`).
+
+On the CPU Warp runs a launch on the calling thread, one world after another. Since worlds
+are independent, `rollout_tree` cuts them into a few contiguous slices per thread and
+launches each from a pool of `threads` Python threads on array views of that slice
+(`_world_views`, which also cuts the arrays inside the model's struct): a CPU launch is a
+call through a ``ctypes.CFUNCTYPE`` pointer, which releases the GIL for the kernel's whole
+run, and the generated CPU kernel keeps its task index in a parameter (no static state),
+so launches on disjoint slices run in parallel. Every world runs the same code on the same
+inputs whichever slice it lands in, so the records are bit-identical for any thread count.
 """
 
 import functools
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -428,6 +440,78 @@ def motion_arrays(pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requ
     )
 
 
+#: Slices of worlds per CPU thread in a threaded launch (load balance; see `rollout_tree`).
+SLICES_PER_THREAD = 4
+#: Fewest worlds in a slice: a launch costs ~0.1 ms of Python, a 50-step chunk of 16 worlds
+#: ~10 ms of stepping, so the threads' overhead stays near 1 % (fewer worlds: one launch).
+MIN_SLICE_WORLDS = 16
+
+
+def cpu_threads(threads: int | None = None) -> int:
+    """Threads for a CPU rollout: `threads`, or every core this process may run on (None).
+
+    Raises ValueError for a count < 1.
+    """
+    if threads is None:
+        try:
+            return len(os.sched_getaffinity(0))
+        except AttributeError:  # not on Linux
+            return os.cpu_count() or 1
+    if not isinstance(threads, (int, np.integer)) or isinstance(threads, bool) or threads < 1:
+        raise ValueError(f"threads = {threads!r}; must be an integer >= 1 (None: every core)")
+    return int(threads)
+
+
+def world_slices(world_count: int, count: int, align: int = 1) -> list[tuple[int, int]]:
+    """Split worlds 0..world_count-1 into at most `count` contiguous [lo, hi) slices of
+    near-equal size whose starts are multiples of `align` (so per-motion or per-model
+    indexing ``world % align`` is unchanged inside a slice)."""
+    blocks = -(-world_count // align)
+    count = max(1, min(count, blocks))
+    cuts = [min(world_count, (blocks * k // count) * align) for k in range(count + 1)]
+    return [(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:]) if hi > lo]
+
+
+def _world_views(obj, lo: int, hi: int, worlds: int):
+    """`obj` (a Warp array, a `wp.struct` instance, or a list of them) with every array whose
+    leading dimension is `worlds` cut to the view [lo:hi]; other arrays (broadcast entries,
+    shared inputs) and values are kept whole."""
+    if isinstance(obj, wp.array):
+        return obj[lo:hi] if obj.ndim >= 1 and obj.shape[0] == worlds else obj
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_world_views(x, lo, hi, worlds) for x in obj)
+    struct = getattr(obj, "_cls", None)
+    if struct is not None and hasattr(struct, "vars"):  # a wp.struct instance
+        values = {name: getattr(obj, name) for name in struct.vars}
+        views = {name: _world_views(v, lo, hi, worlds) for name, v in values.items()}
+        if all(views[name] is values[name] for name in values):
+            return obj
+        view = type(obj)()
+        for name, v in views.items():
+            setattr(view, name, v)
+        return view
+    return obj
+
+
+def _launch_sliced(kernel, *, dim: int, inputs, outputs, device, slices, threads: int) -> None:
+    """`wp.launch(kernel, dim, inputs, outputs, device)` over `dim` worlds, one launch per
+    [lo, hi) of `slices` on views of the per-world arrays, from `threads` threads (one
+    slice: one launch on this thread)."""
+    if len(slices) == 1:
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+        return
+    with ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout") as pool:
+        futures = [
+            pool.submit(
+                wp.launch, kernel, dim=hi - lo, inputs=_world_views(inputs, lo, hi, dim),
+                outputs=_world_views(outputs, lo, hi, dim), device=device,
+            )
+            for lo, hi in slices
+        ]  # fmt: skip
+        for f in futures:
+            f.result()
+
+
 def rollout_tree(
     model: TreeModel,
     motions: MotionArrays,
@@ -447,6 +531,7 @@ def rollout_tree(
     noise_seed: int = 0,
     world_ids: np.ndarray | None = None,
     device: str | None = None,
+    threads: int | None = None,
     graph: bool | None = None,
 ) -> RolloutArrays:
     """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
@@ -478,12 +563,16 @@ def rollout_tree(
     noise_seed: seed of the noise, 0..2**31-1. world_ids: (W,) ints keying each world's
         noise (default 0..W-1); a caller splitting one batch into launches passes the
         worlds' indices in the whole batch, so the noise does not depend on the split.
+    threads: CPU threads the worlds are spread over (None: every core, `cpu_threads`);
+        the records are the same bit for bit for every count. CUDA launches and the
+        differentiable rollout (one `wp.Tape` records every launch) use one launch.
     graph: launch the start posture and every chunk as one captured graph (`wp.ScopedCapture`,
         replayed by `wp.capture_launch`): one driver submission instead of one per launch.
         None (default): on a CUDA device yes, on the CPU plain launches (Warp 1.19 can
-        replay a CPU capture too, which the tests use to check both paths agree); False:
-        plain launches everywhere. `progress` is then called once, after the replay.
-        Not with ``differentiable`` (a `wp.Tape` records the plain launches).
+        replay a CPU capture too, which the tests use to check both paths agree; a capture
+        records one thread's launches, so it runs on one thread); False: plain launches
+        everywhere. `progress` is then called once, after the replay. Not with
+        ``differentiable`` (a `wp.Tape` records the plain launches).
     """
     topo = model.topology
     device = device or model.device
@@ -506,11 +595,6 @@ def rollout_tree(
     if steps < 1:
         raise ValueError(f"steps = {steps}; a rollout needs at least one control step")
     slots = steps * substeps + 1 if differentiable else 1
-    use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
-    if use_graph and differentiable:
-        if graph:
-            raise ValueError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
-        use_graph = False
 
     def zeros(shape, dtype, grad=differentiable):
         return wp.zeros(shape, dtype=dtype, device=device, requires_grad=grad)
@@ -534,6 +618,23 @@ def rollout_tree(
     )
     noise_world = wp.array(world_ids.astype(np.int32), dtype=wp.int32, device=device)
     kernels = load_differentiable(topo, device) if differentiable else rollout_kernels(topo)
+    use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
+    if use_graph and differentiable:
+        if graph:
+            raise ValueError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
+        use_graph = False
+    threads = cpu_threads(threads)
+    if differentiable or use_graph or wp.get_device(device).is_cuda:
+        threads = 1
+    # Slices start at multiples of every leading dimension read as ``world % n`` that is not
+    # W itself (arrays of W entries are cut to the slice), so each world reads what it would
+    # read in one launch. A few slices per thread, taken from a queue: worlds that terminate
+    # early cost little, so equal slices can take unequal times.
+    align = math.lcm(*(n for n in (model.world_count, motions.count) if n != W))
+    count = min(threads * SLICES_PER_THREAD, max(1, W // MIN_SLICE_WORLDS)) if threads > 1 else 1
+    slices = world_slices(W, count, align)
+    if len(slices) > 1:
+        wp.load_module(kernels.module, device=device)  # once, before the threads launch
     # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
     iterations = int(init_iterations)
     q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
@@ -544,8 +645,18 @@ def rollout_tree(
     chunk = steps if chunk is None else max(1, int(chunk))
     chunks = [(t0, min(steps, t0 + chunk)) for t0 in range(0, steps, chunk)]
 
+    def start_posture() -> None:
+        _launch_sliced(
+            kernels.initial_posture,
+            dim=W,
+            inputs=[model.kinematics64, weights, iterations, motions.first_pos, motions.first_quat],
+            outputs=[q_iter, out.qpos_state],
+            device=device,
+            slices=slices, threads=threads,
+        )
+
     def launch(t0: int, t1: int) -> None:
-        wp.launch(
+        _launch_sliced(
             kernels.rollout,
             dim=W,
             inputs=[
@@ -559,15 +670,7 @@ def rollout_tree(
                 out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
             ],  # fmt: skip
             device=device,
-        )
-
-    def start_posture() -> None:
-        wp.launch(
-            kernels.initial_posture,
-            dim=W,
-            inputs=[model.kinematics64, weights, iterations, motions.first_pos, motions.first_quat],
-            outputs=[q_iter, out.qpos_state],
-            device=device,
+            slices=slices, threads=threads,
         )
 
     if use_graph:

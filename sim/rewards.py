@@ -160,6 +160,8 @@ _SPACE_WEIGHTS: dict[str, _SpaceWeights] = {
     "bimanual": _SpaceWeights(threshold=0.5, velocity_alpha=0.5, size_target=5.0, mass_target=15.0),
     "quadruped": _SpaceWeights(threshold=0.8, velocity_alpha=0.005, size_target=6.5, mass_target=15.0),
 }
+# Sub-spaces (`tt.sim.designs.FixedStructureSpace`) score as their full space.
+_SPACE_WEIGHTS["viperx-nominal"] = _SPACE_WEIGHTS["viperx"]
 
 #: Design spaces with reward weights.
 REWARD_SPACES: tuple[str, ...] = tuple(_SPACE_WEIGHTS)

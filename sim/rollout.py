@@ -59,6 +59,7 @@ def rollout(
     config: IKConfig = IKConfig(),
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
     graph: bool | None = None,
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
@@ -77,6 +78,9 @@ def rollout(
         command); 0 for none. Only the "warp" backend perturbs.
     noise_seed: seed of that noise, 0..2**31-1; world w's noise depends on (noise_seed, w,
         control step) only, so equal arguments give identical episodes.
+    threads: CPU threads the "warp" backend spreads each topology group's worlds over
+        (None: every core); the Episode is the same bit for bit for every count. Other
+        backends ignore it.
     graph: replay the kernel launches as captured graphs ("warp": each topology group's
         whole rollout; "mjwarp": each control step's physics); None: on a CUDA device yes,
         on the CPU no; False: plain launches (see `tt.kernels.rollout.rollout_tree`).
@@ -87,11 +91,15 @@ def rollout(
 
     impl = get_backend(backend)
     device = resolve_device(device)
+    if threads is not None:
+        from tt.kernels.rollout import cpu_threads
+
+        cpu_threads(threads)  # a bad count fails on every backend
     if action_noise != 0.0 and not impl.perturbs:
         raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
     return impl.run(impl.resolve(designs), motions, config=config, device=device, chunk=chunk, progress=progress,
-                    action_noise=action_noise, noise_seed=noise_seed, graph=graph)
+                    action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -109,6 +117,7 @@ def rollout_records(
     progress: bool = False,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
     graph: bool | None = None,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
@@ -117,6 +126,7 @@ def rollout_records(
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
+    threads: CPU threads each group's worlds are spread over (None: every core).
     graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
     Inputs are not validated here; `rollout` does that.
     """
@@ -154,7 +164,7 @@ def rollout_records(
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, graph=graph,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads, graph=graph,
         )  # fmt: skip
         results.append((members, arrays))
     if bar is not None:
@@ -205,6 +215,7 @@ def _rollout_warp(
     progress: bool,
     action_noise: float = 0.0,
     noise_seed: int = 0,
+    threads: int | None = None,
     graph: bool | None = None,
 ) -> Episode:
     import warp as wp
@@ -212,7 +223,7 @@ def _rollout_warp(
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
     results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                              action_noise=action_noise, noise_seed=noise_seed, graph=graph)
+                              action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
     perturbed = action_noise > 0.0
     if len(results) == 1:
         (members, arrays), = results

@@ -109,3 +109,27 @@ def test_dof_choice_changes_the_parameter_lists(space):
         counts[dof] = (len(params), len(space.continuous_params(discrete)))
     # 4 mount params + one length per segment; one axis per joint after the shoulder.
     assert counts == {0: (5, 9), 1: (6, 10), 2: (7, 11)}
+
+
+def test_nominal_sub_space_fixes_the_structure():
+    """viperx-nominal: the nominal arm's discrete choices, continuous ones free; its designs build
+    the same MJCF as the equal ViperX design, its rewards are ViperX's."""
+    from tt.sim.rewards import get_reward
+    from tt.sim.designs import DesignError, FixedStructureSpace, get_space
+
+    full, sub = get_space("viperx"), get_space("viperx-nominal")
+    assert isinstance(sub, FixedStructureSpace) and sub.family == "viperx" and full.family == "viperx"
+    designs = sub.sample(20, seed=3)
+    assert {d.discrete for d in designs} == {(0,) * len(full.nominal().discrete)}
+    assert len({d.continuous for d in designs}) == 20
+    for d in designs:
+        base = sub.to_base(d)
+        assert base.discrete == full.nominal().discrete
+        assert full.to_mjcf(base) == sub.to_mjcf(d)
+        assert sub.from_base(base) == d
+        assert sub.to_dict(d)["discrete"] == full.to_dict(base)["discrete"]
+        assert sub.from_dict(sub.to_dict(d)) == d
+    assert full.to_mjcf(sub.to_base(sub.nominal())) == full.to_mjcf(full.nominal())
+    with pytest.raises(DesignError, match="not sub-space"):
+        sub.from_base(full.sample(50, seed=1)[[d.discrete != full.nominal().discrete for d in full.sample(50, seed=1)].index(True)])
+    assert get_reward("tracking_velocity", "viperx-nominal").velocity_alpha == get_reward("tracking_velocity", "viperx").velocity_alpha

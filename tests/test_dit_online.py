@@ -143,7 +143,7 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
     code, out = tt_cli(["train", "--online", "--space", "quadruped", "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "contacts" in out
     code, out = tt_cli(["train", "--online", "--action-noise", "-1", "--out", str(tmp_path / "r"), "--steps", "1"])
-    assert code != 0 and "action_noise" in out
+    assert code != 0 and "--action-noise" in out
 
 
 def test_cli_trains_online(tt_cli, tmp_path):
@@ -161,3 +161,32 @@ def test_shipped_checkpoint_fine_tunes_online(source):
 
     trained = load_model(default_checkpoint("viperx"), device="cpu")
     assert source.layout(trained.layout.steps) == trained.layout
+
+
+def test_absorbing_keeps_failures_to_the_motion_end():
+    """absorbing: every episode runs to the motion's end; past a termination its state tokens
+    repeat the terminal record (the end effector already past the threshold) while the target
+    tokens follow the motion, so a window there shows the design failing."""
+    from dataclasses import replace
+
+    cfg = OnlineConfig(space="viperx", designs=8, motions=1, min_steps=8, action_noise=0.0, seed=3)
+    plain = OnlineTokenSource(cfg, device="cpu")._refresh(0)
+    absorbing = OnlineTokenSource(replace(cfg, absorbing=True), device="cpu")._refresh(0)
+    _, motions = OnlineTokenSource(cfg, device="cpu").draw(0)
+    T = motions[0].steps
+    assert len(absorbing) == 8 and bool((absorbing.lengths == T).all())
+    checked = 0
+    for e in range(len(absorbing)):
+        # The same design's episode in the plain data (none if it ended within min_steps).
+        same = [p for p in range(len(plain)) if torch.equal(plain.static_values["link"][p], absorbing.static_values["link"][e])]
+        n = int(plain.lengths[same[0]]) if same else None
+        track = absorbing.step_values["track_link_obs"][e]  # (T, P, D)
+        if same:
+            assert torch.equal(track[:n], plain.step_values["track_link_obs"][same[0]][:n])
+        if n is None or n == T:
+            continue
+        assert torch.equal(track[n:], track[n:n + 1].expand_as(track[n:]))
+        target = absorbing.step_values["target_pose"][e]
+        assert not torch.equal(target[n], target[-1])
+        checked += 1
+    assert checked, "no episode of these 8 random designs terminated past min_steps; pick another seed"

@@ -8,6 +8,7 @@ lint-imports there.
 """
 
 import ast
+import os
 import shutil
 import subprocess
 import sys
@@ -36,9 +37,12 @@ def _lay_out(dest: Path) -> Path:
 
 
 def _lint(tree: Path) -> subprocess.CompletedProcess:
-    exe = shutil.which("lint-imports") or pytest.skip("import-linter is not installed (pip install -e '.[test]')")
-    env = {"PYTHONPATH": str(tree), "PATH": str(Path(sys.executable).parent)}
-    return subprocess.run([exe, str(tree / "pyproject.toml"), "--no-cache"], cwd=tree, env=env,
+    pytest.importorskip("importlinter", reason="import-linter is not installed (pip install -e '.[test]')")
+    # This interpreter runs import-linter's command (no console script or shim needed); the
+    # laid-out tree comes first on its path, ahead of the editable install's mapping.
+    run = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    return subprocess.run([sys.executable, "-c", run, str(tree / "pyproject.toml"), "--no-cache"], cwd=tree, env=env,
                           capture_output=True, text=True, timeout=300)
 
 

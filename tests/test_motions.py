@@ -334,7 +334,7 @@ def test_npz_errors_name_the_file_and_field(tmp_path):
             load_npz(path)
         assert fname in str(info.value)
     (tmp_path / "junk.npz").write_text("not a zip")
-    with pytest.raises(MotionError, match="junk.npz: cannot read"):
+    with pytest.raises(MotionError, match="junk.npz is not an .npz archive"):
         load_npz(tmp_path / "junk.npz")
     with pytest.raises(MotionError, match="unknown motion file type"):
         load_motion_file(_write_npz(tmp_path / "x.npz", pos=good_pos).rename(tmp_path / "x.csv"))

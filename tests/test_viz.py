@@ -384,7 +384,7 @@ def test_episode_qpos_must_fit_its_designs():
 def test_bad_episode_files_are_named(tmp_path):
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip")
-    with pytest.raises(EpisodeFileError, match="not an episode file"):
+    with pytest.raises(EpisodeFileError, match="junk.npz is not an .npz archive"):
         load_episode_npz(junk)
     partial = tmp_path / "partial.npz"
     np.savez(partial, qpos=np.zeros((1, 2, 3)))

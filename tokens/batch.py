@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from tt.kernels.files import CorruptFileError, read_npz
 from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, check_version
 
 
@@ -196,21 +197,50 @@ class TokenBatch:
 
     @staticmethod
     def load(path: str | Path) -> "TokenBatch":
-        """Read a file written by `save`; raises `SchemaVersionError` for another schema version."""
+        """Read a file written by `save`.
+
+        Raises FileNotFoundError, `CorruptFileError` naming the file and the entry that is
+        missing, malformed or not finite (a NaN in a real token would become a degenerate
+        robot), or `SchemaVersionError` for another schema version.
+        """
         path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(f"token file {path} does not exist")
-        with np.load(path, allow_pickle=False) as f:
-            if "schema_version" not in f:
-                raise ValueError(f"{path} is not a RoboToken file (no 'schema_version' entry)")
-            version = int(f["schema_version"])
-            check_version(version, str(path))
-            names = sorted({k.split("/")[0] for k in f.files if "/" in k})
-            unknown = [n for n in names if n not in SCHEMA.names()]
-            if unknown:
-                raise ValueError(f"{path} holds unknown token types {unknown}; schema v{SCHEMA_VERSION} has {list(SCHEMA.names())}")
-            return TokenBatch({n: f[f"{n}/values"] for n in names}, {n: f[f"{n}/ids"] for n in names},
-                              {n: f[f"{n}/mask"] for n in names}, version)
+        f = read_npz(path, "token file")
+        if "schema_version" not in f:
+            raise CorruptFileError(f"token file {path} is not a RoboToken file (no 'schema_version' entry; "
+                                   "write one with `tt tokenize --out`)")
+        version = f["schema_version"]
+        if version.shape != () or version.dtype.kind not in "iu":
+            version = str(version) if version.dtype.kind in "US" else version.tolist()
+        check_version(version, f"token file {path}")
+        names = sorted({k.split("/")[0] for k in f if "/" in k})
+        unknown = [n for n in names if n not in SCHEMA.names()]
+        if unknown:
+            raise CorruptFileError(f"token file {path} holds unknown token types {unknown}; schema v{SCHEMA_VERSION} "
+                                   f"has {list(SCHEMA.names())}")
+        if not names:
+            raise CorruptFileError(f"token file {path} holds no tokens")
+        arrays: dict[str, dict] = {"values": {}, "ids": {}, "mask": {}}
+        for n in names:
+            for part, kinds in (("values", "f"), ("ids", "iu"), ("mask", "b")):
+                key = f"{n}/{part}"
+                if key not in f:
+                    raise CorruptFileError(f"token file {path} lacks the entry {key!r}")
+                if f[key].dtype.kind not in kinds:
+                    raise CorruptFileError(f"token file {path}: {key!r} has dtype {f[key].dtype}, expected {part} "
+                                           f"of kind {kinds!r}")
+                arrays[part][n] = f[key]
+            v, m = f[f"{n}/values"], f[f"{n}/mask"]
+            if v.ndim != 3 or m.shape != v.shape[:2]:
+                raise CorruptFileError(f"token file {path}: {n!r} values {v.shape} and mask {m.shape} are not (N, L, D) "
+                                       "and (N, L)")
+            bad = m & ~np.isfinite(v).all(-1)
+            if bad.any():
+                i, j = (int(x) for x in np.argwhere(bad)[0])
+                raise CorruptFileError(f"token file {path}: {n!r} token {j} of robot {i} has NaN or infinite values")
+        try:
+            return TokenBatch(arrays["values"], arrays["ids"], arrays["mask"], int(version))
+        except (ValueError, KeyError) as e:
+            raise CorruptFileError(f"token file {path}: {e}") from None
 
 
 def _np(x) -> np.ndarray:

@@ -12,13 +12,14 @@ from pathlib import Path
 
 import mujoco
 
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.detokenize import DetokenizeConfig, detokenize
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA_VERSION
 from tt.tokens.tokenize import TokenizeError, TokenizeWarning, tokenize_models
 
 
-class TokenCommandError(RuntimeError):
+class TokenCommandError(TTError):
     """What went wrong, phrased for the command line."""
 
 
@@ -26,6 +27,10 @@ def _load_robots(path: Path) -> list[tuple[str, str, mujoco.MjModel]]:
     """(name, MJCF text, model) of every robot in an MJCF / URDF file or a designs.json."""
     if not path.exists():
         raise TokenCommandError(f"{path} does not exist")
+    if path.is_dir():
+        raise TokenCommandError(f"{path} is a folder; give an MJCF or URDF file, or a designs.json")
+    if path.stat().st_size == 0:
+        raise TokenCommandError(f"{path} is empty (0 bytes)")
     if path.suffix == ".json":
         from tt.sim.backends.base import resolve_designs
         from tt.sim.designs import DesignError, load_designs
@@ -41,7 +46,7 @@ def _load_robots(path: Path) -> list[tuple[str, str, mujoco.MjModel]]:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as e:
         raise TokenCommandError(f"MuJoCo cannot load {path}: {e}") from None
-    return [(path.name, path.read_text(), model)]
+    return [(path.name, path.read_text(errors="replace"), model)]
 
 
 def tokenize_cmd(path: str, as_json: bool = False, out: str | None = None) -> str:

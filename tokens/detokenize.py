@@ -453,11 +453,14 @@ class _RobotTree:
         lk, pad, name = self.lk, "  " * depth, f"b{self.anchor[g]}"
         self.lines.append(f'{pad}<body name="{name}"{_pose(*pose)}>')
         if g in self.free_roots:
-            self.lines.append(f'{pad}  <freejoint name="free{self.free_of[self.anchor[g]]}"/>')
+            free = self._unique("joint", f"free{self.free_of[self.anchor[g]]}")
+            self.lines.append(f'{pad}  <freejoint name="{free}"/>')
         for ji in joints:
-            self.lines.append(pad + "  " + _joint_xml(ji, self.notes))
-            if ji["joint"].kind == "dyna":
-                self.actuated[ji["joint"].jid] = f"j{ji['joint'].jid}"
+            j = ji["joint"]
+            jname = self._unique("joint", f"ball{j.jid}" if j.kind == "ball" else f"j{j.jid}")
+            self.lines.append(pad + "  " + _joint_xml(ji, self.notes, jname))
+            if j.kind == "dyna":
+                self.actuated[j.jid] = jname
         m, com, inertia = self.group_inertial(g)
         moving = bool(joints) or g in self.free_roots
         if m <= 1e-12 and moving:
@@ -483,11 +486,23 @@ class _RobotTree:
         self._emit_children(g, depth + 1)
         self.lines.append(f"{pad}</body>")
 
+    def _unique(self, kind: str, name: str) -> str:
+        """`name`, or `name` with a suffix if an element of `kind` has it: noisy tokens may
+        repeat an ID (several free links with free ID 0), and MuJoCo rejects two joints (or
+        actuators) of one name."""
+        taken = self.names.setdefault(kind, set())
+        unique, k = name, 1
+        while unique in taken:
+            unique, k = f"{name}_{k}", k + 1
+        taken.add(unique)
+        return unique
+
     def mjcf(self) -> tuple[str, list[str]]:
         config, lk = self.config, self.lk
         eq_lines, self.loop_sites = self._loop_closures()
         self.lines: list[str] = []
         self.actuated: dict[int, str] = {}
+        self.names: dict[str, set[str]] = {}
         self._emit_children(-1, 2)
         for g in self.roots:
             self._emit(g, (np.eye(3), np.zeros(3)), [], 2)
@@ -499,7 +514,8 @@ class _RobotTree:
                 if jid not in self.actuated:
                     self.notes.append(f"actuator {aid}: dynamic joint {jid} is not in the tree; dropped")
                     continue
-                act_lines.append("    " + _actuator_xml(aid, self.actuated[jid], ad, r, self.notes))
+                name = self._unique("actuator", f"a{aid}")
+                act_lines.append("    " + _actuator_xml(aid, name, self.actuated[jid], ad, r, self.notes))
         any_contact = bool(np.any(lk["contact"][list(self.row.values())] > 0))
         floor = any_contact if config.floor is None else config.floor
         flag = "" if config.contacts else '\n    <flag contact="disable"/>'
@@ -523,13 +539,12 @@ class _NoRobot(ValueError):
     pass
 
 
-def _joint_xml(ji: dict, notes: list[str]) -> str:
+def _joint_xml(ji: dict, notes: list[str], name: str) -> str:
     j: _Joint = ji["joint"]
     prm = j.params
     if j.kind == "ball":
-        name, jtype = f"ball{j.jid}", "ball"
+        jtype = "ball"
     else:
-        name = f"j{j.jid}"
         t = prm["type"]
         if not 0 <= t < len(JOINT_TYPES):
             notes.append(f"dyna joint {j.jid}: type code {t} is not a joint type; read as hinge")
@@ -583,13 +598,13 @@ def _geom_xml(lid: int, code: int, lk: dict, row: int, rb, pb, config: Detokeniz
     return s + f' friction="{_fmt(friction)}" rgba="{_fmt(rgba)}"/>'
 
 
-def _actuator_xml(aid: int, joint: str, ad: dict, r: int, notes: list[str]) -> str:
+def _actuator_xml(aid: int, name: str, joint: str, ad: dict, r: int, notes: list[str]) -> str:
     t = int(ad["type"][r])
     if not 0 <= t < len(ACTUATOR_TYPES):
         notes.append(f"actuator {aid}: type code {t} is not an actuator type; read as position")
         t = 0
     kind = ACTUATOR_TYPES[t]
-    s = f'<{"motor" if kind == "motor" else kind} name="a{aid}" joint="{joint}"'
+    s = f'<{"motor" if kind == "motor" else kind} name="{name}" joint="{joint}"'
     kp, kv, gear = float(ad["kp"][r, 0]), float(ad["kv"][r, 0]), float(ad["gear"][r, 0])
     if kind == "position":
         s += f' kp="{_fmt(kp)}"'

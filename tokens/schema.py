@@ -24,6 +24,7 @@ Conventions the encoded values follow:
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -382,7 +383,14 @@ class SchemaVersionError(TTError):
 
 
 def check_version(version: int, what: str) -> None:
-    """Raise `SchemaVersionError` unless `version` is this code's `SCHEMA_VERSION`."""
+    """Raise `SchemaVersionError` unless `version` is this code's `SCHEMA_VERSION` (an integer)."""
+    try:
+        if isinstance(version, bool):
+            raise TypeError
+        version = operator.index(version)  # ints, numpy integers and 0-d integer arrays
+    except TypeError:
+        raise SchemaVersionError(f"{what} has schema_version {version!r}, which is not an integer; this code reads "
+                                 f"RoboToken schema {SCHEMA_VERSION}") from None
     if int(version) != SCHEMA_VERSION:
         raise SchemaVersionError(
             f"{what} uses RoboToken schema v{int(version)}, this code reads v{SCHEMA_VERSION}; "

@@ -53,6 +53,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import reason
 from tt.kernels.version import tt_version
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, SCHEMA_VERSION, check_version
 
@@ -206,6 +207,39 @@ def verify_shard(folder: str | Path, *, full: bool = True) -> str | None:
         if full and _crc32(p) != crc:
             return f"file {rel} fails its CRC-32 check (content changed)"
     return None
+
+
+def check_shards(path: str | Path, *, shards: int | None = None, full: bool = True) -> dict[int, str | None]:
+    """Shard index -> None if the shard is intact, else why not (`verify_shard`), for every
+    shard folder of dataset `path`; with `shards`, an index at or beyond it is damaged too.
+    The check `tt generate` runs before it resumes, and `tt dataset verify`."""
+    out = {}
+    for i, folder in shard_dirs(path).items():
+        out[i] = verify_shard(folder, full=full) if shards is None or i < shards else f"index beyond the {shards} shards"
+    return out
+
+
+def dataset_verify_cmd(path: str | Path) -> str:
+    """``tt dataset verify DATASET``: sizes and CRC-32 of every file of every shard.
+
+    Returns the summary; raises `DatasetError` (one line) naming each damaged shard and why.
+    """
+    path = Path(path)
+    attrs = read_root(path)
+    expected = attrs.get("config", {}).get("shards")
+    verdicts = check_shards(path, shards=expected, full=True)
+    damaged = {i: why for i, why in verdicts.items() if why is not None}
+    if damaged:
+        named = "; ".join(f"{shard_name(i)}: {why}" for i, why in list(damaged.items())[:5])
+        more = f"; and {len(damaged) - 5} more" if len(damaged) > 5 else ""
+        raise DatasetError(f"{path}: {len(damaged)} of {len(verdicts)} shards fail verification ({named}{more}); re-run "
+                           "the `tt generate` command that wrote the dataset to regenerate them")
+    missing = [] if expected is None else [i for i in range(expected) if i not in verdicts]
+    files = sum(len(read_manifest(f)["files"]) for f in shard_dirs(path).values())
+    text = f"{path}: all {len(verdicts)} shards intact ({files} files, sizes and CRC-32 checked)"
+    if missing:
+        text += f"; {len(missing)} of {expected} shards not generated yet (run `tt generate` again to finish)"
+    return text
 
 
 def read_manifest(folder: str | Path) -> dict:
@@ -376,12 +410,12 @@ class ShardWriter:
         if self._pending_bytes >= self.flush_bytes:
             self.flush()
 
-    def commit(self, attrs: Mapping, manifest_extra: Mapping | None = None, *, fsync: bool = True) -> Path:
+    def commit(self, attrs: Mapping, *, fsync: bool = True) -> Path:
         """Finish the shard: attributes, manifest (sizes and CRC-32 of every file), fsync, rename.
 
-        attrs: stored in the shard group's ``zarr.json`` (content: part of the checksums);
-        manifest_extra: stored in ``manifest.json`` only (e.g. timings, which differ between
-        runs). An existing damaged shard of the same index is replaced; an intact one is kept
+        attrs: stored in the shard group's ``zarr.json`` (content: part of the checksums).
+        Nothing that differs between runs (timings) is stored, so a shard is a pure function
+        of its arguments and index, manifest included. An existing damaged shard of the same index is replaced; an intact one is kept
         (another writer finished it first) and this one discarded.
         """
         self.flush()
@@ -397,7 +431,7 @@ class ShardWriter:
                 with open(p, "rb+") as f:
                     os.fsync(f.fileno())
             files[rel] = [p.stat().st_size, _crc32(p)]
-        manifest = {"format": FORMAT, "index": self.index, "files": files, **_jsonable(dict(manifest_extra or {}))}
+        manifest = {"format": FORMAT, "index": self.index, "files": files}
         mpath = self.tmp / _MANIFEST
         mpath.write_text(json.dumps(manifest))
         if fsync:
@@ -513,21 +547,34 @@ class ShardReader:
         self._arrays: dict[str, object] = {}
         self._fields: dict[str, np.ndarray] = {}
 
-    def _array(self, key: str):
+    def _damaged(self, what: str, error: BaseException) -> DatasetError:
+        dataset = self.folder.parent.parent
+        return DatasetError(f"dataset shard {self.folder}: {what} cannot be read ({reason(error)}); "
+                            f"`tt dataset verify {dataset}` checks every chunk, and re-running the `tt generate` "
+                            "command that wrote it regenerates a damaged shard")
+
+    def _read(self, key: str, rows: slice = slice(None)) -> np.ndarray:
+        """Rows `rows` of array `key` of the shard; a chunk that does not decode is a `DatasetError`."""
         import zarr
 
-        if key not in self._arrays:
-            self._arrays[key] = zarr.open_array(str(self.folder / key), mode="r", zarr_format=3)
-        return self._arrays[key]
+        try:
+            if key not in self._arrays:
+                self._arrays[key] = zarr.open_array(str(self.folder / key), mode="r", zarr_format=3)
+            return np.asarray(self._arrays[key][rows])
+        except Exception as e:  # blosc, zarr and json raise unrelated types for a damaged chunk or header
+            raise self._damaged(f"array {key}", e) from None
 
     @cached_property
     def attrs(self) -> dict:
-        return json.loads((self.folder / "zarr.json").read_text())["attributes"]
+        try:
+            return json.loads((self.folder / "zarr.json").read_text())["attributes"]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise self._damaged("zarr.json", e) from None
 
     def field(self, name: str) -> np.ndarray:
         """Per-episode field `name` of every episode (read once, then kept)."""
         if name not in self._fields:
-            self._fields[name] = np.asarray(self._array(f"episode/{name}")[:])
+            self._fields[name] = self._read(f"episode/{name}")
         return self._fields[name]
 
     @property
@@ -546,7 +593,7 @@ class ShardReader:
 
     def static_rows(self, start: int, stop: int) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Embodiment tokens (values, ids, mask) of designs [start, stop) of the shard."""
-        return {n: tuple(np.asarray(self._array(f"{n}/{part}")[start:stop]) for part in ("values", "ids", "mask"))
+        return {n: tuple(self._read(f"{n}/{part}", slice(start, stop)) for part in ("values", "ids", "mask"))
                 for n in self.types if n in EMBODIMENT_TYPES}
 
     @property
@@ -569,8 +616,8 @@ class ShardReader:
         for n in self.types:
             if n in EMBODIMENT_TYPES:
                 continue
-            steps[n] = (np.asarray(self._array(f"{n}/values")[s0:s1]), np.asarray(self._array(f"{n}/ids")[start:stop]),
-                        np.asarray(self._array(f"{n}/mask")[start:stop]))
+            steps[n] = (self._read(f"{n}/values", slice(s0, s1)), self._read(f"{n}/ids", slice(start, stop)),
+                        self._read(f"{n}/mask", slice(start, stop)))
         episode = {k: v[start:stop] for k, v in self.index.items()} if fields else {}
         return EpisodeBlock(length=length, design=design - d0, offset=step_start - s0, static=self.static_rows(d0, d1),
                             steps=steps, episode=episode)
@@ -579,8 +626,8 @@ class ShardReader:
         """The shard's designs as `tt.sim.designs.Design` of `space` (a DesignSpace)."""
         from tt.sim.designs import Design
 
-        disc = np.asarray(self._array("design/discrete")[:])
-        cont = np.asarray(self._array("design/continuous")[:])
+        disc = self._read("design/discrete")
+        cont = self._read("design/continuous")
         out = []
         for d, c in zip(disc, cont):
             out.append(Design(space.name, tuple(int(v) for v in d if v >= 0), tuple(float(v) for v in c if not np.isnan(v))))
@@ -630,7 +677,8 @@ class TokenStore:
         for index, folder in shard_dirs(self.path).items():
             why = None if verify == "none" else verify_shard(folder, full=verify == "full")
             if why is not None:
-                logger.warning("skipping damaged shard %s: %s", folder.name, why)
+                logger.warning("skipping damaged shard %s of %s: %s (re-running the `tt generate` command that wrote it "
+                               "regenerates it)", folder.name, self.path, why)
                 self.damaged[index] = why
                 continue
             self.readers.append(ShardReader(folder))
@@ -686,7 +734,7 @@ class TokenStore:
 
 __all__ = [
     "BLOCK_EPISODES", "DatasetError", "EpisodeBlock", "FORMAT", "ShardPart", "ShardReader",
-    "ShardWriter", "TokenStore", "clear_partial", "create_root", "discard_shard",
+    "ShardWriter", "TokenStore", "check_shards", "clear_partial", "create_root", "dataset_verify_cmd", "discard_shard",
     "is_dataset", "merge_stats", "normalizer_from_stats", "read_manifest", "read_root", "shard_dirs",
     "shard_name", "update_root", "verify_shard",
 ]

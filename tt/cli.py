@@ -2,14 +2,64 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import List, Optional
 
+import click
 import typer
+from typer.core import TyperGroup
+
+#: Words of library messages that advise loading pickles (torch.load, np.load); tt never passes them on.
+_PICKLE_WORDS = ("allow_pickle", "weights_only", "untrusted")
+
+
+def error_message(e: BaseException) -> str:
+    """One line for the user from an exception a command raised.
+
+    tt's own errors (`tt.TTError`, and every ValueError) carry their message; file-system
+    errors name the file; anything else is a bug in tt, said so.
+    """
+    if isinstance(e, FileNotFoundError) and e.filename is None and str(e):
+        text = str(e)  # tt's own "X does not exist"
+    elif isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT):
+        text = f"{e.strerror} while writing {e.filename or 'output'}; free space and run the command again"
+    elif isinstance(e, OSError) and e.filename is not None:
+        text = f"{e.strerror or type(e).__name__}: {e.filename}"
+    elif isinstance(e, (ValueError, OSError, FloatingPointError)) and str(e):
+        text = str(e)
+    elif isinstance(e, MemoryError):
+        text = "out of memory; use fewer designs, motions or a smaller batch"
+    else:
+        text = f"internal error ({type(e).__name__}: {e}); this is a bug in tt: rerun with -v for the traceback and report it"
+    if any(w in text.lower() for w in _PICKLE_WORDS):
+        text = "a file holds Python objects (pickled data), which tt never writes and does not load"
+    return " ".join(line.strip() for line in text.splitlines() if line.strip())
+
+
+class _Commands(TyperGroup):
+    """The one error handler of every command: ``error: ...`` on stderr, exit code 2, the
+    traceback only with ``tt -v``."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (typer.Exit, click.exceptions.Exit, click.ClickException, click.Abort, KeyboardInterrupt):
+            raise
+        except Exception as e:
+            if ctx.params.get("verbose"):
+                import traceback
+
+                traceback.print_exception(e)
+            typer.secho(f"error: {error_message(e)}", fg=typer.colors.RED, err=True)
+            raise typer.Exit(code=2) from None
+
 
 app = typer.Typer(
+    cls=_Commands,
     add_completion=False,
     no_args_is_help=True,
     help="tt: motion-conditioned robot co-design (design spaces, batched simulation, RoboTokens, DiT).",
@@ -21,9 +71,52 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _at_least(flag: str, value: int | float | None, low: int | float) -> None:
+    """Refuse a flag below its range, naming the flag (not the config field it fills)."""
+    if value is not None and value < low:
+        _fail(f"{flag} must be >= {low}, got {value}")
+
+
+def _output(path: Path | None, flag: str, *, folder: bool = False) -> None:
+    """Create an output's folder before any work (or refuse now), so no result is lost at the end."""
+    if path is not None:
+        from tt.kernels.files import prepare_output
+
+        prepare_output(path, flag, folder=folder)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    """Strict JSON (NaN as null, and the file says why); a note when any value was NaN."""
+    from tt.kernels.files import write_json
+
+    nulls = write_json(path, data)
+    if nulls:
+        typer.echo(f"note: {path}: {len(nulls)} NaN/inf value(s) written as null (strict JSON has no NaN), "
+                   f"e.g. {nulls[0]}; the file's null_values entry lists them", err=True)
+
+
+class _Stderr(logging.StreamHandler):
+    """Logs to the ``sys.stderr`` of the moment (a test runner swaps it between commands)."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:
+        pass
+
+
 @app.callback()
-def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at INFO level.")) -> None:
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at INFO level; on an error, print the traceback too.")) -> None:
+    # tt's warnings (a damaged shard skipped, a checkpoint fallen back from) go to stderr;
+    # other libraries' warnings reach it through logging's last-resort handler.
+    log = logging.getLogger("tt")
+    if not any(isinstance(h, _Stderr) for h in log.handlers):
+        handler = _Stderr()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        log.addHandler(handler)
+    log.setLevel(logging.INFO if verbose else logging.WARNING)
     if not verbose:
         # Warp prints its banner and each module load to stdout; the CLI's output is its tables.
         import warp as wp
@@ -38,31 +131,39 @@ def designs(
     seed: int = typer.Option(0, help="Random seed."),
     out: Path = typer.Option(Path("designs"), help="Output folder for MJCF files and designs.json."),
 ) -> None:
-    """Sample designs of a space; write one MJCF file each and designs.json."""
-    from tt.sim.designs import DesignError, get_space, save_designs
+    """Sample designs of a space; write one MJCF file each and designs.json.
 
-    try:
-        sp = get_space(space)
-        ds = sp.sample(n, seed)
-    except (DesignError, ValueError) as e:
-        _fail(str(e))
-    out.mkdir(parents=True, exist_ok=True)
+    Over a folder of an earlier `tt designs` run, its files (designs.json and SPACE_NNNN.xml)
+    that this run does not rewrite are removed, and the command says so; other files stay."""
+    import re
+
+    from tt.sim.designs import SPACE_NAMES, get_space, save_designs
+
+    _at_least("--n", n, 1)
+    sp = get_space(space)
+    ds = sp.sample(n, seed)
+    _output(out, "--out", folder=True)
+    own = re.compile(rf"^({'|'.join(SPACE_NAMES)})_\d{{4}}\.xml$")
+    names = {f"{space}_{i:04d}.xml" for i in range(len(ds))}
+    stale = sorted(p.name for p in out.iterdir() if p.is_file() and own.match(p.name) and p.name not in names)
+    for name in stale:
+        (out / name).unlink()
     for i, d in enumerate(ds):
         (out / f"{space}_{i:04d}.xml").write_text(sp.to_mjcf(d))
     save_designs(ds, out / "designs.json")
+    if stale:
+        typer.echo(f"removed {len(stale)} design file(s) of an earlier run from {out}/ ({stale[0]} ...); "
+                   "other files there are left as they were")
     typer.echo(f"wrote {len(ds)} {space} designs to {out}/ (designs.json + {len(ds)} MJCF files)")
 
 
 def _motions(names: list[str] | None, files: list[Path] | None, space: str | None = None):
     """Motions from library names (``toss``, ``toss:7``), files, or the validation split."""
-    from tt.sim.motions import MotionError, for_space, load_motion_file, resolve_motion
+    from tt.sim.motions import for_space, load_motion_file, resolve_motion
 
-    try:
-        motions = [resolve_motion(n) for n in names or []] + [load_motion_file(f) for f in files or []]
-        if space is not None:
-            motions = for_space(motions, space)
-    except (MotionError, FileNotFoundError, ValueError) as e:
-        _fail(str(e))
+    motions = [resolve_motion(n) for n in names or []] + [load_motion_file(f) for f in files or []]
+    if space is not None:
+        motions = for_space(motions, space)
     if not motions:
         _fail("no motion given: use --motion NAME (see `tt motions`) or --motion-file FILE")
     return motions
@@ -79,13 +180,10 @@ def motions(
     from rich.console import Console
     from rich.table import Table
 
-    from tt.sim.motions import MotionError, list_motions, motion_set, motion_stats, resolve_motion, save_npz
+    from tt.sim.motions import list_motions, motion_set, motion_stats, resolve_motion, save_npz
 
     if stats:
-        try:
-            skills = [r.name for r in list_motions(arms=arms)]
-        except MotionError as e:
-            _fail(str(e))
+        skills = [r.name for r in list_motions(arms=arms)]
         by_skill: dict[str, list] = {s: [] for s in skills}
         for st in motion_stats([m for split in ("train", "val") for m in motion_set(split, arms=arms)]):
             by_skill[st.name.split(":")[0]].append(st)
@@ -111,12 +209,10 @@ def motions(
             table.add_row(*[str(r[k]) for k in ("name", "arms", "duration_s", "train", "val", "summary")])
         Console().print(table)
         return
-    try:
-        m = resolve_motion(name)
-    except MotionError as e:
-        _fail(str(e))
     if out is None:
         _fail("--name needs --out FILE.npz")
+    m = resolve_motion(name)
+    _output(out, "--out")
     save_npz(m, out)
     typer.echo(f"wrote {m.name}: {m.steps} steps, {m.arms} arm(s), {m.duration:.2f} s to {out}")
 
@@ -141,12 +237,11 @@ def validate(
 
     from tt.baselines.evaluate import evaluate_designs
     from tt.report import columns_for, rich_table, summary_row
-    from tt.sim.designs import DesignError, get_space, load_designs
+    from tt.sim.designs import get_space, load_designs
 
-    try:
-        designs = load_designs(design)
-    except (DesignError, FileNotFoundError) as e:
-        _fail(str(e))
+    _output(json_out, "--json")
+    _output(episode, "--episode")
+    designs = load_designs(design)
     spaces = {d.space for d in designs}
     if space is not None and spaces != {space}:
         _fail(f"--space {space} but the designs are from {sorted(spaces)}")
@@ -156,21 +251,18 @@ def validate(
     ms = _motions(motion, motion_file, sp_name)
     if controller not in ("ik", "model"):
         _fail(f"--controller {controller!r} does not exist; controllers: ik, model")
-    try:
-        if controller == "ik":
-            ev = evaluate_designs(designs, ms, reward, backend="mujoco")
-            title = "oracle (MuJoCo C + mink)"
-        else:
-            from tt.baselines.evaluate import score_episode
-            from tt.dit.checkpoint import default_checkpoint
-            from tt.dit.policies import model_rollout
+    if controller == "ik":
+        ev = evaluate_designs(designs, ms, reward, backend="mujoco")
+        title = "oracle (MuJoCo C + mink)"
+    else:
+        from tt.baselines.evaluate import score_episode
+        from tt.dit.checkpoint import default_checkpoint
+        from tt.dit.policies import model_rollout
 
-            ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name)
-            ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
-            ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
-            title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
+        ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name)
+        ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
+        ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
+        title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
     rows = []
     for i, _ in enumerate(designs):
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
@@ -179,11 +271,11 @@ def validate(
     Console().print(rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
         sp = get_space(sp_name)
-        json_out.write_text(json.dumps({
+        _write_json(json_out, {
             "reward": reward, "controller": controller, "motions": [m.name for m in ms],
             "designs": [sp.to_dict(d) for d in designs], "metrics": rows,
             "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
-        }, indent=1))
+        })
     if episode is not None:
         from tt.viz.episode_file import save_episode_npz
 
@@ -204,6 +296,7 @@ def rollout(
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
     graph: Optional[bool] = typer.Option(None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
@@ -215,22 +308,19 @@ def rollout(
     from tt.baselines.evaluate import evaluate_designs
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.controller import IKConfig
-    from tt.sim.designs import DesignError, get_space, load_designs
     from tt.sim.backends import BACKENDS
+    from tt.sim.designs import get_space, load_designs
 
-    try:
-        sp = get_space(space)
-        if design is not None:
-            designs = load_designs(design)
-            spaces = {d.space for d in designs}
-            if spaces != {space}:
-                _fail(f"--space {space} but the designs of {design} are from {sorted(spaces)}")
-        else:
-            if n < 1:
-                _fail(f"--n must be >= 1, got {n}")
-            designs = sp.sample(n, seed)
-    except (DesignError, FileNotFoundError, ValueError) as e:
-        _fail(str(e))
+    _output(out, "--out", folder=True)
+    sp = get_space(space)
+    if design is not None:
+        designs = load_designs(design)
+        spaces = {d.space for d in designs}
+        if spaces != {space}:
+            _fail(f"--space {space} but the designs of {design} are from {sorted(spaces)}")
+    else:
+        _at_least("--n", n, 1)
+        designs = sp.sample(n, seed)
     ms = _motions(motion if (motion or motion_file) else ["toss"], motion_file, sp.name)
     backend = backend or ("mujoco" if sp.has_contacts else "warp")
     if backend not in BACKENDS:
@@ -240,10 +330,7 @@ def rollout(
     # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
-    try:
-        ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, graph=graph)
-    except ValueError as e:
-        _fail(str(e))
+    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads, graph=graph)
     seconds = time.perf_counter() - start
     ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
@@ -252,21 +339,26 @@ def rollout(
     Console().print(rich_table(rows, columns_for(reward), first=("name", "motion"),
                                title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)"))
     rate = world_steps / seconds
+    used = None
+    if backend == "warp" and ep.qpos.device.type == "cpu":
+        from tt.kernels.rollout import cpu_threads
+
+        used = cpu_threads(threads)
     typer.echo(f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
-               f"(backend {backend}, device {ep.qpos.device}; model building, kernel compile or cache load and scoring included)")
+               f"(backend {backend}, device {ep.qpos.device}{f', {used} threads' if used else ''}; "
+               "model building, kernel compile or cache load and scoring included)")
     if out is not None:
         from tt.sim.designs import save_designs
         from tt.viz.episode_file import save_episode_npz
 
-        out.mkdir(parents=True, exist_ok=True)
         save_designs(designs, out / "designs.json")
         save_episode_npz(out / "episode.npz", ep, designs, motion_name=", ".join(mo.name for mo in ms))
-        (out / "summary.json").write_text(json.dumps({
+        _write_json(out / "summary.json", {
             "space": sp.name, "backend": backend, "device": str(ep.qpos.device), "reward": reward,
             "motions": [mo.name for mo in ms], "designs": len(designs), "worlds": worlds, "world_steps": world_steps,
-            "seconds": seconds, "world_steps_per_s": rate, "metrics": rows,
+            "seconds": seconds, "world_steps_per_s": rate, "threads": used, "metrics": rows,
             "per_world": {k: v.tolist() for k, v in metrics.items()},
-        }, indent=1))
+        })
         typer.echo(f"wrote {out}/designs.json, episode.npz (show with `tt view {out / 'episode.npz'}`) and summary.json")
 
 
@@ -301,6 +393,7 @@ def optimize(
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
@@ -311,11 +404,16 @@ def optimize(
     model's best candidates) and cmaes --init model (CMA-ES started from the model's samples)."""
     from rich.console import Console
 
-    from tt.baselines import Problem
-    from tt.optimizers import LEARNED, get_optimizer
-    from tt.report import columns_for, rich_table
-    from tt.sim.designs import DesignError, get_space
+    import numpy as np
 
+    from tt.baselines import Problem
+    from tt.optimizers import LEARNED, METHODS, get_optimizer
+    from tt.report import columns_for, rich_table
+    from tt.sim.designs import get_space
+
+    methods = [m for m in METHODS if m != "cmaes-init-model"]  # that one is --method cmaes --init model
+    if method not in methods:
+        _fail(f"--method {method!r} does not exist; methods: {', '.join(methods)}")
     if init not in (None, "model"):
         _fail(f"--init {init!r}: the only initialisation is 'model'")
     if init is not None and method != "cmaes":
@@ -324,36 +422,48 @@ def optimize(
         _fail(f"--verify applies to zeroth-sim and dgs-sim, not --method {method}")
     if init == "model":
         method = "cmaes-init-model"
+    _at_least("--budget", budget, 1)
+    _at_least("--seed", seed, 0)
+    if method in ("cmaes", "cmaes-init-model"):
+        _at_least("--popsize", popsize, 2)
+        _at_least("--generations", generations, 1)
+    if method in LEARNED:
+        _at_least("--samples", samples, 1)
+        _at_least("--num-steps", num_steps, 1)
+        _at_least("--verify", verify, 1)
+        if verify is not None and verify > (samples or budget):
+            _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
+                  "sampled candidates")
+    if not 0.0 <= sim_grad_weight <= 1.0:
+        _fail(f"--sim-grad-weight must be in [0, 1], got {sim_grad_weight}")
+    _output(json_out, "--json")
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
-    try:
-        options: dict = {}
-        if method in ("cmaes", "cmaes-init-model"):
-            options = {"popsize": popsize, "generations": generations, "sequential": sequential}
-        if method in LEARNED:
-            if checkpoint is None:
-                from tt.dit.checkpoint import default_checkpoint
+    options: dict = {}
+    if method in ("cmaes", "cmaes-init-model"):
+        options = {"popsize": popsize, "generations": generations, "sequential": sequential}
+    if method in LEARNED:
+        if checkpoint is None:
+            from tt.dit.checkpoint import default_checkpoint
 
-                checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
-            options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps)
-            if method in ("dgs", "dgs-sim"):
-                options.update(scale=scale, sim_grad_weight=sim_grad_weight)
-            if method in ("zeroth-sim", "dgs-sim"):
-                if verify is not None and verify > (samples or budget):
-                    raise ValueError(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can "
-                                     "only check sampled candidates")
-                options.update(verify=verify)
-        opt = get_optimizer(method, **options)
-        problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device)
-        if method == "cmaes":
-            opt.plan(problem)  # a budget below one population fails here, before any work
-        if method == "cmaes-init-model":
-            opt.cmaes.plan(problem)
-    except (DesignError, ValueError, FileNotFoundError) as e:
-        _fail(str(e))
-    try:
-        result = opt.optimize(problem)
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
+            checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
+        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps)
+        if method in ("dgs", "dgs-sim"):
+            options.update(scale=scale, sim_grad_weight=sim_grad_weight)
+        if method in ("zeroth-sim", "dgs-sim"):
+            options.update(verify=verify)
+    opt = get_optimizer(method, **options)
+    problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device,
+                      threads=threads)
+    if method == "cmaes":
+        opt.plan(problem)  # a budget below one population fails here, before any work
+    if method == "cmaes-init-model":
+        opt.cmaes.plan(problem)
+    result = opt.optimize(problem)
+    rewards = np.asarray(result.rewards, dtype=np.float64)
+    if method in ("random", "cmaes") and rewards.size and not np.any(np.isfinite(rewards) & (rewards != 0.0)):
+        # A rollout that terminates at its first step scores exactly 0 under every reward.
+        _fail(f"no candidate of {rewards.size} survived a single control step (every objective is 0 or NaN): the "
+              f"motion is out of reach of these {space} designs; try another motion, space or a larger --budget")
     sp = get_space(space)
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds
@@ -367,12 +477,83 @@ def optimize(
     console.print_json(json.dumps(sp.to_dict(result.best)))
     console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
-        json_out.write_text(json.dumps({
+        _write_json(json_out, {
             "method": result.method, "space": space, "reward": reward, "motions": [m.name for m in ms],
             "budget": budget, "seed": seed, "backend": problem.backend, "optimize_seconds": result.seconds,
             "rollouts": result.rollouts, "objective": result.best_reward, "design": sp.to_dict(result.best),
             "validated": rows[0], "info": result.info,
+        })
+
+
+@app.command()
+def predict(
+    design: str = typer.Option(..., help="designs.json or designs.json#i."),
+    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
+    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped one)."),
+    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
+    num_steps: Optional[int] = typer.Option(None, help="DDIM steps (default: all 100 of the motion-to-robot process)."),
+    seed: int = typer.Option(0, help="Seed of the sampling noise."),
+    device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
+) -> None:
+    """The model as a critic: predict each design's dynamics on each motion (its embodiment
+    inpainted) and the reward of those dynamics, without simulating."""
+    import math
+
+    from rich.console import Console
+
+    from tt.report import columns_for, rich_table
+    from tt.sim.designs import DesignError, load_designs
+
+    try:
+        designs = load_designs(design)
+        spec, _, tail = design.rpartition("#") if "#" in design else (design, "", "")
+        indices = list(range(len(designs)))
+        if tail:
+            i = int(tail)
+            indices = [i if i >= 0 else i + len(load_designs(spec))]
+    except (DesignError, FileNotFoundError) as e:
+        _fail(str(e))
+    spaces = sorted({d.space for d in designs})
+    if len(spaces) > 1:
+        _fail(f"designs from several spaces in one call: {spaces}")
+    space = spaces[0]
+    ms = _motions(motion, motion_file, space)
+    try:
+        from tt.dit.checkpoint import default_checkpoint, load_model
+        from tt.guidance.predicted import predict_designs
+        from tt.sim.rewards import get_reward
+        from tt.kernels.device import default_device
+
+        cfg = get_reward(reward, space)
+        ckpt = checkpoint if checkpoint is not None else default_checkpoint(space)
+        trained = load_model(ckpt, device=device or default_device())
+        pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed)
+    except (ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+
+    def clean(v: float) -> float | None:
+        return float(v) if math.isfinite(v) else None
+
+    predictions, rows = [], []
+    for a, i in enumerate(indices):
+        for j, m in enumerate(ms):
+            values = {k: clean(float(v[a, j])) for k, v in pred.metrics.items()}
+            predictions.append({"design": i, "motion": m.name, "reward": clean(float(pred.reward[a, j])), "metrics": values})
+            row = {"name": str(i), "motion": m.name, **{k: v for k, v in values.items() if v is not None}}
+            if values.get("survival") is not None:
+                row["survival_pct"] = 100.0 * values["survival"]
+            rows.append(row)
+    Console().print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
+                               title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)"))
+    if json_out is not None:
+        json_out.write_text(json.dumps({
+            "reward": reward, "motions": [m.name for m in ms], "space": space, "checkpoint": str(ckpt),
+            "samples": samples, "predictions": predictions,
         }, indent=1))
+        typer.echo(f"wrote {len(predictions)} predictions to {json_out}")
 
 
 @app.command()
@@ -387,10 +568,9 @@ def view(
     """Show designs or rollouts in meshcat, live or as standalone HTML."""
     from tt.viz.cli import view_cmd
 
-    try:
-        view_cmd(source, motion=motion, html=html, serve=serve, png=png, time=time, echo=typer.echo)
-    except (ValueError, FileNotFoundError, RuntimeError) as e:
-        _fail(str(e))
+    _output(html, "--html")
+    _output(png, "--png")
+    view_cmd(source, motion=motion, html=html, serve=serve, png=png, time=time, echo=typer.echo)
 
 
 @app.command()
@@ -402,6 +582,7 @@ def train(
     online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
+    online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
     action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | control | both."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
@@ -414,26 +595,53 @@ def train(
     checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
     init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's EMA weights and normaliser (fine-tuning)."),
+    prediction: str = typer.Option("eps", help="What the network predicts: eps | x0 | v."),
+    weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm."),
+    min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma."),
+    type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable), e.g. track_link_obs=4."),
+    bf16_cpu: bool = typer.Option(False, help="Autocast to bfloat16 on the CPU too (CUDA always autocasts)."),
+    robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the motion-to-robot task."),
+    control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
+    warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
     from tt.dit.cli import train_cmd
-    from tt.tokens.schema import SchemaVersionError
 
     if online == (data is not None):
         _fail("give exactly one source of training data: --data DATASET or --online")
-    try:
-        online_config = None
-        if online:
-            from tt.dit.online import OnlineConfig
+    for flag, value, low in (("--steps", steps, 1), ("--batch-size", batch_size, 1), ("--checkpoint-every", checkpoint_every, 1),
+                             ("--online-designs", online_designs, 1), ("--online-motions", online_motions, 1),
+                             ("--refresh-every", refresh_every, 1), ("--online-buffer", online_buffer, 1),
+                             ("--action-noise", action_noise, 0.0), ("--seed", seed, 0)):
+        _at_least(flag, value, low)
+    if lr is not None and not lr > 0:
+        _fail(f"--lr must be > 0, got {lr}")
+    if data is not None and not data.exists():
+        _fail(f"--data {data} does not exist (a dataset folder from `tt generate`, or an episode token file)")
+    weights = {}
+    for item in type_weight or []:
+        name, eq, value = item.partition("=")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq or not name:
+            _fail(f"--type-weight {item!r} is not TYPE=WEIGHT (e.g. track_link_obs=4)")
+    recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
+                  bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
+                  control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps)
+    _output(out, "--out", folder=True)
+    online_config = None
+    if online:
+        from tt.dit.online import OnlineConfig
 
-            extra = {} if action_noise is None else {"action_noise": action_noise}
-            online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
-                                         refresh_every=refresh_every, buffer=online_buffer, seed=seed, **extra)
-        result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
-                           device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
-                           online=online_config)
-    except (ValueError, FileNotFoundError, RuntimeError, SchemaVersionError) as e:
-        _fail(str(e))
+        extra = {} if action_noise is None else {"action_noise": action_noise}
+        online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
+                                     refresh_every=refresh_every, buffer=online_buffer, seed=seed,
+                                     absorbing=online_absorbing, **extra)
+    result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
+                       device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
+                       online=online_config, **recipe)
     import os
 
     if int(os.environ.get("RANK", "0")) != 0:
@@ -456,16 +664,19 @@ def generate(
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
     action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the dataset is the same for any count."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
     from tt.generate import generate_cmd
 
-    try:
-        typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
-                                bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
-                                action_noise=action_noise))
-    except ValueError as e:  # DatasetError, DesignError and bad arguments are ValueErrors
-        _fail(str(e))
+    for flag, value, low in (("--designs", designs, 1), ("--episodes-per-design", episodes_per_design, 1),
+                             ("--workers", workers, 1), ("--designs-per-shard", designs_per_shard, 1),
+                             ("--min-steps", min_steps, 1), ("--action-noise", action_noise, 0.0), ("--seed", seed, 0)):
+        _at_least(flag, value, low)
+    _output(out, "--out", folder=True)
+    typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
+                            bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
+                            action_noise=action_noise, threads=threads))
 
 
 dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")
@@ -479,21 +690,30 @@ def dataset_info(
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
 ) -> None:
     """Counts, token-type maxima, normalisation statistics and the reward histogram of a dataset."""
-    import json
-
+    from tt.kernels.files import strict_json
     from tt.tokens.info import dataset_info as summarize, info_text
     from tt.viz.plots import save_reward_histogram
 
-    try:
-        info, rewards = summarize(path)
-        if plot is not None:
-            save_reward_histogram(plot, rewards, title=f"{info['space']} dataset {Path(path).name}")
-    except ValueError as e:
-        _fail(str(e))
+    _output(plot, "--plot")
+    info, rewards = summarize(path)
+    if plot is not None:
+        save_reward_histogram(plot, rewards, title=f"{info['space']} dataset {Path(path).name}")
     if json_out:
-        typer.echo(json.dumps(info, indent=1))
+        clean, nulls = strict_json(info)  # strict JSON: NaN as null, and said so
+        if nulls:
+            clean["null_values"] = {"why": "NaN or infinite values, written as null (JSON has no NaN)", "fields": nulls}
+        typer.echo(json.dumps(clean, indent=1, allow_nan=False))
         return
     typer.echo(info_text(info, rewards) + (f"\nwrote {plot}" if plot is not None else ""))
+
+
+@dataset_app.command("verify")
+def dataset_verify(path: Path = typer.Argument(..., help="Dataset folder.")) -> None:
+    """Check every file of every shard against its manifest (size and CRC-32): the check
+    `tt generate` runs before it resumes. Exits non-zero naming each damaged shard."""
+    from tt.tokens.store import dataset_verify_cmd
+
+    typer.echo(dataset_verify_cmd(path))
 
 
 @app.command()
@@ -518,12 +738,12 @@ def demo(
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 
-    try:
-        config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, samples=samples, num_steps=num_steps,
-                            checkpoint=checkpoint, seed=seed, out=out, device=device)
-        rows = run_demo(config, echo=typer.echo)
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
+    for flag, value, low in (("--budget", budget, 1), ("--samples", samples, 1), ("--num-steps", num_steps, 1), ("--seed", seed, 0)):
+        _at_least(flag, value, low)
+    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, samples=samples, num_steps=num_steps,
+                        checkpoint=checkpoint, seed=seed, out=out, device=device)
+    _output(out, "--out", folder=True)
+    rows = run_demo(config, echo=typer.echo)
     extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + ([("note", "note")] if any("note" in r for r in rows) else [])
     Console().print(rich_table(rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"))
 
@@ -535,12 +755,10 @@ def tokenize(
     out: Optional[Path] = typer.Option(None, help="Save the tokens to this .npz file."),
 ) -> None:
     """Tokenize robots into RoboTokens; print counts per token type and the MJCF text size."""
-    from tt.tokens.cli import TokenCommandError, tokenize_cmd
+    from tt.tokens.cli import tokenize_cmd
 
-    try:
-        typer.echo(tokenize_cmd(path, as_json=as_json, out=None if out is None else str(out)))
-    except (TokenCommandError, FileNotFoundError, ValueError) as e:
-        _fail(str(e))
+    _output(out, "--out")
+    typer.echo(tokenize_cmd(path, as_json=as_json, out=None if out is None else str(out)))
 
 
 @app.command()
@@ -552,12 +770,10 @@ def detokenize(
     project: bool = typer.Option(False, help="With --space: take the nearest design when no choice has these tokens' exact structure."),
 ) -> None:
     """Turn RoboTokens back into MJCF (and, for tt's spaces, design choices)."""
-    from tt.tokens.cli import TokenCommandError, detokenize_cmd
+    from tt.tokens.cli import detokenize_cmd
 
-    try:
-        typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project))
-    except (TokenCommandError, FileNotFoundError, ValueError) as e:
-        _fail(str(e))
+    _output(out, "--out")
+    typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project))
 
 
 def _space_ok(space: str) -> bool:

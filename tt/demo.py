@@ -145,16 +145,16 @@ LABELS = {"random": "Random", "cmaes": "CMA-ES", "zeroth": "Zeroth", "dgs": "DGS
 
 def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     """Run the demo; returns one validated row per method (also written to demo.json)."""
-    import json
-
     from tt.baselines import Problem
     from tt.baselines.evaluate import evaluate_designs
+    from tt.kernels.files import write_json
     from tt.report import summary_row
     from tt.sim.designs import get_space
     from tt.sim.motions import for_space, resolve_motion
 
     motions = for_space([resolve_motion(config.motion)], config.space)
     space = get_space(config.space)
+    config.out.mkdir(parents=True, exist_ok=True)  # before the work: a folder that cannot be made fails now
     methods = list(config.methods)
     learned = None
     checkpoint_note = None
@@ -203,13 +203,13 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     rows += failures
 
     config.out.mkdir(parents=True, exist_ok=True)
-    (config.out / "demo.json").write_text(json.dumps({
+    write_json(config.out / "demo.json", {
         "space": config.space, "motion": config.motion, "reward": config.reward, "rows": rows,
         "designs": {label: space.to_dict(r.best) for label, r in zip(labels, results)},
         "checkpoint": None if learned is None else str(learned.checkpoint),
         "checkpoint_note": checkpoint_note,
         "samples": config.samples, "num_steps": config.num_steps, "budget": config.budget,
-    }, indent=1))
+    })
     try:
         from tt.viz.episode_file import save_episode_npz
         from tt.viz.cli import view_cmd

@@ -44,6 +44,7 @@ error +0.3 cm). ``action_noise=0`` generates unperturbed episodes (``Episode.act
 
 from __future__ import annotations
 
+import errno
 import logging
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -76,6 +77,7 @@ from tt.tokens.store import (
     DatasetError,
     ShardPart,
     ShardWriter,
+    check_shards,
     clear_partial,
     create_root,
     discard_shard,
@@ -85,6 +87,7 @@ from tt.tokens.store import (
     read_manifest,
     read_root,
     shard_dirs,
+    shard_name,
     update_root,
     verify_shard,
 )
@@ -98,7 +101,7 @@ STAGES = ("designs", "rollout", "score", "tokenize", "write")
 
 
 # ------------------------------------------------------------------------------ one shard
-def shard_design_list(config: GenerateConfig, index: int, *, device: str | None = None) -> list:
+def shard_design_list(config: GenerateConfig, index: int, *, device: str | None = None, threads: int | None = None) -> list:
     """The designs of shard `index` (a pure function of config and index)."""
     from tt.sim.designs import get_space
 
@@ -106,10 +109,10 @@ def shard_design_list(config: GenerateConfig, index: int, *, device: str | None 
     sp = get_space(config.space)
     if config.bias is None:
         return sp.sample(n, seed=_seed_int(config.seed, index, _STREAM_DESIGNS))
-    return _cmaes_designs(config, index, n, device)
+    return _cmaes_designs(config, index, n, device, threads)
 
 
-def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | None) -> list:
+def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | None, threads: int | None = None) -> list:
     """Every design CMA-ES samples in ceil(n / (popsize x generations)) runs, run j of shard i
     on training motion (i * runs_per_full_shard + j) mod M, so consecutive shards walk the
     whole training set."""
@@ -128,7 +131,7 @@ def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | Non
     for m, count in by_motion.items():
         motion = episode_motion(replace(config, max_yaw=0.0, max_shift=0.0), base[m], 0)
         # Runs on one motion go in lock step (CMA-ES restarts), one batched rollout per generation.
-        problem = Problem(space=config.space, motions=(motion,), reward=config.reward, budget=per_run * count,
+        problem = Problem(space=config.space, motions=(motion,), reward=config.reward, budget=per_run * count, threads=threads,
                           seed=_seed_int(config.seed, index, _STREAM_CMAES, m, bits=21), backend=config.backend, device=device)
         designs += optimizer.optimize(problem).designs
     return designs[:n]
@@ -184,11 +187,13 @@ class ShardResult:
 
 
 def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, device: str, widths: Mapping,
-                   progress: Callable[[int], None] | None = None, tokenizer=None) -> ShardResult:
+                   progress: Callable[[int], None] | None = None, tokenizer=None, threads: int | None = None) -> ShardResult:
     """Generate shard `index` of the dataset at `out` (whose root exists) and commit it.
 
     widths: ``space_token_maxima(config.space)`` as stored in the root. progress: called with
-    the number of episodes rolled out after each group. Returns the shard's `ShardResult`.
+    the number of episodes rolled out after each group. threads: CPU threads of the "warp"
+    rollouts (None: every core; the shard is the same for every count). Returns the shard's
+    `ShardResult`.
     """
     from tt.sim.rewards import RewardInputs, get_reward, metrics
     from tt.sim.designs import get_space
@@ -208,7 +213,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
     dropped = {"short": 0, "nonfinite": 0}
     cpu0 = time.process_time()
     t0 = time.perf_counter()
-    designs = shard_design_list(config, index, device=device)
+    designs = shard_design_list(config, index, device=device, threads=threads)
     seconds["designs"] += time.perf_counter() - t0
     first_episode = index * config.designs_per_shard * K
     generated = 0
@@ -222,7 +227,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             motions = [episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
             # Built once, for the rollout and the tokenizer (MJCF compilation is a few ms per robot).
             models = [sp.model(d) for d in group]
-            ep = rollout(models, motions, backend=config.backend, device=device, action_noise=config.action_noise,
+            ep = rollout(models, motions, backend=config.backend, device=device, action_noise=config.action_noise, threads=threads,
                          noise_seed=_seed_int(config.seed, index, _STREAM_NOISE, g0))
             seconds["rollout"] += time.perf_counter() - t
 
@@ -307,18 +312,18 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
                 progress(W)
         t = time.perf_counter()
         attrs = {"generated": generated, "dropped": dropped, "device": "cpu" if device == "cpu" else "cuda"}
-        folder = writer.commit(attrs, {"seconds": seconds, "cpu_seconds": time.process_time() - cpu0, "device": device})
+        folder = writer.commit(attrs)  # timings stay out of the files: a resumed dataset is byte-identical
         seconds["write"] += time.perf_counter() - t
     manifest = read_manifest(folder)
     size = sum(v[0] for v in manifest["files"].values())
     return ShardResult(index, generated, writer.episodes, dropped, writer.steps, size, seconds, time.process_time() - cpu0, device)
 
 
-def _shard_task(config: dict, index: int, out: str, device: str, widths: dict, queue=None) -> dict:
+def _shard_task(config: dict, index: int, out: str, device: str, widths: dict, queue=None, threads: int = 1) -> dict:
     """Worker entry point (process pool or Ray task): one shard, results as a dict."""
     cfg = GenerateConfig.from_dict(config)
     report = None if queue is None else queue.put
-    return generate_shard(cfg, index, out, device=device, widths=widths, progress=report).to_dict()
+    return generate_shard(cfg, index, out, device=device, widths=widths, progress=report, threads=threads).to_dict()
 
 
 def _init_worker() -> None:
@@ -392,20 +397,26 @@ def _widths(attrs: Mapping) -> dict:
 
 
 def generate(config: GenerateConfig, out: str | Path, *, device: str | None = None, workers: int = 1,
-             ray_address: str | None = None, progress: bool = True, verify: str = "full") -> GenerateReport:
+             ray_address: str | None = None, progress: bool = True, verify: str = "full",
+             threads: int | None = None) -> GenerateReport:
     """Generate (or resume) the dataset of `config` in folder `out`; see the module docstring.
 
     device: Warp/torch device of the rollouts (None: `tt.kernels.device.default_device()`).
     workers: processes generating shards at once (with ``ray_address="local"``: the local
     Ray cluster's CPUs). ray_address: None (no Ray), "local" (start a local cluster) or a
     cluster address ("ray://host:10001", "auto"); `out` must then be on a file system every
-    worker sees. verify: how existing shards are checked ("full": sizes and CRC-32, "size").
+    worker sees. threads: CPU threads of each worker process's "warp" rollouts (None: the
+    cores shared out over the workers; Ray tasks, which reserve one CPU each, use one); the
+    dataset is the same for every count. verify: how existing shards are checked ("full": sizes and CRC-32, "size").
     Raises `DatasetError` when `out` holds another config or is not a dataset.
     """
     from tt.kernels.device import resolve_device
 
+    from tt.kernels.rollout import cpu_threads
+
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    threads = cpu_threads(threads) if threads is not None else max(1, cpu_threads() // workers)
     if verify not in ("size", "full"):
         raise ValueError(f"verify must be 'size' or 'full', got {verify!r}")
     device = resolve_device(device)
@@ -418,8 +429,8 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
         widths = _widths(attrs)
         done: dict[int, dict] = {}
         regenerated: dict[int, str] = {}
-        for i, folder in shard_dirs(out).items():
-            why = verify_shard(folder, full=verify == "full") if i < config.shards else f"index beyond the {config.shards} shards"
+        for i, why in check_shards(out, shards=config.shards, full=verify == "full").items():
+            folder = out / "shards" / shard_name(i)
             if why is None:
                 done[i] = _shard_attrs(folder)
             else:
@@ -439,11 +450,18 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
             if todo and ray_address is not None:
                 results = _run_ray(config, todo, out, device, widths, workers, ray_address, bar)
             elif todo and workers > 1:
-                results = _run_pool(config, todo, out, device, widths, workers, bar)
+                results = _run_pool(config, todo, out, device, widths, workers, bar, threads)
             else:
                 for i in todo:
-                    results.append(generate_shard(config, i, out, device=device, widths=widths,
+                    results.append(generate_shard(config, i, out, device=device, widths=widths, threads=threads,
                                                   progress=bar.update if bar is not None else None).to_dict())
+        except OSError as e:
+            if e.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            kept = sum(verify_shard(f, full=False) is None for f in shard_dirs(out).values())
+            raise DatasetError(f"{e.strerror} while writing {out} ({e.filename or 'a shard'}): {kept} of {config.shards} shards "
+                               "are complete and kept, the one being written is discarded on the next run; free space, "
+                               "then re-run the same command to resume") from None
         finally:
             if bar is not None:
                 bar.close()
@@ -483,7 +501,7 @@ def _totals(done: Mapping[int, dict], out: Path) -> dict:
             "bytes": sum(int(a["bytes"]) for a in done.values())}
 
 
-def _run_pool(config, todo, out, device, widths, workers, bar) -> list[dict]:
+def _run_pool(config, todo, out, device, widths, workers, bar, threads: int) -> list[dict]:
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")  # fork would copy Warp/torch thread state
@@ -491,7 +509,7 @@ def _run_pool(config, todo, out, device, widths, workers, bar) -> list[dict]:
         queue = manager.Queue()
         results = []
         with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
-            pending = {pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue) for i in todo}
+            pending = {pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue, threads) for i in todo}
             try:
                 while pending:
                     finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
@@ -560,9 +578,9 @@ def _run_ray(config, todo, out, device, widths, workers, address, bar) -> list[d
 def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_design: int = 10, device: str | None = None,
                  workers: int = 1, bias: str | None = None, seed: int = 0, ray: str | None = None,
                  designs_per_shard: int = 1024, min_steps: int = 100, max_motion_steps: int | None = None,
-                 action_noise: float | None = None, progress: bool = True) -> str:
+                 action_noise: float | None = None, progress: bool = True, threads: int | None = None) -> str:
     """``tt generate --space S --designs N --episodes-per-design K --out DATASET [--device D]
-    [--workers W] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]``.
+    [--workers W] [--threads T] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]``.
 
     The rollout backend is `tt.baselines.problem.default_backend` of the space: "warp" for
     contact-free spaces, "mujoco" (the oracle, one world at a time) for the quadruped.
@@ -580,7 +598,7 @@ def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_desi
     config = GenerateConfig(space=space, designs=designs, episodes_per_design=episodes_per_design, seed=seed,
                             designs_per_shard=designs_per_shard, bias=bias, min_steps=min_steps,
                             max_motion_steps=max_motion_steps, backend=backend, action_noise=action_noise)
-    report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress)
+    report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress, threads=threads)
     return report.text()
 
 

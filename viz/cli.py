@@ -136,13 +136,33 @@ def view_cmd(
         result.url = result.visualizer.url()
         echo(f"meshcat viewer: {result.url}")
         if block:
-            echo("serving; press Ctrl-C to stop")
-            try:
-                while True:
-                    _time.sleep(1.0)
-            except KeyboardInterrupt:
-                pass
+            _serve_until_stopped(result.visualizer, stop_server=zmq_url is None, echo=echo)
     return result
+
+
+def _serve_until_stopped(vis, *, stop_server: bool, echo: Callable[[str], None]) -> None:
+    """Wait for Ctrl-C, SIGTERM or SIGHUP, then stop the meshcat server this process started
+    (left running, it would outlive ``tt view``, orphaned, holding its port)."""
+    import signal
+
+    from tt.viz.live import close_visualizer
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:  # from here on a signal stops the server
+        echo("serving; press Ctrl-C to stop")
+        while True:
+            _time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if stop_server:
+            close_visualizer(vis)
+            echo("stopped the meshcat server")
 
 
 __all__ = ["ViewError", "ViewResult", "load_motion_spec", "scene_for_source", "view_cmd", "EpisodeFileError"]

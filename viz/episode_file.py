@@ -29,7 +29,6 @@ target_quat    (W, T, A, 4)      target orientations (w, x, y, z)
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -38,6 +37,7 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import CorruptFileError, read_npz
 from tt.sim.designs import Design, DesignError, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion, MotionError
@@ -340,48 +340,45 @@ def save_episode_npz(
 def load_episode_npz(path: str | Path) -> EpisodeRecord:
     """Read an episode file written by `save_episode_npz`; errors name the bad key."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"episode file {path} does not exist")
     try:
-        data = np.load(path, allow_pickle=False)
-    except (zipfile.BadZipFile, ValueError, OSError) as e:
-        raise EpisodeFileError(f"{path} is not an episode file (.npz): {e}") from None
-    with data:
-        required = ("format", "designs", "labels", "motion_name", "dt", "qpos", "nq", "nbody", "alive")
-        missing = [k for k in required if k not in data.files]
-        if missing:
-            raise EpisodeFileError(f"{path}: missing keys {missing}; an episode file ({FORMAT}) has {list(required)}")
-        fmt = str(data["format"])
-        if fmt != FORMAT:
-            raise EpisodeFileError(f"{path}: format is {fmt!r}; this version of tt reads {FORMAT!r}")
+        data = read_npz(path, "episode file")
+    except CorruptFileError as e:
+        raise EpisodeFileError(str(e)) from None
+    required = ("format", "designs", "labels", "motion_name", "dt", "qpos", "nq", "nbody", "alive")
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise EpisodeFileError(f"{path}: missing keys {missing}; an episode file ({FORMAT}) has {list(required)}")
+    fmt = str(data["format"])
+    if fmt != FORMAT:
+        raise EpisodeFileError(f"{path}: format is {fmt!r}; this version of tt reads {FORMAT!r}")
+    try:
+        design_dicts = json.loads(str(data["designs"]))
+        labels = json.loads(str(data["labels"]))
+    except json.JSONDecodeError as e:
+        raise EpisodeFileError(f"{path}: 'designs' or 'labels' is not valid JSON: {e}") from None
+    if not isinstance(design_dicts, list):
+        raise EpisodeFileError(f"{path}: 'designs' must be a JSON list of designs")
+    designs = []
+    for w, item in enumerate(design_dicts):
+        if not isinstance(item, dict) or "space" not in item:
+            raise EpisodeFileError(f"{path}: design of world {w} has no 'space' field")
         try:
-            design_dicts = json.loads(str(data["designs"]))
-            labels = json.loads(str(data["labels"]))
-        except json.JSONDecodeError as e:
-            raise EpisodeFileError(f"{path}: 'designs' or 'labels' is not valid JSON: {e}") from None
-        if not isinstance(design_dicts, list):
-            raise EpisodeFileError(f"{path}: 'designs' must be a JSON list of designs")
-        designs = []
-        for w, item in enumerate(design_dicts):
-            if not isinstance(item, dict) or "space" not in item:
-                raise EpisodeFileError(f"{path}: design of world {w} has no 'space' field")
-            try:
-                designs.append(get_space(item["space"]).from_dict(item))
-            except DesignError as e:
-                raise EpisodeFileError(f"{path}: design of world {w} does not load: {e}") from None
-        has_targets = "target_pos" in data.files and "target_quat" in data.files
-        try:
-            return EpisodeRecord(
-                designs=tuple(designs),
-                qpos=data["qpos"],
-                nq=data["nq"],
-                nbody=data["nbody"],
-                alive=data["alive"],
-                target_pos=data["target_pos"] if has_targets else None,
-                target_quat=data["target_quat"] if has_targets else None,
-                labels=tuple(labels),
-                motion_name=str(data["motion_name"]),
-                dt=float(data["dt"]),
-            )
-        except EpisodeFileError as e:
-            raise EpisodeFileError(f"{path}: {e}") from None
+            designs.append(get_space(item["space"]).from_dict(item))
+        except DesignError as e:
+            raise EpisodeFileError(f"{path}: design of world {w} does not load: {e}") from None
+    has_targets = "target_pos" in data and "target_quat" in data
+    try:
+        return EpisodeRecord(
+            designs=tuple(designs),
+            qpos=data["qpos"],
+            nq=data["nq"],
+            nbody=data["nbody"],
+            alive=data["alive"],
+            target_pos=data["target_pos"] if has_targets else None,
+            target_quat=data["target_quat"] if has_targets else None,
+            labels=tuple(labels),
+            motion_name=str(data["motion_name"]),
+            dt=float(data["dt"]),
+        )
+    except (TypeError, ValueError) as e:  # an entry of the wrong shape or type
+        raise EpisodeFileError(f"{path}: {e}") from None

@@ -15,10 +15,11 @@ from pathlib import Path
 
 import meshcat
 
+from tt.kernels.errors import TTError
 from tt.viz.scene import Scene
 
 
-class ViewerAssetError(RuntimeError):
+class ViewerAssetError(TTError, RuntimeError):
     """meshcat's bundled viewer JavaScript is missing from its installation."""
 
 

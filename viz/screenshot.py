@@ -11,11 +11,13 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from tt.kernels.errors import TTError
+
 #: Executable names tried in order.
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
-class ScreenshotError(RuntimeError):
+class ScreenshotError(TTError, RuntimeError):
     """Chromium is missing or failed to write the screenshot."""
 
 

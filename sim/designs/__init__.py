@@ -10,16 +10,18 @@ from tt.sim.designs.base import (
     DesignError,
     DesignSpace,
     DiscreteParam,
+    FixedStructureSpace,
     load_designs,
     save_designs,
 )
 
-#: space name -> module that defines ``SPACE``
+#: space name -> (module, attribute) that defines it
 _MODULES = {
-    "viperx": "tt.sim.designs.viperx",
-    "aloha": "tt.sim.designs.aloha",
-    "bimanual": "tt.sim.designs.bimanual",
-    "quadruped": "tt.sim.designs.quadruped",
+    "viperx": ("tt.sim.designs.viperx", "SPACE"),
+    "viperx-nominal": ("tt.sim.designs.viperx", "NOMINAL_SPACE"),
+    "aloha": ("tt.sim.designs.aloha", "SPACE"),
+    "bimanual": ("tt.sim.designs.bimanual", "SPACE"),
+    "quadruped": ("tt.sim.designs.quadruped", "SPACE"),
 }
 
 SPACE_NAMES: tuple[str, ...] = tuple(_MODULES)
@@ -27,9 +29,10 @@ SPACE_NAMES: tuple[str, ...] = tuple(_MODULES)
 
 def get_space(name: str) -> DesignSpace:
     """The design space called `name`; raises `DesignError` listing the valid names."""
-    if name not in _MODULES:
+    if not isinstance(name, str) or name not in _MODULES:
         raise DesignError(f"unknown design space {name!r}; valid: {list(_MODULES)}")
-    return importlib.import_module(_MODULES[name]).SPACE
+    module, attribute = _MODULES[name]
+    return getattr(importlib.import_module(module), attribute)
 
 
 __all__ = [
@@ -38,6 +41,7 @@ __all__ = [
     "DesignError",
     "DesignSpace",
     "DiscreteParam",
+    "FixedStructureSpace",
     "SPACE_NAMES",
     "get_space",
     "load_designs",

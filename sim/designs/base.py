@@ -19,6 +19,20 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import CorruptFileError, read_json
+
+
+#: Fewest designs for which `DesignSpace.models` starts worker processes (a worker's start,
+#: about a second of imports, must be won back by building its share of the models).
+PARALLEL_MODELS_MIN = 512
+
+
+def _build_models(space: str, designs: list) -> list[mujoco.MjModel]:
+    """Worker of `DesignSpace.models`: the compiled models of `designs` of space `space`."""
+    from tt.sim.designs import get_space
+
+    sp = get_space(space)
+    return [sp.model(d) for d in designs]
 
 
 class DesignError(TTError):
@@ -72,6 +86,12 @@ class DesignSpace(ABC):
     #: Translation [m] that moves tt's library motions (authored for a table-top arm at the
     #: origin) into this robot's workspace; see `tt.sim.motions.for_space`.
     motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def family(self) -> str:
+        """The full space this one belongs to (its own name; a `FixedStructureSpace`'s base):
+        what reward weights and layouts are looked up by."""
+        return self.name
 
     @abstractmethod
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
@@ -167,6 +187,29 @@ class DesignSpace(ABC):
         """The compiled MuJoCo model of a design."""
         return mujoco.MjModel.from_xml_string(self.to_mjcf(design))
 
+    def models(self, designs: Sequence[Design], *, processes: int = 1) -> list[mujoco.MjModel]:
+        """The compiled models of `designs`, in order (`model` of each).
+
+        processes > 1 and at least `PARALLEL_MODELS_MIN` designs: the designs are built in
+        that many spawned worker processes, a contiguous chunk each, and their models
+        unpickled here (MJCF generation is Python and MuJoCo's compiler holds the GIL, so
+        threads would not help; unpickling a model costs a fraction of compiling it). The
+        models are the same either way: pickling is MuJoCo's binary model format.
+        """
+        designs = list(designs)
+        if processes <= 1 or len(designs) < PARALLEL_MODELS_MIN:
+            return [self.model(d) for d in designs]
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        processes = min(processes, len(designs))
+        cuts = [len(designs) * k // processes for k in range(processes + 1)]
+        # spawn: a forked child would inherit this process's Warp/torch/OpenMP thread state.
+        with ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn")) as pool:
+            parts = pool.map(_build_models, [self.name] * processes,
+                             [designs[lo:hi] for lo, hi in zip(cuts[:-1], cuts[1:])])
+            return [m for part in parts for m in part]
+
     # ---------------------------------------------------------------- JSON
     def to_dict(self, design: Design) -> dict:
         """JSON-ready form: choices by name, so files stay readable and diffable."""
@@ -215,6 +258,8 @@ class DesignSpace(ABC):
             v = cnamed[p.name]
             if not isinstance(v, (int, float)) or isinstance(v, bool):
                 raise DesignError(f"continuous field {p.name!r} = {v!r} is not a number")
+            if isinstance(v, int) and abs(v) > 1e300:  # float() of a huge JSON integer overflows
+                raise DesignError(f"continuous field {p.name!r} is an integer beyond 1e300, outside [{p.low}, {p.high}] {p.unit}")
             values.append(float(v))
         design = Design(self.name, tuple(discrete), tuple(values))
         self.validate(design)
@@ -242,24 +287,97 @@ def load_designs(spec: str | Path) -> list[Design]:
         except ValueError:
             raise DesignError(f"design index {idx!r} after '#' is not an integer") from None
     path = Path(spec)
-    if not path.exists():
-        raise FileNotFoundError(f"design file {path} does not exist")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise DesignError(f"{path} is not valid JSON: {e}") from None
+        data = read_json(path, "design file")
+    except CorruptFileError as e:
+        raise DesignError(str(e)) from None
     items = data["designs"] if isinstance(data, dict) and "designs" in data else data
     if isinstance(items, dict):
         items = [items]
     if not isinstance(items, list):
         raise DesignError(f"{path}: expected a list of designs or {{'designs': [...]}}")
+    if not items:
+        raise DesignError(f"{path} holds no designs")
+    numbers = list(range(len(items)))
     if index is not None:
         if not -len(items) <= index < len(items):
             raise DesignError(f"design index {index} out of range: {path} holds {len(items)} designs")
-        items = [items[index]]
+        numbers = [numbers[index]]
     designs = []
-    for k, item in enumerate(items):
+    for k in numbers:
+        item = items[k]
+        where = f"{path}: design #{k} of {len(items)}"
         if not isinstance(item, dict) or "space" not in item:
-            raise DesignError(f"{path}: design {k} has no 'space' field")
-        designs.append(get_space(item["space"]).from_dict(item))
+            raise DesignError(f"{where} has no 'space' field")
+        if not isinstance(item["space"], str):
+            raise DesignError(f"{where}: field 'space' is {item['space']!r}, not a name")
+        try:
+            designs.append(get_space(item["space"]).from_dict(item))
+        except DesignError as e:
+            raise DesignError(f"{where}: {e}") from None
     return designs
+
+
+class FixedStructureSpace(DesignSpace):
+    """A sub-space of `base` with its discrete choices fixed and its continuous choices free.
+
+    A rung of the learnability ladder (one kinematic structure, so a model only has to
+    learn how lengths and mount poses change the motion), and a space of its own for every
+    command: designs, MJCF, tokens and rewards are `base`'s. Its discrete parameters keep
+    `base`'s names with one option each (the fixed one), so its designs' JSON reads like
+    `base`'s and their discrete indices are all 0.
+
+    name: the sub-space's name; base: the full space; discrete: `base`'s complete discrete
+    choices to fix (option indices).
+    """
+
+    def __init__(self, name: str, base: DesignSpace, discrete: Sequence[int]):
+        fixed = tuple(int(i) for i in discrete)
+        params = base.discrete_params(fixed)
+        if len(fixed) != len(params):
+            raise DesignError(f"sub-space {name!r}: {len(fixed)} discrete choices given, space {base.name!r} "
+                              f"needs {len(params)}: {[p.name for p in params]}")
+        for i, (p, v) in enumerate(zip(params, fixed)):
+            if not 0 <= v < len(p.options):
+                raise DesignError(f"sub-space {name!r}: discrete[{i}] ({p.name!r}) = {v}; valid: 0..{len(p.options) - 1}")
+        self.name = name
+        self.base = base
+        self.fixed = fixed
+        self.has_contacts = base.has_contacts
+        self.ee_count = base.ee_count
+        self.motion_offset = base.motion_offset
+        self._params = tuple(DiscreteParam(p.name, (p.options[i],)) for p, i in zip(params, fixed))
+
+    @property
+    def family(self) -> str:
+        return self.base.family
+
+    def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
+        return self._params
+
+    def continuous_params(self, discrete: Sequence[int]) -> tuple[ContinuousParam, ...]:
+        return self.base.continuous_params(self.fixed)
+
+    def nominal(self) -> Design:
+        base = self.base.nominal()
+        if base.discrete == self.fixed:
+            values = base.continuous
+        else:
+            values = tuple(0.5 * (p.low + p.high) for p in self.continuous_params(()))
+        return Design(self.name, (0,) * len(self.fixed), values)
+
+    def _mjcf(self, discrete, values, options) -> str:
+        return self.base._mjcf(self.fixed, values, options)
+
+    def to_base(self, design: Design) -> Design:
+        """The same robot as a design of `base`."""
+        self.validate(design)
+        return Design(self.base.name, self.fixed, tuple(design.continuous))
+
+    def from_base(self, design: Design) -> Design:
+        """A design of `base` with this sub-space's discrete choices as a design of the sub-space."""
+        self.base.validate(design)
+        if tuple(design.discrete) != self.fixed:
+            raise DesignError(f"design's discrete choices {list(design.discrete)} are not sub-space {self.name!r}'s "
+                              f"{list(self.fixed)}")
+        return Design(self.name, (0,) * len(self.fixed), tuple(design.continuous))

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tt.sim.designs.base import ContinuousParam, Design, DesignSpace, DiscreteParam
+from tt.sim.designs.base import ContinuousParam, Design, DesignSpace, DiscreteParam, FixedStructureSpace
 from tt.sim.designs.mjcf import (
     JointSpec,
     Segment,
@@ -177,3 +177,8 @@ def mount_pose(mount: str, values: dict[str, float], nominal: dict | None = None
 
 
 SPACE = ViperXSpace()
+
+#: ViperX with the nominal arm's discrete choices (upright mount, 6 DoF, the ViperX-300S's
+#: joint axes) fixed; mount offset, yaw and link lengths vary. The learnability ladder's
+#: one-structure rung (`tt designs --space viperx-nominal`).
+NOMINAL_SPACE = FixedStructureSpace("viperx-nominal", SPACE, SPACE.nominal().discrete)

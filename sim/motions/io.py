@@ -18,6 +18,7 @@ from typing import Sequence, Any
 
 import numpy as np
 
+from tt.kernels.files import CorruptFileError, read_npz
 from tt.sim.motions.base import (
     MOTION_DT,
     Motion,
@@ -36,6 +37,9 @@ _DT_RTOL = 1e-9
 #: image); tt's has x along the approach and z up when level. Applied on the right:
 #: q_tt = q_umi ⊗ UMI_TOOL_QUAT.
 UMI_TOOL_QUAT = (0.5, 0.5, -0.5, 0.5)
+
+#: Longest motion after resampling [control steps] (10 hours at 50 Hz): a longer one is a wrong dt.
+MAX_STEPS = 1_800_000
 
 #: Default recording rate of UMI stores [Hz] (GoPro video, nominally 60 frames per second).
 UMI_HZ = 60.0
@@ -61,6 +65,8 @@ def resample(pos: np.ndarray, quat: np.ndarray, src_dt: float, dt: float = MOTIO
     if abs(src_dt - dt) <= _DT_RTOL * dt or n == 1:
         return pos, quat
     end = (n - 1) * src_dt
+    if not end / dt <= MAX_STEPS:
+        raise MotionError(f"a motion of {n} samples every {src_dt:g} s lasts {end:g} s, more than {MAX_STEPS:,} steps of {dt:g} s")
     t = np.arange(int(np.floor(end / dt + 1e-9)) + 1) * dt
     x = t / src_dt
     i = np.minimum(np.floor(x).astype(int), n - 2)
@@ -83,6 +89,8 @@ def resample_motion(motion: Motion, dt: float = MOTION_DT) -> Motion:
 
 def _check_array(path: Path, field: str, arr: Any, width: int) -> np.ndarray:
     """A (T, width) float array, or `MotionError` naming the file and field."""
+    if getattr(arr, "dtype", np.dtype("f8")).kind not in "fiu":
+        raise MotionError(f"{path}: field {field!r} holds {np.asarray(arr).dtype} values, not real numbers")
     try:
         a = np.asarray(arr, dtype=np.float64)
     except (TypeError, ValueError) as e:
@@ -130,35 +138,43 @@ def save_npz(motion: Motion, path: str | Path) -> None:
         np.savez(f, **arrays)
 
 
+def _scalar(path: Path, data: dict, key: str) -> float:
+    """``data[key]`` as one real number, or `MotionError` naming the file and field."""
+    a = data[key]
+    if a.size != 1 or a.dtype.kind not in "fiu":
+        raise MotionError(f"{path}: field {key!r} must be one number of seconds, got {a.dtype}{a.shape}")
+    return float(a.reshape(()))
+
+
 def load_npz(path: str | Path) -> Motion:
     """A motion from ``.npz`` (layout in the module docstring), resampled to 50 Hz."""
     path = Path(path)
     try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as e:
-        raise MotionError(f"{path}: cannot read as .npz ({e})") from None
-    with data:
-        for key in ("pos", "quat", "dt"):
-            if key not in data.files:
-                raise MotionError(f"{path}: missing field {key!r}; found {sorted(data.files)}")
-        if ("pos2" in data.files) != ("quat2" in data.files):
-            raise MotionError(f"{path}: a second end effector needs both 'pos2' and 'quat2'; found {sorted(data.files)}")
-        try:
-            dt = float(data["dt"])
-        except (TypeError, ValueError):
-            raise MotionError(f"{path}: field 'dt' must be one number of seconds, got shape {data['dt'].shape}") from None
-        if not (np.isfinite(dt) and dt > 0):
-            raise MotionError(f"{path}: field 'dt' must be a positive number of seconds, got {dt}")
-        arms = [("pos", "quat")] + ([("pos2", "quat2")] if "pos2" in data.files else [])
-        pos, quat = [], []
-        for pk, qk in arms:
-            pos.append(_check_array(path, pk, data[pk], 3))
-            quat.append(_check_array(path, qk, data[qk], 4))
-            _check_quat(path, qk, quat[-1])
-        lengths = {k: a.shape[0] for (k, _), a in zip(arms, pos)} | {k: a.shape[0] for (_, k), a in zip(arms, quat)}
-        if len(set(lengths.values())) != 1:
-            raise MotionError(f"{path}: fields have different lengths {lengths}")
-        name = str(data["name"]) if "name" in data.files else path.stem
+        data = read_npz(path, "motion file")
+    except CorruptFileError as e:
+        raise MotionError(str(e)) from None
+    for key in ("pos", "quat", "dt"):
+        if key not in data:
+            raise MotionError(f"{path}: missing field {key!r}; found {sorted(data)}")
+    if ("pos2" in data) != ("quat2" in data):
+        raise MotionError(f"{path}: a second end effector needs both 'pos2' and 'quat2'; found {sorted(data)}")
+    dt = _scalar(path, data, "dt")
+    if not (np.isfinite(dt) and dt > 0):
+        raise MotionError(f"{path}: field 'dt' must be a positive number of seconds, got {dt}")
+    arms = [("pos", "quat")] + ([("pos2", "quat2")] if "pos2" in data else [])
+    pos, quat = [], []
+    for pk, qk in arms:
+        pos.append(_check_array(path, pk, data[pk], 3))
+        quat.append(_check_array(path, qk, data[qk], 4))
+        _check_quat(path, qk, quat[-1])
+    lengths = {k: a.shape[0] for (k, _), a in zip(arms, pos)} | {k: a.shape[0] for (_, k), a in zip(arms, quat)}
+    if len(set(lengths.values())) != 1:
+        raise MotionError(f"{path}: fields have different lengths {lengths}")
+    name = path.stem
+    if "name" in data:
+        if data["name"].dtype.kind not in "US" or data["name"].size != 1:
+            raise MotionError(f"{path}: field 'name' must be one string, got {data['name'].dtype}{data['name'].shape}")
+        name = str(data["name"].reshape(()))
     meta = {"source": str(path), "source_dt": dt}
     return _motion(path, name, np.stack(pos, axis=1), np.stack(quat, axis=1), dt, meta)
 

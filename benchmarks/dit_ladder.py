@@ -1,0 +1,96 @@
+"""The learnability ladder's measurement: does a checkpoint know what held-out designs do?
+
+For a checkpoint and a held-out set (designs of its space that no training draw holds,
+`tt.ladder.heldout_designs`, x validation motions, `tt.ladder.validation_motions`) it runs
+`tt predict`'s code path (`tt.guidance.predicted.predict_designs`: the design inpainted, the
+dynamics predicted, the reward of those) and the simulator on the same pairs, and reports
+the Pearson r pooled over all pairs and within each motion, beside the ceiling of the 8-step
+reward estimate (the same estimator on the simulated poses). Targets (issue 17): R1
+(``viperx-nominal``) pooled >= 0.8, within-motion >= 0.6; R2 (``viperx``) 0.7 and 0.5.
+
+Prints one JSON line per result; writes a markdown report (``--out``, default
+``benchmarks/results/dit_ladder_<space>.md``) and the raw numbers beside it (``.json``).
+
+Usage: ``python benchmarks/dit_ladder.py RUN_OR_CHECKPOINT [--designs 32] [--motions 5] [--samples 1]
+[--num-steps 20] [--threads 2]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from machine import machine_header  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("checkpoint", help="checkpoint file or run folder")
+    p.add_argument("--space", default=None, help="design space (default: the checkpoint's)")
+    p.add_argument("--designs", type=int, default=32, help="held-out designs")
+    p.add_argument("--design-seed", type=int, default=0)
+    p.add_argument("--motions", type=int, default=5, help="validation motions (spread over the skills)")
+    p.add_argument("--reward", default="tracking")
+    p.add_argument("--samples", type=int, default=1, help="samples averaged per design x motion")
+    p.add_argument("--num-steps", type=int, default=20, help="DDIM steps of the prediction")
+    p.add_argument("--chunk", type=int, default=None, help="sequences per sampling call")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--backend", default="warp")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--out", default=None)
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+
+    from tt.dit.checkpoint import load_model
+    from tt.ladder import heldout_designs, score_designs, validation_motions
+
+    trained = load_model(args.checkpoint, device=args.device)
+    space = args.space or trained.space
+    if space is None:
+        p.error("the checkpoint records no design space; give --space")
+    designs = heldout_designs(space, args.designs, args.design_seed)
+    motions = validation_motions(space, args.motions)
+    sc = score_designs(trained, designs, motions, args.reward, samples=args.samples, num_steps=args.num_steps,
+                       chunk=args.chunk, backend=args.backend, device=args.device)
+    result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
+              "designs": len(designs), "motions": sc.motions, "samples": args.samples, "num_steps": args.num_steps,
+              "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,
+              "estimator_pooled_r": sc.estimator_pooled, "seconds": sc.seconds}
+    print(json.dumps(result), flush=True)
+    out = Path(args.out) if args.out else RESULTS / f"dit_ladder_{space}.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rows = [f"| {m} | {sc.predicted[:, j].mean():.1f} | {sc.simulated[:, j].mean():.1f} | {sc.within[j]:.2f} | "
+            f"{sc.estimator_within[j]:.2f} |" for j, m in enumerate(sc.motions)]
+    out.write_text("\n".join([
+        f"# Ladder: predicted vs simulated {args.reward} reward, {space}",
+        "",
+        machine_header(args.device),
+        f"Checkpoint `{trained.path}` (step {trained.step}); {len(designs)} held-out designs "
+        f"(`tt.ladder.heldout_designs({space!r}, {args.designs}, {args.design_seed})`) x {len(motions)} validation "
+        f"motions; `tt predict` code path, {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
+        f"`{args.backend}`.",
+        "",
+        f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: {sc.estimator_pooled:.2f})",
+        f"- mean within-motion r: **{sc.within_mean:.2f}**",
+        "",
+        "| motion | predicted mean | simulated mean | within-motion r | estimator r |",
+        "|---|---:|---:|---:|---:|",
+        *rows,
+        "",
+        f"Time: predict {sc.seconds['predict']:.0f} s, simulate {sc.seconds['simulate']:.0f} s.",
+        "",
+    ]))
+    out.with_suffix(".json").write_text(json.dumps({**result, **sc.to_dict()}, indent=1))
+    print(f"wrote {out}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

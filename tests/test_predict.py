@@ -1,0 +1,125 @@
+"""`tt predict`: the model as a critic. JSON schema, clear errors for an unknown design space
+or motion and for a checkpoint of another design space; the predicted reward is the reward of
+the predicted dynamics with the design inpainted."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from tt.cli import app
+from tt.sim.designs import get_space, save_designs
+
+pytestmark = pytest.mark.usefixtures("single_thread")
+
+SPACE = "viperx-nominal"
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """A tiny viperx-nominal model, two steps on one online refresh (4 designs x 1 motion)."""
+    from tt.dit.online import OnlineConfig
+    from tt.dit.train import TrainConfig, train
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("predict") / "run"
+    cfg = TrainConfig(out=str(out), size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu", checkpoint_every=2,
+                      online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8))
+    try:
+        result = train(cfg)
+    finally:
+        torch.set_num_threads(threads)
+    return result.checkpoint
+
+
+@pytest.fixture(scope="module")
+def designs_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("designs") / "designs.json"
+    save_designs(get_space(SPACE).sample(3, seed=5), path)
+    return path
+
+
+def _invoke(*args):
+    return CliRunner().invoke(app, ["predict", *map(str, args)])
+
+
+def test_checkpoint_records_its_design_space(checkpoint):
+    from tt.dit.checkpoint import load_model
+
+    assert load_model(checkpoint).space == SPACE
+
+
+def test_json_schema(checkpoint, designs_file, tmp_path):
+    out = tmp_path / "pred.json"
+    r = _invoke("--design", designs_file, "--motion", "toss", "--motion", "scrub", "--checkpoint", checkpoint,
+                "--reward", "tracking_torque", "--samples", "2", "--num-steps", "3", "--json", out)
+    assert r.exit_code == 0, r.output
+    d = json.loads(out.read_text())
+    assert d["reward"] == "tracking_torque" and d["motions"] == ["toss", "scrub"]
+    assert {"reward", "motions", "predictions"} <= set(d)
+    pairs = [(p["design"], p["motion"]) for p in d["predictions"]]
+    assert pairs == [(i, m) for i in range(3) for m in ("toss", "scrub")]
+    for p in d["predictions"]:
+        assert set(p) == {"design", "motion", "reward", "metrics"}
+        assert isinstance(p["reward"], float) and math.isfinite(p["reward"])
+        assert {"pos_err", "orn_err", "survival", "torque", "reward", "length"} <= set(p["metrics"])
+        assert p["metrics"]["reward"] == p["reward"]
+    assert "design" in r.output and "toss" in r.output  # the table
+    # designs.json#i reports the index in the file.
+    r = _invoke("--design", f"{designs_file}#-1", "--motion", "toss", "--checkpoint", checkpoint, "--num-steps", "2",
+                "--json", out)
+    assert r.exit_code == 0, r.output
+    assert [p["design"] for p in json.loads(out.read_text())["predictions"]] == [2]
+
+
+def test_unknown_space_or_motion_fails_clearly(checkpoint, designs_file, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"designs": [{"space": "hexapod", "discrete": {}, "continuous": {}}]}))
+    r = _invoke("--design", bad, "--motion", "toss", "--checkpoint", checkpoint)
+    assert r.exit_code == 2 and "unknown design space 'hexapod'" in r.output and "viperx-nominal" in r.output
+    r = _invoke("--design", designs_file, "--motion", "moonwalk", "--checkpoint", checkpoint)
+    assert r.exit_code == 2 and "moonwalk" in r.output and "toss" in r.output, r.output
+
+
+def test_checkpoint_of_another_space_is_refused(checkpoint, designs_file, tmp_path):
+    from tt.dit.checkpoint import load_checkpoint, save_checkpoint
+
+    state = load_checkpoint(checkpoint)
+    state.pop("format")
+    state["space"] = "viperx"
+    other = save_checkpoint(tmp_path / "viperx.pt", state)
+    r = _invoke("--design", designs_file, "--motion", "toss", "--checkpoint", other)
+    assert r.exit_code == 2, r.output
+    assert "'viperx'" in r.output and "'viperx-nominal'" in r.output and "trained on design space" in r.output
+
+
+def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
+    """`predict_designs` = the mean over K samples of `PredictedReward` on `sample(known=...)`
+    of `design_query`, the embodiment kept exactly; checked by redoing one pair by hand."""
+    from tt.dit.checkpoint import load_model
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import ROBOT
+    from tt.guidance.predicted import PredictedReward, design_query, predict_designs
+    from tt.sim.rewards import get_reward
+    from tt.sim.motions import for_space, resolve_motion
+
+    trained = load_model(checkpoint)
+    sp = get_space(SPACE)
+    design = sp.sample(1, seed=9)
+    motion = for_space([resolve_motion("toss")], SPACE)[0]
+    cfg = get_reward("tracking", SPACE)
+    pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11)
+    q, known = design_query(trained.layout, trained.normalizer, motion, [sp.model(design[0])] * 3)
+    res = sample(trained.model, q.tokens, ROBOT, scheduler=CosineDDIM(100), num_steps=4,
+                 generator=torch.Generator().manual_seed(11), known=known)
+    for n, m in known.items():
+        assert torch.equal(res.tokens.values[n][m], q.tokens.values[n][m])  # the design is kept exactly
+    by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(res.tokens.values).double().mean()
+    np.testing.assert_allclose(pred.reward[0, 0], float(by_hand), rtol=1e-5)

@@ -1,0 +1,146 @@
+"""Does the model know what a design does? Predicted against simulated reward, rung by rung.
+
+The learnability ladder (issue "The model learns what designs do"):
+
+* R0, memorize: a small model overfits the 64 episodes of one online refresh (16 designs
+  of ``viperx-nominal`` x 4 training motions) and `tt predict` on those same designs x
+  motions must correlate with their simulated rewards at r >= 0.95 (`tests/test_ladder.py`).
+  A failure there is a bug in the predict -> reward path, not a lack of compute.
+* R1, one structure (``viperx-nominal``) and R2, the full ``viperx`` space: held-out
+  designs x validation motions (`benchmarks/dit_ladder.py`).
+
+`score_designs` runs `tt predict`'s code path (`tt.guidance.predicted.predict_designs`) and
+the simulator (`tt.baselines.evaluate.evaluate_designs`) on the same designs x motions and
+reports both kinds of correlation: pooled over every pair (motion difficulty feeds it, as in
+the paper's figure) and within each motion (what ranking candidates for one motion needs),
+beside the ceiling of the 8-step reward estimate itself (the same estimator on the simulated
+poses at the query's steps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+
+#: Seed offset of held-out designs: far from every seed a training run or `tt generate` draws
+#: designs with (`tt.tokens.draws` and `tt.dit.online` hash (seed, index, stream)).
+HELDOUT_SEED = 90_001
+
+
+def validation_motions(space: str, count: int | None = None) -> list:
+    """`count` validation motions of the space's end-effector count, spread over the skills
+    (every one for None), placed for the space."""
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, motion_set
+
+    val = motion_set("val", arms=get_space(space).ee_count)
+    if count is not None:
+        if count < 1:
+            raise ValueError(f"count must be >= 1, got {count}")
+        stride = max(1, len(val) // count)
+        val = val[::stride][:count]
+    return for_space(val, space)
+
+
+def heldout_designs(space: str, count: int, seed: int = 0) -> list:
+    """`count` designs of the space that no training draw holds (plain `DesignSpace.sample`
+    with seed ``HELDOUT_SEED + seed``)."""
+    from tt.sim.designs import get_space
+
+    return get_space(space).sample(count, seed=HELDOUT_SEED + seed)
+
+
+def pearson(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson r of two 1-D arrays over their finite pairs (NaN for fewer than 3 or no spread)."""
+    x, y = np.asarray(x, np.float64).ravel(), np.asarray(y, np.float64).ravel()
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) < 3 or np.std(x) == 0 or np.std(y) == 0:
+        return float("nan")
+    return float(np.corrcoef(x, y)[0, 1])
+
+
+def within_motion(predicted: np.ndarray, simulated: np.ndarray) -> list[float]:
+    """Pearson r over designs, per motion: columns of (D, M) arrays."""
+    return [pearson(predicted[:, j], simulated[:, j]) for j in range(predicted.shape[1])]
+
+
+@dataclass
+class LadderScore:
+    """Predicted vs simulated reward of D designs x M motions.
+
+    predicted, simulated, estimator: (D, M) rewards: the model's, the simulator's, and the
+    8-step estimate on the simulated poses (the estimator's ceiling); motions: names;
+    pooled: r over all pairs; within: r per motion; estimator_pooled / estimator_within: the
+    same for the estimator; seconds: predict and simulate wall times.
+    """
+
+    predicted: np.ndarray
+    simulated: np.ndarray
+    estimator: np.ndarray
+    motions: list[str]
+    pooled: float
+    within: list[float]
+    estimator_pooled: float
+    estimator_within: list[float]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def within_mean(self) -> float:
+        """Mean within-motion r (over motions where it is defined)."""
+        v = [r for r in self.within if np.isfinite(r)]
+        return float(np.mean(v)) if v else float("nan")
+
+    def to_dict(self) -> dict:
+        return {"motions": self.motions, "pooled_r": self.pooled, "within_r": self.within,
+                "within_r_mean": self.within_mean, "estimator_pooled_r": self.estimator_pooled,
+                "estimator_within_r": self.estimator_within, "predicted": self.predicted.tolist(),
+                "simulated": self.simulated.tolist(), "estimator": self.estimator.tolist(), "seconds": self.seconds}
+
+
+def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "tracking", *, samples: int = 1,
+                  num_steps: int | None = None, seed: int = 0, chunk: int | None = None, backend: str = "warp",
+                  device: str | None = None) -> LadderScore:
+    """`tt predict` and the simulator on `designs` x `motions` (see the module docstring).
+
+    trained: `tt.dit.checkpoint.TrainedModel`; designs: of the checkpoint's space; motions:
+    placed for it; samples, num_steps, seed, chunk: `tt.guidance.predicted.predict_designs`;
+    backend, device: the simulator's (`tt.baselines.evaluate.evaluate_designs`).
+    """
+    import time
+
+    import torch
+
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.guidance.predicted import predict_designs, query_steps
+    from tt.sim.rewards import RewardInputs, evaluate, get_reward
+
+    designs, motions = list(designs), list(motions)
+    cfg = get_reward(reward, designs[0].space)
+    t0 = time.perf_counter()
+    pred = predict_designs(trained, designs, motions, cfg, samples=samples, num_steps=num_steps, seed=seed, chunk=chunk)
+    t1 = time.perf_counter()
+    ev = evaluate_designs(designs, motions, reward, backend=backend, device=device)
+    t2 = time.perf_counter()
+    ep, D = ev.episode, len(designs)
+    estimator = np.zeros((D, len(motions)))
+    S = trained.layout.steps
+    world = torch.full((D, len(motions)), -1, dtype=torch.long)
+    world[ep.design_index.cpu(), ep.motion_index.cpu()] = torch.arange(len(ep.design_index))
+    for j, m in enumerate(motions):
+        st = query_steps(m.steps, S, 1)[0].to(ep.ee_pos.device)
+        w = world[:, j].to(ep.ee_pos.device)
+        inputs = RewardInputs(ep.ee_pos[w][:, st].double(), ep.ee_quat[w][:, st].double(),
+                              ep.target_pos[w][:, st].double(), ep.target_quat[w][:, st].double())
+        estimator[:, j] = (m.steps / S) * evaluate(inputs, cfg).reward.cpu().numpy()
+    return LadderScore(pred.reward, ev.reward, estimator, [m.name for m in motions],
+                       pearson(pred.reward, ev.reward), within_motion(pred.reward, ev.reward),
+                       pearson(estimator, ev.reward), within_motion(estimator, ev.reward),
+                       {"predict": t1 - t0, "simulate": t2 - t1})
+
+
+__all__ = ["HELDOUT_SEED", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
+           "within_motion"]
