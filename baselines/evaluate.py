@@ -34,13 +34,14 @@ class Evaluation:
 
 def run_rollout(
     designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None,
-    progress: bool = False, threads: int | None = None,
+    progress: bool = False, threads: int | None = None, graph: bool | None = None,
 ) -> Episode:
     """Rollout of every design (or its built model) on every motion with `backend` (design-major
     worlds; threads: CPU threads of the "warp" backend, None for every core)."""
     from tt.sim.rollout import rollout
 
-    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress, threads=threads)
+    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress, threads=threads,
+                   graph=graph)
 
 
 def score_episode(
@@ -81,10 +82,11 @@ def evaluate_designs(
     device: str | None = None,
     progress: bool = False,
     threads: int | None = None,
+    graph: bool | None = None,
 ) -> Evaluation:
     """Roll out every design on every motion in one batch and score it with `reward`
     (progress: a tqdm bar over the rollout; threads: CPU threads of the "warp" backend,
-    None for every core)."""
+    None for every core; graph: CUDA graphs, see `tt.sim.rollout.rollout`)."""
     if not designs:
         raise ValueError("evaluate_designs needs at least one design")
     spaces = {d.space for d in designs}
@@ -104,7 +106,7 @@ def evaluate_designs(
 
     models = sp.models(designs, processes=cpu_threads(threads))
     ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
-                     threads=threads)
+                     threads=threads, graph=graph)
     r, m = score_episode(ep, designs, motions, reward, models=models)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=m, episode=ep)
 

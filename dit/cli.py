@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from tt.dit.online import OnlineConfig
-from tt.dit.train import TrainConfig, TrainResult, train
+from tt.dit.train import DataParallel, TrainConfig, TrainResult, train
 
 
 def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "small", out: str | Path = "runs/dit",
@@ -26,6 +26,9 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
     `tt.tokens.schema.SchemaVersionError`.
     """
     from tqdm import tqdm
+
+    dp = DataParallel.from_env()
+    progress = progress and (dp is None or dp.rank == 0)  # one bar for a data-parallel run
 
     config = TrainConfig(data=str(data) if data is not None else "", out=str(out), task=task, size=size, steps=steps, batch_size=batch_size,
                          lr=lr, device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume,

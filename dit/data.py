@@ -42,8 +42,11 @@ class TokenSource(Protocol):
     def fit_normalizer(self) -> Normalizer:
         """Normalisation statistics over the whole dataset."""
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenBatch:
-        """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "consecutive"."""
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
+               part: tuple[int, int] | None = None) -> TokenBatch:
+        """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "consecutive".
+        part: (a, b): read only windows a .. b - 1 of the n drawn (a data-parallel rank's
+        share); the generator advances as for all n."""
 
 
 @dataclass
@@ -195,10 +198,14 @@ class EpisodeTokens:
                 mask[name] = self.static_mask[name][episodes]
         return TokenBatch(values, ids, mask)
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenBatch:
-        """n windows of uniformly drawn episodes (raw, unnormalised tokens)."""
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
+               part: tuple[int, int] | None = None) -> TokenBatch:
+        """n windows of uniformly drawn episodes (raw, unnormalised tokens); part: (a, b) reads
+        windows a .. b - 1 of them only (the draws are those of all n)."""
         episodes = torch.randint(0, len(self), (n,), generator=generator)
-        return self.window(episodes, self.window_steps(episodes, steps, kind, generator))
+        step_index = self.window_steps(episodes, steps, kind, generator)
+        rows = slice(*part) if part is not None else slice(None)
+        return self.window(episodes[rows], step_index[rows])
 
     @staticmethod
     def from_token_batches(embodiment, dynamics, lengths: torch.Tensor, *, design_index: torch.Tensor | None = None,

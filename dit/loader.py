@@ -214,26 +214,35 @@ class StoreTokenSource:
         """`tt.tokens.normalize.Normalizer` from the dataset's stored statistics."""
         return self.store.normalizer()
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None):
-        """n raw windows (`tt.tokens.batch.TokenBatch`), drawn with `generator` (CPU)."""
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
+               part: tuple[int, int] | None = None):
+        """n raw windows (`tt.tokens.batch.TokenBatch`), drawn with `generator` (CPU).
+        part: (a, b): only windows a .. b - 1 of the n (a data-parallel rank's share): the
+        random numbers drawn are those of all n, and only those windows are built."""
         if steps > self.shortest:
             raise ValueError(f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}")
+        lo, hi = (0, n) if part is None else part
         g = max(1, -(-n // self.windows_per_block))
         chosen = torch.multinomial(self.block_sizes, g, replacement=True, generator=generator)
         which = torch.arange(n) % g
-        parts = []
+        parts, first = [], 0  # first: index of the block's first window in the output order
         for j in range(g):
             k = int((which == j).sum())
             if k == 0:
                 continue
+            # The step draws depend on the drawn episodes' lengths, so every block of the
+            # batch is opened (the block cache keeps them); only the part's windows are built.
             block = self._cache.get(self.blocks[int(chosen[j])])
             ep = torch.randint(0, len(block), (k,), generator=generator)
             st = window_steps(torch.from_numpy(block.length)[ep], steps, kind, generator)
-            parts.append(block.windows(ep.numpy(), st.numpy()))
+            a, b = max(lo - first, 0), min(hi - first, k)  # this block's windows in the part
+            if a < b:
+                parts.append(block.windows(ep[a:b].numpy(), st[a:b].numpy()))
+            first += k
         out = _tensors(parts)
         if self.augment is not None:
             yaw, dx, dy = self.augment.draw(n, generator)
-            out.values = augment_se2_tokens(out.values, out.mask, yaw, dx, dy)
+            out.values = augment_se2_tokens(out.values, out.mask, yaw[lo:hi], dx[lo:hi], dy[lo:hi])
         return out
 
 

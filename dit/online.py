@@ -144,11 +144,14 @@ class OnlineTokenSource:
         self._data = EpisodeTokens.concatenate(parts)
         self._current = k
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None) -> TokenBatch:
-        """n raw windows from the buffer (refresh 0's if no step was started)."""
+    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
+               part: tuple[int, int] | None = None) -> TokenBatch:
+        """n raw windows from the buffer (refresh 0's if no step was started); part: see
+        `tt.dit.data.EpisodeTokens.sample`. Every data-parallel rank generates the same
+        refreshes (on its own device) and reads its part of the windows."""
         if self._data is None:
             self.start_step(0)
-        return self._data.sample(n, steps, kind, generator)
+        return self._data.sample(n, steps, kind, generator, part=part)
 
     # -------------------------------------------------------------- one refresh
     def draw(self, k: int) -> tuple[list, list]:

@@ -159,22 +159,28 @@ class NoisedInputs:
 
 def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenBatch,
                  generator: torch.Generator | None = None, *, prediction: str = "eps", weighting: str = "none",
-                 gamma: float = 5.0) -> NoisedInputs:
+                 gamma: float = 5.0, part: tuple[int, int] | None = None) -> NoisedInputs:
     """Draw a diffusion step per sample and noise the tokens `task` diffuses.
 
     tokens: normalised values (padding at PAD_VALUE); generator: on the tokens' device;
     prediction: what the network predicts (the targets); weighting, gamma: the noise-level
     loss weight (`CosineDDIM.loss_weight`).
+    part: (first, batch): `tokens` are rows first .. first + len(tokens) - 1 of a batch of
+        `batch` windows; the draws are that batch's (every row's noise is what a process
+        noising the whole batch would draw), so data-parallel ranks together noise exactly
+        as one process does. None: the tokens are the whole batch.
     """
     if scheduler.train_steps != task.diffusion_steps:
         raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
     b, device = len(tokens), tokens.device
+    first, batch = (0, b) if part is None else part
+    rows = slice(first, first + b)
     masks = task_masks(task, layout, tokens)
-    t = scheduler.sample_train_steps(b, generator, device=device)
+    t = scheduler.sample_train_steps(batch, generator, device=device)[rows]
     values, eps, target = {}, {}, {}
     for s in layout.specs:
         x0 = tokens.values[s.name]
-        noise = torch.randn(x0.shape, generator=generator, device=device, dtype=x0.dtype)
+        noise = torch.randn((batch, *x0.shape[1:]), generator=generator, device=device, dtype=x0.dtype)[rows]
         m = masks.noised[s.name].unsqueeze(-1)
         values[s.name] = torch.where(m, scheduler.add_noise(x0, noise, t), x0)
         eps[s.name] = torch.where(m, noise, torch.zeros_like(noise))
@@ -193,10 +199,15 @@ def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.T
 
 
 def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *, loss: str = "huber",
-                   type_weights: Mapping[str, float] | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+                   type_weights: Mapping[str, float] | None = None, forward=None,
+                   global_count=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Loss over one forward pass of all `parts` (one per task) stacked along the batch.
 
     type_weights: type name -> factor on its term (absent types: 1).
+    forward: the module to call (default `model`; a `DistributedDataParallel` wrapper of it);
+    global_count: maps a 0-d count of loss tokens on this process to the count over the whole
+    data-parallel batch (an all-reduce), so each type's term is this process's share of the
+    whole batch's mean: the ranks' terms sum to the single-process loss.
     Returns (total, per-type loss terms before `type_weights`, detached 0-d tensors).
     """
     type_weights = dict(type_weights or {})
@@ -214,7 +225,7 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
         attend = torch.cat([p.masks.attend_full(layout) for _, p in parts])
     ids = {n: torch.cat([p.ids[n] for _, p in parts]) for n in names}
     wanted = sorted({n for task, _ in parts for n in output_types(task, layout)}, key=names.index)
-    pred = model(values, ids, noised, time, attend, outputs=wanted)
+    pred = (model if forward is None else forward)(values, ids, noised, time, attend, outputs=wanted)
     total = torch.zeros((), device=time.device)
     per_type = {}
     weight = torch.cat([p.weight if p.weight is not None else torch.ones(len(p.time), device=p.time.device)
@@ -223,7 +234,7 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
         target = torch.cat([(p.target if p.target is not None else p.eps)[n] for _, p in parts])
         lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)
         err = _elementwise(loss, pred[n].float(), target.float()).mean(-1)  # (B, L)
-        count = lmask.sum()
+        count = lmask.sum() if global_count is None else global_count(lmask.sum())
         term = (err * weight[:, None] * lmask).sum() / count.clamp_min(1)
         per_type[n] = term
         total = total + type_weights.get(n, 1.0) * term

@@ -12,6 +12,16 @@ Every `checkpoint_every` steps and at the end, the run folder gets a checkpoint
 folder that has checkpoints continues from its latest one; resuming reproduces the
 uninterrupted run exactly on the same device (data and noise generator states are
 checkpointed).
+
+Data parallel: started by ``torchrun --nproc-per-node K $(which tt) train ...`` (or any
+launcher that sets WORLD_SIZE, RANK and LOCAL_RANK), the run trains with torch
+DistributedDataParallel over K processes (gloo on the CPU, nccl on CUDA, one GPU per
+process: cuda:LOCAL_RANK). ``batch_size`` stays the global batch: every rank draws the
+same window selection and diffusion noise from the same generators and reads and computes
+only its share (windows r B/K .. (r + 1) B/K - 1 of each task), each type's loss is
+normalised by the token count of the whole batch, so K ranks take the same steps as one
+process at batch B (to float round-off). Rank 0 alone writes checkpoints, loss.csv and
+loss.png; a resume loads the checkpoint on every rank.
 """
 
 from __future__ import annotations
@@ -63,7 +73,8 @@ class TrainConfig:
     device: None for `tt.kernels.device.default_device()`; keep_checkpoints: how many of the
     newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
     and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
-    fine-tune after a change of the training data; ignored when the run resumes; online:
+    fine-tune after a change of the training data; ignored when the run resumes; compile:
+    run the forward pass through `torch.compile` (the first steps pay the compile); online:
     train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
     of `data` (a dict is read as `OnlineConfig` fields).
 
@@ -99,6 +110,7 @@ class TrainConfig:
     bf16: bool = True
     resume: bool = True
     init: str = ""
+    compile: bool = False
     online: OnlineConfig | None = None
     prediction: str = "eps"
     weighting: str = "none"
@@ -214,6 +226,40 @@ def write_loss_curve(losses: torch.Tensor, folder: str | Path) -> Path:
     return path
 
 
+@dataclass(frozen=True)
+class DataParallel:
+    """This process's place in a data-parallel run (from torchrun's environment)."""
+
+    rank: int
+    world_size: int
+    local_rank: int
+
+    @staticmethod
+    def from_env() -> "DataParallel | None":
+        """The run torchrun set up (WORLD_SIZE, RANK, LOCAL_RANK), or None for one process."""
+        import os
+
+        size = int(os.environ.get("WORLD_SIZE", "1"))
+        if size <= 1:
+            return None
+        return DataParallel(int(os.environ["RANK"]), size, int(os.environ.get("LOCAL_RANK", os.environ["RANK"])))
+
+    def share(self, n: int, what: str) -> tuple[int, int]:
+        """(first, last + 1) of this rank's windows among a task's n."""
+        if n % self.world_size:
+            raise ValueError(f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
+                             f"choose a batch_size divisible by {self.world_size} (by {2 * self.world_size} for task both)")
+        k = n // self.world_size
+        return self.rank * k, (self.rank + 1) * k
+
+
+def _start_process_group(dp: DataParallel, device: torch.device) -> None:
+    import torch.distributed as dist
+
+    if not dist.is_initialized():
+        dist.init_process_group("nccl" if device.type == "cuda" else "gloo", rank=dp.rank, world_size=dp.world_size)
+
+
 def _resolve_device(device: str | None) -> torch.device:
     if device is None:
         from tt.kernels.device import default_device
@@ -288,7 +334,14 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     ``design_space``, if it has one); on_step: called after every optimizer step with
     (step, loss), e.g. to drive a progress bar.
     """
+    dp = DataParallel.from_env()
     device = _resolve_device(config.device)
+    if dp is not None and device.type == "cuda":
+        device = torch.device("cuda", dp.local_rank)  # one GPU per process
+        torch.cuda.set_device(device)
+    if dp is not None:
+        _start_process_group(dp, device)
+    writer = dp is None or dp.rank == 0
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     if episodes is None and config.online is not None:
@@ -350,6 +403,24 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     del state
 
     tasks = config.tasks()
+    shares = {t.name: (dp.share(n, f"task {t.name}'s batch") if dp is not None else (0, n)) for t, n in tasks}
+    forward, global_count = model, None
+    if dp is not None:
+        import torch.distributed as dist
+        from torch.nn.parallel import DistributedDataParallel
+
+        # A task trains only some heads, so some parameters get no gradient in a step.
+        forward = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None,
+                                          find_unused_parameters=True)
+
+        def global_count(count: torch.Tensor) -> torch.Tensor:
+            # DDP averages gradients over ranks; scaling by K makes that average the sum of
+            # the ranks' shares of the whole batch's mean.
+            total = count.detach().clone()
+            dist.all_reduce(total)
+            return total / dp.world_size
+    if config.compile:
+        forward = torch.compile(forward)
     schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16,
                               enabled=config.bf16 and (device.type == "cuda" or config.bf16_cpu))
@@ -362,45 +433,55 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
             start_step(step)
         parts = []
         for task, n in tasks:
-            raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen))
+            first, end = shares[task.name]
+            part = None if dp is None else (first, end)
+            raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen, part=part))
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
-            parts.append((task, noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen,
-                                             prediction=config.prediction, weighting=config.weighting,
-                                             gamma=config.min_snr_gamma)))
+            noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, prediction=config.prediction,
+                                  weighting=config.weighting, gamma=config.min_snr_gamma, part=(first, n))
+            parts.append((task, noised))
         for g in optimizer.param_groups:
             g["lr"] = config.learning_rate * lr_factor(step, config.warmup_steps, config.steps)
         with autocast:
-            loss, per_type = diffusion_loss(model, parts, loss=config.loss, type_weights=config.type_weights)
+            loss, per_type = diffusion_loss(model, parts, loss=config.loss, type_weights=config.type_weights,
+                                            forward=forward, global_count=global_count)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
         optimizer.step()
         ema.update(model)
         step += 1
-        value = float(loss.detach())
+        reported = loss.detach()
+        if dp is not None:  # the ranks' losses sum to K times the whole batch's (see global_count)
+            dist.all_reduce(reported)
+            reported = reported / dp.world_size
+        value = float(reported)
         if not math.isfinite(value):
             terms = {k: float(v) for k, v in per_type.items()}
             raise FloatingPointError(f"training loss is {value} at step {step}; per type: {terms}")
         losses.append(value)
         if step % config.checkpoint_every == 0 or step == config.steps:
             last = checkpoint_path(out, step)
-            save_checkpoint(last, {
-                "schema_version": layout.schema_version,
-                "space": space,
-                "model": model.describe(),
-                "state_dict": model.state_dict(),
-                "ema": ema.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "normalizer": normalizer.state_dict(),
-                "train_config": config.to_dict(),
-                "step": step,
-                "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
-                "losses": torch.tensor(losses, dtype=torch.float32),
-            })
-            for old in list_checkpoints(out)[:-config.keep_checkpoints]:
-                old.unlink()
-            write_loss_curve(torch.tensor(losses), out)
+            if writer:
+                save_checkpoint(last, {
+                    "schema_version": layout.schema_version,
+                    "space": space,
+                    "model": model.describe(),
+                    "state_dict": model.state_dict(),
+                    "ema": ema.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "normalizer": normalizer.state_dict(),
+                    "train_config": config.to_dict(),
+                    "step": step,
+                    "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
+                    "losses": torch.tensor(losses, dtype=torch.float32),
+                })
+                for old in list_checkpoints(out)[:-config.keep_checkpoints]:
+                    old.unlink()
+                write_loss_curve(torch.tensor(losses), out)
+            if dp is not None:
+                dist.barrier()  # the checkpoint is on disk before any rank goes on (or ends)
         if on_step is not None:
             on_step(step, value)
     if last is None:

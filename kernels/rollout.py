@@ -532,6 +532,7 @@ def rollout_tree(
     world_ids: np.ndarray | None = None,
     device: str | None = None,
     threads: int | None = None,
+    graph: bool | None = None,
 ) -> RolloutArrays:
     """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
 
@@ -565,6 +566,13 @@ def rollout_tree(
     threads: CPU threads the worlds are spread over (None: every core, `cpu_threads`);
         the records are the same bit for bit for every count. CUDA launches and the
         differentiable rollout (one `wp.Tape` records every launch) use one launch.
+    graph: launch the start posture and every chunk as one captured graph (`wp.ScopedCapture`,
+        replayed by `wp.capture_launch`): one driver submission instead of one per launch.
+        None (default): on a CUDA device yes, on the CPU plain launches (Warp 1.19 can
+        replay a CPU capture too, which the tests use to check both paths agree; a capture
+        records one thread's launches, so it runs on one thread); False: plain launches
+        everywhere. `progress` is then called once, after the replay. Not with
+        ``differentiable`` (a `wp.Tape` records the plain launches).
     """
     topo = model.topology
     device = device or model.device
@@ -610,8 +618,13 @@ def rollout_tree(
     )
     noise_world = wp.array(world_ids.astype(np.int32), dtype=wp.int32, device=device)
     kernels = load_differentiable(topo, device) if differentiable else rollout_kernels(topo)
+    use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
+    if use_graph and differentiable:
+        if graph:
+            raise ValueError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
+        use_graph = False
     threads = cpu_threads(threads)
-    if differentiable or wp.get_device(device).is_cuda:
+    if differentiable or use_graph or wp.get_device(device).is_cuda:
         threads = 1
     # Slices start at multiples of every leading dimension read as ``world % n`` that is not
     # W itself (arrays of W entries are cut to the slice), so each world reads what it would
@@ -629,7 +642,10 @@ def rollout_tree(
         start = np.zeros((W, slots, NV), np.float32)
         start[:, 0] = initial_qpos
         out.qpos_state.assign(start)
-    else:
+    chunk = steps if chunk is None else max(1, int(chunk))
+    chunks = [(t0, min(steps, t0 + chunk)) for t0 in range(0, steps, chunk)]
+
+    def start_posture() -> None:
         _launch_sliced(
             kernels.initial_posture,
             dim=W,
@@ -638,12 +654,10 @@ def rollout_tree(
             device=device,
             slices=slices, threads=threads,
         )
-    kernel = kernels.rollout
-    chunk = steps if chunk is None else max(1, int(chunk))
-    for t0 in range(0, steps, chunk):
-        t1 = min(steps, t0 + chunk)
+
+    def launch(t0: int, t1: int) -> None:
         _launch_sliced(
-            kernel,
+            kernels.rollout,
             dim=W,
             inputs=[
                 model.arrays, weights, int(lookahead_steps), substeps, float(termination_pos_error),
@@ -658,6 +672,24 @@ def rollout_tree(
             device=device,
             slices=slices, threads=threads,
         )
+
+    if use_graph:
+        # Load (compile) outside the capture: drivers before CUDA 12.3 cannot load modules
+        # while a stream is being captured.
+        wp.load_module(kernels.module, device=device)
+        with wp.ScopedCapture(device=device) as capture:
+            if initial_qpos is None:
+                start_posture()
+            for t0, t1 in chunks:
+                launch(t0, t1)
+        wp.capture_launch(capture.graph)
+        if progress is not None:
+            progress(steps)
+        return out
+    if initial_qpos is None:
+        start_posture()
+    for t0, t1 in chunks:
+        launch(t0, t1)
         if progress is not None:
             progress(t1 - t0)
     return out

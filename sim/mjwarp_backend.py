@@ -275,6 +275,7 @@ def mjwarp_rollout(
     njmax: int | None = None,
     progress: bool = False,
     floating_controller: str = "kernel",
+    graph: bool | None = None,
 ) -> Episode:
     """Run every design on every motion on MuJoCo-Warp; an Episode of W = D * M worlds.
 
@@ -289,6 +290,10 @@ def mjwarp_rollout(
         defaults for the model).
     floating_controller: "kernel" (tt's batched whole-body kernels, `tt.kernels.wbc`) or
         "mink" (the oracle's `WholeBodyController` on the host, world by world: the reference).
+    graph: run each control step's physics (``substeps`` `mjw.step` and one `mjw.forward`,
+        some hundred kernel launches) as one captured graph (`wp.ScopedCapture`), replayed
+        every step; None (default): on a CUDA device yes, on the CPU plain launches; False:
+        never. The controller and the records stay plain launches (they take the step index).
     Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`): worlds design-major,
     joint fields zero-padded to the widest design, records repeated after termination.
     """
@@ -340,6 +345,7 @@ def mjwarp_rollout(
                 [models[d] for d in g.members for _ in range(M)], g, sites=sites, motions=marrays, steps=T,
                 motion_count=M, config=wbc_config if g.floating else config, records=records, device=device,
                 nconmax=nconmax, njmax=njmax, bar=bar, floating_controller=floating_controller,
+                graph=wp.get_device(device).is_cuda if graph is None else bool(graph),
             )  # fmt: skip
     if bar is not None:
         bar.close()
@@ -371,6 +377,7 @@ def _run_group(
     njmax: int | None,
     bar,
     floating_controller: str = "kernel",
+    graph: bool = False,
 ) -> None:
     """Simulate the Wg worlds of one structure group (world i: ``group_models[i]`` on motion
     ``i % motion_count``) and write their records into rows ``g.rows``."""
@@ -441,6 +448,19 @@ def _run_group(
         q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
     data.qvel.zero_()
 
+    def physics() -> None:
+        for _ in range(substeps):
+            mjw.step(model, data)
+        mjw.forward(model, data)
+
+    if graph:
+        # Captured, not run: the replay at each step does the work. A first uncaptured step
+        # would load MuJoCo-Warp's modules, but it would also move the state, so they load
+        # inside the capture (CUDA 12.3+ drivers allow it; CPU captures always do).
+        with wp.ScopedCapture(device=device) as capture:
+            physics()
+        physics_graph = capture.graph
+
     for t in range(steps):
         if g.floating and floating_controller == "kernel":
             lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
@@ -465,9 +485,10 @@ def _run_group(
             lookahead_targets(t, config.lookahead_steps, world_motion, motions, target_pos, target_quat, device=device)
             ik_step(tree, data.qpos, target_pos, target_quat, weights, q_cmd, device=device)
             joint_command(q_cmd, act_qpos_w, ranges_w, data.ctrl, device=device)
-        for _ in range(substeps):
-            mjw.step(model, data)
-        mjw.forward(model, data)
+        if graph:
+            wp.capture_launch(physics_graph)
+        else:
+            physics()
         site_poses(site_ids, data.site_xpos, data.site_xmat, ee_pos, ee_quat, device=device)
         record_step(
             records, t, threshold=config.termination_pos_error, world_row=world_row, world_motion=world_motion,

@@ -60,6 +60,7 @@ def rollout(
     action_noise: float = 0.0,
     noise_seed: int = 0,
     threads: int | None = None,
+    graph: bool | None = None,
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
 
@@ -80,6 +81,9 @@ def rollout(
     threads: CPU threads the "warp" backend spreads each topology group's worlds over
         (None: every core); the Episode is the same bit for bit for every count. Other
         backends ignore it.
+    graph: replay the kernel launches as captured graphs ("warp": each topology group's
+        whole rollout; "mjwarp": each control step's physics); None: on a CUDA device yes,
+        on the CPU no; False: plain launches (see `tt.kernels.rollout.rollout_tree`).
     Raises ValueError for mixed design spaces, motions of different dt, an unknown device
     or backend, designs with contacts on "warp", and action_noise > 0 on another backend.
     """
@@ -95,7 +99,7 @@ def rollout(
         raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
     return impl.run(impl.resolve(designs), motions, config=config, device=device, chunk=chunk, progress=progress,
-                    action_noise=action_noise, noise_seed=noise_seed, threads=threads)
+                    action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -114,6 +118,7 @@ def rollout_records(
     action_noise: float = 0.0,
     noise_seed: int = 0,
     threads: int | None = None,
+    graph: bool | None = None,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
 
@@ -122,6 +127,7 @@ def rollout_records(
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
     threads: CPU threads each group's worlds are spread over (None: every core).
+    graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import build_tree_model, check_supported, topology_key
@@ -158,7 +164,7 @@ def rollout_records(
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads, graph=graph,
         )  # fmt: skip
         results.append((members, arrays))
     if bar is not None:
@@ -210,13 +216,14 @@ def _rollout_warp(
     action_noise: float = 0.0,
     noise_seed: int = 0,
     threads: int | None = None,
+    graph: bool | None = None,
 ) -> Episode:
     import warp as wp
 
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
     results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                              action_noise=action_noise, noise_seed=noise_seed, threads=threads)
+                              action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
     perturbed = action_noise > 0.0
     if len(results) == 1:
         (members, arrays), = results

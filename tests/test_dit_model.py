@@ -65,12 +65,12 @@ def test_model_sizes():
         get_config("huge")
 
 
-def test_forward_shapes_and_adaln_zero_init(toy):
+def test_forward_shapes_and_adaln_zero_init(toy, device):
     episodes, layout, norm = toy
-    model = RoboDiT(layout, get_config("tiny"))
-    tokens = norm.normalize(episodes.sample(3, 8, "random", torch.Generator().manual_seed(0)))
+    model = RoboDiT(layout, get_config("tiny")).to(device)
+    tokens = norm.normalize(episodes.sample(3, 8, "random", torch.Generator().manual_seed(0))).to(device)
     masks = task_masks(ROBOT, layout, tokens)
-    out = model(tokens.values, tokens.ids, masks.noised, torch.rand(3), masks.attend)
+    out = model(tokens.values, tokens.ids, masks.noised, torch.rand(3, device=device), masks.attend)
     assert set(out) == set(layout.names_with(Role.EMBODIMENT, Role.DYNAMICS, Role.ACTION))
     for name, eps in out.items():
         assert eps.shape == tokens.values[name].shape
@@ -78,7 +78,7 @@ def test_forward_shapes_and_adaln_zero_init(toy):
         assert bool((eps == 0).all())
     # Every block starts as the identity.
     x = model.embed(tokens.values, tokens.ids, masks.noised)
-    c = model.time_embed(torch.rand(3))
+    c = model.time_embed(torch.rand(3, device=device))
     assert torch.equal(model.blocks[0](x, c, None), x)
 
 

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from dataclasses import asdict, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -215,10 +216,9 @@ def test_action_noise_is_checked_and_defaults_to_the_measured_value():
     assert GenerateConfig.from_dict({**CONFIG.to_dict(), "action_noise": 0.0}).action_noise == 0.0
 
 
-@pytest.mark.slow
 def test_ray_and_process_workers_equal_one_process(reference, tmp_path):
-    """A local Ray cluster of 2 workers, and 2 worker processes, write the same dataset."""
-    pytest.importorskip("ray")
+    """A local Ray cluster of 2 workers, and 2 worker processes, write the same dataset.
+    (Ray comes with the test extra, so CI runs this.)"""
     report = generate(CONFIG, tmp_path / "ray", device="cpu", workers=2, ray_address="local", progress=False)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "ray", reference)
@@ -232,3 +232,65 @@ def test_one_rollout_thread_writes_the_dataset_of_every_core(reference, tmp_path
     report = generate(CONFIG, tmp_path / "one", device="cpu", progress=False, threads=1)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "one", reference)
+
+
+def _ray_shard_tasks() -> list[int]:
+    """Process ids of Ray workers executing a shard now (Ray titles them ``ray::<task>``)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                if (proc / "cmdline").read_bytes().startswith(b"ray::_shard_task"):
+                    pids.append(int(proc.name))
+            except OSError:
+                continue  # ended meanwhile
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds Ray's worker processes through /proc")
+def test_a_ray_worker_killed_mid_shard_is_retried_and_the_dataset_verifies(reference, tmp_path):
+    """SIGKILL a Ray worker while it generates a shard: Ray reruns the task (``max_retries``)
+    on a fresh worker, the shard is written from scratch, and the dataset equals one process's."""
+    import threading
+
+    killed: list[int] = []
+    done = threading.Event()
+
+    def killer():
+        while not done.is_set() and not killed:
+            pids = _ray_shard_tasks()
+            if pids:
+                time.sleep(0.5)  # well inside the shard (it takes seconds), past its start
+                if pids[0] in _ray_shard_tasks():
+                    os.kill(pids[0], signal.SIGKILL)
+                    killed.append(pids[0])
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        report = generate(CONFIG, tmp_path / "ray", device="cpu", workers=2, ray_address="local", progress=False)
+    finally:
+        done.set()
+        thread.join()
+    assert len(killed) == 1, "no Ray worker was caught mid-shard"
+    assert report.run["shards"] == CONFIG.shards
+    TokenStore(tmp_path / "ray", verify="full")  # every shard's checksums verify
+    _same_data(tmp_path / "ray", reference)
+
+
+@pytest.mark.parametrize("kind", ["random", "consecutive"])
+def test_a_data_parallel_rank_reads_its_part_of_the_store_windows(reference, kind):
+    """`StoreTokenSource.sample(part=(a, b))`: windows a .. b - 1 of what the same draw of all
+    n gives (blocks, episodes, steps and the SE(2) augmentation), and the generator ends in
+    the same state, so the ranks stay in step."""
+    from tt.dit.loader import StoreTokenSource
+
+    source = StoreTokenSource(reference, windows_per_block=3)
+    g_all, g_part = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    whole = source.sample(8, 4, kind, g_all)
+    part = source.sample(8, 4, kind, g_part, part=(3, 7))
+    for field in ("values", "ids", "mask"):
+        for name, x in getattr(whole, field).items():
+            assert torch.equal(x[3:7], getattr(part, field)[name]), (field, name)
+    assert torch.equal(g_all.get_state(), g_part.get_state())

@@ -62,7 +62,7 @@ def _mujoco_run(m, qpos0, ctrl):
     return np.array(out), limited
 
 
-def test_one_step_matches_mujoco_including_active_limits():
+def test_one_step_matches_mujoco_including_active_limits(device):
     space = get_space("viperx")
     rng = np.random.default_rng(0)
     active_rows = 0
@@ -82,8 +82,8 @@ def test_one_step_matches_mujoco_including_active_limits():
             mujoco.mj_step(m, d)
             qd_next[i] = d.qvel
             nefc[i] = d.nefc
-        tree = build_tree_model(models, space.ee_sites(), device="cpu")
-        f32 = lambda x: wp.array(np.asarray(x, np.float32), dtype=float)  # noqa: E731
+        tree = build_tree_model(models, space.ee_sites(), device=device)
+        f32 = lambda x: wp.array(np.asarray(x, np.float32), dtype=float, device=device)  # noqa: E731
         out = simulate(tree, f32(q), f32(qd), f32(ctrl))
         h = models[0].opt.timestep
         acc_warp = (out.qvel.numpy()[:, 1] - qd.astype(np.float32)) / h
@@ -97,15 +97,15 @@ def test_one_step_matches_mujoco_including_active_limits():
     assert active_rows > 5  # the limit constraint path was exercised
 
 
-def test_two_seconds_open_loop_on_200_viperx_designs():
+def test_two_seconds_open_loop_on_200_viperx_designs(device):
     space = get_space("viperx")
     rng = np.random.default_rng(1)
     errors, sensitivity, limited_warp, limited_ref = [], [], 0, 0
     for models in _groups(space, space.sample(200, seed=5)):
         ctrl = _ctrl_sequence(models, HORIZON_STEPS, rng)
         qpos0 = np.stack([m.qpos0 for m in models]).astype(np.float32)
-        tree = build_tree_model(models, space.ee_sites(), device="cpu")
-        out = simulate(tree, wp.array(qpos0, dtype=float), wp.zeros(qpos0.shape, dtype=float), wp.array(ctrl, dtype=float))
+        tree = build_tree_model(models, space.ee_sites(), device=device)
+        out = simulate(tree, *(wp.array(a, dtype=float, device=device) for a in (qpos0, np.zeros_like(qpos0), ctrl)))
         qpos_warp = out.qpos.numpy()
         limited_warp += int((out.limit_count.numpy() > 0).sum())
         for i, m in enumerate(models):
@@ -124,7 +124,7 @@ def test_two_seconds_open_loop_on_200_viperx_designs():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["aloha", "bimanual"])
-def test_two_arm_open_loop_matches_mujoco(name):
+def test_two_arm_open_loop_matches_mujoco(name, device):
     space = get_space(name)
     sites = space.ee_sites()
     nominal = topology_of(space.model(space.nominal()), sites)
@@ -132,8 +132,8 @@ def test_two_arm_open_loop_matches_mujoco(name):
     rng = np.random.default_rng(2)
     ctrl = _ctrl_sequence(models, HORIZON_STEPS, rng)
     qpos0 = np.stack([m.qpos0 for m in models]).astype(np.float32)
-    tree = build_tree_model(models, sites, device="cpu")
-    out = simulate(tree, wp.array(qpos0, dtype=float), wp.zeros(qpos0.shape, dtype=float), wp.array(ctrl, dtype=float))
+    tree = build_tree_model(models, sites, device=device)
+    out = simulate(tree, *(wp.array(a, dtype=float, device=device) for a in (qpos0, np.zeros_like(qpos0), ctrl)))
     for i, m in enumerate(models):
         ref, _ = _mujoco_run(m, qpos0[i], ctrl[i])
         perturbed, _ = _mujoco_run(m, qpos0[i] + 1e-6 * rng.standard_normal(m.nq), ctrl[i])

@@ -28,11 +28,11 @@ def _angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(v, axis=-1), np.abs(w))
 
 
-def _check_group(models, sites, rng):
-    tree = build_tree_model(models, sites, device="cpu")
+def _check_group(models, sites, rng, device):
+    tree = build_tree_model(models, sites, device=device)
     q = np.stack([rng.uniform(*np.clip(m.jnt_range, -np.pi, np.pi).T) for m in models]).astype(np.float32)
     out = kinematics_outputs(tree, len(models), fill=np.inf)
-    forward_kinematics(tree, wp.array(q, dtype=float), out)
+    forward_kinematics(tree, wp.array(q, dtype=float, device=device), out)
     xpos, xquat = out.xpos.numpy(), out.xquat.numpy()
     site_pos, site_quat, site_jac = out.site_pos.numpy(), out.site_quat.numpy(), out.site_jac.numpy()
     assert np.all(np.isfinite(xpos)) and np.all(np.isfinite(site_jac))
@@ -56,7 +56,7 @@ def _check_group(models, sites, rng):
             np.testing.assert_allclose(site_jac[i, e, 3:], jacr, atol=ROT_TOL)
 
 
-def test_1000_random_viperx_designs_match_mujoco():
+def test_1000_random_viperx_designs_match_mujoco(device):
     space = get_space("viperx")
     rng = np.random.default_rng(0)
     groups: dict[tuple, list] = {}
@@ -65,21 +65,21 @@ def test_1000_random_viperx_designs_match_mujoco():
         groups.setdefault(topology_key(m, space.ee_sites()), []).append(m)
     assert len(groups) == 3  # the 5-, 6- and 7-DoF arms
     for models in groups.values():
-        _check_group(models, space.ee_sites(), rng)
+        _check_group(models, space.ee_sites(), rng, device)
 
 
 @pytest.mark.parametrize("name", ["aloha", "bimanual"])
-def test_two_arm_designs_match_mujoco(name):
+def test_two_arm_designs_match_mujoco(name, device):
     # One topology per space (the nominal one) keeps this to one compile per space.
     space = get_space(name)
     sites = space.ee_sites()
     nominal = topology_of(space.model(space.nominal()), sites)
     models = [m for m in (space.model(d) for d in space.sample(60, seed=3)) if topology_of(m, sites) == nominal]
     assert len(models) >= 5
-    _check_group(models, sites, np.random.default_rng(1))
+    _check_group(models, sites, np.random.default_rng(1), device)
 
 
-def test_multi_joint_body_is_split_into_a_chain():
+def test_multi_joint_body_is_split_into_a_chain(device):
     # A body with two hinges and a slide: MuJoCo applies them in order, each in the frame
     # left by the previous one; the tree model gives each its own body.
     xml = """
@@ -100,11 +100,11 @@ def test_multi_joint_body_is_split_into_a_chain():
       </worldbody>
     </mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
-    tree = build_tree_model([m], ("ee_0",), device="cpu")
+    tree = build_tree_model([m], ("ee_0",), device=device)
     assert tree.topology.body_parent == (0, 0, 1, 2, 3)
     assert tree.topology.body_dof == (-1, 0, 1, 2, 3)
     q = np.array([[0.4, -0.7, 0.12, 1.1]], dtype=np.float32)
-    out = forward_kinematics(tree, wp.array(q, dtype=float), kinematics_outputs(tree, 1, fill=np.inf))
+    out = forward_kinematics(tree, wp.array(q, dtype=float, device=device), kinematics_outputs(tree, 1, fill=np.inf))
     d = mujoco.MjData(m)
     d.qpos[:] = q[0]
     mujoco.mj_kinematics(m, d)

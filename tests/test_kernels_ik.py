@@ -63,41 +63,42 @@ def _cases(config: IKConfig, seed: int):
     return space, groups
 
 
-def _run(space, cases, config):
+def _run(space, cases, config, device):
     models = [c[0] for c in cases]
-    tree = build_tree_model(models, space.ee_sites(), device="cpu")
+    tree = build_tree_model(models, space.ee_sites(), device=device)
     q = np.stack([c[1] for c in cases]).astype(np.float32)
     pos = np.stack([c[2] for c in cases])[:, None].astype(np.float32)
     quat = np.stack([c[3] for c in cases])[:, None].astype(np.float32)
     out = ik_step(
-        tree, wp.array(q, dtype=float), wp.array(pos, dtype=wp.vec3), wp.array(quat, dtype=wp.vec4), config.ik_weights()
+        tree, *(wp.array(a, dtype=t, device=device) for a, t in ((q, float), (pos, wp.vec3), (quat, wp.vec4))),
+        config.ik_weights()
     )
     return out.numpy(), np.stack([c[4] for c in cases])
 
 
-def test_ik_step_matches_the_oracle_on_200_states():
+def test_ik_step_matches_the_oracle_on_200_states(device):
     config = IKConfig()
     space, groups = _cases(config, seed=0)
     assert len(groups) == 3
     clipped = 0
     for cases in groups.values():
-        q_cmd, ref = _run(space, cases, config)
+        q_cmd, ref = _run(space, cases, config, device)
         np.testing.assert_allclose(q_cmd, ref, atol=TOL, rtol=0)
         lo, hi = np.stack([c[0].jnt_range for c in cases]).transpose(2, 0, 1)
         clipped += int(np.sum((ref <= lo + 1e-9) | (ref >= hi - 1e-9)))
     assert clipped > 0  # some far targets drive joints into the clip
 
 
-def test_ik_step_with_levenberg_marquardt_and_other_weights():
+def test_ik_step_with_levenberg_marquardt_and_other_weights(device):
     # Every IKConfig weight reaches the kernel: lm_damping adds mu = lm |C e|^2 to the diagonal.
     config = IKConfig(position_cost=2.0, orientation_cost=0.3, posture_cost=0.05, lm_damping=0.1, damping=1e-2)
     space, groups = _cases(config, seed=1)
     for cases in groups.values():
-        q_cmd, ref = _run(space, cases, config)
+        q_cmd, ref = _run(space, cases, config, device)
         np.testing.assert_allclose(q_cmd, ref, atol=TOL, rtol=0)
 
 
-def test_ik_step_follows_minks_jacobian_switch_at_zero_rotation_error():
+def test_ik_step_follows_minks_jacobian_switch_at_zero_rotation_error(device):
     """mink's SE(3) jlog is the identity below `MINK_JLOG_EPS` [rad^2] of rotation error.
     Targets ~10 cm off the site with its orientation exactly (below the switch) and
     turned by 1.5e-5 rad (2.25e-10 rad^2, above it): the oracle's steps on the two sides
@@ -123,5 +124,5 @@ def test_ik_step_follows_minks_jacobian_switch_at_zero_rotation_error():
         cases += [(m, q, pos, _f32(quat), on), (m, q, pos, _f32(turned), off)]
     assert np.median(jump) > 5 * TOL  # the oracle's discontinuity
     for cases in groups.values():
-        q_cmd, ref = _run(space, cases, config)
+        q_cmd, ref = _run(space, cases, config, device)
         np.testing.assert_allclose(q_cmd, ref, atol=TOL_SWITCH, rtol=0)

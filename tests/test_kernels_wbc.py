@@ -90,13 +90,14 @@ class Batch:
         self.quat = np.array(quat)[:, None]
         self.tree = build_wbc_model(models, config, device="cpu")
 
-    def run(self, dtype=wp.float32) -> np.ndarray:
+    def run(self, dtype=wp.float32, device: str = "cpu") -> np.ndarray:
         np_dtype = np.float32 if dtype == wp.float32 else np.float64
+        tree = self.tree if device == "cpu" else build_wbc_model(self.models, self.config, device=device)
         out = wbc_step(
-            self.tree,
-            wp.array(self.qpos.astype(np_dtype), dtype=dtype, device="cpu"),
-            wp.array(self.pos.astype(np.float32), dtype=wp.vec3, device="cpu"),
-            wp.array(self.quat.astype(np.float32), dtype=wp.vec4, device="cpu"),
+            tree,
+            wp.array(self.qpos.astype(np_dtype), dtype=dtype, device=device),
+            wp.array(self.pos.astype(np.float32), dtype=wp.vec3, device=device),
+            wp.array(self.quat.astype(np.float32), dtype=wp.vec4, device=device),
         )
         return out.numpy().astype(np.float64)
 
@@ -132,14 +133,14 @@ def standing(space):
     return Batch(models, qpos, pos, quat, ref)
 
 
-def test_wbc_step_matches_the_oracle_on_200_random_standing_states(space, standing):
+def test_wbc_step_matches_the_oracle_on_200_random_standing_states(space, standing, device):
     topologies = {topology_key(m, space.ee_sites()) for m in standing.models}
     assert len(topologies) == 32  # one launch runs every topology of the space
     assert sum(m.neq > 0 for m in standing.models) > 100  # linkage legs: connect rows
     assert any(m.nq != standing.nq for m in standing.models)  # padded worlds
-    joints, full = standing.errors(standing.run(wp.float32))
+    joints, full = standing.errors(standing.run(wp.float32, device))
     assert joints.max() < TOL and full.max() < TOL, (joints.max(), full.max())
-    joints, full = standing.errors(standing.run(wp.float64))
+    joints, full = standing.errors(standing.run(wp.float64, device))
     assert full.max() < TOL64, full.max()
     # The far targets drive joints into the clip.
     clipped = 0
@@ -201,7 +202,7 @@ def test_the_oracles_jacobian_switch_at_zero_rotation_error_is_reproduced(space)
     assert batch.errors(batch.run(wp.float64))[1].max() < TOL64
 
 
-def test_start_posture_matches_the_oracles(space):
+def test_start_posture_matches_the_oracles(space, device):
     """50 kinematic steps from home toward a target 15 cm away (`WholeBodyController.initial_q`)."""
     rng = np.random.default_rng(3)
     models, targets, ref = [], [], []
@@ -214,11 +215,11 @@ def test_start_posture_matches_the_oracles(space):
         models.append(m)
         targets.append((pos, quat))
         ref.append(ctl.initial_q(pos[None], quat[None]))
-    tree = build_wbc_model(models, device="cpu")
+    tree = build_wbc_model(models, device=device)
     out = wbc_initial_q(
         tree,
-        wp.array(np.array([t[0] for t in targets], np.float32)[:, None], dtype=wp.vec3, device="cpu"),
-        wp.array(np.array([t[1] for t in targets], np.float32)[:, None], dtype=wp.vec4, device="cpu"),
+        wp.array(np.array([t[0] for t in targets], np.float32)[:, None], dtype=wp.vec3, device=device),
+        wp.array(np.array([t[1] for t in targets], np.float32)[:, None], dtype=wp.vec4, device=device),
         WBCConfig().init_iterations,
     ).numpy()
     for i, m in enumerate(models):

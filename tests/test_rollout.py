@@ -51,8 +51,14 @@ def _rounded_oracle(space, designs, motions):
     return rollout(models, rounded, backend="mujoco")
 
 
-def _compare(space, designs, motions, min_reproducible):
-    warp_ep = rollout(designs, motions, device="cpu")
+def _on_cpu(ep):
+    """The episode with its tensors copied to the host (where the oracle's live)."""
+    return dataclasses.replace(ep, **{f.name: getattr(ep, f.name).cpu() for f in dataclasses.fields(ep)
+                                      if isinstance(getattr(ep, f.name), torch.Tensor)})
+
+
+def _compare(space, designs, motions, min_reproducible, device="cpu"):
+    warp_ep = _on_cpu(rollout(designs, motions, device=device))
     oracle_ep = rollout(designs, motions, backend="mujoco")
     again_ep = _rounded_oracle(space, designs, motions)
 
@@ -98,11 +104,11 @@ def _compare(space, designs, motions, min_reproducible):
     return warp_ep, oracle_ep
 
 
-def test_warp_matches_the_oracle_on_16_viperx_designs():
+def test_warp_matches_the_oracle_on_16_viperx_designs(device):
     space = get_space("viperx")
     designs = space.sample(16, seed=11)
     motions = motion_set("train", arms=1)[:2]
-    _compare("viperx", designs, motions, min_reproducible=0.75)
+    _compare("viperx", designs, motions, min_reproducible=0.75, device=device)
 
 
 @pytest.mark.slow
@@ -125,12 +131,12 @@ def test_two_arm_designs_match_the_oracle(name):
     _compare(name, designs, motions, min_reproducible=0.5)
 
 
-def test_motions_of_different_lengths_pad_like_the_oracle():
+def test_motions_of_different_lengths_pad_like_the_oracle(device):
     space = get_space("viperx")
     designs = [space.nominal()]
     long = motion_set("train", arms=1)[0]
     short = Motion("short", long.pos[:30], long.quat[:30])
-    ep = rollout(designs, [long, short], device="cpu")
+    ep = _on_cpu(rollout(designs, [long, short], device=device))
     assert ep.qpos.shape[:2] == (2, long.steps)
     assert int(ep.alive[1].sum()) == 30 and not bool(ep.alive[1, 30:].any())
     # Past its motion's end a world repeats its last record; its target stays the last pose.
@@ -244,3 +250,32 @@ def test_cli_rollout_errors_name_the_problem(tmp_path, tt_cli):
     assert code != 0 and "cheetah" in text, text
     code, text = tt_cli(["rollout", "--space", "viperx", "--n", "1", "--motion", "nope"])
     assert code != 0 and "nope" in text, text
+
+
+@pytest.mark.parametrize("backend", ["warp", "mjwarp"])
+def test_graph_replay_matches_plain_launches(backend, device):
+    """The captured-graph path (the default on CUDA; forced on the CPU here, where Warp can
+    replay a capture too) records exactly what plain launches record: one replay of a whole
+    chunked, perturbed rollout ("warp"), or of each control step's physics ("mjwarp")."""
+    space = get_space("viperx")
+    designs = space.sample(2, seed=3)
+    first = motion_set("train", arms=1)[0]
+    motions = [Motion("short", first.pos[:12], first.quat[:12])]
+    noise = dict(action_noise=0.05, noise_seed=7, chunk=5) if backend == "warp" else {}
+    plain = _on_cpu(rollout(designs, motions, backend=backend, device=device, graph=False, **noise))
+    graphed = _on_cpu(rollout(designs, motions, backend=backend, device=device, graph=True, **noise))
+    default = _on_cpu(rollout(designs, motions, backend=backend, device=device, **noise))
+    for field in dataclasses.fields(plain):
+        a = getattr(plain, field.name)
+        if isinstance(a, torch.Tensor):
+            assert torch.equal(a, getattr(graphed, field.name)), field.name
+            assert torch.equal(a, getattr(default, field.name)), field.name
+    assert bool(plain.alive.any()) and float(plain.qpos.abs().sum()) > 0
+    with pytest.raises(ValueError, match="graph=True with differentiable"):
+        from tt.kernels.model import build_tree_model
+        from tt.kernels.rollout import motion_arrays, rollout_tree
+        from tt.sim.controller import IKConfig
+
+        tree = build_tree_model([space.model(designs[0])], space.ee_sites(), device=device)
+        marrays = motion_arrays(first.pos[None, :4], first.quat[None, :4], [4], device=device)
+        rollout_tree(tree, marrays, 1, 4, **IKConfig().rollout_args(), differentiable=True, graph=True)

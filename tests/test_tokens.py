@@ -7,6 +7,7 @@ joint frames, the paper's schema table.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import warnings
@@ -439,16 +440,21 @@ def _open_loop_episode(models, steps: int, seed: int, substeps: int = 10) -> Epi
                    dt=0.02)
 
 
-def test_episode_tokens_read_the_rollout():
+def test_episode_tokens_read_the_rollout(device):
     """Dynamics tokens equal MuJoCo's state at the chosen steps: joint positions and
-    velocities, actuator velocity / force, commands, end-effector and free-link poses."""
+    velocities, actuator velocity / force, commands, end-effector and free-link poses.
+    The tokens are taken on `device` (where the rollout's episode lives) and read back."""
     sp = get_space("viperx")
     models = [sp.model(d) for d in sp.sample(3, seed=4)]
     models.append(mujoco.MjModel.from_xml_path(str(ROBOTS / "floating_box.xml")))
     emb = _quiet_tokenize(models)
     ep = _open_loop_episode(models, steps=25, seed=0)
     steps = torch.tensor([[0, 3, 7, 8, 12, 20, 21, 24]] * len(models))
-    tok = episode_tokens(ep, emb.index, step_index=steps)
+    on_device = dataclasses.replace(ep, **{f.name: getattr(ep, f.name).to(device) for f in dataclasses.fields(ep)
+                                           if isinstance(getattr(ep, f.name), torch.Tensor)})
+    tok = episode_tokens(on_device, emb.index, step_index=steps.to(device))
+    assert all(v.device == torch.device(device) for v in tok.values.values())
+    tok = tok.to_torch("cpu")
     assert tok.types == ("free_link_obs", "track_link_obs", "dyna_joint_obs", "actuator_obs", "control", "target_pose")
     dj = tok.values["dyna_joint_obs"]
     for w, (m, ix) in enumerate(zip(models, emb.index)):

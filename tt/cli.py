@@ -301,6 +301,7 @@ def rollout(
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
+    graph: Optional[bool] = typer.Option(None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
     metrics per motion and the world-steps per second."""
@@ -333,7 +334,7 @@ def rollout(
     # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
-    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads)
+    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads, graph=graph)
     seconds = time.perf_counter() - start
     ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
@@ -648,6 +649,10 @@ def train(
     result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                        device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
                        online=online_config, **recipe)
+    import os
+
+    if int(os.environ.get("RANK", "0")) != 0:
+        return  # a data-parallel run (torchrun) reports from rank 0
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
 

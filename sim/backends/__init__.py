@@ -38,13 +38,14 @@ class WarpBackend:
         return resolve_designs(designs, who="the 'warp' backend", contacts=False, hint="use backend='mjwarp' or 'mujoco'")
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None) -> Episode:
+            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
+            graph: bool | None = None) -> Episode:
         from tt.sim.rollout import _rollout_warp
 
         sites = robots.ee_sites
         check_motions(motions, config.control_dt, len(sites))
         return _rollout_warp(list(robots.models), sites, motions, config=config, device=device, chunk=chunk,
-                             progress=progress, action_noise=action_noise, noise_seed=noise_seed, threads=threads)
+                             progress=progress, action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
 
 
 class MjWarpBackend:
@@ -57,10 +58,11 @@ class MjWarpBackend:
         return resolve_designs(designs, who="the 'mjwarp' backend", one_space=False)
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None) -> Episode:
+            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
+            graph: bool | None = None) -> Episode:
         from tt.sim.mjwarp_backend import mjwarp_rollout
 
-        return mjwarp_rollout(robots, motions, config=config, device=device, progress=progress)
+        return mjwarp_rollout(robots, motions, config=config, device=device, progress=progress, graph=graph)
 
 
 class NewtonBackend:
@@ -73,7 +75,8 @@ class NewtonBackend:
         return resolve_designs(designs, who="the 'newton' backend", contacts=False, hint="use backend='mjwarp'")
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None) -> Episode:
+            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
+            graph: bool | None = None) -> Episode:
         from tt.sim.newton_backend import newton_rollout
 
         return newton_rollout(robots, motions, config=config, device=device, progress=progress)
@@ -89,7 +92,8 @@ class OracleBackend:
         return resolve_designs(designs, who="the 'mujoco' backend")
 
     def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None) -> Episode:
+            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
+            graph: bool | None = None) -> Episode:
         from tt.sim.validate import oracle_rollout
 
         check_motions(motions, config.control_dt, len(robots.ee_sites))

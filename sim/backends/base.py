@@ -154,12 +154,15 @@ class RolloutBackend(Protocol):
         action_noise: float,
         noise_seed: int,
         threads: int | None = None,
+        graph: bool | None = None,
     ) -> Episode:
         """Every robot on every motion: an Episode of W = D * M worlds, design-major (world
         ``d * M + m`` is design d on motion m), tensors on `device` (the oracle: CPU).
         chunk: control steps per kernel launch where the backend launches kernels.
         threads: CPU threads where the backend spreads worlds over threads (None: every
-        core); the Episode must not depend on it."""
+        core); the Episode must not depend on it. graph: replay the kernel launches as
+        captured CUDA graphs (None: on a CUDA device; backends without kernel launches of
+        their own ignore it)."""
         ...
 
 
