@@ -216,7 +216,12 @@ def _closed_loop_rate(backend: str, designs, full_steps: int, budget: float) -> 
     if long < 2.0:  # fast combinations: the best of 3 of each run
         short = min([short] + [_closed_loop(backend, designs, SHORT_STEPS) for _ in range(2)])
         long = min([long] + [_closed_loop(backend, designs, long_steps) for _ in range(2)])
-    rate = n * SUBSTEPS * (long_steps - SHORT_STEPS) / max(long - short, 1e-9)
+    gap = long - short
+    if gap <= 0.05 * long:
+        # The extra steps took no measurable time next to setup: no rate can be read off.
+        return _log({"backend": backend, "worlds": n, "rate": None, "control_steps": long_steps,
+                     "truncated": long_steps < full_steps, "setup_s": short, "unmeasurable": True})
+    rate = n * SUBSTEPS * (long_steps - SHORT_STEPS) / gap
     return _log({"backend": backend, "worlds": n, "rate": rate, "control_steps": long_steps,
                  "truncated": long_steps < full_steps, "setup_s": max(short - n * SUBSTEPS * SHORT_STEPS / rate, 0.0)})
 
@@ -247,7 +252,7 @@ def _cli(designs_json: Path, backend: str, threads: int | None, motion_file: Pat
 
 
 def _fmt_rate(rate: float | None) -> str:
-    if rate is None:
+    if rate is None or rate != rate or rate == float("inf"):
         return "-"
     if rate >= 1e6:
         return f"{rate / 1e6:.2f} M"
