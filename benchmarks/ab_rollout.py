@@ -2,8 +2,13 @@
 
 Run it from outside the repository with each install to compare (benchmarks/results/layering_speed.md).
 """
-import inspect, json, os, sys, time
-import numpy as np
+
+import inspect
+import json
+import os
+import sys
+import time
+
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.rollout import rollout
