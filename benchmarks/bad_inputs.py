@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bad_input_cases import CASES, CLASSES, Case, Outcome, make_files, outcome  # noqa: E402
+from bad_input_cases import CASES, CLASSES, Case, Outcome, make_files, noisy_detokenized, outcome  # noqa: E402
 from machine import machine_header  # noqa: E402
 
 
@@ -107,29 +107,9 @@ def _serve_sigterm(files, work: Path):
 
 
 def _noisy_names(files, work: Path):
-    import warnings
-
-    import numpy as np
-
-    from tt.sim.designs import get_space
-    from tt.tokens.batch import TokenBatch
-    from tt.tokens.detokenize import detokenize
-    from tt.tokens.normalize import Normalizer
-    from tt.tokens.tokenize import tokenize_models
-
-    sp = get_space("quadruped")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        tokens = tokenize_models([sp.model(d) for d in sp.sample(12, seed=3)]).tokens
-    norm = Normalizer.fit(tokens)
-    clean = norm.normalize(tokens)
-    rng = np.random.default_rng(0)
-    for sigma in (0.3, 1.0, 3.0):
-        noisy = TokenBatch({k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
-                           clean.ids, clean.mask)
-        for r in detokenize(norm.denormalize(noisy, detect_padding=True)):
-            if not r.ok and "repeated name" in r.error:
-                return "misleading", r.error
+    for r in noisy_detokenized():
+        if not r.ok and "repeated name" in r.error:
+            return "misleading", r.error
     return "ok", ""
 
 

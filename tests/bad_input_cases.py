@@ -353,3 +353,27 @@ def outcome(case: Case, files: SimpleNamespace, invoke: Callable[[list[str]], tu
     if problem:
         return Outcome(case, "loss", code, out, problem)
     return Outcome(case, "clear", code, out)
+
+
+def noisy_detokenized(sigmas=(0.3, 1.0, 3.0)):
+    """Detokenizer results of 12 quadruped robots' normalised tokens under Gaussian noise of
+    each sigma (class 7: names must stay unique at any noise); yields `DetokenizeResult`s."""
+    import warnings
+
+    from tt.sim.designs import get_space
+    from tt.tokens.batch import TokenBatch
+    from tt.tokens.detokenize import detokenize
+    from tt.tokens.normalize import Normalizer
+    from tt.tokens.tokenize import tokenize_models
+
+    sp = get_space("quadruped")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tokens = tokenize_models([sp.model(d) for d in sp.sample(12, seed=3)]).tokens
+    norm = Normalizer.fit(tokens)
+    clean = norm.normalize(tokens)
+    rng = np.random.default_rng(0)
+    for sigma in sigmas:
+        noisy = TokenBatch({k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
+                           clean.ids, clean.mask)
+        yield from detokenize(norm.denormalize(noisy, detect_padding=True))

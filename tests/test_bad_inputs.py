@@ -19,11 +19,10 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bad_input_cases import CASES, CLASSES, outcome, make_files  # noqa: E402
+from bad_input_cases import CASES, CLASSES, make_files, noisy_detokenized, outcome  # noqa: E402
 
 from tt.generate import GenerateConfig, generate  # noqa: E402
 
@@ -222,31 +221,13 @@ def test_view_serve_stops_its_meshcat_server_on_sigterm(tmp_path):
 
 # ------------------------------------------------------------------ 7: detokenizer names
 def test_detokenized_names_are_unique_at_any_noise():
-    import warnings
-
-    from tt.sim.designs import get_space
-    from tt.tokens.batch import TokenBatch
-    from tt.tokens.detokenize import detokenize
-    from tt.tokens.normalize import Normalizer
-    from tt.tokens.tokenize import tokenize_models
-
-    sp = get_space("quadruped")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        tokens = tokenize_models([sp.model(d) for d in sp.sample(12, seed=3)]).tokens
-    norm = Normalizer.fit(tokens)
-    clean = norm.normalize(tokens)
-    rng = np.random.default_rng(0)
     repeated = []
-    for sigma in (0.3, 1.0, 3.0):
-        noisy = TokenBatch({k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
-                           clean.ids, clean.mask)
-        for r in detokenize(norm.denormalize(noisy, detect_padding=True)):
-            if not r.ok and "repeated name" in r.error:
-                repeated.append(r.error)
-            if r.ok:
-                import mujoco
+    for r in noisy_detokenized():
+        if not r.ok and "repeated name" in r.error:
+            repeated.append(r.error)
+        if r.ok:
+            import mujoco
 
-                names = [mujoco.mj_id2name(r.model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(r.model.njnt)]
-                assert len(set(names)) == len(names)
+            names = [mujoco.mj_id2name(r.model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(r.model.njnt)]
+            assert len(set(names)) == len(names)
     assert not repeated, repeated[:3]
