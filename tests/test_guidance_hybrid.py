@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs
+from tt.baselines.cmaes import _decode, _encode
 from tt.guidance.hybrid import ModelInitCMAES, SimVerified, VerifyConfig
 from tt.guidance.zeroth import Decoded, Generation, Ranking, SamplerConfig, ZerothOrder
 from tt.sim.designs import get_space
@@ -89,12 +90,10 @@ def test_cmaes_proposals_take_half_the_screen_and_set_the_step_size(motions):
     space = get_space("viperx")
     problem = Problem(space="viperx", motions=motions, reward="tracking", budget=20, seed=1)
     nominal = space.nominal()
-    lo = np.array([p.low for p in space.continuous_params(nominal.discrete)])
-    hi = np.array([p.high for p in space.continuous_params(nominal.discrete)])
-    x0 = (np.asarray(nominal.continuous) - lo) / (hi - lo)
+    x0 = _encode(space, nominal)
     rng = np.random.default_rng(0)
     xs = [np.clip(x0 + 0.08 * rng.standard_normal(x0.size), 0.0, 1.0) for _ in range(8)]
-    proposals = [type(nominal)(space.name, nominal.discrete, tuple(lo + x * (hi - lo))) for x in xs]
+    proposals = [_decode(space, nominal.discrete, x) for x in xs]
     opt = CMAES(CMAESConfig(popsize=5, generations=2))
     plan = opt.plan(problem)
     assert (plan.screen, plan.restarts) == (10, 1)
@@ -103,17 +102,11 @@ def test_cmaes_proposals_take_half_the_screen_and_set_the_step_size(motions):
     assert all(d.discrete != nominal.discrete or d in proposals for d in result.designs[5:10])
     assert result.rollouts == problem.budget * len(motions)  # the budget of plain CMA-ES
     assert result.designs[10].discrete == nominal.discrete  # the restart started from a proposal
-    spread = float(np.std(np.stack([_encode_design(space, d) for d in proposals]), axis=0).mean())
+    spread = float(np.std(np.stack([_encode(space, d) for d in proposals]), axis=0).mean())
     assert result.info["sigmas"] == [pytest.approx(np.clip(spread, 0.05, 0.25), rel=1e-9)]
     assert opt.optimize(problem).info["sigmas"] == [0.25]
     with pytest.raises(ValueError, match="space 'viperx'"):
         opt.optimize(problem, proposals=get_space("aloha").sample(2, seed=0))
-
-
-def _encode_design(space, d):
-    lo = np.array([p.low for p in space.continuous_params(d.discrete)])
-    hi = np.array([p.high for p in space.continuous_params(d.discrete)])
-    return np.clip((np.asarray(d.continuous) - lo) / (hi - lo), 0.0, 1.0)
 
 
 @pytest.fixture(scope="module")
