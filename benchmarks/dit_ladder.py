@@ -2,8 +2,9 @@
 
 For a checkpoint and a held-out set (designs of its space that no training draw holds,
 `tt.ladder.heldout_designs`, x validation motions, `tt.ladder.validation_motions`) it runs
-`tt predict`'s code path (`tt.guidance.predicted.predict_designs`: the design inpainted, the
-dynamics predicted, the reward of those) and the simulator on the same pairs, and reports
+`tt predict`'s code path (`tt.guidance.predicted.predict_designs`: the design given, as the
+dynamics task's condition or inpainted into the robot task, the dynamics predicted, the
+reward of those) and the simulator on the same pairs, and reports
 the Pearson r pooled over all pairs and within each motion, beside the ceiling of the 8-step
 reward estimate (the same estimator on the simulated poses). Targets (issue 17): R1
 (``viperx-nominal``) pooled >= 0.8, within-motion >= 0.6; R2 (``viperx``) 0.7 and 0.5.
@@ -12,7 +13,7 @@ Prints one JSON line per result; writes a markdown report (``--out``, default
 ``benchmarks/results/dit_ladder_<space>.md``) and the raw numbers beside it (``.json``).
 
 Usage: ``python benchmarks/dit_ladder.py RUN_OR_CHECKPOINT [--designs 32] [--motions 5] [--samples 1]
-[--num-steps 20] [--threads 2]``.
+[--num-steps 20] [--threads 2] [--via dynamics|inpaint]``.
 """
 
 from __future__ import annotations
@@ -45,6 +46,8 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--backend", default="warp")
     p.add_argument("--device", default="cpu")
+    p.add_argument("--via", default=None, choices=["dynamics", "inpaint"],
+                   help="how the design is given (default: dynamics when the checkpoint was trained on it)")
     p.add_argument("--out", default=None)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -59,9 +62,10 @@ def main() -> None:
     designs = heldout_designs(space, args.designs, args.design_seed)
     motions = validation_motions(space, args.motions)
     sc = score_designs(trained, designs, motions, args.reward, samples=args.samples, num_steps=args.num_steps,
-                       chunk=args.chunk, backend=args.backend, device=args.device)
+                       chunk=args.chunk, backend=args.backend, device=args.device, via=args.via)
+    via = args.via or ("dynamics" if trained.trained_on("dynamics") else "inpaint")
     result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
-              "designs": len(designs), "motions": sc.motions, "samples": args.samples, "num_steps": args.num_steps,
+              "designs": len(designs), "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
               "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,
               "estimator_pooled_r": sc.estimator_pooled, "seconds": sc.seconds}
     print(json.dumps(result), flush=True)
@@ -75,7 +79,7 @@ def main() -> None:
         machine_header(args.device),
         f"Checkpoint `{trained.path}` (step {trained.step}); {len(designs)} held-out designs "
         f"(`tt.ladder.heldout_designs({space!r}, {args.designs}, {args.design_seed})`) x {len(motions)} validation "
-        f"motions; `tt predict` code path, {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
+        f"motions; `tt predict` code path (design given via {via}), {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
         f"`{args.backend}`.",
         "",
         f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: {sc.estimator_pooled:.2f})",

@@ -37,6 +37,7 @@ import torch
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
+from tt.dit.tasks import task_names
 from tt.kernels.files import CorruptFileError, atomic_write, check_readable, reason
 from tt.tokens.normalize import Normalizer
 
@@ -156,7 +157,9 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu", 
 class TrainedModel:
     """A network ready to sample: model (EMA weights unless asked otherwise, eval mode),
     its normaliser, layout, the step it was saved at, the design space it was trained on
-    (None: not recorded, as in checkpoints written before spaces were) and its file."""
+    (None: not recorded, as in checkpoints written before spaces were), its file, the
+    names of the tasks it was trained on and the DDIM training steps of its robot and
+    dynamics tasks (the paper's defaults where the checkpoint records no train config)."""
 
     model: RoboDiT
     normalizer: Normalizer
@@ -164,6 +167,12 @@ class TrainedModel:
     step: int
     space: str | None = None
     path: Path | None = None
+    tasks: tuple[str, ...] = ("robot",)
+    robot_diffusion_steps: int = 100
+
+    def trained_on(self, task: str) -> bool:
+        """Whether the model was trained on `task` ("robot", "dynamics" or "control")."""
+        return task in self.tasks
 
 
 def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> TrainedModel:
@@ -186,4 +195,16 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError) as e:
         raise CorruptFileError(f"checkpoint {path}: its network does not load ({reason(e)})") from None
     model.to(device).eval()
-    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path)
+    tasks, robot_steps = _trained_tasks(state.get("train_config"))
+    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps)
+
+
+def _trained_tasks(config) -> tuple[tuple[str, ...], int]:
+    """(task names, robot DDIM steps) of a checkpoint's train config (a dict, or absent)."""
+    if not isinstance(config, dict):
+        return ("robot",), 100
+    try:
+        names = tuple(task_names(str(config.get("task", "robot"))))
+    except ValueError:
+        names = ("robot",)
+    return names, int(config.get("robot_diffusion_steps", 100))

@@ -8,8 +8,9 @@ concatenated in layout order. A token's input vector is
 a type-specific linear projection of its (normalised, possibly noised) value plus learned
 embeddings of its token type, of whether it is being denoised or is clean conditioning
 (this flag is how one network tells the tasks apart, "the task as a mask"), and of each
-of its IDs (link, joint, joint order, actuator, free link, track link, time step). ID
-tables are shared across types, so a joint token's link ID and a link token's own ID
+of its IDs (link, joint, joint order, actuator, free link, track link, time step; time
+steps through sinusoidal features by default, `TimeIdEmbedder`). ID embeddings are shared
+across types, so a joint token's link ID and a link token's own ID
 land on the same embedding. A stack of DiT blocks with adaLN-Zero conditioning on the
 diffusion time follows, then a per-type output head (adaLN-modulated LayerNorm and a
 linear map) predicts each token's noise epsilon.
@@ -26,21 +27,31 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from tt.tokens.schema import Role
-from tt.dit.layout import Layout
+from tt.dit.anchors import Anchor
+from tt.dit.layout import Layout, LayoutError
+
+
+#: Ways to embed time-step IDs (`DiTConfig.time_ids`).
+TIME_ID_EMBEDDINGS = ("sinusoidal", "learned")
 
 
 @dataclass(frozen=True)
 class DiTConfig:
     """Backbone size. hidden: token width; depth: DiT blocks; heads: attention heads;
-    mlp_ratio: MLP width / hidden; freq_dim: sinusoidal features of the diffusion time."""
+    mlp_ratio: MLP width / hidden; freq_dim: sinusoidal features of the diffusion time;
+    time_ids: how a token's time-step ID is embedded, "sinusoidal" (`TimeIdEmbedder`) or
+    "learned" (a lookup table like every other ID kind, as checkpoints before the choice)."""
 
     hidden: int = 256
     depth: int = 8
     heads: int = 4
     mlp_ratio: float = 4.0
     freq_dim: int = 256
+    time_ids: str = "sinusoidal"
 
     def __post_init__(self) -> None:
+        if self.time_ids not in TIME_ID_EMBEDDINGS:
+            raise ValueError(f"time_ids {self.time_ids!r} does not exist; choices: {list(TIME_ID_EMBEDDINGS)}")
         if self.hidden % self.heads:
             raise ValueError(f"hidden {self.hidden} must be a multiple of heads {self.heads}")
         if self.depth < 1 or self.freq_dim < 2 or self.freq_dim % 2:
@@ -84,6 +95,29 @@ class TimestepEmbedder(nn.Module):
         args = 1000.0 * u.float().unsqueeze(1) * freqs  # (B, half)
         feats = torch.cat([torch.cos(args), torch.sin(args)], dim=1)  # (B, freq_dim)
         return self.mlp(feats.to(self.mlp[0].weight.dtype))  # (B, H)
+
+
+class TimeIdEmbedder(nn.Module):
+    """Time-step IDs (..., ) int64 -> (..., H): sinusoids of the step, then a linear map.
+
+    A window holds 8 of an episode's up to `max_time` steps, so a lookup table sees each
+    row in a small share of the windows and starts as noise (N(0, 0.02)): matching a
+    dynamics token to the target of the same step, the first thing the model has to do,
+    waits for every row to be learned. Sinusoids (the transformer's positional encoding,
+    periods 2 pi to 2 pi x 10^4 steps) give every step a feature vector from the start, with
+    equal steps most alike and nearby steps alike.
+    """
+
+    def __init__(self, hidden: int):
+        super().__init__()
+        half = hidden // 2
+        self.register_buffer("freqs", torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / half),
+                             persistent=False)
+        self.proj = nn.Linear(2 * half, hidden)
+
+    def forward(self, ids: torch.Tensor) -> torch.Tensor:
+        args = ids.to(self.freqs.dtype).unsqueeze(-1) * self.freqs  # (..., half)
+        return self.proj(torch.cat([torch.cos(args), torch.sin(args)], dim=-1).to(self.proj.weight.dtype))
 
 
 class Attention(nn.Module):
@@ -141,27 +175,40 @@ class RoboDiT(nn.Module):
 
     Output heads exist for every type that some task diffuses (all roles but condition).
     prediction: what the heads output, "eps", "x0" or "v" (`tt.dit.ddim.PREDICTIONS`; the
-    sampler turns it into eps).
+    sampler turns it into eps). anchors: anchored type -> `tt.dit.anchors.Anchor`, whose
+    x0 prediction is the head's output plus the anchor (needs prediction "x0").
     """
 
-    def __init__(self, layout: Layout, config: DiTConfig, *, prediction: str = "eps"):
+    def __init__(self, layout: Layout, config: DiTConfig, *, prediction: str = "eps",
+                 anchors: Mapping[str, Anchor] | None = None):
         super().__init__()
         from tt.dit.ddim import PREDICTIONS
 
         if prediction not in PREDICTIONS:
             raise ValueError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+        self.anchors = dict(anchors or {})
+        if self.anchors and prediction != "x0":
+            raise ValueError(f"anchors act on the clean prediction: they need prediction 'x0', not {prediction!r}")
+        for name, anchor in self.anchors.items():
+            anchor.check(layout, name)
+            if layout[name].role is Role.CONDITION or layout[anchor.on].role is not Role.CONDITION:
+                raise LayoutError(f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition")
         self.layout = layout
         self.config = config
         self.prediction = prediction
         h = config.hidden
         self.in_proj = nn.ModuleDict({s.name: nn.Linear(s.dim, h) for s in layout.specs})
         kinds = sorted({k for s in layout.specs for k in s.ids})
-        self.id_embed = nn.ModuleDict({k: nn.Embedding(layout.id_sizes[k], h) for k in kinds})
+        self.id_embed = nn.ModuleDict({k: TimeIdEmbedder(h) if k == "time" and config.time_ids == "sinusoidal"
+                                       else nn.Embedding(layout.id_sizes[k], h) for k in kinds})
         self.type_embed = nn.Embedding(len(layout.specs), h)
         self.noised_embed = nn.Embedding(2, h)
         self.time_embed = TimestepEmbedder(h, config.freq_dim)
         self.blocks = nn.ModuleList([DiTBlock(h, config.heads, config.mlp_ratio) for _ in range(config.depth)])
         self.heads = nn.ModuleDict({s.name: OutputHead(h, s.dim) for s in layout.specs if s.role is not Role.CONDITION})
+        for name, anchor in self.anchors.items():
+            self.register_buffer(f"_anchor_{name}", torch.tensor([anchor.scale, anchor.offset], dtype=torch.float32),
+                                 persistent=False)
         self.register_buffer(
             "_type_index",
             torch.cat([torch.full((s.length,), i, dtype=torch.long) for i, s in enumerate(layout.specs)]),
@@ -225,14 +272,21 @@ class RoboDiT(nn.Module):
         for s in self.layout.specs:
             if s.name in wanted:
                 out[s.name] = self.heads[s.name](x[:, start:start + s.length], c)  # (B, L, D)
+                if s.name in self.anchors:
+                    scale, offset = getattr(self, f"_anchor_{s.name}")  # 2 x (D,)
+                    out[s.name] = out[s.name] + scale * values[self.anchors[s.name].on].to(scale.dtype) + offset
             start += s.length
         return out
 
     def describe(self) -> dict:
         """Layout and config, enough to rebuild the module (`from_description`)."""
-        return {"layout": self.layout.to_dict(), "config": asdict(self.config), "prediction": self.prediction}
+        return {"layout": self.layout.to_dict(), "config": asdict(self.config), "prediction": self.prediction,
+                "anchors": {n: a.to_dict() for n, a in self.anchors.items()}}
 
     @staticmethod
     def from_description(d: Mapping) -> "RoboDiT":
-        # Checkpoints written before the prediction choice predict eps.
-        return RoboDiT(Layout.from_dict(d["layout"]), DiTConfig(**d["config"]), prediction=d.get("prediction", "eps"))
+        # Checkpoints written before the prediction choice predict eps; those written before
+        # the time-ID choice learned a table.
+        config = DiTConfig(**{"time_ids": "learned", **d["config"]})
+        anchors = {n: Anchor.from_dict(a) for n, a in (d.get("anchors") or {}).items()}
+        return RoboDiT(Layout.from_dict(d["layout"]), config, prediction=d.get("prediction", "eps"), anchors=anchors)

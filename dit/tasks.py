@@ -1,9 +1,19 @@
-"""The two masked diffusion tasks and the training objective.
+"""The masked diffusion tasks and the training objective.
 
 ``robot`` (motion-to-robot): condition on target poses; diffuse every embodiment,
 dynamics and action token, padding included: padding tokens are targets at PAD_VALUE
 that the model learns to produce (the detokenizer detects them), and nothing is masked in
 attention. Windows are 8 random steps of an episode.
+
+``dynamics`` (design-to-dynamics, the model as a critic): condition on the embodiment
+(clean, padding slots included, so the model reads which slots the robot leaves empty) and
+the target poses; diffuse every dynamics and action token as the robot task does. It asks
+what a given design does on a motion. The robot task can answer that too, by inpainting
+the embodiment (`tt.dit.sampling`'s replacement method), but there the model sees the
+design only through noise as loud as the step's: at the high noise levels where a
+sample's coarse outcome (does the end effector reach the targets at all?) is decided, the
+design is all but invisible, and the prediction barely depends on it. Trained beside the
+robot task (``tt train --task robot+dynamics``), one model serves both.
 
 ``control`` (cross-embodiment control): condition on the embodiment, the current state
 (dynamics tokens of the window's earliest step) and the targets of 8 consecutive steps; diffuse the
@@ -38,9 +48,13 @@ from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
 
 
+#: Every task's name.
+TASK_NAMES = ("robot", "dynamics", "control")
+
+
 @dataclass(frozen=True)
 class TaskSpec:
-    """name: "robot" or "control"; diffusion_steps: T of its DDIM process; window: how the
+    """name: "robot", "dynamics" or "control"; diffusion_steps: T of its DDIM process; window: how the
     8 steps of a training window are drawn ("random" or "consecutive"); future_states
     (control): diffuse the states after step 0 (True) or leave them out (False)."""
 
@@ -50,18 +64,30 @@ class TaskSpec:
     future_states: bool = True
 
     def __post_init__(self) -> None:
-        if self.name not in ("robot", "control"):
-            raise ValueError(f"task {self.name!r} does not exist; tasks: robot, control")
+        if self.name not in TASK_NAMES:
+            raise ValueError(f"task {self.name!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
         if self.window not in ("random", "consecutive"):
             raise ValueError(f"task {self.name!r}: window {self.window!r} is not 'random' or 'consecutive'")
         if self.diffusion_steps < 1:
             raise ValueError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
 
 
-#: The paper's tasks: 100 DDIM steps for motion-to-robot, 5 for control.
+#: The paper's tasks: 100 DDIM steps for motion-to-robot, 5 for control; design-to-dynamics
+#: (tt's) diffuses what the robot task diffuses, so it takes the robot task's process.
 ROBOT = TaskSpec("robot", 100, "random")
+DYNAMICS = TaskSpec("dynamics", 100, "random")
 CONTROL = TaskSpec("control", 5, "consecutive")
-TASKS = {"robot": ROBOT, "control": CONTROL}
+TASKS = {"robot": ROBOT, "dynamics": DYNAMICS, "control": CONTROL}
+
+
+def task_names(task: str) -> list[str]:
+    """The tasks a training run's `task` names: one task, or distinct tasks joined by "+"
+    ("robot+dynamics"); "both" is "robot+control". Raises ValueError for anything else."""
+    names = ["robot", "control"] if task == "both" else str(task).split("+")
+    if any(n not in TASK_NAMES for n in names) or len(set(names)) != len(names):
+        raise ValueError(f"task {task!r} is not one task or distinct tasks joined by '+'; tasks: "
+                         f"{', '.join(TASK_NAMES)} (and 'both' = robot+control)")
+    return names
 
 
 def get_task(name: str) -> TaskSpec:
@@ -120,6 +146,10 @@ def task_masks(task: TaskSpec, layout: Layout, tokens: TokenBatch) -> TaskMasks:
             noised[s.name] = torch.full_like(real, s.role is not Role.CONDITION)
             visible[s.name] = torch.ones_like(real)
             continue
+        if task.name == "dynamics":
+            noised[s.name] = torch.full_like(real, s.role not in (Role.CONDITION, Role.EMBODIMENT))
+            visible[s.name] = torch.ones_like(real)
+            continue
         if s.role in (Role.EMBODIMENT, Role.CONDITION):
             noised[s.name] = torch.zeros_like(real)
             visible[s.name] = real
@@ -130,7 +160,7 @@ def task_masks(task: TaskSpec, layout: Layout, tokens: TokenBatch) -> TaskMasks:
             current = tokens.ids[s.name][..., s.time_index] == start[:, None]
             noised[s.name] = real & ~current if task.future_states else torch.zeros_like(real)
             visible[s.name] = real & (current | task.future_states)
-    attend = None if task.name == "robot" else torch.cat([visible[n] for n in layout.names], dim=1)
+    attend = None if task.name in ("robot", "dynamics") else torch.cat([visible[n] for n in layout.names], dim=1)
     return TaskMasks(noised, visible, attend)
 
 
@@ -138,7 +168,7 @@ def output_types(task: TaskSpec, layout: Layout) -> tuple[str, ...]:
     """Types whose noise the model must predict for `task`."""
     if task.name == "robot":
         return layout.names_with(Role.EMBODIMENT, Role.DYNAMICS, Role.ACTION)
-    if task.future_states:
+    if task.name == "dynamics" or task.future_states:
         return layout.names_with(Role.DYNAMICS, Role.ACTION)
     return layout.names_with(Role.ACTION)
 

@@ -51,7 +51,8 @@ from tt.dit.layout import LayoutError, with_slot_ids
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
-from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens
+from tt.dit.anchors import pose_anchors
+from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names
 from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
@@ -64,9 +65,9 @@ DEFAULT_LR = {"tiny": 5e-3, "mini": 1e-3, "small": 5e-3, "large": 1e-4}
 class TrainConfig:
     """One training run.
 
-    data: episode token file (`EpisodeTokens.save`); out: run folder; task: "robot",
-    "control" or "both" (a unified model; each batch is half robot, half control
-    windows); size: "tiny", "mini", "small" or "large"; steps: total optimizer steps; lr: None
+    data: episode token file (`EpisodeTokens.save`); out: run folder; task: the tasks
+    trained, "robot", "dynamics", "control" or several joined by "+" (a unified model; each
+    batch splits evenly between them, e.g. "robot+dynamics"); "both" is "robot+control"; size: "tiny", "mini", "small" or "large"; steps: total optimizer steps; lr: None
     for `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of
     each task's DDIM process; future_states: the control task also diffuses the states
     after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
@@ -83,7 +84,9 @@ class TrainConfig:
     weighting "none", "min_snr" (gamma `min_snr_gamma`) or "edm" (`CosineDDIM.loss_weight`);
     type_weights: token type -> factor on its loss term (e.g. more on ``track_link_obs``, what
     the rewards read); bf16_cpu: autocast to bfloat16 on the CPU too (``bf16`` alone autocasts
-    on CUDA only).
+    on CUDA only); anchor_track: predict track-link poses as residuals from their targets
+    (`tt.dit.anchors`; needs prediction "x0"); time_ids: "sinusoidal" or "learned" time-step
+    ID embeddings (`tt.dit.model.DiTConfig.time_ids`).
     """
 
     data: str = ""
@@ -117,6 +120,8 @@ class TrainConfig:
     min_snr_gamma: float = 5.0
     type_weights: dict[str, float] = field(default_factory=dict)
     bf16_cpu: bool = False
+    anchor_track: bool = False
+    time_ids: str = "sinusoidal"
 
     def __post_init__(self) -> None:
         from tt.dit.ddim import PREDICTIONS, WEIGHTINGS
@@ -127,6 +132,8 @@ class TrainConfig:
             raise ValueError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        if self.anchor_track and self.prediction != "x0":
+            raise ValueError(f"anchor_track (--anchor-track) needs prediction 'x0', got {self.prediction!r}")
         if not self.min_snr_gamma > 0:
             raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
@@ -138,42 +145,53 @@ class TrainConfig:
                              f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
         if self.online is not None and self.data:
             raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
-        if self.task not in ("robot", "control", "both"):
-            raise ValueError(f"task {self.task!r} does not exist; tasks: robot, control, both")
-        get_config(self.size)
+        self.task_names()  # validates
+        self.model_config()  # validates size and time_ids
         if self.loss not in ("huber", "mse"):
             raise ValueError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.task == "both" and self.batch_size < 2:
-            raise ValueError(f"task 'both' needs batch_size >= 2, got {self.batch_size}")
+        if self.batch_size < len(self.task_names()):
+            raise ValueError(f"task {self.task!r} trains {len(self.task_names())} tasks, so it needs batch_size >= "
+                             f"{len(self.task_names())}, got {self.batch_size}")
         if self.warmup_steps < 0 or self.grad_clip <= 0 or self.weight_decay < 0:
             raise ValueError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
                              f"{self.grad_clip}, {self.weight_decay}")
+
+    def model_config(self):
+        """The network's `tt.dit.model.DiTConfig`: the size's, with `time_ids`."""
+        import dataclasses
+
+        return dataclasses.replace(get_config(self.size), time_ids=self.time_ids)
 
     @property
     def learning_rate(self) -> float:
         return DEFAULT_LR[self.size] if self.lr is None else self.lr
 
+    def task_names(self) -> list[str]:
+        """Names of the tasks trained, in `task`'s order (`tt.dit.tasks.task_names`)."""
+        return task_names(self.task)
+
     def tasks(self) -> list[tuple[TaskSpec, int]]:
-        """(task, windows per batch) of each task trained."""
-        robot = TaskSpec("robot", self.robot_diffusion_steps, "random")
-        control = TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states)
-        if self.task == "robot":
-            return [(robot, self.batch_size)]
-        if self.task == "control":
-            return [(control, self.batch_size)]
-        half = self.batch_size // 2
-        return [(robot, half), (control, self.batch_size - half)]
+        """(task, windows per batch) of each task trained: batch_size // k each, the last
+        task the remainder."""
+        spec = {"robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
+                "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "random"),
+                "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states)}
+        names = self.task_names()
+        each = self.batch_size // len(names)
+        counts = [each] * (len(names) - 1) + [self.batch_size - each * (len(names) - 1)]
+        return [(spec[n], c) for n, c in zip(names, counts)]
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @staticmethod
     def from_dict(d: dict) -> "TrainConfig":
+        """A stored config; one written before the time-ID choice learned a table."""
         names = {f.name for f in fields(TrainConfig)}
-        return TrainConfig(**{k: v for k, v in d.items() if k in names})
+        return TrainConfig(**{"time_ids": "learned", **{k: v for k, v in d.items() if k in names}})
 
 
 @dataclass
@@ -248,7 +266,7 @@ class DataParallel:
         """(first, last + 1) of this rank's windows among a task's n."""
         if n % self.world_size:
             raise ValueError(f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
-                             f"choose a batch_size divisible by {self.world_size} (by {2 * self.world_size} for task both)")
+                             f"choose a batch_size divisible by {self.world_size} (by k x {self.world_size} for k tasks)")
         k = n // self.world_size
         return self.rank * k, (self.rank + 1) * k
 
@@ -278,7 +296,8 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "future_states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight"}
+              "type_weights": "--type-weight", "anchor_track": "--anchor-track",
+              "time_ids": "--time-ids"}
 
 
 def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
@@ -361,10 +380,12 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         model = RoboDiT.from_description(state["model"])
         if model.layout != layout:
             raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
-        if model.config != get_config(config.size):
-            raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.config != config.model_config():
+            raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r} with time_ids {config.time_ids!r}")
         if model.prediction != config.prediction:
             raise ValueError(f"run {out} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
+        if bool(model.anchors) != config.anchor_track:
+            raise ValueError(f"run {out} was trained with anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
         model.load_state_dict(state["state_dict"])
         normalizer = Normalizer.from_state_dict(state["normalizer"])
     elif config.init:
@@ -373,18 +394,21 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         model, normalizer = start.model, start.normalizer
         if model.layout != layout:
             raise LayoutError(f"--init {config.init} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
-        if model.config != get_config(config.size):
-            raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r}")
+        if model.config != config.model_config():
+            raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r} with time_ids {config.time_ids!r}")
         if model.prediction != config.prediction:
             raise ValueError(f"--init {config.init} predicts {model.prediction!r}, config asks for prediction "
                              f"{config.prediction!r}")
+        if bool(model.anchors) != config.anchor_track:
+            raise ValueError(f"--init {config.init} has anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
         log.info("starting from the EMA weights of %s (step %d)", config.init, start.step)
     else:
         state = None
+        normalizer = episodes.fit_normalizer()
+        anchors = pose_anchors(layout, normalizer) if config.anchor_track else None
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
             torch.manual_seed(config.seed)
-            model = RoboDiT(layout, get_config(config.size), prediction=config.prediction)
-        normalizer = episodes.fit_normalizer()
+            model = RoboDiT(layout, config.model_config(), prediction=config.prediction, anchors=anchors)
     layout.check_normalizer(normalizer)
     model.to(device).train()
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)

@@ -221,21 +221,29 @@ class DesignPrediction:
     seconds: float
 
 
+#: How `predict_designs` gives the model a design: as the dynamics task's clean condition, or
+#: by inpainting it into the robot task.
+VIAS = ("dynamics", "inpaint")
+
+
 def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: int = 1, num_steps: int | None = None,
                     seed: int = 0, placement: str = "even", chunk: int | None = None,
-                    device: str | torch.device | None = None) -> DesignPrediction:
+                    device: str | torch.device | None = None, via: str | None = None) -> DesignPrediction:
     """The model as a critic: predicted dynamics and reward of each design on each motion.
 
-    Each design's embodiment tokens are fixed by inpainting (`design_query`), the model
-    predicts the dynamics at the query's steps (`tt.dit.sampling.sample`, the robot task),
-    and `PredictedReward` scores them; with samples K, K samples per pair are averaged. All
+    Each design's embodiment tokens are given to the model (`design_query`), the model
+    predicts the dynamics at the query's steps (`tt.dit.sampling.sample`), and
+    `PredictedReward` scores them; with samples K, K samples per pair are averaged. How the
+    design is given (``via``): "dynamics", the dynamics task's clean condition (the model
+    must have been trained on that task), or "inpaint", the robot task with the embodiment
+    inpainted (replacement method); None: "dynamics" when the model was trained on it. All
     D x M x K sequences go through one sampling call (``chunk``: at most that many sequences
     per call, for memory).
 
     trained: `tt.dit.checkpoint.TrainedModel`; designs: D `tt.sim.designs.Design` of one
     space, the space the checkpoint was trained on (`check_space`); motions: M motions
     placed for the space; cfg: the reward; num_steps: DDIM steps (None: all of the robot
-    task's); seed: of the sampling noise; device: None for the model's.
+    task's); seed: of the sampling noise; device: None for the model's; via: see above.
     Raises CheckpointSpaceError, LayoutError (a robot or motion the layout cannot hold) and
     ValueError (bad arguments).
     """
@@ -243,10 +251,17 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
 
     from tt.dit.ddim import CosineDDIM
     from tt.dit.sampling import sample
-    from tt.dit.tasks import ROBOT
+    from tt.dit.tasks import TaskSpec
     from tt.sim.designs import get_space
 
     designs, motions = list(designs), list(motions)
+    if via is None:
+        via = "dynamics" if trained.trained_on("dynamics") else "inpaint"
+    if via not in VIAS:
+        raise ValueError(f"via {via!r} is not one of {list(VIAS)}")
+    if via == "dynamics" and not trained.trained_on("dynamics"):
+        raise TTError(f"the model was trained on the tasks {list(trained.tasks)}, not 'dynamics', so it cannot take a "
+                      "design as a condition; train with --task robot+dynamics, or predict with via='inpaint'")
     if not designs or not motions:
         raise ValueError(f"predict needs at least one design and one motion, got {len(designs)} and {len(motions)}")
     if samples < 1:
@@ -280,13 +295,14 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     total = len(tokens)
     chunk = total if chunk is None else min(int(chunk), total)
     generator = torch.Generator(device=device).manual_seed(int(seed))
-    scheduler = CosineDDIM(ROBOT.diffusion_steps)
+    task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps, "random")
+    scheduler = CosineDDIM(task.diffusion_steps)
     values = []
     for c0 in range(0, total, chunk):
         rows = slice(c0, min(c0 + chunk, total))
         part = tokens.select(rows)
-        res = sample(model, part, ROBOT, scheduler=scheduler, num_steps=num_steps, generator=generator,
-                     known={n: k[rows] for n, k in known.items()})
+        res = sample(model, part, task, scheduler=scheduler, num_steps=num_steps, generator=generator,
+                     known=None if via == "dynamics" else {n: k[rows] for n, k in known.items()})
         values.append(res.tokens.values)
     values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
     reward = np.zeros((D, M))
@@ -453,6 +469,7 @@ def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> d
 
 
 __all__ = [
+    "VIAS",
     "PLACEMENTS",
     "CheckpointSpaceError",
     "DesignPrediction",

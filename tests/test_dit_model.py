@@ -10,7 +10,7 @@ from tt.tokens.schema import Role
 from tt.dit.layout import Layout, LayoutError, TokenSpec, layout_from_schema
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.sampling import sample
-from tt.dit.tasks import CONTROL, ROBOT, TaskSpec, output_types, task_masks
+from tt.dit.tasks import CONTROL, DYNAMICS, ROBOT, TaskSpec, output_types, task_masks
 from tt.dit.toy import toy_episodes
 from tt.tokens.schema import SCHEMA, SCHEMA_VERSION
 
@@ -115,6 +115,14 @@ def test_task_masks(toy):
     assert torch.equal(control.noised["command"], tokens.mask["command"])
     assert not bool(control.noised["body"].any())
     assert torch.equal(control.attend, torch.cat([tokens.mask[n] for n in layout.names], dim=1))
+    # Design-to-dynamics: the embodiment and the targets are given (padding slots too), every
+    # dynamics and action slot is diffused, nothing is masked.
+    dynamics = task_masks(DYNAMICS, layout, tokens)
+    assert dynamics.attend is None
+    assert not bool(dynamics.noised["body"].any()) and not bool(dynamics.noised["target"].any())
+    assert bool(dynamics.noised["state"].all()) and bool(dynamics.noised["command"].all())
+    assert not bool(dynamics.noised["hinge"].any())
+    assert output_types(DYNAMICS, layout) == ("state", "command")
     no_future = task_masks(TaskSpec("control", 5, "consecutive", future_states=False), layout, tokens)
     assert torch.equal(no_future.visible["state"], tokens.mask["state"] & (time == start))
     assert output_types(TaskSpec("control", 5, "consecutive", future_states=False), layout) == ("command",)

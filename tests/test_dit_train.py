@@ -162,3 +162,18 @@ def test_init_starts_a_new_run_from_the_ema_weights(tmp_path, episodes):
     _assert_same(state["normalizer"], load_checkpoint(source.checkpoint)["normalizer"], "normalizer")
     with pytest.raises(ValueError, match="holds a"):
         train(_config(tmp_path / "c", task="both", steps=1, size="mini", init=str(source.checkpoint)), episodes=episodes)
+
+
+def test_tasks_split_the_batch():
+    split = lambda task, b: [(t.name, n) for t, n in TrainConfig(task=task, batch_size=b).tasks()]
+    assert split("robot", 8) == [("robot", 8)]
+    assert split("both", 9) == [("robot", 4), ("control", 5)]
+    assert split("robot+dynamics", 8) == [("robot", 4), ("dynamics", 4)]
+    assert split("robot+dynamics+control", 8) == [("robot", 2), ("dynamics", 2), ("control", 4)]
+    spec = dict(TrainConfig(task="dynamics", robot_diffusion_steps=50).tasks())
+    assert [(t.name, t.diffusion_steps, t.window) for t in spec] == [("dynamics", 50, "random")]
+    for bad in ("dynamic", "robot+robot", "robot,dynamics", ""):
+        with pytest.raises(ValueError, match="is not one task or distinct tasks joined by"):
+            TrainConfig(task=bad)
+    with pytest.raises(ValueError, match="trains 3 tasks, so it needs batch_size >= 3"):
+        TrainConfig(task="robot+dynamics+control", batch_size=2)

@@ -23,11 +23,13 @@ def test_pearson_and_within_motion_against_numpy():
     assert np.isnan(pearson(np.array([1.0, np.nan, 2.0]), np.array([1.0, 2.0, np.nan])))  # < 3 finite pairs
 
 
-#: R0's recipe. Not yet shown to pass: an 800-step run of it (lr decayed to 0 at 800, loss
-#: 0.25) reached pooled r = 0.17 at step 300, 0.24 at 600, 0.23 at 800 (0.32 on the 48 pairs
-#: that ran past a few steps), against the 8-step estimator's own ceiling of 1.00; the step
-#: count here is a guess for an idle machine, and the recipe may need more than steps.
-R0 = dict(size="tiny", steps=3000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
+#: R0's recipe: the dynamics task (the design a clean condition), x0 prediction with the
+#: track-link pose anchored on its target, sinusoidal time-step IDs (the default). Measured on
+#: the idle 2-core box (2026-12-01, benchmarks/results/dit_recipe.md): pooled r 0.93 at step
+#: 750 and 0.96 at 1,000 (within-motion 0.92-0.99), 7.5 min; the paper's recipe (robot task,
+#: design inpainted, eps, a learned time-ID table) gave 0.23-0.28 at the same budget.
+R0 = dict(size="tiny", steps=1000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0},
+          task="dynamics", prediction="x0", anchor_track=True)
 
 
 @pytest.mark.slow
@@ -45,7 +47,8 @@ def test_r0_a_small_model_memorizes_64_episodes(tmp_path):
     online = OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
                           action_noise=0.0, min_steps=8, seed=0, absorbing=True)
     train(TrainConfig(out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0["steps"], online=online, **R0))
-    # Scored with 20 DDIM steps, eta 0, one sample per pair (`tt predict --num-steps 20`).
+    # Scored with 20 DDIM steps, eta 0, one sample per pair (`tt predict --num-steps 20`; the
+    # design given to the dynamics task, the default for a model trained on it).
     trained = load_model(tmp_path / "r0")
     designs, motions = OnlineTokenSource(online, device="cpu").draw(0)
     score = score_designs(trained, designs, motions, num_steps=20)

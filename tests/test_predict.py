@@ -22,14 +22,16 @@ SPACE = "viperx-nominal"
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory):
-    """A tiny viperx-nominal model, two steps on one online refresh (4 designs x 1 motion)."""
+    """A tiny viperx-nominal model of the robot and dynamics tasks, two steps on one online
+    refresh (4 designs x 1 motion)."""
     from tt.dit.online import OnlineConfig
     from tt.dit.train import TrainConfig, train
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("predict") / "run"
-    cfg = TrainConfig(out=str(out), size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu", checkpoint_every=2,
+    cfg = TrainConfig(out=str(out), task="robot+dynamics", size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu",
+                      checkpoint_every=2,
                       online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8))
     try:
         result = train(cfg)
@@ -115,7 +117,7 @@ def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
     design = sp.sample(1, seed=9)
     motion = for_space([resolve_motion("toss")], SPACE)[0]
     cfg = get_reward("tracking", SPACE)
-    pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11)
+    pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11, via="inpaint")
     q, known = design_query(trained.layout, trained.normalizer, motion, [sp.model(design[0])] * 3)
     res = sample(trained.model, q.tokens, ROBOT, scheduler=CosineDDIM(100), num_steps=4,
                  generator=torch.Generator().manual_seed(11), known=known)
@@ -123,3 +125,51 @@ def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
         assert torch.equal(res.tokens.values[n][m], q.tokens.values[n][m])  # the design is kept exactly
     by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(res.tokens.values).double().mean()
     np.testing.assert_allclose(pred.reward[0, 0], float(by_hand), rtol=1e-5)
+
+
+def test_prediction_is_the_reward_of_the_dynamics_task_samples(checkpoint):
+    """With a model trained on the dynamics task, `predict_designs` defaults to it: the mean
+    over K samples of `PredictedReward` on `sample(DYNAMICS)` of `design_query`, which keeps
+    the embodiment (a condition there) exactly; checked by redoing one pair by hand."""
+    from tt.dit.checkpoint import load_model
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import DYNAMICS
+    from tt.guidance.predicted import PredictedReward, design_query, predict_designs
+    from tt.sim.rewards import get_reward
+    from tt.sim.motions import for_space, resolve_motion
+
+    trained = load_model(checkpoint)
+    assert trained.tasks == ("robot", "dynamics") and trained.trained_on("dynamics")
+    sp = get_space(SPACE)
+    design = sp.sample(1, seed=9)
+    motion = for_space([resolve_motion("toss")], SPACE)[0]
+    cfg = get_reward("tracking", SPACE)
+    pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11)
+    q, known = design_query(trained.layout, trained.normalizer, motion, [sp.model(design[0])] * 3)
+    res = sample(trained.model, q.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4,
+                 generator=torch.Generator().manual_seed(11))
+    for n, m in known.items():
+        assert torch.equal(res.tokens.values[n][m], q.tokens.values[n][m])
+    by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(res.tokens.values).double().mean()
+    np.testing.assert_allclose(pred.reward[0, 0], float(by_hand), rtol=1e-5)
+    inpainted = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11, via="inpaint")
+    assert inpainted.reward[0, 0] != pred.reward[0, 0]
+
+
+def test_dynamics_needs_a_model_trained_on_it(checkpoint):
+    import dataclasses
+
+    from tt.dit.checkpoint import load_model
+    from tt.guidance.predicted import predict_designs
+    from tt.kernels.errors import TTError
+    from tt.sim.rewards import get_reward
+    from tt.sim.motions import for_space, resolve_motion
+
+    robot_only = dataclasses.replace(load_model(checkpoint), tasks=("robot",))
+    motion = for_space([resolve_motion("toss")], SPACE)
+    cfg = get_reward("tracking", SPACE)
+    with pytest.raises(TTError, match=r"trained on the tasks \['robot'\], not 'dynamics'"):
+        predict_designs(robot_only, get_space(SPACE).sample(1, seed=9), motion, cfg, num_steps=2, via="dynamics")
+    with pytest.raises(ValueError, match="via 'both' is not one of"):
+        predict_designs(robot_only, get_space(SPACE).sample(1, seed=9), motion, cfg, num_steps=2, via="both")

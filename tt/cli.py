@@ -501,9 +501,10 @@ def predict(
     seed: int = typer.Option(0, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
+    via: Optional[str] = typer.Option(None, help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task (default: dynamics when the checkpoint was trained on it)."),
 ) -> None:
     """The model as a critic: predict each design's dynamics on each motion (its embodiment
-    inpainted) and the reward of those dynamics, without simulating."""
+    given to the model) and the reward of those dynamics, without simulating."""
     import math
 
     from rich.console import Console
@@ -537,7 +538,7 @@ def predict(
         cfg = get_reward(reward, space)
         ckpt = checkpoint if checkpoint is not None else default_checkpoint(space)
         trained = load_model(ckpt, device=device or default_device())
-        pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed)
+        pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed, via=via)
     except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
 
@@ -591,7 +592,7 @@ def train(
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
     online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
     action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
-    task: str = typer.Option("robot", help="robot | control | both."),
+    task: str = typer.Option("robot", help="robot | dynamics | control, or several joined by '+' (robot+dynamics: a generator that is also a critic for tt predict); both = robot+control."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
     steps: int = typer.Option(10_000, help="Optimizer steps."),
@@ -610,6 +611,8 @@ def train(
     robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the motion-to-robot task."),
     control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
     warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
+    anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
+    time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
     from tt.dit.cli import train_cmd
@@ -636,7 +639,8 @@ def train(
             _fail(f"--type-weight {item!r} is not TYPE=WEIGHT (e.g. track_link_obs=4)")
     recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
                   bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
-                  control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps)
+                  control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
+                  time_ids=time_ids)
     _output(out, "--out", folder=True)
     online_config = None
     if online:

@@ -103,11 +103,11 @@ class LadderScore:
 
 def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "tracking", *, samples: int = 1,
                   num_steps: int | None = None, seed: int = 0, chunk: int | None = None, backend: str = "warp",
-                  device: str | None = None) -> LadderScore:
+                  device: str | None = None, via: str | None = None) -> LadderScore:
     """`tt predict` and the simulator on `designs` x `motions` (see the module docstring).
 
     trained: `tt.dit.checkpoint.TrainedModel`; designs: of the checkpoint's space; motions:
-    placed for it; samples, num_steps, seed, chunk: `tt.guidance.predicted.predict_designs`;
+    placed for it; samples, num_steps, seed, chunk, via: `tt.guidance.predicted.predict_designs`;
     backend, device: the simulator's (`tt.baselines.evaluate.evaluate_designs`).
     """
     import time
@@ -121,7 +121,8 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     designs, motions = list(designs), list(motions)
     cfg = get_reward(reward, designs[0].space)
     t0 = time.perf_counter()
-    pred = predict_designs(trained, designs, motions, cfg, samples=samples, num_steps=num_steps, seed=seed, chunk=chunk)
+    pred = predict_designs(trained, designs, motions, cfg, samples=samples, num_steps=num_steps, seed=seed, chunk=chunk,
+                           via=via)
     t1 = time.perf_counter()
     ev = evaluate_designs(designs, motions, reward, backend=backend, device=device)
     t2 = time.perf_counter()

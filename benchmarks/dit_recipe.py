@@ -1,0 +1,130 @@
+"""Which training choices let the DiT learn what a design does: R0-sized ablations.
+
+Every row trains the same `tiny` model for the same steps on R0's data (the 64 episodes of
+one online refresh of ``viperx-nominal``: 16 designs x 4 augmented training motions, no
+control perturbation, terminated episodes kept to the motion's end; `tests/test_ladder.py`)
+and scores each checkpoint as R0 does: `tt predict`'s code path on those designs x motions
+(20 DDIM steps, one sample) against the simulator, pooled and within-motion Pearson r. The
+rows change one choice at a time, from the paper's recipe (robot task with the design
+inpainted, eps prediction, a learned time-ID table) to tt's (the dynamics task, sinusoidal
+time IDs, x0 prediction with the track-link pose anchored on its target).
+
+Each row runs on one thread and writes ``benchmarks/results/dit_recipe/<row>.json``, so two
+processes can share a 2-core machine (``--rows a b`` and ``--rows c d``); ``--report``
+renders every row written so far into ``benchmarks/results/dit_recipe.md``.
+
+Usage: ``python benchmarks/dit_recipe.py [--rows NAME ...] [--steps 1000] [--report]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from machine import machine_header  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+ROWS_DIR = RESULTS / "dit_recipe"
+
+#: R0's data and the shared part of every row's recipe.
+BASE = dict(size="tiny", batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
+#: name -> (what changes, TrainConfig fields, how `tt predict` gives the design).
+RECIPES: dict[str, tuple[str, dict, str]] = {
+    "paper": ("the paper's: robot task, design inpainted, eps, learned time IDs",
+              dict(task="robot", prediction="eps", time_ids="learned"), "inpaint"),
+    "dynamics": ("+ dynamics task (design a clean condition)",
+                 dict(task="dynamics", prediction="eps", time_ids="learned"), "dynamics"),
+    "sinusoidal": ("+ sinusoidal time IDs", dict(task="dynamics", prediction="eps"), "dynamics"),
+    "x0": ("+ x0 prediction", dict(task="dynamics", prediction="x0"), "dynamics"),
+    "anchor": ("+ track-link pose anchored on its target (R0's recipe)",
+               dict(task="dynamics", prediction="x0", anchor_track=True), "dynamics"),
+    "robot_x0_anchor": ("the paper's robot task and inpainting, with x0 + anchor + sinusoidal",
+                         dict(task="robot", prediction="x0", anchor_track=True), "inpaint"),
+    "robot+dynamics": ("robot and dynamics tasks, half the batch each, x0 + anchor (a generator that is also a critic)",
+                       dict(task="robot+dynamics", prediction="x0", anchor_track=True), "dynamics"),
+}
+
+
+def run_row(name: str, steps: int, out: Path) -> dict:
+    from tt.dit.checkpoint import list_checkpoints, load_model
+    from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.train import TrainConfig, train
+    from tt.ladder import score_designs
+
+    what, fields, via = RECIPES[name]
+    online = OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
+                          action_noise=0.0, min_steps=8, seed=0, absorbing=True)
+    config = TrainConfig(out=str(out / name), device="cpu", steps=steps, checkpoint_every=max(1, steps // 4),
+                         keep_checkpoints=4, online=online, resume=False, **BASE, **fields)
+    t0 = time.perf_counter()
+    result = train(config)
+    seconds = time.perf_counter() - t0
+    designs, motions = OnlineTokenSource(online, device="cpu").draw(0)
+    curve = []
+    for path in list_checkpoints(out / name):
+        trained = load_model(path)
+        sc = score_designs(trained, designs, motions, num_steps=20, via=via)
+        curve.append({"step": trained.step, "pooled_r": sc.pooled, "within_r": sc.within,
+                      "within_r_mean": sc.within_mean, "estimator_pooled_r": sc.estimator_pooled})
+    losses = result.losses.numpy()
+    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": BASE["batch_size"],
+            "samples_seen": steps * BASE["batch_size"], "train_seconds": seconds, "steps_per_s": steps / seconds,
+            "parameters": result.parameters, "final_loss_mean_last_50": float(losses[-50:].mean()), "curve": curve,
+            "command": f"python benchmarks/dit_recipe.py --rows {name} --steps {steps}"}
+
+
+def report() -> Path:
+    rows = [json.loads(p.read_text()) for p in sorted(ROWS_DIR.glob("*.json"))]
+    order = list(RECIPES)
+    rows.sort(key=lambda r: order.index(r["row"]) if r["row"] in order else len(order))
+    lines = [
+        "# DiT recipe: what lets the model learn what a design does (R0-sized ablations)",
+        "",
+        machine_header("cpu"),
+        "Each row: a `tiny` model trained on R0's 64 episodes (16 `viperx-nominal` designs x 4 "
+        "augmented training motions, `tests/test_ladder.py`), one thread, then `tt predict`'s code "
+        "path on those same pairs (20 DDIM steps, one sample) against the simulator. Shared: "
+        f"{json.dumps(BASE)}. R0's target: pooled r >= 0.95. Rows were run two at a time on the "
+        "2-core machine (one thread each), so steps/s is per core under that load.",
+        "",
+        "| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",
+        "|---|---|---|---|---|---:|---:|",
+    ]
+    for r in rows:
+        curve = ", ".join(f"{c['pooled_r']:.2f}@{c['step']}" for c in r["curve"])
+        within = " / ".join(f"{v:.2f}" for v in r["curve"][-1]["within_r"]) if r["curve"] else "-"
+        lines.append(f"| `{r['row']}` | {r['what']} | {r['via']} | {curve} | {within} | {r['steps_per_s']:.2f} | "
+                     f"{r['samples_seen']:,} |")
+    lines += ["", "Commands: " + "; ".join(f"`{r['command']}`" for r in rows), ""]
+    out = RESULTS / "dit_recipe.md"
+    out.write_text("\n".join(lines))
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rows", nargs="*", default=[], choices=list(RECIPES), help="rows to run (default: none)")
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--runs", default="runs/dit_recipe", help="folder of the rows' training runs")
+    p.add_argument("--report", action="store_true", help="render benchmarks/results/dit_recipe.md from every row written")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    ROWS_DIR.mkdir(parents=True, exist_ok=True)
+    for name in args.rows:
+        row = run_row(name, args.steps, Path(args.runs))
+        (ROWS_DIR / f"{name}.json").write_text(json.dumps(row, indent=1))
+        last = row["curve"][-1] if row["curve"] else {}
+        print(json.dumps({"row": name, "pooled_r": last.get("pooled_r"), "within_r": last.get("within_r"),
+                          "steps_per_s": row["steps_per_s"]}), flush=True)
+    if args.report or not args.rows:
+        print(f"wrote {report()}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

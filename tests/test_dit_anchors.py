@@ -1,0 +1,87 @@
+"""Track-link poses anchored on their targets (`tt.dit.anchors`) and sinusoidal time-step IDs:
+the anchor map against the normaliser it is read off, an untrained anchored network
+predicting exactly the target pose, description round trips, and clear errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from tt.dit.anchors import Anchor, pose_anchors
+from tt.dit.layout import LayoutError
+from tt.dit.model import DiTConfig, RoboDiT, TimeIdEmbedder, get_config
+from tt.dit.tasks import DYNAMICS, task_masks
+from tt.dit.toy import toy_episodes
+
+COUNTS = dict(link=4, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
+              control=3, target_pose=1)
+
+
+@pytest.fixture(scope="module")
+def schema_toy():
+    episodes = toy_episodes(episodes=8, steps=16, seed=0, schema_counts=COUNTS)
+    return episodes, episodes.layout(8), episodes.fit_normalizer()
+
+
+def test_anchor_map_is_the_targets_pose_in_the_observations_units(schema_toy):
+    _, layout, norm = schema_toy
+    anchor = pose_anchors(layout, norm)["track_link_obs"]
+    scale, offset = torch.tensor(anchor.scale, dtype=torch.float64), torch.tensor(anchor.offset, dtype=torch.float64)
+    x = torch.rand(5, 12, dtype=torch.float64) * 2 - 1
+    reference = norm.normalize_values("track_link_obs", norm.denormalize_values("target_pose", x))
+    torch.testing.assert_close(scale * x + offset, reference, rtol=0, atol=1e-12)
+
+
+def test_untrained_anchored_network_predicts_the_target(schema_toy):
+    """adaLN-Zero heads output 0, so x0 of the track-link pose is the target's pose, in metres."""
+    episodes, layout, norm = schema_toy
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=pose_anchors(layout, norm)).eval()
+    tokens = norm.normalize(episodes.sample(4, 8, "random", torch.Generator().manual_seed(1)))
+    masks = task_masks(DYNAMICS, layout, tokens)
+    noisy = {n: torch.where(masks.noised[n][..., None], torch.randn_like(v), v) for n, v in tokens.values.items()}
+    with torch.no_grad():
+        out = model(noisy, tokens.ids, masks.noised, torch.full((4,), 0.7))
+    pos = slice(0, 3)
+    predicted = norm.denormalize_values("track_link_obs", out["track_link_obs"].double())[..., pos]
+    target = norm.denormalize_values("target_pose", tokens.values["target_pose"].double())[..., pos]
+    torch.testing.assert_close(predicted, target, rtol=0, atol=1e-5)
+    plain = RoboDiT(layout, get_config("tiny"), prediction="x0").eval()
+    with torch.no_grad():
+        assert bool((plain(noisy, tokens.ids, masks.noised, torch.full((4,), 0.7))["track_link_obs"] == 0).all())
+
+
+def test_descriptions_round_trip_and_bad_anchors_fail(schema_toy):
+    _, layout, norm = schema_toy
+    anchors = pose_anchors(layout, norm)
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors)
+    again = RoboDiT.from_description(model.describe())
+    assert again.anchors == anchors and again.config.time_ids == "sinusoidal"
+    again.load_state_dict(model.state_dict())
+    with pytest.raises(ValueError, match="need prediction 'x0', not 'eps'"):
+        RoboDiT(layout, get_config("tiny"), anchors=anchors)
+    with pytest.raises(LayoutError, match="anchored on a condition"):
+        RoboDiT(layout, get_config("tiny"), prediction="x0",
+                anchors={"track_link_obs": Anchor("track_link_obs", anchors["track_link_obs"].scale,
+                                                  anchors["track_link_obs"].offset)})
+    with pytest.raises(LayoutError, match="3 scales and 3 offsets for 12 values"):
+        Anchor("target_pose", (1.0,) * 3, (0.0,) * 3).check(layout, "track_link_obs")
+    from tt.dit.train import TrainConfig
+
+    with pytest.raises(ValueError, match="anchor_track .* needs prediction 'x0'"):
+        TrainConfig(anchor_track=True)
+
+
+def test_time_ids_embed_by_step_and_old_descriptions_keep_their_table(schema_toy):
+    _, layout, _ = schema_toy
+    emb = TimeIdEmbedder(16)
+    ids = torch.tensor([[0, 5, 5, 900]])
+    e = emb(ids)
+    assert e.shape == (1, 4, 16) and torch.equal(e[0, 1], e[0, 2]) and not torch.equal(e[0, 0], e[0, 3])
+    model = RoboDiT(layout, get_config("tiny"))
+    assert isinstance(model.id_embed["time"], TimeIdEmbedder) and isinstance(model.id_embed["link"], torch.nn.Embedding)
+    old = model.describe()
+    del old["config"]["time_ids"], old["anchors"]
+    legacy = RoboDiT.from_description(old)
+    assert legacy.config.time_ids == "learned" and isinstance(legacy.id_embed["time"], torch.nn.Embedding)
+    with pytest.raises(ValueError, match="time_ids 'rope' does not exist"):
+        DiTConfig(time_ids="rope")
