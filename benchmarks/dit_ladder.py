@@ -13,7 +13,8 @@ Prints one JSON line per result; writes a markdown report (``--out``, default
 ``benchmarks/results/dit_ladder_<space>.md``) and the raw numbers beside it (``.json``).
 
 Usage: ``python benchmarks/dit_ladder.py RUN_OR_CHECKPOINT [--designs 32] [--motions 5] [--samples 1]
-[--num-steps 20] [--threads 2] [--via dynamics|inpaint]``.
+[--num-steps 20] [--threads 2] [--via dynamics|inpaint]``; ``python benchmarks/dit_ladder.py --summary DIR
+[--note TEXT]`` tabulates the ``.json`` results in DIR (one per checkpoint or setting) into DIR.md.
 """
 
 from __future__ import annotations
@@ -32,7 +33,30 @@ from machine import machine_header  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 
 
+def summary(folder: Path, note: str) -> Path:
+    """DIR.md: one row per result JSON in `folder`, by step then samples and DDIM steps."""
+    results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
+    results.sort(key=lambda r: (r["step"], r["samples"], r["num_steps"]))
+    lines = [f"# Ladder over a run: {folder.name}", "", note, "",
+             "| step | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | predict (s) | file |",
+             "|---:|---:|---:|---:|---:|---|---:|---|"]
+    for r in results:
+        per = " / ".join(f"{v:.2f}" for v in r["within_r"])
+        lines.append(f"| {r['step']} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
+                     f"{per} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
+    out = folder.with_suffix(".md")
+    out.write_text("\n".join(lines + [""]))
+    return out
+
+
 def main() -> None:
+    if "--summary" in sys.argv:
+        p = argparse.ArgumentParser(description="tabulate ladder results")
+        p.add_argument("--summary", required=True, type=Path)
+        p.add_argument("--note", default="")
+        a = p.parse_args()
+        print(f"wrote {summary(a.summary, a.note)}", file=sys.stderr)
+        return
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("checkpoint", help="checkpoint file or run folder")
     p.add_argument("--space", default=None, help="design space (default: the checkpoint's)")

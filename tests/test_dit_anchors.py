@@ -68,7 +68,7 @@ def test_descriptions_round_trip_and_bad_anchors_fail(schema_toy):
     from tt.dit.train import TrainConfig
 
     with pytest.raises(ValueError, match="anchor_track .* needs prediction 'x0'"):
-        TrainConfig(anchor_track=True)
+        TrainConfig(anchor_track=True, prediction="eps")
 
 
 def test_time_ids_embed_by_step_and_old_descriptions_keep_their_table(schema_toy):

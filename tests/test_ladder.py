@@ -23,13 +23,13 @@ def test_pearson_and_within_motion_against_numpy():
     assert np.isnan(pearson(np.array([1.0, np.nan, 2.0]), np.array([1.0, 2.0, np.nan])))  # < 3 finite pairs
 
 
-#: R0's recipe: the dynamics task (the design a clean condition), x0 prediction with the
-#: track-link pose anchored on its target, sinusoidal time-step IDs (the default). Measured on
-#: the idle 2-core box (2026-12-01, benchmarks/results/dit_recipe.md): pooled r 0.93 at step
-#: 750 and 0.96 at 1,000 (within-motion 0.92-0.99), 7.5 min; the paper's recipe (robot task,
-#: design inpainted, eps, a learned time-ID table) gave 0.23-0.28 at the same budget.
+#: R0's recipe: the dynamics task (the design a clean condition), x0 prediction, sinusoidal
+#: time-step IDs (the default). Measured on the 2-core box (2026-12-02,
+#: benchmarks/results/dit_recipe.md, row `x0`): pooled r 0.97 at step 1,000 (within-motion
+#: 0.95-0.99), 4 min of training; the paper's recipe (robot task, design inpainted, eps, a
+#: learned time-ID table) gave 0.14 at the same budget.
 R0 = dict(size="tiny", steps=1000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0},
-          task="dynamics", prediction="x0", anchor_track=True)
+          task="dynamics", prediction="x0")
 
 
 @pytest.mark.slow

@@ -603,7 +603,7 @@ def train(
     checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
     init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's EMA weights and normaliser (fine-tuning)."),
-    prediction: str = typer.Option("eps", help="What the network predicts: eps | x0 | v."),
+    prediction: str = typer.Option("x0", help="What the network predicts: x0 | eps (the paper's) | v; x0 learns what designs do far faster (benchmarks/results/dit_recipe.md)."),
     weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm."),
     min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma."),
     type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable), e.g. track_link_obs=4."),
