@@ -77,6 +77,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from tt.dit.checkpoint import load_model
+    from tt.guidance.predicted import default_via
     from tt.ladder import heldout_designs, score_designs, validation_motions
 
     trained = load_model(args.checkpoint, device=args.device)
@@ -87,7 +88,7 @@ def main() -> None:
     motions = validation_motions(space, args.motions)
     sc = score_designs(trained, designs, motions, args.reward, samples=args.samples, num_steps=args.num_steps,
                        chunk=args.chunk, backend=args.backend, device=args.device, via=args.via)
-    via = args.via or ("dynamics" if trained.trained_on("dynamics") else "inpaint")
+    via = args.via or default_via(trained)
     result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
               "designs": len(designs), "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
               "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,

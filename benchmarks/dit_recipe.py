@@ -32,8 +32,6 @@ from machine import machine_header  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 ROWS_DIR = RESULTS / "dit_recipe"
 
-#: R0's data and the shared part of every row's recipe.
-BASE = dict(size="tiny", batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
 #: name -> (what changes, TrainConfig fields, how `tt predict` gives the design).
 RECIPES: dict[str, tuple[str, dict, str]] = {
     "paper": ("the paper's: robot task, design inpainted, eps, learned time IDs",
@@ -63,15 +61,14 @@ KEPT = ("Kept: x0 prediction and sinusoidal time-step IDs are now `tt train`'s d
 
 def run_row(name: str, steps: int, out: Path) -> dict:
     from tt.dit.checkpoint import list_checkpoints, load_model
-    from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.online import OnlineTokenSource
     from tt.dit.train import TrainConfig, train
-    from tt.ladder import score_designs
+    from tt.ladder import R0_TRAINING, r0_online, score_designs
 
     what, fields, via = RECIPES[name]
-    online = OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
-                          action_noise=0.0, min_steps=8, seed=0, absorbing=True)
+    online = r0_online()
     config = TrainConfig(out=str(out / name), device="cpu", steps=steps, checkpoint_every=max(1, steps // 4),
-                         keep_checkpoints=4, online=online, resume=False, **BASE, **fields)
+                         keep_checkpoints=4, online=online, resume=False, **R0_TRAINING, **fields)
     t0 = time.perf_counter()
     result = train(config)
     seconds = time.perf_counter() - t0
@@ -83,8 +80,8 @@ def run_row(name: str, steps: int, out: Path) -> dict:
         curve.append({"step": trained.step, "pooled_r": sc.pooled, "within_r": sc.within,
                       "within_r_mean": sc.within_mean, "estimator_pooled_r": sc.estimator_pooled})
     losses = result.losses.numpy()
-    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": BASE["batch_size"],
-            "samples_seen": steps * BASE["batch_size"], "train_seconds": seconds, "steps_per_s": steps / seconds,
+    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": R0_TRAINING["batch_size"],
+            "samples_seen": steps * R0_TRAINING["batch_size"], "train_seconds": seconds, "steps_per_s": steps / seconds,
             "parameters": result.parameters, "final_loss_mean_last_50": float(losses[-50:].mean()), "curve": curve,
             "command": f"python benchmarks/dit_recipe.py --rows {name} --steps {steps}"}
 
@@ -100,7 +97,7 @@ def report() -> Path:
         "Each row: a `tiny` model trained on R0's 64 episodes (16 `viperx-nominal` designs x 4 "
         "augmented training motions, `tests/test_ladder.py`), one thread, then `tt predict`'s code "
         "path on those same pairs (20 DDIM steps, one sample) against the simulator. Shared: "
-        f"{json.dumps(BASE)}. R0's target: pooled r >= 0.95. Rows were run two at a time on the "
+        f"{json.dumps(R0_TRAINING)} (`tt.ladder.R0_TRAINING`). R0's target: pooled r >= 0.95. Rows were run two at a time on the "
         "2-core machine (one thread each), so steps/s is per core under that load.",
         "",
         "| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",

@@ -37,7 +37,7 @@ import torch
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
-from tt.dit.tasks import task_names
+from tt.dit.tasks import ROBOT, task_names
 from tt.kernels.files import CorruptFileError, atomic_write, check_readable, reason
 from tt.tokens.normalize import Normalizer
 
@@ -168,7 +168,7 @@ class TrainedModel:
     space: str | None = None
     path: Path | None = None
     tasks: tuple[str, ...] = ("robot",)
-    robot_diffusion_steps: int = 100
+    robot_diffusion_steps: int = ROBOT.diffusion_steps
 
     def trained_on(self, task: str) -> bool:
         """Whether the model was trained on `task` ("robot", "dynamics" or "control")."""
@@ -202,9 +202,9 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
 def _trained_tasks(config) -> tuple[tuple[str, ...], int]:
     """(task names, robot DDIM steps) of a checkpoint's train config (a dict, or absent)."""
     if not isinstance(config, dict):
-        return ("robot",), 100
+        return ("robot",), ROBOT.diffusion_steps
     try:
         names = tuple(task_names(str(config.get("task", "robot"))))
     except ValueError:
         names = ("robot",)
-    return names, int(config.get("robot_diffusion_steps", 100))
+    return names, int(config.get("robot_diffusion_steps", ROBOT.diffusion_steps))

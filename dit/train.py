@@ -322,6 +322,21 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
                              "its own arguments, or give another --out (or --no-resume to start it over)")
 
 
+def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> None:
+    """Refuse to train `model` (of a run being resumed, or of --init; `where` names it) under
+    `config` on data of `layout` when the network is not the one `config` would build:
+    LayoutError for another layout, ValueError naming the differing choice otherwise."""
+    if model.layout != layout:
+        raise LayoutError(f"{where} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
+    if model.config != config.model_config():
+        raise ValueError(f"{where} holds a {model.config} model, config asks for size {config.size!r} with --time-ids "
+                         f"{config.time_ids!r}")
+    if model.prediction != config.prediction:
+        raise ValueError(f"{where} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
+    if bool(model.anchors) != config.anchor_track:
+        raise ValueError(f"{where} was trained with anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
+
+
 def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
     """(path, state) of the newest checkpoint of run `out` that reads completely, or (None, None).
 
@@ -381,29 +396,14 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     if resume_from is not None:
         check_same_run(state.get("train_config") or {}, config, out)
         model = RoboDiT.from_description(state["model"])
-        if model.layout != layout:
-            raise LayoutError(f"run {out} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
-        if model.config != config.model_config():
-            raise ValueError(f"run {out} holds a {model.config} model, config asks for size {config.size!r} with --time-ids {config.time_ids!r}")
-        if model.prediction != config.prediction:
-            raise ValueError(f"run {out} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
-        if bool(model.anchors) != config.anchor_track:
-            raise ValueError(f"run {out} was trained with anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
+        check_network(model, layout, config, f"run {out}")
         model.load_state_dict(state["state_dict"])
         normalizer = Normalizer.from_state_dict(state["normalizer"])
     elif config.init:
         state = None
         start = load_model(config.init, ema=True)
         model, normalizer = start.model, start.normalizer
-        if model.layout != layout:
-            raise LayoutError(f"--init {config.init} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
-        if model.config != config.model_config():
-            raise ValueError(f"--init {config.init} holds a {model.config} model, config asks for size {config.size!r} with --time-ids {config.time_ids!r}")
-        if model.prediction != config.prediction:
-            raise ValueError(f"--init {config.init} predicts {model.prediction!r}, config asks for prediction "
-                             f"{config.prediction!r}")
-        if bool(model.anchors) != config.anchor_track:
-            raise ValueError(f"--init {config.init} has anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
+        check_network(model, layout, config, f"--init {config.init}")
         log.info("starting from the EMA weights of %s (step %d)", config.init, start.step)
     else:
         state = None

@@ -226,6 +226,12 @@ class DesignPrediction:
 VIAS = ("dynamics", "inpaint")
 
 
+def default_via(trained) -> str:
+    """How `predict_designs` gives `trained` a design by default: "dynamics" when it was
+    trained on the dynamics task, else "inpaint"."""
+    return "dynamics" if trained.trained_on("dynamics") else "inpaint"
+
+
 def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: int = 1, num_steps: int | None = None,
                     seed: int = 0, placement: str = "even", chunk: int | None = None,
                     device: str | torch.device | None = None, via: str | None = None) -> DesignPrediction:
@@ -255,8 +261,7 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     from tt.sim.designs import get_space
 
     designs, motions = list(designs), list(motions)
-    if via is None:
-        via = "dynamics" if trained.trained_on("dynamics") else "inpaint"
+    via = default_via(trained) if via is None else via
     if via not in VIAS:
         raise ValueError(f"via {via!r} is not one of {list(VIAS)}")
     if via == "dynamics" and not trained.trained_on("dynamics"):
@@ -470,6 +475,7 @@ def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> d
 
 __all__ = [
     "VIAS",
+    "default_via",
     "PLACEMENTS",
     "CheckpointSpaceError",
     "DesignPrediction",

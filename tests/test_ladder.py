@@ -23,30 +23,24 @@ def test_pearson_and_within_motion_against_numpy():
     assert np.isnan(pearson(np.array([1.0, np.nan, 2.0]), np.array([1.0, 2.0, np.nan])))  # < 3 finite pairs
 
 
-#: R0's recipe: the dynamics task (the design a clean condition), x0 prediction, sinusoidal
-#: time-step IDs (the default). Measured on the 2-core box (2026-12-02,
-#: benchmarks/results/dit_recipe.md, row `x0`): pooled r 0.97 at step 1,000 (within-motion
-#: 0.95-0.99), 4 min of training; the paper's recipe (robot task, design inpainted, eps, a
-#: learned time-ID table) gave 0.14 at the same budget.
-R0 = dict(size="tiny", steps=1000, batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0},
-          task="dynamics", prediction="x0")
-
-
 @pytest.mark.slow
 @pytest.mark.usefixtures("single_thread")
 def test_r0_a_small_model_memorizes_64_episodes(tmp_path):
     """R0: the 64 episodes of one online refresh (16 viperx-nominal designs x 4 augmented
     training motions, no control perturbation, terminated episodes kept to the motion's end:
-    `OnlineConfig.absorbing`) trained on alone; `tt predict` on those same designs x motions
-    correlates with their simulated rewards at r >= 0.95 (pooled)."""
+    `OnlineConfig.absorbing`; `tt.ladder.r0_online`) trained on alone with `tt.ladder.R0_RECIPE`;
+    `tt predict` on those same designs x motions correlates with their simulated rewards at
+    r >= 0.95 (pooled). Measured on the 2-core box (2026-12-02, benchmarks/results/dit_recipe.md,
+    row `x0`): 0.97 at step 1,000 (within-motion 0.95-0.99) after 4 min of training; the
+    paper's recipe (robot task, design inpainted, eps, a learned time-ID table) gave 0.14."""
     from tt.dit.checkpoint import load_model
-    from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.online import OnlineTokenSource
     from tt.dit.train import TrainConfig, train
-    from tt.ladder import score_designs
+    from tt.ladder import R0_RECIPE, r0_online, score_designs
 
-    online = OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
-                          action_noise=0.0, min_steps=8, seed=0, absorbing=True)
-    train(TrainConfig(out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0["steps"], online=online, **R0))
+    online = r0_online()
+    train(TrainConfig(out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0_RECIPE["steps"], online=online,
+                      **R0_RECIPE))
     # Scored with 20 DDIM steps, eta 0, one sample per pair (`tt predict --num-steps 20`; the
     # design given to the dynamics task, the default for a model trained on it).
     trained = load_model(tmp_path / "r0")

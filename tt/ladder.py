@@ -30,6 +30,23 @@ import numpy as np
 HELDOUT_SEED = 90_001
 
 
+#: R0's training choices shared by every row of `benchmarks/dit_recipe.py`.
+R0_TRAINING = dict(size="tiny", batch_size=32, lr=5e-3, warmup_steps=50, type_weights={"track_link_obs": 4.0})
+#: R0's recipe (`tests/test_ladder.py`; the ``x0`` row of `benchmarks/results/dit_recipe.md`):
+#: the dynamics task, x0 prediction, the default sinusoidal time-step IDs, 1,000 steps.
+R0_RECIPE = dict(R0_TRAINING, steps=1000, task="dynamics", prediction="x0")
+
+
+def r0_online():
+    """R0's data: the 64 episodes of one online refresh, 16 ``viperx-nominal`` designs x 4
+    augmented training motions, no control perturbation, terminated episodes kept to the
+    motion's end (`tt.dit.online.OnlineConfig`; refresh 0 only)."""
+    from tt.dit.online import OnlineConfig
+
+    return OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
+                        action_noise=0.0, min_steps=8, seed=0, absorbing=True)
+
+
 def validation_motions(space: str, count: int | None = None) -> list:
     """`count` validation motions of the space's end-effector count, spread over the skills
     (every one for None), placed for the space."""
@@ -143,5 +160,5 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
                        {"predict": t1 - t0, "simulate": t2 - t1})
 
 
-__all__ = ["HELDOUT_SEED", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
+__all__ = ["HELDOUT_SEED", "R0_RECIPE", "R0_TRAINING", "r0_online", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
            "within_motion"]
