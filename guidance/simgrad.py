@@ -36,6 +36,7 @@ late steps. Contact-free spaces only (tt's Warp rollout has no contacts).
 
 from __future__ import annotations
 
+import abc
 import logging
 import warnings
 from dataclasses import dataclass
@@ -69,7 +70,7 @@ REL_STEP = 1e-4
 
 
 # ------------------------------------------------------------------------------ the boundary
-class WarpProgram:
+class WarpProgram(abc.ABC):
     """What `WarpFunction` runs: `record(arrays) -> outputs` launches Warp kernels that read
     `arrays` (one per input tensor, of the Warp dtypes `dtypes`) and returns Warp arrays;
     the launches are recorded on a tape. Outputs whose dtype is not a float type come back
@@ -77,8 +78,9 @@ class WarpProgram:
 
     dtypes: Sequence[type] = ()
 
+    @abc.abstractmethod
     def record(self, arrays: list[wp.array]) -> list[wp.array]:
-        raise NotImplementedError
+        """Launch the program's kernels on `arrays`; return its output arrays."""
 
 
 def _float_dtype(dtype) -> bool:
