@@ -35,7 +35,7 @@ import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
 from tt.sim.rewards import REWARDS
-from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
+from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, ratio_ci, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion, motion_set
 
@@ -49,22 +49,47 @@ SPACE = "viperx"
 SEQUENTIAL, BATCHED, PAPER = "CMA-ES sequential", "CMA-ES batched", "CMA-ES batched, no screening"
 
 
-def methods(cfg: CMAESConfig, problem: Problem) -> dict[str, object]:
+NOMINAL, RANDOM_DESIGN = "Nominal ViperX", "Random design (mean)"
+
+
+def methods(cfg: CMAESConfig, problem: Problem, sequential: bool = True) -> dict[str, object]:
     """The optimizers of one run, in the order they run."""
-    out = {"Random": RandomSearch(), SEQUENTIAL: CMAES(CMAESConfig(**{**cfg.__dict__, "sequential": True})),
-           BATCHED: CMAES(cfg)}
+    out = {"Random": RandomSearch()}
+    if sequential:
+        out[SEQUENTIAL] = CMAES(CMAESConfig(**{**cfg.__dict__, "sequential": True}))
+    out[BATCHED] = CMAES(cfg)
     paper = CMAES(CMAESConfig(**{**cfg.__dict__, "screen": 0.0}))
     if paper.plan(problem) != out[BATCHED].plan(problem):
         out[PAPER] = paper
     return out
 
 
-def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig) -> list[dict]:
-    """Every method on every problem; one record per (problem, method) with validated metrics."""
+def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig, sequential: bool = True,
+                random_designs: int = 0) -> list[dict]:
+    """Every method on every problem; one record per (problem, method) with validated metrics.
+
+    Beside the optimizers' winners the oracle also runs the nominal design and, with
+    `random_designs` K > 0, K random designs of the run's seed, whose mean is the paper's
+    "Random" (one random design, no search)."""
     records = []
+    space = get_space(SPACE)
     for i, problem in enumerate(problems):
-        results = {label: opt.optimize(problem) for label, opt in methods(cfg, problem).items()}
-        ev = evaluate_designs([r.best for r in results.values()], problem.motions, problem.reward, backend="mujoco")
+        results = {label: opt.optimize(problem) for label, opt in methods(cfg, problem, sequential).items()}
+        extra = [space.nominal()] + space.sample(random_designs, seed=10_000 + problem.seed)
+        ev = evaluate_designs([r.best for r in results.values()] + extra, problem.motions, problem.reward,
+                              backend="mujoco")
+        base = {"bench": "optimize", "setting": name, "reward_name": problem.reward, "seed": problem.seed,
+                "motions": [m.name for m in problem.motions], "seconds": None, "rollouts": 0, "warmup_seconds": 0.0}
+        k0 = len(results)
+        fixed = [{**base, "method": NOMINAL, "objective": float(ev.objective[k0]), **summary_row(ev.metrics, k0),
+                  "design": space.to_dict(extra[0])}]
+        if random_designs:
+            fixed.append({**base, "method": RANDOM_DESIGN, "objective": float(ev.objective[k0 + 1:].mean()),
+                          **summary_row(ev.metrics, slice(k0 + 1, None)), "designs": random_designs,
+                          "reward": float(ev.reward[k0 + 1:].mean())})
+        for rec in fixed:
+            records.append(rec)
+            print(json.dumps(rec), flush=True)
         for k, (label, r) in enumerate(results.items()):
             rec = {
                 "bench": "optimize", "setting": name, "reward_name": problem.reward, "seed": problem.seed,
@@ -79,6 +104,8 @@ def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig) -> list[di
 
 
 def _fmt(m: float, h: float) -> str:
+    if not math.isfinite(m):
+        return "-"
     digits = 2 if abs(m) < 10 else 1 if abs(m) < 1000 else 0
     return f"{m:.{digits}f}" if not math.isfinite(h) else f"{m:.{digits}f} ± {h:.{digits}f}"
 
@@ -101,6 +128,37 @@ def table(records: list[dict], reward: str) -> tuple[str, dict]:
             row[key] = _fmt(m, h)
         rows.append(row)
     return markdown_table(rows, cols, first=("name", "method")), stats
+
+
+def design_matters(records: list[dict]) -> tuple[str, dict]:
+    """The motion issue's checks on one setting and reward: does the design matter (the nominal
+    arm's mean validated position error against CMA-ES's, as a ratio with a paired bootstrap
+    CI), and does search matter (mean random design vs Random's pick vs CMA-ES, paired
+    differences with Student-t CIs), on the mean and the 95th-percentile error."""
+    present = {r["method"] for r in records}
+    if not {NOMINAL, RANDOM_DESIGN, "Random", BATCHED} <= present:
+        return "", {}
+    by = {m: {r["seed"]: r for r in records if r["method"] == m} for m in (NOMINAL, RANDOM_DESIGN, "Random", BATCHED)}
+    seeds = sorted(by[BATCHED])
+    out, verdict = ["#### Does the design matter? Does search?", ""], {}
+    for key, label in (("pos_err", "mean"), ("pos_err_p95", "95th-percentile")):
+        col = {m: [by[m][s_][key] for s_ in seeds] for m in by}
+        ratio, lo, hi = ratio_ci(col[NOMINAL], col[BATCHED])
+        d1 = mean_ci([a - b for a, b in zip(col[RANDOM_DESIGN], col["Random"])])
+        d2 = mean_ci([a - b for a, b in zip(col["Random"], col[BATCHED])])
+        met = {"design": lo >= 2.0, "random_vs_pick": d1[0] - d1[1] > 0, "pick_vs_cmaes": d2[0] - d2[1] > 0}
+        verdict[key] = {"nominal_over_cmaes": [ratio, lo, hi], "random_design_minus_pick": list(d1),
+                        "pick_minus_cmaes": list(d2), "met": met}
+        out += [
+            f"- {label} position error, nominal / CMA-ES batched: {ratio:.2f}x (95% bootstrap CI {lo:.2f}-{hi:.2f}; "
+            f"target >= 2x with the CI: {'met' if met['design'] else 'NOT met'})",
+            f"- {label} position error, mean random design minus Random's pick: {_fmt(*d1)} cm "
+            f"({'above 0 with the CI' if met['random_vs_pick'] else 'CI includes 0'})",
+            f"- {label} position error, Random's pick minus CMA-ES batched: {_fmt(*d2)} cm "
+            f"({'above 0 with the CI' if met['pick_vs_cmaes'] else 'CI includes 0'}; CMA-ES lower in "
+            f"{sum(a > b for a, b in zip(col['Random'], col[BATCHED]))} of {len(seeds)} runs)",
+        ]
+    return "\n".join(out), verdict
 
 
 def speedups(records: list[dict]) -> list[float]:
@@ -177,28 +235,33 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
             rs = [r for r in records if r["reward_name"] == reward]
             text, _ = table(rs, reward)
             sp = speedups(rs)
-            d_seq = paired(rs, BATCHED, SEQUENTIAL)
+            d_seq = paired(rs, BATCHED, SEQUENTIAL) if sp else [float("nan")]
             d_rnd = paired(rs, BATCHED, "Random")
             sp_m, sp_h = mean_ci(sp)
             ds_m, ds_h = mean_ci(d_seq)
             dr_m, dr_h = mean_ci(d_rnd)
             reaches = ds_m + (ds_h if math.isfinite(ds_h) else 0.0) >= 0.0
-            verdicts.append({"setting": name, "reward": reward, "reaches": bool(reaches), "speedup_min": min(sp),
+            verdicts.append({"setting": name, "reward": reward, "reaches": bool(reaches), "speedup_min": min(sp, default=None),
                              "speedup_mean": sp_m, "batched_minus_sequential": ds_m, "batched_minus_random": dr_m})
             wins = sum(d > 0 for d in d_rnd)
             ties = sum(d == 0 for d in d_rnd)
             seq = {r["seed"]: r["design"] for r in rs if r["method"] == SEQUENTIAL}
             same = sum(r["design"] == seq[r["seed"]] for r in rs if r["method"] == BATCHED)
-            parts.append(
-                f"### {reward} ({len(sp)} runs)\n\n{text}\n\n"
-                f"- sequential / batched optimize time per run: mean {_fmt(sp_m, sp_h)}x, min {min(sp):.1f}x, "
-                f"max {max(sp):.1f}x (at least 10x in {sum(x >= 10 for x in sp)} of {len(sp)} runs)\n"
-                f"- validated reward, batched minus sequential, paired per run: {_fmt(ds_m, ds_h)} "
-                f"({'batched reaches the sequential reward' if reaches else 'batched is below the sequential reward'}; "
-                f"same winning design in {same} of {len(sp)} runs)\n"
-                f"- validated reward, CMA-ES batched minus Random, paired per run: {_fmt(dr_m, dr_h)} "
-                f"(CMA-ES higher in {wins}, equal in {ties}, lower in {len(d_rnd) - wins - ties} of {len(d_rnd)} runs)\n"
-            )
+            lines = [f"### {reward} ({len(d_rnd)} runs)\n\n{text}\n"]
+            if sp:
+                lines += [
+                    f"- sequential / batched optimize time per run: mean {_fmt(sp_m, sp_h)}x, min {min(sp):.1f}x, "
+                    f"max {max(sp):.1f}x (at least 10x in {sum(x >= 10 for x in sp)} of {len(sp)} runs)",
+                    f"- validated reward, batched minus sequential, paired per run: {_fmt(ds_m, ds_h)} "
+                    f"({'batched reaches the sequential reward' if reaches else 'batched is below the sequential reward'}; "
+                    f"same winning design in {same} of {len(sp)} runs)"]
+            lines.append(f"- validated reward, CMA-ES batched minus Random, paired per run: {_fmt(dr_m, dr_h)} "
+                         f"(CMA-ES higher in {wins}, equal in {ties}, lower in {len(d_rnd) - wins - ties} of {len(d_rnd)} runs)")
+            matters, verdict = design_matters(rs)
+            if matters:
+                lines.append("\n" + matters)
+                verdicts[-1].update(verdict)
+            parts.append("\n".join(lines) + "\n")
         sections.append("\n".join(parts))
 
     warm_total = sum(r["warmup_seconds"] for rs in settings.values() for r in rs)
@@ -246,14 +309,17 @@ def main() -> None:
     ap.add_argument("--multi-motions", type=int, default=5, help="validation motions per multi-trajectory run")
     ap.add_argument("--multi-budget", type=int, default=30)
     ap.add_argument("--multi-rewards", default="tracking", help="comma-separated, 'all', or '' for none")
+    ap.add_argument("--random-designs", type=int, default=32,
+                    help="single trajectory: random designs per run whose mean is the paper's 'Random' row (0: none)")
+    ap.add_argument("--no-sequential", action="store_true", help="skip CMA-ES sequential on the oracle")
     ap.add_argument("--popsize", type=int, default=5)
     ap.add_argument("--generations", type=int, default=3)
     ap.add_argument("--out", type=Path, default=RESULTS / "optimize.md")
     ap.add_argument("--from-log", type=Path, default=None, help="rewrite the report from a run's printed JSON lines")
     args = ap.parse_args()
     command = "python benchmarks/optimize.py " + " ".join(
-        f"--{k.replace('_', '-')} {v if v != '' else chr(39) * 2}" for k, v in vars(args).items()
-        if k not in ("out", "from_log"))
+        f"--{k.replace('_', '-')}" + ("" if isinstance(v, bool) else f" {v if v != '' else chr(39) * 2}")
+        for k, v in vars(args).items() if k not in ("out", "from_log") and v is not False)
     info = {
         "seeds": args.seeds, "budget": args.budget, "multi_budget": args.multi_budget, "popsize": args.popsize,
         "generations": args.generations, "machine": machine_header("cpu"), "command": command,
@@ -288,10 +354,11 @@ def main() -> None:
     settings: dict[str, list[dict]] = {"single trajectory": [], "multi trajectory": []}
     for reward in rewards:
         problems = [Problem(SPACE, (m,), reward, args.budget, seed=i) for i, m in enumerate(single_motions)]
-        settings["single trajectory"] += run_setting("single trajectory", problems, cfg)
+        settings["single trajectory"] += run_setting("single trajectory", problems, cfg, not args.no_sequential,
+                                                     args.random_designs)
     for reward in multi_rewards:
         problems = [Problem(SPACE, multi_motions, reward, args.multi_budget, seed=i) for i in range(args.seeds)]
-        settings["multi trajectory"] += run_setting("multi trajectory", problems, cfg)
+        settings["multi trajectory"] += run_setting("multi trajectory", problems, cfg, not args.no_sequential)
     info["wall_seconds"] = time.perf_counter() - start
     print(json.dumps({"bench": "optimize", "wall_seconds": info["wall_seconds"]}), flush=True)
     settings = {k: v for k, v in settings.items() if v}

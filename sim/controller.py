@@ -27,7 +27,11 @@ class IKConfig:
     Timing
         control_dt: control period [s] (50 Hz, equal to the motion sample period).
         lookahead_time: how far ahead along the motion the IK target is taken [s]; it
-            covers the lag of the position actuators (the paper's 80 ms).
+            covers the lag of the position servos. The paper uses 80 ms. With tt's servo
+            model (voltage limit and back-EMF, `tt.sim.designs.servos`) the closed loop with
+            no look-ahead trails the motion by a median 40 ms over ViperX designs that can
+            reach it, and 80 ms leads it by 40 ms; 40 ms leaves a median lag of 0 (10th-90th
+            percentile -20..20 ms) and the lowest mean error (`benchmarks/controller_lag.py`).
         Physics runs at the model's own timestep: ``substeps(model) = round(control_dt /
         timestep)`` MuJoCo steps per control step (10 for tt's 0.002 s arms).
 
@@ -91,7 +95,7 @@ class IKConfig:
     """
 
     control_dt: float = 0.02
-    lookahead_time: float = 0.08
+    lookahead_time: float = 0.04
     position_cost: float = 1.0
     orientation_cost: float = 0.5
     posture_cost: float = 1e-2
@@ -122,7 +126,7 @@ class IKConfig:
 
     @property
     def lookahead_steps(self) -> int:
-        """Look-ahead in control steps, ``round(lookahead_time / control_dt)`` (4 at 50 Hz)."""
+        """Look-ahead in control steps, ``round(lookahead_time / control_dt)`` (2 at 50 Hz)."""
         return int(round(self.lookahead_time / self.control_dt))
 
     def ik_weights(self):

@@ -2,8 +2,8 @@
 backend's launch code.
 
 `rollout(designs, motions)` runs W = D * M worlds, design-major (world ``d * M + m`` is
-design d on motion m), with the controller of `tt.sim.controller` (mink DiffIK with 80 ms
-look-ahead at 50 Hz) driving the design's position actuators, on one of the backends of
+design d on motion m), with the controller of `tt.sim.controller` (mink DiffIK with its
+look-ahead, 40 ms, at 50 Hz) driving the design's position actuators, on one of the backends of
 `tt.sim.backends` (``warp``, ``mjwarp``, ``newton``, ``mujoco``; the table there says
 where each lives). This module holds the ``"warp"`` one (the default): tt's fused Warp
 kernels (`tt.kernels.rollout`), contact-free trees of hinge/slide joints. Designs are

@@ -109,7 +109,8 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     shutil.move(root / "motion_npy.npy", root / "motion_npy.npz")
     put("motion_npy", root / "motion_npy.npz")
     put("motion_dt", _savez(root / "motion_dt.npz", pos=short.pos[:, 0], quat=short.quat[:, 0], dt=np.array([0.02, 0.02])))
-    far = Motion("far", short.pos + np.array([5.0, 0.0, 0.0]), short.quat, short.dt)
+    # 5 m up: motion files are placed over the base on load, and placing keeps heights.
+    far = Motion("far", short.pos + np.array([0.0, 0.0, 5.0]), short.quat, short.dt)
     save_npz(far, root / "motion_far.npz")
     put("motion_far", root / "motion_far.npz")
 

@@ -133,3 +133,35 @@ def test_nominal_sub_space_fixes_the_structure():
     with pytest.raises(DesignError, match="not sub-space"):
         sub.from_base(full.sample(50, seed=1)[[d.discrete != full.nominal().discrete for d in full.sample(50, seed=1)].index(True)])
     assert get_reward("tracking_velocity", "viperx-nominal").velocity_alpha == get_reward("tracking_velocity", "viperx").velocity_alpha
+
+
+def test_servo_joints_follow_the_datasheets_torque_speed_line(space):
+    """The nominal arm's MJCF is the servo model of tt.sim.designs.servos: force limit = stall
+    torque, damping = friction + stall / no-load speed, so MuJoCo C, with a joint commanded far
+    past its position, settles at the speed where the saturated torque is spent on
+    back-EMF and friction: w = stall / (stall / w0 + friction)."""
+    import mujoco
+
+    from tt.sim.designs.servos import XM430_W350, XM540_W270
+    from tt.sim.designs.viperx import FRICTION_DAMPING
+
+    model = space.model(space.nominal())
+    model.opt.gravity[:] = 0.0  # the waist turns about the vertical: gravity does no work on it anyway
+    want = {"waist": (XM540_W270, 1), "shoulder": (XM540_W270, 2), "elbow": (XM540_W270, 2),
+            "wrist_rotate": (XM430_W350, 1)}
+    for name, (servo, count) in want.items():
+        a = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+        j = model.actuator_trnid[a, 0]
+        assert model.actuator_forcerange[a, 1] == pytest.approx(servo.stall_torque * count, rel=1e-12)
+        assert model.dof_damping[model.jnt_dofadr[j]] == pytest.approx(
+            FRICTION_DAMPING + count * servo.stall_torque / servo.no_load_speed, abs=1e-4)
+    data = mujoco.MjData(model)
+    a = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "waist")
+    dof = model.jnt_dofadr[model.actuator_trnid[a, 0]]
+    data.ctrl[a] = model.actuator_ctrlrange[a, 1]  # pi: saturated for the whole run
+    for _ in range(int(0.6 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    stall, damping = XM540_W270.stall_torque, model.dof_damping[dof]
+    assert abs(data.actuator_force[a]) == pytest.approx(stall, rel=1e-9)  # still saturated
+    assert data.qvel[dof] == pytest.approx(stall / damping, rel=2e-3)
+    assert data.qvel[dof] < XM540_W270.no_load_speed

@@ -129,13 +129,13 @@ def test_start_posture_is_ik_toward_the_first_pose(tracked, viperx):
     assert np.abs(q_start - model.qpos0).max() > 0.05  # it really moved
 
 
-def test_commands_come_from_ik_with_80ms_look_ahead(tracked, viperx):
+def test_commands_come_from_ik_with_the_configured_look_ahead(tracked, viperx):
     motion, ep = tracked
     model = viperx.model(viperx.nominal())
     q_start = DiffIKController(model).initial_q(motion.pos[0], motion.quat[0])
     for k in (0, 60, motion.steps - 2):
         q = q_start if k == 0 else ep.qpos[0, k - 1].double().numpy()
-        goal = min(k + 4, motion.steps - 1)
+        goal = min(k + IKConfig().lookahead_steps, motion.steps - 1)
         q_cmd = ik_step(model, q, motion.pos[goal], motion.quat[goal])
         np.testing.assert_allclose(ep.ctrl[0, k].numpy(), q_cmd, atol=1e-4)
 

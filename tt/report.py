@@ -85,6 +85,21 @@ def summary_row(metrics: Mapping, index: int | slice = slice(None)) -> dict[str,
     return row
 
 
+def ratio_ci(a, b, *, samples: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
+    """mean(a) / mean(b) of paired runs, with its 95 % percentile-bootstrap interval
+    (runs resampled with replacement, pairs kept): (ratio, low, high)."""
+    import numpy as np
+
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 1 or a.size == 0:
+        raise ValueError(f"ratio_ci needs two equal-length 1-D samples, got shapes {a.shape} and {b.shape}")
+    idx = np.random.default_rng(seed).integers(0, a.size, size=(samples, a.size))
+    boot = a[idx].mean(axis=1) / b[idx].mean(axis=1)
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return float(a.mean() / b.mean()), float(low), float(high)
+
+
 def mean_ci(values) -> tuple[float, float]:
     """Mean and half-width of the 95 % Student-t confidence interval of the finite values
     (None skipped); NaN half-width for one value, NaN both for none."""

@@ -86,6 +86,12 @@ class DesignSpace(ABC):
     #: Translation [m] that moves tt's library motions (authored for a table-top arm at the
     #: origin) into this robot's workspace; see `tt.sim.motions.for_space`.
     motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Whether the library's placement at the base (`tt.sim.motions.place_at_base`, the
+    #: paper's convention) holds for this robot. False for the moving-base robots
+    #: (quadruped, mobile bimanual): their motions stay where the skills were written,
+    #: moved by `motion_offset` to the working height; the base placement is not yet tuned
+    #: for a base that walks or rolls.
+    places_motions: bool = True
 
     @property
     def family(self) -> str:
@@ -346,6 +352,7 @@ class FixedStructureSpace(DesignSpace):
         self.has_contacts = base.has_contacts
         self.ee_count = base.ee_count
         self.motion_offset = base.motion_offset
+        self.places_motions = base.places_motions
         self._params = tuple(DiscreteParam(p.name, (p.options[i],)) for p, i in zip(params, fixed))
 
     @property

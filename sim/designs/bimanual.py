@@ -171,6 +171,7 @@ class BimanualSpace(DesignSpace):
     ee_count = 2
     # Library two-arm motions are centred at (0.33, 0, 0.25) for table-top arms.
     motion_offset = tuple(float(c - t) for c, t in zip(WORKSPACE_CENTER, (0.33, 0.0, 0.25)))
+    places_motions = False
 
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
         return (DiscreteParam("spine", SPINES), DiscreteParam("torso_pitch", TORSO_PITCH))

@@ -315,6 +315,7 @@ class QuadrupedSpace(DesignSpace):
     # is, so they run in front of and above the body at standing height. The quadruped's arm is
     # 0.1 m shorter than the library's ViperX; its base (moved by the legs) covers the difference.
     motion_offset = (0.0, 0.0, NOMINAL_ARM_MOUNT_Z)
+    places_motions = False
 
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
         return (

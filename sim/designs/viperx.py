@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from tt.sim.designs.base import ContinuousParam, Design, DesignSpace, DiscreteParam, FixedStructureSpace
+from tt.sim.designs.servos import XM430_W350, XM540_W270, ServoJoint
 from tt.sim.designs.mjcf import (
     JointSpec,
     Segment,
@@ -52,22 +53,33 @@ MOUNT_RANGE = {"mount_x": 0.35, "mount_y": 0.5, "mount_z": 0.3}
 DLEN_RANGE = (-0.05, 0.20)
 
 
-def _joint(name: str, axis: str, rng: tuple[float, float], kp: float, force: float, armature: float) -> JointSpec:
-    # kv near critical damping for the joint's own reflected inertia; joint damping adds
-    # the friction of a real servo.
+#: Joint friction of a servo [N m s/rad], on top of its back-EMF damping.
+FRICTION_DAMPING = 0.1
+
+
+def _joint(name: str, axis: str, rng: tuple[float, float], kp: float, servo: ServoJoint, armature: float) -> JointSpec:
+    # kv near critical damping for the joint's own reflected inertia. The servo's voltage
+    # limit is the force limit and its back-EMF a joint damping (tt.sim.designs.servos).
     kv = 2.0 * np.sqrt(kp * armature)
-    return JointSpec(name, _AXIS_VEC[axis], rng, kp=kp, kv=float(round(kv, 4)), force=force, armature=armature, damping=0.1)
+    return JointSpec(name, _AXIS_VEC[axis], rng, kp=kp, kv=float(round(kv, 4)), force=servo.force, armature=armature,
+                     damping=float(round(FRICTION_DAMPING + servo.damping, 4)))
 
 
-#: (joint name, nominal axis, range, kp, force limit, armature) by role, base to tip.
+#: (joint name, nominal axis, range, kp, servos, armature) by role, base to tip. The
+#: servos are the ViperX 300 S's (Trossen Robotics' specification): XM540-W270 at the waist,
+#: two at the shoulder and two at the elbow, one each at the forearm roll and the wrist
+#: angle, an XM430-W350 at the wrist rotate; the 7-DoF variant's upper-arm roll gets an
+#: XM540-W270. Every design of a space keeps these servos, so a longer, heavier arm on a
+#: fast motion saturates them: at 30 rpm unloaded the shoulder cannot swing a 0.8 m arm's
+#: tip much faster than 2.5 m/s, and every N m it holds against gravity is lost to speed.
 _ROLES = {
-    "waist": ("z", (-np.pi, np.pi), 300.0, 10.0, 0.08),
-    "shoulder": ("y", (-1.88, 1.99), 500.0, 25.0, 0.1),
-    "upper_roll": ("z", (-np.pi, np.pi), 200.0, 10.0, 0.05),
-    "elbow": ("y", (-2.15, 1.6), 400.0, 15.0, 0.08),
-    "forearm_roll": ("x", (-np.pi, np.pi), 100.0, 5.0, 0.03),
-    "wrist_angle": ("y", (-1.75, 2.15), 100.0, 5.0, 0.03),
-    "wrist_rotate": ("x", (-np.pi, np.pi), 60.0, 3.0, 0.02),
+    "waist": ("z", (-np.pi, np.pi), 300.0, ServoJoint(XM540_W270), 0.08),
+    "shoulder": ("y", (-1.88, 1.99), 500.0, ServoJoint(XM540_W270, 2), 0.1),
+    "upper_roll": ("z", (-np.pi, np.pi), 200.0, ServoJoint(XM540_W270), 0.05),
+    "elbow": ("y", (-2.15, 1.6), 400.0, ServoJoint(XM540_W270, 2), 0.08),
+    "forearm_roll": ("x", (-np.pi, np.pi), 100.0, ServoJoint(XM540_W270), 0.03),
+    "wrist_angle": ("y", (-1.75, 2.15), 100.0, ServoJoint(XM540_W270), 0.03),
+    "wrist_rotate": ("x", (-np.pi, np.pi), 60.0, ServoJoint(XM430_W350), 0.02),
 }
 
 #: Joints of each DoF variant, base to tip.
@@ -103,8 +115,8 @@ def arm_parts(dof: str, axes: Sequence[str], dlens: Sequence[float], prefix_role
     axis_of = dict(zip(upper, axes))
     joints, segments = [], []
     for name, dl in zip(names, dlens):
-        nominal_axis, rng, kp, force, armature = _ROLES[name]
-        joints.append(_joint(name, axis_of.get(name, nominal_axis), rng, kp, force, armature))
+        nominal_axis, rng, kp, servo, armature = _ROLES[name]
+        joints.append(_joint(name, axis_of.get(name, nominal_axis), rng, kp, servo, armature))
         direction, length, radius = _SEGMENTS[name]
         if name == "shoulder" and dof == "7":
             length = 0.10

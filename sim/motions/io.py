@@ -261,8 +261,12 @@ def load_umi_zarr(
 # ------------------------------------------------------------------ dispatch
 
 
-def load_motion_file(path: str | Path, **kwargs: Any) -> Motion:
-    """Load by suffix: ``.npz`` -> `load_npz`; ``.zarr`` / ``.zarr.zip`` -> `load_umi_zarr` (kwargs go there)."""
+def load_motion_file(path: str | Path, *, place: bool = True, **kwargs: Any) -> Motion:
+    """Load by suffix: ``.npz`` -> `load_npz`; ``.zarr`` / ``.zarr.zip`` -> `load_umi_zarr` (kwargs go there).
+
+    place: move the motion to the robot's base as the library's motions are (`place_at_base`);
+    False keeps the file's own frame.
+    """
     path = Path(path)
     if not path.exists():
         raise MotionError(f"{path}: no such file")
@@ -270,10 +274,12 @@ def load_motion_file(path: str | Path, **kwargs: Any) -> Motion:
     if lower.endswith(".npz"):
         if kwargs:
             raise MotionError(f"{path}: load_npz takes no options, got {sorted(kwargs)}")
-        return load_npz(path)
-    if lower.endswith(".zarr") or lower.endswith(".zarr.zip"):
-        return load_umi_zarr(path, **kwargs)
-    raise MotionError(f"{path}: unknown motion file type; valid suffixes: .npz, .zarr, .zarr.zip")
+        motion = load_npz(path)
+    elif lower.endswith(".zarr") or lower.endswith(".zarr.zip"):
+        motion = load_umi_zarr(path, **kwargs)
+    else:
+        raise MotionError(f"{path}: unknown motion file type; valid suffixes: .npz, .zarr, .zarr.zip")
+    return place_at_base(motion) if place else motion
 
 
 def resolve_motion(spec: str) -> Motion:
@@ -369,8 +375,10 @@ def augment_motion(
 def for_space(motions: Sequence[Motion], space: str) -> list[Motion]:
     """Library motions moved into the workspace of design space `space` (its `motion_offset`).
 
-    Motions are authored for table-top arms at the origin; a robot whose hands work at
-    counter height (the mobile bimanual) declares the translation that puts them there.
+    Motions start over the base (`place_at_base`); a space that does not use that placement
+    (`DesignSpace.places_motions`, the moving-base robots) gets them back where they were
+    written, for table-top arms at the origin. A robot whose hands work at counter height (the
+    mobile bimanual) declares the translation that puts them there.
     """
     from tt.sim.designs import get_space
 
@@ -380,6 +388,10 @@ def for_space(motions: Sequence[Motion], space: str) -> list[Motion]:
     for m in motions:
         if m.arms != sp.ee_count:
             raise MotionError(f"motion {m.name!r} has {m.arms} end effector(s); space {space!r} has {sp.ee_count}")
+        if not sp.places_motions and "placed_shift" in m.meta:
+            # Back where the skill (or file) had it: this robot does not use the base placement.
+            meta = {k: v for k, v in m.meta.items() if k != "placed_shift"}
+            m = Motion(m.name, m.pos - np.asarray(m.meta["placed_shift"]), m.quat, m.dt, meta=meta)
         if np.any(offset != 0.0):
             m = Motion(m.name, m.pos + offset, m.quat, m.dt, meta=dict(m.meta, space_offset=offset.tolist()))
         out.append(m)
@@ -392,3 +404,26 @@ def recenter(motion: Motion, center: tuple[float, float, float] | np.ndarray) ->
     mid = 0.5 * (pos.reshape(-1, 3).min(0) + pos.reshape(-1, 3).max(0))
     shift = np.asarray(center, dtype=np.float64) - mid
     return Motion(motion.name, pos + shift, motion.quat, motion.dt, meta=dict(motion.meta, recenter_shift=shift.tolist()))
+
+
+#: Below this distance [m] a motion already counts as placed, so that placing a placed
+#: motion (e.g. one saved with `save_npz` and loaded again) returns it bit for bit.
+_PLACED_TOL = 1e-9
+
+
+def place_at_base(motion: Motion, base_xy: tuple[float, float] = (0.0, 0.0)) -> Motion:
+    """`motion` translated in the ground plane so that it starts over the robot's base.
+
+    The mean over end effectors of the first pose's (x, y) moves to `base_xy` [m]; heights
+    and orientations are kept. This is how the paper's datasets place every demonstration
+    relative to the robot (after augmentation), and how tt places its library and loaded
+    files: where the motion then lies relative to the arm (beside it, behind it, overhead,
+    at long reach) is for the design, its mount pose and link lengths, to handle. The
+    shift is recorded in ``meta["placed_shift"]``.
+    """
+    shift_xy = np.asarray(base_xy, dtype=np.float64) - motion.pos[0, :, :2].mean(axis=0)
+    if np.all(np.abs(shift_xy) <= _PLACED_TOL):
+        return motion
+    shift = np.array([shift_xy[0], shift_xy[1], 0.0])
+    meta = dict(motion.meta, placed_shift=(shift + np.asarray(motion.meta.get("placed_shift", 0.0))).tolist())
+    return Motion(motion.name, motion.pos + shift, motion.quat, motion.dt, meta=meta)

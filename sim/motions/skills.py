@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from tt.sim.motions.base import MOTION_DT, Motion, MotionError
+from tt.sim.motions.io import place_at_base
 from tt.sim.motions.script import DEG, Script, azimuth, bezier, bump, envelope, mirror_pose
 from tt.sim.motions.workspace import BIMANUAL_MOUNT_Y
 
@@ -69,9 +70,12 @@ class Skill:
         rng = np.random.default_rng([zlib.crc32(self.name.encode()), int(seed)])
         return {p.name: float(rng.uniform(p.low, p.high)) for p in self.params}
 
-    def motion(self, seed: int = 0, **overrides: float) -> Motion:
+    def motion(self, seed: int = 0, *, placed: bool = True, **overrides: float) -> Motion:
         """The motion for `seed`, with any parameters in `overrides` fixed to the given values.
 
+        Skills are written in front of the nominal arm (`tt.sim.motions.workspace`); the
+        library motion is then placed to start over the robot's base (`place_at_base`),
+        as the paper places its demonstrations. placed=False returns the script's own frame.
         ``meta`` records skill, seed, split ("train", "val", "extra", or "custom" when
         parameters were overridden) and every parameter value.
         """
@@ -89,7 +93,8 @@ class Skill:
         # A motion with hand-set parameters belongs to no split, whatever its seed.
         split = split_of(seed) if not overrides else "custom"
         meta = {"skill": self.name, "seed": int(seed), "split": split, "params": values}
-        return Motion(name, pos, quat, MOTION_DT, meta=meta)
+        motion = Motion(name, pos, quat, MOTION_DT, meta=meta)
+        return place_at_base(motion) if placed else motion
 
 
 def _p(name: str, nominal: float, low: float, high: float, unit: str, doc: str) -> SkillParam:
@@ -140,10 +145,12 @@ TOSS = Skill(
     (
         _p("y", 0.0, -0.15, 0.15, "m", "lateral position of the swing plane"),
         _p("pivot_z", 0.34, 0.30, 0.38, "m", "height of the swing circle's centre"),
-        _p("radius", 0.21, 0.18, 0.23, "m", "radius of the swing circle"),
-        _p("back", 40.0, 30.0, 45.0, "deg", "wind-up angle behind the pivot"),
-        _p("forward", 65.0, 55.0, 70.0, "deg", "follow-through angle in front of the pivot"),
-        _p("swing_time", 0.7, 0.65, 0.9, "s", "duration of the swing"),
+        _p("radius", 0.23, 0.21, 0.25, "m", "radius of the swing circle"),
+        _p("back", 38.0, 30.0, 40.0, "deg", "wind-up angle behind the pivot"),
+        _p("forward", 62.0, 55.0, 65.0, "deg", "follow-through angle in front of the pivot"),
+        # A person's underhand toss releases at 2-3 m/s; min-jerk timing peaks at 1.875x
+        # the mean speed, so a 0.40 m arc in 0.30 s peaks at 2.5 m/s.
+        _p("swing_time", 0.30, 0.28, 0.37, "s", "duration of the swing"),
         _p("flick", 55.0, 40.0, 65.0, "deg", "wrist pitch-up during the swing"),
     ),
     _toss,
@@ -415,7 +422,8 @@ FLING = Skill(
         _p("y", 0.0, -0.15, 0.15, "m", "lateral position"),
         _p("depth", 0.30, 0.25, 0.33, "m", "forward reach of the fling from the lifted pose"),
         _p("height", 0.42, 0.36, 0.46, "m", "height of the lifted pose"),
-        _p("fling_time", 1.1, 0.95, 1.3, "s", "duration of the fling"),
+        # Human cloth flings peak at 2-3 m/s (see `tt motions --stats`).
+        _p("fling_time", 0.34, 0.30, 0.40, "s", "duration of the fling"),
     ),
     _fling,
 )
@@ -502,7 +510,7 @@ BI_FLING = Skill(
         _p("y", 0.20, 0.15, 0.25, "m", "half the distance between the held corners"),
         _p("depth", 0.24, 0.20, 0.26, "m", "forward reach of the fling from the lifted pose"),
         _p("height", 0.40, 0.35, 0.44, "m", "height of the lifted pose"),
-        _p("fling_time", 1.1, 0.95, 1.3, "s", "duration of the fling"),
+        _p("fling_time", 0.38, 0.33, 0.45, "s", "duration of the fling (two arms with a cloth between them: a little slower)"),
     ),
     _bi_fling,
 )

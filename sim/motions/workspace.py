@@ -1,9 +1,12 @@
-"""Where the library's end-effector targets may go: one `Workspace` per arm.
+"""Where the skills write their end-effector targets: one `Workspace` per arm.
 
-Single-arm skills are sized for a ViperX-300S-like arm standing upright at the world origin
+Single-arm skills are written for a ViperX-300S-like arm standing upright at the world origin
 (`SINGLE_ARM`); bimanual skills for two such arms mounted at y = +-0.3 m (`BIMANUAL`), end
 effector 0 on the +y arm. `Workspace.contains` is the reachability check the tests apply to
-every library motion. Positions in the world frame [m], z up.
+every skill as written (``Skill.motion(seed, placed=False)``). The library's motions are then
+placed to start over the base (`tt.sim.motions.place_at_base`), as the paper places its
+demonstrations, so where they lie relative to an arm is the design's problem. Positions in
+the world frame [m], z up.
 """
 
 from __future__ import annotations
