@@ -31,7 +31,7 @@ class IKConfig:
             model (voltage limit and back-EMF, `tt.sim.designs.servos`) the closed loop with
             no look-ahead trails the motion by a median 40 ms over ViperX designs that can
             reach it, and 80 ms leads it by 40 ms; 40 ms leaves a median lag of 0 (10th-90th
-            percentile -20..20 ms) and the lowest mean error (`benchmarks/controller_lag.py`).
+            percentile -20..40 ms) and the lowest mean error (`benchmarks/controller_lag.py`).
         Physics runs at the model's own timestep: ``substeps(model) = round(control_dt /
         timestep)`` MuJoCo steps per control step (10 for tt's 0.002 s arms).
 

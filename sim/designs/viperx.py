@@ -9,6 +9,16 @@ Continuous choices:
   mount_yaw: rotation of the mount about the world z axis [rad] in [-pi/2, pi/2]
   dlen_<segment>: change of each link length [m] in [-0.05, +0.20]
 
+Actuators are the ViperX 300 S's servos, the same for every design (`_ROLES`,
+`tt.sim.designs.servos`): each joint's force limit is its Dynamixel's stall torque and its
+back-EMF a joint damping of stall / no-load speed, from the ROBOTIS datasheets at 12 V. The
+space varies the arm, not its motors, so what a longer or heavier arm costs is torque and
+speed: it saturates where the nominal arm does not, and a fast motion (a 2.5 m/s toss) asks
+more speed of its joints than 30 rpm can give unless the links are long enough to turn it
+into tip speed. Position gains kp stay stiffer than the servos' factory P gain (about 49 N m/rad
+per XM540-W270 below saturation) because tt's IK controller, like the paper's, has no
+integral or gravity term to remove the sag such a gain leaves.
+
 The arm's zero configuration is an "L": the upper arm points up and the forearm, wrist and
 gripper point forward (+x of the mount). The end-effector site ``ee_0`` has the last
 link's frame, so with the upright mount at yaw 0 its x axis is the approach direction and
