@@ -32,6 +32,7 @@ from tt.sim.motions.base import Motion
 from tt.sim.newton_backend import newton_simulate
 from tt.sim.rollout import rollout
 from tt.sim.validate import oracle_rollout
+from ctrl_targets import some_at_the_ends
 
 HORIZON_STEPS = 1000  # 2 s at 0.002 s
 HORIZON_TOL = 1e-3  # [rad]
@@ -50,19 +51,6 @@ def _same_structure(space, n, seed):
     return chosen
 
 
-def _some_at_the_ends(targets, lo, hi, rng, share=0.3):
-    """`targets` (steps, nu) with about `share` of the joints sent to an end of their ctrl range
-    (= the joint range) for the last two thirds of the run. The servos turn at most ~3 rad/s
-    and their back-EMF damps every overshoot, so targets that change every 0.1 s inside the
-    range rarely reach a limit; one held at the end does, once gravity or the approach
-    carries the joint past it."""
-    chosen = rng.uniform(size=targets.shape[1]) < share
-    end = np.where(rng.uniform(size=targets.shape[1]) < 0.5, lo, hi)
-    out = targets.copy()
-    out[targets.shape[0] // 3:, chosen] = end[chosen]
-    return out
-
-
 def _ctrl_sequence(models, steps, rng, fraction, ends=0.3):
     """Piecewise-constant targets (new every 0.1 s) within `fraction` of each ctrl range
     around its centre, (W, steps, max nu)."""
@@ -72,7 +60,7 @@ def _ctrl_sequence(models, steps, rng, fraction, ends=0.3):
         lo, hi = m.actuator_ctrlrange.T
         mid, half = (lo + hi) / 2, (hi - lo) / 2 * fraction
         knots = rng.uniform(mid - half, mid + half, size=(steps // 50 + 1, m.nu))
-        ctrl[i, :, : m.nu] = _some_at_the_ends(np.repeat(knots, 50, axis=0)[:steps], lo, hi, rng, ends)
+        ctrl[i, :, : m.nu] = some_at_the_ends(np.repeat(knots, 50, axis=0)[:steps], lo, hi, rng, ends)
     return ctrl
 
 

@@ -22,6 +22,7 @@ import warp as wp
 from tt.kernels.dynamics import simulate
 from tt.kernels.model import build_tree_model, topology_key, topology_of
 from tt.sim.designs import get_space
+from ctrl_targets import some_at_the_ends
 
 STEP_REL_TOL = 1e-4
 HORIZON_STEPS = 1000  # 2 s at 0.002 s
@@ -37,19 +38,6 @@ def _groups(space, designs):
     return list(groups.values())
 
 
-def _some_at_the_ends(targets, lo, hi, rng, share=0.3):
-    """`targets` (steps, nu) with about `share` of the joints sent to an end of their ctrl range
-    (= the joint range) for the last two thirds of the run. The servos turn at most ~3 rad/s
-    and their back-EMF damps every overshoot, so targets that change every 0.1 s inside the
-    range rarely reach a limit; one held at the end does, once gravity or the approach
-    carries the joint past it."""
-    chosen = rng.uniform(size=targets.shape[1]) < share
-    end = np.where(rng.uniform(size=targets.shape[1]) < 0.5, lo, hi)
-    out = targets.copy()
-    out[targets.shape[0] // 3:, chosen] = end[chosen]
-    return out
-
-
 def _ctrl_sequence(models, steps, rng, fraction=0.8):
     """Piecewise-constant targets (new every 0.1 s) within `fraction` of each ctrl range."""
     nu = models[0].nu
@@ -58,7 +46,7 @@ def _ctrl_sequence(models, steps, rng, fraction=0.8):
         lo, hi = m.actuator_ctrlrange.T
         mid, half = (lo + hi) / 2, (hi - lo) / 2 * fraction
         knots = rng.uniform(mid - half, mid + half, size=(steps // 50 + 1, nu))
-        ctrl[i] = _some_at_the_ends(np.repeat(knots, 50, axis=0)[:steps], lo, hi, rng)
+        ctrl[i] = some_at_the_ends(np.repeat(knots, 50, axis=0)[:steps], lo, hi, rng)
     return ctrl
 
 
