@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from typing import Sequence
@@ -14,6 +15,8 @@ from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_
 from tt.sim.designs import Design, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -102,9 +105,7 @@ def evaluate_designs(
     # Each design's model is built once, for the size and mass terms and, on "warp" (where a
     # second build is a visible share of a small batch's time), for the rollout too; large
     # batches in worker processes, one per rollout thread.
-    from tt.kernels.rollout import cpu_threads
-
-    models = sp.models(designs, processes=cpu_threads(threads))
+    models = _models(sp, designs, backend=backend, device=device, threads=threads)
     ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
                      threads=threads, graph=graph)
     r, m = score_episode(ep, designs, motions, reward, models=models)
@@ -151,3 +152,38 @@ def warm_up(
 
 
 __all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up"]
+
+
+def _models(sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None) -> list[mujoco.MjModel]:
+    """`sp.models(designs)`, one worker process per rollout thread for large batches; on
+    "warp", this process meanwhile loads the rollout kernels of the batch's structures.
+
+    Warp hashes a module by generating its code in Python (about a second per fused rollout
+    module here), and the workers leave this process idle, so the hash and the cache load
+    come off the rollout's critical path. One model per distinct discrete structure names
+    the topologies; one that the batch turns out not to use costs only its load.
+    """
+    import threading
+
+    from tt.kernels.device import resolve_device
+    from tt.kernels.rollout import cpu_threads, preload_rollout_kernels
+    from tt.sim.designs.base import PARALLEL_MODELS_MIN
+
+    processes = cpu_threads(threads)
+    if backend != "warp" or processes <= 1 or len(designs) < PARALLEL_MODELS_MIN:
+        return sp.models(designs, processes=processes)
+    firsts = {tuple(int(i) for i in d.discrete): d for d in reversed(designs)}
+    device = resolve_device(device)
+
+    def preload() -> None:
+        try:
+            preload_rollout_kernels([sp.model(d) for d in firsts.values()], sp.ee_sites(), device)
+        except Exception:  # the rollout loads the same modules next and reports the error there
+            logger.debug("preloading the rollout kernels failed", exc_info=True)
+
+    loader = threading.Thread(target=preload, name="tt-preload-kernels", daemon=True)
+    loader.start()
+    try:
+        return sp.models(designs, processes=processes)
+    finally:
+        loader.join()

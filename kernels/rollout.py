@@ -56,6 +56,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import warp as wp
@@ -66,6 +67,9 @@ from tt.kernels.ik import IKWeights, ik_funcs
 from tt.kernels.lie import wxyz
 from tt.kernels.model import MODULE_OPTIONS, Kinematics64, Topology, TreeArrays, TreeModel, local_types, module_name
 from tt.kernels.pose import position_error
+
+if TYPE_CHECKING:
+    import mujoco
 
 
 @wp.func
@@ -301,6 +305,24 @@ def grad_kernels(topology: Topology) -> SimpleNamespace:
         initial_posture=make_initial_posture_kernel(topology, module),
         rollout=make_rollout_kernel(topology, module, differentiable=True),
     )
+
+
+def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequence[str], device: str) -> None:
+    """Hash and build (or load from the kernel cache) the forward rollout module of each
+    distinct topology of `models` on `device`, as the first `rollout_tree` launch would.
+
+    Warp's module hash runs the whole code generation in Python (seconds per fused rollout
+    module), so a caller with idle time, e.g. while worker processes compile models, can
+    take it off the rollout's critical path. Loading twice is a no-op.
+    """
+    from tt.kernels.model import topology_key, topology_of
+
+    seen = set()
+    for model in models:
+        key = topology_key(model, ee_sites)
+        if key not in seen:
+            seen.add(key)
+            wp.load_module(rollout_kernels(topology_of(model, ee_sites)).module, device=device)
 
 
 def load_differentiable(topology: Topology, device: str) -> SimpleNamespace:

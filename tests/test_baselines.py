@@ -147,6 +147,25 @@ def test_multi_trajectory_objective_is_the_mean_over_motions():
     assert res.rollouts == len(res.designs) * 2 == 20
 
 
+def test_large_batch_preloads_kernels_and_scores_as_one_thread(monkeypatch):
+    """From PARALLEL_MODELS_MIN designs on 2 threads, models are built in worker processes
+    while this process loads the rollout kernels; the scores equal a one-thread run's."""
+    import tt.kernels.rollout as kr
+    from tt.sim.designs.base import PARALLEL_MODELS_MIN
+
+    loaded = []
+    real = kr.preload_rollout_kernels
+    monkeypatch.setattr(kr, "preload_rollout_kernels", lambda *a, **k: loaded.append(real(*a, **k)))
+    designs = get_space("viperx").sample(PARALLEL_MODELS_MIN, seed=5)
+    motions = [_motion("toss", steps=12)]
+    two = evaluate_designs(designs, motions, "tracking", device="cpu", threads=2)
+    assert len(loaded) == 1
+    one = evaluate_designs(designs, motions, "tracking", device="cpu", threads=1)
+    assert len(loaded) == 1  # one thread: models built here, nothing to overlap
+    for name in one.metrics:
+        np.testing.assert_array_equal(two.metrics[name], one.metrics[name], err_msg=name)
+
+
 # ------------------------------------------------------------------------------ bad input
 def test_bad_problems_fail_with_the_field_named():
     m = [_motion("toss", steps=10)]
