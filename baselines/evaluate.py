@@ -76,6 +76,43 @@ def score_episode(
     return out["reward"], out
 
 
+def _models(sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None) -> list[mujoco.MjModel]:
+    """`sp.models(designs)`, one worker process per rollout thread for large batches; on
+    "warp", this process meanwhile loads the rollout kernels of the batch's structures.
+
+    Warp hashes a module by generating its code in Python (about a second per fused rollout
+    module here), and the workers leave this process idle, so the hash and the cache load
+    come off the rollout's critical path. One model per distinct discrete structure names
+    the topologies; one that the batch turns out not to use costs only its load.
+    """
+    import threading
+
+    from tt.kernels.device import resolve_device
+    from tt.kernels.rollout import cpu_threads, preload_rollout_kernels
+    from tt.sim.designs.base import builds_in_workers
+
+    processes = cpu_threads(threads)
+    if backend != "warp" or not builds_in_workers(len(designs), processes):
+        return sp.models(designs, processes=processes)
+    firsts: dict[tuple[int, ...], Design] = {}
+    for d in designs:
+        firsts.setdefault(tuple(int(i) for i in d.discrete), d)
+    device = resolve_device(device)
+
+    def preload() -> None:
+        try:
+            preload_rollout_kernels([sp.model(d) for d in firsts.values()], sp.ee_sites(), device)
+        except Exception:  # the rollout loads the same modules next and reports the error there
+            logger.debug("preloading the rollout kernels failed", exc_info=True)
+
+    loader = threading.Thread(target=preload, name="tt-preload-kernels", daemon=True)
+    loader.start()
+    try:
+        return sp.models(designs, processes=processes)
+    finally:
+        loader.join()
+
+
 def evaluate_designs(
     designs: Sequence[Design],
     motions: Sequence[Motion],
@@ -153,37 +190,3 @@ def warm_up(
 
 __all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up"]
 
-
-def _models(sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None) -> list[mujoco.MjModel]:
-    """`sp.models(designs)`, one worker process per rollout thread for large batches; on
-    "warp", this process meanwhile loads the rollout kernels of the batch's structures.
-
-    Warp hashes a module by generating its code in Python (about a second per fused rollout
-    module here), and the workers leave this process idle, so the hash and the cache load
-    come off the rollout's critical path. One model per distinct discrete structure names
-    the topologies; one that the batch turns out not to use costs only its load.
-    """
-    import threading
-
-    from tt.kernels.device import resolve_device
-    from tt.kernels.rollout import cpu_threads, preload_rollout_kernels
-    from tt.sim.designs.base import PARALLEL_MODELS_MIN
-
-    processes = cpu_threads(threads)
-    if backend != "warp" or processes <= 1 or len(designs) < PARALLEL_MODELS_MIN:
-        return sp.models(designs, processes=processes)
-    firsts = {tuple(int(i) for i in d.discrete): d for d in reversed(designs)}
-    device = resolve_device(device)
-
-    def preload() -> None:
-        try:
-            preload_rollout_kernels([sp.model(d) for d in firsts.values()], sp.ee_sites(), device)
-        except Exception:  # the rollout loads the same modules next and reports the error there
-            logger.debug("preloading the rollout kernels failed", exc_info=True)
-
-    loader = threading.Thread(target=preload, name="tt-preload-kernels", daemon=True)
-    loader.start()
-    try:
-        return sp.models(designs, processes=processes)
-    finally:
-        loader.join()

@@ -311,8 +311,8 @@ def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequen
     """Hash and build (or load from the kernel cache) the forward rollout module of each
     distinct topology of `models` on `device`, as the first `rollout_tree` launch would.
 
-    Warp's module hash runs the whole code generation in Python (seconds per fused rollout
-    module), so a caller with idle time, e.g. while worker processes compile models, can
+    Warp's module hash runs the whole code generation in Python (about a second per fused
+    rollout module on a 2-core CPU), so a caller with idle time, e.g. while worker processes compile models, can
     take it off the rollout's critical path. Loading twice is a no-op.
     """
     from tt.kernels.model import topology_key, topology_of

@@ -155,7 +155,12 @@ def test_large_batch_preloads_kernels_and_scores_as_one_thread(monkeypatch):
 
     loaded = []
     real = kr.preload_rollout_kernels
-    monkeypatch.setattr(kr, "preload_rollout_kernels", lambda *a, **k: loaded.append(real(*a, **k)))
+
+    def counted(*args, **kwargs):
+        loaded.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(kr, "preload_rollout_kernels", counted)
     designs = get_space("viperx").sample(PARALLEL_MODELS_MIN, seed=5)
     motions = [_motion("toss", steps=12)]
     two = evaluate_designs(designs, motions, "tracking", device="cpu", threads=2)

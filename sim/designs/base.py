@@ -27,6 +27,12 @@ from tt.kernels.files import CorruptFileError, read_json
 PARALLEL_MODELS_MIN = 512
 
 
+def builds_in_workers(count: int, processes: int) -> bool:
+    """Whether `DesignSpace.models` builds `count` designs in worker processes when given
+    `processes` (more than one, and at least `PARALLEL_MODELS_MIN` designs)."""
+    return processes > 1 and count >= PARALLEL_MODELS_MIN
+
+
 def _build_models(space: str, designs: list) -> list[mujoco.MjModel]:
     """Worker of `DesignSpace.models`: the compiled models of `designs` of space `space`."""
     from tt.sim.designs import get_space
@@ -203,7 +209,7 @@ class DesignSpace(ABC):
         models are the same either way: pickling is MuJoCo's binary model format.
         """
         designs = list(designs)
-        if processes <= 1 or len(designs) < PARALLEL_MODELS_MIN:
+        if not builds_in_workers(len(designs), processes):
             return [self.model(d) for d in designs]
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
