@@ -597,7 +597,9 @@ def section_c(trained, task, args, space) -> str:
         "shard drew; no control perturbation), the control query built from the recorded current state and targets, 5 DDIM steps; RMSE of the "
         "predicted joint-position commands against the recorded DiffIK commands, beside the RMSE of simply holding "
         "the current joint positions. Where the model's error is not below holding's, the control head has not "
-        "learned DiffIK's increments (commands are absolute joint targets, normalised over their whole range).",
+        "learned DiffIK's increments. " + ("Commands are predicted as residuals from the current joint positions "
+        "(delta actions, `--anchor-control`)." if "control" in trained.model.anchors else
+        "Commands are absolute joint targets, normalised over their whole range."),
         "",
         "| window step | model RMSE (rad) | hold current position RMSE (rad) | spread of the commands (rad) |",
         "|---:|---:|---:|---:|",

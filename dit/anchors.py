@@ -9,6 +9,16 @@ what most designs nearly do, is then the network's starting point (adaLN-Zero he
 0), and what the model has to learn is the part the design decides: how far, and where,
 the end effector falls behind or misses.
 
+A state anchor does the same for commands: the network's output for ``control`` (the
+joint-position command of actuator i at every step of the window) is added to the current
+position of the joint actuator i drives, read from the window's first step of
+``dyna_joint_obs`` (clean in the control task: the measured state). DiffIK's command is the
+current position plus one IK increment, so "hold the current position" is the network's
+starting point and what it learns is the increment, in the command's own units: the delta
+actions of the issue's recipe, without changing the tokens, the data or the normaliser. It
+needs every actuator i to drive dynamic joint i (`check_joint_actuators`), as in the arm
+spaces' position servos.
+
 Anchors act on the clean prediction, so they need a network that predicts x0
 (``prediction="x0"``).
 """
@@ -25,36 +35,74 @@ from tt.tokens.normalize import Normalizer
 #: The anchors `pose_anchors` makes: anchored type -> the conditioning type it is a residual of.
 POSE_ANCHORS = {"track_link_obs": "target_pose"}
 
+#: The anchor `control_anchors` makes: anchored type -> (state type, value of it: qpos).
+STATE_ANCHORS = {"control": ("dyna_joint_obs", 0)}
+
 
 @dataclass(frozen=True)
 class Anchor:
-    """x0[type] = scale * values[on] + offset + network output, per value.
+    """x0[type] = scale * base + offset + network output, per value.
 
-    on: the conditioning type; scale, offset: (D,) maps of `on`'s normalised values into the
-    anchored type's normalised units.
+    on: the type the base is read from; scale, offset: (D,) maps of `on`'s normalised values
+    into the anchored type's normalised units; value: None for a slot-for-slot anchor on a
+    condition (base = values[on]), or k for a state anchor: slot i of every step of the
+    anchored type takes value k of slot i of `on`'s first step (the window's current state).
     """
 
     on: str
     scale: tuple[float, ...]
     offset: tuple[float, ...]
+    value: int | None = None
 
     def check(self, layout: Layout, name: str) -> None:
-        """Raise LayoutError unless `name` and `on` are types of `layout` with equal slots."""
+        """Raise LayoutError unless `name` and `on` are types of `layout` whose slots fit the anchor."""
         if name not in layout or self.on not in layout:
             raise LayoutError(f"anchor {name!r} on {self.on!r}: the layout lacks {[n for n in (name, self.on) if n not in layout]}")
         a, b = layout[name], layout[self.on]
-        if (a.length, a.dim, a.per_step, a.ids) != (b.length, b.dim, b.per_step, b.ids):
-            raise LayoutError(f"anchor {name!r} on {self.on!r}: their slots differ ({a} vs {b})")
+        if self.value is None:
+            if (a.length, a.dim, a.per_step, a.ids) != (b.length, b.dim, b.per_step, b.ids):
+                raise LayoutError(f"anchor {name!r} on {self.on!r}: their slots differ ({a} vs {b})")
+        elif not (a.per_step and b.per_step and a.per_step <= b.per_step and 0 <= self.value < b.dim and a.dim == 1):
+            raise LayoutError(f"anchor {name!r} on value {self.value} of {self.on!r}: needs two per-step types, one "
+                              f"value wide and with at most as many slots per step as {self.on!r} ({a} vs {b})")
         if len(self.scale) != a.dim or len(self.offset) != a.dim:
             raise LayoutError(f"anchor {name!r} on {self.on!r}: {len(self.scale)} scales and {len(self.offset)} offsets "
                               f"for {a.dim} values")
 
+    def base(self, layout: Layout, name: str, values: torch.Tensor) -> torch.Tensor:
+        """What the anchored type's slots are residuals of, in `on`'s normalised units.
+
+        values: (B, L_on, D_on), `on`'s values; returns (B, L, D) for the anchored type."""
+        if self.value is None:
+            return values
+        a, b = layout[name], layout[self.on]
+        current = values[:, : a.per_step, self.value]  # (B, P): the first step's slots
+        return current[:, None, :].expand(-1, layout.steps, -1).reshape(values.shape[0], a.length, 1)
+
     def to_dict(self) -> dict:
-        return {"on": self.on, "scale": list(self.scale), "offset": list(self.offset)}
+        d = {"on": self.on, "scale": list(self.scale), "offset": list(self.offset)}
+        if self.value is not None:
+            d["value"] = self.value
+        return d
 
     @staticmethod
     def from_dict(d: dict) -> "Anchor":
-        return Anchor(str(d["on"]), tuple(float(v) for v in d["scale"]), tuple(float(v) for v in d["offset"]))
+        value = d.get("value")
+        return Anchor(str(d["on"]), tuple(float(v) for v in d["scale"]), tuple(float(v) for v in d["offset"]),
+                      None if value is None else int(value))
+
+
+def _affine(normalizer: Normalizer, name: str, on: str, dim: int, value: int | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """scale, offset (D,) of the map from `on`'s normalised values (value `value`, or all)
+    to `name`'s: `on`'s denormalisation then `name`'s normalisation, both affine per value,
+    so it is read off at -1 and +1."""
+    width = dim if value is None else int(normalizer.low[on].shape[-1])
+    ends = torch.tensor([[-1.0], [1.0]], dtype=torch.float64).expand(2, width)[:, None]  # (2, 1, W)
+    raw = normalizer.denormalize_values(on, ends)
+    if value is not None:
+        raw = raw[..., value:value + 1]
+    mapped = normalizer.normalize_values(name, raw)[:, 0]  # (2, D)
+    return (mapped[1] - mapped[0]) / 2, (mapped[1] + mapped[0]) / 2
 
 
 def pose_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
@@ -67,9 +115,7 @@ def pose_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
     for name, on in POSE_ANCHORS.items():
         if name not in layout or on not in layout:
             continue
-        ends = torch.tensor([[-1.0], [1.0]], dtype=torch.float64).expand(2, layout[on].dim)[:, None]  # (2, 1, D)
-        mapped = normalizer.normalize_values(name, normalizer.denormalize_values(on, ends))[:, 0]  # (2, D)
-        scale, offset = (mapped[1] - mapped[0]) / 2, (mapped[1] + mapped[0]) / 2
+        scale, offset = _affine(normalizer, name, on, layout[on].dim, None)
         out[name] = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()))
         out[name].check(layout, name)
     if not out:
@@ -77,4 +123,27 @@ def pose_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
     return out
 
 
-__all__ = ["Anchor", "POSE_ANCHORS", "pose_anchors"]
+def control_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
+    """Commands anchored on the current positions of the joints they drive (`STATE_ANCHORS`)."""
+    out = {}
+    for name, (on, value) in STATE_ANCHORS.items():
+        if name not in layout or on not in layout:
+            raise LayoutError(f"the control anchor needs types {name!r} and {on!r}; the layout has {list(layout.names)}")
+        scale, offset = _affine(normalizer, name, on, layout[name].dim, value)
+        out[name] = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()), value)
+        out[name].check(layout, name)
+    return out
+
+
+def check_joint_actuators(robots, models) -> None:
+    """Raise LayoutError unless actuator i of every tokenized robot drives its dynamic joint i.
+
+    robots: `tt.tokens.tokenize.RobotIndex` per design; models: their `mujoco.MjModel`s."""
+    for d, (r, m) in enumerate(zip(robots, models)):
+        driven = [int(m.actuator_trnid[a, 0]) for a in r.actuator_mj]
+        if len(driven) > len(r.dyna_jnt) or any(j != int(r.dyna_jnt[i]) for i, j in enumerate(driven)):
+            raise LayoutError(f"design {d}: its actuators drive MuJoCo joints {driven}, not its dynamic joints "
+                              f"{[int(j) for j in r.dyna_jnt]} in order; the control anchor needs actuator i on joint i")
+
+
+__all__ = ["Anchor", "POSE_ANCHORS", "STATE_ANCHORS", "check_joint_actuators", "control_anchors", "pose_anchors"]

@@ -21,8 +21,9 @@ RoboToken schema fails with `SchemaVersionError` before any weight is read.
 
 Shipped checkpoints. The repository's ``checkpoints/`` folder (installed as
 ``tt.checkpoints``) holds the checkpoints tt ships, one file per design space named
-``<space>.pt`` or ``<space>_<size>.pt`` (``viperx_mini.pt``); `default_checkpoint`
-finds a space's.
+``<space>.pt`` or ``<space>_<size>.pt`` (``viperx_mini.pt``), and specialists of one task
+``<space>_<size>_<task>.pt`` (``viperx_mini_control.pt``); `default_checkpoint` finds a
+space's.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import torch
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
-from tt.dit.tasks import ROBOT, task_names
+from tt.dit.tasks import ROBOT, TASK_NAMES, task_names
 from tt.kernels.files import CorruptFileError, atomic_write, check_readable, reason
 from tt.tokens.normalize import Normalizer
 
@@ -73,20 +74,31 @@ def shipped_folder() -> Path:
     return Path(__file__).resolve().parent.parent / "checkpoints"
 
 
+def _shipped_name(p: Path) -> tuple[str, str, str | None]:
+    """(space, size, task) of a shipped file name ``<space>[_<size>][_<task>].pt``; task is
+    None for a generalist, or a task name (`tt.dit.tasks.TASK_NAMES`) for a specialist."""
+    space, _, rest = p.stem.partition("_")
+    size, _, last = rest.rpartition("_")
+    if last in TASK_NAMES:
+        return space, size, last
+    return space, rest, None
+
+
 def shipped_checkpoints(folder: str | Path | None = None) -> dict[str, list[Path]]:
-    """Shipped checkpoint files by design space, the preferred one first (see `default_checkpoint`).
+    """Shipped checkpoint files by design space, the preferred one first (see `default_checkpoint`):
+    generalists by size, then task specialists by size.
 
     folder: where to look (None: `shipped_folder()`); a missing folder holds none.
     """
     folder = shipped_folder() if folder is None else Path(folder)
-    found: dict[str, list[tuple[int, str, Path]]] = {}
+    found: dict[str, list[tuple[bool, int, str, Path]]] = {}
     if folder.is_dir():
         for p in folder.iterdir():
             if p.suffix != ".pt" or not p.is_file():
                 continue
-            space, _, size = p.stem.partition("_")
+            space, size, task = _shipped_name(p)
             rank = _SIZE_PREFERENCE.index(size) if size in _SIZE_PREFERENCE else len(_SIZE_PREFERENCE)
-            found.setdefault(space, []).append((rank, p.name, p))
+            found.setdefault(space, []).append((task is not None, rank, p.name, p))
     return {space: [p for *_, p in sorted(files)] for space, files in sorted(found.items())}
 
 
@@ -94,18 +106,28 @@ class NoCheckpointError(FileNotFoundError):
     """No shipped checkpoint for a design space."""
 
 
-def default_checkpoint(space: str, folder: str | Path | None = None) -> Path:
-    """The shipped checkpoint of design space `space`: ``<space>.pt`` or
-    ``<space>_<size>.pt`` in `folder` (None: `shipped_folder()`); of several sizes, the
-    largest model (large, small, mini, tiny, then any other suffix by name).
+def default_checkpoint(space: str, folder: str | Path | None = None, *, task: str | None = None) -> Path:
+    """The shipped checkpoint of design space `space` in `folder` (None: `shipped_folder()`).
+
+    A generalist is ``<space>.pt`` or ``<space>_<size>.pt``; a specialist of one task
+    ``<space>_<size>_<task>.pt`` (``viperx_mini_control.pt``). task None: the generalist of
+    the largest model (large, small, mini, tiny, then any other suffix by name); a task: its
+    specialist of the largest model if one is shipped, else the generalist.
 
     Raises NoCheckpointError (a FileNotFoundError) naming the spaces that have one.
     """
     folder = shipped_folder() if folder is None else Path(folder)
     shipped = shipped_checkpoints(folder)
-    if space in shipped:
-        return shipped[space][0]
+    if task is not None and task not in TASK_NAMES:
+        raise ValueError(f"task {task!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
+    files = shipped.get(space, [])
+    for p in [p for p in files if _shipped_name(p)[2] == task] + [p for p in files if _shipped_name(p)[2] is None]:
+        return p
     have = ", ".join(f"{s} ({', '.join(p.name for p in ps)})" for s, ps in shipped.items()) or "none"
+    if files:
+        raise NoCheckpointError(f"design space {space!r} ships only checkpoints of other tasks in {folder} "
+                                f"({', '.join(p.name for p in files)}), none {'for task ' + repr(task) if task else 'for every task'} "
+                                f"(expected {space}_<size>.pt); pass --checkpoint RUN")
     raise NoCheckpointError(
         f"no shipped DiT checkpoint for design space {space!r} in {folder} (expected {space}.pt or "
         f"{space}_<size>.pt; spaces with one: {have}); train one with `tt train` and pass --checkpoint RUN"

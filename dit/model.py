@@ -191,8 +191,10 @@ class RoboDiT(nn.Module):
             raise ValueError(f"anchors act on the clean prediction: they need prediction 'x0', not {prediction!r}")
         for name, anchor in self.anchors.items():
             anchor.check(layout, name)
-            if layout[name].role is Role.CONDITION or layout[anchor.on].role is not Role.CONDITION:
-                raise LayoutError(f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition")
+            base_roles = (Role.CONDITION,) if anchor.value is None else (Role.CONDITION, Role.DYNAMICS)
+            if layout[name].role is Role.CONDITION or layout[anchor.on].role not in base_roles:
+                raise LayoutError(f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition "
+                                  "(or, by a state anchor, on the current state)")
         self.layout = layout
         self.config = config
         self.prediction = prediction
@@ -274,7 +276,9 @@ class RoboDiT(nn.Module):
                 out[s.name] = self.heads[s.name](x[:, start:start + s.length], c)  # (B, L, D)
                 if s.name in self.anchors:
                     scale, offset = getattr(self, f"_anchor_{s.name}")  # 2 x (D,)
-                    out[s.name] = out[s.name] + scale * values[self.anchors[s.name].on].to(scale.dtype) + offset
+                    anchor = self.anchors[s.name]
+                    base = anchor.base(self.layout, s.name, values[anchor.on])
+                    out[s.name] = out[s.name] + scale * base.to(scale.dtype) + offset
             start += s.length
         return out
 

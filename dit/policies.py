@@ -139,6 +139,10 @@ class ModelPolicy:
         self.ctx = ctx
         layout, dev = self.layout, self.device
         static, self.robots = robot_embodiment(layout, self.trained.normalizer, ctx.models, dev)
+        if "control" in getattr(self.model, "anchors", {}):  # stand-in networks of the tests have none
+            from tt.dit.anchors import check_joint_actuators
+
+            check_joint_actuators(self.robots, ctx.models)
         self._static = {n: (static.values[n], static.ids[n], static.mask[n]) for n in static.values}
         for s in layout.specs:
             if s.role in STEP_ROLES:

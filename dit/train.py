@@ -51,7 +51,7 @@ from tt.dit.layout import LayoutError, with_slot_ids
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
-from tt.dit.anchors import pose_anchors
+from tt.dit.anchors import control_anchors, pose_anchors
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names
 from tt.kernels.files import CorruptFileError
 
@@ -87,7 +87,9 @@ class TrainConfig:
     type_weights: token type -> factor on its loss term (e.g. more on ``track_link_obs``, what
     the rewards read); bf16_cpu: autocast to bfloat16 on the CPU too (``bf16`` alone autocasts
     on CUDA only); anchor_track: predict track-link poses as residuals from their targets
-    (`tt.dit.anchors`; needs prediction "x0"); time_ids: "sinusoidal" or "learned" time-step
+    (`tt.dit.anchors`; needs prediction "x0"); anchor_control: predict commands as residuals
+    from the current positions of the joints they drive (delta actions; `tt.dit.anchors`,
+    needs prediction "x0"); time_ids: "sinusoidal" or "learned" time-step
     ID embeddings (`tt.dit.model.DiTConfig.time_ids`).
     """
 
@@ -123,6 +125,7 @@ class TrainConfig:
     type_weights: dict[str, float] = field(default_factory=dict)
     bf16_cpu: bool = False
     anchor_track: bool = False
+    anchor_control: bool = False
     time_ids: str = "sinusoidal"
 
     def __post_init__(self) -> None:
@@ -134,8 +137,9 @@ class TrainConfig:
             raise ValueError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         if self.weighting not in WEIGHTINGS:
             raise ValueError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
-        if self.anchor_track and self.prediction != "x0":
-            raise ValueError(f"anchor_track (--anchor-track) needs prediction 'x0', got {self.prediction!r}")
+        for flag, on in (("anchor_track (--anchor-track)", self.anchor_track), ("anchor_control (--anchor-control)", self.anchor_control)):
+            if on and self.prediction != "x0":
+                raise ValueError(f"{flag} needs prediction 'x0', got {self.prediction!r}")
         if not self.min_snr_gamma > 0:
             raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
@@ -295,9 +299,9 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "seed": "--seed", "online": "--online ...", "window": "window", "warmup_steps": "warmup_steps",
               "weight_decay": "weight_decay", "grad_clip": "grad_clip", "ema_power": "ema_power",
               "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
-              "control_diffusion_steps": "control_diffusion_steps", "future_states": "future_states", "loss": "loss",
+              "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight", "anchor_track": "--anchor-track",
+              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control",
               "time_ids": "--time-ids"}
 
 
@@ -333,8 +337,9 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
                          f"{config.time_ids!r}")
     if model.prediction != config.prediction:
         raise ValueError(f"{where} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
-    if bool(model.anchors) != config.anchor_track:
-        raise ValueError(f"{where} was trained with anchor_track={bool(model.anchors)}, config asks for {config.anchor_track}")
+    for flag, name, on in (("anchor_track", "track_link_obs", config.anchor_track), ("anchor_control", "control", config.anchor_control)):
+        if (name in model.anchors) != on:
+            raise ValueError(f"{where} was trained with {flag}={name in model.anchors}, config asks for {on}")
 
 
 def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
@@ -408,7 +413,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     else:
         state = None
         normalizer = episodes.fit_normalizer()
-        anchors = pose_anchors(layout, normalizer) if config.anchor_track else None
+        anchors = {**(pose_anchors(layout, normalizer) if config.anchor_track else {}),
+                   **(control_anchors(layout, normalizer) if config.anchor_control else {})}
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
             torch.manual_seed(config.seed)
             model = RoboDiT(layout, config.model_config(), prediction=config.prediction, anchors=anchors)

@@ -36,6 +36,16 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
         ckpt.default_checkpoint("bimanual", tmp_path)
     with pytest.raises(FileNotFoundError, match="spaces with one: none"):
         ckpt.default_checkpoint("viperx", tmp_path / "missing")
+    # A task specialist serves its task first and never stands in for the generalist.
+    (tmp_path / "viperx_mini_control.pt").write_bytes(b"")
+    assert ckpt.default_checkpoint("viperx", tmp_path, task="control") == tmp_path / "viperx_mini_control.pt"
+    assert ckpt.default_checkpoint("viperx", tmp_path) == tmp_path / "viperx_small.pt"
+    assert ckpt.default_checkpoint("viperx", tmp_path, task="robot") == tmp_path / "viperx_small.pt"
+    (tmp_path / "aloha_mini_control.pt").write_bytes(b"")
+    with pytest.raises(ckpt.NoCheckpointError, match="'aloha' ships only checkpoints of other tasks.*aloha_mini_control.pt"):
+        ckpt.default_checkpoint("aloha", tmp_path)
+    with pytest.raises(ValueError, match="task 'walk' does not exist"):
+        ckpt.default_checkpoint("viperx", tmp_path, task="walk")
     # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
     assert ckpt.shipped_folder().name == "checkpoints" and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
 

@@ -85,3 +85,64 @@ def test_time_ids_embed_by_step_and_old_descriptions_keep_their_table(schema_toy
     assert legacy.config.time_ids == "learned" and isinstance(legacy.id_embed["time"], torch.nn.Embedding)
     with pytest.raises(ValueError, match="time_ids 'rope' does not exist"):
         DiTConfig(time_ids="rope")
+
+
+def test_untrained_control_anchored_network_holds_the_current_position(schema_toy):
+    """Delta actions: with the control anchor, x0 of every step's command of actuator i is the
+    window's current position of dynamic joint i (adaLN-Zero heads output 0), in radians."""
+    from tt.dit.anchors import control_anchors
+    from tt.dit.tasks import CONTROL
+
+    episodes, layout, norm = schema_toy
+    anchors = control_anchors(layout, norm)
+    assert anchors["control"].on == "dyna_joint_obs" and anchors["control"].value == 0
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors).eval()
+    tokens = norm.normalize(episodes.sample(4, 8, "consecutive", torch.Generator().manual_seed(2)))
+    masks = task_masks(CONTROL, layout, tokens)
+    noisy = {n: torch.where(masks.noised[n][..., None], torch.randn_like(v), v) for n, v in tokens.values.items()}
+    with torch.no_grad():
+        out = model(noisy, tokens.ids, masks.noised, torch.full((4,), 0.5))
+    P, J = layout["control"].per_step, layout["dyna_joint_obs"].per_step
+    command = norm.denormalize_values("control", out["control"].double()).reshape(4, 8, P)
+    joints = norm.denormalize_values("dyna_joint_obs", tokens.values["dyna_joint_obs"].double()).reshape(4, 8, J, 2)
+    current = joints[:, 0, :P, 0]  # (B, P): qpos of the window's first step, the control task's clean state
+    torch.testing.assert_close(command, current[:, None, :].expand(4, 8, P), rtol=0, atol=1e-5)
+    assert bool(masks.noised["dyna_joint_obs"].reshape(4, 8, J)[:, 0].logical_not().all())  # the base is clean
+
+
+def test_control_anchor_round_trips_and_refuses_what_it_cannot_anchor(schema_toy):
+    from tt.dit.anchors import control_anchors
+
+    _, layout, norm = schema_toy
+    anchors = control_anchors(layout, norm)
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors)
+    assert RoboDiT.from_description(model.describe()).anchors == anchors
+    a = anchors["control"]
+    with pytest.raises(LayoutError, match="value 2 of 'dyna_joint_obs'"):
+        Anchor(a.on, a.scale, a.offset, 2).check(layout, "control")
+    with pytest.raises(LayoutError, match="their slots differ"):  # slot for slot, a command is no joint state
+        RoboDiT(layout, get_config("tiny"), prediction="x0", anchors={"control": Anchor("dyna_joint_obs", (1.0,), (0.0,))})
+    from tt.dit.train import TrainConfig
+
+    with pytest.raises(ValueError, match="anchor_control .* needs prediction 'x0'"):
+        TrainConfig(anchor_control=True, prediction="eps")
+
+
+def test_joint_actuator_check_reads_the_models():
+    """ViperX's servos drive its dynamic joints in order; a robot index whose actuators are
+    listed in another order is refused by name."""
+    import dataclasses
+
+    import numpy as np
+
+    from tt.dit.anchors import check_joint_actuators
+    from tt.sim.designs import get_space
+    from tt.tokens.tokenize import Tokenizer
+
+    space = get_space("viperx")
+    models = space.models(space.sample(3, seed=0))
+    robots = Tokenizer()(models).index
+    check_joint_actuators(robots, models)
+    swapped = dataclasses.replace(robots[1], actuator_mj=np.roll(robots[1].actuator_mj, 1))
+    with pytest.raises(LayoutError, match="design 1: its actuators drive"):
+        check_joint_actuators([robots[0], swapped, robots[2]], models)

@@ -231,7 +231,7 @@ def validate(
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
     episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
     controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (5 DDIM steps per control step) on tt's batched Warp physics."),
-    checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped one)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
     device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
 ) -> None:
     """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
@@ -263,7 +263,7 @@ def validate(
         from tt.dit.checkpoint import default_checkpoint
         from tt.dit.policies import model_rollout
 
-        ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name)
+        ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name, task="control")
         ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
         ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
         title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
@@ -612,6 +612,8 @@ def train(
     control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
     warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
     anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
+    anchor_control: bool = typer.Option(False, help="Predict commands as residuals from the current positions of the joints they drive: delta actions (needs --prediction x0)."),
+    future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
@@ -640,7 +642,7 @@ def train(
     recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
                   bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
-                  time_ids=time_ids)
+                  anchor_control=anchor_control, future_states=future_states, time_ids=time_ids)
     _output(out, "--out", folder=True)
     online_config = None
     if online:

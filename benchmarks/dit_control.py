@@ -1,0 +1,158 @@
+"""The DiT as controller, several checkpoints side by side against the IK oracle (issue 17).
+
+For each checkpoint (a file or run folder, given as LABEL=PATH): the model controls held-out
+ViperX designs on validation motions in closed loop (`tt.dit.policies.model_rollout`, Warp
+physics), and its mean tracking reward is reported as a share of the MuJoCo + mink oracle's
+on the same designs and motions (the oracle runs once). Beside it, one step at a time
+(teacher-forced, `dit_eval.teacher_forced`): the RMSE of the executed command (window slot 1,
+the command that follows the current state) against DiffIK's, and that of holding the current
+joint positions. The issue's targets: at least 50 % of the oracle's reward, and a one-step
+RMSE at most half of holding's.
+
+Usage: ``python benchmarks/dit_control.py abs=runs/ctrl_abs delta=runs/ctrl_delta [--out FILE]``.
+Prints one JSON line per result and writes ``benchmarks/results/dit_control.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+from dit_eval import RESULTS, SPACE, cut, pearson, teacher_forced, validation_motions  # noqa: E402
+from machine import machine_header  # noqa: E402
+
+#: Window slot whose command the policy executes (`tt.dit.policies`: the one after the current state).
+EXECUTED_SLOT = 1
+
+
+def emit(**fields) -> dict:
+    print(json.dumps({"bench": "dit_control", **fields}), flush=True)
+    return fields
+
+
+def describe(label: str, ckpt: Path, state: dict) -> dict:
+    """What a checkpoint is: its training recipe, step, windows seen and final loss (mean of the last 100 steps)."""
+    cfg = state.get("train_config") or {}
+    losses = state.get("losses")
+    return {"label": label, "checkpoint": str(ckpt), "step": int(state["step"]), "task": cfg.get("task"),
+            "size": cfg.get("size"), "batch": cfg.get("batch_size"), "anchor_control": bool(cfg.get("anchor_control")),
+            "future_states": cfg.get("future_states"), "prediction": cfg.get("prediction"),
+            "windows_seen": int(state["step"]) * int(cfg.get("batch_size") or 0),
+            "loss": float(losses[-100:].mean()) if losses is not None and len(losses) else float("nan")}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", nargs="+", help="LABEL=PATH: a checkpoint file or run folder (its latest checkpoint)")
+    parser.add_argument("--designs", type=int, default=25, help="held-out designs")
+    parser.add_argument("--design-seed", type=int, default=20261122, help="seed of the held-out designs and fresh episodes")
+    parser.add_argument("--motions", type=int, default=5, help="validation motions")
+    parser.add_argument("--control-steps", type=int, default=0, help="control steps per motion (0: whole motions)")
+    parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
+    parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
+    parser.add_argument("--seed", type=int, default=0, help="sampling seed")
+    parser.add_argument("--device", default="cpu", help="torch / Warp device")
+    parser.add_argument("--out", default=str(RESULTS / "dit_control.md"), help="results markdown file")
+    args = parser.parse_args()
+    runs = []
+    for item in args.checkpoints:
+        label, eq, path = item.partition("=")
+        if not eq or not label or not path:
+            parser.error(f"{item!r} is not LABEL=PATH")
+        runs.append((label, Path(path)))
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    from tt.baselines.evaluate import score_episode
+    from tt.dit.checkpoint import latest_checkpoint, load_checkpoint, load_model
+    from tt.dit.policies import ControllerConfig, control_task, model_rollout
+    from tt.sim.designs import get_space
+    from tt.sim.validate import oracle_rollout
+
+    load_before = os.getloadavg()
+    started = time.perf_counter()
+    space = get_space(SPACE)
+    designs = space.sample(args.designs, seed=args.design_seed)
+    motions = cut(validation_motions(args.motions), args.control_steps)
+    t = time.perf_counter()
+    oracle = oracle_rollout(designs, motions)
+    oracle_s = time.perf_counter() - t
+    r_oracle, m_oracle = score_episode(oracle, designs, motions, "tracking")
+    emit(oracle_reward=float(r_oracle.mean()), seconds=oracle_s)
+    rows = []
+    for label, path in runs:
+        ckpt = latest_checkpoint(path) if path.is_dir() else path
+        if ckpt is None:
+            parser.error(f"run folder {path} has no checkpoints")
+        info = describe(label, ckpt, load_checkpoint(ckpt))
+        trained = load_model(ckpt, device=args.device)
+        task = control_task(ckpt)
+        t = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ep = model_rollout(designs, motions, trained, task=task, device=args.device,
+                               config=ControllerConfig(num_steps=args.num_steps, seed=args.seed))
+        model_s = time.perf_counter() - t
+        r_model, m_model = score_episode(ep, designs, motions, "tracking")
+        tf = teacher_forced(trained, task, args)
+        slot = tf["slots"][EXECUTED_SLOT]
+        rows.append(emit(**info, share=float(r_model.mean() / r_oracle.mean()), reward=float(r_model.mean()),
+                         pos_err_cm=float(np.nanmean(m_model["pos_err"])), survival=float(np.mean(m_model["survival"])),
+                         pearson=pearson(r_oracle.ravel(), r_model.ravel()), model_seconds=model_s,
+                         rmse=slot[1], hold_rmse=slot[2], slots=tf["slots"]))
+    load_after = os.getloadavg()
+    steps = sorted({m.steps for m in motions})
+    lines = [
+        "# The DiT as controller: checkpoints side by side (ViperX)",
+        "",
+        machine_header(args.device).rstrip(),
+        f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after: {load_before[0]:.1f} / "
+        f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all",
+        f"- command: `python benchmarks/dit_control.py {' '.join(sys.argv[1:])}`",
+        f"- {len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
+        f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}; {steps[0]}..{steps[-1]} control steps), "
+        f"{args.num_steps} DDIM steps per control step, Warp physics; oracle: MuJoCo C + mink on the same designs and "
+        f"motions, mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, "
+        f"survival {100 * np.mean(m_oracle['survival']):.0f} % ({oracle_s:.0f} s)",
+        f"- one step (teacher-forced): {args.teacher_windows} windows of fresh episodes (`tt.dit.online` refresh 0, seed "
+        f"{args.design_seed}, no control perturbation); RMSE of the executed command (window slot {EXECUTED_SLOT}) "
+        "against DiffIK's, beside holding the current joint positions",
+        "- targets (issue 17): share of the oracle's reward >= 50 %; one-step RMSE <= half of holding's",
+        "",
+        "| run | commands | step | windows seen | share of oracle reward | pos err (cm) | survival (%) | r vs oracle "
+        "| one-step RMSE (rad) | hold RMSE (rad) | RMSE / hold | closed loop (s) |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        kind = "delta (anchored on the current joints)" if r["anchor_control"] else "absolute"
+        lines.append(f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
+                     f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
+                     f"{r['hold_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | {r['model_seconds']:.0f} |")
+    lines += ["", "Checkpoints and recipes:", ""]
+    for r in rows:
+        lines.append(f"- {r['label']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
+                     f"prediction {r['prediction']}, future states {r['future_states']}, anchor_control {r['anchor_control']}, "
+                     f"training loss {r['loss']:.4f} (mean of the last 100 steps)")
+    lines += ["", "One-step RMSE per window slot (rad; slot 1 is executed):", "",
+              "| run | " + " | ".join(f"slot {k}" for k, *_ in rows[0]["slots"]) + " |",
+              "|---|" + "---:|" * len(rows[0]["slots"])]
+    for r in rows:
+        lines.append(f"| {r['label']} | " + " | ".join(f"{a:.4f}" for _, a, _, _ in r["slots"]) + " |")
+    lines.append("| hold | " + " | ".join(f"{b:.4f}" for _, _, b, _ in rows[0]["slots"]) + " |")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    emit(written=str(out))
+
+
+if __name__ == "__main__":
+    main()
