@@ -517,7 +517,10 @@ def teacher_forced(trained, task, args) -> dict:
     """One-step control accuracy on fresh episodes: the control task's query built from
     recorded windows (true current state and targets), its predicted commands against the
     recorded ones, and the same error for holding the current joint positions (ViperX: one
-    position actuator per hinge, in joint order)."""
+    position actuator per hinge, in joint order) and for repeating the last command (the
+    window's first, which led to the current state).
+
+    Returns {"windows", "episodes", "slots": [(slot, model, hold, spread, repeat), ...]} (RMSE in rad)."""
     from tt.dit.ddim import CosineDDIM
     from tt.dit.layout import with_slot_ids
     from tt.dit.online import OnlineConfig, OnlineTokenSource
@@ -538,7 +541,8 @@ def teacher_forced(trained, task, args) -> dict:
     out = {"windows": n, "episodes": len(source), "slots": []}
     for k in range(S):
         m = real[:, k]
-        out["slots"].append((k, rmse((pred[:, k] - true[:, k])[m]), rmse((qpos - true[:, k])[m]), float(true[:, k][m].std())))
+        out["slots"].append((k, rmse((pred[:, k] - true[:, k])[m]), rmse((qpos - true[:, k])[m]), float(true[:, k][m].std()),
+                             rmse((true[:, 0] - true[:, k])[m & real[:, 0]])))
     emit(part="c", teacher_forced=out)
     return out
 
@@ -603,7 +607,7 @@ def section_c(trained, task, args, space) -> str:
         "",
         "| window step | model RMSE (rad) | hold current position RMSE (rad) | spread of the commands (rad) |",
         "|---:|---:|---:|---:|",
-        *[f"| {k} | {a:.3f} | {b:.3f} | {c:.2f} |" for k, a, b, c in tf["slots"]],
+        *[f"| {k} | {a:.3f} | {b:.3f} | {c:.2f} |" for k, a, b, c, _ in tf["slots"]],
         "",
     ])
 

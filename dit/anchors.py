@@ -14,8 +14,13 @@ joint-position command of actuator i at every step of the window) is added to th
 position of the joint actuator i drives, read from the window's first step of
 ``dyna_joint_obs`` (clean in the control task: the measured state). DiffIK's command is the
 current position plus one IK increment, so "hold the current position" is the network's
-starting point and what it learns is the increment, in the command's own units: the delta
-actions of the issue's recipe, without changing the tokens, the data or the normaliser. It
+starting point and what it learns is the increment: the delta actions of the issue's
+recipe, without changing the tokens, the data or the normaliser. The increments are a few
+hundredths of the command's normalised range (DiffIK moves a joint by about 0.06 rad a step
+of a 2 pi range), so the network's output is scaled by their spread in the training data
+(`Anchor.gain`): the head then regresses a target of unit size, as min-max normalised deltas
+would be, instead of one that each optimizer step of the head overshoots (measured: without
+the gain the residual head's loss rose for 500 steps and its commands stayed at "hold"). It
 needs every actuator i to drive dynamic joint i (`check_joint_actuators`), as in the arm
 spaces' position servos.
 
@@ -30,29 +35,34 @@ from dataclasses import dataclass
 import torch
 
 from tt.dit.layout import Layout, LayoutError
+from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
 
 #: The anchors `pose_anchors` makes: anchored type -> the conditioning type it is a residual of.
 POSE_ANCHORS = {"track_link_obs": "target_pose"}
 
-#: The anchor `control_anchors` makes: anchored type -> (state type, value of it: qpos).
-STATE_ANCHORS = {"control": ("dyna_joint_obs", 0)}
+#: The bases of `control_anchors`: name -> (type, value) of the window's first step that each
+#: step's command is a residual of: the current joint position, or the last command (which
+#: the control task must then be given: ``known_command``).
+CONTROL_BASES = {"joints": ("dyna_joint_obs", 0), "command": ("control", 0)}
 
 
 @dataclass(frozen=True)
 class Anchor:
-    """x0[type] = scale * base + offset + network output, per value.
+    """x0[type] = scale * base + offset + gain * network output, per value.
 
     on: the type the base is read from; scale, offset: (D,) maps of `on`'s normalised values
     into the anchored type's normalised units; value: None for a slot-for-slot anchor on a
     condition (base = values[on]), or k for a state anchor: slot i of every step of the
-    anchored type takes value k of slot i of `on`'s first step (the window's current state).
+    anchored type takes value k of slot i of `on`'s first step (the window's current state);
+    gain: (D,) scale of the network's output (None: 1), the residuals' spread.
     """
 
     on: str
     scale: tuple[float, ...]
     offset: tuple[float, ...]
     value: int | None = None
+    gain: tuple[float, ...] | None = None
 
     def check(self, layout: Layout, name: str) -> None:
         """Raise LayoutError unless `name` and `on` are types of `layout` whose slots fit the anchor."""
@@ -65,9 +75,11 @@ class Anchor:
         elif not (a.per_step and b.per_step and a.per_step <= b.per_step and 0 <= self.value < b.dim and a.dim == 1):
             raise LayoutError(f"anchor {name!r} on value {self.value} of {self.on!r}: needs two per-step types, one "
                               f"value wide and with at most as many slots per step as {self.on!r} ({a} vs {b})")
-        if len(self.scale) != a.dim or len(self.offset) != a.dim:
+        if len(self.scale) != a.dim or len(self.offset) != a.dim or (self.gain is not None and len(self.gain) != a.dim):
             raise LayoutError(f"anchor {name!r} on {self.on!r}: {len(self.scale)} scales and {len(self.offset)} offsets "
                               f"for {a.dim} values")
+        if self.gain is not None and not all(g > 0 for g in self.gain):
+            raise LayoutError(f"anchor {name!r}: gains must be > 0, got {self.gain}")
 
     def base(self, layout: Layout, name: str, values: torch.Tensor) -> torch.Tensor:
         """What the anchored type's slots are residuals of, in `on`'s normalised units.
@@ -83,13 +95,15 @@ class Anchor:
         d = {"on": self.on, "scale": list(self.scale), "offset": list(self.offset)}
         if self.value is not None:
             d["value"] = self.value
+        if self.gain is not None:
+            d["gain"] = list(self.gain)
         return d
 
     @staticmethod
     def from_dict(d: dict) -> "Anchor":
-        value = d.get("value")
+        value, gain = d.get("value"), d.get("gain")
         return Anchor(str(d["on"]), tuple(float(v) for v in d["scale"]), tuple(float(v) for v in d["offset"]),
-                      None if value is None else int(value))
+                      None if value is None else int(value), None if gain is None else tuple(float(g) for g in gain))
 
 
 def _affine(normalizer: Normalizer, name: str, on: str, dim: int, value: int | None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -123,15 +137,32 @@ def pose_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
     return out
 
 
-def control_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
-    """Commands anchored on the current positions of the joints they drive (`STATE_ANCHORS`)."""
+def control_anchors(layout: Layout, normalizer: Normalizer, windows: TokenBatch | None = None,
+                    base: str = "joints") -> dict[str, Anchor]:
+    """Commands anchored on the window's first step (`CONTROL_BASES`): the current positions
+    of the joints they drive ("joints"), or the last command ("command").
+
+    windows: raw (unnormalised) consecutive training windows, padded to `layout`; the gain is
+    the root mean square of their residuals (command minus the anchor) in normalised units,
+    per value. None: gain 1."""
+    if base not in CONTROL_BASES:
+        raise ValueError(f"control anchor base {base!r} does not exist; bases: {', '.join(CONTROL_BASES)}")
     out = {}
-    for name, (on, value) in STATE_ANCHORS.items():
+    for name, (on, value) in {"control": CONTROL_BASES[base]}.items():
         if name not in layout or on not in layout:
             raise LayoutError(f"the control anchor needs types {name!r} and {on!r}; the layout has {list(layout.names)}")
         scale, offset = _affine(normalizer, name, on, layout[name].dim, value)
-        out[name] = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()), value)
-        out[name].check(layout, name)
+        anchor = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()), value)
+        anchor.check(layout, name)
+        if windows is not None:
+            target = normalizer.normalize_values(name, windows.values[name].double())
+            base = anchor.base(layout, name, normalizer.normalize_values(on, windows.values[on].double()))
+            res = (target - (scale * base + offset))[windows.mask[name]]  # (R, D) over real tokens
+            if not len(res):
+                raise LayoutError(f"the control anchor's gain needs real {name!r} tokens; the windows have none")
+            gain = res.pow(2).mean(0).sqrt().clamp_min(1e-6)
+            anchor = Anchor(on, anchor.scale, anchor.offset, value, tuple(gain.tolist()))
+        out[name] = anchor
     return out
 
 
@@ -146,4 +177,4 @@ def check_joint_actuators(robots, models) -> None:
                               f"{[int(j) for j in r.dyna_jnt]} in order; the control anchor needs actuator i on joint i")
 
 
-__all__ = ["Anchor", "POSE_ANCHORS", "STATE_ANCHORS", "check_joint_actuators", "control_anchors", "pose_anchors"]
+__all__ = ["Anchor", "CONTROL_BASES", "POSE_ANCHORS", "check_joint_actuators", "control_anchors", "pose_anchors"]

@@ -191,7 +191,7 @@ class RoboDiT(nn.Module):
             raise ValueError(f"anchors act on the clean prediction: they need prediction 'x0', not {prediction!r}")
         for name, anchor in self.anchors.items():
             anchor.check(layout, name)
-            base_roles = (Role.CONDITION,) if anchor.value is None else (Role.CONDITION, Role.DYNAMICS)
+            base_roles = (Role.CONDITION,) if anchor.value is None else (Role.CONDITION, Role.DYNAMICS, Role.ACTION)
             if layout[name].role is Role.CONDITION or layout[anchor.on].role not in base_roles:
                 raise LayoutError(f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition "
                                   "(or, by a state anchor, on the current state)")
@@ -209,7 +209,8 @@ class RoboDiT(nn.Module):
         self.blocks = nn.ModuleList([DiTBlock(h, config.heads, config.mlp_ratio) for _ in range(config.depth)])
         self.heads = nn.ModuleDict({s.name: OutputHead(h, s.dim) for s in layout.specs if s.role is not Role.CONDITION})
         for name, anchor in self.anchors.items():
-            self.register_buffer(f"_anchor_{name}", torch.tensor([anchor.scale, anchor.offset], dtype=torch.float32),
+            gain = anchor.gain if anchor.gain is not None else (1.0,) * len(anchor.scale)
+            self.register_buffer(f"_anchor_{name}", torch.tensor([anchor.scale, anchor.offset, gain], dtype=torch.float32),
                                  persistent=False)
         self.register_buffer(
             "_type_index",
@@ -275,10 +276,10 @@ class RoboDiT(nn.Module):
             if s.name in wanted:
                 out[s.name] = self.heads[s.name](x[:, start:start + s.length], c)  # (B, L, D)
                 if s.name in self.anchors:
-                    scale, offset = getattr(self, f"_anchor_{s.name}")  # 2 x (D,)
+                    scale, offset, gain = getattr(self, f"_anchor_{s.name}")  # 3 x (D,)
                     anchor = self.anchors[s.name]
                     base = anchor.base(self.layout, s.name, values[anchor.on])
-                    out[s.name] = out[s.name] + scale * base.to(scale.dtype) + offset
+                    out[s.name] = gain * out[s.name] + scale * base.to(scale.dtype) + offset
             start += s.length
         return out
 

@@ -105,7 +105,7 @@ def control_task(checkpoint: str | Path) -> TaskSpec:
     if cfg.get("task", "control") == "robot":
         raise ValueError(f"checkpoint {path} was trained on the robot task only; the controller needs task control or both")
     return TaskSpec("control", int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)), "consecutive",
-                    bool(cfg.get("future_states", CONTROL.future_states)))
+                    bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)))
 
 
 class ModelPolicy:

@@ -51,7 +51,7 @@ from tt.dit.layout import LayoutError, with_slot_ids
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
-from tt.dit.anchors import control_anchors, pose_anchors
+from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names
 from tt.kernels.files import CorruptFileError
 
@@ -88,8 +88,10 @@ class TrainConfig:
     the rewards read); bf16_cpu: autocast to bfloat16 on the CPU too (``bf16`` alone autocasts
     on CUDA only); anchor_track: predict track-link poses as residuals from their targets
     (`tt.dit.anchors`; needs prediction "x0"); anchor_control: predict commands as residuals
-    from the current positions of the joints they drive (delta actions; `tt.dit.anchors`,
-    needs prediction "x0"); time_ids: "sinusoidal" or "learned" time-step
+    (delta actions; `tt.dit.anchors`, needs prediction "x0") from the current positions of the
+    joints they drive ("joints") or from the last command ("command", needs known_command);
+    known_command: the control task is given the command that led to the current state
+    (`tt.dit.tasks.TaskSpec.known_command`); time_ids: "sinusoidal" or "learned" time-step
     ID embeddings (`tt.dit.model.DiTConfig.time_ids`).
     """
 
@@ -125,7 +127,8 @@ class TrainConfig:
     type_weights: dict[str, float] = field(default_factory=dict)
     bf16_cpu: bool = False
     anchor_track: bool = False
-    anchor_control: bool = False
+    anchor_control: str = ""
+    known_command: bool = False
     time_ids: str = "sinusoidal"
 
     def __post_init__(self) -> None:
@@ -140,6 +143,12 @@ class TrainConfig:
         for flag, on in (("anchor_track (--anchor-track)", self.anchor_track), ("anchor_control (--anchor-control)", self.anchor_control)):
             if on and self.prediction != "x0":
                 raise ValueError(f"{flag} needs prediction 'x0', got {self.prediction!r}")
+        if self.anchor_control not in ("", *CONTROL_BASES):
+            raise ValueError(f"anchor_control {self.anchor_control!r} does not exist; use '' (none) or one of "
+                             f"{', '.join(CONTROL_BASES)}")
+        if self.anchor_control == "command" and not self.known_command:
+            raise ValueError("anchor_control 'command' (--anchor-control command) needs known_command (--known-command): "
+                             "the last command must be given to be a base")
         if not self.min_snr_gamma > 0:
             raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
@@ -184,7 +193,8 @@ class TrainConfig:
         task the remainder."""
         spec = {"robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
                 "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "random"),
-                "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states)}
+                "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states,
+                                    self.known_command)}
         names = self.task_names()
         each = self.batch_size // len(names)
         counts = [each] * (len(names) - 1) + [self.batch_size - each * (len(names) - 1)]
@@ -301,7 +311,7 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control",
+              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command",
               "time_ids": "--time-ids"}
 
 
@@ -337,7 +347,7 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
                          f"{config.time_ids!r}")
     if model.prediction != config.prediction:
         raise ValueError(f"{where} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
-    for flag, name, on in (("anchor_track", "track_link_obs", config.anchor_track), ("anchor_control", "control", config.anchor_control)):
+    for flag, name, on in (("anchor_track", "track_link_obs", config.anchor_track), ("anchor_control", "control", bool(config.anchor_control))):
         if (name in model.anchors) != on:
             raise ValueError(f"{where} was trained with {flag}={name in model.anchors}, config asks for {on}")
 
@@ -413,8 +423,12 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     else:
         state = None
         normalizer = episodes.fit_normalizer()
-        anchors = {**(pose_anchors(layout, normalizer) if config.anchor_track else {}),
-                   **(control_anchors(layout, normalizer) if config.anchor_control else {})}
+        anchors = pose_anchors(layout, normalizer) if config.anchor_track else {}
+        if config.anchor_control:
+            # The residuals' spread sets the head's gain: windows from a generator of their own,
+            # so the training draws are those of a run without the anchor.
+            windows = episodes.sample(1024, layout.steps, "consecutive", torch.Generator().manual_seed(config.seed + 2))
+            anchors.update(control_anchors(layout, normalizer, windows, config.anchor_control))
         with torch.random.fork_rng(devices=[]):  # seeded init without touching the caller's RNG
             torch.manual_seed(config.seed)
             model = RoboDiT(layout, config.model_config(), prediction=config.prediction, anchors=anchors)

@@ -125,7 +125,11 @@ def test_control_anchor_round_trips_and_refuses_what_it_cannot_anchor(schema_toy
     from tt.dit.train import TrainConfig
 
     with pytest.raises(ValueError, match="anchor_control .* needs prediction 'x0'"):
-        TrainConfig(anchor_control=True, prediction="eps")
+        TrainConfig(anchor_control="joints", prediction="eps")
+    with pytest.raises(ValueError, match="anchor_control 'command' .* needs known_command"):
+        TrainConfig(anchor_control="command")
+    with pytest.raises(ValueError, match="anchor_control 'velocity' does not exist"):
+        TrainConfig(anchor_control="velocity", known_command=True)
 
 
 def test_joint_actuator_check_reads_the_models():
@@ -146,3 +150,64 @@ def test_joint_actuator_check_reads_the_models():
     swapped = dataclasses.replace(robots[1], actuator_mj=np.roll(robots[1].actuator_mj, 1))
     with pytest.raises(LayoutError, match="design 1: its actuators drive"):
         check_joint_actuators([robots[0], swapped, robots[2]], models)
+
+
+def test_control_anchor_gain_is_the_residuals_spread(schema_toy):
+    """The gain is the RMS of command minus current joint position, in normalised units;
+    the untrained network (output 0) still holds the current position, and a unit output
+    moves the command by one gain."""
+    from tt.dit.anchors import control_anchors
+    from tt.dit.tasks import CONTROL
+
+    episodes, layout, norm = schema_toy
+    windows = episodes.sample(64, 8, "consecutive", torch.Generator().manual_seed(3))
+    anchors = control_anchors(layout, norm, windows)
+    gain = anchors["control"].gain[0]
+    P, J = layout["control"].per_step, layout["dyna_joint_obs"].per_step
+    command = norm.normalize_values("control", windows.values["control"].double()).reshape(64, 8, P)
+    joints = windows.values["dyna_joint_obs"].double().reshape(64, 8, J, 2)[:, :1, :P, 0].expand(64, 8, P)
+    held = norm.normalize_values("control", joints.reshape(64, 8 * P, 1)).reshape(64, 8, P)  # the command "hold"
+    real = windows.mask["control"].reshape(64, 8, P)
+    assert gain == pytest.approx(float((command - held)[real].pow(2).mean().sqrt()), rel=1e-9)
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors).eval()
+    assert RoboDiT.from_description(model.describe()).anchors == anchors
+    tokens = norm.normalize(windows)
+    masks = task_masks(CONTROL, layout, tokens)
+    with torch.no_grad():
+        out = model(tokens.values, tokens.ids, masks.noised, torch.full((64,), 0.5))
+        torch.nn.init.constant_(model.heads["control"].linear.bias, 1.0)  # every residual output 1
+        moved = model(tokens.values, tokens.ids, masks.noised, torch.full((64,), 0.5))
+    torch.testing.assert_close(out["control"].double().reshape(64, 8, P)[real], held[real], rtol=0, atol=1e-5)
+    torch.testing.assert_close((moved["control"] - out["control"]).double(), torch.full_like(out["control"], gain).double(),
+                               rtol=0, atol=1e-5)
+    with pytest.raises(LayoutError, match="gains must be > 0"):
+        Anchor("dyna_joint_obs", (1.0,), (0.0,), 0, (0.0,)).check(layout, "control")
+
+
+def test_known_command_is_a_condition_and_the_command_anchor_repeats_it(schema_toy):
+    """With known_command the control task keeps step 0's command clean (the servo's setpoint
+    that led to the current state) and diffuses the 7 after it; anchored on it, an untrained
+    network repeats the last command at every step."""
+    from tt.dit.anchors import control_anchors
+    from tt.dit.tasks import CONTROL, TaskSpec
+
+    episodes, layout, norm = schema_toy
+    task = TaskSpec("control", CONTROL.diffusion_steps, "consecutive", False, known_command=True)
+    windows = episodes.sample(16, 8, "consecutive", torch.Generator().manual_seed(4))
+    tokens = norm.normalize(windows)
+    P = layout["control"].per_step
+    masks = task_masks(task, layout, tokens)
+    real = tokens.mask["control"].reshape(16, 8, P)
+    noised = masks.noised["control"].reshape(16, 8, P)
+    assert not noised[:, 0].any() and torch.equal(noised[:, 1:], real[:, 1:])
+    assert torch.equal(task_masks(CONTROL, layout, tokens).noised["control"], tokens.mask["control"])  # default: all diffused
+    anchors = control_anchors(layout, norm, windows, base="command")
+    assert anchors["control"].on == "control" and anchors["control"].scale == pytest.approx((1.0,))
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors).eval()
+    noisy = {n: torch.where(masks.noised[n][..., None], torch.randn_like(v), v) for n, v in tokens.values.items()}
+    with torch.no_grad():
+        out = model(noisy, tokens.ids, masks.noised, torch.full((16,), 0.5))["control"].reshape(16, 8, P)
+    last = tokens.values["control"].reshape(16, 8, P)[:, :1].expand(16, 8, P)
+    torch.testing.assert_close(out[real], last[real], rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="base 'torque' does not exist"):
+        control_anchors(layout, norm, base="torque")

@@ -612,7 +612,8 @@ def train(
     control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
     warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
     anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
-    anchor_control: bool = typer.Option(False, help="Predict commands as residuals from the current positions of the joints they drive: delta actions (needs --prediction x0)."),
+    anchor_control: str = typer.Option("", help="Delta actions: predict commands as residuals from the current joint positions (joints) or from the last command (command, needs --known-command); needs --prediction x0."),
+    known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
 ) -> None:
@@ -642,7 +643,7 @@ def train(
     recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
                   bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
-                  anchor_control=anchor_control, future_states=future_states, time_ids=time_ids)
+                  anchor_control=anchor_control, known_command=known_command, future_states=future_states, time_ids=time_ids)
     _output(out, "--out", folder=True)
     online_config = None
     if online:
