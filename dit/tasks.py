@@ -24,7 +24,8 @@ actions of all 8 steps, or, with ``known_command``, of the 7 after the earliest,
 always knows) is then a clean condition too. A servo that lags its setpoint keeps the next
 command close to the last one, not to the current position: on ViperX windows the last
 command explains 40-98 % of the next command's offset from the current joint position per
-joint (a linear fit), the current velocity 0-55 %, the end effector's position error ~0 %. The states of the later steps are diffused too (extra supervision
+joint (a linear fit), the current velocity 0-55 %, the end effector's position error ~0 %
+(`benchmarks/results/control_probe.md`). The states of the later steps are diffused too (extra supervision
 that costs no inference input; ``future_states=False`` leaves them out instead). Padding
 tokens are masked out of attention and loss.
 
@@ -34,7 +35,9 @@ serves a batch that mixes the tasks.
 
 Objective: epsilon prediction by default (or x0 or v, `tt.dit.ddim.PREDICTIONS`). For each
 type, the elementwise loss (Huber with delta 1, as in the authors' configuration, or MSE)
-between the network's output and its target, times each sample's noise-level weight
+between the network's output and its target (divided by the anchor's gain for an anchored
+type with one, `tt.dit.anchors`: the residual's units, as min-max normalised delta actions
+would have), times each sample's noise-level weight
 (`tt.dit.ddim.CosineDDIM.loss_weight`: 1 unless a weighting is chosen), averaged over the
 diffused entries of that type; the total is the sum over types, so each type weighs the same
 whatever its token count, unless per-type weights scale the terms.
@@ -273,7 +276,14 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
     for n in wanted:
         target = torch.cat([(p.target if p.target is not None else p.eps)[n] for _, p in parts])
         lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)
-        err = _elementwise(loss, pred[n].float(), target.float()).mean(-1)  # (B, L)
+        p_n, t_n = pred[n].float(), target.float()
+        anchor = getattr(model, "anchors", {}).get(n)
+        if anchor is not None and anchor.gain is not None:
+            # In the residual's own units (the anchors' x0 targets): the Huber's linear part then
+            # starts one typical residual out, so the rare large ones do not drown the rest.
+            gain = torch.tensor(anchor.gain, device=p_n.device)
+            p_n, t_n = p_n / gain, t_n / gain
+        err = _elementwise(loss, p_n, t_n).mean(-1)  # (B, L)
         count = lmask.sum() if global_count is None else global_count(lmask.sum())
         term = (err * weight[:, None] * lmask).sum() / count.clamp_min(1)
         per_type[n] = term

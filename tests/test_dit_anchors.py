@@ -211,3 +211,27 @@ def test_known_command_is_a_condition_and_the_command_anchor_repeats_it(schema_t
     torch.testing.assert_close(out[real], last[real], rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="base 'torque' does not exist"):
         control_anchors(layout, norm, base="torque")
+
+
+def test_gain_anchored_loss_is_huber_in_the_residuals_units(schema_toy):
+    """An anchored type with a gain is scored on (x0 error) / gain: a residual of 3 gains off
+    costs Huber(3) = 2.5, not Huber(3 gain)."""
+    from tt.dit.anchors import control_anchors
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.tasks import CONTROL, TaskSpec, diffusion_loss, noise_tokens
+
+    episodes, layout, norm = schema_toy
+    task = TaskSpec("control", CONTROL.diffusion_steps, "consecutive", False, known_command=True)
+    windows = episodes.sample(8, 8, "consecutive", torch.Generator().manual_seed(5))
+    anchors = control_anchors(layout, norm, windows, base="command")
+    model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors)
+    parts = [(task, noise_tokens(task, CosineDDIM(task.diffusion_steps), layout, norm.normalize(windows),
+                                 torch.Generator().manual_seed(0), prediction="x0"))]
+    target = parts[0][1].target["control"]
+    mask = parts[0][1].masks.loss_mask("control")
+    gain = anchors["control"].gain[0]
+    with torch.no_grad():
+        off = target + 3 * gain  # every diffused command 3 gains off its target
+        model.forward = lambda *a, **k: {"control": off}  # noqa: E731
+        _, terms = diffusion_loss(model, parts)
+    assert bool(mask.any()) and float(terms["control"]) == pytest.approx(2.5, rel=1e-4)
