@@ -19,8 +19,9 @@ recipe, without changing the tokens, the data or the normaliser. The increments 
 hundredths of the command's normalised range (DiffIK moves a joint by about 0.06 rad a step
 of a 2 pi range), so the network's output is scaled by their spread in the training data
 (`Anchor.gain`): the head then regresses a target of unit size, as min-max normalised deltas
-would be, instead of one that each optimizer step of the head overshoots (measured: without
-the gain the residual head's loss rose for 500 steps and its commands stayed at "hold"). It
+would be. (Measured on ViperX, `benchmarks/results/dit_control.md`: with or without the gain,
+a mini model's commands stayed at their anchor for the first 500-1,500 steps; the gain is
+kept for the target's scale, not for a measured gain in learning.) It
 needs every actuator i to drive dynamic joint i (`check_joint_actuators`), as in the arm
 spaces' position servos.
 
@@ -87,7 +88,7 @@ class Anchor:
         values: (B, L_on, D_on), `on`'s values; returns (B, L, D) for the anchored type."""
         if self.value is None:
             return values
-        a, b = layout[name], layout[self.on]
+        a = layout[name]
         current = values[:, : a.per_step, self.value]  # (B, P): the first step's slots
         return current[:, None, :].expand(-1, layout.steps, -1).reshape(values.shape[0], a.length, 1)
 
@@ -156,8 +157,8 @@ def control_anchors(layout: Layout, normalizer: Normalizer, windows: TokenBatch 
         anchor.check(layout, name)
         if windows is not None:
             target = normalizer.normalize_values(name, windows.values[name].double())
-            base = anchor.base(layout, name, normalizer.normalize_values(on, windows.values[on].double()))
-            res = (target - (scale * base + offset))[windows.mask[name]]  # (R, D) over real tokens
+            start = anchor.base(layout, name, normalizer.normalize_values(on, windows.values[on].double()))
+            res = (target - (scale * start + offset))[windows.mask[name]]  # (R, D) over real tokens
             if not len(res):
                 raise LayoutError(f"the control anchor's gain needs real {name!r} tokens; the windows have none")
             gain = res.pow(2).mean(0).sqrt().clamp_min(1e-6)
