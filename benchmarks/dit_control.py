@@ -81,7 +81,7 @@ def main() -> None:
     wp.config.log_level = wp.LOG_WARNING
     from tt.baselines.evaluate import score_episode
     from tt.dit.checkpoint import latest_checkpoint, load_checkpoint, load_model
-    from tt.dit.policies import ControllerConfig, control_task, model_rollout
+    from tt.dit.policies import ControllerConfig, control_task_of, model_rollout
     from tt.sim.designs import get_space
     from tt.sim.validate import oracle_rollout
 
@@ -100,9 +100,10 @@ def main() -> None:
         ckpt = latest_checkpoint(path) if path.is_dir() else path
         if ckpt is None:
             parser.error(f"run folder {path} has no checkpoints")
-        info = describe(label, ckpt, load_checkpoint(ckpt))
+        state = load_checkpoint(ckpt)
+        info, task = describe(label, ckpt, state), control_task_of(state.get("train_config"), f"checkpoint {ckpt}")
+        del state
         trained = load_model(ckpt, device=args.device)
-        task = control_task(ckpt)
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

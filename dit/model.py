@@ -240,6 +240,14 @@ class RoboDiT(nn.Module):
             nn.init.zeros_(head.linear.weight)
             nn.init.zeros_(head.linear.bias)
 
+    def anchor_gain(self, name: str) -> torch.Tensor | None:
+        """(D,) scale of anchored type `name`'s network output (`tt.dit.anchors.Anchor.gain`);
+        None unless `name` is anchored with a gain."""
+        anchor = self.anchors.get(name)
+        if anchor is None or anchor.gain is None:
+            return None
+        return getattr(self, f"_anchor_{name}")[2]
+
     def parameter_count(self) -> int:
         return sum(p.numel() for p in self.parameters())
 

@@ -101,9 +101,14 @@ def control_task(checkpoint: str | Path) -> TaskSpec:
         if found is None:
             raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
         path = found
-    cfg = load_checkpoint(path).get("train_config") or {}
+    return control_task_of(load_checkpoint(path).get("train_config"), f"checkpoint {path}")
+
+
+def control_task_of(config: dict | None, where: str = "the checkpoint") -> TaskSpec:
+    """`control_task` of a loaded checkpoint's train config (a dict, or None when it has none)."""
+    cfg = config or {}
     if cfg.get("task", "control") == "robot":
-        raise ValueError(f"checkpoint {path} was trained on the robot task only; the controller needs task control or both")
+        raise ValueError(f"{where} was trained on the robot task only; the controller needs task control or both")
     return TaskSpec("control", int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)), "consecutive",
                     bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)))
 
@@ -262,4 +267,4 @@ def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str 
     return closed_loop_rollout(designs, motions, policy, config=ik_config, device=device, steps=steps, progress=progress)
 
 
-__all__ = ["CONTROLLERS", "ControllerConfig", "IKPolicy", "ModelPolicy", "control_task", "model_rollout"]
+__all__ = ["CONTROLLERS", "ControllerConfig", "IKPolicy", "ModelPolicy", "control_task", "control_task_of", "model_rollout"]

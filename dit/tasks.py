@@ -277,11 +277,10 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
         target = torch.cat([(p.target if p.target is not None else p.eps)[n] for _, p in parts])
         lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)
         p_n, t_n = pred[n].float(), target.float()
-        anchor = getattr(model, "anchors", {}).get(n)
-        if anchor is not None and anchor.gain is not None:
+        gain = model.anchor_gain(n)
+        if gain is not None:
             # In the residual's own units (the anchors' x0 targets): the Huber's linear part then
             # starts one typical residual out, so the rare large ones do not drown the rest.
-            gain = torch.tensor(anchor.gain, device=p_n.device)
             p_n, t_n = p_n / gain, t_n / gain
         err = _elementwise(loss, p_n, t_n).mean(-1)  # (B, L)
         count = lmask.sum() if global_count is None else global_count(lmask.sum())
