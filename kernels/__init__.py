@@ -8,7 +8,8 @@ per topology:
 
 * `model`: `TreeModel` (a topology, the per-world model arrays as one flat `@wp.struct`,
   `TreeArrays`, that every tree kernel takes, and their float64 kinematic copies,
-  `Kinematics64`), built from MuJoCo models; `Topology`.
+  `Kinematics64`), uploaded from host-side `TreeFields` (`tree_model`), which are read
+  from MuJoCo models (`tree_fields`) or computed by a design space; `Topology`.
 * `fk`: forward kinematics and end-effector Jacobians (MuJoCo's conventions).
 * `dynamics`: mass matrix, bias forces, actuators, joint limits, Euler step (MuJoCo's).
 * `ik`: the oracle's damped-least-squares DiffIK step (mink's conventions), `IKWeights`.
@@ -32,10 +33,13 @@ from tt.kernels.model import (
     Kinematics64,
     Topology,
     TreeArrays,
+    TreeFields,
     TreeModel,
     build_tree_model,
     topology_key,
     topology_of,
+    tree_fields,
+    tree_model,
 )
 from tt.kernels.pose import tracking_reward
 from tt.kernels.rollout import MotionArrays, RolloutArrays, motion_arrays, rollout_tree, start_postures
@@ -47,6 +51,7 @@ __all__ = [
     "RolloutArrays",
     "Topology",
     "TreeArrays",
+    "TreeFields",
     "TreeModel",
     "build_tree_model",
     "forward_kinematics",
@@ -58,5 +63,7 @@ __all__ = [
     "start_postures",
     "topology_key",
     "topology_of",
+    "tree_fields",
+    "tree_model",
     "tracking_reward",
 ]

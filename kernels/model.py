@@ -2,7 +2,8 @@
 
 A `TreeModel` holds W worlds of one topology: a fixed-base kinematic tree of hinge and
 slide joints without contacts, built from MuJoCo models (the one source of truth for a
-robot). Everything that may differ between designs of one topology (link offsets, mount
+robot) or from fields a design space computes the way MuJoCo's compiler would (`TreeFields`,
+tested against MuJoCo's compile). Everything that may differ between designs of one topology (link offsets, mount
 pose, joint axes, masses, gains) is a per-world array; the topology itself (which body
 hangs from which, joint types, which joints the actuators drive, which bodies carry the
 end-effector sites) is a `Topology`, and kernels are compiled once per topology with it
@@ -12,7 +13,8 @@ The per-world arrays are one flat `@wp.struct`, `TreeArrays`: every tree kernel 
 `wp.func` takes it as its ``model`` parameter (passed in, never returned from a
 `wp.func`, a case whose adjoints Warp has had bugs in), and gradients under `wp.Tape`
 reach its members' ``.grad``. It is the one list of the model's fields: adding one is an edit of
-`TreeArrays` and of `build_tree_model`, which fills it; `ENTITY_FIELDS` (the fields a
+`TreeArrays` and of `tree_fields`, which reads it from MuJoCo (`tree_model` uploads any
+`TreeFields`; a space that computes its own must add it too); `ENTITY_FIELDS` (the fields a
 design's continuous choices may change, which `tt.guidance.simgrad` differentiates) is
 derived from it. `Kinematics64` holds float64 copies of the kinematic fields for the
 start posture.
@@ -401,41 +403,44 @@ class TreeModel:
         return replace(self, arrays=arrays, kinematics64=k64)
 
 
-def build_tree_model(
-    models: Sequence[mujoco.MjModel],
-    ee_sites: Sequence[str],
-    *,
-    device: str | None = None,
-    requires_grad: bool = False,
-    limit_sweeps: int = 24,
-) -> TreeModel:
-    """A `TreeModel` with one world per MuJoCo model; all must share one topology.
+@dataclass
+class TreeFields:
+    """Host-side (numpy, float64) values of the `TreeArrays` members for n model entries of
+    one topology: what `tree_model` uploads. Built from MuJoCo models (`tree_fields`) or
+    straight from a design space's parameters (`tt.sim.designs.chain_tree`).
 
-    models: MuJoCo models of one topology (the same object may repeat).
-    ee_sites: site names of the end effectors, in the order motions address them.
-    requires_grad: allocate gradients on the continuous fields (for `wp.Tape`).
-    limit_sweeps: Gauss-Seidel sweeps of the joint-limit force solve.
+    topology: the shared structure.
+    values: member name -> array with a leading dimension n, in `TreeArrays`' units and
+        shapes (every member but ``limit_sweeps``, a launch option of `tree_model`).
+    """
+
+    topology: Topology
+    values: dict[str, np.ndarray]
+
+    @property
+    def count(self) -> int:
+        """Number of entries n."""
+        return len(self.values["timestep"])
+
+    def take(self, index: Sequence[int] | np.ndarray) -> "TreeFields":
+        """The entries `index` (repeats allowed), in that order."""
+        index = np.asarray(index, dtype=np.int64)
+        return TreeFields(self.topology, {k: v[index] for k, v in self.values.items()})
+
+
+#: The `TreeArrays` members that `TreeFields.values` holds (all but the launch option).
+FIELD_NAMES: tuple[str, ...] = tuple(n for n in TREE_FIELDS if n != "limit_sweeps")
+
+
+def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> TreeFields:
+    """The `TreeFields` of MuJoCo models of one topology, one entry per model.
+
     Raises ValueError naming the first model whose topology or features do not fit.
     """
-    from tt.kernels.device import resolve_device
-
-    device = resolve_device(device)
     if len(models) == 0:
-        raise ValueError("models is empty; build_tree_model needs at least one MuJoCo model")
-    # Each distinct model object is read once and the worlds gather its rows: a rollout of
-    # D designs on M motions passes each model M times.
-    entry_of: dict[int, int] = {}
-    position: list[int] = []  # index in `models` of each distinct model (for messages)
-    world_entry = np.empty(len(models), dtype=np.int64)
-    for i, m in enumerate(models):
-        if id(m) not in entry_of:
-            entry_of[id(m)] = len(position)
-            position.append(i)
-        world_entry[i] = entry_of[id(m)]
-    models = [models[i] for i in position]
+        raise ValueError("models is empty; a tree model needs at least one MuJoCo model")
     key0 = topology_key(models[0], ee_sites)
-    for k, m in enumerate(models):
-        i = position[k]
+    for i, m in enumerate(models):
         check_supported(m, i)
         if i and topology_key(m, ee_sites) != key0:
             raise ValueError(
@@ -483,73 +488,196 @@ def build_tree_model(
         return bool(m.opt.disableflags & bit)
 
     D = mujoco.mjtDisableBit
-    damping = np.stack([m.dof_damping * (not flag_off(m, D.mjDSBL_DAMPER)) for m in models])
-    stiffness = np.stack([m.jnt_stiffness * (not flag_off(m, D.mjDSBL_SPRING)) for m in models])
-    gravity = np.stack([m.opt.gravity * (not flag_off(m, D.mjDSBL_GRAVITY)) for m in models])
-    gain = np.stack([m.actuator_gainprm[:, 0] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
-    bias = np.stack([m.actuator_biasprm[:, :3] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models])
-    limit_enabled = np.array([0 if flag_off(m, D.mjDSBL_LIMIT) else 1 for m in models], dtype=np.int32)
-    for i, m in zip(position, models):
+    for i, m in enumerate(models):
         if flag_off(m, D.mjDSBL_EULERDAMP) and np.any(m.dof_damping > 0):
             raise ValueError(f"model {i}: the eulerdamp flag is disabled; tt replicates Euler with implicit damping only")
         if m.opt.timestep <= 0:
             raise ValueError(f"model {i}: timestep {m.opt.timestep} must be positive")
+    values = dict(
+        body_pos=body_pos,
+        body_quat=body_quat,
+        body_mass=body_mass,
+        body_ipos=body_ipos,
+        body_iquat=body_iquat,
+        body_inertia=body_inertia,
+        dof_axis=np.stack([m.jnt_axis for m in models]),
+        dof_pos=np.stack([m.jnt_pos for m in models]),
+        dof_ref=np.stack([m.qpos0 for m in models]),
+        dof_armature=np.stack([m.dof_armature for m in models]),
+        dof_damping=np.stack([m.dof_damping * (not flag_off(m, D.mjDSBL_DAMPER)) for m in models]),
+        dof_stiffness=np.stack([m.jnt_stiffness * (not flag_off(m, D.mjDSBL_SPRING)) for m in models]),
+        dof_springref=np.stack([m.qpos_spring for m in models]),
+        dof_range=dof_range,
+        dof_limit_kb=np.stack([_limit_kb(m) for m in models]),
+        dof_solimp=np.stack([m.jnt_solimp for m in models]),
+        dof_invweight0=np.stack([m.dof_invweight0 for m in models]),
+        act_gain=np.stack([m.actuator_gainprm[:, 0] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models]),
+        act_bias=np.stack([m.actuator_biasprm[:, :3] * (not flag_off(m, D.mjDSBL_ACTUATION)) for m in models]),
+        act_gear=np.stack([m.actuator_gear[:, 0] for m in models]),
+        act_ctrlrange=act_ctrlrange,
+        act_forcerange=act_forcerange,
+        ee_pos=ee_pos,
+        ee_quat=ee_quat,
+        gravity=np.stack([m.opt.gravity * (not flag_off(m, D.mjDSBL_GRAVITY)) for m in models]),
+        timestep=np.array([m.opt.timestep for m in models], dtype=np.float64),
+        limit_enabled=np.array([0 if flag_off(m, D.mjDSBL_LIMIT) else 1 for m in models], dtype=np.int32),
+    )
+    return TreeFields(topo, {k: np.asarray(v) for k, v in values.items()})
 
-    def arr(x, dtype):
-        x = np.asarray(x, dtype=np.float32)[world_entry]
+
+def tree_model(
+    fields: TreeFields,
+    *,
+    world_entry: np.ndarray | None = None,
+    device: str | None = None,
+    requires_grad: bool = False,
+    limit_sweeps: int = 24,
+) -> TreeModel:
+    """Upload `fields` as a `TreeModel`: world w reads entry ``world_entry[w]`` (None: world
+    w reads entry w). Missing or unknown members raise ValueError.
+
+    requires_grad: allocate gradients on the continuous fields (for `wp.Tape`).
+    limit_sweeps: Gauss-Seidel sweeps of the joint-limit force solve.
+    """
+    from tt.kernels.device import resolve_device
+
+    device = resolve_device(device)
+    missing = sorted(set(FIELD_NAMES) - set(fields.values))
+    extra = sorted(set(fields.values) - set(FIELD_NAMES))
+    if missing or extra:
+        raise ValueError(f"tree fields: missing {missing}, unknown {extra}")
+    v = fields.values
+    entry = np.arange(fields.count) if world_entry is None else np.asarray(world_entry, dtype=np.int64)
+
+    def arr(name, dtype):
+        x = np.asarray(v[name], dtype=np.float32)[entry]
         return wp.array(np.ascontiguousarray(x), dtype=dtype, device=device, requires_grad=requires_grad)
 
-    def arr64(x, dtype):
-        return wp.array(np.ascontiguousarray(np.asarray(x, dtype=np.float64)[world_entry]), dtype=dtype, device=device)
+    def arr64(name, dtype):
+        return wp.array(np.ascontiguousarray(np.asarray(v[name], dtype=np.float64)[entry]), dtype=dtype, device=device)
 
-    k64 = kinematics64(
-        body_pos=arr64(body_pos, wp.vec3d),
-        body_quat=arr64(body_quat, wp.vec4d),
-        dof_axis=arr64(np.stack([m.jnt_axis for m in models]), wp.vec3d),
-        dof_pos=arr64(np.stack([m.jnt_pos for m in models]), wp.vec3d),
-        dof_ref=arr64(np.stack([m.qpos0 for m in models]), wp.float64),
-        dof_range=arr64(dof_range, wp.vec2d),
-        ee_pos=arr64(ee_pos, wp.vec3d),
-        ee_quat=arr64(ee_quat, wp.vec4d),
-    )
+    k64_types = {"body_pos": wp.vec3d, "body_quat": wp.vec4d, "dof_axis": wp.vec3d, "dof_pos": wp.vec3d,
+                 "dof_ref": wp.float64, "dof_range": wp.vec2d, "ee_pos": wp.vec3d, "ee_quat": wp.vec4d}
+    k64 = kinematics64(**{name: arr64(name, k64_types[name]) for name in KINEMATICS64_FIELDS})
+    types = {"body_pos": wp.vec3, "body_quat": wp.vec4, "body_ipos": wp.vec3, "body_iquat": wp.vec4,
+             "body_inertia": wp.vec3, "dof_axis": wp.vec3, "dof_pos": wp.vec3, "dof_range": wp.vec2,
+             "dof_limit_kb": wp.vec2, "act_bias": wp.vec3, "act_ctrlrange": wp.vec2, "act_forcerange": wp.vec2,
+             "ee_pos": wp.vec3, "ee_quat": wp.vec4, "gravity": wp.vec3}
     # The arrays get requires_grad at allocation, before they enter the struct.
-    arrays = tree_arrays(
-        body_pos=arr(body_pos, wp.vec3),
-        body_quat=arr(body_quat, wp.vec4),
-        body_mass=arr(body_mass, float),
-        body_ipos=arr(body_ipos, wp.vec3),
-        body_iquat=arr(body_iquat, wp.vec4),
-        body_inertia=arr(body_inertia, wp.vec3),
-        dof_axis=arr(np.stack([m.jnt_axis for m in models]), wp.vec3),
-        dof_pos=arr(np.stack([m.jnt_pos for m in models]), wp.vec3),
-        dof_ref=arr(np.stack([m.qpos0 for m in models]), float),
-        dof_armature=arr(np.stack([m.dof_armature for m in models]), float),
-        dof_damping=arr(damping, float),
-        dof_stiffness=arr(stiffness, float),
-        dof_springref=arr(np.stack([m.qpos_spring for m in models]), float),
-        dof_range=arr(dof_range, wp.vec2),
-        dof_limit_kb=arr(np.stack([_limit_kb(m) for m in models]), wp.vec2),
-        dof_solimp=arr(np.stack([m.jnt_solimp for m in models]), float),
-        dof_invweight0=arr(np.stack([m.dof_invweight0 for m in models]), float),
-        act_gain=arr(gain, float),
-        act_bias=arr(bias, wp.vec3),
-        act_gear=arr(np.stack([m.actuator_gear[:, 0] for m in models]), float),
-        act_ctrlrange=arr(act_ctrlrange, wp.vec2),
-        act_forcerange=arr(act_forcerange, wp.vec2),
-        ee_pos=arr(ee_pos, wp.vec3),
-        ee_quat=arr(ee_quat, wp.vec4),
-        gravity=arr(gravity, wp.vec3),
-        timestep=arr(np.array([m.opt.timestep for m in models]), float),
-        limit_enabled=wp.array(limit_enabled[world_entry], dtype=wp.int32, device=device),
-        limit_sweeps=wp.array([limit_sweeps], dtype=wp.int32, device=device),
-    )
+    members = {name: arr(name, types.get(name, float)) for name in FIELD_NAMES if name != "limit_enabled"}
+    members["limit_enabled"] = wp.array(np.asarray(v["limit_enabled"], dtype=np.int32)[entry], dtype=wp.int32, device=device)
+    members["limit_sweeps"] = wp.array([limit_sweeps], dtype=wp.int32, device=device)
     return TreeModel(
-        topology=topo,
-        arrays=arrays,
+        topology=fields.topology,
+        arrays=tree_arrays(**members),
         kinematics64=k64,
         device=device,
-        timestep_host=np.array([m.opt.timestep for m in models])[world_entry],
+        timestep_host=np.asarray(v["timestep"], dtype=np.float64)[entry],
     )
+
+
+def build_tree_model(
+    models: Sequence[mujoco.MjModel],
+    ee_sites: Sequence[str],
+    *,
+    device: str | None = None,
+    requires_grad: bool = False,
+    limit_sweeps: int = 24,
+) -> TreeModel:
+    """A `TreeModel` with one world per MuJoCo model; all must share one topology.
+
+    models: MuJoCo models of one topology (the same object may repeat).
+    ee_sites: site names of the end effectors, in the order motions address them.
+    requires_grad: allocate gradients on the continuous fields (for `wp.Tape`).
+    limit_sweeps: Gauss-Seidel sweeps of the joint-limit force solve.
+    Raises ValueError naming the first model whose topology or features do not fit.
+    """
+    if len(models) == 0:
+        raise ValueError("models is empty; build_tree_model needs at least one MuJoCo model")
+    # Each distinct model object is read once and the worlds gather its rows: a rollout of
+    # D designs on M motions passes each model M times.
+    entry_of: dict[int, int] = {}
+    position: list[int] = []  # index in `models` of each distinct model (for messages)
+    world_entry = np.empty(len(models), dtype=np.int64)
+    for i, m in enumerate(models):
+        if id(m) not in entry_of:
+            entry_of[id(m)] = len(position)
+            position.append(i)
+        world_entry[i] = entry_of[id(m)]
+    try:
+        fields = tree_fields([models[i] for i in position], ee_sites)
+    except ValueError as e:
+        # tree_fields names models by their index among the distinct ones; name them by `models`.
+        raise ValueError(_renumber(str(e), position)) from None
+    return tree_model(fields, world_entry=world_entry, device=device, requires_grad=requires_grad,
+                      limit_sweeps=limit_sweeps)
+
+
+def _renumber(message: str, position: list[int]) -> str:
+    """`message` with its leading "model k" naming ``position[k]`` instead."""
+    import re
+
+    return re.sub(r"^model (\d+)", lambda g: f"model {position[int(g.group(1))]}", message)
+
+
+def dof_invweight0(fields: TreeFields) -> np.ndarray:
+    """MuJoCo's ``dof_invweight0`` of every entry: the diagonal of the inverse joint-space
+    inertia (armature included) at the reference posture ``dof_ref``, (n, NV) float64.
+
+    It scales the joint-limit constraint's regularizer, so a model built without MuJoCo's
+    compiler needs it. At the reference posture every body sits at its offset (MuJoCo's
+    qpos0); the mass matrix there is M = sum over bodies of m Jp^T Jp + Jr^T I Jr, with Jp
+    the Jacobian of the body's center of mass and Jr its rotation's.
+    """
+    topo = fields.topology
+    v = fields.values
+    n, nb, nv = fields.count, topo.body_count, topo.dof_count
+    world_pos = np.zeros((n, nb, 3))
+    world_rot = np.tile(np.eye(3), (n, nb, 1, 1))
+    axis_w = np.zeros((n, nv, 3))
+    anchor_w = np.zeros((n, nv, 3))
+    for b in range(1, nb):
+        p = topo.body_parent[b]
+        rot = world_rot[:, p] @ _quat_to_mat(v["body_quat"][:, b])
+        pos = world_pos[:, p] + np.einsum("nij,nj->ni", world_rot[:, p], v["body_pos"][:, b])
+        d = topo.body_dof[b]
+        if d >= 0:
+            axis = v["dof_axis"][:, d] / np.linalg.norm(v["dof_axis"][:, d], axis=-1, keepdims=True)
+            anchor_local = v["dof_pos"][:, d]
+            axis_w[:, d] = np.einsum("nij,nj->ni", rot, axis)
+            anchor_w[:, d] = pos + np.einsum("nij,nj->ni", rot, anchor_local)
+        world_pos[:, b], world_rot[:, b] = pos, rot
+    mass_matrix = np.zeros((n, nv, nv))
+    for b in range(1, nb):
+        support = topo.body_support(b)
+        if not support:
+            continue
+        com = world_pos[:, b] + np.einsum("nij,nj->ni", world_rot[:, b], v["body_ipos"][:, b])
+        irot = world_rot[:, b] @ _quat_to_mat(v["body_iquat"][:, b])
+        inertia = np.einsum("nij,nj,nkj->nik", irot, v["body_inertia"][:, b], irot)
+        jp = np.zeros((n, 3, nv))
+        jr = np.zeros((n, 3, nv))
+        for d in support:
+            if topo.dof_type[d] == JOINT_HINGE:
+                jr[:, :, d] = axis_w[:, d]
+                jp[:, :, d] = np.cross(axis_w[:, d], com - anchor_w[:, d])
+            else:
+                jp[:, :, d] = axis_w[:, d]
+        mass_matrix += v["body_mass"][:, b, None, None] * np.einsum("nki,nkj->nij", jp, jp)
+        mass_matrix += np.einsum("nki,nkl,nlj->nij", jr, inertia, jr)
+    mass_matrix[:, np.arange(nv), np.arange(nv)] += v["dof_armature"]
+    return np.diagonal(np.linalg.inv(mass_matrix), axis1=1, axis2=2).copy()
+
+
+def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices of (w, x, y, z) quaternions (normalized here), (..., 3, 3)."""
+    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
 
 
 @dataclass(frozen=True)
