@@ -13,6 +13,7 @@ import torch
 
 from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
 from tt.sim.designs import Design, get_space
+from tt.sim.designs.trees import DesignTrees
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 
@@ -36,14 +37,14 @@ class Evaluation:
 
 
 def run_rollout(
-    designs: Sequence[Design | mujoco.MjModel], motions: Sequence[Motion], *, backend: str, device: str | None,
+    designs: "Sequence[Design | mujoco.MjModel] | DesignTrees", motions: Sequence[Motion], *, backend: str, device: str | None,
     progress: bool = False, threads: int | None = None, graph: bool | None = None,
 ) -> Episode:
     """Rollout of every design (or its built model) on every motion with `backend` (design-major
     worlds; threads: CPU threads of the "warp" backend, None for every core)."""
     from tt.sim.rollout import rollout
 
-    return rollout(list(designs), list(motions), backend=backend, device=device, progress=progress, threads=threads,
+    return rollout(designs if isinstance(designs, DesignTrees) else list(designs), list(motions), backend=backend, device=device, progress=progress, threads=threads,
                    graph=graph)
 
 
@@ -53,12 +54,12 @@ def score_episode(
     motions: Sequence[Motion],
     reward: str,
     *,
-    models: Sequence[mujoco.MjModel] | None = None,
+    models: "Sequence[mujoco.MjModel] | DesignTrees | None" = None,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Reward and metrics of each world of `ep`, reshaped to (D, M).
 
-    models: the designs' built models when the caller has them (size and mass are read from
-    them); None builds them.
+    models: the designs' built models or tree fields (`DesignTrees`) when the caller has
+    them (size and mass are read from them); None builds them.
     """
     space = designs[0].space
     cfg = get_reward(reward, space)
@@ -66,8 +67,12 @@ def score_episode(
         sp = get_space(space)
         models = [sp.model(d) for d in designs]
     device = ep.ee_pos.device
-    size = robot_size(models).to(device)[ep.design_index.to(device)]
-    mass = robot_mass(models).to(device)[ep.design_index.to(device)]
+    if isinstance(models, DesignTrees):
+        size_d, mass_d = torch.as_tensor(models.size, dtype=torch.float32), torch.as_tensor(models.mass, dtype=torch.float32)
+    else:
+        size_d, mass_d = robot_size(models), robot_mass(models)
+    size = size_d.to(device)[ep.design_index.to(device)]
+    mass = mass_d.to(device)[ep.design_index.to(device)]
     steps = torch.tensor([m.steps for m in motions], device=device)[ep.motion_index.to(device)]
     inputs = RewardInputs.from_episode(ep, size.to(ep.ee_pos.dtype), mass.to(ep.ee_pos.dtype), motion_steps=steps)
     per_world = metrics(inputs, cfg)
@@ -140,9 +145,12 @@ def evaluate_designs(
             "use backend='mujoco' or 'mjwarp'"
         )
     # Each design's model is built once, for the size and mass terms and, on "warp" (where a
-    # second build is a visible share of a small batch's time), for the rollout too; large
-    # batches in worker processes, one per rollout thread.
-    models = _models(sp, designs, backend=backend, device=device, threads=threads)
+    # second build is a visible share of a small batch's time), for the rollout too: as tree
+    # fields where the space builds them directly, else as MuJoCo models, large batches in
+    # worker processes, one per rollout thread.
+    models = sp.trees(designs) if backend == "warp" else None
+    if models is None:
+        models = _models(sp, designs, backend=backend, device=device, threads=threads)
     ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
                      threads=threads, graph=graph)
     r, m = score_episode(ep, designs, motions, reward, models=models)

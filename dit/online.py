@@ -182,7 +182,10 @@ class OnlineTokenSource:
             raise LayoutError(f"a training motion has {too_long} steps, the layout's time IDs {cfg.max_time} rows; "
                               "set max_motion_steps")
         models = [self.space.model(d) for d in designs]
-        records = rollout_records(models, self.space.ee_sites(), motions, device=self.device,
+        # The tokenizer reads the models; the rollout simulates the tree fields the space
+        # builds directly where it can, as every warp rollout of Designs does.
+        trees = self.space.trees(designs)
+        records = rollout_records(models if trees is None else trees, self.space.ee_sites(), motions, device=self.device,
                                   action_noise=cfg.action_noise, noise_seed=_seed_int(cfg.seed, k, _STREAM_NOISE))
         embodiment = self._tokenizer(models)
         parts, dropped, world_steps = [], 0, 0

@@ -35,6 +35,7 @@ import torch
 from tt.sim.backends import get_backend
 from tt.sim.controller import IKConfig, check_fixed_base
 from tt.sim.designs import Design
+from tt.sim.designs.trees import DesignTrees
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 
@@ -49,7 +50,7 @@ DEFAULT_CHUNK = 50
 
 
 def rollout(
-    designs: Sequence[Design | mujoco.MjModel],
+    designs: "Sequence[Design | mujoco.MjModel] | DesignTrees",
     motions: Sequence[Motion],
     *,
     backend: str = "warp",
@@ -64,7 +65,8 @@ def rollout(
 ) -> Episode:
     """Run every design on every motion; returns an Episode of W = D * M worlds (design-major).
 
-    designs: D designs of one design space (or MjModels with sites ee_0, ...).
+    designs: D designs of one design space (or MjModels with sites ee_0, ...); the "warp"
+        backend also takes them already compiled to tree fields (`DesignSpace.trees`).
     motions: M motions sampled at ``config.control_dt`` with one arm per end effector.
     backend: ``"warp"`` (tt's kernels), ``"mjwarp"`` (MuJoCo-Warp, contacts too, see
         `tt.sim.mjwarp_backend`), ``"newton"`` (Newton Featherstone, see
@@ -98,7 +100,11 @@ def rollout(
     if action_noise != 0.0 and not impl.perturbs:
         raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
-    return impl.run(impl.resolve(designs), motions, config=config, device=device, chunk=chunk, progress=progress,
+    if isinstance(designs, DesignTrees) and backend != "warp":
+        raise ValueError(f"designs compiled to tree fields (DesignTrees) run on backend 'warp' only; "
+                         f"pass backend {backend!r} the Designs themselves")
+    robots = designs if isinstance(designs, DesignTrees) else impl.resolve(designs)
+    return impl.run(robots, motions, config=config, device=device, chunk=chunk, progress=progress,
                     action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
 
 
@@ -107,7 +113,7 @@ _RECORDED = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat"
 
 
 def rollout_records(
-    models: Sequence[mujoco.MjModel],
+    models: "Sequence[mujoco.MjModel] | DesignTrees",
     sites: tuple[str, ...],
     motions: Sequence[Motion],
     *,
@@ -122,7 +128,8 @@ def rollout_records(
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
 
-    models: D compiled contact-free trees with end-effector `sites`; motions: M motions.
+    models: D compiled contact-free trees with end-effector `sites`, or D designs already
+        compiled to tree fields (`tt.sim.designs.trees.DesignTrees`); motions: M motions.
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
@@ -130,12 +137,10 @@ def rollout_records(
     graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
     Inputs are not validated here; `rollout` does that.
     """
-    from tt.kernels.model import build_tree_model, check_supported, topology_key
+    from tt.kernels.model import tree_model
     from tt.kernels.rollout import motion_arrays, rollout_tree
 
-    for i, m in enumerate(models):
-        check_fixed_base(m)
-        check_supported(m, i)
+    groups = _tree_groups(models, sites)
     M = len(motions)
     T = max(motion.steps for motion in motions)
     A = len(sites)
@@ -145,10 +150,6 @@ def rollout_records(
         idx = np.minimum(np.arange(T), motion.steps - 1)
         pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
     marrays = motion_arrays(pos, quat, [motion.steps for motion in motions], device=device)
-
-    groups: dict[tuple, list[int]] = {}
-    for d, m in enumerate(models):
-        groups.setdefault(topology_key(m, sites), []).append(d)
     logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", len(models), len(groups), M, T)
     bar = None
     if progress:
@@ -156,9 +157,9 @@ def rollout_records(
 
         bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
     results = []
-    for members in groups.values():
-        # One model entry per world (design-major), so world w reads entry w.
-        tree = build_tree_model([models[d] for d in members for _ in range(M)], sites, device=device)
+    for members, fields in groups:
+        # One model entry per design; world k * M + j (member k on motion j) reads entry k.
+        tree = tree_model(fields, world_entry=np.repeat(np.arange(len(members)), M), device=device)
         # Noise keyed by the world's index in the whole rollout, not in its topology group.
         world_ids = np.array([d * M + j for d in members for j in range(M)])
         arrays = rollout_tree(
@@ -166,10 +167,27 @@ def rollout_records(
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
             action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads, graph=graph,
         )  # fmt: skip
-        results.append((members, arrays))
+        results.append((list(members), arrays))
     if bar is not None:
         bar.close()
     return results
+
+
+def _tree_groups(models: "Sequence[mujoco.MjModel] | DesignTrees", sites: tuple[str, ...]) -> list:
+    """[(members, TreeFields)] per topology: `DesignTrees`' own groups, or compiled models
+    read by `tt.kernels.model.tree_fields` (each distinct model object once)."""
+    from tt.kernels.model import check_supported, topology_key, tree_fields
+    from tt.sim.designs.trees import DesignTrees
+
+    if isinstance(models, DesignTrees):
+        return [(list(int(i) for i in members), fields) for members, fields in models.groups]
+    for i, m in enumerate(models):
+        check_fixed_base(m)
+        check_supported(m, i)
+    groups: dict[tuple, list[int]] = {}
+    for d, m in enumerate(models):
+        groups.setdefault(topology_key(m, sites), []).append(d)
+    return [(members, tree_fields([models[d] for d in members], sites)) for members in groups.values()]
 
 
 def _recorded(perturbed: bool) -> tuple[str, ...]:
@@ -205,7 +223,7 @@ def group_episode(members: Sequence[int], records, motions: int, nu: int, *, per
 
 
 def _rollout_warp(
-    models: list[mujoco.MjModel],
+    models: "list[mujoco.MjModel] | DesignTrees",
     sites: tuple[str, ...],
     motions: Sequence[Motion],
     *,
@@ -225,14 +243,17 @@ def _rollout_warp(
     results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
                               action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
     perturbed = action_noise > 0.0
+    if isinstance(models, DesignTrees):
+        nq, nu = models.max_dofs(), models.max_actuators()
+    else:
+        nq, nu = max(m.nq for m in models), max(m.nu for m in models)
     if len(results) == 1:
         (members, arrays), = results
-        return group_episode(members, arrays, M, models[0].nu, perturbed=perturbed, dt=config.control_dt)
+        return group_episode(members, arrays, M, nu, perturbed=perturbed, dt=config.control_dt)
     # Several topologies: copy each group's records into one zero-padded Episode.
     names = _recorded(perturbed)
     actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
-    sizes = {"qpos": max(m.nq for m in models), "qvel": max(m.nv for m in models)}
-    nu = max(m.nu for m in models)
+    sizes = {"qpos": nq, "qvel": nq}
     sizes.update({name: nu for name in actuator_fields})
     tdev = wp.device_to_torch(device)
     fields = {}

@@ -148,9 +148,12 @@ def test_multi_trajectory_objective_is_the_mean_over_motions():
 
 
 def test_large_batch_preloads_kernels_and_scores_as_one_thread(monkeypatch):
-    """From PARALLEL_MODELS_MIN designs on 2 threads, models are built in worker processes
-    while this process loads the rollout kernels; the scores equal a one-thread run's."""
+    """From PARALLEL_MODELS_MIN designs on 2 threads, a space without a tree-field builder
+    (ALOHA) builds its models in worker processes while this process loads the rollout
+    kernels; the scores equal a one-thread run's. ViperX builds tree fields instead, with
+    no worker and no MuJoCo model per design."""
     import tt.kernels.rollout as kr
+    import tt.sim.designs.base as base
     from tt.sim.designs.base import PARALLEL_MODELS_MIN
 
     loaded = []
@@ -161,8 +164,15 @@ def test_large_batch_preloads_kernels_and_scores_as_one_thread(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(kr, "preload_rollout_kernels", counted)
-    designs = get_space("viperx").sample(PARALLEL_MODELS_MIN, seed=5)
-    motions = [_motion("toss", steps=12)]
+    viperx = get_space("viperx").sample(PARALLEL_MODELS_MIN, seed=5)
+    monkeypatch.setattr(base.DesignSpace, "models", lambda *a, **k: pytest.fail("viperx built MuJoCo models"))
+    evaluate_designs(viperx, [_motion("toss", steps=4)], "tracking", device="cpu", threads=2)
+    monkeypatch.undo()
+    monkeypatch.setattr(kr, "preload_rollout_kernels", counted)
+    assert not loaded
+    designs = get_space("aloha").sample(PARALLEL_MODELS_MIN, seed=5)
+    bi = for_space([get_motion("bi_lift", 100)], "aloha")[0]
+    motions = [Motion(bi.name, bi.pos[:12], bi.quat[:12], bi.dt)]
     two = evaluate_designs(designs, motions, "tracking", device="cpu", threads=2)
     assert len(loaded) == 1
     one = evaluate_designs(designs, motions, "tracking", device="cpu", threads=1)

@@ -225,9 +225,12 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             motion_ids = rng.choice(len(base), size=K, replace=K > len(base))
             aug_seeds = rng.integers(0, 2**31, size=K)
             motions = [episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
-            # Built once, for the rollout and the tokenizer (MJCF compilation is a few ms per robot).
+            # Built once, for the tokenizer and (MJCF compilation is a few ms per robot) for the
+            # rollout, unless the backend is warp and the space builds tree fields directly:
+            # every warp rollout of Designs simulates those, so `rollout(designs)` replays a shard.
             models = [sp.model(d) for d in group]
-            ep = rollout(models, motions, backend=config.backend, device=device, action_noise=config.action_noise, threads=threads,
+            trees = sp.trees(group) if config.backend == "warp" else None
+            ep = rollout(models if trees is None else trees, motions, backend=config.backend, device=device, action_noise=config.action_noise, threads=threads,
                          noise_seed=_seed_int(config.seed, index, _STREAM_NOISE, g0))
             seconds["rollout"] += time.perf_counter() - t
 

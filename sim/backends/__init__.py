@@ -20,9 +20,10 @@ from typing import Sequence
 
 import mujoco
 
-from tt.sim.backends.base import Robots, RolloutBackend, check_motions, resolve_designs
+from tt.sim.backends.base import Robots, RolloutBackend, check_designs, check_motions, resolve_designs
 from tt.sim.controller import IKConfig
-from tt.sim.designs import Design
+from tt.sim.designs import Design, get_space
+from tt.sim.designs.trees import DesignTrees
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
 
@@ -34,17 +35,27 @@ class WarpBackend:
     name = "warp"
     perturbs = True
 
-    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
-        return resolve_designs(designs, who="the 'warp' backend", contacts=False, hint="use backend='mjwarp' or 'mujoco'")
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> "Robots | DesignTrees":
+        """Designs of a space that compiles its designs to tree fields directly
+        (`DesignSpace.trees`) become `DesignTrees`, no MJCF or MuJoCo compile per design;
+        the rest are compiled by `resolve_designs`."""
+        who, hint = "the 'warp' backend", "use backend='mjwarp' or 'mujoco'"
+        if len(designs) and all(isinstance(d, Design) for d in designs):
+            check_designs(designs, who=who, contacts=False, hint=hint)
+            trees = get_space(designs[0].space).trees(designs)
+            if trees is not None:
+                return trees
+        return resolve_designs(designs, who=who, contacts=False, hint=hint)
 
-    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
+    def run(self, robots: "Robots | DesignTrees", motions: Sequence[Motion], *, config: IKConfig, device: str,
+            chunk: int | None, progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
             graph: bool | None = None) -> Episode:
         from tt.sim.rollout import _rollout_warp
 
         sites = robots.ee_sites
         check_motions(motions, config.control_dt, len(sites))
-        return _rollout_warp(list(robots.models), sites, motions, config=config, device=device, chunk=chunk,
+        models = robots if isinstance(robots, DesignTrees) else list(robots.models)
+        return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk,
                              progress=progress, action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
 
 

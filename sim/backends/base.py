@@ -52,6 +52,34 @@ class Robots:
         return first
 
 
+def check_designs(
+    designs: Sequence[Design | mujoco.MjModel],
+    *,
+    who: str = "a rollout",
+    one_space: bool = True,
+    contacts: bool = True,
+    hint: str = "",
+) -> None:
+    """The checks of `resolve_designs` that need no compiled model (arguments as there)."""
+    if len(designs) == 0:
+        raise ValueError(f"designs is empty; {who} needs at least one design")
+    for i, d in enumerate(designs):
+        if not isinstance(d, (Design, mujoco.MjModel)):
+            raise TypeError(f"designs[{i}] is a {type(d).__name__}; expected a tt Design or a mujoco.MjModel")
+    spaces = sorted({d.space for d in designs if isinstance(d, Design)})
+    if one_space:
+        if len(spaces) > 1:
+            raise ValueError(f"designs mix design spaces {spaces}; roll out one design space per call "
+                             "(motions and rewards are per space)")
+        if spaces and any(isinstance(d, mujoco.MjModel) for d in designs):
+            raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
+    if not contacts:
+        for name in spaces:
+            if get_space(name).has_contacts:
+                raise ValueError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
+                                 f"contact-free trees only{'; ' + hint if hint else ''}")
+
+
 def resolve_designs(
     designs: Sequence[Design | mujoco.MjModel],
     *,
@@ -71,23 +99,7 @@ def resolve_designs(
     hint: what to do instead, appended to that error ("use backend='mjwarp' or 'mujoco'").
     Raises ValueError (TypeError for an input of another type) naming the design.
     """
-    if len(designs) == 0:
-        raise ValueError(f"designs is empty; {who} needs at least one design")
-    for i, d in enumerate(designs):
-        if not isinstance(d, (Design, mujoco.MjModel)):
-            raise TypeError(f"designs[{i}] is a {type(d).__name__}; expected a tt Design or a mujoco.MjModel")
-    spaces = sorted({d.space for d in designs if isinstance(d, Design)})
-    if one_space:
-        if len(spaces) > 1:
-            raise ValueError(f"designs mix design spaces {spaces}; roll out one design space per call "
-                             "(motions and rewards are per space)")
-        if spaces and any(isinstance(d, mujoco.MjModel) for d in designs):
-            raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
-    if not contacts:
-        for name in spaces:
-            if get_space(name).has_contacts:
-                raise ValueError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
-                                 f"contact-free trees only{'; ' + hint if hint else ''}")
+    check_designs(designs, who=who, one_space=one_space, contacts=contacts, hint=hint)
     models, sites, mjcf = [], [], []
     for i, d in enumerate(designs):
         if isinstance(d, Design):
@@ -139,7 +151,9 @@ class RolloutBackend(Protocol):
     perturbs: bool
 
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
-        """`resolve_designs` with the backend's constraints (raises for what it cannot run)."""
+        """`resolve_designs` with the backend's constraints (raises for what it cannot run).
+        The warp backend returns `tt.sim.designs.trees.DesignTrees` instead where the
+        design space compiles its designs to tree fields itself (`DesignSpace.trees`)."""
         ...
 
     def run(
@@ -166,4 +180,4 @@ class RolloutBackend(Protocol):
         ...
 
 
-__all__ = ["Robots", "RolloutBackend", "check_motions", "resolve_designs"]
+__all__ = ["Robots", "RolloutBackend", "check_designs", "check_motions", "resolve_designs"]

@@ -13,13 +13,16 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, read_json
+
+if TYPE_CHECKING:
+    from tt.sim.designs.trees import DesignTrees
 
 
 #: Fewest designs for which `DesignSpace.models` starts worker processes (a worker's start,
@@ -186,6 +189,31 @@ class DesignSpace(ABC):
                     f"continuous[{i}] ({p.name!r}) = {v!r} {p.unit} is outside [{p.low}, {p.high}] {p.unit}"
                 )
 
+    def validate_many(self, designs: Sequence[Design]) -> None:
+        """`validate` of every design (the first invalid one raises), with the discrete checks
+        done once per distinct structure and the continuous bounds as arrays."""
+        bounds: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        for design in designs:
+            if not isinstance(design, Design):
+                self.validate(design)
+            # The types join the key: True == 1 would otherwise pass for a checked index.
+            key = (design.space, tuple(design.discrete), tuple(type(v) for v in design.discrete))
+            if key not in bounds:
+                self.validate(design)
+                cparams = self.continuous_params(design.discrete)
+                tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
+                bounds[key] = (np.array([p.low for p in cparams]) - tol, np.array([p.high for p in cparams]) + tol)
+                continue
+            low, high = bounds[key]
+            values = design.continuous
+            ok = len(values) == len(low) and all(
+                isinstance(v, (float, int, np.floating)) and not isinstance(v, bool) for v in values)
+            if ok:
+                x = np.fromiter(values, dtype=float, count=len(low))
+                ok = bool(np.all(np.isfinite(x)) and np.all(low <= x) and np.all(x <= high))
+            if not ok:
+                self.validate(design)
+
     def to_mjcf(self, design: Design) -> str:
         """MJCF text of a design that `mujoco.MjModel.from_xml_string` loads."""
         self.validate(design)
@@ -198,6 +226,12 @@ class DesignSpace(ABC):
     def model(self, design: Design) -> mujoco.MjModel:
         """The compiled MuJoCo model of a design."""
         return mujoco.MjModel.from_xml_string(self.to_mjcf(design))
+
+    def trees(self, designs: Sequence[Design]) -> "DesignTrees | None":
+        """The designs compiled straight to tree-model fields (`tt.sim.designs.trees.DesignTrees`),
+        without MJCF or MuJoCo's compiler, for the warp backend; None where the space has no
+        such builder (its designs go through `models`). Raises `DesignError` for an invalid design."""
+        return None
 
     def models(self, designs: Sequence[Design], *, processes: int = 1) -> list[mujoco.MjModel]:
         """The compiled models of `designs`, in order (`model` of each).
@@ -381,6 +415,12 @@ class FixedStructureSpace(DesignSpace):
 
     def _mjcf(self, discrete, values, options) -> str:
         return self.base._mjcf(self.fixed, values, options)
+
+    def trees(self, designs: Sequence[Design]) -> "DesignTrees | None":
+        from dataclasses import replace
+
+        out = self.base.trees([self.to_base(d) for d in designs])
+        return None if out is None else replace(out, space=self.name)
 
     def to_base(self, design: Design) -> Design:
         """The same robot as a design of `base`."""

@@ -122,6 +122,18 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ])
 
 
+def quat_mul_batch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`quat_mul` of (..., 4) arrays of (w, x, y, z) quaternions, broadcast."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
 def axis_angle_quat(axis, angle: float) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of a rotation by `angle` [rad] about `axis`."""
     axis = np.asarray(axis, dtype=float)

@@ -27,7 +27,7 @@ the identity quaternion means "gripper pointing forward, level".
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -42,7 +42,12 @@ from tt.sim.designs.mjcf import (
     fmt,
     header_xml,
     quat_mul,
+    quat_mul_batch,
 )
+
+if TYPE_CHECKING:
+    from tt.sim.designs.chain_tree import ChainBatch
+    from tt.sim.designs.trees import DesignTrees
 
 MOUNTS = ("left", "right", "upright", "downward")
 DOFS = ("5", "6", "7")
@@ -112,28 +117,47 @@ _SEGMENTS = {
 }
 
 
+def segment_vectors(dof: str, dlens: np.ndarray) -> np.ndarray:
+    """Segment vectors [m] of a DoF variant for length changes `dlens` [m], (..., J) ->
+    (..., J, 3). With a 7-DoF arm the shoulder segment shrinks to the part below the
+    upper-arm roll; with 6 and 7 the elbow segment is the part before the forearm roll."""
+    names = _JOINTS[dof]
+    nominal = np.array([_SEGMENTS[n][1] for n in names])
+    if dof == "7":
+        nominal[names.index("shoulder")] = 0.10
+    if dof in ("6", "7"):
+        nominal[names.index("elbow")] = 0.10
+    direction = np.array([_SEGMENTS[n][0] for n in names], dtype=float)
+    return (nominal + np.asarray(dlens, dtype=float))[..., None] * direction
+
+
+def joint_axes(dof: str, axis_choices: np.ndarray) -> np.ndarray:
+    """Joint axes of a DoF variant, (..., J - 2) indices into `AXES` for every joint after
+    the shoulder -> (..., J, 3) (waist and shoulder keep their nominal axes)."""
+    names = _JOINTS[dof]
+    choices = np.asarray(axis_choices, dtype=np.int64)
+    table = np.array([_AXIS_VEC[a] for a in AXES])
+    fixed = np.array([_AXIS_VEC[_ROLES[n][0]] for n in names[:2]])
+    return np.concatenate([np.broadcast_to(fixed, choices.shape[:-1] + fixed.shape), table[choices]], axis=-2)
+
+
 def arm_parts(dof: str, axes: Sequence[str], dlens: Sequence[float], prefix_roles: bool = False) -> tuple[list[JointSpec], list[Segment]]:
     """Joints and segments of one ViperX-like arm.
 
-    axes: axis name for every joint after the shoulder; dlens: length change [m] per segment.
-    With a 7-DoF arm the shoulder segment shrinks to the part below the upper-arm roll.
+    axes: axis name for every joint after the shoulder; dlens: length change [m] per segment
+    (`segment_vectors`).
     """
     names = _JOINTS[dof]
     upper = names[2:]
     if len(axes) != len(upper) or len(dlens) != len(names):
         raise ValueError(f"{dof}-DoF arm needs {len(upper)} axes and {len(names)} length changes")
     axis_of = dict(zip(upper, axes))
+    vectors = segment_vectors(dof, np.asarray(dlens, dtype=float))
     joints, segments = [], []
-    for name, dl in zip(names, dlens):
+    for name, vec in zip(names, vectors):
         nominal_axis, rng, kp, servo, armature = _ROLES[name]
         joints.append(_joint(name, axis_of.get(name, nominal_axis), rng, kp, servo, armature))
-        direction, length, radius = _SEGMENTS[name]
-        if name == "shoulder" and dof == "7":
-            length = 0.10
-        if name == "elbow" and dof in ("6", "7"):
-            length = 0.10
-        vec = tuple(float(c) * (length + dl) for c in direction)
-        segments.append(Segment(vec, radius))
+        segments.append(Segment(tuple(float(c) for c in vec), _SEGMENTS[name][2]))
     return joints, segments
 
 
@@ -188,6 +212,65 @@ class ViperXSpace(DesignSpace):
   </actuator>
 </mujoco>
 """
+
+    def trees(self, designs: Sequence[Design]) -> "DesignTrees":
+        """The designs' tree fields without MJCF (`tt.sim.designs.chain_tree`): one MuJoCo
+        compile per DoF variant (the template), the rest numpy over the variant's designs."""
+        import torch
+
+        from tt.kernels.model import tree_fields
+        from tt.sim.designs.chain_tree import chain_fields, chain_sizes
+        from tt.sim.designs.trees import DesignTrees
+        from tt.sim.rewards import robot_size
+
+        designs = list(designs)
+        if not designs:
+            raise ValueError("designs is empty; trees needs at least one design")
+        groups: dict[int, list[int]] = {}
+        self.validate_many(designs)
+        for i, d in enumerate(designs):
+            groups.setdefault(int(d.discrete[1]), []).append(i)
+        sizes, masses = np.zeros(len(designs)), np.zeros(len(designs))
+        out = []
+        for dof_index, members in sorted(groups.items()):
+            dof = DOFS[dof_index]
+            chains = self._chains([designs[i] for i in members], dof)
+            template = self.model(designs[members[0]])
+            fields = chain_fields(tree_fields([template], self.ee_sites()), chains, base_body=1,
+                                  chain_bodies=range(2, 2 + len(_JOINTS[dof])))
+            # The base's geoms: the template's size less its chain's share.
+            base_size = float(robot_size([template], dtype=torch.float64)[0]) - float(chain_sizes(chains.take([0]))[0])
+            idx = np.asarray(members, dtype=np.int64)
+            sizes[idx] = base_size + chain_sizes(chains)
+            masses[idx] = fields.values["body_mass"][:, 1:].sum(axis=1)
+            out.append((idx, fields))
+        return DesignTrees(self.name, self.ee_sites(), tuple(out), sizes, masses)
+
+    def _chains(self, designs: Sequence[Design], dof: str) -> "ChainBatch":
+        """The chain arrays of valid designs of one DoF variant (what `_mjcf` writes as MJCF)."""
+        from tt.sim.designs.chain_tree import ChainBatch
+
+        names = _JOINTS[dof]
+        discrete = np.array([d.discrete for d in designs], dtype=np.int64)
+        continuous = np.array([d.continuous for d in designs], dtype=float)
+        cnames = [p.name for p in self.continuous_params(designs[0].discrete)]
+        col = {n: continuous[:, cnames.index(n)] for n in cnames}
+        base_pos, base_quat = mount_poses(discrete[:, 0], col)
+        vectors = segment_vectors(dof, np.stack([col[n] for n in segment_names(dof)], axis=-1))
+        radii = np.broadcast_to([_SEGMENTS[n][2] for n in names], (len(designs), len(names)))
+        return ChainBatch(base_pos, base_quat, joint_axes(dof, discrete[:, 2:]), vectors, np.array(radii),
+                          hinge=(True,) * len(names))
+
+
+def mount_poses(mounts: np.ndarray, values: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """`mount_pose` of N arms: mount indices into `MOUNTS` (N,) and value columns (N,) ->
+    positions (N, 3) [m] and quaternions (w, x, y, z) (N, 4)."""
+    pos = np.array([MOUNT_POSES[m][0] for m in MOUNTS], dtype=float)[mounts]
+    quat = np.array([MOUNT_POSES[m][1] for m in MOUNTS], dtype=float)[mounts]
+    pos = pos + np.stack([values["mount_x"], values["mount_y"], values["mount_z"]], axis=-1)
+    half = 0.5 * np.asarray(values["mount_yaw"], dtype=float)
+    yaw = np.stack([np.cos(half), 0.0 * half, 0.0 * half, np.sin(half)], axis=-1)
+    return pos, quat_mul_batch(yaw, quat)
 
 
 def mount_pose(mount: str, values: dict[str, float], nominal: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
