@@ -42,6 +42,7 @@ import torch
 
 from tt.dit.layout import Layout, LayoutError, slot_ids
 from tt.kernels.errors import TTError
+from tt.kernels.rotations import quat_to_mat
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
@@ -102,17 +103,6 @@ class RobotQuery:
         return int(self.target_pos.shape[2])
 
 
-def _rotation_matrix(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) (w, x, y, z) -> rotation matrices (..., 3, 3)."""
-    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(*q.shape[:-1], 3, 3)
-
-
 def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: int, *, placement: str = "even",
                 generator: torch.Generator | None = None, device: str | torch.device = "cpu") -> RobotQuery:
     """`count` motion-to-robot sequences conditioned on `motion` (see the module docstring).
@@ -154,7 +144,7 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
             raw = np.zeros((count, S, per, spec.dim))
             t = SCHEMA["target_pose"]
             raw[:, :, :arms, t.slice("pos")] = pos.numpy()
-            raw[:, :, :arms, t.slice("rot")] = _rotation_matrix(quat.numpy()).reshape(count, S, arms, 9)
+            raw[:, :, :arms, t.slice("rot")] = quat_to_mat(quat.numpy()).reshape(count, S, arms, 9)
             real = torch.zeros(count, S, per, dtype=torch.bool)
             real[:, :, :arms] = True
             real = real.reshape(count, S * per)

@@ -36,6 +36,8 @@ import mujoco
 import numpy as np
 import warp as wp
 
+from tt.kernels.rotations import quat_to_mat
+
 #: MuJoCo joint types that tt's kernels simulate.
 JOINT_SLIDE = int(mujoco.mjtJoint.mjJNT_SLIDE)
 JOINT_HINGE = int(mujoco.mjtJoint.mjJNT_HINGE)
@@ -638,7 +640,7 @@ def dof_invweight0(fields: TreeFields) -> np.ndarray:
     anchor_w = np.zeros((n, nv, 3))
     for b in range(1, nb):
         p = topo.body_parent[b]
-        rot = world_rot[:, p] @ _quat_to_mat(v["body_quat"][:, b])
+        rot = world_rot[:, p] @ quat_to_mat(v["body_quat"][:, b])
         pos = world_pos[:, p] + np.einsum("nij,nj->ni", world_rot[:, p], v["body_pos"][:, b])
         d = topo.body_dof[b]
         if d >= 0:
@@ -653,7 +655,7 @@ def dof_invweight0(fields: TreeFields) -> np.ndarray:
         if not support:
             continue
         com = world_pos[:, b] + np.einsum("nij,nj->ni", world_rot[:, b], v["body_ipos"][:, b])
-        irot = world_rot[:, b] @ _quat_to_mat(v["body_iquat"][:, b])
+        irot = world_rot[:, b] @ quat_to_mat(v["body_iquat"][:, b])
         inertia = np.einsum("nij,nj,nkj->nik", irot, v["body_inertia"][:, b], irot)
         jp = np.zeros((n, 3, nv))
         jr = np.zeros((n, 3, nv))
@@ -667,17 +669,6 @@ def dof_invweight0(fields: TreeFields) -> np.ndarray:
         mass_matrix += np.einsum("nki,nkl,nlj->nij", jr, inertia, jr)
     mass_matrix[:, np.arange(nv), np.arange(nv)] += v["dof_armature"]
     return np.diagonal(np.linalg.inv(mass_matrix), axis1=1, axis2=2).copy()
-
-
-def _quat_to_mat(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices of (w, x, y, z) quaternions (normalized here), (..., 3, 3)."""
-    q = quat / np.linalg.norm(quat, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
 
 
 @dataclass(frozen=True)

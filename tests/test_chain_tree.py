@@ -7,15 +7,16 @@ import numpy as np
 import pytest
 import torch
 
-from tt.kernels.model import FIELD_NAMES, _quat_to_mat, dof_invweight0, topology_key, tree_fields
+from tt.kernels.model import FIELD_NAMES, dof_invweight0, topology_key, tree_fields
+from tt.kernels.rotations import mat_to_quat, quat_to_mat
 from tt.sim.designs import Design, DesignError, get_space
-from tt.sim.designs.chain_tree import mat_to_quat, principal_frames
+from tt.sim.designs.chain_tree import principal_frames
 from tt.sim.rewards import robot_mass, robot_size
 
 
 def _tensor(fields):
     """Inertia tensors in the body frame, from the principal moments and frames, (n, NB, 3, 3)."""
-    rot = _quat_to_mat(fields.values["body_iquat"])
+    rot = quat_to_mat(fields.values["body_iquat"])
     return np.einsum("...ij,...j,...kj->...ik", rot, fields.values["body_inertia"], rot)
 
 
@@ -59,13 +60,13 @@ def test_principal_frames_rebuild_tensor():
     a = rng.normal(size=(50, 3, 3))
     tensor = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(3)
     moments, quat = principal_frames(tensor.copy())
-    rot = _quat_to_mat(quat)
+    rot = quat_to_mat(quat)
     np.testing.assert_allclose(np.einsum("nij,nj,nkj->nik", rot, moments, rot), tensor, atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(rot), 1.0, atol=1e-12)
     # Rotations near each of Shepperd's branches (w, x, y, z largest) round-trip.
     for q in np.eye(4) + 0.01:
         q = q / np.linalg.norm(q)
-        back = mat_to_quat(_quat_to_mat(q[None]))[0]
+        back = mat_to_quat(quat_to_mat(q[None]))[0]
         np.testing.assert_allclose(back, q * np.sign(q[0]), atol=1e-12)
 
 

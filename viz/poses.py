@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.rotations import quat_to_mat
 
 
 class PoseError(TTError):
@@ -57,21 +58,6 @@ def body_poses(model: mujoco.MjModel, qpos: np.ndarray, *, name: str = "model") 
         pos[t] = data.xpos
         quat[t] = data.xquat
     return BodyPoses(pos, quat)
-
-
-def quat_to_mat(quat: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions (w, x, y, z), (..., 4) -> (..., 3, 3)."""
-    q = np.asarray(quat, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
 
 
 def pose_matrix(pos: Sequence[float] | np.ndarray, quat: Sequence[float] | np.ndarray | None = None,

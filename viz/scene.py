@@ -28,9 +28,10 @@ import numpy as np
 import umsgpack
 
 from tt.kernels.errors import TTError
+from tt.kernels.rotations import quat_to_mat
 from tt.sim.motions.base import MOTION_DT, Motion
 from tt.viz.camera import CameraOptions, CameraView, frame_points
-from tt.viz.poses import BodyPoses, body_poses, pose_matrix, quat_to_mat
+from tt.viz.poses import BodyPoses, body_poses, pose_matrix
 from tt.viz.shapes import (
     ee_site_ids,
     frame_triad,

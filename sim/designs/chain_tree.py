@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from tt.kernels.model import TreeFields, dof_invweight0
+from tt.kernels.rotations import mat_to_quat
 from tt.sim.designs.mjcf import LINK_DENSITY
 
 #: Link vectors shorter than this [m] carry no capsule (`chain_xml` skips them).
@@ -90,28 +91,6 @@ def _shift(mass: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """Parallel-axis term m (|d|^2 I - d d^T) for point masses at `offset` (..., 3)."""
     return mass[..., None, None] * (np.einsum("...i,...i->...", offset, offset)[..., None, None] * np.eye(3)
                                     - offset[..., :, None] * offset[..., None, :])
-
-
-def mat_to_quat(rot: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) unit quaternions of proper rotation matrices (..., 3, 3) (Shepperd's
-    method: the largest of w, x, y, z is computed first, so no branch divides by ~0)."""
-    r = rot
-    trace = r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2]
-    cands = np.stack([
-        np.stack([1 + trace, r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], -1),
-        np.stack([r[..., 2, 1] - r[..., 1, 2], 1 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2], r[..., 0, 1] + r[..., 1, 0],
-                  r[..., 0, 2] + r[..., 2, 0]], -1),
-        np.stack([r[..., 0, 2] - r[..., 2, 0], r[..., 0, 1] + r[..., 1, 0], 1 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2],
-                  r[..., 1, 2] + r[..., 2, 1]], -1),
-        np.stack([r[..., 1, 0] - r[..., 0, 1], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1],
-                  1 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2]], -1),
-    ], -2)  # (..., 4, 4): row k is 4 q_k q
-    diag = np.stack([1 + trace, 1 + r[..., 0, 0] - r[..., 1, 1] - r[..., 2, 2], 1 - r[..., 0, 0] + r[..., 1, 1] - r[..., 2, 2],
-                     1 - r[..., 0, 0] - r[..., 1, 1] + r[..., 2, 2]], -1)
-    k = np.argmax(diag, axis=-1)
-    q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
 def principal_frames(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -184,4 +163,4 @@ def chain_sizes(chains: ChainBatch) -> np.ndarray:
     return links + 2.0 * chains.housing_radius * float(np.sum(chains.hinge))
 
 
-__all__ = ["ChainBatch", "chain_fields", "chain_sizes", "mat_to_quat", "principal_frames"]
+__all__ = ["ChainBatch", "chain_fields", "chain_sizes", "principal_frames"]
