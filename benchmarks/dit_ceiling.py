@@ -41,7 +41,8 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
     import warnings
 
     from tt.dit.layout import Role, layout_from_schema
-    from tt.guidance.predicted import _rotation_matrix, query_steps
+    from tt.guidance.predicted import query_steps
+    from tt.kernels.rotations import quat_to_mat
     from tt.tokens.draws import space_token_maxima
     from tt.tokens.tokenize import TokenizeWarning, Tokenizer
 
@@ -58,7 +59,7 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
     for m in motions:
         st = query_steps(m.steps, steps, 1)[0].numpy()
         pos = m.pos[st].reshape(steps, -1)
-        rot = _rotation_matrix(m.quat[st]).reshape(steps, -1)
+        rot = quat_to_mat(m.quat[st]).reshape(steps, -1)
         per_motion.append(np.concatenate([pos.ravel(), rot.ravel(), [m.steps / 1000.0]]))
     motion = np.stack(per_motion)
     D, M = len(designs), len(motions)

@@ -17,6 +17,7 @@ per topology:
   timestep), differentiable under `wp.Tape`; the float64 start posture on its own.
 * `control_step`: one control period of externally commanded worlds (the DiT controller's physics).
 * `pose`: pose errors and the tracking reward; `lie`, `ltdl`: their building blocks.
+* `rotations`: host-side (numpy) quaternion <-> matrix conversions every layer shares.
 
 For the other simulators' backends (`tt.sim.mjwarp_backend`, `tt.sim.newton_backend`):
 

@@ -558,15 +558,10 @@ def tree_model(
     def arr64(name, dtype):
         return wp.array(np.ascontiguousarray(np.asarray(v[name], dtype=np.float64)[entry]), dtype=dtype, device=device)
 
-    k64_types = {"body_pos": wp.vec3d, "body_quat": wp.vec4d, "dof_axis": wp.vec3d, "dof_pos": wp.vec3d,
-                 "dof_ref": wp.float64, "dof_range": wp.vec2d, "ee_pos": wp.vec3d, "ee_quat": wp.vec4d}
-    k64 = kinematics64(**{name: arr64(name, k64_types[name]) for name in KINEMATICS64_FIELDS})
-    types = {"body_pos": wp.vec3, "body_quat": wp.vec4, "body_ipos": wp.vec3, "body_iquat": wp.vec4,
-             "body_inertia": wp.vec3, "dof_axis": wp.vec3, "dof_pos": wp.vec3, "dof_range": wp.vec2,
-             "dof_limit_kb": wp.vec2, "act_bias": wp.vec3, "act_ctrlrange": wp.vec2, "act_forcerange": wp.vec2,
-             "ee_pos": wp.vec3, "ee_quat": wp.vec4, "gravity": wp.vec3}
+    # Each member's Warp dtype is its declaration's, so a new field needs no edit here.
+    k64 = kinematics64(**{name: arr64(name, Kinematics64.vars[name].type.dtype) for name in KINEMATICS64_FIELDS})
     # The arrays get requires_grad at allocation, before they enter the struct.
-    members = {name: arr(name, types.get(name, float)) for name in FIELD_NAMES if name != "limit_enabled"}
+    members = {name: arr(name, TreeArrays.vars[name].type.dtype) for name in FIELD_NAMES if name != "limit_enabled"}
     members["limit_enabled"] = wp.array(np.asarray(v["limit_enabled"], dtype=np.int32)[entry], dtype=wp.int32, device=device)
     members["limit_sweeps"] = wp.array([limit_sweeps], dtype=wp.int32, device=device)
     return TreeModel(

@@ -177,9 +177,10 @@ def _tree_groups(models: "Sequence[mujoco.MjModel] | DesignTrees", sites: tuple[
     """[(members, TreeFields)] per topology: `DesignTrees`' own groups, or compiled models
     read by `tt.kernels.model.tree_fields` (each distinct model object once)."""
     from tt.kernels.model import check_supported, topology_key, tree_fields
-    from tt.sim.designs.trees import DesignTrees
 
     if isinstance(models, DesignTrees):
+        if tuple(sites) != tuple(models.ee_sites):
+            raise ValueError(f"sites {list(sites)} differ from the designs' end effectors {list(models.ee_sites)}")
         return [(list(int(i) for i in members), fields) for members, fields in models.groups]
     for i, m in enumerate(models):
         check_fixed_base(m)
@@ -187,7 +188,13 @@ def _tree_groups(models: "Sequence[mujoco.MjModel] | DesignTrees", sites: tuple[
     groups: dict[tuple, list[int]] = {}
     for d, m in enumerate(models):
         groups.setdefault(topology_key(m, sites), []).append(d)
-    return [(members, tree_fields([models[d] for d in members], sites)) for members in groups.values()]
+    out = []
+    for members in groups.values():
+        first: dict[int, int] = {}  # model object -> its entry
+        entry = [first.setdefault(id(models[d]), len(first)) for d in members]
+        distinct = list({id(models[d]): models[d] for d in members}.values())
+        out.append((members, tree_fields(distinct, sites).take(entry)))
+    return out
 
 
 def _recorded(perturbed: bool) -> tuple[str, ...]:
@@ -253,7 +260,7 @@ def _rollout_warp(
     # Several topologies: copy each group's records into one zero-padded Episode.
     names = _recorded(perturbed)
     actuator_fields = ("ctrl", "action", "act_force", "act_vel") if perturbed else ("ctrl", "act_force", "act_vel")
-    sizes = {"qpos": nq, "qvel": nq}
+    sizes = {"qpos": nq, "qvel": nq}  # hinge/slide trees: nv == nq (`check_supported`)
     sizes.update({name: nu for name in actuator_fields})
     tdev = wp.device_to_torch(device)
     fields = {}

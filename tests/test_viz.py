@@ -27,7 +27,8 @@ from tt.viz.camera import CameraOptions, CameraView, frame_points
 from tt.viz.cli import ViewError, view_cmd
 from tt.viz.episode_file import EpisodeFileError, EpisodeRecord, load_episode_npz, save_episode_npz
 from tt.viz.html import scene_html, viewer_js_path, write_html
-from tt.viz.poses import PoseError, body_poses, quat_to_mat
+from tt.kernels.rotations import quat_to_mat
+from tt.viz.poses import PoseError, body_poses
 from tt.viz.scene import ROOT, SceneError, build_scene
 from tt.viz.screenshot import find_chromium, screenshot_html
 from tt.viz.shapes import capsule_mesh, rgba_to_hex

@@ -225,9 +225,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             motion_ids = rng.choice(len(base), size=K, replace=K > len(base))
             aug_seeds = rng.integers(0, 2**31, size=K)
             motions = [episode_motion(config, base[m], s) for m, s in zip(motion_ids, aug_seeds)]
-            # Built once, for the tokenizer and (MJCF compilation is a few ms per robot) for the
-            # rollout, unless the backend is warp and the space builds tree fields directly:
-            # every warp rollout of Designs simulates those, so `rollout(designs)` replays a shard.
+            # Models are built once (a few ms per robot) for the tokenizer and the rollout; on
+            # warp a space that builds tree fields directly rolls those out instead, as every
+            # warp rollout of Designs does, so `rollout(designs)` replays a shard bit for bit.
             models = [sp.model(d) for d in group]
             trees = sp.trees(group) if config.backend == "warp" else None
             ep = rollout(models if trees is None else trees, motions, backend=config.backend, device=device, action_noise=config.action_noise, threads=threads,

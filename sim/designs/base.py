@@ -198,7 +198,11 @@ class DesignSpace(ABC):
                 self.validate(design)
             # The types join the key: True == 1 would otherwise pass for a checked index.
             key = (design.space, tuple(design.discrete), tuple(type(v) for v in design.discrete))
-            if key not in bounds:
+            try:
+                known = key in bounds
+            except TypeError:  # an unhashable choice: validate names it
+                known = False
+            if not known:
                 self.validate(design)
                 cparams = self.continuous_params(design.discrete)
                 tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
@@ -230,7 +234,8 @@ class DesignSpace(ABC):
     def trees(self, designs: Sequence[Design]) -> "DesignTrees | None":
         """The designs compiled straight to tree-model fields (`tt.sim.designs.trees.DesignTrees`),
         without MJCF or MuJoCo's compiler, for the warp backend; None where the space has no
-        such builder (its designs go through `models`). Raises `DesignError` for an invalid design."""
+        such builder (its designs go through `models`). A space with a builder raises
+        `DesignError` for an invalid design."""
         return None
 
     def models(self, designs: Sequence[Design], *, processes: int = 1) -> list[mujoco.MjModel]:
@@ -417,9 +422,11 @@ class FixedStructureSpace(DesignSpace):
         return self.base._mjcf(self.fixed, values, options)
 
     def trees(self, designs: Sequence[Design]) -> "DesignTrees | None":
+        """`base`'s tree fields of the same robots (see `DesignSpace.trees`)."""
         from dataclasses import replace
 
-        out = self.base.trees([self.to_base(d) for d in designs])
+        self.validate_many(designs)
+        out = self.base.trees([Design(self.base.name, self.fixed, tuple(d.continuous)) for d in designs])
         return None if out is None else replace(out, space=self.name)
 
     def to_base(self, design: Design) -> Design:

@@ -116,7 +116,15 @@ def chain_fields(template: TreeFields, chains: ChainBatch, *, base_body: int, ch
     if chains.axes.shape != (n, J, 3) or chains.vectors.shape != (n, J, 3) or chains.radii.shape != (n, J):
         raise ValueError(f"chains of {J} joints need axes and vectors (N, {J}, 3) and radii (N, {J}); got "
                          f"{chains.axes.shape}, {chains.vectors.shape}, {chains.radii.shape}")
+    if chains.base_pos.shape != (n, 3) or chains.base_quat.shape != (n, 4):
+        raise ValueError(f"base_pos and base_quat need shapes ({n}, 3) and ({n}, 4); got "
+                         f"{chains.base_pos.shape}, {chains.base_quat.shape}")
+    if template.count != 1:
+        raise ValueError(f"the template has {template.count} entries; chain_fields needs one compiled design")
     topo = template.topology
+    jointless = [b for b in chain_bodies if topo.body_dof[b] < 0]
+    if jointless:
+        raise ValueError(f"chain bodies {jointless} carry no joint; every chain body holds one")
     out = template.take(np.zeros(n, dtype=np.int64))
     v = {k: np.array(a, copy=True) for k, a in out.values.items()}
     v["body_pos"][:, base_body] = chains.base_pos
