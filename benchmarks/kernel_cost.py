@@ -46,7 +46,7 @@ def _kernels(topology):
     from tt.kernels.dynamics import dynamics_funcs
     from tt.kernels.fk import kinematics_funcs
     from tt.kernels.ik import IKWeights, ik_funcs
-    from tt.kernels.model import MODULE_OPTIONS, TreeArrays, local_types, module_name
+    from tt.kernels.model import MODULE_OPTIONS, TreeArrays, local_types, module_name, topology_constants
 
     module = module_name(topology, "cost")
     wp.set_module_options(MODULE_OPTIONS, module)
@@ -55,7 +55,7 @@ def _kernels(topology):
     Dyn = dynamics_funcs(topology)
     IK = ik_funcs(topology)
     NV, NB, NE, NU = topology.dof_count, topology.body_count, topology.ee_count, topology.actuator_count
-    ACT_DOF = topology.actuator_dof
+    ACT_DOF = topology_constants(topology).actuator_dof
 
     @wp.kernel(module=module)
     def fk_only(model: TreeArrays, q0: wp.array2d(dtype=float), iterations: int, out: wp.array(dtype=float)):
@@ -80,7 +80,7 @@ def _kernels(topology):
             q[d] = q0[w, d]
         ctrl = T.act_vec()
         for u in range(NU):
-            ctrl[u] = q0[w, wp.static(ACT_DOF[u])]
+            ctrl[u] = q0[w, ACT_DOF[u]]
         for i in range(iterations):
             q, qd, force, vel, active = Dyn.step(w, model, q, qd, ctrl)
         acc = float(0.0)

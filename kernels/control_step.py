@@ -70,7 +70,7 @@ def make_control_step_kernel(topology: Topology, module: str):
             act_vel_out[worldid, u] = vel1[u]
         xpos1, xquat1, axis1, anchor1 = K.kinematics(mid, model, q1)
         for e in range(NE):
-            p, r = wp.static(K.site_pose[e])(xpos1, xquat1, model, mid)
+            p, r = K.site_pose(e, xpos1, xquat1, model, mid)
             ee_pos_out[worldid, e] = p
             ee_quat_out[worldid, e] = wxyz(r)
 

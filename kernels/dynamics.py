@@ -32,7 +32,7 @@ import numpy as np
 import warp as wp
 
 from tt.kernels.fk import kinematics_funcs
-from tt.kernels.ltdl import ltdl_funcs, ltdl_ops
+from tt.kernels.ltdl import ltdl_funcs
 from tt.kernels.model import (
     JOINT_HINGE,
     MJ_MAXIMP,
@@ -44,6 +44,7 @@ from tt.kernels.model import (
     TreeModel,
     local_types,
     module_name,
+    topology_constants,
 )
 
 
@@ -112,12 +113,9 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
     K = kinematics_funcs(topology)
     DIFFERENTIABLE = differentiable
     NB, NV, NU = topology.body_count, topology.dof_count, topology.actuator_count
-    PARENT = topology.body_parent
-    BDOF = topology.body_dof
-    DOF_BODY = topology.dof_body
-    DTYPE = topology.dof_type
-    ACT_DOF = topology.actuator_dof
-    _, _, _, PAIRS = ltdl_ops(topology.dof_parent)
+    C = topology_constants(topology)
+    PARENT, BDOF, DOF_BODY, DTYPE, ACT_DOF = C.body_parent, C.body_dof, C.dof_body, C.dof_type, C.actuator_dof
+    DOF_SUPPORT = C.dof_support
     LTDL = ltdl_funcs(topology.dof_parent, T.dof_mat, T.dof_vec)
     factor = LTDL.factor
     solve = LTDL.solve
@@ -154,7 +152,7 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         s_ang = T.dof_vec3()
         s_lin = T.dof_vec3()
         for d in range(NV):
-            if wp.static(DTYPE[d] == JOINT_HINGE):
+            if DTYPE[d] == JOINT_HINGE:
                 s_ang[d] = axis[d]
                 s_lin[d] = wp.cross(anchor[d] - ref, axis[d])
             else:
@@ -168,9 +166,9 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         # (No second name for them: with differentiable component writes an alias would
         # stop seeing the updates.)
         for k in range(1, NB):
-            b = wp.static(NB - k)
-            p = wp.static(PARENT[NB - k])
-            if wp.static(PARENT[NB - k] > 0):
+            b = NB - k
+            p = PARENT[b]
+            if p > 0:
                 bm[p] = bm[p] + bm[b]
                 bh[p] = bh[p] + bh[b]
                 bJ[p] = bJ[p] + bJ[b]
@@ -178,16 +176,17 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         FL = T.dof_vec3()
         FP = T.dof_vec3()
         for i in range(NV):
-            b = wp.static(DOF_BODY[i])
+            b = DOF_BODY[i]
             w = s_ang[i]
             v = s_lin[i]
             FL[i] = _mat33(bJ[b]) @ w + wp.cross(bh[b], v)
             FP[i] = bm[b] * v + wp.cross(w, bh[b])
         M = T.dof_mat()
-        for n in range(wp.static(len(PAIRS))):
-            i = wp.static(PAIRS[n][0])
-            j = wp.static(PAIRS[n][1])
-            M[i, j] = wp.dot(s_ang[j], FL[i]) + wp.dot(s_lin[j], FP[i])
+        # The lower triangle on the tree pattern: j = i or an ancestor of i.
+        for i in range(NV):
+            for j in range(NV):
+                if (DOF_SUPPORT[i] >> j) & 1 != 0:
+                    M[i, j] = wp.dot(s_ang[j], FL[i]) + wp.dot(s_lin[j], FP[i])
         return M
 
     @wp.func
@@ -209,13 +208,13 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         f_lin = T.body_vec3()
         a_lin[0] = -gravity
         for b in range(1, NB):
-            p = wp.static(PARENT[b])
+            p = PARENT[b]
             w = v_ang[p]
             v = v_lin[p]
             aw = a_ang[p]
             av = a_lin[p]
-            if wp.static(BDOF[b] >= 0):
-                d = wp.static(BDOF[b])
+            if BDOF[b] >= 0:
+                d = BDOF[b]
                 sw = s_ang[d]
                 sv = s_lin[d]
                 # d/dt of the dof's axis moving with the parent: (w, v) x s.
@@ -236,14 +235,14 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
             f_ang[b] = J @ aw + wp.cross(h, av) + wp.cross(w, L) + wp.cross(v, P)
             f_lin[b] = m * av + wp.cross(aw, h) + wp.cross(w, P)
         for k in range(1, NB):
-            b = wp.static(NB - k)
-            p = wp.static(PARENT[NB - k])
-            if wp.static(PARENT[NB - k] > 0):
+            b = NB - k
+            p = PARENT[b]
+            if p > 0:
                 f_ang[p] = f_ang[p] + f_ang[b]
                 f_lin[p] = f_lin[p] + f_lin[b]
         bias = T.dof_vec()
         for d in range(NV):
-            b = wp.static(DOF_BODY[d])
+            b = DOF_BODY[d]
             bias[d] = wp.dot(s_ang[d], f_ang[b]) + wp.dot(s_lin[d], f_lin[b])
         return bias
 
@@ -254,7 +253,7 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         act_force = T.act_vec()
         act_vel = T.act_vec()
         for u in range(NU):
-            d = wp.static(ACT_DOF[u])
+            d = ACT_DOF[u]
             gear = model.act_gear[mid, u]
             cr = model.act_ctrlrange[mid, u]
             fr = model.act_forcerange[mid, u]

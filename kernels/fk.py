@@ -20,7 +20,17 @@ import numpy as np
 import warp as wp
 
 from tt.kernels.lie import lie_funcs, wxyz
-from tt.kernels.model import JOINT_HINGE, MODULE_OPTIONS, Kinematics64, Topology, TreeArrays, TreeModel, local_types, module_name
+from tt.kernels.model import (
+    JOINT_HINGE,
+    MODULE_OPTIONS,
+    Kinematics64,
+    Topology,
+    TreeArrays,
+    TreeModel,
+    local_types,
+    module_name,
+    topology_constants,
+)
 
 
 def model_struct(dtype=wp.float32):
@@ -43,10 +53,14 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
     kinematics(mid, model, q)
         -> (xpos (NB, 3) [m], xquat (NB, 4) (w, x, y, z), axis (NV, 3), anchor (NV, 3) [m]):
         body frames, and each dof's world axis and anchor, for joint positions q (NV,).
-    site_pose[e](xpos, xquat, model, mid) -> (pos vec3 [m], quat) of
-        end effector e (one function per end effector; call as ``wp.static(F.site_pose[e])``).
-    site_jacobian[e](axis, anchor, point) -> (6, NV) world-frame Jacobian of end effector e
+    site_pose(e, xpos, xquat, model, mid) -> (pos vec3 [m], quat) of end effector e.
+    site_jacobian(e, axis, anchor, point) -> (6, NV) world-frame Jacobian of end effector e
         at world point `point` (its site position).
+
+    The topology enters as constant index vectors (`topology_constants`), indexed by the
+    unrolled loop counters; the C++ compiler folds them and the branches on them, and Warp
+    hashes them as constants (no per-process code generation, see `tt.kernels.generated`).
+    The site functions are inlined so that a constant `e` folds too.
     """
     T = local_types(topology, dtype)
     LIE = lie_funcs(dtype)
@@ -54,14 +68,8 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
     Model = model_struct(dtype)
     NB = topology.body_count
     NV = topology.dof_count
-    PARENT = topology.body_parent
-    BDOF = topology.body_dof
-    DTYPE = topology.dof_type
-    EE_BODY = topology.ee_body
-    # dof -> 1.0 if the dof moves end effector e, else 0.0, (NE, NV) as nested tuples.
-    EE_SUPPORT = tuple(
-        tuple(1.0 if d in topology.body_support(b) else 0.0 for d in range(NV)) for b in EE_BODY
-    )
+    C = topology_constants(topology)
+    PARENT, BDOF, DTYPE, EE_BODY, EE_SUPPORT = C.body_parent, C.body_dof, C.dof_type, C.ee_body, C.ee_support
 
     @wp.func
     def kinematics(mid: int, model: Model, q: T.dof_vec):
@@ -71,19 +79,19 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
         anchor = T.dof_vec3()
         xquat[0] = vec4(S(1.0), S(0.0), S(0.0), S(0.0))
         for b in range(1, NB):
-            p = wp.static(PARENT[b])
+            p = PARENT[b]
             rot_p = LIE.quat_wxyz(xquat[p])
             pos = xpos[p] + wp.quat_rotate(rot_p, model.body_pos[mid, b])
             rot = rot_p * LIE.quat_wxyz(model.body_quat[mid, b])
-            if wp.static(BDOF[b] >= 0):
-                d = wp.static(BDOF[b])
+            if BDOF[b] >= 0:
+                d = BDOF[b]
                 jaxis = model.dof_axis[mid, d]
                 jpos = model.dof_pos[mid, d]
                 a = wp.quat_rotate(rot, jaxis)
                 c = pos + wp.quat_rotate(rot, jpos)
                 axis[d] = a
                 anchor[d] = c
-                if wp.static(DTYPE[d] == JOINT_HINGE):
+                if DTYPE[d] == JOINT_HINGE:
                     rot = rot * wp.quat_from_axis_angle(jaxis, q[d] - model.dof_ref[mid, d])
                     pos = c - wp.quat_rotate(rot, jpos)
                 else:
@@ -92,44 +100,33 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
             xquat[b] = LIE.wxyz(wp.normalize(rot))
         return xpos, xquat, axis, anchor
 
-    def make_site_funcs(e: int):
-        B = EE_BODY[e]
-        SUPPORT = EE_SUPPORT[e]
+    @wp.func(inline=True)
+    def site_pose(e: int, xpos: T.body_vec3, xquat: T.body_vec4, model: Model, mid: int):
+        b = EE_BODY[e]
+        rot = LIE.quat_wxyz(xquat[b])
+        return xpos[b] + wp.quat_rotate(rot, model.ee_pos[mid, e]), rot * LIE.quat_wxyz(model.ee_quat[mid, e])
 
-        @wp.func
-        def site_pose(xpos: T.body_vec3, xquat: T.body_vec4, model: Model, mid: int):
-            rot = LIE.quat_wxyz(xquat[B])
-            return xpos[B] + wp.quat_rotate(rot, model.ee_pos[mid, e]), rot * LIE.quat_wxyz(model.ee_quat[mid, e])
+    @wp.func(inline=True)
+    def site_jacobian(e: int, axis: T.dof_vec3, anchor: T.dof_vec3, point: vec3):
+        jac = T.ee_jac()
+        for d in range(NV):
+            if (EE_SUPPORT[e] >> d) & 1 != 0:
+                a = axis[d]
+                if DTYPE[d] == JOINT_HINGE:
+                    lin = wp.cross(a, point - anchor[d])
+                    jac[0, d] = lin[0]
+                    jac[1, d] = lin[1]
+                    jac[2, d] = lin[2]
+                    jac[3, d] = a[0]
+                    jac[4, d] = a[1]
+                    jac[5, d] = a[2]
+                else:
+                    jac[0, d] = a[0]
+                    jac[1, d] = a[1]
+                    jac[2, d] = a[2]
+        return jac
 
-        @wp.func
-        def site_jacobian(axis: T.dof_vec3, anchor: T.dof_vec3, point: vec3):
-            jac = T.ee_jac()
-            for d in range(NV):
-                if wp.static(SUPPORT[d] > 0.0):
-                    a = axis[d]
-                    if wp.static(DTYPE[d] == JOINT_HINGE):
-                        lin = wp.cross(a, point - anchor[d])
-                        jac[0, d] = lin[0]
-                        jac[1, d] = lin[1]
-                        jac[2, d] = lin[2]
-                        jac[3, d] = a[0]
-                        jac[4, d] = a[1]
-                        jac[5, d] = a[2]
-                    else:
-                        jac[0, d] = a[0]
-                        jac[1, d] = a[1]
-                        jac[2, d] = a[2]
-            return jac
-
-        return site_pose, site_jacobian
-
-    site_funcs = [make_site_funcs(e) for e in range(len(EE_BODY))]
-
-    return SimpleNamespace(
-        kinematics=kinematics,
-        site_pose=tuple(f[0] for f in site_funcs),
-        site_jacobian=tuple(f[1] for f in site_funcs),
-    )
+    return SimpleNamespace(kinematics=kinematics, site_pose=site_pose, site_jacobian=site_jacobian)
 
 
 def make_fk_kernel(topology: Topology, module: str):
@@ -161,10 +158,10 @@ def make_fk_kernel(topology: Topology, module: str):
             xpos_out[worldid, b] = xpos[b]
             xquat_out[worldid, b] = xquat[b]
         for e in range(NE):
-            p, r = wp.static(F.site_pose[e])(xpos, xquat, model, mid)
+            p, r = F.site_pose(e, xpos, xquat, model, mid)
             site_pos_out[worldid, e] = p
             site_quat_out[worldid, e] = wxyz(r)
-            jac = wp.static(F.site_jacobian[e])(axis, anchor, p)
+            jac = F.site_jacobian(e, axis, anchor, p)
             for i in range(6):
                 for d in range(NV):
                     site_jac_out[worldid, e, i, d] = jac[i, d]

@@ -97,8 +97,8 @@ def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
         g = T.dof_vec()
         mu = S(0.0)
         for e in range(NE):
-            p, r = wp.static(K.site_pose[e])(xpos, xquat, model, mid)
-            jac = wp.static(K.site_jacobian[e])(axis, anchor, p)
+            p, r = K.site_pose(e, xpos, xquat, model, mid)
+            jac = K.site_jacobian(e, axis, anchor, p)
             rinv = wp.quat_inverse(r)
             ev, ew = LIE.se3_log(rinv * LIE.quat_wxyz(target_quat[e]), wp.quat_rotate(rinv, target_pos[e] - p))
             A, B = LIE.se3_jlog(ev, ew)
@@ -115,7 +115,7 @@ def _ik_funcs(topology: Topology, dtype) -> SimpleNamespace:
             for i in range(NV):
                 g[i] = g[i] - cp2 * wp.dot(Jv[i], ev) - co2 * wp.dot(Jw[i], ew)
                 for j in range(NV):
-                    if wp.static(j <= i):
+                    if j <= i:
                         H[i, j] = H[i, j] + cp2 * wp.dot(Jv[i], Jv[j]) + co2 * wp.dot(Jw[i], Jw[j])
             mu += S(weights.lm_damping) * (cp2 * wp.dot(ev, ev) + co2 * wp.dot(ew, ew))
         cq2 = S(weights.posture_cost) * S(weights.posture_cost)

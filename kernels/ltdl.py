@@ -11,7 +11,7 @@ is straight-line arithmetic on thread-local matrices.
 import functools
 from types import SimpleNamespace
 
-import warp as wp
+from tt.kernels.generated import generated_func
 
 
 def ltdl_ops(parent: tuple[int, ...]):
@@ -52,42 +52,30 @@ def ltdl_funcs(parent: tuple[int, ...], mat_type: type, vec_type: type) -> Simpl
     """factor(A) -> (L, D) and solve(L, D, b) -> A^-1 b for the sparsity of `parent`.
 
     A: (n, n) `mat_type`, only its lower triangle on the tree pattern is read; L holds the
-    strict lower factor, D (n,) `vec_type` the diagonal.
+    strict lower factor, D (n,) `vec_type` the diagonal. Both are written out step by step
+    with literal indices (`tt.kernels.generated`).
     """
-    FACTOR, SOLVE_UP, SOLVE_DOWN, _ = ltdl_ops(parent)
-    N = len(parent)
-
-    @wp.func
-    def factor(A: mat_type):
-        L = mat_type()
-        for n in range(wp.static(len(FACTOR))):
-            k = wp.static(FACTOR[n][0])
-            i = wp.static(FACTOR[n][1])
-            j = wp.static(FACTOR[n][2])
-            if wp.static(FACTOR[n][3]):
-                L[k, i] = A[k, i] / A[k, k]
-            A[i, j] = A[i, j] - L[k, i] * A[k, j]
-        D = vec_type()
-        for d in range(N):
-            D[d] = A[d, d]
-        return L, D
-
-    @wp.func
-    def solve(L: mat_type, D: vec_type, x: vec_type):
-        # x arrives as b and is overwritten with the solution (no alias: see dynamics.py).
-        for n in range(wp.static(len(SOLVE_UP))):
-            k = wp.static(SOLVE_UP[n][0])
-            i = wp.static(SOLVE_UP[n][1])
-            x[i] = x[i] - L[k, i] * x[k]
-        for d in range(N):
-            x[d] = x[d] / D[d]
-        for n in range(wp.static(len(SOLVE_DOWN))):
-            i = wp.static(SOLVE_DOWN[n][0])
-            j = wp.static(SOLVE_DOWN[n][1])
-            x[i] = x[i] - L[i, j] * x[j]
-        return x
-
-    return SimpleNamespace(factor=factor, solve=solve)
+    factor_ops, solve_up, solve_down, _ = ltdl_ops(parent)
+    n = len(parent)
+    factor = ["def factor(A: mat_type):", "    L = mat_type()"]
+    for k, i, j, first in factor_ops:
+        if first:
+            factor.append(f"    L[{k}, {i}] = A[{k}, {i}] / A[{k}, {k}]")
+        factor.append(f"    A[{i}, {j}] = A[{i}, {j}] - L[{k}, {i}] * A[{k}, {j}]")
+    factor.append("    D = vec_type()")
+    factor += [f"    D[{d}] = A[{d}, {d}]" for d in range(n)]
+    factor.append("    return L, D")
+    # x arrives as b and is overwritten with the solution (no alias: see dynamics.py).
+    solve = ["def solve(L: mat_type, D: vec_type, x: vec_type):"]
+    solve += [f"    x[{i}] = x[{i}] - L[{k}, {i}] * x[{k}]" for k, i in solve_up]
+    solve += [f"    x[{d}] = x[{d}] / D[{d}]" for d in range(n)]
+    solve += [f"    x[{i}] = x[{i}] - L[{i}, {j}] * x[{j}]" for i, j in solve_down]
+    solve.append("    return x")
+    names = {"mat_type": mat_type, "vec_type": vec_type}
+    return SimpleNamespace(
+        factor=generated_func("factor", "\n".join(factor) + "\n", names, module=__name__),
+        solve=generated_func("solve", "\n".join(solve) + "\n", names, module=__name__),
+    )
 
 
 def chain(n: int) -> tuple[int, ...]:

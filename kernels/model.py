@@ -725,6 +725,56 @@ def _local_types(topology: Topology, dtype) -> LocalTypes:
     )
 
 
+#: Dof sets are bit masks of int32 constants (`topology_constants`).
+MAX_DOFS = 31
+
+
+@dataclass(frozen=True)
+class TopologyConstants:
+    """A topology's index lists as Warp int32 vectors, for kernels to index with their
+    unrolled loop counters (each at least one entry long; padding is 0).
+
+    body_parent, body_dof: (body_count,); dof_type, dof_body: (dof_count,);
+    actuator_dof: (actuator_count,); ee_body: (ee_count,).
+    ee_support: per end effector, the dofs that move it, as a bit mask (bit d: dof d).
+    dof_support: per dof, itself and its ancestor dofs, as a bit mask.
+    """
+
+    body_parent: object
+    body_dof: object
+    dof_type: object
+    dof_body: object
+    actuator_dof: object
+    ee_body: object
+    ee_support: object
+    dof_support: object
+
+
+@functools.cache
+def topology_constants(topology: Topology) -> TopologyConstants:
+    """The `TopologyConstants` of a topology (cached: one set of vectors)."""
+    if topology.dof_count > MAX_DOFS:
+        raise ValueError(f"a tree has {topology.dof_count} dofs; tt's kernels take at most {MAX_DOFS}")
+
+    def ints(values) -> object:
+        values = tuple(int(v) for v in values) or (0,)
+        return wp.types.vector(length=len(values), dtype=wp.int32)(*values)
+
+    def mask(dofs) -> int:
+        return sum(1 << d for d in dofs)
+
+    return TopologyConstants(
+        body_parent=ints(topology.body_parent),
+        body_dof=ints(topology.body_dof),
+        dof_type=ints(topology.dof_type),
+        dof_body=ints(topology.dof_body),
+        actuator_dof=ints(topology.actuator_dof),
+        ee_body=ints(topology.ee_body),
+        ee_support=ints(mask(topology.body_support(b)) for b in topology.ee_body),
+        dof_support=ints(mask(topology.dof_support(d)) for d in range(topology.dof_count)),
+    )
+
+
 def module_name(topology: Topology, family: str) -> str:
     """Warp module holding one family of a topology's kernels ("fk", "dynamics", "ik",
     "rollout", "rollout_grad"): each compiles once per topology, on its first launch, and

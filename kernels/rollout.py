@@ -65,7 +65,16 @@ from tt.kernels.dynamics import dynamics_funcs
 from tt.kernels.fk import kinematics_funcs
 from tt.kernels.ik import IKWeights, ik_funcs
 from tt.kernels.lie import wxyz
-from tt.kernels.model import MODULE_OPTIONS, Kinematics64, Topology, TreeArrays, TreeModel, local_types, module_name
+from tt.kernels.model import (
+    MODULE_OPTIONS,
+    Kinematics64,
+    Topology,
+    TreeArrays,
+    TreeModel,
+    local_types,
+    module_name,
+    topology_constants,
+)
 from tt.kernels.pose import position_error
 
 if TYPE_CHECKING:
@@ -92,7 +101,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
     Dyn = dynamics_funcs(topology, differentiable)
     IK = ik_funcs(topology)
     NV, NU, NE = topology.dof_count, topology.actuator_count, topology.ee_count
-    ACT_DOF = topology.actuator_dof
+    ACT_DOF = topology_constants(topology).actuator_dof
 
     @wp.kernel(module=module)
     def _rollout(
@@ -174,7 +183,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                 ctrl = T.act_vec()
                 for u in range(NU):
                     cr = model.act_ctrlrange[mid, u]
-                    ctrl[u] = wp.clamp(q_cmd[wp.static(ACT_DOF[u])], cr[0], cr[1])
+                    ctrl[u] = wp.clamp(q_cmd[ACT_DOF[u]], cr[0], cr[1])
                 if noise_std > 0.0:
                     # Control perturbation: log the clean command, execute a noisy one.
                     rng = _noise_state(noise_seed, noise_world_in[worldid], t)
@@ -215,7 +224,7 @@ def make_rollout_kernel(topology: Topology, module: str, differentiable: bool = 
                 xpos1, xquat1, axis1, anchor1 = K.kinematics(mid, model, q1)
                 error = float(0.0)
                 for e in range(NE):
-                    p, r = wp.static(K.site_pose[e])(xpos1, xquat1, model, mid)
+                    p, r = K.site_pose(e, xpos1, xquat1, model, mid)
                     ee_pos_out[worldid, t, e] = p
                     ee_quat_out[worldid, t, e] = wxyz(r)
                     error += position_error(p, motion_pos_in[motionid, record, e])
@@ -311,9 +320,11 @@ def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequen
     """Hash and build (or load from the kernel cache) the forward rollout module of each
     distinct topology of `models` on `device`, as the first `rollout_tree` launch would.
 
-    Warp's module hash runs the whole code generation in Python (about a second per fused
-    rollout module on a 2-core CPU), so a caller with idle time, e.g. while worker processes compile models, can
-    take it off the rollout's critical path. Loading twice is a no-op.
+    A module missing from the kernel cache takes seconds to build (about 12 s per fused
+    rollout module on a 2-core CPU; a cached one loads in milliseconds, its hash needs no
+    code generation, see `tt.kernels.generated`), so a caller with idle time, e.g. while
+    worker processes compile models, can take the build off the rollout's critical path.
+    Loading twice is a no-op.
     """
     from tt.kernels.model import topology_key, topology_of
 

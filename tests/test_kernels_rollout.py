@@ -238,3 +238,28 @@ def test_gradients_through_active_joint_limits_match_float64_finite_differences(
             # kp enters as gain and as bias b1 = -kp: the chain rule adds the bias gradient.
             adjoint -= float(tree.arrays.act_bias.grad.numpy()[0][index[0]][1])
         assert abs(adjoint - fd) <= GRAD_REL_TOL * max(abs(fd), 1e-2), (name, index, adjoint, fd)
+
+
+@pytest.mark.parametrize("space", ["viperx", "bimanual"])
+def test_per_topology_modules_hash_without_code_generation(space):
+    """tt's per-topology kernels write the topology in as constants (no `wp.static` that
+    depends on a loop counter), so Warp hashes their modules from source and constants and
+    a cached module loads without Python code generation (about a second per rollout
+    module otherwise). This reads Warp's own flag for "needs codegen to hash" on every
+    module the rollout kernels draw functions from."""
+    from tt.kernels.control_step import control_step_kernel
+    from tt.kernels.fk import fk_kernel
+    from tt.kernels.model import topology_of
+    from tt.kernels.rollout import grad_kernels, rollout_kernels
+
+    sp = get_space(space)
+    top = topology_of(sp.model(sp.nominal()), sp.ee_sites())
+    kernels = rollout_kernels(top)
+    grads = grad_kernels(top)
+    fk_kernel(top)
+    control_step_kernel(top)
+    modules = {kernels.module, grads.module, "tt.kernels.fk", "tt.kernels.dynamics", "tt.kernels.ik", "tt.kernels.ltdl"}
+    for name in sorted(modules):
+        assert not wp.get_module(name).has_unresolved_static_expressions, name
+    for kernel in (kernels.rollout, kernels.initial_posture, grads.rollout):
+        assert not kernel.adj.has_unresolved_static_expressions, kernel.key
