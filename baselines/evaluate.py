@@ -85,10 +85,11 @@ def _models(sp, designs: Sequence[Design], *, backend: str, device: str | None, 
     """`sp.models(designs)`, one worker process per rollout thread for large batches; on
     "warp", this process meanwhile loads the rollout kernels of the batch's structures.
 
-    Warp hashes a module by generating its code in Python (about a second per fused rollout
-    module here), and the workers leave this process idle, so the hash and the cache load
-    come off the rollout's critical path. One model per distinct discrete structure names
-    the topologies; one that the batch turns out not to use costs only its load.
+    A cached module loads in milliseconds, but one missing from Warp's kernel cache takes
+    seconds to build (about 12 s per fused rollout module here), and the workers leave this
+    process idle, so the build comes off the rollout's critical path. One model per distinct
+    discrete structure names the topologies; one that the batch turns out not to use costs
+    only its load.
     """
     import threading
 
