@@ -21,7 +21,6 @@ def ltdl_ops(parent: tuple[int, ...]):
         then A[i, j] -= L[k, i] A[k, j] (j = i and its ancestors).
     solve_up: (k, i), k descending: x[i] -= L[k, i] x[k].
     solve_down: (i, j), i ascending: x[i] -= L[i, j] x[j].
-    pairs: (i, j) with j = i or an ancestor of i: the structurally nonzero lower triangle.
     """
     n = len(parent)
 
@@ -43,8 +42,7 @@ def ltdl_ops(parent: tuple[int, ...]):
                 factor.append((k, i, j, m == 0))
     solve_up = [(k, i) for k in reversed(range(n)) for i in ancestors(k)]
     solve_down = [(i, j) for i in range(n) for j in reversed(ancestors(i))]
-    pairs = [(i, j) for i in range(n) for j in [i] + ancestors(i)]
-    return tuple(factor), tuple(solve_up), tuple(solve_down), tuple(pairs)
+    return tuple(factor), tuple(solve_up), tuple(solve_down)
 
 
 @functools.cache
@@ -55,7 +53,7 @@ def ltdl_funcs(parent: tuple[int, ...], mat_type: type, vec_type: type) -> Simpl
     strict lower factor, D (n,) `vec_type` the diagonal. Both are written out step by step
     with literal indices (`tt.kernels.generated`).
     """
-    factor_ops, solve_up, solve_down, _ = ltdl_ops(parent)
+    factor_ops, solve_up, solve_down = ltdl_ops(parent)
     n = len(parent)
     factor = ["def factor(A: mat_type):", "    L = mat_type()"]
     for k, i, j, first in factor_ops:

@@ -249,7 +249,7 @@ def test_per_topology_modules_hash_without_code_generation(space):
     module the rollout kernels draw functions from."""
     from tt.kernels.control_step import control_step_kernel
     from tt.kernels.fk import fk_kernel
-    from tt.kernels.model import topology_of
+    from tt.kernels.model import module_name, topology_of
     from tt.kernels.rollout import grad_kernels, rollout_kernels
 
     sp = get_space(space)
@@ -258,7 +258,8 @@ def test_per_topology_modules_hash_without_code_generation(space):
     grads = grad_kernels(top)
     fk_kernel(top)
     control_step_kernel(top)
-    modules = {kernels.module, grads.module, "tt.kernels.fk", "tt.kernels.dynamics", "tt.kernels.ik", "tt.kernels.ltdl"}
+    modules = {kernels.module, grads.module, module_name(top, "fk"), module_name(top, "control_step"),
+               "tt.kernels.fk", "tt.kernels.dynamics", "tt.kernels.ik", "tt.kernels.ltdl"}
     for name in sorted(modules):
         assert not wp.get_module(name).has_unresolved_static_expressions, name
     for kernel in (kernels.rollout, kernels.initial_posture, grads.rollout):
