@@ -252,9 +252,11 @@ class RewardInputs:
             if x.device != device:
                 raise ValueError(f"RewardInputs.{name} is on {x.device}; ee_pos is on {device}, use one device")
             if name.startswith("target_"):
+                # numpy's rule, not torch.broadcast_shapes: the torch one imports sympy on its
+                # first call (about 1 s, in every CLI process that scores).
                 try:
-                    ok = torch.broadcast_shapes(x.shape, shape) == shape
-                except RuntimeError:
+                    ok = np.broadcast_shapes(tuple(x.shape), shape) == shape
+                except ValueError:
                     ok = False
             else:
                 ok = len(x.shape) == len(shape) and all(s is None or s == d for s, d in zip(shape, x.shape))
