@@ -451,6 +451,10 @@ def test_unknown_names_and_missing_inputs():
     two = RewardInputs(ee_pos=inputs.ee_pos.expand(2, 1, 1, 3), ee_quat=inputs.ee_quat.expand(2, 1, 1, 4),
                        target_pos=inputs.target_pos[0], target_quat=inputs.target_quat[0])
     assert reward(two, get_reward("tracking", "viperx")).tolist() == [1.0, 1.0]
+    # Targets that do not broadcast to (W, T, A, 3), e.g. three end effectors for two worlds' one.
+    with pytest.raises(ValueError, match=r"target_pos has shape \(3, 3\); expected broadcastable to \(2, 1, 1, 3\)"):
+        RewardInputs(ee_pos=two.ee_pos, ee_quat=two.ee_quat, target_pos=torch.zeros(3, 3, dtype=DT),
+                     target_quat=two.target_quat)
 
 
 def test_reward_stays_on_its_device(device):
