@@ -195,7 +195,7 @@ class ArmWorlds:
         weights = self.config.ik_weights()
         hold = torch.zeros(self.world_count, self.nu, device=self.torch_device)
         for g in self.groups:
-            start = start_postures(g.tree, marrays, weights, self.config.init_iterations, device=self.device)
+            start = start_postures(g.tree, marrays, self.config.init_ik_weights(), self.config.init_iterations, device=self.device)
             g.views["qpos"].copy_(wp.to_torch(start))
             g.views["qvel"].zero_()
             act = torch.as_tensor(g.tree.topology.actuator_dof, dtype=torch.long, device=self.torch_device)

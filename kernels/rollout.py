@@ -368,7 +368,7 @@ def start_postures(model: TreeModel, motions: "MotionArrays", weights: IKWeights
     """Start postures (W, NV) float32 of the worlds of `model` (world i runs model entry i
     and motion i % M): `iterations` float64 IK steps from qpos0 toward each world's first
     motion pose (``motions.first_pos``, ``first_quat``), as
-    `tt.sim.controller.DiffIKController.initial_q` does."""
+    `tt.sim.controller.DiffIKController.initial_q` does (weights: `IKConfig.init_ik_weights`)."""
     device = device or model.device
     W, NV = model.world_count, model.topology.dof_count
     q_iter = wp.zeros((W, 1, NV), dtype=wp.float64, device=device)
@@ -574,6 +574,7 @@ def rollout_tree(
     lookahead_steps: int,
     termination_pos_error: float,
     init_iterations: int,
+    init_weights: "IKWeights | None" = None,
     differentiable: bool = False,
     initial_qpos: np.ndarray | None = None,
     chunk: int | None = None,
@@ -595,6 +596,8 @@ def rollout_tree(
         timesteps; IK target index t + lookahead_steps; summed end-effector position
         error past which a world terminates; start-posture IK steps), as
         `tt.sim.controller.IKConfig.rollout_args` gives them.
+    init_weights: the start posture's weights (`IKConfig.init_ik_weights`: a larger
+        damping); None: `weights`.
     differentiable: use the kernel with adjoints and a state slot per physics step, so the
         call can be recorded on a `wp.Tape` (memory grows with W * steps * substeps).
         Gradients flow through the controller and the physics to the float32 model fields;
@@ -699,7 +702,8 @@ def rollout_tree(
     start_posture = _SlicedLaunch(
         kernels.initial_posture,
         dim=W,
-        inputs=[model.kinematics64, weights, iterations, motions.first_pos, motions.first_quat],
+        inputs=[model.kinematics64, weights if init_weights is None else init_weights, iterations, motions.first_pos,
+                motions.first_quat],
         outputs=[q_iter, out.qpos_state],
         device=device, slices=slices, threads=threads,
     )  # fmt: skip

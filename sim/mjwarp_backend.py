@@ -442,7 +442,7 @@ def _run_group(
         kinematic = {id(m): _ik_model(m) for m in group_models}
         tree = build_tree_model([kinematic[id(m)] for m in group_models], sites, device=device)
         weights = config.ik_weights()
-        wp.copy(data.qpos, start_postures(tree, motions, weights, config.init_iterations, device=device))
+        wp.copy(data.qpos, start_postures(tree, motions, config.init_ik_weights(), config.init_iterations, device=device))
         ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
         act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
         q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)

@@ -386,7 +386,7 @@ def newton_rollout(
     for ds in members.values():
         rows = np.array([d * M + j for d in ds for j in range(M)], dtype=np.int64)
         g = _IKGroup.build(worlds, rows, [models[d] for d in ds for _ in range(M)], sites, M, device=device)
-        start = start_postures(g.tree, marrays, weights, config.init_iterations, device=device).numpy()
+        start = start_postures(g.tree, marrays, config.init_ik_weights(), config.init_iterations, device=device).numpy()
         for i, w in enumerate(rows):
             joint_q[worlds.q_start[w] : worlds.q_start[w] + g.nq] = start[i]
         groups.append(g)

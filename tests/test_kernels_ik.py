@@ -4,7 +4,7 @@
 current site pose (zero error: the small-angle series of the SE(3) Jacobians), near it
 (a few cm / tenths of a radian) and far (tens of cm, the regime the look-ahead creates on
 fast motions). The commands must agree to 1e-3 rad; float32 round-off in the normal
-equations, amplified by their condition number (damping 1e-3), stays well below that.
+equations, amplified by their condition number (bounded by the damping), stays well below that.
 A last set puts targets off the site in position only, exactly on its orientation and just
 past it, the two sides of mink's switch to the identity Jacobian at zero rotation error.
 """

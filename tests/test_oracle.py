@@ -1,6 +1,7 @@
 """The oracle (MuJoCo C + mink DiffIK): tracking, the IK step against a hand-built DLS
 solution, termination, padding of mixed batches, and argument errors."""
 
+import dataclasses
 import mujoco
 import numpy as np
 import pytest
@@ -113,13 +114,15 @@ def test_records_belong_to_the_recorded_state(tracked, viperx):
 
 
 def test_start_posture_is_ik_toward_the_first_pose(tracked, viperx):
-    """The episode starts where init_iterations IK steps from qpos0 lead, near the first target."""
+    """The episode starts where init_iterations IK steps (with the start's damping) from qpos0
+    lead, near the first target."""
     motion, ep = tracked
     model = viperx.model(viperx.nominal())
     q_start = DiffIKController(model).initial_q(motion.pos[0], motion.quat[0])
     q = model.qpos0.copy()
+    start = dataclasses.replace(IKConfig(), damping=IKConfig().init_damping)
     for _ in range(IKConfig().init_iterations):
-        q = ik_step(model, q, motion.pos[0], motion.quat[0])
+        q = ik_step(model, q, motion.pos[0], motion.quat[0], start)
     np.testing.assert_allclose(q_start, q, atol=1e-12)
     data = mujoco.MjData(model)
     data.qpos[:] = q_start
