@@ -208,11 +208,13 @@ class DynamicsSelfGuidance(ZerothOrder):
             sim = SimGradient(problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start,
                               device=problem.device)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
+        critic = self.critic()
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, guidance=guidance)
+                          placement=c.placement, chunk=c.chunk, guidance=guidance, critic=critic)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
-        info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement, "scale": scale,
+        info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
+                "critic": critic, "scale": scale,
                 "sim_grad_weight": c.sim_grad_weight, **summary, "rollouts": rollouts}
         return gen, decoder, info
 

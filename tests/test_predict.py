@@ -173,3 +173,56 @@ def test_dynamics_needs_a_model_trained_on_it(checkpoint):
         predict_designs(robot_only, get_space(SPACE).sample(1, seed=9), motion, cfg, num_steps=2, via="dynamics")
     with pytest.raises(ValueError, match="via 'both' is not one of"):
         predict_designs(robot_only, get_space(SPACE).sample(1, seed=9), motion, cfg, num_steps=2, via="both")
+
+
+def test_zeroth_order_dynamics_critic(checkpoint):
+    """Zeroth-Order's "dynamics" critic (the default for a model trained on that task) scores
+    each candidate by the dynamics task's prediction from its sampled embodiment: the same
+    embodiment as the joint critic's run with that seed, other dynamics, and the reward equal
+    to `PredictedReward` on a by-hand redo of the two sampling calls. A model without the
+    dynamics task is refused."""
+    import dataclasses
+
+    from tt.baselines.problem import Problem
+    from tt.dit.checkpoint import load_model
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import DYNAMICS, ROBOT
+    from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens
+    from tt.guidance.predicted import PredictedReward, build_query
+    from tt.guidance.zeroth import CandidateSampler, SamplerConfig, ZerothOrder
+    from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
+    from tt.tokens.schema import STEP_ROLES
+
+    trained = load_model(checkpoint)
+    motion = for_space([resolve_motion("toss")], SPACE)[0]
+    cfg = get_reward("tracking", SPACE)
+    sampler = CandidateSampler(trained, "cpu")
+    joint = sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="joint")
+    critic = sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="dynamics")
+    steps = {s.name for s in joint.layout.specs if s.role in STEP_ROLES}
+    assert steps and len(steps) < len(joint.layout.specs)
+    for name, v in joint.tokens.values.items():
+        if name not in steps:
+            assert torch.equal(v, critic.tokens.values[name]), name
+    assert any(not torch.equal(joint.tokens.values[n], critic.tokens.values[n]) for n in steps)
+    # By hand: the robot task, then the dynamics task on its tokens, one generator.
+    composed = ComposedModel(trained.model, 1)
+    g = torch.Generator().manual_seed(4)
+    q = build_query(trained.layout, trained.normalizer, motion, 3, generator=torch.Generator().manual_seed(4))
+    robot = sample(composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+    dyn = sample(composed, robot.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+    scored = split_tokens(trained.layout, dyn.tokens, 1)[0].values
+    by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(scored).double().numpy()
+    np.testing.assert_allclose(critic.reward[:, 0], by_hand, rtol=1e-5)
+
+    problem = Problem(SPACE, (motion,), "tracking", 2, seed=0, backend="warp", device="cpu")
+    zo = ZerothOrder(SamplerConfig(num_steps=2), model=trained)
+    assert zo.generate(problem)[2]["critic"] == "dynamics"
+    robot_only = dataclasses.replace(trained, tasks=("robot",))
+    assert ZerothOrder(SamplerConfig(num_steps=2), model=robot_only).generate(problem)[2]["critic"] == "joint"
+    with pytest.raises(ValueError, match=r"critic 'dynamics' needs a model trained on the dynamics task"):
+        ZerothOrder(SamplerConfig(num_steps=2, critic="dynamics"), model=robot_only).generate(problem)
+    with pytest.raises(ValueError, match="critic = 'both'"):
+        SamplerConfig(critic="both")
