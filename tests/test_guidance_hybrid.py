@@ -129,6 +129,7 @@ def blank_model():
     (["--method", "random", "--verify", "2"], "--verify applies to zeroth-sim and dgs-sim"),
     (["--method", "random", "--init", "model"], "--init model initialises CMA-ES"),
     (["--method", "cmaes", "--init", "prior"], "--init 'prior'"),
+    (["--method", "zeroth", "--critic", "oracle"], "--critic 'oracle': valid are 'joint' and 'dynamics'"),
     (["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes", "--init", "model"],
      "no shipped DiT checkpoint for design space 'aloha'"),
 ])

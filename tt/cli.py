@@ -394,6 +394,7 @@ def optimize(
     checkpoint: Optional[Path] = typer.Option(None, help="learned methods: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
     samples: Optional[int] = typer.Option(None, help="learned methods: candidates to sample (default: --budget; cmaes --init model: its screen size)."),
     num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
+    critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -435,6 +436,8 @@ def optimize(
         _at_least("--samples", samples, 1)
         _at_least("--num-steps", num_steps, 1)
         _at_least("--verify", verify, 1)
+        if critic not in (None, "joint", "dynamics"):
+            _fail(f"--critic {critic!r}: valid are 'joint' and 'dynamics'")
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
@@ -450,7 +453,7 @@ def optimize(
             from tt.dit.checkpoint import default_checkpoint
 
             checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
-        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps)
+        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic)
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight)
         if method in ("zeroth-sim", "dgs-sim"):
