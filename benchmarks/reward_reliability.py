@@ -123,6 +123,7 @@ def main() -> None:
             print(json.dumps(row), flush=True)
             rows.append(row)
     seconds = time.perf_counter() - t0
+
     def fmt(r: float) -> str:
         return f"{r:.2f} (sqrt {np.sqrt(max(r, 0.0)):.2f})"
 
