@@ -33,3 +33,8 @@ def machine_header(device: str = "cpu") -> str:
         f"- device: {device}\n"
         f"- python {platform.python_version()}; " + ", ".join(pkgs) + "\n"
     )
+
+
+def load_line() -> str:
+    """The 1, 5 and 15 min load averages, as "a, b, c"."""
+    return ", ".join(f"{v:.1f}" for v in os.getloadavg())

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from machine import machine_header  # noqa: E402
+from machine import load_line, machine_header  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 
@@ -85,7 +84,7 @@ def main() -> None:
         p.error(f"--space {args.space} but the checkpoint was trained on {space}")
     decoder = DesignDecoder(get_space(space))
     critics = args.critic or [None]
-    load_start = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    load_start = load_line()
     start = time.perf_counter()
     rows = []
     for seed, motion in enumerate(seed_motions(space, args.seeds)):
@@ -121,7 +120,7 @@ def main() -> None:
         machine_header("cpu"),
         f"- command: `python benchmarks/zeroth_ranking.py {' '.join(sys.argv[1:])}`",
         f"- checkpoint: `{args.checkpoint}` (space {space}, tasks {list(trained.tasks)}, step {trained.step})",
-        f"- load: {load_start} at the start, {', '.join(f'{v:.1f}' for v in os.getloadavg())} at the end; "
+        f"- load: {load_start} at the start, {load_line()} at the end; "
         f"{minutes:.1f} min wall",
         "",
         f"{args.seeds} seeds, each one validation motion, Zeroth-Order with n = {args.n} ({args.steps} DDIM steps), "

@@ -574,7 +574,7 @@ def rollout_tree(
     lookahead_steps: int,
     termination_pos_error: float,
     init_iterations: int,
-    init_weights: "IKWeights | None" = None,
+    init_weights: IKWeights,
     differentiable: bool = False,
     initial_qpos: np.ndarray | None = None,
     chunk: int | None = None,
@@ -597,7 +597,7 @@ def rollout_tree(
         error past which a world terminates; start-posture IK steps), as
         `tt.sim.controller.IKConfig.rollout_args` gives them.
     init_weights: the start posture's weights (`IKConfig.init_ik_weights`: a larger
-        damping); None: `weights`.
+        damping than the loop's `weights`).
     differentiable: use the kernel with adjoints and a state slot per physics step, so the
         call can be recorded on a `wp.Tape` (memory grows with W * steps * substeps).
         Gradients flow through the controller and the physics to the float32 model fields;
@@ -702,8 +702,7 @@ def rollout_tree(
     start_posture = _SlicedLaunch(
         kernels.initial_posture,
         dim=W,
-        inputs=[model.kinematics64, weights if init_weights is None else init_weights, iterations, motions.first_pos,
-                motions.first_quat],
+        inputs=[model.kinematics64, init_weights, iterations, motions.first_pos, motions.first_quat],
         outputs=[q_iter, out.qpos_state],
         device=device, slices=slices, threads=threads,
     )  # fmt: skip

@@ -13,7 +13,7 @@ physics substeps of that control period. See `IKConfig` for the exact problem.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mink
 import mujoco
@@ -66,8 +66,8 @@ class IKConfig:
             rad apart and 12 % flipped between surviving and terminating), so the tracking
             reward was close to noise in the design: its correlation between neighbours
             was 0.79 on viperx-nominal and 0.92 on viperx. Damped, the start follows the
-            design (0.996 and 0.998), reaches the first pose (median distance at the first
-            record 3.6 cm -> 0.24 cm on viperx-nominal's validation motions) and random
+            design (1.00 on both, to two decimals), reaches the first pose (median distance
+            at the first record 3.6 cm -> 0.24 cm on viperx-nominal's validation motions) and random
             designs fail less (35 % -> 20 % of pairs below reward 50; mean reward 156 ->
             192; viperx 59 -> 69), `benchmarks/reward_reliability.py`. 3e-2 is as smooth
             but needs about 100 steps to converge; in the loop, 3e-2 lags the target (3.0 cm
@@ -155,12 +155,7 @@ class IKConfig:
 
     def init_ik_weights(self):
         """The start posture's task weights (`ik_weights` with ``init_damping``)."""
-        from tt.kernels.ik import ik_weights
-
-        return ik_weights(
-            position_cost=self.position_cost, orientation_cost=self.orientation_cost, posture_cost=self.posture_cost,
-            lm_damping=self.lm_damping, damping=self.init_damping,
-        )
+        return replace(self, damping=self.init_damping).ik_weights()
 
     def rollout_args(self) -> dict:
         """The controller's numbers as keyword arguments of `tt.kernels.rollout.rollout_tree`:

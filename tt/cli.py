@@ -436,8 +436,10 @@ def optimize(
         _at_least("--samples", samples, 1)
         _at_least("--num-steps", num_steps, 1)
         _at_least("--verify", verify, 1)
-        if critic not in (None, "joint", "dynamics"):
-            _fail(f"--critic {critic!r}: valid are 'joint' and 'dynamics'")
+        from tt.guidance.zeroth import CRITICS
+
+        if critic is not None and critic not in CRITICS:
+            _fail(f"--critic {critic!r}: valid are {' and '.join(map(repr, CRITICS))}")
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
