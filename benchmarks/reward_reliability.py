@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -37,14 +36,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from machine import machine_header  # noqa: E402
+from machine import load_line, machine_header  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-
-
-def load_line() -> str:
-    """The 1, 5 and 15 min load averages."""
-    return ", ".join(f"{v:.1f}" for v in os.getloadavg())
 
 
 def neighbours(space, designs, count: int, eps: float, seed: int) -> list:
@@ -94,21 +88,23 @@ def main() -> None:
     start_load = load_line()
     t0 = time.perf_counter()
 
-    def simulate(group, config: IKConfig) -> tuple[np.ndarray, np.ndarray]:
-        """(D, M) rewards and (D, M, nq) start postures of `group` under `config`."""
+    def simulate(group, config: IKConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(D, M) rewards, (D, M, nq) start postures and (D * M,) distances [m] from the first
+        end effector to its target at the first record, of `group` under `config`."""
         trees = space.trees(group)
         ep = rollout(trees, motions, device="cpu", config=config)
         r = np.asarray(score_episode(ep, group, motions, args.reward, models=trees)[0]).reshape(len(group), len(motions))
-        return r, ep.qpos[:, 0].cpu().numpy().reshape(len(group), len(motions), -1)
+        reach = (ep.ee_pos[:, 0, 0] - ep.target_pos[:, 0, 0]).norm(dim=-1).cpu().numpy()
+        return r, ep.qpos[:, 0].cpu().numpy().reshape(len(group), len(motions), -1), reach
 
     rows, fails = [], {}
     for damping in dampings:
         config = IKConfig(init_damping=damping)
-        base, q_base = simulate(designs, config)
-        fails[damping] = (float(np.mean(base < 50)), float(base.mean()))
+        base, q_base, reach = simulate(designs, config)
+        fails[damping] = (float(np.mean(base < 50)), float(base.mean()), float(np.median(reach)))
         for i, eps in enumerate(args.eps):
             near = neighbours(space, designs, args.neighbours, eps, seed=args.seed * 1000 + i)
-            r_near, q_near = simulate(near, config)
+            r_near, q_near, _ = simulate(near, config)
             shape = (len(designs), args.neighbours, len(motions))
             r_near = r_near.reshape(shape)
             ref = np.broadcast_to(base[:, None, :], shape)
@@ -141,8 +137,9 @@ def main() -> None:
         f"(continuous parameters moved by a uniform +- eps x range, discrete choices kept), warp backend, the "
         f"oracle's controller with the start posture's IK damping of each row (`IKConfig.init_damping`; the "
         f"control loop's stays {IKConfig().damping:g}). Designs' own rewards: "
-        + "; ".join(f"damping {d:g}: mean {m:.1f}, {100 * f:.0f} % of pairs below 50 (mostly terminated episodes)"
-                    for d, (f, m) in fails.items()) + ".",
+        + "; ".join(f"damping {d:g}: mean {m:.1f}, {100 * f:.0f} % of pairs below 50 (mostly terminated episodes), "
+                    f"median distance of the end effector from its target at the first record {100 * reach:.2f} cm"
+                    for d, (f, m, reach) in fails.items()) + ".",
         "",
         "| start-posture IK damping | eps (of each range) | pooled r (sqrt) | mean within-motion r (sqrt) | within-motion r per motion | "
         "median / p90 abs. change | pairs whose side of 50 flips | start postures > 0.05 rad apart | "
