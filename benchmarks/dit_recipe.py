@@ -9,9 +9,12 @@ rows change one choice at a time, from the paper's recipe (robot task with the d
 inpainted, eps prediction, a learned time-ID table) to tt's (the dynamics task, sinusoidal
 time IDs, x0 prediction with the track-link pose anchored on its target).
 
-Each row runs on one thread and writes ``benchmarks/results/dit_recipe/<row>.json``, so two
-processes can share a 2-core machine (``--rows a b`` and ``--rows c d``); ``--report``
-renders every row written so far into ``benchmarks/results/dit_recipe.md``.
+Each row runs on one thread and writes ``benchmarks/results/dit_recipe/damped_start/<row>.json``,
+so two processes can share a 2-core machine (``--rows a b`` and ``--rows c d``); ``--report``
+renders every row written so far into ``benchmarks/results/dit_recipe.md``. The rows of
+``benchmarks/results/dit_recipe/*.json`` were trained and scored before the start posture had
+its own IK damping (2026-12-03, `tt.sim.controller.IKConfig.init_damping`), when the reward was
+close to noise in the design; the report keeps them in a table of their own.
 
 Usage: ``python benchmarks/dit_recipe.py [--rows NAME ...] [--steps 1000] [--report]``.
 """
@@ -31,8 +34,13 @@ from machine import machine_header  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
 ROWS_DIR = RESULTS / "dit_recipe"
+#: Rows on today's data (the damped start posture); ROWS_DIR itself holds the older rows.
+CURRENT_DIR = ROWS_DIR / "damped_start"
 
-#: name -> (what changes, TrainConfig fields, how `tt predict` gives the design).
+_ANCHOR = dict(task="dynamics", prediction="x0", anchor_track=True)
+
+#: name -> (what changes, TrainConfig fields over `tt.ladder.R0_TRAINING`, how `tt predict`
+#: gives the design).
 RECIPES: dict[str, tuple[str, dict, str]] = {
     "paper": ("the paper's: robot task, design inpainted, eps, learned time IDs",
               dict(task="robot", prediction="eps", time_ids="learned"), "inpaint"),
@@ -46,6 +54,16 @@ RECIPES: dict[str, tuple[str, dict, str]] = {
                  dict(task="robot", prediction="x0"), "inpaint"),
     "robot+dynamics": ("robot and dynamics tasks, half the batch each, x0 + anchor (a generator that is also a critic)",
                        dict(task="robot+dynamics", prediction="x0", anchor_track=True), "dynamics"),
+    # One change each from `anchor` (v: from `x0`, as the anchor needs x0 prediction).
+    "v": ("v prediction (compare with `x0`: the anchor needs x0)", dict(task="dynamics", prediction="v"), "dynamics"),
+    "min_snr": ("`anchor` + min-SNR-5 loss weighting", dict(_ANCHOR, weighting="min_snr"), "dynamics"),
+    "edm": ("`anchor` + EDM loss weighting", dict(_ANCHOR, weighting="edm"), "dynamics"),
+    "lr_low": ("`anchor` at half the learning rate (2.5e-3)", dict(_ANCHOR, lr=2.5e-3), "dynamics"),
+    "lr_high": ("`anchor` at twice the learning rate (1e-2)", dict(_ANCHOR, lr=1e-2), "dynamics"),
+    "batch64": ("`anchor` with batch 64 (twice the windows per step)", dict(_ANCHOR, batch_size=64), "dynamics"),
+    "mini": ("`anchor` with the `mini` model (128 wide, 4 blocks)", dict(_ANCHOR, size="mini"), "dynamics"),
+    "T50": ("`anchor` with 50 DDIM training steps (of 100)", dict(_ANCHOR, robot_diffusion_steps=50), "dynamics"),
+    "bf16": ("`anchor` with bf16 autocast on the CPU", dict(_ANCHOR, bf16_cpu=True), "dynamics"),
 }
 
 
@@ -59,16 +77,22 @@ KEPT = ("Kept: x0 prediction and sinusoidal time-step IDs are now `tt train`'s d
         "steps, bf16 on the CPU, and data choices (issue 17 lists them).")
 
 
+#: What today's rows decided (written once they are measured).
+CURRENT_NOTE = ""
+
+
 def run_row(name: str, steps: int, out: Path) -> dict:
     from tt.dit.checkpoint import list_checkpoints, load_model
     from tt.dit.online import OnlineTokenSource
     from tt.dit.train import TrainConfig, train
+    from tt.sim.controller import IKConfig
     from tt.ladder import R0_TRAINING, r0_online, score_designs
 
     what, fields, via = RECIPES[name]
     online = r0_online()
+    shared = {**R0_TRAINING, **fields}
     config = TrainConfig(out=str(out / name), device="cpu", steps=steps, checkpoint_every=max(1, steps // 4),
-                         keep_checkpoints=4, online=online, resume=False, **R0_TRAINING, **fields)
+                         keep_checkpoints=4, online=online, resume=False, **shared)
     t0 = time.perf_counter()
     result = train(config)
     seconds = time.perf_counter() - t0
@@ -80,35 +104,54 @@ def run_row(name: str, steps: int, out: Path) -> dict:
         curve.append({"step": trained.step, "pooled_r": sc.pooled, "within_r": sc.within,
                       "within_r_mean": sc.within_mean, "estimator_pooled_r": sc.estimator_pooled})
     losses = result.losses.numpy()
-    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": R0_TRAINING["batch_size"],
-            "samples_seen": steps * R0_TRAINING["batch_size"], "train_seconds": seconds, "steps_per_s": steps / seconds,
+    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": shared["batch_size"],
+            "samples_seen": steps * shared["batch_size"], "init_damping": IKConfig().init_damping,
+            "measured": machine_header("cpu").strip().splitlines()[:2], "train_seconds": seconds, "steps_per_s": steps / seconds,
             "parameters": result.parameters, "final_loss_mean_last_50": float(losses[-50:].mean()), "curve": curve,
             "command": f"python benchmarks/dit_recipe.py --rows {name} --steps {steps}"}
 
 
-def report() -> Path:
-    rows = [json.loads(p.read_text()) for p in sorted(ROWS_DIR.glob("*.json"))]
+def _table(rows: list[dict]) -> list[str]:
     order = list(RECIPES)
-    rows.sort(key=lambda r: order.index(r["row"]) if r["row"] in order else len(order))
-    lines = [
-        "# DiT recipe: what lets the model learn what a design does (R0-sized ablations)",
-        "",
-        machine_header("cpu"),
-        "Each row: a `tiny` model trained on R0's 64 episodes (16 `viperx-nominal` designs x 4 "
-        "augmented training motions, `tests/test_ladder.py`), one thread, then `tt predict`'s code "
-        "path on those same pairs (20 DDIM steps, one sample) against the simulator. Shared: "
-        f"{json.dumps(R0_TRAINING)} (`tt.ladder.R0_TRAINING`). R0's target: pooled r >= 0.95. Rows were run two at a time on the "
-        "2-core machine (one thread each), so steps/s is per core under that load.",
-        "",
-        "| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",
-        "|---|---|---|---|---|---:|---:|",
-    ]
+    rows = sorted(rows, key=lambda r: order.index(r["row"]) if r["row"] in order else len(order))
+    lines = ["| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",
+             "|---|---|---|---|---|---:|---:|"]
     for r in rows:
         curve = ", ".join(f"{c['pooled_r']:.2f}@{c['step']}" for c in r["curve"])
         within = " / ".join(f"{v:.2f}" for v in r["curve"][-1]["within_r"]) if r["curve"] else "-"
         lines.append(f"| `{r['row']}` | {r['what']} | {r['via']} | {curve} | {within} | {r['steps_per_s']:.2f} | "
                      f"{r['samples_seen']:,} |")
-    lines += ["", KEPT, "", "Commands: " + "; ".join(f"`{r['command']}`" for r in rows), ""]
+    return lines
+
+
+def report() -> Path:
+    from tt.ladder import R0_TRAINING
+
+    current = [json.loads(p.read_text()) for p in sorted(CURRENT_DIR.glob("*.json"))]
+    older = [json.loads(p.read_text()) for p in sorted(ROWS_DIR.glob("*.json"))]
+    lines = [
+        "# DiT recipe: what lets the model learn what a design does (R0-sized ablations)",
+        "",
+        machine_header("cpu"),
+        "(the date above is this report's; each section says when its rows were measured)",
+        "",
+        "Each row: a `tiny` model trained on R0's 64 episodes (16 `viperx-nominal` designs x 4 "
+        "augmented training motions, `tests/test_ladder.py`), one thread, then `tt predict`'s code "
+        "path on those same pairs (20 DDIM steps, one sample) against the simulator. Shared unless the row "
+        f"changes it: {json.dumps(R0_TRAINING)} (`tt.ladder.R0_TRAINING`). R0's target: pooled r >= 0.95. Rows "
+        "were run two at a time on the 2-core machine (one thread each), so steps/s is per core under that load.",
+        "",
+    ]
+    if current:
+        when = sorted({", ".join(r.get("measured", [])) for r in current})
+        lines += ["## Today's data (start posture with its own IK damping, 2026-12-03)", "",
+                  "Rows measured: " + "; ".join(w.replace("- ", "") for w in when) + ".", "", CURRENT_NOTE, "",
+                  *_table(current), "", "Commands: " + "; ".join(f"`{r['command']}`" for r in current), ""]
+    lines += ["## Before the damped start posture (2026-12-02)", "",
+              "Measured 2026-12-02 01:05 UTC on the 2-core AMD EPYC. "
+              "The reward was then close to noise in the design (`reward_reliability_*.md`); R0's designs "
+              "failed more often, so their rewards lay further apart and 1,000 steps were enough.", "",
+              *_table(older), "", KEPT, "", "Commands: " + "; ".join(f"`{r['command']}`" for r in older), ""]
     out = RESULTS / "dit_recipe.md"
     out.write_text("\n".join(lines))
     return out
@@ -122,10 +165,10 @@ def main() -> None:
     p.add_argument("--report", action="store_true", help="render benchmarks/results/dit_recipe.md from every row written")
     args = p.parse_args()
     torch.set_num_threads(1)
-    ROWS_DIR.mkdir(parents=True, exist_ok=True)
+    CURRENT_DIR.mkdir(parents=True, exist_ok=True)
     for name in args.rows:
         row = run_row(name, args.steps, Path(args.runs))
-        (ROWS_DIR / f"{name}.json").write_text(json.dumps(row, indent=1))
+        (CURRENT_DIR / f"{name}.json").write_text(json.dumps(row, indent=1))
         last = row["curve"][-1] if row["curve"] else {}
         print(json.dumps({"row": name, "pooled_r": last.get("pooled_r"), "within_r": last.get("within_r"),
                           "steps_per_s": row["steps_per_s"]}), flush=True)
