@@ -18,7 +18,7 @@ not depend on the critic): "joint" is the paper's (the candidate's co-sampled dy
 "dynamics" re-predicts them with the dynamics task (`tt.guidance.zeroth`).
 
 Usage: ``python benchmarks/zeroth_ranking.py CHECKPOINT [--seeds 9] [--n 128] [--steps 20]
-[--critic joint dynamics] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
+[--critic joint dynamics] [--critic-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
 """
 
 from __future__ import annotations
@@ -62,13 +62,15 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=20, help="DDIM steps")
     p.add_argument("--critic", nargs="+", default=None, choices=["joint", "dynamics"],
                    help="critics to compare (default: the model's default critic)")
+    p.add_argument("--critic-samples", type=int, nargs="+", default=[1],
+                   help="dynamics predictions averaged per candidate by the 'dynamics' critic (one row per value)")
     p.add_argument("--baselines", action="store_true", help="also run Random and CMA-ES at budget n")
     p.add_argument("--space", default=None, help="design space (default: the one the checkpoint records)")
     p.add_argument("--reward", default="tracking")
     p.add_argument("--out", default=str(RESULTS / "zeroth_ranking.md"))
     args = p.parse_args()
-    if args.seeds < 1 or args.n < 2:
-        p.error("--seeds >= 1 and --n >= 2 are needed")
+    if args.seeds < 1 or args.n < 2 or min(args.critic_samples) < 1:
+        p.error("--seeds >= 1, --n >= 2 and --critic-samples >= 1 are needed")
 
     from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs
     from tt.dit.checkpoint import load_model
@@ -83,19 +85,20 @@ def main() -> None:
     if args.space is not None and args.space != space:
         p.error(f"--space {args.space} but the checkpoint was trained on {space}")
     decoder = DesignDecoder(get_space(space))
-    critics = args.critic or [None]
+    critics = [(c, k) for c in (args.critic or [None]) for k in (args.critic_samples if c == "dynamics" else [1])]
     load_start = load_line()
     start = time.perf_counter()
     rows = []
     for seed, motion in enumerate(seed_motions(space, args.seeds)):
         problem = Problem(space, (motion,), args.reward, args.n, seed=seed, backend="warp", device="cpu")
-        for critic in critics:
-            zo = ZerothOrder(SamplerConfig(num_steps=args.steps, decode="all", critic=critic), model=trained,
-                             decoder=decoder)
+        for critic, k in critics:
+            zo = ZerothOrder(SamplerConfig(num_steps=args.steps, decode="all", critic=critic, critic_samples=k),
+                             model=trained, decoder=decoder)
             res = zo.optimize(problem)
             ev = evaluate_designs(res.designs, (motion,), args.reward, backend="mujoco")
             validated = ev.reward[:, 0]
-            row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": res.info["critic"],
+            label = res.info["critic"] + (f" (mean of {k} predictions)" if k > 1 else "")
+            row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": label,
                    "decoded": len(res.designs), "pick_reward": float(validated[0]),
                    "median_reward": float(np.median(validated)), "best_reward": float(validated.max()),
                    "pick_beats_median": bool(validated[0] > np.median(validated)),

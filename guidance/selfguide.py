@@ -210,11 +210,12 @@ class DynamicsSelfGuidance(ZerothOrder):
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
         critic = self.critic()
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, guidance=guidance, critic=critic)
+                          placement=c.placement, chunk=c.chunk, guidance=guidance, critic=critic,
+                          critic_samples=c.critic_samples)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "scale": scale,
+                "critic": critic, "critic_samples": c.critic_samples, "scale": scale,
                 "sim_grad_weight": c.sim_grad_weight, **summary, "rollouts": rollouts}
         return gen, decoder, info
 

@@ -130,6 +130,8 @@ def blank_model():
     (["--method", "random", "--init", "model"], "--init model initialises CMA-ES"),
     (["--method", "cmaes", "--init", "prior"], "--init 'prior'"),
     (["--method", "zeroth", "--critic", "oracle"], "--critic 'oracle': valid are 'joint' and 'dynamics'"),
+    (["--method", "zeroth", "--critic", "joint", "--critic-samples", "4"], "--critic-samples 4 needs --critic dynamics"),
+    (["--method", "zeroth", "--critic-samples", "0"], "--critic-samples must be >= 1, got 0"),
     (["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes", "--init", "model"],
      "no shipped DiT checkpoint for design space 'aloha'"),
 ])

@@ -216,6 +216,23 @@ def test_zeroth_order_dynamics_critic(checkpoint):
     scored = split_tokens(trained.layout, dyn.tokens, 1)[0].values
     by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(scored).double().numpy()
     np.testing.assert_allclose(critic.reward[:, 0], by_hand, rtol=1e-5)
+    # critic_samples 2: the mean of two dynamics draws from the same robot draw (one generator
+    # again), the tokens those of the first.
+    averaged = sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="dynamics", critic_samples=2)
+    g = torch.Generator().manual_seed(4)
+    robot = sample(composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+    scorer = PredictedReward(trained.layout, trained.normalizer, cfg, q)
+    draws = [sample(composed, robot.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g).tokens for _ in range(2)]
+    each = [scorer(split_tokens(trained.layout, d, 1)[0].values).double().numpy() for d in draws]
+    assert not np.allclose(each[0], each[1])  # two draws, not one twice
+    np.testing.assert_allclose(each[0], by_hand, rtol=1e-5)
+    np.testing.assert_allclose(averaged.reward[:, 0], (each[0] + each[1]) / 2, rtol=1e-5)
+    for name, v in critic.tokens.values.items():
+        assert torch.equal(v, averaged.tokens.values[name]), name
+    with pytest.raises(ValueError, match="critic_samples = 2: must be >= 1, and 1 for the joint critic"):
+        sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="joint", critic_samples=2)
+    with pytest.raises(ValueError, match="critic_samples = 3 needs the 'dynamics' critic"):
+        SamplerConfig(critic="joint", critic_samples=3)
 
     problem = Problem(SPACE, (motion,), "tracking", 2, seed=0, backend="warp", device="cpu")
     zo = ZerothOrder(SamplerConfig(num_steps=2), model=trained)

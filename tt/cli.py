@@ -395,6 +395,7 @@ def optimize(
     samples: Optional[int] = typer.Option(None, help="learned methods: candidates to sample (default: --budget; cmaes --init model: its screen size)."),
     num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
     critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
+    critic_samples: int = typer.Option(1, help="learned methods, 'dynamics' critic: dynamics predictions averaged per candidate (a better ranking for k times the critic's cost)."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -440,6 +441,10 @@ def optimize(
 
         if critic is not None and critic not in CRITICS:
             _fail(f"--critic {critic!r}: valid are {' and '.join(map(repr, CRITICS))}")
+        _at_least("--critic-samples", critic_samples, 1)
+        if critic == "joint" and critic_samples > 1:
+            _fail(f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
+                  "sampled with each design")
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
@@ -455,7 +460,8 @@ def optimize(
             from tt.dit.checkpoint import default_checkpoint
 
             checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
-        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic)
+        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic,
+                       critic_samples=critic_samples)
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight)
         if method in ("zeroth-sim", "dgs-sim"):
