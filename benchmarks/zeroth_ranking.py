@@ -17,8 +17,14 @@ With ``--critic joint dynamics`` both critics rank the same samples (the robot t
 not depend on the critic): "joint" is the paper's (the candidate's co-sampled dynamics),
 "dynamics" re-predicts them with the dynamics task (`tt.guidance.zeroth`).
 
+``--rescore C [C ...]`` adds critics that are other checkpoints (e.g. a model trained on the
+dynamics task alone): each scores the first critic's decoded candidates, the designs that
+were validated, with `tt.guidance.predicted.predict_designs` (``--rescore-samples`` K
+predictions averaged), so its rows rank exactly the same validated designs at no extra
+simulation.
+
 Usage: ``python benchmarks/zeroth_ranking.py CHECKPOINT [--seeds 9] [--n 128] [--steps 20]
-[--critic joint dynamics] [--critic-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
+[--critic joint dynamics] [--critic-samples 1 4] [--rescore C ...] [--rescore-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
 """
 
 from __future__ import annotations
@@ -64,13 +70,17 @@ def main() -> None:
                    help="critics to compare (default: the model's default critic)")
     p.add_argument("--critic-samples", type=int, nargs="+", default=[1],
                    help="dynamics predictions averaged per candidate by the 'dynamics' critic (one row per value)")
+    p.add_argument("--rescore", nargs="+", default=[], metavar="CHECKPOINT",
+                   help="other checkpoints that score the validated designs as critics (trained on the same space)")
+    p.add_argument("--rescore-samples", type=int, nargs="+", default=[1],
+                   help="predictions averaged per design by each --rescore critic (one row per value)")
     p.add_argument("--baselines", action="store_true", help="also run Random and CMA-ES at budget n")
     p.add_argument("--space", default=None, help="design space (default: the one the checkpoint records)")
     p.add_argument("--reward", default="tracking")
     p.add_argument("--out", default=str(RESULTS / "zeroth_ranking.md"))
     args = p.parse_args()
-    if args.seeds < 1 or args.n < 2 or min(args.critic_samples) < 1:
-        p.error("--seeds >= 1, --n >= 2 and --critic-samples >= 1 are needed")
+    if args.seeds < 1 or args.n < 2 or min(args.critic_samples) < 1 or min(args.rescore_samples) < 1:
+        p.error("--seeds >= 1, --n >= 2, --critic-samples >= 1 and --rescore-samples >= 1 are needed")
 
     from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs
     from tt.dit.checkpoint import load_model
@@ -84,6 +94,14 @@ def main() -> None:
         p.error("the checkpoint records no design space (made before checkpoints did); give --space")
     if args.space is not None and args.space != space:
         p.error(f"--space {args.space} but the checkpoint was trained on {space}")
+    from tt.guidance.predicted import check_space, predict_designs
+    from tt.sim.rewards import get_reward
+
+    rescorers = []
+    for path in args.rescore:
+        other = load_model(path, device="cpu")
+        check_space(other, space)
+        rescorers.append((path, other))
     decoder = DesignDecoder(get_space(space))
     critics = [(c, k) for c in (args.critic or [None]) for k in (args.critic_samples if c == "dynamics" else [1])]
     load_start = load_line()
@@ -106,6 +124,21 @@ def main() -> None:
                    "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[0, 0]), "seconds": res.seconds}
             print(json.dumps(row), flush=True)
             rows.append(row)
+            if rescorers and (critic, k) == critics[0]:
+                for path, other in rescorers:
+                    for ks in args.rescore_samples:
+                        pred = predict_designs(other, res.designs, (motion,), get_reward(args.reward, space), samples=ks,
+                                               num_steps=args.steps, seed=seed)
+                        score = pred.reward[:, 0]
+                        pick = int(np.nanargmax(np.where(np.isfinite(score), score, -np.inf)))
+                        label = f"`{path}` rescoring" + (f" (mean of {ks} predictions)" if ks > 1 else "")
+                        extra = {**row, "critic": label, "pick_reward": float(validated[pick]),
+                                 "pick_beats_median": bool(validated[pick] > np.median(validated)),
+                                 "spearman": spearman(score, validated),
+                                 "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[pick, 0]),
+                                 "seconds": pred.seconds}
+                        print(json.dumps(extra), flush=True)
+                        rows.append(extra)
         if args.baselines:
             for name, opt in (("Random", RandomSearch()), ("CMA-ES", CMAES(CMAESConfig()))):
                 res = opt.optimize(problem)
@@ -123,6 +156,7 @@ def main() -> None:
         machine_header("cpu"),
         f"- command: `python benchmarks/zeroth_ranking.py {' '.join(sys.argv[1:])}`",
         f"- checkpoint: `{args.checkpoint}` (space {space}, tasks {list(trained.tasks)}, step {trained.step})",
+        *[f"- rescoring critic: `{path}` (tasks {list(other.tasks)}, step {other.step})" for path, other in rescorers],
         f"- load: {load_start} at the start, {load_line()} at the end; "
         f"{minutes:.1f} min wall",
         "",
