@@ -10,7 +10,12 @@ trained on the design-to-dynamics task (``tt train --task robot+dynamics``) the 
 instead re-predict each candidate's dynamics with its sampled embodiment as that task's
 clean condition (``critic="dynamics"``, the default for such models): the robot task's own
 dynamics are sampled jointly with an embodiment still being denoised, which predicts the
-reward far worse (`benchmarks/results/dit_recipe.md`: r 0.30 against 0.97 on R0).
+reward far worse (`benchmarks/results/dit_recipe.md`: r 0.30 against 0.97 on R0). The
+dynamics critic can also be another checkpoint of the same space and layout (``critic_model``,
+``SamplerConfig.critic_checkpoint``), e.g. a model trained on the dynamics task alone, which
+on the full ViperX space ranks held-out designs far better than a model that shares its
+training with the robot and control tasks (`benchmarks/results/dit_ladder_r2c.md`); the
+sampled embodiments are carried into its normaliser's units when the two differ.
 
 Candidates are ranked by that objective and decoded to designs of the problem's space
 (`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
@@ -74,7 +79,9 @@ class SamplerConfig:
         "dynamics" when the model was trained on that task, else "joint"). critic_samples:
         dynamics predictions averaged per candidate by the "dynamics" critic (one prediction
         is one draw of the dynamics' distribution; on R1 four averaged raised pooled r from
-        0.51 to 0.60, `benchmarks/results/dit_ladder_r1c.md`).
+        0.51 to 0.60, `benchmarks/results/dit_ladder_r1c.md`). critic_checkpoint: another
+        checkpoint (file or run folder) whose dynamics task is the critic (None: the
+        sampling model's own); it implies the "dynamics" critic.
     """
 
     checkpoint: str | Path | None = None
@@ -86,6 +93,7 @@ class SamplerConfig:
     chunk: int | None = None
     critic: str | None = None
     critic_samples: int = 1
+    critic_checkpoint: str | Path | None = None
 
     def __post_init__(self) -> None:
         if self.samples is not None and self.samples < 1:
@@ -107,6 +115,8 @@ class SamplerConfig:
         if self.critic == "joint" and self.critic_samples > 1:
             raise ValueError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
                              "scores the one draw sampled with the design")
+        if self.critic == "joint" and self.critic_checkpoint is not None:
+            raise ValueError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
 
 
 # ------------------------------------------------------------------------------ sampling
@@ -157,13 +167,55 @@ class Generation:
     seconds: float
 
 
+def check_critic(trained: TrainedModel, critic: TrainedModel) -> None:
+    """Raise unless `critic` can be the dynamics critic of `trained`'s samples: trained on the
+    dynamics task, on the same design space (`CheckpointSpaceError`, naming both) and with the
+    same layout (`LayoutError`)."""
+    from tt.guidance.predicted import CheckpointSpaceError
+
+    where = f"critic checkpoint {critic.path}" if critic.path is not None else "the critic model"
+    if not critic.trained_on("dynamics"):
+        raise ValueError(f"{where} was trained on {list(critic.tasks)}, not the dynamics task a critic needs "
+                         "(train it with --task dynamics)")
+    if trained.space is not None and critic.space is not None and trained.space != critic.space:
+        raise CheckpointSpaceError(f"{where} was trained on design space {critic.space!r}, the sampling model on "
+                                   f"{trained.space!r}; give a critic trained on {trained.space!r}")
+    if critic.layout != trained.layout:
+        raise LayoutError(f"{where} has another token layout than the sampling model (types "
+                          f"{list(critic.layout.names)} against {list(trained.layout.names)}, or other lengths); "
+                          "its dynamics cannot be asked about these samples")
+
+
+def _same_normalizer(a: Normalizer, b: Normalizer) -> bool:
+    return a.low.keys() == b.low.keys() and all(
+        np.array_equal(np.asarray(a.low[k]), np.asarray(b.low[k])) and np.array_equal(np.asarray(a.high[k]), np.asarray(b.high[k]))
+        for k in a.low)
+
+
+def renormalize(values: dict[str, torch.Tensor], src: Normalizer, dst: Normalizer) -> dict[str, torch.Tensor]:
+    """Normalised values (type -> (B, L, D); composed copies ``type@k`` too) in `src`'s units
+    -> `dst`'s; padding tokens stay padding."""
+    from tt.guidance.compose import SEPARATOR
+    from tt.tokens.normalize import is_padding
+
+    out = {}
+    for name, v in values.items():
+        base = name.split(SEPARATOR)[0]
+        moved = dst.normalize_values(base, src.denormalize_values(base, v))
+        out[name] = torch.where(is_padding(v)[..., None], v, moved.to(v.dtype))
+    return out
+
+
 class CandidateSampler:
     """Samples and scores candidates of a trained model (see the module docstring).
 
-    trained: the model (EMA weights), its normaliser and layout; device: where to run.
+    trained: the model (EMA weights), its normaliser and layout; device: where to run;
+    critic_model: another model whose dynamics task scores the samples (`check_critic`;
+    None: `trained`'s own).
     """
 
-    def __init__(self, trained: TrainedModel, device: str | torch.device | None = None):
+    def __init__(self, trained: TrainedModel, device: str | torch.device | None = None,
+                 critic_model: TrainedModel | None = None):
         self.trained = trained
         if device is None:
             held = next(iter([*trained.model.parameters(), *trained.model.buffers()]), None)
@@ -171,6 +223,11 @@ class CandidateSampler:
         self.device = torch.device(device)
         self.model = trained.model.to(self.device).eval()
         trained.layout.check_normalizer(trained.normalizer)
+        self.critic_model = critic_model
+        if critic_model is not None:
+            check_critic(trained, critic_model)
+            critic_model.layout.check_normalizer(critic_model.normalizer)
+            critic_model.model.to(self.device).eval()
 
     def _objective(self, rewards: list[PredictedReward], split) -> Callable[[dict[str, torch.Tensor], bool], torch.Tensor]:
         def objective(x0: dict[str, torch.Tensor], guidance: bool = False) -> torch.Tensor:
@@ -186,13 +243,18 @@ class CandidateSampler:
         the dynamics sampled with each candidate, "dynamics" re-predicts them with the
         dynamics task from the sampled embodiment (deterministic DDIM, same steps), and with
         `critic_samples` k > 1 averages the rewards and metrics of k such draws (the tokens
-        returned carry the first)."""
+        returned carry the first). With a `critic_model` the dynamics critic is that model's
+        and "joint" is refused."""
         motions = tuple(motions)
         if not motions:
             raise ValueError("motions is empty; give at least one target motion")
         if critic not in CRITICS:
             raise ValueError(f"critic {critic!r} is not one of {list(CRITICS)}")
-        if critic == "dynamics" and not self.trained.trained_on("dynamics"):
+        if critic == "joint" and self.critic_model is not None:
+            raise ValueError("this sampler has a critic model, whose dynamics task is the critic; critic 'joint' would "
+                             "ignore it")
+        judge = self.critic_model or self.trained
+        if critic == "dynamics" and not judge.trained_on("dynamics"):
             raise ValueError(f"critic 'dynamics' needs a model trained on the dynamics task; this one was trained on "
                              f"{list(self.trained.tasks)} (train with --task robot+dynamics, or use critic 'joint')")
         if critic_samples < 1 or (critic == "joint" and critic_samples > 1):
@@ -200,6 +262,8 @@ class CandidateSampler:
         layout, norm = self.trained.layout, self.trained.normalizer
         M = len(motions)
         composed = ComposedModel(self.model, M)
+        judged = composed if judge is self.trained else ComposedModel(judge.model, M)
+        moved = not _same_normalizer(norm, judge.normalizer)
         scheduler = CosineDDIM(ROBOT.diffusion_steps)
         timesteps = scheduler.timesteps(num_steps)
         embodiment = tuple(s.name for s in layout.specs if s.role not in STEP_ROLES)
@@ -218,6 +282,7 @@ class CandidateSampler:
                        for m in motions]
             tokens = compose_tokens(layout, [q.tokens for q in queries])
             scorers = [PredictedReward(layout, norm, cfg, q) for q in queries]
+            judges = [PredictedReward(layout, judge.normalizer, cfg, q) for q in queries] if moved else scorers
             hook = None
             if guidance is not None:
                 ctx = GuideContext(self._objective(scorers, split), scheduler, timesteps, embodiment, composed.layout,
@@ -225,21 +290,25 @@ class CandidateSampler:
                 hook = guidance.hook(ctx)
             res = sample(composed, tokens, ROBOT, scheduler=scheduler, num_steps=num_steps, eta=eta, generator=generator,
                          guide=hook, guided=embodiment if hook is not None else None)
-            draws = [res.tokens]
+            draws, scoring = [res.tokens], scorers
             if critic == "dynamics":
+                given = res.tokens
+                if moved:
+                    given = TokenBatch(renormalize(given.values, norm, judge.normalizer), given.ids, given.mask, given.version)
+                    scoring = judges
                 with torch.no_grad():
-                    draws = [sample(composed, res.tokens, DYNAMICS, scheduler=scheduler, num_steps=num_steps,
+                    draws = [sample(judged, given, DYNAMICS, scheduler=scheduler, num_steps=num_steps,
                                     generator=generator).tokens for _ in range(critic_samples)]
             reward_k, metrics_k = [], []
             with torch.no_grad():
                 for drawn in draws:
                     parts = split_tokens(layout, drawn, M)
-                    reward_k.append(torch.stack([s(p.values) for s, p in zip(scorers, parts)], dim=1))
-                    per = [predicted_metrics(s, p.values) for s, p in zip(scorers, parts)]
+                    reward_k.append(torch.stack([s(p.values) for s, p in zip(scoring, parts)], dim=1))
+                    per = [predicted_metrics(s, p.values) for s, p in zip(scoring, parts)]
                     metrics_k.append({k: torch.stack([d[k] for d in per], dim=1) for k in per[0]})
                 rewards.append(torch.stack(reward_k).mean(0).cpu())
                 metrics.append({k: torch.stack([m[k] for m in metrics_k]).double().mean(0).cpu() for k in metrics_k[0]})
-            outs.append(draws[0])
+            outs.append(res.tokens if moved and critic == "dynamics" else draws[0])
             log.info("sampled candidates %d..%d of %d", c0, c0 + c - 1, samples)
         seconds = time.perf_counter() - start
         reward = torch.cat(rewards).double().numpy()
@@ -426,22 +495,26 @@ class ZerothOrder(Optimizer):
 
     config: `SamplerConfig`; model: a loaded model (else ``config.checkpoint`` is loaded on
     the problem's device at the first `optimize`); decoder: candidate decoder (default
-    `DesignDecoder` of the problem's space).
+    `DesignDecoder` of the problem's space); critic_model: a loaded critic model (else
+    ``config.critic_checkpoint``, if given, is loaded).
     """
 
     name = "zeroth"
 
     def __init__(self, config: SamplerConfig = SamplerConfig(), *, model: TrainedModel | None = None,
-                 decoder: Decoder | None = None):
+                 decoder: Decoder | None = None, critic_model: TrainedModel | None = None):
         self.config = config
         self._trained = model
+        self._critic = critic_model
         self._decoder = decoder
         self._decoders: dict[str, DesignDecoder] = {}
 
     def _setup(self, problem: Problem) -> tuple[CandidateSampler, Decoder, RewardConfig, int]:
         c = self.config
         self._trained = resolve_model(self._trained, c.checkpoint, problem.device)
-        sampler = CandidateSampler(self._trained, problem.device)
+        if self._critic is None and c.critic_checkpoint is not None:
+            self._critic = resolve_model(None, c.critic_checkpoint, problem.device)
+        sampler = CandidateSampler(self._trained, problem.device, critic_model=self._critic)
         if self._decoder is not None:
             decoder = self._decoder
         else:
@@ -464,14 +537,19 @@ class ZerothOrder(Optimizer):
         critic = self.critic()
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
                           placement=c.placement, chunk=c.chunk, critic=critic, critic_samples=c.critic_samples)
-        return gen, decoder, {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                              "critic": critic, "critic_samples": c.critic_samples}
+        info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
+                "critic": critic, "critic_samples": c.critic_samples}
+        if self._critic is not None:
+            info["critic_checkpoint"] = str(self._critic.path) if self._critic.path is not None else "(given model)"
+        return gen, decoder, info
 
     def critic(self) -> str:
         """The critic of the loaded model: the config's, or by default "dynamics" when the
-        model was trained on that task."""
+        model was trained on that task or a critic model is given."""
         if self.config.critic is not None:
             return self.config.critic
+        if self._critic is not None or self.config.critic_checkpoint is not None:
+            return "dynamics"
         return "dynamics" if self._trained.trained_on("dynamics") else "joint"
 
     def optimize(self, problem: Problem) -> Result:
@@ -495,8 +573,10 @@ __all__ = [
     "Ranking",
     "SamplerConfig",
     "ZerothOrder",
+    "check_critic",
     "embodiment_batch",
     "learned_result",
     "rank_candidates",
+    "renormalize",
     "resolve_model",
 ]

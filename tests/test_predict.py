@@ -243,3 +243,85 @@ def test_zeroth_order_dynamics_critic(checkpoint):
         ZerothOrder(SamplerConfig(num_steps=2, critic="dynamics"), model=robot_only).generate(problem)
     with pytest.raises(ValueError, match="critic = 'both'"):
         SamplerConfig(critic="both")
+
+
+def test_zeroth_order_with_a_critic_model(checkpoint):
+    """A critic model (another checkpoint's dynamics task) scores the sampling model's robot
+    draws: the embodiment is the sampling model's own draw, the reward that of the critic's
+    dynamics on a by-hand redo of the two sampling calls (one generator). A critic with
+    another normaliser gets the embodiment in its own units, and its dynamics are read in
+    them. A critic without the dynamics task, of another space, or asked for the joint
+    critic is refused."""
+    import copy
+    import dataclasses
+
+    from tt.baselines.problem import Problem
+    from tt.dit.checkpoint import load_model
+    from tt.dit.ddim import CosineDDIM
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import DYNAMICS, ROBOT
+    from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens
+    from tt.guidance.predicted import CheckpointSpaceError, PredictedReward, build_query
+    from tt.guidance.zeroth import CandidateSampler, SamplerConfig, ZerothOrder, renormalize
+    from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
+    from tt.tokens.batch import TokenBatch
+    from tt.tokens.normalize import Normalizer
+    from tt.tokens.schema import STEP_ROLES
+
+    trained = load_model(checkpoint)
+    net = copy.deepcopy(trained.model)
+    with torch.no_grad():  # another network: the critic must not be the sampling model in disguise
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+    low = {k: np.asarray(v) for k, v in trained.normalizer.low.items()}
+    high = {k: np.asarray(v) + (np.asarray(v) - low[k]) for k, v in trained.normalizer.high.items()}
+    motion = for_space([resolve_motion("toss")], SPACE)[0]
+    cfg = get_reward("tracking", SPACE)
+    q = build_query(trained.layout, trained.normalizer, motion, 3, generator=torch.Generator().manual_seed(4))
+    own = CandidateSampler(trained, "cpu").run([motion], cfg, 3, seed=4, num_steps=4, critic="dynamics")
+    for units in ("same", "other"):
+        norm = trained.normalizer if units == "same" else Normalizer(low, high, trained.normalizer.version)
+        critic = dataclasses.replace(trained, model=net, normalizer=norm, tasks=("dynamics",), path=None)
+        got = CandidateSampler(trained, "cpu", critic_model=critic).run([motion], cfg, 3, seed=4, num_steps=4,
+                                                                         critic="dynamics")
+        g = torch.Generator().manual_seed(4)
+        robot = sample(ComposedModel(trained.model, 1), compose_tokens(trained.layout, [q.tokens]), ROBOT,
+                       scheduler=CosineDDIM(100), num_steps=4, generator=g).tokens
+        given = robot if units == "same" else TokenBatch(renormalize(robot.values, trained.normalizer, norm), robot.ids,
+                                                         robot.mask, robot.version)
+        dyn = sample(ComposedModel(net, 1), given, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+        by_hand = PredictedReward(trained.layout, norm, cfg, q)(split_tokens(trained.layout, dyn.tokens, 1)[0].values)
+        np.testing.assert_allclose(got.reward[:, 0], by_hand.double().numpy(), rtol=1e-5)
+        assert not np.allclose(got.reward, own.reward)  # the critic's dynamics, not the sampling model's
+        for spec in trained.layout.specs:  # the candidates are the sampling model's draws, in its units
+            if spec.role not in STEP_ROLES:
+                assert torch.equal(got.tokens.values[spec.name], own.tokens.values[spec.name]), spec.name
+    if units == "other":  # padding stays padding in the critic's units
+        from tt.tokens.normalize import is_padding
+
+        for name, v in robot.values.items():
+            assert torch.equal(is_padding(v), is_padding(given.values[name])), name
+
+    sampler = CandidateSampler(trained, "cpu", critic_model=critic)
+    with pytest.raises(ValueError, match="critic 'joint' would ignore it"):
+        sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="joint")
+    with pytest.raises(ValueError, match=r"not the dynamics task a critic needs"):
+        CandidateSampler(trained, "cpu", critic_model=dataclasses.replace(critic, tasks=("robot",)))
+    with pytest.raises(CheckpointSpaceError, match="'viperx'.*'viperx-nominal'"):
+        CandidateSampler(trained, "cpu", critic_model=dataclasses.replace(critic, space="viperx"))
+    with pytest.raises(ValueError, match="does not go with critic = 'joint'"):
+        SamplerConfig(critic="joint", critic_checkpoint=str(checkpoint))
+    problem = Problem(SPACE, (motion,), "tracking", 2, seed=0, backend="warp", device="cpu")
+    info = ZerothOrder(SamplerConfig(num_steps=2, critic_checkpoint=str(checkpoint)), model=trained).generate(problem)[2]
+    assert info["critic"] == "dynamics" and info["critic_checkpoint"] == str(checkpoint)
+
+
+def test_optimize_refuses_a_joint_critic_checkpoint(checkpoint):
+    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
+                                      "--checkpoint", str(checkpoint), "--critic", "joint",
+                                      "--critic-checkpoint", str(checkpoint)])
+    assert result.exit_code != 0 and "does not go with --critic joint" in result.output
+    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
+                                      "--checkpoint", str(checkpoint), "--critic-checkpoint", "missing.pt"])
+    assert result.exit_code != 0 and "--critic-checkpoint missing.pt does not exist" in result.output

@@ -396,6 +396,7 @@ def optimize(
     num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
     critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
     critic_samples: int = typer.Option(1, help="learned methods, 'dynamics' critic: dynamics predictions averaged per candidate (a better ranking for k times the critic's cost)."),
+    critic_checkpoint: Optional[Path] = typer.Option(None, help="learned methods: another checkpoint of the same space whose dynamics task scores the candidates (e.g. one trained with --task dynamics alone); implies --critic dynamics."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -445,6 +446,10 @@ def optimize(
         if critic == "joint" and critic_samples > 1:
             _fail(f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
                   "sampled with each design")
+        if critic == "joint" and critic_checkpoint is not None:
+            _fail("--critic-checkpoint is a dynamics critic; it does not go with --critic joint")
+        if critic_checkpoint is not None and not critic_checkpoint.exists():
+            _fail(f"--critic-checkpoint {critic_checkpoint} does not exist")
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
@@ -462,6 +467,8 @@ def optimize(
             checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
         options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic,
                        critic_samples=critic_samples)
+        if critic_checkpoint is not None:
+            options.update(critic_checkpoint=str(critic_checkpoint))
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight)
         if method in ("zeroth-sim", "dgs-sim"):
