@@ -17,6 +17,12 @@ With ``--critic joint dynamics`` both critics rank the same samples (the robot t
 not depend on the critic): "joint" is the paper's (the candidate's co-sampled dynamics),
 "dynamics" re-predicts them with the dynamics task (`tt.guidance.zeroth`).
 
+``--critic-checkpoint C`` adds a critic that is another checkpoint's dynamics task, the way
+``tt optimize --critic-checkpoint`` uses it (`tt.guidance.zeroth.CandidateSampler`'s critic
+model): it scores the sampled candidates before decoding. The robot draws do not depend on
+the critic, so every critic of a seed ranks the same candidates: each is decoded and
+validated once per seed (cached by its tokens and by its design).
+
 ``--rescore C [C ...]`` adds critics that are other checkpoints (e.g. a model trained on the
 dynamics task alone): each scores the first critic's decoded candidates, the designs that
 were validated, with `tt.guidance.predicted.predict_designs` (``--rescore-samples`` K
@@ -24,7 +30,7 @@ predictions averaged), so its rows rank exactly the same validated designs at no
 simulation.
 
 Usage: ``python benchmarks/zeroth_ranking.py CHECKPOINT [--seeds 9] [--n 128] [--steps 20]
-[--critic joint dynamics] [--critic-samples 1 4] [--rescore C ...] [--rescore-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
+[--critic joint dynamics] [--critic-samples 1 4] [--critic-checkpoint C] [--rescore C ...] [--rescore-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
 """
 
 from __future__ import annotations
@@ -53,6 +59,22 @@ def seed_motions(space: str, seeds: int) -> list:
     return [val[3 * (i % skills) + i % 3] for i in range(seeds)]
 
 
+class CachedDecoder:
+    """A decoder that decodes each distinct candidate (by its embodiment tokens) once: the
+    critics of a seed rank the same robot draws."""
+
+    def __init__(self, decoder):
+        self.decoder = decoder
+        self.cache: dict[bytes, object] = {}
+
+    def __call__(self, tokens, index: int):
+        key = b"".join(np.ascontiguousarray(v[index]).tobytes() + np.ascontiguousarray(tokens.mask[n][index]).tobytes()
+                       for n, v in sorted(tokens.values.items()))
+        if key not in self.cache:
+            self.cache[key] = self.decoder(tokens, index)
+        return self.cache[key]
+
+
 def spearman(x: np.ndarray, y: np.ndarray) -> float:
     from scipy import stats
 
@@ -70,6 +92,10 @@ def main() -> None:
                    help="critics to compare (default: the model's default critic)")
     p.add_argument("--critic-samples", type=int, nargs="+", default=[1],
                    help="dynamics predictions averaged per candidate by the 'dynamics' critic (one row per value)")
+    p.add_argument("--critic-checkpoint", default=None,
+                   help="another checkpoint whose dynamics task scores the samples (one more critic row per --critic-samples)")
+    p.add_argument("--own-critic", action=argparse.BooleanOptionalAction, default=True,
+                   help="also rank with the sampling model's own critic (--no-own-critic: only --critic-checkpoint's)")
     p.add_argument("--rescore", nargs="+", default=[], metavar="CHECKPOINT",
                    help="other checkpoints that score the validated designs as critics (trained on the same space)")
     p.add_argument("--rescore-samples", type=int, nargs="+", default=[1],
@@ -102,29 +128,49 @@ def main() -> None:
         other = load_model(path, device="cpu")
         check_space(other, space)
         rescorers.append((path, other))
-    decoder = DesignDecoder(get_space(space))
-    critics = [(c, k) for c in (args.critic or [None]) for k in (args.critic_samples if c == "dynamics" else [1])]
+    judge = None
+    if args.critic_checkpoint is not None:
+        judge = load_model(args.critic_checkpoint, device="cpu")
+        check_space(judge, space)
+    sp = get_space(space)
+    decoder = CachedDecoder(DesignDecoder(sp))
+    critics = [(c, k, None) for c in (args.critic or [None]) for k in (args.critic_samples if c == "dynamics" else [1])]
+    if not args.own_critic:
+        critics = []
+    if judge is not None:
+        critics += [("dynamics", k, judge) for k in args.critic_samples]
+    if not critics:
+        p.error("--no-own-critic needs --critic-checkpoint")
     load_start = load_line()
     start = time.perf_counter()
     rows = []
     for seed, motion in enumerate(seed_motions(space, args.seeds)):
         problem = Problem(space, (motion,), args.reward, args.n, seed=seed, backend="warp", device="cpu")
-        for critic, k in critics:
+        checked: dict[str, tuple[float, float]] = {}  # design -> validated (reward, position error)
+        for critic, k, model in critics:
             zo = ZerothOrder(SamplerConfig(num_steps=args.steps, decode="all", critic=critic, critic_samples=k),
-                             model=trained, decoder=decoder)
+                             model=trained, decoder=decoder, critic_model=model)
             res = zo.optimize(problem)
-            ev = evaluate_designs(res.designs, (motion,), args.reward, backend="mujoco")
-            validated = ev.reward[:, 0]
-            label = res.info["critic"] + (f" (mean of {k} predictions)" if k > 1 else "")
+            keys = [json.dumps(sp.to_dict(d), sort_keys=True) for d in res.designs]
+            todo = [key for key in dict.fromkeys(keys) if key not in checked]
+            if todo:
+                ev = evaluate_designs([res.designs[keys.index(key)] for key in todo], (motion,), args.reward,
+                                      backend="mujoco")
+                for j, key in enumerate(todo):
+                    checked[key] = (float(ev.reward[j, 0]), float(np.asarray(ev.metrics["pos_err"])[j, 0]))
+            validated = np.array([checked[key][0] for key in keys])
+            pos_err = np.array([checked[key][1] for key in keys])
+            label = res.info["critic"] + (f" of `{args.critic_checkpoint}`" if model is not None else "") + \
+                (f" (mean of {k} predictions)" if k > 1 else "")
             row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": label,
                    "decoded": len(res.designs), "pick_reward": float(validated[0]),
                    "median_reward": float(np.median(validated)), "best_reward": float(validated.max()),
                    "pick_beats_median": bool(validated[0] > np.median(validated)),
                    "spearman": spearman(np.asarray(res.rewards), validated),
-                   "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[0, 0]), "seconds": res.seconds}
+                   "pick_pos_err": float(pos_err[0]), "seconds": res.seconds}
             print(json.dumps(row), flush=True)
             rows.append(row)
-            if rescorers and (critic, k) == critics[0]:
+            if rescorers and (critic, k, model) == critics[0]:
                 for path, other in rescorers:
                     for ks in args.rescore_samples:
                         pred = predict_designs(other, res.designs, (motion,), get_reward(args.reward, space), samples=ks,
@@ -135,7 +181,7 @@ def main() -> None:
                         extra = {**row, "critic": label, "pick_reward": float(validated[pick]),
                                  "pick_beats_median": bool(validated[pick] > np.median(validated)),
                                  "spearman": spearman(score, validated),
-                                 "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[pick, 0]),
+                                 "pick_pos_err": float(pos_err[pick]),
                                  "seconds": pred.seconds}
                         print(json.dumps(extra), flush=True)
                         rows.append(extra)
@@ -156,6 +202,8 @@ def main() -> None:
         machine_header("cpu"),
         f"- command: `python benchmarks/zeroth_ranking.py {' '.join(sys.argv[1:])}`",
         f"- checkpoint: `{args.checkpoint}` (space {space}, tasks {list(trained.tasks)}, step {trained.step})",
+        *([f"- critic checkpoint: `{args.critic_checkpoint}` (tasks {list(judge.tasks)}, step {judge.step})"]
+          if judge is not None else []),
         *[f"- rescoring critic: `{path}` (tasks {list(other.tasks)}, step {other.step})" for path, other in rescorers],
         f"- load: {load_start} at the start, {load_line()} at the end; "
         f"{minutes:.1f} min wall",
