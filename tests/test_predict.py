@@ -325,3 +325,16 @@ def test_optimize_refuses_a_joint_critic_checkpoint(checkpoint):
     result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
                                       "--checkpoint", str(checkpoint), "--critic-checkpoint", "missing.pt"])
     assert result.exit_code != 0 and "--critic-checkpoint missing.pt does not exist" in result.output
+
+
+def test_shipped_dynamics_specialist_critics_the_shipped_generalist():
+    """The shipped ViperX dynamics specialist (what `tt predict` uses by default) is a
+    dynamics-task model of the generalist's space and layout, so it can be the generalist's
+    Zeroth-Order critic (`tt optimize --critic-checkpoint`)."""
+    from tt.dit.checkpoint import default_checkpoint, load_model
+    from tt.guidance.zeroth import check_critic
+
+    generalist = load_model(default_checkpoint("viperx"))
+    specialist = load_model(default_checkpoint("viperx", task="dynamics"))
+    assert specialist.path.name == "viperx_mini_dynamics.pt" and specialist.tasks == ("dynamics",)
+    check_critic(generalist, specialist)

@@ -512,7 +512,7 @@ def predict(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped one)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, <space>_<size>_dynamics.pt, else its shipped generalist)."),
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
     num_steps: Optional[int] = typer.Option(None, help="DDIM steps (default: all 100 of the motion-to-robot process)."),
@@ -554,7 +554,7 @@ def predict(
         from tt.kernels.device import default_device
 
         cfg = get_reward(reward, space)
-        ckpt = checkpoint if checkpoint is not None else default_checkpoint(space)
+        ckpt = checkpoint if checkpoint is not None else default_checkpoint(space, task="dynamics")
         trained = load_model(ckpt, device=device or default_device())
         pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed, via=via)
     except (ValueError, FileNotFoundError) as e:
