@@ -17,6 +17,14 @@ on the full ViperX space ranks held-out designs far better than a model that sha
 training with the robot and control tasks (`benchmarks/results/dit_ladder_r2c.md`); the
 sampled embodiments are carried into its normaliser's units when the two differ.
 
+A sampled embodiment is often no robot of the space (its token structure a few attributes
+off every discrete choice; decoding projects it onto the nearest design), so the dynamics
+critic can instead be asked about the designs the candidates decode to (``critic_on=
+"designs"``): every candidate is decoded first, and each design's tokens are given to the
+critic as `tt predict` gives them (`tt.guidance.predicted.predict_designs`). It costs a
+decode per candidate (about a second each for ViperX on this CPU) and ranks what will be
+built (`benchmarks/results/zeroth_ranking_dynamics_critic.md`).
+
 Candidates are ranked by that objective and decoded to designs of the problem's space
 (`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
 choice of the space and the continuous choices fitted). By default a candidate whose token
@@ -62,6 +70,9 @@ DECODE_MODES = ("best", "all")
 #: Critics (see the module docstring): the candidates' jointly sampled dynamics, or the
 #: dynamics task's prediction for their sampled embodiments.
 CRITICS = ("joint", "dynamics")
+#: What the dynamics critic is asked about (see the module docstring): the sampled embodiment
+#: tokens, or the designs they decode to.
+CRITIC_INPUTS = ("tokens", "designs")
 
 
 # ------------------------------------------------------------------------------ config
@@ -81,7 +92,8 @@ class SamplerConfig:
         is one draw of the dynamics' distribution; on R1 four averaged raised pooled r from
         0.51 to 0.60, `benchmarks/results/dit_ladder_r1c.md`). critic_checkpoint: another
         checkpoint (file or run folder) whose dynamics task is the critic (None: the
-        sampling model's own); it implies the "dynamics" critic.
+        sampling model's own); it implies the "dynamics" critic. critic_on: "tokens" (the
+        sampled embodiments) or "designs" (the decoded designs; see the module docstring).
     """
 
     checkpoint: str | Path | None = None
@@ -94,6 +106,7 @@ class SamplerConfig:
     critic: str | None = None
     critic_samples: int = 1
     critic_checkpoint: str | Path | None = None
+    critic_on: str = "tokens"
 
     def __post_init__(self) -> None:
         if self.samples is not None and self.samples < 1:
@@ -115,6 +128,11 @@ class SamplerConfig:
         if self.critic == "joint" and self.critic_samples > 1:
             raise ValueError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
                              "scores the one draw sampled with the design")
+        if self.critic_on not in CRITIC_INPUTS:
+            raise ValueError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)}")
+        if self.critic == "joint" and self.critic_on == "designs":
+            raise ValueError("critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
+                             "with critic = 'joint'")
         if self.critic == "joint" and self.critic_checkpoint is not None:
             raise ValueError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
 
@@ -514,7 +532,9 @@ class ZerothOrder(Optimizer):
         self._trained = resolve_model(self._trained, c.checkpoint, problem.device)
         if self._critic is None and c.critic_checkpoint is not None:
             self._critic = resolve_model(None, c.critic_checkpoint, problem.device)
-        sampler = CandidateSampler(self._trained, problem.device, critic_model=self._critic)
+        # On designs, `judge_designs` asks the critic model itself; the sampler only samples.
+        sampler = CandidateSampler(self._trained, problem.device,
+                                   critic_model=self._critic if c.critic_on == "tokens" else None)
         if self._decoder is not None:
             decoder = self._decoder
         else:
@@ -535,20 +555,54 @@ class ZerothOrder(Optimizer):
         c = self.config
         sampler, decoder, cfg, n = self._setup(problem)
         critic = self.critic()
+        on_designs = c.critic_on == "designs"
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, critic=critic, critic_samples=c.critic_samples)
+                          placement=c.placement, chunk=c.chunk, critic="joint" if on_designs else critic,
+                          critic_samples=1 if on_designs else c.critic_samples)
+        if on_designs:
+            gen, decoder = self.judge_designs(problem, gen, decoder, cfg)
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "critic_samples": c.critic_samples}
+                "critic": critic, "critic_samples": c.critic_samples, "critic_on": c.critic_on}
         if self._critic is not None:
             info["critic_checkpoint"] = str(self._critic.path) if self._critic.path is not None else "(given model)"
         return gen, decoder, info
+
+    def judge_designs(self, problem: Problem, gen: Generation, decoder: Decoder,
+                      cfg: RewardConfig) -> tuple[Generation, Decoder]:
+        """`gen` scored on its decoded designs (``critic_on="designs"``): every candidate is
+        decoded, the dynamics critic (the critic model, else the sampling model's own task)
+        predicts each design's reward (`predict_designs`, ``critic_samples`` averaged, the
+        config's DDIM steps, the problem's seed), and candidates that do not decode score NaN.
+        Returns that generation and a decoder that answers from the decodes made here."""
+        import dataclasses
+
+        from tt.guidance.predicted import predict_designs
+
+        c = self.config
+        batch = embodiment_batch(self._trained.layout, self._trained.normalizer, gen.tokens)
+        decoded = [decoder(batch, i) for i in range(len(gen.objective))]
+        ok = [i for i, d in enumerate(decoded) if d.design is not None]
+        reward = np.full_like(gen.reward, np.nan)
+        metrics = {k: np.full_like(v, np.nan) for k, v in gen.metrics.items()}
+        seconds = gen.seconds
+        if ok:
+            pred = predict_designs(self._critic or self._trained, [decoded[i].design for i in ok], problem.motions, cfg,
+                                   samples=c.critic_samples, num_steps=c.num_steps, seed=problem.seed,
+                                   placement=c.placement, chunk=c.chunk, device=problem.device)
+            reward[ok] = pred.reward
+            metrics = {k: np.full((len(decoded),) + v.shape[1:], np.nan) for k, v in pred.metrics.items()}
+            for k, v in pred.metrics.items():
+                metrics[k][ok] = v
+            seconds += pred.seconds
+        scored = dataclasses.replace(gen, reward=reward, objective=reward.mean(axis=1), metrics=metrics, seconds=seconds)
+        return scored, lambda tokens, index: decoded[index]
 
     def critic(self) -> str:
         """The critic of the loaded model: the config's, or by default "dynamics" when the
         model was trained on that task or a critic model is given."""
         if self.config.critic is not None:
             return self.config.critic
-        if self._critic is not None or self.config.critic_checkpoint is not None:
+        if self._critic is not None or self.config.critic_checkpoint is not None or self.config.critic_on == "designs":
             return "dynamics"
         return "dynamics" if self._trained.trained_on("dynamics") else "joint"
 
@@ -562,6 +616,7 @@ class ZerothOrder(Optimizer):
 
 __all__ = [
     "CRITICS",
+    "CRITIC_INPUTS",
     "DECODE_MODES",
     "CandidateSampler",
     "Decoded",

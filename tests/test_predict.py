@@ -338,3 +338,46 @@ def test_shipped_dynamics_specialist_critics_the_shipped_generalist():
     specialist = load_model(default_checkpoint("viperx", task="dynamics"))
     assert specialist.path.name == "viperx_mini_dynamics.pt" and specialist.tasks == ("dynamics",)
     check_critic(generalist, specialist)
+
+
+def test_critic_on_designs_ranks_by_tt_predicts_reward_of_the_decoded_designs(checkpoint):
+    """With critic_on="designs" every candidate is decoded and ranked by the critic's
+    prediction for its design, exactly `predict_designs` on those designs (same DDIM steps,
+    the problem's seed), from the sampling model's dynamics task or a critic model's; the
+    joint critic and unknown inputs are refused (config and CLI)."""
+    import copy
+    import dataclasses
+
+    from tt.baselines.problem import Problem
+    from tt.dit.checkpoint import load_model
+    from tt.guidance.predicted import predict_designs
+    from tt.guidance.zeroth import SamplerConfig, ZerothOrder
+    from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
+
+    trained = load_model(checkpoint)
+    motion = for_space([resolve_motion("toss")], SPACE)[0]
+    cfg = get_reward("tracking", SPACE)
+    problem = Problem(SPACE, (motion,), "tracking", 4, seed=3, backend="warp", device="cpu")
+    net = copy.deepcopy(trained.model)
+    with torch.no_grad():  # another network, so a critic model that is ignored fails the comparison
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+    other = dataclasses.replace(trained, model=net, tasks=("dynamics",), path=None)
+    for critic in (None, other):
+        res = ZerothOrder(SamplerConfig(num_steps=2, critic_on="designs", decode="all"), model=trained,
+                          critic_model=critic).optimize(problem)
+        order = res.info["ranking"]
+        assert len(res.designs) == 4 and sorted(order) == [0, 1, 2, 3]  # projection decodes every candidate
+        by_index = [res.designs[order.index(i)] for i in range(4)]
+        pred = predict_designs(critic or trained, by_index, [motion], cfg, num_steps=2, seed=3)
+        np.testing.assert_allclose(res.rewards, pred.reward[order, 0], rtol=1e-6)
+        assert np.all(np.diff(res.rewards) <= 0) and res.best == res.designs[0]
+        assert res.info["critic_on"] == "designs" and res.info["critic"] == "dynamics"
+    with pytest.raises(ValueError, match="does not go with critic = 'joint'"):
+        SamplerConfig(critic="joint", critic_on="designs")
+    with pytest.raises(ValueError, match="critic_on = 'robots'"):
+        SamplerConfig(critic_on="robots")
+    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
+                                      "--checkpoint", str(checkpoint), "--critic", "joint", "--critic-on", "designs"])
+    assert result.exit_code != 0 and "does not go with --critic joint" in result.output

@@ -397,6 +397,7 @@ def optimize(
     critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
     critic_samples: int = typer.Option(1, help="learned methods, 'dynamics' critic: dynamics predictions averaged per candidate (a better ranking for k times the critic's cost)."),
     critic_checkpoint: Optional[Path] = typer.Option(None, help="learned methods: another checkpoint of the same space whose dynamics task scores the candidates (e.g. one trained with --task dynamics alone); implies --critic dynamics."),
+    critic_on: str = typer.Option("tokens", help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first)."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -446,6 +447,12 @@ def optimize(
         if critic == "joint" and critic_samples > 1:
             _fail(f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
                   "sampled with each design")
+        from tt.guidance.zeroth import CRITIC_INPUTS
+
+        if critic_on not in CRITIC_INPUTS:
+            _fail(f"--critic-on {critic_on!r}: valid are {' and '.join(map(repr, CRITIC_INPUTS))}")
+        if critic == "joint" and critic_on == "designs":
+            _fail("--critic-on designs asks the dynamics critic about the decoded designs; it does not go with --critic joint")
         if critic == "joint" and critic_checkpoint is not None:
             _fail("--critic-checkpoint is a dynamics critic; it does not go with --critic joint")
         if critic_checkpoint is not None and not critic_checkpoint.exists():
@@ -469,6 +476,8 @@ def optimize(
                        critic_samples=critic_samples)
         if critic_checkpoint is not None:
             options.update(critic_checkpoint=str(critic_checkpoint))
+        if critic_on != "tokens":
+            options.update(critic_on=critic_on)
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight)
         if method in ("zeroth-sim", "dgs-sim"):
