@@ -81,8 +81,15 @@ KEPT = ("Kept: x0 prediction and sinusoidal time-step IDs are now `tt train`'s d
 CURRENT_NOTE = ("On today's data R0 is harder (more designs survive, their rewards lie closer), so the rows "
                 "separate more. `anchor`, the shipped recipe, reaches 0.98 at 1,000 steps; EDM weighting learns a "
                 "little slower early (0.27 against 0.36 at step 250) and ends level (0.97); min-SNR-5 is clearly worse "
-                "(0.81 at 1,000). Twice the learning rate (1e-2) ends lower (0.94). Kept: no loss weighting (`tt train`'s "
-                "default) and R0's learning rate. The other rows are not run yet.")
+                "(0.81 at 1,000). Half the learning rate (2.5e-3) starts slower (0.10 at 250) and ends at 0.93; twice "
+                "(1e-2) ends lower (0.94). v prediction ends at 0.82 (the anchor needs x0, so it is one change from "
+                "plain x0). 50 DDIM training steps instead of 100: 0.88. Batch 64 is ahead per step (0.87 at 500, 0.99 "
+                "at 1,000) but runs at half the steps per second: at the same windows seen it is behind (0.87 at its "
+                "step 500 against `anchor`'s 0.98 at 1,000). The `mini` model reaches 0.99 at 1,000 steps (0.98 at "
+                "750) at a fifth of `tiny`'s steps per second (0.93 against 4.5 on one core), so at equal time `tiny` "
+                "is ahead on R0; R1 and R2, with thousands of designs rather than 16, use `mini`. Kept: no loss "
+                "weighting, x0 prediction, R0's learning rate, batch 32 and 100 DDIM steps, as `tt train` does now. "
+                "bf16 autocast is not run yet.")
 
 
 def run_row(name: str, steps: int, out: Path) -> dict:
