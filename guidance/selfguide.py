@@ -209,12 +209,7 @@ class DynamicsSelfGuidance(ZerothOrder):
                               device=problem.device)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
         critic = self.critic()
-        on_designs = c.critic_on == "designs"
-        gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, guidance=guidance,
-                          critic="joint" if on_designs else critic, critic_samples=1 if on_designs else c.critic_samples)
-        if on_designs:
-            gen, decoder = self.judge_designs(problem, gen, decoder, cfg)
+        gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,

@@ -555,17 +555,27 @@ class ZerothOrder(Optimizer):
         c = self.config
         sampler, decoder, cfg, n = self._setup(problem)
         critic = self.critic()
-        on_designs = c.critic_on == "designs"
-        gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, critic="joint" if on_designs else critic,
-                          critic_samples=1 if on_designs else c.critic_samples)
-        if on_designs:
-            gen, decoder = self.judge_designs(problem, gen, decoder, cfg)
+        gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n)
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
                 "critic": critic, "critic_samples": c.critic_samples, "critic_on": c.critic_on}
         if self._critic is not None:
             info["critic_checkpoint"] = str(self._critic.path) if self._critic.path is not None else "(given model)"
         return gen, decoder, info
+
+    def sample_scored(self, sampler: CandidateSampler, decoder: Decoder, problem: Problem, cfg: RewardConfig, n: int,
+                      guidance: Guidance | None = None) -> tuple[Generation, Decoder]:
+        """n candidates sampled (with `guidance`, if any) and scored by the config's critic:
+        on their tokens inside the sampling call, or on their decoded designs afterwards
+        (`judge_designs`, which also returns a decoder answering from its decodes)."""
+        c = self.config
+        on_designs = c.critic_on == "designs"
+        gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
+                          placement=c.placement, chunk=c.chunk, guidance=guidance,
+                          critic="joint" if on_designs else self.critic(),
+                          critic_samples=1 if on_designs else c.critic_samples)
+        if on_designs:
+            return self.judge_designs(problem, gen, decoder, cfg)
+        return gen, decoder
 
     def judge_designs(self, problem: Problem, gen: Generation, decoder: Decoder,
                       cfg: RewardConfig) -> tuple[Generation, Decoder]:
