@@ -63,12 +63,12 @@ except ImportError:  # run as a module from the repository root
 RESULTS = Path(__file__).parent / "results"
 SPACE = "viperx"
 RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
-ZEROTH_SIM, CMAES_INIT = "Zeroth + sim", "CMA-ES init model"
+ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT = "Zeroth + sim", "Zeroth + sim (top k)", "CMA-ES init model"
 #: The baselines again, at the hybrids' wall time (part "hybrid").
 RANDOM_T, CMAES_T = "Random (= time)", "CMA-ES batched (= time)"
-METHODS = (RANDOM, CMAES_B, ZEROTH, DGS, ZEROTH_SIM, CMAES_INIT, RANDOM_T, CMAES_T)
-LEARNED = (ZEROTH, DGS, ZEROTH_SIM, CMAES_INIT)
-HYBRIDS = (ZEROTH_SIM, CMAES_INIT)
+METHODS = (RANDOM, CMAES_B, ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT, RANDOM_T, CMAES_T)
+LEARNED = (ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
+HYBRIDS = (ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 SINGLE, MULTI = "single trajectory", "multi trajectory"
 
 #: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
@@ -89,18 +89,20 @@ class Learned:
     decoder: object
     checkpoint: Path
     seconds: float
+    critic: object = None
 
 
-def load_learned(checkpoint: Path) -> Learned:
+def load_learned(checkpoint: Path, critic_checkpoint: Path | None = None) -> Learned:
     from tt.dit.checkpoint import load_model
     from tt.guidance.zeroth import DesignDecoder
     from tt.tokens.design_fit import CandidateTable
 
     start = time.perf_counter()
     trained = load_model(checkpoint, device="cpu")
+    critic = load_model(critic_checkpoint, device="cpu") if critic_checkpoint is not None else None
     space = get_space(SPACE)
     decoder = DesignDecoder(space, table=CandidateTable(space))
-    return Learned(trained, decoder, Path(checkpoint), time.perf_counter() - start)
+    return Learned(trained, decoder, Path(checkpoint), time.perf_counter() - start, critic)
 
 
 def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
@@ -108,18 +110,22 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return RandomSearch()
     if method in (CMAES_B, CMAES_T):
         return CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
-    from tt.guidance.hybrid import ModelInitCMAES, SimVerified
+    from tt.guidance.hybrid import ModelInitCMAES, SimVerified, VerifyConfig
     from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
+    def zeroth() -> ZerothOrder:
+        return ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder,
+                           critic_model=learned.critic)
+
     if method == ZEROTH:
-        return ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder)
+        return zeroth()
     if method == ZEROTH_SIM:
-        return SimVerified(ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder))
+        return SimVerified(zeroth())
+    if method == ZEROTH_SIM_TOP:
+        return SimVerified(zeroth(), VerifyConfig(verify=args.hybrid_verify))
     if method == CMAES_INIT:
-        return ModelInitCMAES(ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained,
-                                          decoder=learned.decoder),
-                              CMAESConfig(popsize=args.popsize, generations=args.generations))
+        return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder)
@@ -162,8 +168,10 @@ def run_hybrid(setting: str, motions: tuple, seed: int, args, learned: Learned) 
     """The hybrids and the baselines at equal rollouts on one problem, then the baselines at
     the budget that takes the slower hybrid's wall time (scaled from their equal-rollout time)."""
     b = args.hybrid_budget
+    top = [(ZEROTH_SIM_TOP, b, 0.0)] if args.hybrid_verify is not None else []
     first = run_group("hybrid", setting, motions, "tracking", seed,
-                      [(ZEROTH_SIM, b, 0.0), (CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)], args, learned)
+                      [(ZEROTH_SIM, b, 0.0)] + top + [(CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)],
+                      args, learned)
     t_hybrid = max(r["seconds"] for r in first if r["method"] in HYBRIDS)
     again = []
     for base, timed in ((RANDOM, RANDOM_T), (CMAES_B, CMAES_T)):
@@ -296,7 +304,7 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
     for ax, (setting, reward) in zip(axes[0], groups):
         sub = [r for r in records if r["setting"] == setting and r["reward_name"] == reward]
         rows = []
-        for method in (RANDOM, CMAES_B, RANDOM_T, CMAES_T, ZEROTH_SIM, CMAES_INIT):
+        for method in (RANDOM, CMAES_B, RANDOM_T, CMAES_T) + HYBRIDS:
             mr = [r for r in sub if r["method"] == method]
             if not mr:
                 continue
@@ -511,7 +519,12 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
         f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
         f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
-        f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory {info['multi_n']} "
+        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the learned methods' samples\n"
+           if info.get("critic_checkpoint") else "")
+        + (f"- Zeroth + sim (top k): the simulator verifies the top {info['hybrid_verify']} of its samples as the "
+           f"critic ranks them\n" if info.get("hybrid_verify") else "")
+        + ("- hybrids at equal wall time: each baseline gets the slowest hybrid's time on that seed\n" if hybrid else "")
+        + f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory {info['multi_n']} "
         f"and {info['multi_dgs_n']}); Random and CMA-ES budget {info['budget']} candidates per motion (multi "
         f"trajectory {info['multi_budget']}); CMA-ES population {info['popsize']}, {info['generations']} generations "
         f"per restart, half the budget screened first (tt's default)\n"
@@ -589,6 +602,11 @@ def main() -> None:
     ap.add_argument("--hybrid-seeds", type=int, default=9, help="hybrid: runs per setting")
     ap.add_argument("--hybrid-budget", type=int, default=64,
                     help="hybrid: zeroth-sim samples (all verified) and cmaes-init-model / baseline rollout budget")
+    ap.add_argument("--hybrid-verify", type=int, default=None,
+                    help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
+    ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
+    ap.add_argument("--critic-checkpoint", type=Path, default=None,
+                    help="learned methods: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
     ap.add_argument("--from-log", type=Path, nargs="+", default=None,
@@ -607,6 +625,11 @@ def main() -> None:
 
     checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE)
     parts = [p for p in args.parts.split(",") if p]
+    hybrid_settings = [s for s in args.hybrid_settings.split(",") if s]
+    if sorted(set(hybrid_settings) - {"single", "multi"}):
+        sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
+    if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
+        sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
     unknown = sorted(set(parts) - {"table", "scaling", "lambda", "hybrid"})
     if unknown:
         sys.exit(f"--parts: unknown {unknown}; valid: table, scaling, lambda, hybrid")
@@ -625,14 +648,15 @@ def main() -> None:
 
     info = {
         "machine": machine_header("cpu"), "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
-        "command": command, "checkpoint": str(checkpoint), "steps": args.steps, "n": args.n, "dgs_n": args.dgs_n,
+        "command": command, "checkpoint": str(checkpoint), "hybrid_verify": args.hybrid_verify,
+        "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None, "steps": args.steps, "n": args.n, "dgs_n": args.dgs_n,
         "multi_n": args.multi_n, "multi_dgs_n": args.multi_dgs_n, "budget": args.budget, "multi_budget": args.multi_budget,
         "popsize": args.popsize, "generations": args.generations, "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
         "lambda_start": args.lambda_start,
     }
     # One-time costs, before any timing: the model and decoding table, every ViperX topology's
     # kernels (rollout, and the differentiable rollout for the lambda part), first calls.
-    learned = load_learned(checkpoint)
+    learned = load_learned(checkpoint, args.critic_checkpoint)
     info.update(learned_seconds=learned.seconds, checkpoint_step=learned.trained.step,
                 parameters=sum(p.numel() for p in learned.trained.model.parameters()))
     t = time.perf_counter()
@@ -701,6 +725,8 @@ def main() -> None:
     if "hybrid" in parts:
         for i in range(args.hybrid_seeds):
             for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
+                if setting.split()[0] not in hybrid_settings:
+                    continue
                 jobs.append((1, ("hybrid", setting, motions, "tracking", i, None, f"hybrid {setting} seed {i}")))
     for _, job in sorted(jobs, key=lambda j: j[0]):
         if job[0] == "hybrid":
