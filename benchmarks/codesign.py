@@ -300,7 +300,7 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
             "Random / CMA-ES at the hybrids' rollout budget (equal rollouts), and again at the budget that takes the "
             "hybrid's wall time (equal wall time: the equal-rollout run's time scaled to the slower hybrid's, per seed). "
             "Paired differences are the hybrid's validated reward minus the baseline's, seed by seed (95% CI).\n",
-            "![hybrids](codesign_hybrid.png)\n"]
+            f"![hybrids]({plot.name})\n"]
     for ax, (setting, reward) in zip(axes[0], groups):
         sub = [r for r in records if r["setting"] == setting and r["reward_name"] == reward]
         rows = []
@@ -503,7 +503,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         plot_lambda(lam, out.parent / "codesign_lambda.png")
     hybrid = [r for r in records if r["part"] == "hybrid"]
     if hybrid:
-        sections.append(hybrid_section(hybrid, out.parent / "codesign_hybrid.png"))
+        sections.append(hybrid_section(hybrid, out.parent / f"{out.stem}_hybrid.png"))
     if tables:
         plot_method_bars({k: _ok(v) for k, v in tables.items()}, out.with_suffix(".png"), order=METHODS)
     goal = targets(tables, scaling, info)
@@ -535,7 +535,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         + ("- skipped (over --max-minutes): " + "; ".join(skipped) + "\n" if skipped else "")
         + "\n## The issue's targets\n\n" + ("\n".join(goal) if goal else "- not measured in this run") + "\n\n"
         + "\n".join(sections)
-        + "\n![tables](codesign.png)\n\n" + notes(records, info)
+        + (f"\n![tables]({out.with_suffix('.png').name})\n" if tables else "") + "\n" + notes(records, info)
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
