@@ -33,17 +33,43 @@ from machine import machine_header  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 
 
+#: A simulated reward below this is a design that (nearly) fails at once: less than one
+#: perfectly tracked step's worth. On the full ViperX space about half the held-out pairs do.
+FAILED_BELOW = 1.0
+
+
+def failure_split(predicted: np.ndarray, simulated: np.ndarray) -> dict:
+    """How the predicted rewards separate pairs that fail in simulation (reward < FAILED_BELOW)
+    from those that track: the failed share, the AUC (the chance that a tracking pair is
+    predicted above a failing one; 0.5 is chance) and Pearson r among the tracking pairs."""
+    p, q = np.asarray(predicted, float).ravel(), np.asarray(simulated, float).ravel()
+    failed = q < FAILED_BELOW
+    out = {"failed_share": float(failed.mean()), "auc": float("nan"), "r_tracking": float("nan")}
+    if failed.any() and (~failed).any():
+        a, b = p[~failed][:, None], p[failed][None, :]
+        out["auc"] = float(np.mean((a > b) + 0.5 * (a == b)))
+    if (~failed).sum() > 2 and p[~failed].std() > 0 and q[~failed].std() > 0:
+        out["r_tracking"] = float(np.corrcoef(p[~failed], q[~failed])[0, 1])
+    return out
+
+
 def summary(folder: Path, note: str) -> Path:
     """DIR.md: one row per result JSON in `folder`, by step then samples and DDIM steps."""
     results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
     results.sort(key=lambda r: (r["step"], r["samples"], r["num_steps"]))
     lines = [f"# Ladder over a run: {folder.name}", "", note, "",
-             "| step | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | predict (s) | file |",
-             "|---:|---:|---:|---:|---:|---|---:|---|"]
+             f"Failing pairs: simulated reward below {FAILED_BELOW:g} (less than one perfectly tracked step). AUC: the "
+             "chance that the model predicts a tracking pair above a failing one (0.5: chance). r tracking: Pearson r "
+             "among the pairs that do not fail.", "",
+             "| step | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | failing (%) "
+             "| AUC failing | r tracking | predict (s) | file |",
+             "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
+        f = failure_split(r["predicted"], r["simulated"]) if "predicted" in r and "simulated" in r else None
+        split = (f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -")
         lines.append(f"| {r['step']} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
-                     f"{per} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
+                     f"{per} | {split} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
     out = folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
     return out
