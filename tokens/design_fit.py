@@ -23,7 +23,7 @@ match the given ones.
    tokenizes it). The first fit whose residual is below `tol` wins; otherwise the lowest
    residual. Exact structures take finite-difference Jacobians at every step; projected
    ones, whose loose tolerances stop after a few steps, take one and update it (Broyden),
-   which halves the model builds of a typical sample's decode at the same residual.
+   which cuts a typical sample's model builds by ~40 % (195 -> 112) at the same residual.
 """
 
 from __future__ import annotations
