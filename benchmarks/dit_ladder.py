@@ -56,19 +56,19 @@ def failure_split(predicted: np.ndarray, simulated: np.ndarray) -> dict:
 def summary(folder: Path, note: str) -> Path:
     """DIR.md: one row per result JSON in `folder`, by step then samples and DDIM steps."""
     results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
-    results.sort(key=lambda r: (r["step"], r["samples"], r["num_steps"]))
+    results.sort(key=lambda r: (r.get("pairs", "held-out") != "held-out", r["step"], r["samples"], r["num_steps"]))
     lines = [f"# Ladder over a run: {folder.name}", "", note, "",
              f"Failing pairs: simulated reward below {FAILED_BELOW:g} (less than one perfectly tracked step). AUC: the "
              "chance that the model predicts a tracking pair above a failing one (0.5: chance). r tracking: Pearson r "
              "among the pairs that do not fail.", "",
-             "| step | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | failing (%) "
+             "| step | pairs | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | failing (%) "
              "| AUC failing | r tracking | predict (s) | file |",
-             "|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
+             "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
         f = failure_split(r["predicted"], r["simulated"]) if "predicted" in r and "simulated" in r else None
         split = (f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -")
-        lines.append(f"| {r['step']} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
+        lines.append(f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
                      f"{per} | {split} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
     out = folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
@@ -98,6 +98,9 @@ def main() -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--via", default=None, choices=["dynamics", "inpaint"],
                    help="how the design is given (default: dynamics when the checkpoint was trained on it)")
+    p.add_argument("--online-refresh", type=int, default=None, metavar="K",
+                   help="score the designs x training motions of refresh K of the checkpoint's own online run (its "
+                        "training data: in its buffer, long past, or not yet drawn) instead of held-out designs")
     p.add_argument("--out", default=None)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -110,13 +113,25 @@ def main() -> None:
     space = args.space or trained.space
     if space is None:
         p.error("the checkpoint records no design space; give --space")
-    designs = heldout_designs(space, args.designs, args.design_seed)
-    motions = validation_motions(space, args.motions)
+    if args.online_refresh is None:
+        designs = heldout_designs(space, args.designs, args.design_seed)
+        motions = validation_motions(space, args.motions)
+        pairs = "held-out"
+    else:
+        from tt.dit.checkpoint import load_checkpoint
+        from tt.dit.online import OnlineConfig, OnlineTokenSource
+
+        online = (load_checkpoint(trained.path).get("train_config") or {}).get("online")
+        if not online:
+            p.error(f"--online-refresh: {trained.path} records no online run (a resumable checkpoint of `tt train --online`)")
+        designs, motions = OnlineTokenSource(OnlineConfig(**online), device="cpu").draw(args.online_refresh)
+        designs = designs[: args.designs]
+        pairs = f"online refresh {args.online_refresh}"
     sc = score_designs(trained, designs, motions, args.reward, samples=args.samples, num_steps=args.num_steps,
                        chunk=args.chunk, backend=args.backend, device=args.device, via=args.via)
     via = args.via or default_via(trained)
     result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
-              "designs": len(designs), "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
+              "designs": len(designs), "pairs": pairs, "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
               "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,
               "estimator_pooled_r": sc.estimator_pooled, "seconds": sc.seconds}
     print(json.dumps(result), flush=True)
@@ -128,9 +143,12 @@ def main() -> None:
         f"# Ladder: predicted vs simulated {args.reward} reward, {space}",
         "",
         machine_header(args.device),
-        f"Checkpoint `{trained.path}` (step {trained.step}); {len(designs)} held-out designs "
-        f"(`tt.ladder.heldout_designs({space!r}, {args.designs}, {args.design_seed})`) x {len(motions)} validation "
-        f"motions; `tt predict` code path (design given via {via}), {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
+        f"Checkpoint `{trained.path}` (step {trained.step}); "
+        + (f"{len(designs)} held-out designs (`tt.ladder.heldout_designs({space!r}, {args.designs}, {args.design_seed})`) "
+           f"x {len(motions)} validation motions" if args.online_refresh is None else
+           f"the first {len(designs)} designs x {len(motions)} training motions of its run's online refresh "
+           f"{args.online_refresh} (training data)")
+        + f"; `tt predict` code path (design given via {via}), {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
         f"`{args.backend}`.",
         "",
         f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: {sc.estimator_pooled:.2f})",
