@@ -519,7 +519,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
         f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
         f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
-        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the learned methods' samples\n"
+        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks Zeroth-Order's and the hybrids' samples\n"
            if info.get("critic_checkpoint") else "")
         + (f"- Zeroth + sim (top k): the simulator verifies the top {info['hybrid_verify']} of its samples as the "
            f"critic ranks them\n" if info.get("hybrid_verify") else "")
@@ -606,7 +606,7 @@ def main() -> None:
                     help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
-                    help="learned methods: another checkpoint's dynamics task ranks the samples (default: the model's own)")
+                    help="Zeroth-Order and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
     ap.add_argument("--from-log", type=Path, nargs="+", default=None,
