@@ -33,8 +33,9 @@ from machine import machine_header  # noqa: E402
 RESULTS = Path(__file__).parent / "results"
 
 
-#: A simulated reward below this is a design that (nearly) fails at once: less than one
-#: perfectly tracked step's worth. On the full ViperX space about half the held-out pairs do.
+#: A simulated tracking reward below this is a design that (nearly) fails at once: less
+#: than one perfectly tracked step's worth. On the full ViperX space about half the held-out
+#: pairs do.
 FAILED_BELOW = 1.0
 
 
@@ -66,7 +67,9 @@ def summary(folder: Path, note: str) -> Path:
              "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
-        f = failure_split(r["predicted"], r["simulated"]) if "predicted" in r and "simulated" in r else None
+        # The cut is the tracking reward's (rewards without a "reward" field were tracking).
+        tracking = r.get("reward", "tracking") == "tracking"
+        f = failure_split(r["predicted"], r["simulated"]) if tracking and "predicted" in r and "simulated" in r else None
         split = (f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -")
         lines.append(f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
                      f"{per} | {split} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
@@ -131,11 +134,12 @@ def main() -> None:
                        chunk=args.chunk, backend=args.backend, device=args.device, via=args.via)
     via = args.via or default_via(trained)
     result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
-              "designs": len(designs), "pairs": pairs, "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
+              "designs": len(designs), "pairs": pairs, "reward": args.reward, "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
               "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,
               "estimator_pooled_r": sc.estimator_pooled, "seconds": sc.seconds}
     print(json.dumps(result), flush=True)
-    out = Path(args.out) if args.out else RESULTS / f"dit_ladder_{space}.md"
+    suffix = "" if args.online_refresh is None else f"_online{args.online_refresh}"
+    out = Path(args.out) if args.out else RESULTS / f"dit_ladder_{space}{suffix}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = [f"| {m} | {sc.predicted[:, j].mean():.1f} | {sc.simulated[:, j].mean():.1f} | {sc.within[j]:.2f} | "
             f"{sc.estimator_within[j]:.2f} |" for j, m in enumerate(sc.motions)]

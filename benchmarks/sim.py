@@ -495,8 +495,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--budget", type=float, default=20.0, help="seconds per mjwarp / newton combination")
     ap.add_argument("--deadline", type=float, default=480.0, help="mjwarp / newton are skipped past this many seconds")
     ap.add_argument("--cli-n", type=int, default=None, help="designs of the CLI figure (default 4096, --quick: 8; 0: none)")
-    ap.add_argument("--cli-repeats", type=int, default=3,
-                    help="fresh `tt rollout` processes per warp thread count, interleaved; the median counts")
+    ap.add_argument("--cli-repeats", type=int, default=None,
+                    help="fresh `tt rollout` processes per warp thread count, interleaved; the median counts (the lower "
+                         "middle one for an even count); default 3, --quick: 1")
     ap.add_argument("--steps", type=int, default=None, help="control steps of the toss (default: all 223)")
     ap.add_argument("--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8")
     ap.add_argument("--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)")
@@ -508,6 +509,7 @@ def main(argv: list[str] | None = None) -> None:
         args.mujoco_world_steps, args.budget, args.others_max_n = 2e4, 5.0, 1
     args.sizes = sorted(set(args.sizes))
     args.cli_n = 4096 if args.cli_n is None else args.cli_n
+    args.cli_repeats = (1 if args.quick else 3) if args.cli_repeats is None else args.cli_repeats
     if args.cli_repeats < 1:
         ap.error(f"--cli-repeats {args.cli_repeats}: must be >= 1")
     if args.backends is None:

@@ -282,10 +282,11 @@ class _BroydenJacobian:
     keep finite differences at every step (`design_from_tokens`), as they fit to 1e-10.
     """
 
-    def __init__(self, residuals, hi: np.ndarray):
+    def __init__(self, residuals, hi: np.ndarray, seen: dict[bytes, np.ndarray] | None = None):
         self.residuals, self.hi = residuals, hi
-        self.seen: dict[bytes, np.ndarray] = {}
+        self.seen: dict[bytes, np.ndarray] = dict(seen or {})
         self.x = self.r = self.J = None
+        self.refresh = True
 
     def fun(self, x: np.ndarray) -> np.ndarray:
         r = self.residuals(x[None])[0]
@@ -296,13 +297,14 @@ class _BroydenJacobian:
         r = self.seen.get(x.tobytes())
         if r is None:
             r = self.fun(x)
-        # A structure change (residual 1e3) is a jump, not a slope: take fresh differences.
-        jump = self.J is None or bool(np.any(r >= 1e3)) or bool(np.any(self.r >= 1e3))
-        if jump:
+        # A structure change (residual 1e3) is a jump, not a slope: take fresh differences,
+        # and again at the next step when a difference itself crossed one.
+        if self.refresh or bool(np.any(r >= 1e3)) or bool(np.any(self.r >= 1e3)):
             h = 1e-6 * np.maximum(1.0, np.abs(x))
             h = np.where(x + h > self.hi, -h, h)
             R = self.residuals(x[None] + np.diag(h))
             self.J = ((R - r) / h[:, None]).T
+            self.refresh = bool(np.any(R >= 1e3))
         else:
             dx, dr = x - self.x, r - self.r
             step = float(dx @ dx)
@@ -387,14 +389,16 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
             options = dict(bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9), xtol=1e-10 if exact else 1e-4,
                            ftol=1e-10 if exact else 1e-4, gtol=1e-10 if exact else 1e-6,
                            max_nfev=(20 if exact else 5) * (len(params) + 1))
-            if broyden if broyden is not None else not exact:
+            use_broyden = (not exact) if broyden is None else broyden
+            if use_broyden:
                 # Twice: the second pass restarts from fresh differences where the updated
-                # Jacobian's steps stalled.
-                x = 0.5 * (lo + hi)
-                for _ in range(2):
-                    jac = _BroydenJacobian(residuals, hi)
-                    sol = least_squares(jac.fun, x, jac=jac, **options)
+                # Jacobian's steps stalled (not needed when the first took no step).
+                jac = _BroydenJacobian(residuals, hi)
+                sol = least_squares(jac.fun, 0.5 * (lo + hi), jac=jac, **options)
+                if sol.njev > 1:
                     x = np.clip(sol.x, lo, hi)
+                    jac = _BroydenJacobian(residuals, hi, seen={x.tobytes(): sol.fun})
+                    sol = least_squares(jac.fun, x, jac=jac, **options)
             else:
                 sol = least_squares(lambda x, residuals=residuals: residuals(x[None])[0], 0.5 * (lo + hi), jac=jacobian,
                                     **options)
