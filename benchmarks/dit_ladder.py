@@ -43,14 +43,15 @@ def failure_split(predicted: np.ndarray, simulated: np.ndarray) -> dict:
     """How the predicted rewards separate pairs that fail in simulation (reward < FAILED_BELOW)
     from those that track: the failed share, the AUC (the chance that a tracking pair is
     predicted above a failing one; 0.5 is chance) and Pearson r among the tracking pairs."""
+    from tt.ladder import pearson
+
     p, q = np.asarray(predicted, float).ravel(), np.asarray(simulated, float).ravel()
     failed = q < FAILED_BELOW
-    out = {"failed_share": float(failed.mean()), "auc": float("nan"), "r_tracking": float("nan")}
+    out = {"failed_share": float(failed.mean()), "auc": float("nan")}
     if failed.any() and (~failed).any():
         a, b = p[~failed][:, None], p[failed][None, :]
         out["auc"] = float(np.mean((a > b) + 0.5 * (a == b)))
-    if (~failed).sum() > 2 and p[~failed].std() > 0 and q[~failed].std() > 0:
-        out["r_tracking"] = float(np.corrcoef(p[~failed], q[~failed])[0, 1])
+    out["r_tracking"] = pearson(p[~failed], q[~failed])
     return out
 
 

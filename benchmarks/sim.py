@@ -588,9 +588,8 @@ def main(argv: list[str] | None = None) -> None:
                     runs[k].append(_cli(tmp / "designs.json", "warp", k, motion_file))
                     records.append(runs[k][-1])
             for k, rs in runs.items():
-                rates = sorted(rec["rate"] for rec in rs)
-                median = next(rec for rec in rs if rec["rate"] == rates[(len(rates) - 1) // 2])
-                cli["warp"][k] = {**median, "rates": rates}
+                rs = sorted(rs, key=lambda rec: rec["rate"])
+                cli["warp"][k] = {**rs[(len(rs) - 1) // 2], "rates": [rec["rate"] for rec in rs]}
             cli["mujoco"] = _cli(tmp / "oracle.json", "mujoco", None, motion_file)
             try:
                 cli["breakdown"] = _cli_breakdown(tmp / "designs.json", max(args.threads), motion_file)
