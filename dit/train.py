@@ -378,13 +378,16 @@ def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
 
 
 def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
-          on_step: Callable[[int, float], None] | None = None) -> TrainResult:
+          on_step: Callable[[int, float], None] | None = None,
+          on_checkpoint: Callable[[int, Path], None] | None = None) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
 
     episodes: training data in memory (else loaded from ``config.data``); space: the design
     space the episodes are of, recorded in the checkpoint (None: the source's
     ``design_space``, if it has one); on_step: called after every optimizer step with
-    (step, loss), e.g. to drive a progress bar.
+    (step, loss), e.g. to drive a progress bar; on_checkpoint: called with (step, path) after
+    each checkpoint is written, on the process that writes it (e.g. `tt.selection`'s
+    held-out scoring).
     """
     dp = DataParallel.from_env()
     device = _resolve_device(config.device)
@@ -527,6 +530,8 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
                 for old in list_checkpoints(out)[:-config.keep_checkpoints]:
                     old.unlink()
                 write_loss_curve(torch.tensor(losses), out)
+                if on_checkpoint is not None:
+                    on_checkpoint(step, last)
             if dp is not None:
                 dist.barrier()  # the checkpoint is on disk before any rank goes on (or ends)
         if on_step is not None:

@@ -643,6 +643,9 @@ def train(
     known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
+    select_designs: int = typer.Option(0, help="Score every checkpoint on this many held-out designs x --select-motions validation motions (predicted vs simulated reward, as tt predict) and keep the best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs --task with robot or dynamics."),
+    select_motions: int = typer.Option(5, help="--select-designs: validation motions."),
+    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated."),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes."""
     from tt.dit.cli import train_cmd
@@ -672,6 +675,19 @@ def train(
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
                   anchor_control=anchor_control, known_command=known_command, future_states=future_states, time_ids=time_ids)
     _output(out, "--out", folder=True)
+    selector = None
+    if select_designs:
+        _at_least("--select-designs", select_designs, 3)
+        _at_least("--select-motions", select_motions, 1)
+        if not {"robot", "dynamics"} & set(task.replace("both", "robot+control").split("+")):
+            _fail(f"--select-designs scores the model as a critic, which needs --task with robot or dynamics, got {task!r}")
+        from tt.selection import CheckpointSelector, SelectionConfig
+        from tt.sim.rewards import REWARDS
+
+        if select_reward not in REWARDS:
+            _fail(f"--select-reward {select_reward!r} is not a reward; valid: {list(REWARDS)}")
+        selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
+                                                           reward=select_reward))
     online_config = None
     if online:
         from tt.dit.online import OnlineConfig
@@ -682,13 +698,17 @@ def train(
                                      absorbing=online_absorbing, **extra)
     result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                        device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
-                       online=online_config, **recipe)
+                       online=online_config, on_checkpoint=selector, **recipe)
     import os
 
     if int(os.environ.get("RANK", "0")) != 0:
         return  # a data-parallel run (torchrun) reports from rank 0
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
+    if selector is not None and selector.best is not None:
+        b = selector.best
+        typer.echo(f"best checkpoint on {select_designs} held-out designs: step {b.step}, within-motion r {b.within_r:.3f}, "
+                   f"pooled r {b.pooled_r:.3f}: {selector.best_path}")
 
 
 @app.command()

@@ -1,0 +1,171 @@
+"""Choosing a run's checkpoint by held-out r: early stopping on what the critic is for.
+
+The training loss does not say when the model stops improving as a critic. On the full
+ViperX space (`benchmarks/results/dit_ladder_r2c.md`) the dynamics task's held-out r peaked
+at step 2,000-2,500 and then fell to a third of that by step 6,000 while the loss kept
+falling. `tt train --select-designs N` therefore scores every checkpoint the run writes as
+`tt predict` would use it (`tt.ladder.score_designs`: predicted against simulated reward of
+N held-out designs x validation motions) and keeps the best one as ``RUN/best.pt``.
+
+The selection designs are drawn with seed ``HELDOUT_SEED + SELECTION_SEED``: neither a
+training draw nor the ladder's report designs (seed ``HELDOUT_SEED``), so a checkpoint
+chosen here is still reported on designs it was not chosen on. The criterion is the mean
+within-motion r, what ranking candidates for one motion needs; pooled r is recorded beside
+it. ``RUN/selection.csv`` holds one row per scored checkpoint and ``RUN/selection.png``
+plots them; a resumed run reads the csv back, so its best is the best over the whole run.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import shutil
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: Offset (on `tt.ladder.HELDOUT_SEED`) of the designs checkpoints are chosen on; the ladder
+#: reports on offset 0.
+SELECTION_SEED = 1
+
+_COLUMNS = ("step", "within_r", "pooled_r", "seconds")
+
+
+@dataclass(frozen=True)
+class SelectionConfig:
+    """How `CheckpointSelector` scores a checkpoint.
+
+    designs: held-out designs (seed `SELECTION_SEED`); motions: validation motions spread
+    over the skills (`tt.ladder.validation_motions`); reward: the reward predicted and
+    simulated; num_steps: DDIM steps of the prediction; samples: predictions averaged per
+    pair; backend: the simulator's.
+    """
+
+    designs: int = 16
+    motions: int = 5
+    reward: str = "tracking"
+    num_steps: int = 20
+    samples: int = 1
+    backend: str = "warp"
+
+    def __post_init__(self) -> None:
+        for name in ("designs", "motions", "num_steps", "samples"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"SelectionConfig.{name} = {value!r}; must be an integer >= 1")
+        if self.designs < 3:
+            raise ValueError(f"SelectionConfig.designs = {self.designs}; a correlation needs at least 3 designs")
+
+
+@dataclass(frozen=True)
+class SelectionRow:
+    """One scored checkpoint: its step, mean within-motion and pooled r, scoring seconds."""
+
+    step: int
+    within_r: float
+    pooled_r: float
+    seconds: float
+
+
+class CheckpointSelector:
+    """Score each checkpoint of a run and keep the best as ``RUN/best.pt`` (module docstring).
+
+    Call it with (step, checkpoint path) after each checkpoint is written (`tt.dit.train.train`'s
+    ``on_checkpoint``). The design space is the checkpoint's.
+    """
+
+    def __init__(self, run: str | Path, config: SelectionConfig | None = None):
+        self.run = Path(run)
+        self.config = config or SelectionConfig()
+        self.rows: list[SelectionRow] = self._read()
+        self._pairs = None  # (space, designs, motions), drawn at the first call
+
+    @property
+    def csv_path(self) -> Path:
+        return self.run / "selection.csv"
+
+    @property
+    def best_path(self) -> Path:
+        return self.run / "best.pt"
+
+    @property
+    def best(self) -> SelectionRow | None:
+        """The row with the highest within-motion r (NaN rows never win), or None."""
+        finite = [r for r in self.rows if math.isfinite(r.within_r)]
+        return max(finite, key=lambda r: (r.within_r, -r.step)) if finite else None
+
+    def _read(self) -> list[SelectionRow]:
+        if not self.csv_path.exists():
+            return []
+        with self.csv_path.open() as f:
+            reader = csv.DictReader(f)
+            if tuple(reader.fieldnames or ()) != _COLUMNS:
+                raise ValueError(f"{self.csv_path} has columns {reader.fieldnames}, not {list(_COLUMNS)}; "
+                                 "move it away to start the selection over")
+            return [SelectionRow(int(r["step"]), float(r["within_r"]), float(r["pooled_r"]), float(r["seconds"]))
+                    for r in reader]
+
+    def _pairs_for(self, space: str):
+        from tt.ladder import heldout_designs, validation_motions
+
+        if self._pairs is None or self._pairs[0] != space:
+            cfg = self.config
+            self._pairs = (space, heldout_designs(space, cfg.designs, seed=SELECTION_SEED),
+                           validation_motions(space, cfg.motions))
+        return self._pairs[1], self._pairs[2]
+
+    def __call__(self, step: int, checkpoint: str | Path) -> SelectionRow:
+        import time
+
+        from tt.dit.checkpoint import load_model
+        from tt.ladder import score_designs
+
+        t0 = time.perf_counter()
+        trained = load_model(checkpoint)
+        if trained.space is None:
+            raise ValueError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
+        designs, motions = self._pairs_for(trained.space)
+        cfg = self.config
+        score = score_designs(trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps,
+                              backend=cfg.backend)
+        row = SelectionRow(int(step), float(score.within_mean), float(score.pooled), time.perf_counter() - t0)
+        self.rows = sorted([r for r in self.rows if r.step != row.step] + [row], key=lambda r: r.step)
+        if self.best is row:
+            self._keep(Path(checkpoint), row)
+        self._write()
+        log.info("selection: step %d within-motion r %.3f, pooled r %.3f (best: step %d, %.3f)", row.step,
+                 row.within_r, row.pooled_r, self.best.step if self.best else -1,
+                 self.best.within_r if self.best else float("nan"))
+        return row
+
+    def _keep(self, checkpoint: Path, row: SelectionRow) -> None:
+        # Copied, not linked: the run prunes old checkpoints (`keep_checkpoints`).
+        tmp = self.best_path.with_suffix(".pt.partial")
+        shutil.copyfile(checkpoint, tmp)
+        os.replace(tmp, self.best_path)
+        (self.run / "best.json").write_text(json.dumps({**asdict(row), "checkpoint": checkpoint.name,
+                                                        "config": asdict(self.config)}, indent=1))
+
+    def _write(self) -> None:
+        tmp = self.csv_path.with_suffix(".csv.partial")
+        with tmp.open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(_COLUMNS)
+            for r in self.rows:
+                w.writerow([r.step, f"{r.within_r:.6g}", f"{r.pooled_r:.6g}", f"{r.seconds:.3f}"])
+        os.replace(tmp, self.csv_path)
+        if len(self.rows) >= 2:
+            from tt.viz.plots import save_curve
+
+            save_curve(self.run / "selection.png", [r.step for r in self.rows],
+                       {"within-motion r": [r.within_r for r in self.rows],
+                        "pooled r": [r.pooled_r for r in self.rows]},
+                       title=f"held-out r per checkpoint (best: step {self.best.step})" if self.best else "held-out r",
+                       xlabel="training step", ylabel="predicted vs simulated reward, Pearson r")
+
+
+__all__ = ["SELECTION_SEED", "CheckpointSelector", "SelectionConfig", "SelectionRow"]
