@@ -62,18 +62,26 @@ def summary(folder: Path, note: str) -> Path:
     lines = [f"# Ladder over a run: {folder.name}", "", note, "",
              f"Failing pairs: simulated reward below {FAILED_BELOW:g} (less than one perfectly tracked step). AUC: the "
              "chance that the model predicts a tracking pair above a failing one (0.5: chance). r tracking: Pearson r "
-             "among the pairs that do not fail.", "",
+             "among the pairs that do not fail. Error at the query steps: the median over failing and over tracking pairs "
+             "of the mean end-effector position error at the 8 query steps, counted or not, predicted / simulated [cm] "
+             "(results written since 2026-12-03 evening).", "",
              "| step | pairs | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | failing (%) "
-             "| AUC failing | r tracking | predict (s) | file |",
-             "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---|"]
+             "| AUC failing | r tracking | error failing (cm) | error tracking (cm) | predict (s) | file |",
+             "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|"]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
         # The cut is the tracking reward's (rewards without a "reward" field were tracking).
         tracking = r.get("reward", "tracking") == "tracking"
         f = failure_split(r["predicted"], r["simulated"]) if tracking and "predicted" in r and "simulated" in r else None
         split = (f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -")
+        errors = "- | -"
+        if f and "predicted_error_cm" in r:
+            failed = np.asarray(r["simulated"], float) < FAILED_BELOW
+            pe, se = np.asarray(r["predicted_error_cm"], float), np.asarray(r["simulated_error_cm"], float)
+            errors = " | ".join(f"{np.median(pe[m]):.0f} / {np.median(se[m]):.0f}" if m.any() else "-"
+                                for m in (failed, ~failed))
         lines.append(f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
-                     f"{per} | {split} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
+                     f"{per} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
     out = folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
     return out

@@ -454,13 +454,24 @@ class PredictedReward:
 
 def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Predicted metrics of each sequence (`tt.sim.rewards.metrics` on the S steps;
-    reward scaled to the motion length), detached, each (B,)."""
+    reward scaled to the motion length), detached, each (B,); plus ``query_pos_err``, the
+    mean position error [cm] over all S steps, counted or not: how far off the model puts
+    the end effector, also where its prediction terminates the episode."""
     from tt.sim.rewards import metrics
 
     with torch.no_grad():
-        out = metrics(reward.inputs(x0), reward.cfg)
+        inputs = reward.inputs(x0)
+        out = metrics(inputs, reward.cfg)
         out["reward"] = out["reward"] * reward.scale
+        out["query_pos_err"] = query_position_error(inputs.ee_pos, inputs.target_pos)
     return out
+
+
+def query_position_error(ee_pos: torch.Tensor, target_pos: torch.Tensor) -> torch.Tensor:
+    """Mean position error [cm] over steps and end effectors, (B,), from (B, S, A, 3) poses [m]."""
+    from tt.sim.rewards import position_error
+
+    return 100.0 * position_error(ee_pos, target_pos).mean((1, 2))
 
 
 __all__ = [
@@ -478,6 +489,7 @@ __all__ = [
     "orthonormalize",
     "predict_designs",
     "predicted_metrics",
+    "query_position_error",
     "query_steps",
     "token_mass",
     "token_size",

@@ -72,6 +72,10 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
         assert isinstance(p["reward"], float) and math.isfinite(p["reward"])
         assert {"pos_err", "orn_err", "survival", "torque", "reward", "length"} <= set(p["metrics"])
         assert p["metrics"]["reward"] == p["reward"]
+        # Over all 8 query steps, counted or not: the counted mean's where every step counted.
+        if p["metrics"]["length"] == 8:
+            assert p["metrics"]["query_pos_err"] == pytest.approx(p["metrics"]["pos_err"], rel=1e-5)
+        assert p["metrics"]["query_pos_err"] >= 0
     assert "design" in r.output and "toss" in r.output  # the table
     # designs.json#i reports the index in the file.
     r = _invoke("--design", f"{designs_file}#-1", "--motion", "toss", "--checkpoint", checkpoint, "--num-steps", "2",

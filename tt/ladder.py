@@ -92,7 +92,9 @@ class LadderScore:
     """Predicted vs simulated reward of D designs x M motions.
 
     predicted, simulated, estimator: (D, M) rewards: the model's, the simulator's, and the
-    8-step estimate on the simulated poses (the estimator's ceiling); motions: names;
+    8-step estimate on the simulated poses (the estimator's ceiling); predicted_error,
+    simulated_error: (D, M) mean position error [cm] at the query's steps, counted or not,
+    of the predicted and the simulated end effector; motions: names;
     pooled: r over all pairs; within: r per motion; estimator_pooled / estimator_within: the
     same for the estimator; seconds: predict and simulate wall times.
     """
@@ -105,6 +107,8 @@ class LadderScore:
     within: list[float]
     estimator_pooled: float
     estimator_within: list[float]
+    predicted_error: np.ndarray
+    simulated_error: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -117,7 +121,9 @@ class LadderScore:
         return {"motions": self.motions, "pooled_r": self.pooled, "within_r": self.within,
                 "within_r_mean": self.within_mean, "estimator_pooled_r": self.estimator_pooled,
                 "estimator_within_r": self.estimator_within, "predicted": self.predicted.tolist(),
-                "simulated": self.simulated.tolist(), "estimator": self.estimator.tolist(), "seconds": self.seconds}
+                "simulated": self.simulated.tolist(), "estimator": self.estimator.tolist(),
+                "predicted_error_cm": self.predicted_error.tolist(), "simulated_error_cm": self.simulated_error.tolist(),
+                "seconds": self.seconds}
 
 
 def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "tracking", *, samples: int = 1,
@@ -134,7 +140,7 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     import torch
 
     from tt.baselines.evaluate import evaluate_designs
-    from tt.guidance.predicted import predict_designs, query_steps
+    from tt.guidance.predicted import predict_designs, query_position_error, query_steps
     from tt.sim.rewards import RewardInputs, evaluate, get_reward
 
     designs, motions = list(designs), list(motions)
@@ -147,6 +153,7 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     t2 = time.perf_counter()
     ep, D = ev.episode, len(designs)
     estimator = np.zeros((D, len(motions)))
+    simulated_error = np.zeros((D, len(motions)))
     S = trained.layout.steps
     world = torch.full((D, len(motions)), -1, dtype=torch.long)
     world[ep.design_index.cpu(), ep.motion_index.cpu()] = torch.arange(len(ep.design_index))
@@ -156,10 +163,11 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
         inputs = RewardInputs(ep.ee_pos[w][:, st].double(), ep.ee_quat[w][:, st].double(),
                               ep.target_pos[w][:, st].double(), ep.target_quat[w][:, st].double())
         estimator[:, j] = (m.steps / S) * evaluate(inputs, cfg).reward.cpu().numpy()
+        simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
     return LadderScore(pred.reward, ev.reward, estimator, [m.name for m in motions],
                        pearson(pred.reward, ev.reward), within_motion(pred.reward, ev.reward),
                        pearson(estimator, ev.reward), within_motion(estimator, ev.reward),
-                       {"predict": t1 - t0, "simulate": t2 - t1})
+                       pred.metrics["query_pos_err"], simulated_error, {"predict": t1 - t0, "simulate": t2 - t1})
 
 
 __all__ = ["HELDOUT_SEED", "R0_RECIPE", "R0_TRAINING", "r0_online", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
