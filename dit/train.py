@@ -57,6 +57,11 @@ from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
 
+#: Per-step token types a run may leave out of its model's sequence (`TrainConfig.drop_types`):
+#: the states and commands no reward reads (`tt.guidance.predicted.PredictedReward` reads the
+#: track-link poses, and the actuator observations for the effort rewards).
+DROPPABLE = ("dyna_joint_obs", "actuator_obs", "control")
+
 #: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
 DEFAULT_LR = {"tiny": 5e-3, "mini": 1e-3, "small": 5e-3, "large": 1e-4}
 
@@ -92,7 +97,10 @@ class TrainConfig:
     joints they drive ("joints") or from the last command ("command", needs known_command);
     known_command: the control task is given the command that led to the current state
     (`tt.dit.tasks.TaskSpec.known_command`); time_ids: "sinusoidal" or "learned" time-step
-    ID embeddings (`tt.dit.model.DiTConfig.time_ids`).
+    ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
+    out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task, e.g. without
+    ``dyna_joint_obs`` and ``control``, which no reward reads, trains on a sequence a third as
+    long (not with the control task, which reads and writes them).
     """
 
     data: str = ""
@@ -130,6 +138,7 @@ class TrainConfig:
     anchor_control: str = ""
     known_command: bool = False
     time_ids: str = "sinusoidal"
+    drop_types: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         from tt.dit.ddim import PREDICTIONS, WEIGHTINGS
@@ -162,6 +171,14 @@ class TrainConfig:
             raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
+        self.drop_types = tuple(dict.fromkeys(str(n) for n in self.drop_types))
+        bad = [n for n in self.drop_types if n not in DROPPABLE]
+        if bad:
+            raise ValueError(f"drop_types {bad} cannot be dropped; droppable types: {list(DROPPABLE)} (the embodiment, "
+                             "the targets and the track-link poses the rewards read stay)")
+        if self.drop_types and "control" in self.task_names():
+            raise ValueError(f"drop_types {list(self.drop_types)} with task {self.task!r}: the control task reads and "
+                             "writes every per-step type; drop types for the robot and dynamics tasks only")
         if self.loss not in ("huber", "mse"):
             raise ValueError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
@@ -312,7 +329,7 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
               "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command",
-              "time_ids": "--time-ids"}
+              "time_ids": "--time-ids", "drop_types": "--drop-type"}
 
 
 def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
@@ -407,7 +424,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         from tt.dit.loader import open_token_source
 
         episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
-    layout = episodes.layout(config.window)
+    layout = episodes.layout(config.window).without(config.drop_types)
     space = space if space is not None else getattr(episodes, "design_space", None)
     resume_from, state = newest_intact_checkpoint(out) if config.resume else (None, None)
 
