@@ -100,7 +100,8 @@ class TrainConfig:
     ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
     out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task, e.g. without
     ``dyna_joint_obs`` and ``control``, which no reward reads, trains on a sequence a third as
-    long (not with the control task, which reads and writes them).
+    long (not with the control task, which reads and writes them). Measured as an ablation: on
+    R2 it learns far less than the full sequence (`benchmarks/results/dit_ladder_r2f.md`).
     """
 
     data: str = ""

@@ -643,7 +643,7 @@ def train(
     known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
-    drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out of the model's sequence (repeatable): dyna_joint_obs, actuator_obs, control; a lean critic (--task dynamics) trains on a shorter sequence. Not with the control task."),
+    drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out of the model's sequence (repeatable): dyna_joint_obs, actuator_obs, control; a lean critic (--task dynamics) trains on a shorter sequence, measured to learn far less (benchmarks/results/dit_ladder_r2f.md). Not with the control task."),
     select_designs: int = typer.Option(0, help="Score every checkpoint on this many held-out designs x --select-motions validation motions (predicted vs simulated reward, as tt predict) and keep the best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs --task with robot or dynamics."),
     select_motions: int = typer.Option(5, help="--select-designs: validation motions."),
     select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated."),
