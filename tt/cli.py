@@ -524,7 +524,7 @@ def predict(
     checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, <space>_<size>_dynamics.pt, else its shipped generalist)."),
     reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
-    num_steps: Optional[int] = typer.Option(None, help="DDIM steps (default: all 100 of the motion-to-robot process)."),
+    num_steps: Optional[int] = typer.Option(None, help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md)."),
     seed: int = typer.Option(0, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
@@ -565,7 +565,8 @@ def predict(
         cfg = get_reward(reward, space)
         ckpt = checkpoint if checkpoint is not None else default_checkpoint(space, task="dynamics")
         trained = load_model(ckpt, device=device or default_device())
-        pred = predict_designs(trained, designs, ms, cfg, samples=samples, num_steps=num_steps, seed=seed, via=via)
+        pred = predict_designs(trained, designs, ms, cfg, samples=samples, seed=seed, via=via,
+                               **({} if num_steps is None else {"num_steps": num_steps}))
     except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
 

@@ -26,6 +26,8 @@ import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from tt.guidance.predicted import CRITIC_DDIM_STEPS
+
 log = logging.getLogger(__name__)
 
 #: Offset (on `tt.ladder.HELDOUT_SEED`) of the designs checkpoints are chosen on; the ladder
@@ -41,14 +43,14 @@ class SelectionConfig:
 
     designs: held-out designs (seed `SELECTION_SEED`); motions: validation motions spread
     over the skills (`tt.ladder.validation_motions`); reward: the reward predicted and
-    simulated; num_steps: DDIM steps of the prediction; samples: predictions averaged per
+    simulated; num_steps: DDIM steps of the prediction (the critic's default); samples: predictions averaged per
     pair; backend: the simulator's.
     """
 
     designs: int = 16
     motions: int = 5
     reward: str = "tracking"
-    num_steps: int = 20
+    num_steps: int = CRITIC_DDIM_STEPS
     samples: int = 1
     backend: str = "warp"
 
