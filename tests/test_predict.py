@@ -84,6 +84,27 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
     assert [p["design"] for p in json.loads(out.read_text())["predictions"]] == [2]
 
 
+def test_default_ddim_steps_are_the_critics(checkpoint, designs_file, tmp_path):
+    """Without --num-steps, tt predict samples CRITIC_DDIM_STEPS steps, not all 100."""
+    from tt.dit.checkpoint import load_model
+    from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
+    from tt.sim.designs import load_designs
+    from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
+
+    out = tmp_path / "pred.json"
+    r = _invoke("--design", designs_file, "--motion", "toss", "--checkpoint", checkpoint, "--reward", "tracking",
+                "--json", out)
+    assert r.exit_code == 0, r.output
+    got = [p["reward"] for p in json.loads(out.read_text())["predictions"]]
+    trained, cfg = load_model(checkpoint), get_reward("tracking", SPACE)
+    motion = for_space([resolve_motion("toss")], SPACE)
+    designs = load_designs(designs_file)
+    for steps, same in ((CRITIC_DDIM_STEPS, True), (None, False)):
+        want = predict_designs(trained, designs, motion, cfg, num_steps=steps).reward[:, 0]
+        assert np.allclose(got, want, rtol=1e-5) == same, steps
+
+
 def test_unknown_space_or_motion_fails_clearly(checkpoint, designs_file, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"designs": [{"space": "hexapod", "discrete": {}, "continuous": {}}]}))
