@@ -94,7 +94,7 @@ def test_default_ddim_steps_are_the_critics(checkpoint, designs_file, tmp_path):
 
     out = tmp_path / "pred.json"
     r = _invoke("--design", designs_file, "--motion", "toss", "--checkpoint", checkpoint, "--reward", "tracking",
-                "--json", out)
+                "--device", "cpu", "--json", out)
     assert r.exit_code == 0, r.output
     got = [p["reward"] for p in json.loads(out.read_text())["predictions"]]
     trained, cfg = load_model(checkpoint), get_reward("tracking", SPACE)

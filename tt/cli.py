@@ -689,8 +689,15 @@ def train(
 
         if select_reward not in REWARDS:
             _fail(f"--select-reward {select_reward!r} is not a reward; valid: {list(REWARDS)}")
-        selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
-                                                           reward=select_reward))
+        if select_reward in ("tracking_torque", "tracking_velocity") and "actuator_obs" in (drop_type or ()):
+            _fail(f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
+                  "actuator_obs leaves out")
+        try:
+            selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
+                                                               reward=select_reward, device=device),
+                                          fresh=not resume)
+        except ValueError as e:
+            _fail(str(e))
     online_config = None
     if online:
         from tt.dit.online import OnlineConfig
@@ -708,6 +715,8 @@ def train(
         return  # a data-parallel run (torchrun) reports from rank 0
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
     typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
+    if selector is not None and result.step not in {r.step for r in selector.rows}:
+        selector(result.step, result.checkpoint)  # a run killed while scoring its last checkpoint
     if selector is not None and selector.best is not None:
         b = selector.best
         typer.echo(f"best checkpoint on {select_designs} held-out designs: step {b.step}, within-motion r {b.within_r:.3f}, "

@@ -24,6 +24,8 @@ from typing import Sequence
 
 import numpy as np
 
+from tt.guidance.predicted import CRITIC_DDIM_STEPS
+
 
 #: Seed offset of held-out designs: far from every seed a training run or `tt generate` draws
 #: designs with (`tt.tokens.draws` and `tt.dit.online` hash (seed, index, stream)).
@@ -127,7 +129,7 @@ class LadderScore:
 
 
 def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "tracking", *, samples: int = 1,
-                  num_steps: int | None = None, seed: int = 0, chunk: int | None = None, backend: str = "warp",
+                  num_steps: int | None = CRITIC_DDIM_STEPS, seed: int = 0, chunk: int | None = None, backend: str = "warp",
                   device: str | None = None, via: str | None = None) -> LadderScore:
     """`tt predict` and the simulator on `designs` x `motions` (see the module docstring).
 

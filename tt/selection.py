@@ -10,9 +10,13 @@ N held-out designs x validation motions) and keeps the best one as ``RUN/best.pt
 The selection designs are drawn with seed ``HELDOUT_SEED + SELECTION_SEED``: neither a
 training draw nor the ladder's report designs (seed ``HELDOUT_SEED``), so a checkpoint
 chosen here is still reported on designs it was not chosen on. The criterion is the mean
-within-motion r, what ranking candidates for one motion needs; pooled r is recorded beside
-it. ``RUN/selection.csv`` holds one row per scored checkpoint and ``RUN/selection.png``
-plots them; a resumed run reads the csv back, so its best is the best over the whole run.
+within-motion r (a motion where the predictions do not spread counts 0), what ranking
+candidates for one motion needs; pooled r is recorded beside it. Sixteen designs rank runs
+far apart but are noisy within one run (`benchmarks/results/dit_ladder_r2g.md`): give 32 or
+more. ``RUN/selection.csv`` holds one row per scored checkpoint and ``RUN/selection.png``
+plots them, ``RUN/selection.json`` the settings; a resumed run reads them back (and refuses
+other settings), so its best is the best over the whole run. In a data-parallel run the
+scoring runs on the writing process while the others wait at the checkpoint's barrier.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ import os
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+import numpy as np
 
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
 
@@ -44,7 +50,8 @@ class SelectionConfig:
     designs: held-out designs (seed `SELECTION_SEED`); motions: validation motions spread
     over the skills (`tt.ladder.validation_motions`); reward: the reward predicted and
     simulated; num_steps: DDIM steps of the prediction (the critic's default); samples: predictions averaged per
-    pair; backend: the simulator's.
+    pair; backend: the simulator's; device: the model's during scoring (None: the default
+    device, CUDA when present).
     """
 
     designs: int = 16
@@ -53,6 +60,7 @@ class SelectionConfig:
     num_steps: int = CRITIC_DDIM_STEPS
     samples: int = 1
     backend: str = "warp"
+    device: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("designs", "motions", "num_steps", "samples"):
@@ -80,11 +88,31 @@ class CheckpointSelector:
     ``on_checkpoint``). The design space is the checkpoint's.
     """
 
-    def __init__(self, run: str | Path, config: SelectionConfig | None = None):
+    def __init__(self, run: str | Path, config: SelectionConfig | None = None, *, fresh: bool = False):
+        """fresh: the run starts over (``--no-resume``): an earlier selection in `run` is removed.
+        Otherwise it is read back, and refused (ValueError) if it was scored another way."""
         self.run = Path(run)
         self.config = config or SelectionConfig()
+        if fresh:
+            for path in (self.csv_path, self.best_path, self.run / "best.json", self.config_path,
+                         self.run / "selection.png"):
+                path.unlink(missing_ok=True)
+        self._check_config()
         self.rows: list[SelectionRow] = self._read()
         self._pairs = None  # (space, designs, motions), drawn at the first call
+
+    @property
+    def config_path(self) -> Path:
+        return self.run / "selection.json"
+
+    def _check_config(self) -> None:
+        if not self.config_path.exists():
+            return
+        before = json.loads(self.config_path.read_text())
+        now = json.loads(json.dumps(asdict(self.config)))
+        if before != now:
+            raise ValueError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
+                             "compare; give the same --select-* flags, or start the run over with --no-resume")
 
     @property
     def csv_path(self) -> Path:
@@ -127,22 +155,37 @@ class CheckpointSelector:
         from tt.ladder import score_designs
 
         t0 = time.perf_counter()
-        trained = load_model(checkpoint)
+        from tt.kernels.device import default_device
+
+        trained = load_model(checkpoint, device=self.config.device or default_device())
         if trained.space is None:
             raise ValueError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
         designs, motions = self._pairs_for(trained.space)
         cfg = self.config
         score = score_designs(trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps,
                               backend=cfg.backend)
-        row = SelectionRow(int(step), float(score.within_mean), float(score.pooled), time.perf_counter() - t0)
+        # A motion whose predictions do not spread has no r; it counts 0, not left out, so a
+        # degenerate checkpoint is not ranked on the motions where it happens to vary.
+        within = float(np.mean([r if math.isfinite(r) else 0.0 for r in score.within]))
+        row = SelectionRow(int(step), within, float(score.pooled), time.perf_counter() - t0)
         self.rows = sorted([r for r in self.rows if r.step != row.step] + [row], key=lambda r: r.step)
-        if self.best is row:
-            self._keep(Path(checkpoint), row)
         self._write()
+        best = self.best
+        if best is row:
+            self._keep(Path(checkpoint), row)
+        elif best is not None and self.kept_step != best.step:
+            log.warning("selection: best.pt holds step %s but the best scored step is %d, whose checkpoint is no "
+                        "longer at hand", self.kept_step, best.step)
         log.info("selection: step %d within-motion r %.3f, pooled r %.3f (best: step %d, %.3f)", row.step,
                  row.within_r, row.pooled_r, self.best.step if self.best else -1,
                  self.best.within_r if self.best else float("nan"))
         return row
+
+    @property
+    def kept_step(self) -> int | None:
+        """The step whose checkpoint ``best.pt`` holds (``best.json``), or None."""
+        meta = self.run / "best.json"
+        return int(json.loads(meta.read_text())["step"]) if meta.exists() and self.best_path.exists() else None
 
     def _keep(self, checkpoint: Path, row: SelectionRow) -> None:
         # Copied, not linked: the run prunes old checkpoints (`keep_checkpoints`).
@@ -153,6 +196,7 @@ class CheckpointSelector:
                                                         "config": asdict(self.config)}, indent=1))
 
     def _write(self) -> None:
+        self.config_path.write_text(json.dumps(asdict(self.config), indent=1))
         tmp = self.csv_path.with_suffix(".csv.partial")
         with tmp.open("w", newline="") as f:
             w = csv.writer(f)
