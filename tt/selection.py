@@ -50,7 +50,8 @@ class SelectionConfig:
     designs: held-out designs (seed `SELECTION_SEED`); motions: validation motions spread
     over the skills (`tt.ladder.validation_motions`); reward: the reward predicted and
     simulated; num_steps: DDIM steps of the prediction (the critic's default); samples: predictions averaged per
-    pair; backend: the simulator's; device: the model's during scoring (None: the default
+    pair; backend: the simulator's (None: ``warp``, or the MuJoCo oracle for a space with
+    contacts); device: the model's during scoring (None: the default
     device, CUDA when present).
     """
 
@@ -59,7 +60,7 @@ class SelectionConfig:
     reward: str = "tracking"
     num_steps: int = CRITIC_DDIM_STEPS
     samples: int = 1
-    backend: str = "warp"
+    backend: str | None = None
     device: str | None = None
 
     def __post_init__(self) -> None:
@@ -162,8 +163,13 @@ class CheckpointSelector:
             raise ValueError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
         designs, motions = self._pairs_for(trained.space)
         cfg = self.config
+        backend = cfg.backend
+        if backend is None:
+            from tt.sim.designs import get_space
+
+            backend = "mujoco" if get_space(trained.space).has_contacts else "warp"
         score = score_designs(trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps,
-                              backend=cfg.backend)
+                              backend=backend)
         # A motion whose predictions do not spread has no r; it counts 0, not left out, so a
         # degenerate checkpoint is not ranked on the motions where it happens to vary.
         within = float(np.mean([r if math.isfinite(r) else 0.0 for r in score.within]))
