@@ -532,16 +532,19 @@ def _world_views(obj, lo: int, hi: int, worlds: int):
 
 class _SlicedLaunch:
     """Launches of one kernel over `dim` worlds, one per [lo, hi) of `slices` on views of the
-    per-world arrays, from `threads` threads (one slice: one launch on this thread).
+    per-world arrays, from the threads of `pool` (one slice: one launch on this thread, and
+    no pool needed).
 
     The views are cut once, here: a rollout launches the same arrays once per chunk, and
     cutting them again each time cost ~0.5 s of Python per 4,096-world episode, on a core
     the stepping threads need.
     """
 
-    def __init__(self, kernel, *, dim: int, inputs: list, outputs: list, device, slices, threads: int,
+    def __init__(self, kernel, *, dim: int, inputs: list, outputs: list, device, slices,
                  pool: ThreadPoolExecutor | None = None):
-        self.kernel, self.dim, self.device, self.threads, self.pool = kernel, dim, device, threads, pool
+        if len(slices) > 1 and pool is None:
+            raise ValueError(f"{len(slices)} slices of worlds need a thread pool to launch them from")
+        self.kernel, self.dim, self.device, self.pool = kernel, dim, device, pool
         if len(slices) == 1:
             self.views = [(dim, list(inputs), list(outputs))]
         else:
@@ -563,13 +566,8 @@ class _SlicedLaunch:
         if len(self.views) == 1:
             launch(*self.views[0])
             return
-        if self.pool is not None:
-            for f in [self.pool.submit(launch, *view) for view in self.views]:
-                f.result()
-            return
-        with ThreadPoolExecutor(min(self.threads, len(self.views)), thread_name_prefix="tt-rollout") as pool:
-            for f in [pool.submit(launch, *view) for view in self.views]:
-                f.result()
+        for f in [self.pool.submit(launch, *view) for view in self.views]:
+            f.result()
 
 
 def rollout_tree(
@@ -716,7 +714,7 @@ def rollout_tree(
         dim=W,
         inputs=[model.kinematics64, init_weights, iterations, motions.first_pos, motions.first_quat],
         outputs=[q_iter, out.qpos_state],
-        device=device, slices=slices, threads=threads, pool=pool,
+        device=device, slices=slices, pool=pool,
     )  # fmt: skip
     T0, T1 = 5, 6  # positions of the chunk's first and end step among the rollout's inputs
     step_chunk = _SlicedLaunch(
@@ -732,7 +730,7 @@ def rollout_tree(
             out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
             out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
         ],  # fmt: skip
-        device=device, slices=slices, threads=threads, pool=pool,
+        device=device, slices=slices, pool=pool,
     )
 
     def launch(t0: int, t1: int) -> None:
