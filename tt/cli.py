@@ -682,14 +682,20 @@ def train(
     if select_designs:
         _at_least("--select-designs", select_designs, 3)
         _at_least("--select-motions", select_motions, 1)
-        if not {"robot", "dynamics"} & set(task.replace("both", "robot+control").split("+")):
-            _fail(f"--select-designs scores the model as a critic, which needs --task with robot or dynamics, got {task!r}")
+        from tt.dit.tasks import task_names
         from tt.selection import CheckpointSelector, SelectionConfig
-        from tt.sim.rewards import REWARDS
+        from tt.sim.rewards import REWARDS, get_reward
 
+        try:
+            trained_tasks = task_names(task)
+        except ValueError as e:
+            _fail(str(e))
+        if not {"robot", "dynamics"} & set(trained_tasks):
+            _fail(f"--select-designs scores the model as a critic, which needs --task with robot or dynamics, got {task!r}")
         if select_reward not in REWARDS:
             _fail(f"--select-reward {select_reward!r} is not a reward; valid: {list(REWARDS)}")
-        if select_reward in ("tracking_torque", "tracking_velocity") and "actuator_obs" in (drop_type or ()):
+        reads_actuators = {"act_force", "act_vel"} & set(get_reward(select_reward, space).needs)
+        if reads_actuators and "actuator_obs" in (drop_type or ()):
             _fail(f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
                   "actuator_obs leaves out")
         try:

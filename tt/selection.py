@@ -95,7 +95,7 @@ class CheckpointSelector:
         self.run = Path(run)
         self.config = config or SelectionConfig()
         if fresh:
-            for path in (self.csv_path, self.best_path, self.run / "best.json", self.config_path,
+            for path in (self.csv_path, self.best_path, self.best_meta_path, self.config_path,
                          self.run / "selection.png"):
                 path.unlink(missing_ok=True)
         self._check_config()
@@ -122,6 +122,10 @@ class CheckpointSelector:
     @property
     def best_path(self) -> Path:
         return self.run / "best.pt"
+
+    @property
+    def best_meta_path(self) -> Path:
+        return self.run / "best.json"
 
     @property
     def best(self) -> SelectionRow | None:
@@ -153,11 +157,10 @@ class CheckpointSelector:
         import time
 
         from tt.dit.checkpoint import load_model
+        from tt.kernels.device import default_device
         from tt.ladder import score_designs
 
         t0 = time.perf_counter()
-        from tt.kernels.device import default_device
-
         trained = load_model(checkpoint, device=self.config.device or default_device())
         if trained.space is None:
             raise ValueError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
@@ -190,7 +193,7 @@ class CheckpointSelector:
     @property
     def kept_step(self) -> int | None:
         """The step whose checkpoint ``best.pt`` holds (``best.json``), or None."""
-        meta = self.run / "best.json"
+        meta = self.best_meta_path
         return int(json.loads(meta.read_text())["step"]) if meta.exists() and self.best_path.exists() else None
 
     def _keep(self, checkpoint: Path, row: SelectionRow) -> None:
@@ -198,7 +201,7 @@ class CheckpointSelector:
         tmp = self.best_path.with_suffix(".pt.partial")
         shutil.copyfile(checkpoint, tmp)
         os.replace(tmp, self.best_path)
-        (self.run / "best.json").write_text(json.dumps({**asdict(row), "checkpoint": checkpoint.name,
+        self.best_meta_path.write_text(json.dumps({**asdict(row), "checkpoint": checkpoint.name,
                                                         "config": asdict(self.config)}, indent=1))
 
     def _write(self) -> None:
