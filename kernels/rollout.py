@@ -474,11 +474,9 @@ def motion_arrays(pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requ
 
 
 #: Slices of worlds per CPU thread in a threaded launch (load balance; see `rollout_tree`).
-#: Every 50-step chunk ends when its last slice does, so a thread idles for up to one slice
-#: at each: with 16 rather than 4 a slice is 1/32 of a 2-thread chunk. Interleaved runs of
-#: 4,096 ViperX designs on the toss (2 cores, 2026-12-03), fastest of 3: 2 threads 6.89 s
-#: with 16, 7.15 s with 4, 1 thread 12.2 s (whose own runs spread 12.2-15.3 s).
-SLICES_PER_THREAD = 16
+#: 16 measured no better than 4 (`benchmarks/ab_slices.py`, results/ab_slices.md: within the
+#: spread of repeated runs on a 2-core box).
+SLICES_PER_THREAD = 4
 #: Fewest worlds in a slice: a launch costs ~0.1 ms of Python, a 50-step chunk of 16 worlds
 #: ~10 ms of stepping, so the threads' overhead stays near 1 % (fewer worlds: one launch).
 MIN_SLICE_WORLDS = 16
