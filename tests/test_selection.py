@@ -5,6 +5,7 @@ directly on the same checkpoints."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -127,6 +128,8 @@ def test_other_settings_are_refused_and_a_fresh_run_starts_over(tmp_path):
     (tmp_path / "best.pt").write_bytes(b"old")
     (tmp_path / "best.json").write_text(json.dumps({"step": 2}))
     assert CheckpointSelector(tmp_path, CONFIG).rows == sel.rows  # the same settings read back
+    other_device = dataclasses.replace(CONFIG, device="cuda" if CONFIG.device != "cuda" else "cpu")
+    assert CheckpointSelector(tmp_path, other_device).rows == sel.rows  # the device alone may change
     with pytest.raises(ValueError, match="do not compare"):
         CheckpointSelector(tmp_path, SelectionConfig(designs=5, motions=2, num_steps=2, device="cpu"))
     fresh = CheckpointSelector(tmp_path, SelectionConfig(designs=5), fresh=True)

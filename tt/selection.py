@@ -109,8 +109,10 @@ class CheckpointSelector:
     def _check_config(self) -> None:
         if not self.config_path.exists():
             return
-        before = json.loads(self.config_path.read_text())
-        now = json.loads(json.dumps(asdict(self.config)))
+        # The device changes the sampling noise, not what r measures, so a run trained on
+        # one device may be resumed and scored on another.
+        before = {k: v for k, v in json.loads(self.config_path.read_text()).items() if k != "device"}
+        now = {k: v for k, v in json.loads(json.dumps(asdict(self.config))).items() if k != "device"}
         if before != now:
             raise ValueError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
                              "compare; give the same --select-* flags, or start the run over with --no-resume")
