@@ -590,6 +590,7 @@ def rollout_tree(
     device: str | None = None,
     threads: int | None = None,
     graph: bool | None = None,
+    pool: ThreadPoolExecutor | None = None,
 ) -> RolloutArrays:
     """Closed-loop rollouts of `world_count` worlds of one topology for `steps` control steps.
 
@@ -632,6 +633,9 @@ def rollout_tree(
         records one thread's launches, so it runs on one thread); False: plain launches
         everywhere. `progress` is then called once, after the replay. Not with
         ``differentiable`` (a `wp.Tape` records the plain launches).
+    pool: a thread pool of `threads` workers to launch the slices from, shared with other
+        rollouts running at the same time (the caller shuts it down and must have loaded
+        the topology's module, `rollout_kernels`, beforehand); None: one of this rollout's own.
     """
     topo = model.topology
     device = device or model.device
@@ -693,10 +697,12 @@ def rollout_tree(
     count = min(threads * SLICES_PER_THREAD, max(1, W // MIN_SLICE_WORLDS)) if threads > 1 else 1
     slices = world_slices(W, count, align)
     # One pool for the whole rollout: the start posture and every chunk's launches.
-    pool = None
-    if len(slices) > 1:
+    own_pool = None
+    if len(slices) == 1:
+        pool = None
+    elif pool is None:
         wp.load_module(kernels.module, device=device)  # once, before the threads launch
-        pool = ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout")
+        pool = own_pool = ThreadPoolExecutor(min(threads, len(slices)), thread_name_prefix="tt-rollout")
     # Start at rest at the oracle's start posture (IK from qpos0 toward the first pose).
     iterations = int(init_iterations)
     q_iter = zeros((W, iterations + 1 if differentiable else 1, NV), wp.float64)
@@ -755,6 +761,6 @@ def rollout_tree(
             if progress is not None:
                 progress(t1 - t0)
     finally:
-        if pool is not None:
-            pool.shutdown()
+        if own_pool is not None:
+            own_pool.shutdown()
     return out

@@ -7,7 +7,8 @@ look-ahead, 40 ms, at 50 Hz) driving the design's position actuators, on one of 
 `tt.sim.backends` (``warp``, ``mjwarp``, ``newton``, ``mujoco``; the table there says
 where each lives). This module holds the ``"warp"`` one (the default): tt's fused Warp
 kernels (`tt.kernels.rollout`), contact-free trees of hinge/slide joints. Designs are
-grouped by topology; each group is one batched launch (per chunk of control steps). With a
+grouped by topology; each group is one batched launch (per chunk of control steps; on
+several CPU threads the groups run at once, their slices sharing one pool). With a
 single group the Episode's tensors are zero-copy torch views of the kernel's Warp arrays;
 with several groups (designs of different DoF) the groups' records are copied into one
 zero-padded Episode.
@@ -26,6 +27,7 @@ unperturbed one, bit for bit, and ``action`` is ``ctrl``.
 from __future__ import annotations
 
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Sequence
 
 import mujoco
@@ -43,6 +45,10 @@ if TYPE_CHECKING:
     from tt.kernels.rollout import RolloutArrays
 
 logger = logging.getLogger(__name__)
+
+#: Run a multi-threaded CPU rollout's topology groups at once on one shared pool (True) or one
+#: after another (False); `benchmarks/ab_groups.py` measures the two.
+GROUPS_AT_ONCE = True
 
 #: Default control steps per kernel launch (1 s at 50 Hz): long enough that launch
 #: overhead is negligible, short enough for a live progress bar.
@@ -133,12 +139,14 @@ def rollout_records(
     Returns [(members, records)]: the design indices of each topology group (ascending) and
     the kernel's records of its ``len(members) * M`` worlds, design-major over members.
     progress: show a tqdm bar over the control steps of every group.
-    threads: CPU threads each group's worlds are spread over (None: every core).
+    threads: CPU threads the worlds are spread over (None: every core); with several groups
+        and threads, the groups run at the same time on one shared pool of that many workers
+        (a group too small to slice launches from its own driver thread).
     graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import tree_model
-    from tt.kernels.rollout import motion_arrays, rollout_tree
+    from tt.kernels.rollout import cpu_threads, motion_arrays, rollout_kernels, rollout_tree
 
     groups = _tree_groups(models, sites)
     M = len(motions)
@@ -156,8 +164,9 @@ def rollout_records(
         from tqdm import tqdm
 
         bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
-    results = []
-    for members, fields in groups:
+
+    def run(group, pool=None):
+        members, fields = group
         # One model entry per design; world k * M + j (member k on motion j) reads entry k.
         tree = tree_model(fields, world_entry=np.repeat(np.arange(len(members)), M), device=device)
         # Noise keyed by the world's index in the whole rollout, not in its topology group.
@@ -165,9 +174,26 @@ def rollout_records(
         arrays = rollout_tree(
             tree, marrays, len(members) * M, T,
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
-            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads, graph=graph,
+            action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads,
+            graph=graph, pool=pool,
         )  # fmt: skip
-        results.append((list(members), arrays))
+        return list(members), arrays
+
+    import warp as wp
+
+    workers = cpu_threads(threads)
+    if GROUPS_AT_ONCE and len(groups) > 1 and workers > 1 and not graph and not wp.get_device(device).is_cuda:
+        # Several topologies on several CPU threads: every group runs at once from its own
+        # driver thread, its slices queued on one shared pool of `workers` threads, so that one
+        # group's Python work (model upload, allocation) and its chunk barriers overlap the
+        # others' stepping instead of leaving cores idle. A world's arithmetic is unchanged.
+        for _, fields in groups:
+            wp.load_module(rollout_kernels(fields.topology).module, device=device)
+        with ThreadPoolExecutor(workers, thread_name_prefix="tt-rollout") as pool, \
+                ThreadPoolExecutor(len(groups), thread_name_prefix="tt-group") as drivers:
+            results = list(drivers.map(lambda group: run(group, pool), groups))
+    else:
+        results = [run(group) for group in groups]
     if bar is not None:
         bar.close()
     return results
