@@ -498,6 +498,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--cli-repeats", type=int, default=None,
                     help="fresh `tt rollout` processes per warp thread count, interleaved; the median counts (the lower "
                          "middle one for an even count); default 3, --quick: 1")
+    ap.add_argument("--warp-repeats", type=int, default=None,
+                    help="in-process warp runs per N and thread count, the fastest counts (default: 3 below 2M "
+                         "world-steps, else 1)")
     ap.add_argument("--steps", type=int, default=None, help="control steps of the toss (default: all 223)")
     ap.add_argument("--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8")
     ap.add_argument("--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)")
@@ -512,6 +515,8 @@ def main(argv: list[str] | None = None) -> None:
     args.cli_repeats = (1 if args.quick else 3) if args.cli_repeats is None else args.cli_repeats
     if args.cli_repeats < 1:
         ap.error(f"--cli-repeats {args.cli_repeats}: must be >= 1")
+    if args.warp_repeats is not None and args.warp_repeats < 1:
+        ap.error(f"--warp-repeats {args.warp_repeats}: must be >= 1")
     if args.backends is None:
         args.backends = [] if args.quick else list(OTHERS)
     for b in args.backends:
@@ -562,7 +567,7 @@ def main(argv: list[str] | None = None) -> None:
         built, marrays = _warp_groups(models[:n], motion)
         results["warp"][n] = {}
         for k in args.threads:
-            repeats = 3 if n * full * SUBSTEPS < 2e6 else 1
+            repeats = args.warp_repeats or (3 if n * full * SUBSTEPS < 2e6 else 1)
             results["warp"][n][k] = _warp(built, marrays, full, k, repeats)
             records.append(results["warp"][n][k])
         del built, marrays
