@@ -181,7 +181,8 @@ class TrainedModel:
     its normaliser, layout, the step it was saved at, the design space it was trained on
     (None: not recorded, as in checkpoints written before spaces were), its file, the
     names of the tasks it was trained on and the DDIM training steps of its robot and
-    dynamics tasks (the paper's defaults where the checkpoint records no train config)."""
+    dynamics tasks (the paper's defaults where the checkpoint records no train config);
+    dynamics_start: its dynamics task is told the episode's first step (window "start")."""
 
     model: RoboDiT
     normalizer: Normalizer
@@ -191,6 +192,7 @@ class TrainedModel:
     path: Path | None = None
     tasks: tuple[str, ...] = ("robot",)
     robot_diffusion_steps: int = ROBOT.diffusion_steps
+    dynamics_start: bool = False
 
     def trained_on(self, task: str) -> bool:
         """Whether the model was trained on `task` ("robot", "dynamics" or "control")."""
@@ -218,7 +220,10 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
         raise CorruptFileError(f"checkpoint {path}: its network does not load ({reason(e)})") from None
     model.to(device).eval()
     tasks, robot_steps = _trained_tasks(state.get("train_config"))
-    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps)
+    config = state.get("train_config")
+    start = bool(config.get("dynamics_start", False)) if isinstance(config, dict) else False
+    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps,
+                        start)
 
 
 def _trained_tasks(config) -> tuple[tuple[str, ...], int]:

@@ -44,7 +44,7 @@ class TokenSource(Protocol):
 
     def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
                part: tuple[int, int] | None = None) -> TokenBatch:
-        """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "consecutive".
+        """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "start" | "consecutive".
         part: (a, b): read only windows a .. b - 1 of the n drawn (a data-parallel rank's
         share); the generator advances as for all n."""
 
@@ -168,15 +168,17 @@ class EpisodeTokens:
             i = int(episodes[short[0, 0]])
             raise LayoutError(f"episode {i} has {int(self.lengths[i])} steps, fewer than the window's {steps}")
         n = episodes.shape[0]
-        if kind == "random":
+        if kind in ("random", "start"):
             scores = torch.rand(n, self.max_steps, generator=generator)
             scores = torch.where(torch.arange(self.max_steps)[None, :] < lengths[:, None], scores, torch.full_like(scores, 2.0))
+            if kind == "start":
+                scores[:, 0] = -1.0  # step 0 always, then steps - 1 distinct others
             idx = scores.topk(steps, dim=1, largest=False).indices
             return idx.sort(dim=1).values
         if kind == "consecutive":
             start = (torch.rand(n, generator=generator) * (lengths - steps + 1)).long()
             return start[:, None] + torch.arange(steps)[None, :]
-        raise ValueError(f"window kind {kind!r} does not exist; kinds: random, consecutive")
+        raise ValueError(f"window kind {kind!r} does not exist; kinds: random, start, consecutive")
 
     def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenBatch:
         """Raw tokens of windows: episodes (n,) long, step_index (n, steps) from `window_steps`."""

@@ -37,7 +37,7 @@ from tt.tokens.store import BLOCK_EPISODES, DatasetError, EpisodeBlock, TokenSto
 
 logger = logging.getLogger(__name__)
 
-WINDOW_KINDS = ("random", "consecutive")
+WINDOW_KINDS = ("random", "start", "consecutive")
 #: Types holding world poses, transformed as g * pose.
 _WORLD_POSE_TYPES = ("free_link_obs", "track_link_obs", "target_pose")
 #: Joint types whose token may hold the ground's pose in the joint frame (link ID -1).
@@ -106,7 +106,8 @@ def augment_se2_tokens(values: dict[str, torch.Tensor], mask: dict[str, torch.Te
 def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None) -> torch.Tensor:
     """Step indices (n, steps), ascending, of windows of episodes with `lengths` (n,).
 
-    "random": `steps` distinct steps uniform among the episode's, sorted; "consecutive":
+    "random": `steps` distinct steps uniform among the episode's, sorted; "start": step 0 and
+    `steps` - 1 distinct others uniform among the rest, sorted; "consecutive":
     steps start .. start + steps - 1 with a uniform start. Same draws as
     `tt.dit.data.EpisodeTokens.window_steps`."""
     if kind not in WINDOW_KINDS:
@@ -114,10 +115,12 @@ def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.
     if len(lengths) and int(lengths.min()) < steps:
         raise ValueError(f"an episode has {int(lengths.min())} steps, fewer than the window's {steps}")
     n = lengths.shape[0]
-    if kind == "random":
+    if kind in ("random", "start"):
         width = int(lengths.max()) if n else steps
         scores = torch.rand(n, width, generator=generator)
         scores = torch.where(torch.arange(width)[None, :] < lengths[:, None], scores, torch.full_like(scores, 2.0))
+        if kind == "start":
+            scores[:, 0] = -1.0
         return scores.topk(steps, dim=1, largest=False).indices.sort(dim=1).values
     start = (torch.rand(n, generator=generator) * (lengths - steps + 1)).long()
     return start[:, None] + torch.arange(steps)[None, :]

@@ -96,7 +96,8 @@ class TrainConfig:
     (delta actions; `tt.dit.anchors`, needs prediction "x0") from the current positions of the
     joints they drive ("joints") or from the last command ("command", needs known_command);
     known_command: the control task is given the command that led to the current state
-    (`tt.dit.tasks.TaskSpec.known_command`); time_ids: "sinusoidal" or "learned" time-step
+    (`tt.dit.tasks.TaskSpec.known_command`); dynamics_start: the dynamics task's windows hold
+    step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids: "sinusoidal" or "learned" time-step
     ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
     out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task; without all
     three, which the tracking reward does not read, the ViperX sequence is 71 tokens instead of
@@ -138,6 +139,7 @@ class TrainConfig:
     anchor_track: bool = False
     anchor_control: str = ""
     known_command: bool = False
+    dynamics_start: bool = False
     time_ids: str = "sinusoidal"
     drop_types: tuple[str, ...] = ()
 
@@ -159,6 +161,8 @@ class TrainConfig:
         if self.anchor_control == "command" and not self.known_command:
             raise ValueError("anchor_control 'command' (--anchor-control command) needs known_command (--known-command): "
                              "the last command must be given to be a base")
+        if self.dynamics_start and "dynamics" not in task_names(self.task):
+            raise ValueError(f"dynamics_start (--dynamics-start) needs the dynamics task; the run trains {self.task!r}")
         if not self.min_snr_gamma > 0:
             raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
@@ -210,7 +214,7 @@ class TrainConfig:
         """(task, windows per batch) of each task trained: batch_size // k each, the last
         task the remainder."""
         spec = {"robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
-                "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "random"),
+                "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "start" if self.dynamics_start else "random"),
                 "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states,
                                     self.known_command)}
         names = self.task_names()
@@ -329,7 +333,7 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command",
+              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command", "dynamics_start": "--dynamics-start",
               "time_ids": "--time-ids", "drop_types": "--drop-type"}
 
 

@@ -50,8 +50,9 @@ from tt.tokens.normalize import Normalizer, is_padding
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import GEOM_TYPES, SCHEMA, STEP_ROLES, Role
 
-#: Ways to choose a query's control steps (see the module docstring).
-PLACEMENTS = ("even", "random")
+#: Ways to choose a query's control steps (see the module docstring; "start": step 0, then
+#: the "even" steps after the first, for a critic told the episode's start).
+PLACEMENTS = ("even", "random", "start")
 
 _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = (
     GEOM_TYPES.index(n) for n in ("sphere", "capsule", "ellipsoid", "cylinder", "box")
@@ -70,9 +71,11 @@ def query_steps(motion_steps: int, window: int, count: int, *, placement: str = 
         raise ValueError(f"placement {placement!r} is not one of {list(PLACEMENTS)}")
     if motion_steps < 1 or window < 1:
         raise ValueError(f"a query needs motion_steps >= 1 and window >= 1, got {motion_steps} and {window}")
-    if placement == "even":
+    if placement in ("even", "start"):
         k = torch.arange(window, dtype=torch.float64)
         steps = torch.floor((k + 0.5) * motion_steps / window).long().clamp(max=motion_steps - 1)
+        if placement == "start":
+            steps[0] = 0
         return steps[None].expand(count, window).clone()
     from tt.tokens.episodes import sample_steps
 
@@ -181,6 +184,56 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     return query, known
 
 
+def start_tokens(layout: Layout, normalizer: Normalizer, designs, motion: Motion, *,
+                 device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
+    """Each design's first control step on `motion`, simulated, as a model takes it: the
+    normalised per-step tokens of step 0, type -> (D, P, dim) for every per-step type the
+    model predicts (P: the layout's slots per step; padding at PAD_VALUE).
+
+    The batched warp rollout runs one control step (the controller looking ahead along the
+    whole motion, as in the full episode) and the records go through the training data's
+    path (`tt.tokens.episodes.episode_tokens`, `tt.dit.data.EpisodeTokens`, `with_slot_ids`,
+    the normaliser), so the tokens are those of the full episode's step 0.
+    designs: D `tt.sim.designs.Design` of one space.
+    """
+    import warnings
+
+    from tt.dit.data import EpisodeTokens
+    from tt.dit.layout import with_slot_ids
+    from tt.sim.controller import IKConfig
+    from tt.sim.designs import get_space
+    from tt.sim.rollout import group_episode, rollout_records
+    from tt.tokens.episodes import episode_tokens
+    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+
+    device = torch.device(device)
+    space = get_space(designs[0].space)
+    models = [space.model(d) for d in designs]
+    trees = space.trees(designs)
+    sim_device = "cpu" if device.type == "cpu" else f"cuda:{device.index or 0}"
+    records = rollout_records(models if trees is None else trees, space.ee_sites(), [motion], device=sim_device, steps=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TokenizeWarning)
+        emb = Tokenizer()(models)
+    counts = {s.name: s.per_step if s.role in STEP_ROLES else s.length for s in layout.specs}
+    parts, order = [], []
+    for members, arrays in records:
+        ep = group_episode(members, arrays, 1, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
+        first = torch.zeros((ep.worlds, 1), dtype=torch.long, device=ep.qpos.device)
+        dynamics = episode_tokens(ep, emb.index, step_index=first)
+        tokens = EpisodeTokens.from_token_batches(emb.tokens, dynamics, torch.ones(ep.worlds, dtype=torch.long),
+                                                  design_index=ep.design_index.cpu(),
+                                                  max_time=layout.id_sizes.get("time", 1024))
+        parts.append(tokens.pad_to(counts))
+        order += list(members)
+    data = EpisodeTokens.concatenate(parts)
+    rows = torch.as_tensor(np.argsort(order), dtype=torch.long)  # back to the designs' order
+    raw = data.window(rows, torch.zeros((len(designs), layout.steps), dtype=torch.long))
+    tokens = normalizer.normalize(with_slot_ids(layout, raw))
+    return {s.name: tokens.values[s.name][:, :s.per_step].to(device) for s in layout.specs
+            if s.role in STEP_ROLES and s.role is not Role.CONDITION}
+
+
 # ------------------------------------------------------------------------------ critic
 class CheckpointSpaceError(TTError):
     """A checkpoint trained on one design space asked about designs of another."""
@@ -286,10 +339,19 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     D, M, K = len(designs), len(motions), int(samples)
     models = [sp.model(d) for d in designs]
     repeated = [m for m in models for _ in range(K)]  # row i * K + k: design i, sample k
+    from_start = via == "dynamics" and trained.dynamics_start
     queries, tokens, known = [], [], []
     for m in motions:
-        q, kn = design_query(layout, norm, m, repeated, placement=placement,
+        q, kn = design_query(layout, norm, m, repeated, placement="start" if from_start else placement,
                              generator=torch.Generator().manual_seed(int(seed)), device=device)
+        if from_start:
+            # The model was trained told the episode's first step: simulate it and give it.
+            first = start_tokens(layout, norm, designs, m, device=device)
+            values = dict(q.tokens.values)
+            for name, v in first.items():
+                values[name] = values[name].clone()
+                values[name][:, : v.shape[1]] = v.repeat_interleave(K, dim=0)
+            q.tokens = TokenBatch(values, q.tokens.ids, q.tokens.mask)
         queries.append(q)
         tokens.append(q.tokens)
         known.append(kn)
@@ -298,7 +360,8 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     total = len(tokens)
     chunk = total if chunk is None else min(int(chunk), total)
     generator = torch.Generator(device=device).manual_seed(int(seed))
-    task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps, "random")
+    task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps,
+                    "start" if from_start else "random")
     scheduler = CosineDDIM(task.diffusion_steps)
     values = []
     for c0 in range(0, total, chunk):

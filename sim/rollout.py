@@ -131,6 +131,7 @@ def rollout_records(
     noise_seed: int = 0,
     threads: int | None = None,
     graph: bool | None = None,
+    steps: int | None = None,
 ) -> list[tuple[list[int], "RolloutArrays"]]:
     """The Warp rollouts of `rollout` ("warp" backend), one per topology group, as Warp arrays.
 
@@ -143,6 +144,8 @@ def rollout_records(
         and threads, the groups run at the same time on one shared pool of that many workers
         (a group too small to slice launches from its own driver thread).
     graph: one captured graph per group (None: on CUDA devices; see `rollout_tree`).
+    steps: control steps to run (None: the longest motion's); fewer give the first steps of
+        the full rollout, bit for bit (the controller still looks ahead along the motions).
     Inputs are not validated here; `rollout` does that.
     """
     from tt.kernels.model import tree_model
@@ -151,6 +154,9 @@ def rollout_records(
     groups = _tree_groups(models, sites)
     M = len(motions)
     T = max(motion.steps for motion in motions)
+    run_steps = T if steps is None else int(steps)
+    if not 1 <= run_steps <= T:
+        raise ValueError(f"steps = {steps}; must be 1 .. {T}, the longest motion's")
     A = len(sites)
     pos = np.zeros((M, T, A, 3))
     quat = np.zeros((M, T, A, 4))
@@ -163,7 +169,7 @@ def rollout_records(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=T * len(groups), desc="rollout", unit="step")
+        bar = tqdm(total=run_steps * len(groups), desc="rollout", unit="step")
 
     def run(group, pool=None):
         members, fields = group
@@ -172,7 +178,7 @@ def rollout_records(
         # Noise keyed by the world's index in the whole rollout, not in its topology group.
         world_ids = np.array([d * M + j for d in members for j in range(M)])
         arrays = rollout_tree(
-            tree, marrays, len(members) * M, T,
+            tree, marrays, len(members) * M, run_steps,
             **config.rollout_args(), chunk=chunk, progress=bar.update if bar else None,
             action_noise=action_noise, noise_seed=noise_seed, world_ids=world_ids, device=device, threads=threads,
             graph=graph, pool=pool,

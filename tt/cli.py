@@ -642,6 +642,7 @@ def train(
     anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
     anchor_control: str = typer.Option("", help="Delta actions: predict commands as residuals from the current joint positions (joints) or from the last command (command, needs --known-command); needs --prediction x0."),
     known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
+    dynamics_start: bool = typer.Option(False, help="Dynamics task: every window holds the episode's first step, its state and command a clean condition; tt predict then simulates each design's first control step and tells the model where it starts (benchmarks/results/critic_failures.md)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
     drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out of the model's sequence (repeatable): dyna_joint_obs, actuator_obs, control; a lean critic (--task dynamics) trains on a shorter sequence, measured to learn far less (benchmarks/results/dit_ladder_r2f.md). Not with the control task."),
@@ -675,7 +676,8 @@ def train(
     recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
                   bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
-                  anchor_control=anchor_control, known_command=known_command, future_states=future_states, time_ids=time_ids,
+                  anchor_control=anchor_control, known_command=known_command, dynamics_start=dynamics_start,
+                  future_states=future_states, time_ids=time_ids,
                   drop_types=tuple(drop_type or ()))
     _output(out, "--out", folder=True)
     selector = None

@@ -1,0 +1,125 @@
+"""The critic told the episode's start (`tt train --dynamics-start`): windows that hold step 0,
+step 0 a clean condition of the dynamics task, a one-step rollout that is the full rollout's
+first step bit for bit, start tokens that carry the simulated start, and `predict_designs`
+end to end on a model trained that way."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tt.dit.checkpoint import load_model
+from tt.dit.data import EpisodeTokens
+from tt.dit.layout import with_slot_ids
+from tt.dit.loader import window_steps
+from tt.dit.online import OnlineConfig, OnlineTokenSource
+from tt.dit.tasks import TaskSpec, task_masks
+from tt.dit.train import TrainConfig, train
+from tt.guidance.predicted import predict_designs, query_steps, start_tokens
+from tt.sim.designs import get_space
+from tt.sim.motions import for_space, get_motion
+from tt.sim.rewards import get_reward
+from tt.sim.rollout import _RECORDED, rollout_records
+from tt.tokens.schema import SCHEMA, STEP_ROLES, Role
+
+CONFIG = OnlineConfig(space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40)
+
+pytestmark = pytest.mark.usefixtures("single_thread")
+
+
+def _toss(steps: int = 40):
+    toss = for_space([get_motion("toss")], "viperx")[0]
+    return type(toss)(f"toss[:{steps}]", toss.pos[:steps], toss.quat[:steps], toss.dt)
+
+
+def test_start_windows_hold_step_0_and_distinct_others():
+    lengths = torch.tensor([8, 9, 30, 200])
+    gen = torch.Generator().manual_seed(0)
+    for steps in (window_steps(lengths, 8, "start", gen),):
+        assert (steps[:, 0] == 0).all()
+        assert (steps.diff(dim=1) > 0).all() and (steps < lengths[:, None]).all()
+    # The in-memory source draws the same way.
+    src = OnlineTokenSource(CONFIG, device="cpu")
+    src.start_step(0)
+    data: EpisodeTokens = src._refresh(0)
+    idx = data.window_steps(torch.arange(len(data)), 8, "start", torch.Generator().manual_seed(1))
+    assert (idx[:, 0] == 0).all() and (idx.diff(dim=1) > 0).all()
+    assert (idx[:, 1:] > 0).any(dim=0).all()  # the other steps are drawn, not fixed
+
+
+def test_start_window_is_the_dynamics_tasks_only():
+    with pytest.raises(ValueError, match="dynamics task's only"):
+        TaskSpec("robot", 100, "start")
+    with pytest.raises(ValueError, match="needs the dynamics task"):
+        TrainConfig(out="x", task="robot", dynamics_start=True, online=CONFIG)
+
+
+def test_step_0_is_a_clean_condition_of_the_start_task():
+    src = OnlineTokenSource(CONFIG, device="cpu")
+    src.start_step(0)
+    layout = src.layout(8)
+    raw = with_slot_ids(layout, src.sample(5, 8, "start", torch.Generator().manual_seed(2)))
+    start = task_masks(TaskSpec("dynamics", 100, "start"), layout, raw)
+    plain = task_masks(TaskSpec("dynamics", 100, "random"), layout, raw)
+    for spec in layout.specs:
+        if spec.role in STEP_ROLES and spec.role is not Role.CONDITION:
+            at_0 = raw.ids[spec.name][..., spec.time_index] == 0
+            assert at_0.sum(1).eq(spec.per_step).all()  # exactly step 0's slots
+            assert not start.noised[spec.name][at_0].any() and start.noised[spec.name][~at_0].all()
+            assert plain.noised[spec.name].all()
+        else:
+            assert torch.equal(start.noised[spec.name], plain.noised[spec.name])
+
+
+def test_first_steps_of_a_rollout_are_the_full_rollouts_bit_for_bit():
+    space = get_space("viperx")
+    designs = space.sample(5, seed=4)  # several topologies
+    motions = [_toss(40), _toss(30)]
+    full = rollout_records(space.trees(designs), space.ee_sites(), motions, device="cpu")
+    first = rollout_records(space.trees(designs), space.ee_sites(), motions, device="cpu", steps=3)
+    assert [m for m, _ in full] == [m for m, _ in first]
+    for (_, a), (_, b) in zip(full, first):
+        for name in _RECORDED:
+            x, y = getattr(a, name).numpy(), getattr(b, name).numpy()
+            assert y.shape[1] == 3
+            assert np.array_equal(x[:, :3], y, equal_nan=True), name
+    with pytest.raises(ValueError, match="must be 1 .. 40"):
+        rollout_records(space.trees(designs), space.ee_sites(), motions, device="cpu", steps=41)
+
+
+@pytest.fixture(scope="module")
+def start_model(tmp_path_factory):
+    out = tmp_path_factory.mktemp("start")
+    cfg = TrainConfig(out=str(out), size="tiny", task="dynamics", dynamics_start=True, prediction="x0", batch_size=4,
+                      steps=3, warmup_steps=1, lr=3e-3, device="cpu", checkpoint_every=1000, online=CONFIG)
+    train(cfg)
+    return load_model(out)
+
+
+def test_start_tokens_carry_the_simulated_start(start_model):
+    space = get_space("viperx")
+    designs = space.sample(4, seed=5)
+    motion = _toss(40)
+    layout, norm = start_model.layout, start_model.normalizer
+    tokens = start_tokens(layout, norm, designs, motion)
+    assert set(tokens) == {s.name for s in layout.specs if s.role in STEP_ROLES and s.role is not Role.CONDITION}
+    # Reference: the end effector at step 0 of the full rollout, design by design.
+    full = rollout_records(space.trees(designs), space.ee_sites(), [motion], device="cpu")
+    ee = np.zeros((len(designs), 3))
+    for members, arrays in full:
+        ee[members] = arrays.ee_pos.numpy()[:, 0, 0]
+    track = norm.denormalize_values("track_link_obs", tokens["track_link_obs"])[:, 0]  # (D, dim): slot 0
+    pos = track[:, SCHEMA["track_link_obs"].slice("pos")].numpy()
+    # float32 tokens of metre-scale positions through min-max normalisation and back.
+    np.testing.assert_allclose(pos, ee, atol=1e-5)
+
+
+def test_predict_designs_from_the_start(start_model):
+    assert start_model.dynamics_start
+    steps = query_steps(100, 8, 2, placement="start")
+    assert (steps[:, 0] == 0).all() and torch.equal(steps[0, 1:], query_steps(100, 8, 1)[0, 1:])
+    space = get_space("viperx")
+    designs = space.sample(3, seed=6)
+    pred = predict_designs(start_model, designs, [_toss(40)], get_reward("tracking", "viperx"), num_steps=2, samples=2)
+    assert pred.reward.shape == (3, 1) and np.isfinite(pred.reward).all()
