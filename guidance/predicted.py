@@ -295,7 +295,10 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     must have been trained on that task), or "inpaint", the robot task with the embodiment
     inpainted (replacement method); None: "dynamics" when the model was trained on it. All
     D x M x K sequences go through one sampling call (``chunk``: at most that many sequences
-    per call, for memory).
+    per call, for memory). A model trained told the episode's start (``dynamics_start``) is
+    given it: each design's first control step on each motion is simulated (`start_tokens`,
+    about 1 % of an episode's cost) and the query's steps are step 0 and the "even" ones after
+    it, whatever ``placement`` says.
 
     trained: `tt.dit.checkpoint.TrainedModel`; designs: D `tt.sim.designs.Design` of one
     space, the space the checkpoint was trained on (`check_space`); motions: M motions
