@@ -219,19 +219,18 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError) as e:
         raise CorruptFileError(f"checkpoint {path}: its network does not load ({reason(e)})") from None
     model.to(device).eval()
-    tasks, robot_steps = _trained_tasks(state.get("train_config"))
-    config = state.get("train_config")
-    start = bool(config.get("dynamics_start", False)) if isinstance(config, dict) else False
+    tasks, robot_steps, start = _trained_tasks(state.get("train_config"))
     return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps,
                         start)
 
 
-def _trained_tasks(config) -> tuple[tuple[str, ...], int]:
-    """(task names, robot DDIM steps) of a checkpoint's train config (a dict, or absent)."""
+def _trained_tasks(config) -> tuple[tuple[str, ...], int, bool]:
+    """(task names, robot DDIM steps, dynamics_start) of a checkpoint's train config (a dict,
+    or absent)."""
     if not isinstance(config, dict):
-        return ("robot",), ROBOT.diffusion_steps
+        return ("robot",), ROBOT.diffusion_steps, False
     try:
         names = tuple(task_names(str(config.get("task", "robot"))))
     except ValueError:
         names = ("robot",)
-    return names, int(config.get("robot_diffusion_steps", ROBOT.diffusion_steps))
+    return names, int(config.get("robot_diffusion_steps", ROBOT.diffusion_steps)), bool(config.get("dynamics_start", False))

@@ -184,19 +184,23 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     return query, known
 
 
-def start_tokens(layout: Layout, normalizer: Normalizer, designs, motion: Motion, *,
+def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, models=None,
                  device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
-    """Each design's first control step on `motion`, simulated, as a model takes it: the
-    normalised per-step tokens of step 0, type -> (D, P, dim) for every per-step type the
+    """Each design's first control step on each motion, simulated, as a model takes it: the
+    normalised per-step tokens of step 0, type -> (M, D, P, dim) for every per-step type the
     model predicts (P: the layout's slots per step; padding at PAD_VALUE).
 
-    The batched warp rollout runs one control step (the controller looking ahead along the
-    whole motion, as in the full episode) and the records go through the training data's
-    path (`tt.tokens.episodes.episode_tokens`, `tt.dit.data.EpisodeTokens`, `with_slot_ids`,
-    the normaliser), so the tokens are those of the full episode's step 0.
-    designs: D `tt.sim.designs.Design` of one space.
+    One batched warp rollout runs one control step of every design on every motion (the
+    controller looking ahead along the whole motion, as in the full episode), and the records
+    go through the training data's path (`tt.tokens.episodes.episode_tokens`,
+    `tt.dit.data.EpisodeTokens`, `with_slot_ids`, the normaliser), so the tokens are those of
+    the full episodes' step 0.
+    designs: D `tt.sim.designs.Design` of one space; motions: M motions placed for it;
+    models: their compiled models when the caller has them (`DesignSpace.model`).
     """
     import warnings
+
+    import warp as wp
 
     from tt.dit.data import EpisodeTokens
     from tt.dit.layout import with_slot_ids
@@ -208,30 +212,31 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motion: Motion
 
     device = torch.device(device)
     space = get_space(designs[0].space)
-    models = [space.model(d) for d in designs]
+    models = [space.model(d) for d in designs] if models is None else list(models)
     trees = space.trees(designs)
-    sim_device = "cpu" if device.type == "cpu" else f"cuda:{device.index or 0}"
-    records = rollout_records(models if trees is None else trees, space.ee_sites(), [motion], device=sim_device, steps=1)
+    D, M = len(designs), len(motions)
+    records = rollout_records(models if trees is None else trees, space.ee_sites(), motions,
+                              device=str(wp.device_from_torch(device)), steps=1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TokenizeWarning)
         emb = Tokenizer()(models)
     counts = {s.name: s.per_step if s.role in STEP_ROLES else s.length for s in layout.specs}
-    parts, order = [], []
+    parts, worlds = [], []
     for members, arrays in records:
-        ep = group_episode(members, arrays, 1, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
+        ep = group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
         first = torch.zeros((ep.worlds, 1), dtype=torch.long, device=ep.qpos.device)
         dynamics = episode_tokens(ep, emb.index, step_index=first)
         tokens = EpisodeTokens.from_token_batches(emb.tokens, dynamics, torch.ones(ep.worlds, dtype=torch.long),
                                                   design_index=ep.design_index.cpu(),
                                                   max_time=layout.id_sizes.get("time", 1024))
         parts.append(tokens.pad_to(counts))
-        order += list(members)
+        worlds += [d * M + j for d in members for j in range(M)]  # the group's worlds, design-major
     data = EpisodeTokens.concatenate(parts)
-    rows = torch.as_tensor(np.argsort(order), dtype=torch.long)  # back to the designs' order
-    raw = data.window(rows, torch.zeros((len(designs), layout.steps), dtype=torch.long))
+    rows = torch.as_tensor(np.argsort(worlds), dtype=torch.long)  # world d * M + j: design d on motion j
+    raw = data.window(rows, torch.zeros((D * M, layout.steps), dtype=torch.long))
     tokens = normalizer.normalize(with_slot_ids(layout, raw))
-    return {s.name: tokens.values[s.name][:, :s.per_step].to(device) for s in layout.specs
-            if s.role in STEP_ROLES and s.role is not Role.CONDITION}
+    return {s.name: tokens.values[s.name][:, :s.per_step].reshape(D, M, s.per_step, -1).transpose(0, 1).to(device)
+            for s in layout.specs if s.role in STEP_ROLES and s.role is not Role.CONDITION}
 
 
 # ------------------------------------------------------------------------------ critic
@@ -343,17 +348,17 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     models = [sp.model(d) for d in designs]
     repeated = [m for m in models for _ in range(K)]  # row i * K + k: design i, sample k
     from_start = via == "dynamics" and trained.dynamics_start
+    # A model trained told the episode's first step is given it, simulated.
+    first = start_tokens(layout, norm, designs, motions, models=models, device=device) if from_start else None
     queries, tokens, known = [], [], []
-    for m in motions:
+    for j, m in enumerate(motions):
         q, kn = design_query(layout, norm, m, repeated, placement="start" if from_start else placement,
                              generator=torch.Generator().manual_seed(int(seed)), device=device)
-        if from_start:
-            # The model was trained told the episode's first step: simulate it and give it.
-            first = start_tokens(layout, norm, designs, m, device=device)
+        if first is not None:
             values = dict(q.tokens.values)
             for name, v in first.items():
                 values[name] = values[name].clone()
-                values[name][:, : v.shape[1]] = v.repeat_interleave(K, dim=0)
+                values[name][:, : v.shape[2]] = v[j].repeat_interleave(K, dim=0)
             q.tokens = TokenBatch(values, q.tokens.ids, q.tokens.mask)
         queries.append(q)
         tokens.append(q.tokens)

@@ -102,15 +102,16 @@ def test_start_tokens_carry_the_simulated_start(start_model):
     designs = space.sample(4, seed=5)
     motion = _toss(40)
     layout, norm = start_model.layout, start_model.normalizer
-    tokens = start_tokens(layout, norm, designs, motion)
+    motions = [motion, _toss(30)]
+    tokens = start_tokens(layout, norm, designs, motions)
     assert set(tokens) == {s.name for s in layout.specs if s.role in STEP_ROLES and s.role is not Role.CONDITION}
-    # Reference: the end effector at step 0 of the full rollout, design by design.
-    full = rollout_records(space.trees(designs), space.ee_sites(), [motion], device="cpu")
-    ee = np.zeros((len(designs), 3))
+    # Reference: the end effector at step 0 of the full rollout, design by design, motion by motion.
+    full = rollout_records(space.trees(designs), space.ee_sites(), motions, device="cpu")
+    ee = np.zeros((len(motions), len(designs), 3))
     for members, arrays in full:
-        ee[members] = arrays.ee_pos.numpy()[:, 0, 0]
-    track = norm.denormalize_values("track_link_obs", tokens["track_link_obs"])[:, 0]  # (D, dim): slot 0
-    pos = track[:, SCHEMA["track_link_obs"].slice("pos")].numpy()
+        ee[:, members] = arrays.ee_pos.numpy()[:, 0, 0].reshape(len(members), len(motions), 3).transpose(1, 0, 2)
+    track = norm.denormalize_values("track_link_obs", tokens["track_link_obs"])[:, :, 0]  # (M, D, dim): slot 0
+    pos = track[..., SCHEMA["track_link_obs"].slice("pos")].numpy()
     # float32 tokens of metre-scale positions through min-max normalisation and back.
     np.testing.assert_allclose(pos, ee, atol=1e-5)
 
