@@ -161,6 +161,7 @@ def main() -> None:
             validated = np.array([checked[key][0] for key in keys])
             pos_err = np.array([checked[key][1] for key in keys])
             label = res.info["critic"] + (f" of `{args.critic_checkpoint}`" if model is not None else "") + \
+                (" on the decoded designs" if res.info.get("critic_on") == "designs" else "") + \
                 (f" (mean of {k} predictions)" if k > 1 else "")
             row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": label,
                    "decoded": len(res.designs), "pick_reward": float(validated[0]),

@@ -134,6 +134,21 @@ def default_checkpoint(space: str, folder: str | Path | None = None, *, task: st
     )
 
 
+def shipped_critic(space: str, checkpoint: str | Path, folder: str | Path | None = None) -> Path | None:
+    """The critic to rank the samples of `checkpoint` by: the space's shipped dynamics
+    specialist when `checkpoint` is the space's shipped generalist and a specialist ships
+    beside it, else None (the sampling model's own dynamics task; a user's own checkpoint
+    is not paired with a shipped critic it was not trained beside)."""
+    try:
+        generalist = default_checkpoint(space, folder)
+        critic = default_checkpoint(space, folder, task="dynamics")
+    except NoCheckpointError:
+        return None
+    if critic == generalist or Path(checkpoint).resolve() != generalist.resolve():
+        return None
+    return critic
+
+
 #: Entries a checkpoint needs to sample (`load_model`) and, in addition, to resume training.
 SAMPLE_KEYS = ("model", "state_dict", "ema", "normalizer", "step")
 RESUME_KEYS = SAMPLE_KEYS + ("optimizer", "train_config", "rng", "losses")

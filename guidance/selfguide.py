@@ -185,13 +185,15 @@ class DGSConfig(SamplerConfig):
 class DynamicsSelfGuidance(ZerothOrder):
     """The paper's Dynamics Self-Guidance optimizer: n guided samples, best ranked by the model.
 
-    config: `DGSConfig`; model, decoder: as `ZerothOrder`.
+    config: `DGSConfig`; model, decoder, critic_model: as `ZerothOrder` (the critic ranks the
+    guided samples; the guidance follows the sampling model's own dynamics).
     """
 
     name = "dgs"
 
-    def __init__(self, config: DGSConfig = DGSConfig(), *, model=None, decoder: Decoder | None = None):
-        super().__init__(config, model=model, decoder=decoder)
+    def __init__(self, config: DGSConfig = DGSConfig(), *, model=None, decoder: Decoder | None = None,
+                 critic_model=None):
+        super().__init__(config, model=model, decoder=decoder, critic_model=critic_model)
 
     def generate(self, problem: Problem) -> tuple[Generation, Decoder, dict]:
         """As `ZerothOrder.generate`, with the guidance hook (info also holds its statistics
@@ -213,7 +215,7 @@ class DynamicsSelfGuidance(ZerothOrder):
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "critic_samples": c.critic_samples, "critic_on": c.critic_on, "scale": scale,
+                "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input(), "scale": scale,
                 "sim_grad_weight": c.sim_grad_weight, **summary, "rollouts": rollouts}
         return gen, decoder, info
 

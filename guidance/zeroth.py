@@ -93,7 +93,10 @@ class SamplerConfig:
         0.51 to 0.60, `benchmarks/results/dit_ladder_r1c.md`). critic_checkpoint: another
         checkpoint (file or run folder) whose dynamics task is the critic (None: the
         sampling model's own); it implies the "dynamics" critic. critic_on: "tokens" (the
-        sampled embodiments) or "designs" (the decoded designs; see the module docstring).
+        sampled embodiments) or "designs" (the decoded designs; see the module docstring);
+        None: "designs" when the dynamics critic was trained told the episode's start
+        (``dynamics_start``: it needs each design's simulated first step, which only a
+        decoded design has), else "tokens".
     """
 
     checkpoint: str | Path | None = None
@@ -106,7 +109,7 @@ class SamplerConfig:
     critic: str | None = None
     critic_samples: int = 1
     critic_checkpoint: str | Path | None = None
-    critic_on: str = "tokens"
+    critic_on: str | None = None
 
     def __post_init__(self) -> None:
         if self.samples is not None and self.samples < 1:
@@ -128,8 +131,8 @@ class SamplerConfig:
         if self.critic == "joint" and self.critic_samples > 1:
             raise ValueError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
                              "scores the one draw sampled with the design")
-        if self.critic_on not in CRITIC_INPUTS:
-            raise ValueError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)}")
+        if self.critic_on is not None and self.critic_on not in CRITIC_INPUTS:
+            raise ValueError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)} or None")
         if self.critic == "joint" and self.critic_on == "designs":
             raise ValueError("critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
                              "with critic = 'joint'")
@@ -534,7 +537,7 @@ class ZerothOrder(Optimizer):
             self._critic = resolve_model(None, c.critic_checkpoint, problem.device)
         # On designs, `judge_designs` asks the critic model itself; the sampler only samples.
         sampler = CandidateSampler(self._trained, problem.device,
-                                   critic_model=self._critic if c.critic_on == "tokens" else None)
+                                   critic_model=self._critic if self.critic_input() == "tokens" else None)
         if self._decoder is not None:
             decoder = self._decoder
         else:
@@ -557,7 +560,7 @@ class ZerothOrder(Optimizer):
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n)
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "critic_samples": c.critic_samples, "critic_on": c.critic_on}
+                "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input()}
         if self._critic is not None:
             info["critic_checkpoint"] = str(self._critic.path) if self._critic.path is not None else "(given model)"
         return gen, decoder, info
@@ -568,7 +571,7 @@ class ZerothOrder(Optimizer):
         on their tokens inside the sampling call, or on their decoded designs afterwards
         (`judge_designs`, which also returns a decoder answering from its decodes)."""
         c = self.config
-        on_designs = c.critic_on == "designs"
+        on_designs = self.critic_input() == "designs"
         gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
                           placement=c.placement, chunk=c.chunk, guidance=guidance,
                           critic="joint" if on_designs else self.critic(),
@@ -615,6 +618,23 @@ class ZerothOrder(Optimizer):
         if self._critic is not None or self.config.critic_checkpoint is not None or self.config.critic_on == "designs":
             return "dynamics"
         return "dynamics" if self._trained.trained_on("dynamics") else "joint"
+
+    def critic_input(self) -> str:
+        """What the critic is asked about (models loaded): the config's ``critic_on``, or by
+        default "designs" when the dynamics critic was trained told the episode's start
+        (it is given each decoded design's simulated first step), else "tokens".
+
+        Raises ValueError for "tokens" with such a critic: a sampled embodiment has no
+        simulated start, and without it that critic is asked out of its training."""
+        judge = self._critic or self._trained
+        start_aware = self.critic() == "dynamics" and judge is not None and judge.dynamics_start
+        if self.config.critic_on is None:
+            return "designs" if start_aware else "tokens"
+        if self.config.critic_on == "tokens" and start_aware:
+            raise ValueError("the dynamics critic was trained told the episode's start (dynamics_start); ask it about "
+                             "the decoded designs (critic_on='designs', the default for it), whose first step can be "
+                             "simulated, not about sampled tokens")
+        return self.config.critic_on
 
     def optimize(self, problem: Problem) -> Result:
         start = time.perf_counter()

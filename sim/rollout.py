@@ -193,11 +193,16 @@ def rollout_records(
         # driver thread, its slices queued on one shared pool of `workers` threads, so that one
         # group's Python work (model upload, allocation) and its chunk barriers overlap the
         # others' stepping instead of leaving cores idle. A world's arithmetic is unchanged.
-        for _, fields in groups:
-            wp.load_module(rollout_kernels(fields.topology).module, device=device)
+        # Each group starts as soon as its kernels are built and loaded (here, one thread:
+        # Warp's code generation and module loading are not for concurrent callers), so the
+        # next groups' code generation overlaps the first groups' stepping.
         with ThreadPoolExecutor(workers, thread_name_prefix="tt-rollout") as pool, \
                 ThreadPoolExecutor(len(groups), thread_name_prefix="tt-group") as drivers:
-            results = list(drivers.map(lambda group: run(group, pool), groups))
+            started = []
+            for group in groups:
+                wp.load_module(rollout_kernels(group[1].topology).module, device=device)
+                started.append(drivers.submit(run, group, pool))
+            results = [future.result() for future in started]
     else:
         results = [run(group) for group in groups]
     if bar is not None:

@@ -46,6 +46,14 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
         ckpt.default_checkpoint("aloha", tmp_path)
     with pytest.raises(ValueError, match="task 'walk' does not exist"):
         ckpt.default_checkpoint("viperx", tmp_path, task="walk")
+    # The shipped critic: the dynamics specialist, beside the shipped generalist only.
+    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_small.pt", tmp_path) is None  # no specialist yet
+    (tmp_path / "viperx_mini_dynamics.pt").write_bytes(b"")
+    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_small.pt", tmp_path) == tmp_path / "viperx_mini_dynamics.pt"
+    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_mini.pt", tmp_path) is None  # not the default generalist
+    assert ckpt.shipped_critic("viperx", tmp_path / "elsewhere.pt", tmp_path) is None
+    assert ckpt.shipped_critic("quadruped", tmp_path / "quadruped.pt", tmp_path) is None
+    assert ckpt.shipped_critic("bimanual", tmp_path / "x.pt", tmp_path) is None
     # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
     assert ckpt.shipped_folder().name == "checkpoints" and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
 

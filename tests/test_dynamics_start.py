@@ -124,3 +124,31 @@ def test_predict_designs_from_the_start(start_model):
     designs = space.sample(3, seed=6)
     pred = predict_designs(start_model, designs, [_toss(40)], get_reward("tracking", "viperx"), num_steps=2, samples=2)
     assert pred.reward.shape == (3, 1) and np.isfinite(pred.reward).all()
+
+
+def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_model, tmp_path):
+    """A critic trained told the start is, by default, asked about the decoded designs
+    (the only candidates whose first step can be simulated) and ranks them by exactly
+    `predict_designs`' reward; asking it about sampled tokens is refused."""
+    import dataclasses
+
+    from tt.baselines.problem import Problem
+    from tt.guidance.zeroth import SamplerConfig, ZerothOrder
+
+    # The sampling model: the same network retitled as trained on the robot task too, so it
+    # samples embodiments; the critic is the start-aware model itself.
+    sampler = dataclasses.replace(start_model, tasks=("robot", "dynamics"), dynamics_start=False, path=None)
+    motion = _toss(40)
+    problem = Problem("viperx", (motion,), "tracking", 3, seed=2, backend="warp", device="cpu")
+    res = ZerothOrder(SamplerConfig(num_steps=2, decode="all"), model=sampler, critic_model=start_model).optimize(problem)
+    assert res.info["critic_on"] == "designs" and res.info["critic"] == "dynamics"
+    order = res.info["ranking"]
+    by_index = [res.designs[order.index(i)] for i in range(len(order))]
+    pred = predict_designs(start_model, by_index, [motion], get_reward("tracking", "viperx"), num_steps=2, seed=2)
+    np.testing.assert_allclose(res.rewards, pred.reward[order, 0], rtol=1e-6)
+    with pytest.raises(ValueError, match="trained told the episode's start"):
+        ZerothOrder(SamplerConfig(num_steps=2, critic_on="tokens"), model=sampler,
+                    critic_model=start_model).optimize(problem)
+    # A critic not told the start keeps the tokens default.
+    plain = dataclasses.replace(start_model, dynamics_start=False)
+    assert ZerothOrder(SamplerConfig(), model=sampler, critic_model=plain).critic_input() == "tokens"

@@ -396,8 +396,8 @@ def optimize(
     num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
     critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
     critic_samples: int = typer.Option(1, help="learned methods, 'dynamics' critic: dynamics predictions averaged per candidate (a better ranking for k times the critic's cost)."),
-    critic_checkpoint: Optional[Path] = typer.Option(None, help="learned methods: another checkpoint of the same space whose dynamics task scores the candidates (e.g. one trained with --task dynamics alone); implies --critic dynamics."),
-    critic_on: str = typer.Option("tokens", help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first)."),
+    critic_checkpoint: Optional[Path] = typer.Option(None, help="learned methods: another checkpoint of the same space whose dynamics task scores the candidates (e.g. one trained with --task dynamics alone); implies --critic dynamics. Default: the space's shipped dynamics specialist when the sampling checkpoint is the shipped one (unless --critic joint or --critic-on tokens)."),
+    critic_on: Optional[str] = typer.Option(None, help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first). Default: 'designs' for a critic trained with --dynamics-start, else 'tokens'."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
@@ -449,7 +449,7 @@ def optimize(
                   "sampled with each design")
         from tt.guidance.zeroth import CRITIC_INPUTS
 
-        if critic_on not in CRITIC_INPUTS:
+        if critic_on is not None and critic_on not in CRITIC_INPUTS:
             _fail(f"--critic-on {critic_on!r}: valid are {' and '.join(map(repr, CRITIC_INPUTS))}")
         if critic == "joint" and critic_on == "designs":
             _fail("--critic-on designs asks the dynamics critic about the decoded designs; it does not go with --critic joint")
@@ -472,11 +472,17 @@ def optimize(
             from tt.dit.checkpoint import default_checkpoint
 
             checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
+        if critic_checkpoint is None and critic != "joint" and critic_on != "tokens" and method != "cmaes-init-model":
+            from tt.dit.checkpoint import shipped_critic
+
+            # The shipped critic told the start ranks by far better than the generalist's own
+            # dynamics task (benchmarks/results/zeroth_ranking_start_critic.md).
+            critic_checkpoint = shipped_critic(space, checkpoint)
         options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic,
                        critic_samples=critic_samples)
         if critic_checkpoint is not None:
             options.update(critic_checkpoint=str(critic_checkpoint))
-        if critic_on != "tokens":
+        if critic_on is not None:
             options.update(critic_on=critic_on)
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight)

@@ -79,12 +79,15 @@ class DemoConfig:
 @dataclass
 class LearnedSetup:
     """What the learned methods share: the loaded model, its checkpoint path, the space's
-    design decoder, and the seconds loading and building them took."""
+    design decoder, the seconds loading and building them took, and the critic that ranks
+    their samples (the space's shipped dynamics specialist beside a shipped model, asked
+    about the decoded designs; None: the model's own dynamics task)."""
 
     trained: object
     checkpoint: Path
     decoder: object
     seconds: float
+    critic: object = None
 
 
 def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
@@ -103,16 +106,20 @@ def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
 def learned_setup(checkpoint: Path, space: str, device: str | None) -> LearnedSetup:
     """Load the model and build the decoder once for both learned methods."""
     from tt.kernels.device import default_device
-    from tt.dit.checkpoint import load_model
-    from tt.guidance.zeroth import DesignDecoder
+    from tt.dit.checkpoint import load_model, shipped_critic
+    from tt.guidance.zeroth import DesignDecoder, check_critic
     from tt.sim.designs import get_space
     from tt.tokens.design_fit import CandidateTable
 
     start = time.perf_counter()
     trained = load_model(checkpoint, device=device or default_device())
+    critic = None
+    if (critic_path := shipped_critic(space, checkpoint)) is not None:
+        critic = load_model(critic_path, device=device or default_device())
+        check_critic(trained, critic)
     sp = get_space(space)
     decoder = DesignDecoder(sp, table=CandidateTable(sp))
-    return LearnedSetup(trained, Path(checkpoint), decoder, time.perf_counter() - start)
+    return LearnedSetup(trained, Path(checkpoint), decoder, time.perf_counter() - start, critic)
 
 
 def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None = None):
@@ -128,14 +135,14 @@ def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None
             raise ValueError(f"method {method!r} needs a DiT checkpoint")
         if method in ("zeroth", "zeroth-sim"):
             zeroth = ZerothOrder(SamplerConfig(samples=config.samples, num_steps=config.num_steps),
-                                 model=learned.trained, decoder=learned.decoder)
+                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
             if method == "zeroth":
                 return zeroth
             from tt.guidance.hybrid import SimVerified
 
             return SimVerified(zeroth)
         return DynamicsSelfGuidance(DGSConfig(samples=config.samples, num_steps=config.num_steps),
-                                    model=learned.trained, decoder=learned.decoder)
+                                    model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     return get_optimizer(method)
 
 
@@ -165,7 +172,8 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
             methods = [m for m in methods if m not in LEARNED]
         else:
             learned = learned_setup(checkpoint, config.space, config.device)
-            echo(f"loaded the model (step {learned.trained.step}) and the {config.space} decoding table in "
+            critic = "" if learned.critic is None else f", the critic {learned.critic.path.name}"
+            echo(f"loaded the model (step {learned.trained.step}){critic} and the {config.space} decoding table in "
                  f"{learned.seconds:.1f} s (once, not in the optimize times)")
     results, labels, failures = [], [], []
     for method in methods:
@@ -207,6 +215,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
         "space": config.space, "motion": config.motion, "reward": config.reward, "rows": rows,
         "designs": {label: space.to_dict(r.best) for label, r in zip(labels, results)},
         "checkpoint": None if learned is None else str(learned.checkpoint),
+        "critic": None if learned is None or learned.critic is None else str(learned.critic.path),
         "checkpoint_note": checkpoint_note,
         "samples": config.samples, "num_steps": config.num_steps, "budget": config.budget,
     })
