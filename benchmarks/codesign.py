@@ -134,7 +134,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
-                                model=learned.trained, decoder=learned.decoder)
+                                model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
 # ------------------------------------------------------------------------------ runs
@@ -418,8 +418,10 @@ def notes(records: list[dict], info: dict) -> str:
         "- Timing. Zeroth-Order and Self-Guidance times are the whole `optimize` call: sampling (n sequences of one "
         "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
         "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
-        "this 2-core CPU the DiT's forward pass over n x ~240 tokens dominates the learned methods' time, so they "
-        "scale about linearly in n x steps; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
+        "this 2-core CPU, with a critic asked about the decoded designs (one trained told the start), decoding every "
+        "candidate dominates the learned methods' time (about a second per candidate: a least-squares fit of the "
+        "continuous choices through MuJoCo compiles); otherwise the DiT's forward pass over n x ~240 tokens does. "
+        "Either way they scale about linearly in n; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
         "- Cuts, to fit a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 settings on a GPU; "
         f"the tables above say which seeds and rewards ran): {info['steps']} DDIM steps instead of 100; the sample "
         "counts listed above; the scaling part's Self-Guidance stops at n = the table's; the lambda part runs few samples and seeds "
@@ -525,7 +527,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
         f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
         f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
-        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks Zeroth-Order's and the hybrids' samples\n"
+        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the samples of Zeroth-Order, Self-Guidance and the hybrids (asked about the decoded designs when it was trained told the start)\n"
            if info.get("critic_checkpoint") else "")
         + (f"- Zeroth + sim (top k): the simulator verifies the top {info['hybrid_verify']} of its samples as the "
            f"critic ranks them\n" if info.get("hybrid_verify") else "")
@@ -612,7 +614,7 @@ def main() -> None:
                     help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
-                    help="Zeroth-Order and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
+                    help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
     ap.add_argument("--from-log", type=Path, nargs="+", default=None,

@@ -9,9 +9,10 @@ Methods: Random and batched CMA-ES (budget candidates each, scored by tt's batch
 rollout), and, when the design space has a shipped DiT checkpoint
 (`tt.dit.checkpoint.default_checkpoint`) or one is given, the diffusion model's
 Zeroth-Order search and Dynamics Self-Guidance (`samples` candidates each, `num_steps` DDIM
-steps, ranked by the model's own reward prediction: no simulator runs) and the hybrid
-Zeroth + sim (the same samples, every one checked in one batched rollout, the simulated
-best wins; `tt.guidance.hybrid`). Without a
+steps, ranked by a predicted reward: beside the shipped model, the shipped dynamics critic's,
+which decodes every candidate and simulates only its first control step; else the model's
+own) and the hybrid Zeroth + sim (the same samples, every one checked in one batched
+rollout, the simulated best wins; `tt.guidance.hybrid`). Without a
 checkpoint the learned methods are skipped and the output says why; a learned method none
 of whose candidates decodes to a design of the space gets a "no design" row.
 
