@@ -18,9 +18,9 @@ of whose candidates decodes to a design of the space gets a "no design" row.
 
 Time. The defaults keep the whole demo to a few minutes on a 2-core CPU: the learned
 methods sample 16 candidates with 20 DDIM steps (of the process's 100; DDIM's strided
-schedule) rather than the paper's 128 x 100. With the shipped ViperX checkpoint the whole
-`tt demo` took 50 s on the repository's 2-core CPU at load average ~1 and 2.3 min at ~8
-(Zeroth-Order ~4 s and Self-Guidance ~8 s of it when idle). One-time costs are excluded from each
+schedule) rather than the paper's 128 x 100. With the shipped ViperX checkpoint and critic
+the whole `tt demo` took 38 s on the repository's 2-core CPU when idle (2026-12-04;
+Zeroth-Order ~8 s and Self-Guidance ~11 s of it, mostly decoding the 16 candidates). One-time costs are excluded from each
 method's optimize time, as the kernel compile is for Random and CMA-ES: loading the
 checkpoint and building the space's decoding table (ViperX: ~10 s) happen once before the
 learned methods run and are reported on their own line.
