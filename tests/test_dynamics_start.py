@@ -126,7 +126,7 @@ def test_predict_designs_from_the_start(start_model):
     assert pred.reward.shape == (3, 1) and np.isfinite(pred.reward).all()
 
 
-def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_model, tmp_path):
+def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_model):
     """A critic trained told the start is, by default, asked about the decoded designs
     (the only candidates whose first step can be simulated) and ranks them by exactly
     `predict_designs`' reward; asking it about sampled tokens is refused."""
