@@ -192,31 +192,32 @@ class DesignSpace(ABC):
     def validate_many(self, designs: Sequence[Design]) -> None:
         """`validate` of every design (the first invalid one raises), with the discrete checks
         done once per distinct structure and the continuous bounds as arrays."""
-        bounds: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+        by_structure: dict[tuple, list[Design]] = {}
         for design in designs:
             if not isinstance(design, Design):
                 self.validate(design)
             # The types join the key: True == 1 would otherwise pass for a checked index.
             key = (design.space, tuple(design.discrete), tuple(type(v) for v in design.discrete))
             try:
-                known = key in bounds
+                by_structure.setdefault(key, []).append(design)
             except TypeError:  # an unhashable choice: validate names it
-                known = False
-            if not known:
                 self.validate(design)
-                cparams = self.continuous_params(design.discrete)
-                tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
-                bounds[key] = (np.array([p.low for p in cparams]) - tol, np.array([p.high for p in cparams]) + tol)
-                continue
-            low, high = bounds[key]
-            values = design.continuous
-            ok = len(values) == len(low) and all(
-                isinstance(v, (float, int, np.floating)) and not isinstance(v, bool) for v in values)
+        for members in by_structure.values():
+            self.validate(members[0])
+            cparams = self.continuous_params(members[0].discrete)
+            values = [design.continuous for design in members]
+            types = {type(v) for row in values for v in row}
+            ok = all(len(row) == len(cparams) for row in values) and all(
+                issubclass(t, (float, int, np.floating)) and not issubclass(t, bool) for t in types)
             if ok:
-                x = np.fromiter(values, dtype=float, count=len(low))
+                tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
+                low, high = np.array([p.low for p in cparams]) - tol, np.array([p.high for p in cparams]) + tol
+                x = np.array(values, dtype=float).reshape(len(members), len(cparams))
                 ok = bool(np.all(np.isfinite(x)) and np.all(low <= x) and np.all(x <= high))
             if not ok:
-                self.validate(design)
+                # Some design of this structure is invalid: the first invalid one in order raises.
+                for design in designs:
+                    self.validate(design)
 
     def to_mjcf(self, design: Design) -> str:
         """MJCF text of a design that `mujoco.MjModel.from_xml_string` loads."""

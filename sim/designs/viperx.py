@@ -166,6 +166,19 @@ def segment_names(dof: str) -> tuple[str, ...]:
     return tuple(f"dlen_{n}" for n in _JOINTS[dof])
 
 
+# The parameters of each DoF variant, built once: validating thousands of designs asks for
+# them once per discrete prefix of every design.
+_FIRST_PARAMS = (DiscreteParam("mount", MOUNTS), DiscreteParam("dof", DOFS))
+_DISCRETE_PARAMS = {dof: _FIRST_PARAMS + tuple(DiscreteParam(f"axis_{j}", AXES) for j in _JOINTS[dof][2:])
+                    for dof in DOFS}
+_CONTINUOUS_PARAMS = {
+    dof: (*(ContinuousParam(k, -v, v) for k, v in MOUNT_RANGE.items()),
+          ContinuousParam("mount_yaw", -np.pi / 2, np.pi / 2, "rad"),
+          *(ContinuousParam(n, *DLEN_RANGE) for n in segment_names(dof)))
+    for dof in DOFS
+}
+
+
 class ViperXSpace(DesignSpace):
     """The ViperX design space."""
 
@@ -173,18 +186,12 @@ class ViperXSpace(DesignSpace):
     ee_count = 1
 
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
-        params = [DiscreteParam("mount", MOUNTS), DiscreteParam("dof", DOFS)]
-        if len(discrete) >= 2:
-            dof = DOFS[discrete[1]] if 0 <= discrete[1] < len(DOFS) else "6"
-            params += [DiscreteParam(f"axis_{j}", AXES) for j in _JOINTS[dof][2:]]
-        return tuple(params)
+        if len(discrete) < 2:
+            return _FIRST_PARAMS
+        return _DISCRETE_PARAMS[DOFS[discrete[1]] if 0 <= discrete[1] < len(DOFS) else "6"]
 
     def continuous_params(self, discrete: Sequence[int]) -> tuple[ContinuousParam, ...]:
-        dof = DOFS[discrete[1]]
-        params = [ContinuousParam(k, -v, v) for k, v in MOUNT_RANGE.items()]
-        params.append(ContinuousParam("mount_yaw", -np.pi / 2, np.pi / 2, "rad"))
-        params += [ContinuousParam(n, *DLEN_RANGE) for n in segment_names(dof)]
-        return tuple(params)
+        return _CONTINUOUS_PARAMS[DOFS[discrete[1]]]
 
     def nominal(self) -> Design:
         dof = "6"
