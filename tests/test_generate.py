@@ -47,12 +47,12 @@ def reference(tmp_path_factory):
     return path
 
 
-def _same_data(a, b) -> None:
+def _same_data(a, b, shards: int = CONFIG.shards) -> None:
     """Equal episodes (content digests) and byte-identical shard files (sizes and CRC-32)."""
     da, db = TokenStore(a, verify="full").episode_digests(), TokenStore(b, verify="full").episode_digests()
     assert len(da) > 0 and da == db
     sa, sb = shard_dirs(a), shard_dirs(b)
-    assert sorted(sa) == sorted(sb) == list(range(CONFIG.shards))
+    assert sorted(sa) == sorted(sb) == list(range(shards))
     for i in sa:
         # Whole manifests: no timings in them, so they are byte-identical too.
         assert (sa[i] / "manifest.json").read_bytes() == (sb[i] / "manifest.json").read_bytes(), f"shard {i} differs"
@@ -232,6 +232,15 @@ def test_one_rollout_thread_writes_the_dataset_of_every_core(reference, tmp_path
     report = generate(CONFIG, tmp_path / "one", device="cpu", progress=False, threads=1)
     assert report.run["shards"] == CONFIG.shards
     _same_data(tmp_path / "one", reference)
+
+
+def test_groups_written_while_the_next_rolls_out_give_the_inline_dataset(tmp_path):
+    """With more than one thread, each group is tokenized and written while the next group rolls
+    out; the shard is byte for byte the one a single thread writes group after group."""
+    config = replace(CONFIG, designs=3, designs_per_shard=3, group_designs=1)
+    generate(config, tmp_path / "inline", device="cpu", progress=False, threads=1)
+    generate(config, tmp_path / "overlapped", device="cpu", progress=False, threads=2)
+    _same_data(tmp_path / "overlapped", tmp_path / "inline", shards=1)
 
 
 def _ray_shard_tasks() -> list[int]:

@@ -186,6 +186,17 @@ class ShardResult:
         return asdict(self)
 
 
+def _store_pool(threads: int | None):
+    """A one-thread pool that tokenizes and writes a group while the next rolls out, where
+    the process may use more than one CPU thread (None: every core); else no pool (None)."""
+    from contextlib import nullcontext
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tt.kernels.rollout import cpu_threads
+
+    return ThreadPoolExecutor(1, thread_name_prefix="tt-store") if cpu_threads(threads) > 1 else nullcontext()
+
+
 def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, device: str, widths: Mapping,
                    progress: Callable[[int], None] | None = None, tokenizer=None, threads: int | None = None) -> ShardResult:
     """Generate shard `index` of the dataset at `out` (whose root exists) and commit it.
@@ -217,7 +228,68 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
     seconds["designs"] += time.perf_counter() - t0
     first_episode = index * config.designs_per_shard * K
     generated = 0
-    with ShardWriter(out, index) as writer:
+
+    def store(group, models, ep, motions, motion_ids, aug_seeds, g0, keep, lengths, score) -> None:
+        """Tokenize a group's kept episodes and append them to the shard (in group order)."""
+        t = time.perf_counter()
+        emb = tokenizer(models)
+        static_tb = emb.tokens.pad_to(static_len)
+        static = {n: (static_tb.values[n], static_tb.ids[n], static_tb.mask[n]) for n in static_len}
+        steps: dict[str, list] = {}
+        for c0 in range(0, len(keep), _TOKENIZE_WORLDS):
+            chunk = keep[c0:c0 + _TOKENIZE_WORLDS]
+            sub = _select_worlds(ep, torch.as_tensor(chunk))
+            ln = lengths[chunk]
+            tmax = int(ln.max())
+            tb = episode_tokens(sub, emb.index, step_index=torch.arange(tmax).expand(len(chunk), tmax))
+            rows = np.arange(tmax)[None, :] < ln[:, None]  # (w, tmax)
+            for name in tb.types:
+                v = tb.values[name].cpu().numpy()
+                p = v.shape[1] // tmax
+                v = v.reshape(len(chunk), tmax, p, -1)[rows]  # (S, p, width)
+                ids = tb.ids[name].cpu().numpy().reshape(len(chunk), tmax, p, -1)[:, 0]
+                ids[..., SCHEMA[name].ids.index("time")] = 0
+                mask = tb.mask[name].cpu().numpy().reshape(len(chunk), tmax, p)[:, 0]
+                if not np.isfinite(v).all():
+                    raise FloatingPointError(f"shard {index}: non-finite {name} tokens from finite episodes")
+                size = maxima[name]
+                steps.setdefault(name, []).append((_pad_last(v, 1, size, name), _pad_last(ids, 1, size, name),
+                                                   _pad_last(mask, 1, size, name)))
+        step_arrays = {n: tuple(np.concatenate([c[k] for c in parts]) for k in range(3)) for n, parts in steps.items()}
+        # A type none of this group's robots has still needs its rows (all padding), so
+        # every per-step array of the shard stays aligned with the episode index.
+        n_steps = int(lengths[keep].sum())
+        for name in step_types:
+            if name not in step_arrays:
+                t = SCHEMA[name]
+                step_arrays[name] = (np.zeros((n_steps, maxima[name], t.width), np.float32),
+                                     np.zeros((len(keep), maxima[name], len(t.ids)), np.int64),
+                                     np.zeros((len(keep), maxima[name]), bool))
+        seconds["tokenize"] += time.perf_counter() - t
+
+        t = time.perf_counter()
+        d_local = ep.design_index.cpu().numpy()[keep]
+        m_local = ep.motion_index.cpu().numpy()[keep]
+        se2 = np.array([[motions[j].meta["se2"][k] for k in ("yaw", "dx", "dy")] for j in range(K)], np.float64)
+        episode = {
+            "episode_id": first_episode + (g0 + d_local) * K + m_local,
+            "design": d_local,
+            "motion": motion_ids[m_local].astype(np.int32),
+            "augment_seed": aug_seeds[m_local].astype(np.int64),
+            "se2": se2[m_local],
+            "length": lengths[keep],
+            "motion_steps": np.array([m.steps for m in motions], np.int32)[m_local],
+            "reward": score["reward"][keep].astype(np.float32),
+            "pos_err": score["pos_err"][keep].astype(np.float32),
+            "orn_err": score["orn_err"][keep].astype(np.float32),
+            "survival": score["survival"][keep] > 0.5,
+        }
+        disc, cont = _design_arrays(group, widths)
+        writer.append(ShardPart(disc, cont, static, episode, step_arrays))
+        seconds["write"] += time.perf_counter() - t
+
+    with ShardWriter(out, index) as writer, _store_pool(threads) as pool:
+        pending = None
         for g0 in range(0, len(designs), config.group_designs):
             group = designs[g0:g0 + config.group_designs]
             t = time.perf_counter()
@@ -255,64 +327,17 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             generated += W
             seconds["score"] += time.perf_counter() - t
 
-            t = time.perf_counter()
-            emb = tokenizer(models)
-            static_tb = emb.tokens.pad_to(static_len)
-            static = {n: (static_tb.values[n], static_tb.ids[n], static_tb.mask[n]) for n in static_len}
-            steps: dict[str, list] = {}
-            for c0 in range(0, len(keep), _TOKENIZE_WORLDS):
-                chunk = keep[c0:c0 + _TOKENIZE_WORLDS]
-                sub = _select_worlds(ep, torch.as_tensor(chunk))
-                ln = lengths[chunk]
-                tmax = int(ln.max())
-                tb = episode_tokens(sub, emb.index, step_index=torch.arange(tmax).expand(len(chunk), tmax))
-                rows = np.arange(tmax)[None, :] < ln[:, None]  # (w, tmax)
-                for name in tb.types:
-                    v = tb.values[name].cpu().numpy()
-                    p = v.shape[1] // tmax
-                    v = v.reshape(len(chunk), tmax, p, -1)[rows]  # (S, p, width)
-                    ids = tb.ids[name].cpu().numpy().reshape(len(chunk), tmax, p, -1)[:, 0]
-                    ids[..., SCHEMA[name].ids.index("time")] = 0
-                    mask = tb.mask[name].cpu().numpy().reshape(len(chunk), tmax, p)[:, 0]
-                    if not np.isfinite(v).all():
-                        raise FloatingPointError(f"shard {index}: non-finite {name} tokens from finite episodes")
-                    size = maxima[name]
-                    steps.setdefault(name, []).append((_pad_last(v, 1, size, name), _pad_last(ids, 1, size, name),
-                                                       _pad_last(mask, 1, size, name)))
-            step_arrays = {n: tuple(np.concatenate([c[k] for c in parts]) for k in range(3)) for n, parts in steps.items()}
-            # A type none of this group's robots has still needs its rows (all padding), so
-            # every per-step array of the shard stays aligned with the episode index.
-            n_steps = int(lengths[keep].sum())
-            for name in step_types:
-                if name not in step_arrays:
-                    t = SCHEMA[name]
-                    step_arrays[name] = (np.zeros((n_steps, maxima[name], t.width), np.float32),
-                                         np.zeros((len(keep), maxima[name], len(t.ids)), np.int64),
-                                         np.zeros((len(keep), maxima[name]), bool))
-            seconds["tokenize"] += time.perf_counter() - t
-
-            t = time.perf_counter()
-            d_local = ep.design_index.cpu().numpy()[keep]
-            m_local = ep.motion_index.cpu().numpy()[keep]
-            se2 = np.array([[motions[j].meta["se2"][k] for k in ("yaw", "dx", "dy")] for j in range(K)], np.float64)
-            episode = {
-                "episode_id": first_episode + (g0 + d_local) * K + m_local,
-                "design": d_local,
-                "motion": motion_ids[m_local].astype(np.int32),
-                "augment_seed": aug_seeds[m_local].astype(np.int64),
-                "se2": se2[m_local],
-                "length": lengths[keep],
-                "motion_steps": np.array([m.steps for m in motions], np.int32)[m_local],
-                "reward": score["reward"][keep].astype(np.float32),
-                "pos_err": score["pos_err"][keep].astype(np.float32),
-                "orn_err": score["orn_err"][keep].astype(np.float32),
-                "survival": score["survival"][keep] > 0.5,
-            }
-            disc, cont = _design_arrays(group, widths)
-            writer.append(ShardPart(disc, cont, static, episode, step_arrays))
-            seconds["write"] += time.perf_counter() - t
+            if pool is None:
+                store(group, models, ep, motions, motion_ids, aug_seeds, g0, keep, lengths, score)
+            else:
+                # One group in flight: its tokens are written while the next group rolls out.
+                if pending is not None:
+                    pending.result()
+                pending = pool.submit(store, group, models, ep, motions, motion_ids, aug_seeds, g0, keep, lengths, score)
             if progress is not None:
                 progress(W)
+        if pending is not None:
+            pending.result()
         t = time.perf_counter()
         attrs = {"generated": generated, "dropped": dropped, "device": "cpu" if device == "cpu" else "cuda"}
         folder = writer.commit(attrs)  # timings stay out of the files: a resumed dataset is byte-identical
