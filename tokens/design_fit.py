@@ -180,6 +180,7 @@ class CandidateTable:
         """discrete: only these combinations (default: all of them, at most `limit`)."""
         self.space = space
         self.discrete = [tuple(int(i) for i in d) for d in discrete] if discrete is not None else discrete_choices(space, limit)
+        self._linear: dict[int, tuple] = {}  # candidate -> `linearization`, computed on first use
         feats = []
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TokenizeWarning)
@@ -241,12 +242,41 @@ class CandidateTable:
             out[name] = _alignment(feat[name][0], bits[i, :counts[i]], tie)
         return out
 
-    def continuous_error(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int,
-                         pairs: dict[str, tuple[np.ndarray, np.ndarray]]) -> float:
+    def linearization(self, i: int) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Candidate i's continuous token values at the middle of its continuous bounds and
+        their slopes there: (x (p,), values {type: (n, nc)}, slopes {type: (n, nc, p)}), n the
+        candidate's own token count; forward differences in float64, p + 1 model builds the
+        first time, kept for later calls. A choice whose step changes the token structure
+        gets slope 0."""
+        if i not in self._linear:
+            params = self.space.continuous_params(self.discrete[i])
+            lo, hi = np.array([q.low for q in params]), np.array([q.high for q in params])
+            x = 0.5 * (lo + hi)
+            h = 1e-5 * np.maximum(hi - lo, 1e-9)
+            X = np.vstack([x[None], x[None] + np.diag(h)])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", TokenizeWarning)
+                emb = tokenize_models([self.space.model(Design(self.space.name, self.discrete[i], tuple(float(v) for v in row)))
+                                      for row in X], _FLOAT64)
+            feats = [_type_features(emb.tokens, k) for k in range(len(X))]
+            base = feats[0]
+            same = [all(np.array_equal(f[n][0], base[n][0]) for n in EMBODIMENT_TYPES) for f in feats[1:]]
+            values = {n: base[n][1] for n in EMBODIMENT_TYPES}
+            slopes = {n: np.stack([(f[n][1] - base[n][1]) / h[j] if ok else np.zeros_like(base[n][1])
+                                   for j, (f, ok) in enumerate(zip(feats[1:], same))], -1) if len(h)
+                      else np.zeros(base[n][1].shape + (0,)) for n in EMBODIMENT_TYPES}
+            self._linear[i] = (x, values, slopes)
+        return self._linear[i]
+
+    def continuous_error(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], candidates: np.ndarray,
+                         pairs: dict[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Weighted sum of squared differences of the continuous values of the aligned tokens
-        (`self.weights`)."""
-        return float(sum(np.sum(self.weights[n] * (self.features[n][2][i, c] - feat[n][1][r]) ** 2)
-                         for n, (r, c) in pairs.items()))
+        (`self.weights`), (K,) for K candidates of one structure (`pairs`, its alignment)."""
+        out = np.zeros(len(candidates))
+        for n, (r, c) in pairs.items():
+            diff = self.features[n][2][candidates[:, None], c[None, :]] - feat[n][1][r][None]  # (K, pairs, nc)
+            out += (self.weights[n] * diff**2).sum(axis=(1, 2))
+        return out
 
 
 @dataclass
@@ -317,21 +347,81 @@ class _BroydenJacobian:
         return self.J
 
 
+def _chord_fit(residuals, f0: np.ndarray, J: np.ndarray, x0: np.ndarray, target: np.ndarray, lo: np.ndarray,
+               hi: np.ndarray, iterations: int, ftol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bounded least squares of the token residuals from a linearization (the chord method,
+    with Broyden's updates), one model build per step.
+
+    f0 (m,), J (m, p): the candidate's aligned continuous token values at x0 and their slopes
+    there (`CandidateTable.linearization`). The linear model's bounded minimiser is the first
+    iterate; each further step solves the linear model at the true residual (`residuals`),
+    halving once when it does not lower the residual, and updates the slopes from the step
+    (Broyden). It stops when a step fails or gains less than `ftol` of the residual's norm,
+    or after `iterations` steps; where the slopes drift from the true ones that can be a
+    little above what least squares reaches (`design_from_tokens`). Returns (x (p,),
+    residuals at x (m,)).
+    """
+    from scipy.optimize import lsq_linear
+
+    def solve(rhs: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        return lsq_linear(J, rhs, bounds=(lower, np.maximum(upper, lower + 1e-15)), lsq_solver="exact").x
+
+    x, r = x0, f0 - target
+    first = np.clip(solve(target - f0 + J @ x0, lo, hi), lo, hi)
+    r_first = residuals(first[None])[0]
+    if np.linalg.norm(r_first) < np.linalg.norm(r):
+        x, r = first, r_first
+    for _ in range(iterations):
+        dx = solve(-r, lo - x, hi - x)
+        for scale in (1.0, 0.5):
+            x_new = np.clip(x + scale * dx, lo, hi)
+            r_new = residuals(x_new[None])[0]
+            if np.linalg.norm(r_new) < np.linalg.norm(r):
+                break
+        else:
+            break
+        gain = np.linalg.norm(r) - np.linalg.norm(r_new)
+        step = x_new - x
+        J = J + np.outer(r_new - r - J @ step, step) / float(step @ step)
+        x, r = x_new, r_new
+        if gain < ftol * np.linalg.norm(r):
+            break
+    return x, r
+
+
+#: How `design_from_tokens` fits the continuous choices.
+FITS = ("chord", "least_squares")
+
+#: A chord fit whose RMS token residual is below this (but above the tolerance) is polished
+#: by least squares: it is the token set of some design, which should be found to `tol`.
+POLISH_BELOW = 1e-3
+
+#: The chord fit's steps at most, and the relative gain in the residual's norm below which
+#: it stops.
+CHORD_STEPS, CHORD_FTOL = 20, 1e-4
+
+
 def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, table: CandidateTable | None = None,
                        top_k: int = 6, tol: float = 1e-5, max_distance: int | None = 0,
-                       broyden: bool | None = None) -> DesignFit:
+                       broyden: bool | None = None, fit: str = "chord") -> DesignFit:
     """The design of `space` whose tokens best match sample `index` of `tokens` (see module).
 
     max_distance: the largest structure distance (`CandidateTable.distances`) to the nearest
     discrete choice that is accepted: 0 asks for the exact token structure, None projects
     any token set onto the nearest structure of the space. broyden: Broyden-updated
     Jacobians in the continuous fit (`_BroydenJacobian`) instead of finite differences at
-    every step; None: for projected structures only.
+    every step; None: for projected structures only. fit: "chord" (default) starts from the
+    candidate's linearization, kept in the table (`CandidateTable.linearization`), and takes
+    chord steps (`_chord_fit`), a few model builds per candidate; a fit that it leaves below
+    `POLISH_BELOW` goes on with "least_squares" from there. "least_squares": scipy's
+    trust-region least squares from the middle of the bounds, the reference.
     """
     from scipy.optimize import least_squares
 
     if max_distance is not None and max_distance < 0:
         raise ValueError(f"max_distance must be >= 0 or None, got {max_distance}")
+    if fit not in FITS:
+        raise ValueError(f"fit = {fit!r}; valid: {list(FITS)}")
     table = table if table is not None and table.space is space else CandidateTable(space)
     feat = _type_features(tokens, index)
     if len(table) == 0:
@@ -346,7 +436,11 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
         if int(table.structure[i]) not in by_structure:
             by_structure[int(table.structure[i])] = table.alignment(feat, int(i))
     pairs = {int(i): by_structure[int(table.structure[i])] for i in match}
-    order = sorted(pairs, key=lambda i: table.continuous_error(feat, i, pairs[i]))
+    error = np.zeros(len(table))
+    for k, rows in by_structure.items():
+        members = match[table.structure[match] == k]
+        error[members] = table.continuous_error(feat, members, rows)
+    order = sorted(pairs, key=lambda i: error[i])
     best: tuple[float, Design | None] = (float("inf"), None)
     fitted = 0
     for i in order[:top_k]:
@@ -381,12 +475,23 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
             # rounding (~1e-7 relative) is far below `tol`. A projected target has no exact
             # fit: its residual stalls well above `tol`, so fewer, looser iterations suffice.
             exact = nearest == 0
+            x, r = 0.5 * (lo + hi), None
+            if fit == "chord":
+                _, values, slopes = table.linearization(int(i))
+                rows = pairs[i]
+                f0 = np.concatenate([values[n][c].ravel() for n, (_, c) in rows.items()])
+                J = np.concatenate([slopes[n][c].reshape(-1, len(params)) for n, (_, c) in rows.items()])
+                x, r = _chord_fit(residuals, f0, J, x, target, lo, hi, iterations=CHORD_STEPS, ftol=CHORD_FTOL)
+        # The chord's result stands unless it nearly fits (a design's own tokens, to be recovered
+        # as exactly as least squares does); a model's sample stalls far above that, where more
+        # precision means nothing.
+        if len(params) and (r is None or np.sqrt(np.mean(r**2)) < POLISH_BELOW):
             options = dict(bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9), xtol=1e-10 if exact else 1e-4,
                            ftol=1e-10 if exact else 1e-4, gtol=1e-10 if exact else 1e-6,
                            max_nfev=(20 if exact else 5) * (len(params) + 1))
             use_broyden = (not exact) if broyden is None else broyden
             jac = _BroydenJacobian(residuals, hi, update=use_broyden)
-            sol = least_squares(jac.fun, 0.5 * (lo + hi), jac=jac, **options)
+            sol = least_squares(jac.fun, x, jac=jac, **options)
             if use_broyden and sol.njev > 1:
                 # Again from fresh differences where the updated Jacobian's steps stalled
                 # (not needed when the first pass took no step).
