@@ -692,20 +692,15 @@ def test_broyden_jacobian_secant_updates_and_fresh_differences_at_jumps():
     assert calls[-2:] == [1, 3]
 
 
-def test_broyden_fit_of_a_projected_structure_matches_finite_differences(monkeypatch):
-    """Projected structures fit with Broyden-updated Jacobians (`design_from_tokens`'s
-    default for them) to the residual of finite differences at every step, the reference,
-    with fewer model builds. The targets have no exact fit: the token values of two designs
-    of one discrete choice, averaged, with one link-ID bit flipped."""
-    from tt.tokens import design_fit
-    from tt.tokens.schema import SCHEMA
-
+def _projection_problem(monkeypatch, seed: int):
+    """A ViperX design a, three others of its discrete choice (uniform continuous choices,
+    `seed`), a candidate table of a's four mounts, and sp.model patched to count its builds.
+    Returns (sp, a, others, table, calls, the unpatched model builder)."""
     sp = get_space("viperx")
     a = sp.sample(1, seed=21)[0]
     lo, hi = (np.array([getattr(q, k) for q in sp.continuous_params(a.discrete)]) for k in ("low", "high"))
-    others = [Design(sp.name, a.discrete, tuple(lo + (hi - lo) * u)) for u in np.random.default_rng(3).random((3, lo.size))]
-    candidates = [(m, *a.discrete[1:]) for m in range(4)]
-    table = CandidateTable(sp, discrete=candidates)
+    others = [Design(sp.name, a.discrete, tuple(lo + (hi - lo) * u)) for u in np.random.default_rng(seed).random((3, lo.size))]
+    table = CandidateTable(sp, discrete=[(m, *a.discrete[1:]) for m in range(4)])
     calls = {"builds": 0}
     model = sp.model
 
@@ -714,14 +709,32 @@ def test_broyden_fit_of_a_projected_structure_matches_finite_differences(monkeyp
         return model(d)
 
     monkeypatch.setattr(sp, "model", counted)
+    return sp, a, others, table, calls, model
 
+
+def _averaged_target(model, a, b) -> TokenBatch:
+    """The token values of designs a and b averaged, with one link-ID bit flipped: a target
+    with no exact fit (its structure is projected)."""
+    from tt.tokens.schema import SCHEMA
+
+    emb = _quiet_tokenize([model(a), model(b)]).tokens
+    values = {n: (v[:1] + v[1:]) / 2 for n, v in emb.values.items()}
+    col = SCHEMA["dyna_joint"].slice("link_id").start
+    values["dyna_joint"][0, 0, col] = 1.0 - np.round(values["dyna_joint"][0, 0, col])
+    return TokenBatch(values, {n: v[:1] for n, v in emb.ids.items()}, {n: v[:1] for n, v in emb.mask.items()},
+                      emb.version)
+
+
+def test_broyden_fit_of_a_projected_structure_matches_finite_differences(monkeypatch):
+    """Projected structures fit by least squares (`fit="least_squares"`) with Broyden-updated
+    Jacobians (its default for them) to the residual of finite differences at every step, the reference,
+    with fewer model builds. The targets have no exact fit: the token values of two designs
+    of one discrete choice, averaged, with one link-ID bit flipped."""
+    from tt.tokens import design_fit
+
+    sp, a, others, table, calls, model = _projection_problem(monkeypatch, seed=3)
     for b in others:
-        emb = _quiet_tokenize([sp.model(a), sp.model(b)]).tokens
-        values = {n: (v[:1] + v[1:]) / 2 for n, v in emb.values.items()}
-        col = SCHEMA["dyna_joint"].slice("link_id").start
-        values["dyna_joint"][0, 0, col] = 1.0 - np.round(values["dyna_joint"][0, 0, col])
-        target = TokenBatch(values, {n: v[:1] for n, v in emb.ids.items()}, {n: v[:1] for n, v in emb.mask.items()},
-                            emb.version)
+        target = _averaged_target(model, a, b)
         fits, builds = {}, {}
         for broyden in (False, None):  # None: the default, Broyden for a projected structure
             calls["builds"] = 0
@@ -740,29 +753,11 @@ def test_chord_fit_matches_least_squares_with_fewer_builds(monkeypatch):
     targets with no exact fit, with fewer model builds, the linearization's included; and it
     still recovers a design from its own tokens to 1e-5 (a near fit is polished)."""
     from tt.tokens import design_fit
-    from tt.tokens.schema import SCHEMA
 
-    sp = get_space("viperx")
-    a = sp.sample(1, seed=21)[0]
-    lo, hi = (np.array([getattr(q, k) for q in sp.continuous_params(a.discrete)]) for k in ("low", "high"))
-    others = [Design(sp.name, a.discrete, tuple(lo + (hi - lo) * u)) for u in np.random.default_rng(4).random((3, lo.size))]
-    table = CandidateTable(sp, discrete=[(m, *a.discrete[1:]) for m in range(4)])
-    calls = {"builds": 0}
-    model = sp.model
-
-    def counted(d):
-        calls["builds"] += 1
-        return model(d)
-
-    monkeypatch.setattr(sp, "model", counted)
+    sp, a, others, table, calls, model = _projection_problem(monkeypatch, seed=4)
     builds = {"chord": 0, "least_squares": 0}
     for b in others:
-        emb = _quiet_tokenize([model(a), model(b)]).tokens
-        values = {n: (v[:1] + v[1:]) / 2 for n, v in emb.values.items()}
-        col = SCHEMA["dyna_joint"].slice("link_id").start
-        values["dyna_joint"][0, 0, col] = 1.0 - np.round(values["dyna_joint"][0, 0, col])
-        target = TokenBatch(values, {n: v[:1] for n, v in emb.ids.items()}, {n: v[:1] for n, v in emb.mask.items()},
-                            emb.version)
+        target = _averaged_target(model, a, b)
         fits = {}
         for fit in ("least_squares", "chord"):
             calls["builds"] = 0
