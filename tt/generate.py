@@ -261,9 +261,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
         n_steps = int(lengths[keep].sum())
         for name in step_types:
             if name not in step_arrays:
-                t = SCHEMA[name]
-                step_arrays[name] = (np.zeros((n_steps, maxima[name], t.width), np.float32),
-                                     np.zeros((len(keep), maxima[name], len(t.ids)), np.int64),
+                spec = SCHEMA[name]
+                step_arrays[name] = (np.zeros((n_steps, maxima[name], spec.width), np.float32),
+                                     np.zeros((len(keep), maxima[name], len(spec.ids)), np.int64),
                                      np.zeros((len(keep), maxima[name]), bool))
         seconds["tokenize"] += time.perf_counter() - t
 
