@@ -28,7 +28,7 @@ match the given ones.
    scipy's solver starts from the middle: exact structures take finite-difference Jacobians
    at every step; projected ones, whose loose tolerances stop after a few steps, take one
    and update it (Broyden), which cuts a typical sample's model builds by ~40 % (178 -> 107)
-   at the same residual. On the shipped model's samples the chord fit needs about a sixth of
+   at the same residual. On the shipped model's samples the chord fit needs a sixth or less of
    least squares' builds at residuals within 0.3 % (benchmarks/results/decode.md).
 """
 
