@@ -215,6 +215,7 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, mo
     models = [space.model(d) for d in designs] if models is None else list(models)
     trees = space.trees(designs)
     D, M = len(designs), len(motions)
+    wp.init()  # mapping the torch device needs Warp's runtime, which this may be the first to use
     records = rollout_records(models if trees is None else trees, space.ee_sites(), motions,
                               device=str(wp.device_from_torch(device)), steps=1)
     with warnings.catch_warnings():

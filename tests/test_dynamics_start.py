@@ -126,6 +126,33 @@ def test_predict_designs_from_the_start(start_model):
     assert pred.reward.shape == (3, 1) and np.isfinite(pred.reward).all()
 
 
+_FRESH_PROCESS = """
+import sys
+from tt.dit.checkpoint import load_model
+from tt.guidance.predicted import predict_designs
+from tt.sim.designs import get_space
+from tt.sim.motions import for_space, get_motion
+from tt.sim.rewards import get_reward
+toss = for_space([get_motion("toss")], "viperx")[0]
+toss = type(toss)("toss[:20]", toss.pos[:20], toss.quat[:20], toss.dt)
+pred = predict_designs(load_model(sys.argv[1]), get_space("viperx").sample(2, seed=6), [toss],
+                       get_reward("tracking", "viperx"), num_steps=2)
+print(pred.reward.shape)
+"""
+
+
+def test_predict_designs_from_the_start_in_a_fresh_process(start_model):
+    """A start-aware prediction is the first Warp use of a process (as in
+    benchmarks/dit_ladder.py): it initialises Warp itself before mapping the torch device."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-c", _FRESH_PROCESS, str(start_model.path)], capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().splitlines()[-1] == "(2, 1)"
+
+
 def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_model):
     """A critic trained told the start is, by default, asked about the decoded designs
     (the only candidates whose first step can be simulated) and ranks them by exactly
