@@ -419,8 +419,9 @@ def notes(records: list[dict], info: dict) -> str:
         "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
         "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
         "this 2-core CPU, with a critic asked about the decoded designs (one trained told the start), decoding every "
-        "candidate dominates the learned methods' time (about a second per candidate: a least-squares fit of the "
-        "continuous choices through MuJoCo compiles); otherwise the DiT's forward pass over n x ~240 tokens does. "
+        "candidate is a large share of the learned methods' time (about 0.1 s per candidate: a chord fit of the "
+        "continuous choices through MuJoCo compiles, `tt.tokens.design_fit`); otherwise the DiT's forward pass over "
+        "n x ~240 tokens dominates. "
         "Either way they scale about linearly in n; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
         "- Cuts, to fit a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 settings on a GPU; "
         f"the tables above say which seeds and rewards ran): {info['steps']} DDIM steps instead of 100; the sample "

@@ -22,8 +22,8 @@ off every discrete choice; decoding projects it onto the nearest design), so the
 critic can instead be asked about the designs the candidates decode to (``critic_on=
 "designs"``): every candidate is decoded first, and each design's tokens are given to the
 critic as `tt predict` gives them (`tt.guidance.predicted.predict_designs`). It costs a
-decode per candidate (about a second each for ViperX on this CPU) and ranks what will be
-built (`benchmarks/results/zeroth_ranking_dynamics_critic.md`).
+decode per candidate (about 0.1 s each for ViperX on this CPU, `benchmarks/results/decode.md`)
+and ranks what will be built (`benchmarks/results/zeroth_ranking_dynamics_critic.md`).
 
 Candidates are ranked by that objective and decoded to designs of the problem's space
 (`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
