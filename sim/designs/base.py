@@ -192,18 +192,26 @@ class DesignSpace(ABC):
     def validate_many(self, designs: Sequence[Design]) -> None:
         """`validate` of every design (the first invalid one raises), with the discrete checks
         done once per distinct structure and the continuous bounds as arrays."""
+
+        def in_order() -> None:  # where something is invalid: the first invalid design raises
+            for design in designs:
+                self.validate(design)
+
         by_structure: dict[tuple, list[Design]] = {}
         for design in designs:
-            if not isinstance(design, Design):
-                self.validate(design)
-            # The types join the key: True == 1 would otherwise pass for a checked index.
-            key = (design.space, tuple(design.discrete), tuple(type(v) for v in design.discrete))
             try:
+                if not isinstance(design, Design):
+                    raise TypeError
+                # The types join the key: True == 1 would otherwise pass for a checked index.
+                key = (design.space, tuple(design.discrete), tuple(type(v) for v in design.discrete))
                 by_structure.setdefault(key, []).append(design)
-            except TypeError:  # an unhashable choice: validate names it
-                self.validate(design)
+            except TypeError:  # not a Design, or an unhashable choice
+                return in_order()
         for members in by_structure.values():
-            self.validate(members[0])
+            try:
+                self.validate(members[0])
+            except DesignError:
+                return in_order()
             cparams = self.continuous_params(members[0].discrete)
             values = [design.continuous for design in members]
             types = {type(v) for row in values for v in row}
@@ -215,9 +223,7 @@ class DesignSpace(ABC):
                 x = np.array(values, dtype=float).reshape(len(members), len(cparams))
                 ok = bool(np.all(np.isfinite(x)) and np.all(low <= x) and np.all(x <= high))
             if not ok:
-                # Some design of this structure is invalid: the first invalid one in order raises.
-                for design in designs:
-                    self.validate(design)
+                return in_order()
 
     def to_mjcf(self, design: Design) -> str:
         """MJCF text of a design that `mujoco.MjModel.from_xml_string` loads."""
