@@ -491,7 +491,7 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
         # The chord's result stands unless it nearly fits (a design's own tokens, to be recovered
         # as exactly as least squares does); a model's sample stalls far above that, where more
         # precision means nothing.
-        if len(params) and (r is None or np.sqrt(np.mean(r**2)) < POLISH_BELOW):
+        if len(params) and (r is None or (r.size and np.sqrt(np.mean(r**2)) < POLISH_BELOW)):
             options = dict(bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9), xtol=1e-10 if exact else 1e-4,
                            ftol=1e-10 if exact else 1e-4, gtol=1e-10 if exact else 1e-6,
                            max_nfev=(20 if exact else 5) * (len(params) + 1))

@@ -186,15 +186,18 @@ class ShardResult:
         return asdict(self)
 
 
-def _store_pool(threads: int | None):
+def _store_pool(threads: int | None, device: str):
     """A one-thread pool that tokenizes and writes a group while the next rolls out, where
-    the process may use more than one CPU thread (None: every core); else no pool (None)."""
+    the rollouts run on the CPU and may use more than one thread (None: every core); else
+    no pool (None). On a GPU the store's torch work would run during the next rollout's
+    graph capture, so there it stays inline."""
     from contextlib import nullcontext
     from concurrent.futures import ThreadPoolExecutor
 
     from tt.kernels.rollout import cpu_threads
 
-    return ThreadPoolExecutor(1, thread_name_prefix="tt-store") if cpu_threads(threads) > 1 else nullcontext()
+    on_cpu = str(device).startswith("cpu")
+    return ThreadPoolExecutor(1, thread_name_prefix="tt-store") if on_cpu and cpu_threads(threads) > 1 else nullcontext()
 
 
 def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, device: str, widths: Mapping,
@@ -288,7 +291,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
         writer.append(ShardPart(disc, cont, static, episode, step_arrays))
         seconds["write"] += time.perf_counter() - t
 
-    with ShardWriter(out, index) as writer, _store_pool(threads) as pool:
+    with ShardWriter(out, index) as writer, _store_pool(threads, device) as pool:
         pending = None
         for g0 in range(0, len(designs), config.group_designs):
             group = designs[g0:g0 + config.group_designs]

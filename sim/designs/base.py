@@ -193,6 +193,8 @@ class DesignSpace(ABC):
         """`validate` of every design (the first invalid one raises), with the discrete checks
         done once per distinct structure and the continuous bounds as arrays."""
 
+        designs = list(designs)
+
         def in_order() -> None:  # where something is invalid: the first invalid design raises
             for design in designs:
                 self.validate(design)
@@ -214,13 +216,17 @@ class DesignSpace(ABC):
                 return in_order()
             cparams = self.continuous_params(members[0].discrete)
             values = [design.continuous for design in members]
-            types = {type(v) for row in values for v in row}
-            ok = all(len(row) == len(cparams) for row in values) and all(
-                issubclass(t, (float, int, np.floating)) and not issubclass(t, bool) for t in types)
+            ok = all(isinstance(row, (tuple, list, np.ndarray)) and len(row) == len(cparams) for row in values)
+            if ok:
+                types = {type(v) for row in values for v in row}
+                ok = all(issubclass(t, (float, int, np.floating)) and not issubclass(t, bool) for t in types)
             if ok:
                 tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
                 low, high = np.array([p.low for p in cparams]) - tol, np.array([p.high for p in cparams]) + tol
-                x = np.array(values, dtype=float).reshape(len(members), len(cparams))
+                try:
+                    x = np.array(values, dtype=float).reshape(len(members), len(cparams))
+                except (OverflowError, ValueError, TypeError):  # e.g. an int beyond float range
+                    return in_order()
                 ok = bool(np.all(np.isfinite(x)) and np.all(low <= x) and np.all(x <= high))
             if not ok:
                 return in_order()
