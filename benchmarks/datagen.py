@@ -150,7 +150,7 @@ def main() -> None:
         if 1 in by_threads and 2 in by_threads:
             md += [f"- 1 -> 2 rollout threads{f' ({note})' if note else ''}: "
                    f"{by_threads[2]['episodes_per_s'] / by_threads[1]['episodes_per_s']:.2f}x episodes/s"]
-    md += ["", "With more than one thread, a group's tokenization and writes run in a second thread while the next "
+    md += ["", "On the CPU with more than one thread, a group's tokenization and writes run in a second thread while the next "
            "group rolls out (`tt.generate.generate_shard`), so the stage times overlap and their shares are of "
            "their sum, not of the wall clock.", ""]
     if args.full_run is not None:
