@@ -248,9 +248,9 @@ class CandidateTable:
             out[name] = _alignment(feat[name][0], bits[i, :counts[i]], tie)
         return out
 
-    def linearization(self, i: int) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+    def linearization(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Candidate i's continuous token values at the middle of its continuous bounds and
-        their slopes there: (x (p,), values {type: (n, nc)}, slopes {type: (n, nc, p)}), n the
+        their slopes there: (values {type: (n, nc)}, slopes {type: (n, nc, p)}), n the
         candidate's own token count; forward differences in float64, p + 1 model builds the
         first time, kept for later calls. A choice whose step changes the token structure
         gets slope 0."""
@@ -271,7 +271,7 @@ class CandidateTable:
             slopes = {n: np.stack([(f[n][1] - base[n][1]) / h[j] if ok else np.zeros_like(base[n][1])
                                    for j, (f, ok) in enumerate(zip(feats[1:], same))], -1) if len(h)
                       else np.zeros(base[n][1].shape + (0,)) for n in EMBODIMENT_TYPES}
-            self._linear[i] = (x, values, slopes)
+            self._linear[i] = (values, slopes)
         return self._linear[i]
 
     def continuous_error(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], candidates: np.ndarray,
@@ -483,7 +483,7 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
             exact = nearest == 0
             x, r = 0.5 * (lo + hi), None
             if fit == "chord":
-                _, values, slopes = table.linearization(int(i))
+                values, slopes = table.linearization(int(i))
                 rows = pairs[i]
                 f0 = np.concatenate([values[n][c].ravel() for n, (_, c) in rows.items()])
                 J = np.concatenate([slopes[n][c].reshape(-1, len(params)) for n, (_, c) in rows.items()])

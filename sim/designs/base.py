@@ -192,7 +192,6 @@ class DesignSpace(ABC):
     def validate_many(self, designs: Sequence[Design]) -> None:
         """`validate` of every design (the first invalid one raises), with the discrete checks
         done once per distinct structure and the continuous bounds as arrays."""
-
         designs = list(designs)
 
         def in_order() -> None:  # where something is invalid: the first invalid design raises
