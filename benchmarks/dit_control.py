@@ -51,7 +51,7 @@ def describe(label: str, ckpt: Path, state: dict) -> dict:
     losses = state.get("losses")
     return {"label": label, "checkpoint": str(ckpt), "step": int(state["step"]), "task": cfg.get("task"),
             "size": cfg.get("size"), "batch": cfg.get("batch_size"), "anchor_control": _base(cfg.get("anchor_control")),
-            "known_command": bool(cfg.get("known_command")),
+            "known_command": bool(cfg.get("known_command")), "target_offset": int(cfg.get("control_target_offset") or 0),
             "future_states": cfg.get("future_states"), "prediction": cfg.get("prediction"),
             "windows_seen": int(state["step"]) * int(cfg.get("batch_size") or 0),
             "loss": float(losses[-100:].mean()) if losses is not None and len(losses) else float("nan")}
@@ -142,7 +142,8 @@ def main() -> None:
     ]
     for r in rows:
         kind = {"joints": "delta from the current joints", "command": "delta from the last command"}.get(
-            r["anchor_control"], "absolute") + (", last command given" if r["known_command"] else "")
+            r["anchor_control"], "absolute") + (", last command given" if r["known_command"] else "") + (
+            f", targets {r['target_offset']} steps ahead" if r.get("target_offset") else "")
         lines.append(f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
                      f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
                      f"{r['hold_rmse']:.4f} | {r['repeat_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | {r['model_seconds']:.0f} |")
@@ -150,7 +151,7 @@ def main() -> None:
     for r in rows:
         lines.append(f"- {r['label']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
                      f"prediction {r['prediction']}, future states {r['future_states']}, anchor_control {r['anchor_control'] or 'none'}, "
-                     f"known_command {r['known_command']}, "
+                     f"known_command {r['known_command']}, target offset {r['target_offset']}, "
                      f"training loss {r['loss']:.4f} (mean of the last 100 steps)")
     lines += ["", "One-step RMSE per window slot (rad; slot 1 is executed):", "",
               "| run | " + " | ".join(f"slot {k}" for k, *_ in rows[0]["slots"]) + " |",

@@ -9,13 +9,15 @@
 What the model is given at control step k, mirroring training. In the data, the record
 of step j holds the state *after* the physics of step j and the command of step j, and
 the DiffIK command of step j + 1 is computed from the state of record j and the target
-at j + 1 + 4 (look-ahead). A control-task training window starts at a step j and holds:
+at j + 1 + `IKConfig.lookahead_steps` (2 at 50 Hz). A control-task training window starts at a step j and holds:
 the embodiment tokens (clean), the dynamics tokens of record j (clean: the "current
 state"), the target poses of steps j .. j + 7 (clean) and, diffused, the commands of
 steps j .. j + 7 and the states of records j + 1 .. j + 7. At control step k >= 1 the
 measured state is record k - 1, so the query is the window starting at j = k - 1 (time
 IDs k - 1 .. k + 6), and the command executed is the predicted command of the window's
-second step, step k: the one that followed from that state in the data. At k = 0 there
+second step, step k: the one that followed from that state in the data. A model trained with
+``control_target_offset`` L is given the targets of steps j + L .. j + 7 + L instead, as in
+training (`tt.dit.tasks.look_ahead`). At k = 0 there
 is no record yet: the start posture at rest (with the command that holds it) stands in
 for record 0 and the window's first command is executed. Targets past the motion's end
 repeat its last pose, as the DiffIK's look-ahead does.
@@ -110,7 +112,8 @@ def control_task_of(config: dict | None, where: str = "the checkpoint") -> TaskS
     if cfg.get("task", "control") == "robot":
         raise ValueError(f"{where} was trained on the robot task only; the controller needs task control or both")
     return TaskSpec("control", int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)), "consecutive",
-                    bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)))
+                    bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)),
+                    int(cfg.get("control_target_offset", 0)))
 
 
 class ModelPolicy:
@@ -173,13 +176,14 @@ class ModelPolicy:
         n = len(worlds)
         horizon = ctx.target_pos.shape[1]
         idx = torch.clamp(torch.arange(start, start + S, device=worlds.device), max=horizon - 1)
+        aim = torch.clamp(idx + self.task.target_offset, max=horizon - 1)  # the targets given (`tt.dit.tasks.look_ahead`)
         # An S-step episode whose every record is the current state: the tokens of its first
         # step are the window's clean state; the later ones are diffused (their values unused).
         rep = lambda x: x[worlds][:, None].expand(n, S, *x.shape[1:]).contiguous()  # noqa: E731
         ep = Episode(
             qpos=rep(state.qpos), qvel=rep(state.qvel), ctrl=rep(state.ctrl), action=rep(state.ctrl),
             act_force=rep(state.act_force), act_vel=rep(state.act_vel), ee_pos=rep(state.ee_pos), ee_quat=rep(state.ee_quat),
-            target_pos=ctx.target_pos[worlds][:, idx], target_quat=ctx.target_quat[worlds][:, idx],
+            target_pos=ctx.target_pos[worlds][:, aim], target_quat=ctx.target_quat[worlds][:, aim],
             alive=torch.ones(n, S, dtype=torch.bool, device=worlds.device),
             fallen=torch.zeros(n, S, dtype=torch.bool, device=worlds.device),
             design_index=ctx.design_index[worlds], motion_index=ctx.motion_index[worlds], dt=ctx.config.control_dt,

@@ -49,6 +49,7 @@ whatever its token count, unless per-type weights scale the terms.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
@@ -58,7 +59,7 @@ import torch.nn.functional as F
 from tt.dit.ddim import CosineDDIM
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import Role
-from tt.dit.layout import Layout
+from tt.dit.layout import Layout, LayoutError
 from tt.dit.model import RoboDiT
 
 
@@ -72,13 +73,16 @@ class TaskSpec:
     8 steps of a training window are drawn ("random", "consecutive", or for the dynamics task
     "start": step 0 and 7 random others, step 0's per-step tokens a clean condition); future_states
     (control): diffuse the states after step 0 (True) or leave them out (False);
-    known_command (control): step 0's command is a clean condition (True) or diffused (False)."""
+    known_command (control): step 0's command is a clean condition (True) or diffused (False);
+    target_offset (control): the target poses given at window slot i are those of step i +
+    target_offset (`look_ahead`; 0: the window's own steps)."""
 
     name: str
     diffusion_steps: int
     window: str
     future_states: bool = True
     known_command: bool = False
+    target_offset: int = 0
 
     def __post_init__(self) -> None:
         if self.name not in TASK_NAMES:
@@ -89,6 +93,9 @@ class TaskSpec:
             raise ValueError(f"task {self.name!r}: window 'start' is the dynamics task's only")
         if self.diffusion_steps < 1:
             raise ValueError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
+        if self.target_offset < 0 or (self.target_offset and self.name != "control"):
+            raise ValueError(f"task {self.name!r}: target_offset {self.target_offset} must be >= 0, and 0 for tasks other "
+                             "than control")
 
 
 #: The paper's tasks: 100 DDIM steps for motion-to-robot, 5 for control; design-to-dynamics
@@ -136,6 +143,36 @@ class TaskMasks:
         if self.attend is not None:
             return self.attend
         return torch.cat([self.visible[n] for n in layout.names], dim=1)
+
+
+def look_ahead(layout: Layout, tokens: TokenBatch, offset: int) -> TokenBatch:
+    """Windows of ``layout.steps + offset`` consecutive steps -> windows of `layout.steps` steps
+    whose target poses are those `offset` steps later.
+
+    The control task's reference conditioning (the paper's code gives the actions of steps
+    t .. t + 7 with the targets of t + 4 .. t + 11): DiffIK aims the command of step j at the
+    target `lookahead_steps` later (`tt.sim.controller.IKConfig`), so with that offset each
+    command token shares its time ID with the very target it was computed from. Every other
+    per-step type keeps the first `layout.steps` steps; the targets keep those steps' time IDs.
+    """
+    S = layout.steps
+    values, ids, mask = dict(tokens.values), dict(tokens.ids), dict(tokens.mask)
+    for s in layout.specs:
+        if not s.per_step:
+            continue
+        n, L = mask[s.name].shape
+        if L % (S + offset):
+            raise LayoutError(f"{s.name}: {L} tokens are not {S + offset} steps of a window")
+        e = L // (S + offset)
+        keep = slice(offset, offset + S) if s.role is Role.CONDITION else slice(0, S)
+        step = lambda x, sl: x.reshape(n, S + offset, e, *x.shape[2:])[:, sl].reshape(n, S * e, *x.shape[2:])  # noqa: E731
+        values[s.name], mask[s.name] = step(values[s.name], keep), step(mask[s.name], keep)
+        ids[s.name] = step(ids[s.name], slice(0, S)).clone()
+        if s.role is Role.CONDITION:  # the targets' own IDs but for the time (the slot's)
+            later = step(tokens.ids[s.name], keep)
+            other = [k for k in range(later.shape[-1]) if k != s.time_index]
+            ids[s.name][..., other] = later[..., other]
+    return dataclasses.replace(tokens, values=values, ids=ids, mask=mask)
 
 
 def window_start(layout: Layout, tokens: TokenBatch) -> torch.Tensor:

@@ -52,7 +52,7 @@ from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
-from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names
+from tt.dit.tasks import TaskSpec, diffusion_loss, look_ahead, noise_tokens, task_names
 from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,10 @@ class TrainConfig:
     (delta actions; `tt.dit.anchors`, needs prediction "x0") from the current positions of the
     joints they drive ("joints") or from the last command ("command", needs known_command);
     known_command: the control task is given the command that led to the current state
-    (`tt.dit.tasks.TaskSpec.known_command`); dynamics_start: the dynamics task's windows hold
+    (`tt.dit.tasks.TaskSpec.known_command`); control_target_offset: the control task's target
+    poses at window slot i are those of step i + offset (`tt.dit.tasks.look_ahead`: the
+    reference's conditioning, each command beside the target DiffIK aimed it at with the
+    offset `IKConfig.lookahead_steps`); dynamics_start: the dynamics task's windows hold
     step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids: "sinusoidal" or "learned" time-step
     ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
     out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task; without all
@@ -139,6 +142,7 @@ class TrainConfig:
     anchor_track: bool = False
     anchor_control: str = ""
     known_command: bool = False
+    control_target_offset: int = 0
     dynamics_start: bool = False
     time_ids: str = "sinusoidal"
     drop_types: tuple[str, ...] = ()
@@ -161,6 +165,9 @@ class TrainConfig:
         if self.anchor_control == "command" and not self.known_command:
             raise ValueError("anchor_control 'command' (--anchor-control command) needs known_command (--known-command): "
                              "the last command must be given to be a base")
+        if self.control_target_offset < 0 or (self.control_target_offset and "control" not in task_names(self.task)):
+            raise ValueError(f"control_target_offset (--control-target-offset) {self.control_target_offset} must be >= 0 "
+                             f"and needs the control task; the run trains {self.task!r}")
         if self.dynamics_start and "dynamics" not in task_names(self.task):
             raise ValueError(f"dynamics_start (--dynamics-start) needs the dynamics task; the run trains {self.task!r}")
         if not self.min_snr_gamma > 0:
@@ -216,7 +223,7 @@ class TrainConfig:
         spec = {"robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
                 "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "start" if self.dynamics_start else "random"),
                 "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states,
-                                    self.known_command)}
+                                    self.known_command, self.control_target_offset)}
         names = self.task_names()
         each = self.batch_size // len(names)
         counts = [each] * (len(names) - 1) + [self.batch_size - each * (len(names) - 1)]
@@ -333,7 +340,7 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command", "dynamics_start": "--dynamics-start",
+              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command", "control_target_offset": "--control-target-offset", "dynamics_start": "--dynamics-start",
               "time_ids": "--time-ids", "drop_types": "--drop-type"}
 
 
@@ -507,7 +514,10 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         for task, n in tasks:
             first, end = shares[task.name]
             part = None if dp is None else (first, end)
-            raw = with_slot_ids(layout, episodes.sample(n, config.window, task.window, data_gen, part=part))
+            raw = episodes.sample(n, config.window + task.target_offset, task.window, data_gen, part=part)
+            if task.target_offset:
+                raw = look_ahead(layout, raw, task.target_offset)
+            raw = with_slot_ids(layout, raw)
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
             noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, prediction=config.prediction,

@@ -177,6 +177,48 @@ def test_query_holds_the_training_window_of_the_episode(problem, trained):
     assert bool(masks.noised["control"][tokens.mask["control"]].all())
 
 
+def test_query_with_a_target_offset_gives_the_later_targets(problem, trained):
+    """A model trained with control_target_offset L (`tt.dit.tasks.look_ahead`) is queried with
+    the targets of steps k - 1 + L .. k + 6 + L, clamped at the motion's end, under the time
+    IDs k - 1 .. k + 6; every other token is the query without the offset."""
+    import dataclasses
+
+    from tt.dit.closed_loop import ArmWorlds
+
+    _, designs, motions, _ = problem
+    plain = ModelPolicy(trained)
+    ahead = ModelPolicy(trained, task=dataclasses.replace(plain.task, target_offset=2))
+    space = problem[0]
+    sim = ArmWorlds([space.model(d) for d in designs], space.ee_sites(), motions, device="cpu")
+    state = sim.reset()
+    ctx = None
+
+    class Capture(IKPolicy):
+        def reset(self, c):
+            nonlocal ctx
+            ctx = c
+            super().reset(c)
+
+    closed_loop_rollout(designs, motions, Capture(), device="cpu", steps=1)
+    worlds = torch.arange(ctx.world_count)
+    horizon = ctx.target_pos.shape[1]
+    for policy in (plain, ahead):
+        policy.reset(ctx)
+    for k in (5, horizon - 3):
+        a, _ = plain.query(k, worlds, state)
+        b, _ = ahead.query(k, worlds, state)
+        for name in a.values:
+            if name != "target_pose":
+                assert torch.equal(a.values[name], b.values[name]), name
+            assert torch.equal(a.ids[name], b.ids[name]), name
+        n, P = len(worlds), trained.layout["target_pose"].per_step
+        got = b.values["target_pose"].reshape(n, 8, P, -1)
+        plain_t = a.values["target_pose"].reshape(n, 8, P, -1)
+        torch.testing.assert_close(got[:, :6], plain_t[:, 2:], atol=0, rtol=0)
+        if k + 7 >= horizon:  # past the end both repeat the motion's last pose
+            torch.testing.assert_close(got[:, 6:], plain_t[:, 7:].expand_as(got[:, 6:]), atol=0, rtol=0)
+
+
 class IKEps(torch.nn.Module):
     """A stand-in network that knows the DiffIK command of the current step: its clean
     control tokens are that command at the token whose time ID is the current control step

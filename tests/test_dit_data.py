@@ -55,6 +55,30 @@ def test_control_current_step_is_window_start(episodes):
     assert torch.equal(clean, window.mask["state"] & (time == steps[:, :1]))
 
 
+def test_look_ahead_gives_each_slot_the_target_offset_steps_later(episodes):
+    """The reference's control conditioning (`look_ahead`): a window of 8 + L consecutive steps
+    becomes the 8-step window at the same start, but for its target poses, which are those of
+    the window L steps later, under the first window's time IDs."""
+    from tt.dit.tasks import TaskSpec, look_ahead
+
+    layout, L = episodes.layout(8), 2
+    idx = torch.arange(len(episodes))
+    start = episodes.window_steps(idx, 8 + L, "consecutive", torch.Generator().manual_seed(4))[:, :1]
+    shifted = look_ahead(layout, episodes.window(idx, start + torch.arange(8 + L)), L)
+    here, later = episodes.window(idx, start + torch.arange(8)), episodes.window(idx, start + L + torch.arange(8))
+    layout.check(shifted)
+    for s in layout.specs:
+        want = later if s.role.value == "condition" else here
+        assert torch.equal(shifted.values[s.name], want.values[s.name]), s.name
+        assert torch.equal(shifted.mask[s.name], want.mask[s.name]), s.name
+        assert torch.equal(shifted.ids[s.name], here.ids[s.name]), s.name  # the slots' time IDs
+    assert not torch.equal(shifted.values["target"], here.values["target"])
+    with pytest.raises(LayoutError, match="not 10 steps"):
+        look_ahead(layout, here, L)
+    with pytest.raises(ValueError, match="target_offset 2 must be >= 0, and 0 for tasks other than control"):
+        TaskSpec("robot", 100, "random", target_offset=2)
+
+
 def test_file_round_trip(tmp_path, episodes):
     path = tmp_path / "episodes.npz"
     episodes.save(path)

@@ -85,6 +85,32 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path, episodes):
         assert torch.equal(p, a)
 
 
+def test_control_target_offset_trains_on_look_ahead_windows(tmp_path, episodes, monkeypatch):
+    """--control-target-offset L: each control batch is cut from windows of window + L steps by
+    `look_ahead`, and the checkpoint's control task carries the offset for the policy."""
+    import sys
+
+    from tt.dit.policies import control_task_of
+    from tt.dit.tasks import look_ahead
+
+    seen = []
+
+    def recording(layout, tokens, offset):
+        out = look_ahead(layout, tokens, offset)
+        seen.append((tokens.mask["state"].shape[1] // layout["state"].per_step, offset, out.mask["state"].shape[1]))
+        return out
+
+    monkeypatch.setattr(sys.modules["tt.dit.train"], "look_ahead", recording)
+    config = _config(tmp_path, task="both", steps=2, control_target_offset=2)
+    train(config, episodes=episodes)
+    per_step = episodes.layout(4)["state"].per_step
+    assert seen == [(6, 2, 4 * per_step)] * 2  # one control share per step, none for the robot task
+    task = control_task_of(load_checkpoint(latest_checkpoint(config.out))["train_config"])
+    assert task.target_offset == 2
+    with pytest.raises(ValueError, match="needs the control task"):
+        _config(tmp_path, task="robot", control_target_offset=2)
+
+
 class _Stop(Exception):
     pass
 

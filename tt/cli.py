@@ -648,6 +648,7 @@ def train(
     anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
     anchor_control: str = typer.Option("", help="Delta actions: predict commands as residuals from the current joint positions (joints) or from the last command (command, needs --known-command); needs --prediction x0."),
     known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
+    control_target_offset: int = typer.Option(0, help="Control task: the target poses beside each step's command are those this many steps later (the reference's conditioning; DiffIK's look-ahead is 2 steps at 50 Hz)."),
     dynamics_start: bool = typer.Option(False, help="Dynamics task: every window holds the episode's first step, its state and command a clean condition; tt predict then simulates each design's first control step and tells the model where it starts (benchmarks/results/critic_failures.md)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
@@ -682,7 +683,8 @@ def train(
     recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
                   bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
-                  anchor_control=anchor_control, known_command=known_command, dynamics_start=dynamics_start,
+                  anchor_control=anchor_control, known_command=known_command, control_target_offset=control_target_offset,
+                  dynamics_start=dynamics_start,
                   future_states=future_states, time_ids=time_ids,
                   drop_types=tuple(drop_type or ()))
     _output(out, "--out", folder=True)
