@@ -98,20 +98,29 @@ class Regressor(torch.nn.Module):
         return self.net((x - self.mean) / self.std) * self.scale
 
 
-def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192):
-    """n raw windows of `source` in chunks -> (features (n, F), c0, c1, real, q (n, P))."""
+def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, refreshes: int = 1):
+    """n raw windows of `source` -> (features (n, F), c0, c1, real, q (n, P)), an equal share
+    from each of its first `refreshes` online refreshes (one held at a time, so memory stays
+    one refresh's), in a random order."""
     from tt.dit.layout import with_slot_ids
 
     gen = torch.Generator().manual_seed(seed)
     X, C0, C1, R, Q = [], [], [], [], []
-    for a in range(0, n, chunk):
-        raw = with_slot_ids(layout, source.sample(min(chunk, n - a), layout.steps, "consecutive", gen))
+    shares = [n // refreshes + (k < n % refreshes) for k in range(refreshes)]
+    draws = []
+    for k, share in enumerate(shares):
+        if refreshes > 1:
+            source.start_step(k * source.config.refresh_every)
+        for a in range(0, share, chunk):
+            draws.append(with_slot_ids(layout, source.sample(min(chunk, share - a), layout.steps, "consecutive", gen)))
+    for raw in draws:
         X.append(features(norm.normalize(raw), layout))
         c0, c1, real = commands(raw, layout)
         P = c0.shape[1]
         Q.append(raw.values["dyna_joint_obs"].reshape(len(c0), layout.steps, -1, 2)[:, 0, :P, 0].float())
         C0.append(c0), C1.append(c1), R.append(real)
-    return torch.cat(X), torch.cat(C0), torch.cat(C1), torch.cat(R), torch.cat(Q)
+    order = torch.randperm(n, generator=gen)
+    return tuple(torch.cat(x)[order] for x in (X, C0, C1, R, Q))
 
 
 def fit(X, c0, c1, real, *, epochs: int, batch: int, lr: float, seed: int) -> tuple[Regressor, list[float]]:
@@ -173,12 +182,23 @@ def regressor_policy(model: Regressor, layout, norm):
     return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=SPACE, tasks=("control",)))
 
 
+class Repeat:
+    """The still arm: every step repeats the last command (the start posture's), what a
+    controller that learned no increment does (`dit_control.md`)."""
+
+    def reset(self, ctx) -> None:
+        pass
+
+    def __call__(self, step, worlds, state):
+        return state.ctrl[worlds].clone()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", nargs="+", default=["16384x20", "65536x20", "262144x20", "98304x1"],
                         help="one row per WINDOWSxEPOCHS: the first WINDOWS training windows, EPOCHS passes over them")
-    parser.add_argument("--refreshes", type=int, default=16, help="online refreshes (64 designs x 4 motions each) the "
-                        "training windows are drawn from")
+    parser.add_argument("--refreshes", type=int, default=16, help="online refreshes (64 new designs x 4 motions each) "
+                        "the training windows are drawn from: the designs seen")
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--seed", type=int, default=0, help="training data and MLP seed")
@@ -206,13 +226,9 @@ def main() -> None:
 
     load_before, started = os.getloadavg(), time.perf_counter()
     # The DiT's training data: tt generate's draws, control perturbation included.
-    cfg = OnlineConfig(space=SPACE, seed=args.seed, refresh_every=1, buffer=args.refreshes)
+    cfg = OnlineConfig(space=SPACE, seed=args.seed, refresh_every=1, buffer=1)
     train_src = OnlineTokenSource(cfg, device="cpu")
-    t = time.perf_counter()
-    train_src.start_step(args.refreshes - 1)
-    gen_s = time.perf_counter() - t
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
-    emit(episodes=len(train_src), generate_seconds=gen_s)
     test_src = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device="cpu")
     Xt, c0t, c1t, realt, qt = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
 
@@ -224,9 +240,14 @@ def main() -> None:
     emit(oracle_reward=float(r_oracle.mean()), seconds=time.perf_counter() - t)
     r_ik, m_ik = score_episode(closed_loop_rollout(designs, motions, IKPolicy()), designs, motions, "tracking")
     emit(ik_share=float(r_ik.mean() / r_oracle.mean()))
+    r_still, m_still = score_episode(closed_loop_rollout(designs, motions, Repeat()), designs, motions, "tracking")
+    emit(repeat_share=float(r_still.mean() / r_oracle.mean()))
 
     rows = []
-    X, c0, c1, real, _ = draw_windows(train_src, max(w for w, _ in plan), layout, norm, args.seed)
+    t = time.perf_counter()
+    X, c0, c1, real, _ = draw_windows(train_src, max(w for w, _ in plan), layout, norm, args.seed, refreshes=args.refreshes)
+    gen_s = time.perf_counter() - t
+    emit(episodes=train_src.stats["episodes"], generate_seconds=gen_s)
     for n, epochs in plan:
         t = time.perf_counter()
         model, losses = fit(X[:n], c0[:n], c1[:n], real[:n], epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed)
@@ -248,9 +269,10 @@ def main() -> None:
         f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after: {load_before[0]:.1f} / "
         f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all",
         f"- command: `python benchmarks/control_ceiling.py {' '.join(sys.argv[1:])}`",
-        f"- training windows: 8 consecutive steps of {len(train_src)} episodes ({args.refreshes} online refreshes of "
-        f"{cfg.designs} designs x {cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; "
-        f"{gen_s:.0f} s to generate), the first N of one draw per row; features: the DiT control query's clean "
+        f"- training windows: 8 consecutive steps of {train_src.stats['episodes']} episodes of "
+        f"{args.refreshes * cfg.designs} designs ({args.refreshes} online refreshes of {cfg.designs} designs x "
+        f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
+        "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
         f"conditions ({X.shape[1]} values: embodiment, step 0's state and command, 8 target poses), normalised as the "
         f"DiT reads them; MLP 3 x 512 (GELU), batch {args.batch}, AdamW lr {args.lr:g} one-cycle; "
         "target: the next command minus the last, masked MSE per joint in units of its RMS",
@@ -260,7 +282,9 @@ def main() -> None:
         f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}), Warp physics; oracle (MuJoCo C + mink) "
         f"mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, survival "
         f"{100 * np.mean(m_oracle['survival']):.0f} %; DiffIK in the same closed loop (the teacher): "
-        f"{100 * r_ik.mean() / r_oracle.mean():.1f} % of the oracle, pos err {np.nanmean(m_ik['pos_err']):.1f} cm",
+        f"{100 * r_ik.mean() / r_oracle.mean():.1f} % of the oracle, pos err {np.nanmean(m_ik['pos_err']):.1f} cm; "
+        f"repeating the start posture's command every step (a still arm): {100 * r_still.mean() / r_oracle.mean():.1f} %, "
+        f"pos err {np.nanmean(m_still['pos_err']):.1f} cm, survival {100 * np.mean(m_still['survival']):.0f} %",
         "- targets (issue 17, for the DiT): >= 50 % of the oracle's reward; one-step RMSE <= half of holding's",
         "",
         "| training windows | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE | R^2 of the offset "
