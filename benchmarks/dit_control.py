@@ -29,7 +29,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 from dit_eval import RESULTS, SPACE, cut, pearson, teacher_forced, validation_motions  # noqa: E402
-from machine import machine_header  # noqa: E402
+from machine import machine_header, write_report  # noqa: E402
 
 #: Window slot whose command the policy executes (`tt.dit.policies`: the one after the current state).
 EXECUTED_SLOT = 1
@@ -160,10 +160,7 @@ def main() -> None:
         lines.append(f"| {r['label']} | " + " | ".join(f"{s[1]:.4f}" for s in r["slots"]) + " |")
     lines.append("| hold the current joints | " + " | ".join(f"{s[2]:.4f}" for s in rows[0]["slots"]) + " |")
     lines.append("| repeat the last command | " + " | ".join(f"{s[4]:.4f}" for s in rows[0]["slots"]) + " |")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    emit(written=str(out))
+    emit(written=str(write_report(args.out, lines)))
 
 
 if __name__ == "__main__":

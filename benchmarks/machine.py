@@ -6,6 +6,7 @@ import datetime
 import os
 import platform
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 
 def _cpu_name() -> str:
@@ -38,3 +39,11 @@ def machine_header(device: str = "cpu") -> str:
 def load_line() -> str:
     """The 1, 5 and 15 min load averages, as "a, b, c"."""
     return ", ".join(f"{v:.1f}" for v in os.getloadavg())
+
+
+def write_report(path, lines: list[str]) -> Path:
+    """Write a results file's lines (its folder made if missing); returns its path."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(lines) + "\n")
+    return out
