@@ -161,9 +161,9 @@ def look_ahead(layout: Layout, tokens: TokenBatch, offset: int) -> TokenBatch:
         if not s.per_step:
             continue
         n, L = mask[s.name].shape
-        if L % (S + offset):
-            raise LayoutError(f"{s.name}: {L} tokens are not {S + offset} steps of a window")
-        e = L // (S + offset)
+        e = s.per_step
+        if L != (S + offset) * e:
+            raise LayoutError(f"{s.name}: {L} tokens are not {S + offset} steps of {e} (a window of {S} + {offset} steps)")
         keep = slice(offset, offset + S) if s.role is Role.CONDITION else slice(0, S)
         step = lambda x, sl: x.reshape(n, S + offset, e, *x.shape[2:])[:, sl].reshape(n, S * e, *x.shape[2:])  # noqa: E731
         values[s.name], mask[s.name] = step(values[s.name], keep), step(mask[s.name], keep)

@@ -73,7 +73,7 @@ def test_look_ahead_gives_each_slot_the_target_offset_steps_later(episodes):
         assert torch.equal(shifted.mask[s.name], want.mask[s.name]), s.name
         assert torch.equal(shifted.ids[s.name], here.ids[s.name]), s.name  # the slots' time IDs
     assert not torch.equal(shifted.values["target"], here.values["target"])
-    with pytest.raises(LayoutError, match="not 10 steps"):
+    with pytest.raises(LayoutError, match="are not 10 steps of"):
         look_ahead(layout, here, L)
     with pytest.raises(ValueError, match="target_offset 2 must be >= 0, and 0 for tasks other than control"):
         TaskSpec("robot", 100, "random", target_offset=2)
