@@ -102,7 +102,7 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
     """n raw windows of `source` -> (features (n, F), c0, c1, real, q (n, P)), an equal share
     from each of its first `refreshes` online refreshes (one held at a time, so memory stays
     one refresh's), in a random order."""
-    from tt.dit.layout import with_slot_ids
+    from tt.dit.tasks import CONTROL, task_windows
 
     gen = torch.Generator().manual_seed(seed)
     X, C0, C1, R, Q = [], [], [], [], []
@@ -112,7 +112,7 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
         if refreshes > 1:
             source.start_step(k * source.config.refresh_every)
         for a in range(0, share, chunk):
-            draws.append(with_slot_ids(layout, source.sample(min(chunk, share - a), layout.steps, "consecutive", gen)))
+            draws.append(task_windows(source, layout, min(chunk, share - a), CONTROL, gen))
     for raw in draws:
         X.append(features(norm.normalize(raw), layout))
         c0, c1, real = commands(raw, layout)
@@ -167,17 +167,10 @@ def regressor_policy(model: Regressor, layout, norm):
     class RegressorPolicy(ModelPolicy):
         def __call__(self, step, worlds, state):
             tokens, slot = self.query(step, worlds, state)
-            P = self.layout["control"].per_step
-            n = len(worlds)
-            c0 = norm.denormalize_values("control", tokens.values["control"].reshape(n, self.layout.steps, P, -1)[:, 0])[..., 0]
+            c0 = self.control_slot(tokens, 0)  # the last command (given: step 0 of the window)
             with torch.no_grad():
                 target = c0 + model(features(tokens, self.layout)) if slot == 1 else c0
-            act = self._actuator[self.ctx.design_index[worlds]]
-            ctrl = state.ctrl[worlds].clone()
-            rows = torch.arange(n, device=worlds.device)[:, None].expand(n, P)
-            ok = act >= 0
-            ctrl[rows[ok], act[ok]] = target.to(ctrl.dtype)[ok]
-            return ctrl[:, : self.ctx.worlds.nu]
+            return self.commands(worlds, state, target)
 
     return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=SPACE, tasks=("control",)))
 

@@ -522,18 +522,14 @@ def teacher_forced(trained, task, args) -> dict:
 
     Returns {"windows", "episodes", "slots": [(slot, model, hold, spread, repeat), ...]} (RMSE in rad)."""
     from tt.dit.ddim import CosineDDIM
-    from tt.dit.layout import with_slot_ids
     from tt.dit.online import OnlineConfig, OnlineTokenSource
     from tt.dit.sampling import sample
-    from tt.dit.tasks import look_ahead
+    from tt.dit.tasks import task_windows
 
     # Unperturbed, as the shipped checkpoint's dataset was generated.
     source = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device=args.device)
     layout, norm, S = trained.layout, trained.normalizer, trained.layout.steps
-    raw = source.sample(args.teacher_windows, S + task.target_offset, "consecutive", torch.Generator().manual_seed(args.seed))
-    if task.target_offset:
-        raw = look_ahead(layout, raw, task.target_offset)
-    raw = with_slot_ids(layout, raw)
+    raw = task_windows(source, layout, args.teacher_windows, task, torch.Generator().manual_seed(args.seed))
     res = sample(trained.model, norm.normalize(raw).to(args.device), task, scheduler=CosineDDIM(task.diffusion_steps),
                  num_steps=5, generator=torch.Generator(device=args.device).manual_seed(args.seed))
     n, P = raw.values["control"].shape[0], layout["control"].per_step

@@ -227,18 +227,25 @@ class ModelPolicy:
         with torch.no_grad():
             res = sample(self.model, tokens, self.task, scheduler=CosineDDIM(self.task.diffusion_steps),
                          num_steps=c.num_steps, eta=c.eta, generator=self.generator)
+        return self.commands(worlds, state, self.control_slot(res.tokens, slot))
+
+    def control_slot(self, tokens: TokenBatch, slot: int) -> torch.Tensor:
+        """(n, P) denormalised commands [rad or m] of window slot `slot` of normalised tokens."""
         P = self.layout["control"].per_step
-        n = len(worlds)
-        out = res.tokens.values["control"].reshape(n, self.layout.steps, P, -1)[:, slot]  # (n, P, 1)
-        target = self.trained.normalizer.denormalize_values("control", out.float())[..., 0]  # (n, P) [rad or m]
+        out = tokens.values["control"].reshape(len(tokens), self.layout.steps, P, -1)[:, slot]  # (n, P, 1)
+        return self.trained.normalizer.denormalize_values("control", out.float())[..., 0]
+
+    def commands(self, worlds: torch.Tensor, state: StepState, target: torch.Tensor) -> torch.Tensor:
+        """The worlds' actuator commands (n, nu): the last ones, with each real control slot's
+        `target` (n, P) written into the actuator it drives."""
         target = target.to(worlds.device)
+        n, P = target.shape
         act = self._actuator[self.ctx.design_index[worlds]]  # (n, P)
-        sim = self.ctx.worlds
         ctrl = state.ctrl[worlds].clone()
         rows = torch.arange(n, device=worlds.device)[:, None].expand(n, P)
         real = act >= 0
-        ctrl[rows[real], act[real]] = target[real]
-        return ctrl[:, : sim.nu]
+        ctrl[rows[real], act[real]] = target[real].to(ctrl.dtype)
+        return ctrl[:, : self.ctx.worlds.nu]
 
 
 def _step_count(name: str, robot) -> int:

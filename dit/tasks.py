@@ -175,6 +175,20 @@ def look_ahead(layout: Layout, tokens: TokenBatch, offset: int) -> TokenBatch:
     return dataclasses.replace(tokens, values=values, ids=ids, mask=mask)
 
 
+def task_windows(source, layout: Layout, n: int, task: TaskSpec, generator: torch.Generator | None = None,
+                 part: tuple[int, int] | None = None) -> TokenBatch:
+    """n raw (unnormalised) windows of `task` from a token source (`tt.dit.data.TokenSource`):
+    drawn as the task's window kind, cut to the task's target offset (`look_ahead`), every
+    embodiment padding token carrying its slot's ID (`tt.dit.layout.with_slot_ids`). part: a
+    data-parallel rank's windows (`tt.dit.data.EpisodeTokens.sample`)."""
+    from tt.dit.layout import with_slot_ids
+
+    raw = source.sample(n, layout.steps + task.target_offset, task.window, generator, part=part)
+    if task.target_offset:
+        raw = look_ahead(layout, raw, task.target_offset)
+    return with_slot_ids(layout, raw)
+
+
 def window_start(layout: Layout, tokens: TokenBatch) -> torch.Tensor:
     """Earliest time ID of each sequence's real per-step tokens, (B,) long (0 if it has none).
 

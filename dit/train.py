@@ -47,12 +47,12 @@ from tt.dit.checkpoint import (
 from tt.dit.data import EpisodeTokens
 from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
-from tt.dit.layout import LayoutError, with_slot_ids
+from tt.dit.layout import LayoutError
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
-from tt.dit.tasks import TaskSpec, diffusion_loss, look_ahead, noise_tokens, task_names
+from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names, task_windows
 from tt.kernels.files import CorruptFileError
 
 log = logging.getLogger(__name__)
@@ -514,10 +514,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         for task, n in tasks:
             first, end = shares[task.name]
             part = None if dp is None else (first, end)
-            raw = episodes.sample(n, config.window + task.target_offset, task.window, data_gen, part=part)
-            if task.target_offset:
-                raw = look_ahead(layout, raw, task.target_offset)
-            raw = with_slot_ids(layout, raw)
+            raw = task_windows(episodes, layout, n, task, data_gen, part=part)
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
             noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, prediction=config.prediction,

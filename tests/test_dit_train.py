@@ -100,7 +100,7 @@ def test_control_target_offset_trains_on_look_ahead_windows(tmp_path, episodes, 
         seen.append((tokens.mask["state"].shape[1] // layout["state"].per_step, offset, out.mask["state"].shape[1]))
         return out
 
-    monkeypatch.setattr(sys.modules["tt.dit.train"], "look_ahead", recording)
+    monkeypatch.setattr(sys.modules["tt.dit.tasks"], "look_ahead", recording)
     config = _config(tmp_path, task="both", steps=2, control_target_offset=2)
     train(config, episodes=episodes)
     per_step = episodes.layout(4)["state"].per_step
