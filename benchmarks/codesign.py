@@ -20,6 +20,12 @@ Parts (``--parts``, run in this order, the tracking reward first):
 * lambda: Self-Guidance with the differentiable-simulation gradient mixed in
   (``--sim-grad-weight`` lambda = `--lambdas`) on `--lambda-seeds` single-trajectory runs
   with `--lambda-n` samples; the simulator gradient runs from guided step `--lambda-start`.
+* guidance: single trajectory, tracking, seeds 0 .. `--guidance-seeds` - 1, n =
+  `--guidance-n`: Zeroth-Order, Self-Guidance as the paper has it (the sampling model's own
+  dynamics, scale 50) and Self-Guidance steered by the dynamics critic's gradient
+  (``guide_by="critic"``, `tt.guidance.critic_grad`; the `--critic-checkpoint`, else the
+  sampling model's own dynamics task) at each scale of `--guidance-scales`, with paired
+  differences against Zeroth-Order.
 
 Timing. Every optimize time is the optimizer's wall time for its problem; validation is
 excluded. One-time costs are excluded and reported: the Warp kernel compile (or cache
@@ -64,12 +70,15 @@ RESULTS = Path(__file__).parent / "results"
 SPACE = "viperx"
 RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
 ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT = "Zeroth + sim", "Zeroth + sim (top k)", "CMA-ES init model"
+#: Self-Guidance steered by the dynamics critic's gradient (part "guidance"), one label per scale.
+DGS_CRITIC = "Self-Guidance, critic"
 #: The baselines again, at the hybrids' wall time (part "hybrid").
 RANDOM_T, CMAES_T = "Random (= time)", "CMA-ES batched (= time)"
 METHODS = (RANDOM, CMAES_B, ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT, RANDOM_T, CMAES_T)
 LEARNED = (ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 HYBRIDS = (ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 SINGLE, MULTI = "single trajectory", "multi trajectory"
+PARTS = ("table", "scaling", "lambda", "hybrid", "guidance")
 
 #: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
 PAPER = {
@@ -132,9 +141,17 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return SimVerified(zeroth(), VerifyConfig(verify=args.hybrid_verify))
     if method == CMAES_INIT:
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
+    scales = {critic_label(x): x for x in _floats(args.guidance_scales)}
+    if method in scales:
+        return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, guide_by="critic", scale=scales[method]),
+                                    model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
+
+
+def critic_label(scale: float) -> str:
+    return f"{DGS_CRITIC} (s = {scale:g})"
 
 
 # ------------------------------------------------------------------------------ runs
@@ -162,7 +179,7 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
             rec.update(ok=True, seconds=res.seconds, rollouts=res.rollouts, objective=res.best_reward,
                        warmup_seconds=info.get("warmup_seconds", 0.0), decode_failures=info.get("decode_failures"),
                        distance=info.get("distance_best"), projected=info.get("projected"), decoded=info.get("decoded"),
-                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"),
+                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"), critic_grad=info.get("critic_grad"),
                        **summary_row(ev.metrics, k), design=get_space(SPACE).to_dict(res.best))
             k += 1
         records.append(rec)
@@ -336,13 +353,56 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
                 d = paired(sub, (hybrid_, None), (base, None), "reward")
                 if d:
                     m, h = mean_ci(d)
-                    verdict = "above 0" if math.isfinite(h) and m - h > 0 else ("below 0" if math.isfinite(h) and m + h < 0
-                                                                               else "includes 0")
-                    text.append(f"- {hybrid_} minus {base}: {_fmt(m, h)} over {len(d)} seeds (95% CI {verdict})")
+                    text.append(f"- {hybrid_} minus {base}: {_fmt(m, h)} over {len(d)} seeds (95% CI {_verdict(m, h)})")
     fig.tight_layout()
     fig.savefig(plot, dpi=110)
     plt.close(fig)
     return "\n".join(text) + "\n"
+
+
+def _verdict(m: float, h: float) -> str:
+    if math.isfinite(h) and m - h > 0:
+        return "above 0"
+    return "below 0" if math.isfinite(h) and m + h < 0 else "includes 0"
+
+
+def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
+    """Part "guidance": Zeroth-Order, the paper's Self-Guidance and critic-steered
+    Self-Guidance at the same n on the same seeds; paired differences against Zeroth-Order.
+    Returns (section, the issue's target lines)."""
+    n = records[0]["n"]
+    methods = [ZEROTH, DGS] + sorted({r["method"] for r in records if r["method"].startswith(DGS_CRITIC)},
+                                     key=lambda m: float(m.split("s = ")[1].rstrip(")")))
+    rows, goal = [], []
+    for method in methods:
+        mr = [r for r in records if r["method"] == method]
+        grads = [r.get("critic_grad") or {} for r in _ok(mr)]
+        steps = sum(g.get("candidates", 0) for g in grads)
+        failed = sum(g.get("decode_failures", 0) for g in grads)
+        rows.append(aggregate(mr, method, "tracking", {"grad": f"{steps} / {failed}" if grads and any(grads) else "-"}))
+    seeds = sorted({r["seed"] for r in records})
+    lines = [f"## Self-Guidance steered by the dynamics critic (single trajectory, tracking; n = {n}; seeds "
+             f"{', '.join(map(str, seeds))})\n",
+             "Self-Guidance: the paper's, the sampling model's own dynamics differentiated, scale 50. Self-Guidance, "
+             "critic: the dynamics critic's prediction for each step's x0_hat differentiated instead (the log of the "
+             "tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. Paired differences are "
+             "the method's validated reward minus Zeroth-Order's, seed by seed (95% CI).\n",
+             markdown_table(rows, columns("tracking", [("grad", "critic-gradient candidate-steps / undecodable")]),
+                            first=("name", "method")) + "\n"]
+    for method in methods[1:]:
+        d = paired(records, (method, n), (ZEROTH, n), "reward")
+        if not d:
+            continue
+        m, h = mean_ci(d)
+        wins = sum(x > 0 for x in d)
+        lines.append(f"- {method} minus Zeroth-Order: {_fmt(m, h)} over {len(d)} seeds (95% CI {_verdict(m, h)}; higher "
+                     f"in {wins} of {len(d)})")
+        if n == 1:
+            met = math.isfinite(h) and m - h > 0
+            goal.append(f"- {method} vs Zeroth-Order at n=1, single trajectory, tracking, {len(d)} paired runs (part "
+                        f"guidance): paired difference {_fmt(m, h)} (higher in {wins} of {len(d)}). Target (beats "
+                        f"Zeroth-Order, 95% CI): {'met' if met else 'NOT met'}.")
+    return "\n".join(lines) + "\n", goal
 
 
 # ------------------------------------------------------------------------------ report
@@ -516,6 +576,11 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     if tables:
         plot_method_bars({k: _ok(v) for k, v in tables.items()}, out.with_suffix(".png"), order=METHODS)
     goal = targets(tables, scaling, info)
+    guided = [r for r in records if r["part"] == "guidance"]
+    if guided:
+        section, lines = guidance_section(guided)
+        sections.append(section)
+        goal += lines
     skipped = info.get("skipped", [])
     text = (
         "# Co-design: Random, CMA-ES, Zeroth-Order and Self-Guidance on ViperX\n\n"
@@ -583,10 +648,14 @@ def _ints(text: str) -> list[int]:
     return [int(x) for x in text.split(",") if x]
 
 
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
-    ap.add_argument("--parts", default="table,scaling,lambda", help="comma-separated: table, scaling, lambda, hybrid")
+    ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
     ap.add_argument("--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none")
@@ -614,6 +683,9 @@ def main() -> None:
     ap.add_argument("--hybrid-verify", type=int, default=None,
                     help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
+    ap.add_argument("--guidance-seeds", type=int, default=9, help="guidance: runs (seed i: validation motion i)")
+    ap.add_argument("--guidance-n", type=int, default=1, help="guidance: samples of every method")
+    ap.add_argument("--guidance-scales", default="0.5,5", help="guidance: scales of critic-steered Self-Guidance")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
@@ -639,9 +711,9 @@ def main() -> None:
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
     if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
         sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
-    unknown = sorted(set(parts) - {"table", "scaling", "lambda", "hybrid"})
+    unknown = sorted(set(parts) - set(PARTS))
     if unknown:
-        sys.exit(f"--parts: unknown {unknown}; valid: table, scaling, lambda, hybrid")
+        sys.exit(f"--parts: unknown {unknown}; valid: {', '.join(PARTS)}")
     rewards = list(REWARDS) if args.rewards == "all" else [r for r in args.rewards.split(",") if r]
     multi_rewards = list(REWARDS) if args.multi_rewards == "all" else [r for r in args.multi_rewards.split(",") if r]
     # The tracking reward first, then the others (a --max-minutes cut drops the others first).
@@ -650,7 +722,7 @@ def main() -> None:
 
     val = for_space(motion_set("val", arms=1), SPACE)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
-    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds)
+    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds, args.guidance_seeds)
     single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
     step = max(1, len(val) // args.multi_motions)
     multi_motions = tuple(val[::step][: args.multi_motions])
@@ -661,7 +733,7 @@ def main() -> None:
         "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None, "steps": args.steps, "n": args.n, "dgs_n": args.dgs_n,
         "multi_n": args.multi_n, "multi_dgs_n": args.multi_dgs_n, "budget": args.budget, "multi_budget": args.multi_budget,
         "popsize": args.popsize, "generations": args.generations, "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
-        "lambda_start": args.lambda_start,
+        "lambda_start": args.lambda_start, "guidance_n": args.guidance_n,
     }
     # One-time costs, before any timing: the model and decoding table, every ViperX topology's
     # kernels (rollout, and the differentiable rollout for the lambda part), first calls.
@@ -679,6 +751,12 @@ def main() -> None:
             optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
                 Problem(SPACE, short, "tracking", 2, seed=0, device="cpu"))
         except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
+            pass
+    if "guidance" in parts:
+        try:
+            optimizer(critic_label(_floats(args.guidance_scales)[0]), argparse.Namespace(**{**vars(args), "steps": 2}),
+                      learned).optimize(Problem(SPACE, short, "tracking", 1, seed=0, device="cpu"))
+        except ValueError:
             pass
     if "lambda" in parts:
         from tt.sim.rewards import get_reward
@@ -731,6 +809,11 @@ def main() -> None:
         for i in range(args.lambda_seeds):
             entries = [(DGS, args.lambda_n, float(x)) for x in args.lambdas.split(",") if x]
             jobs.append((1, ("lambda", SINGLE, (single_motions[i],), "tracking", i, entries, f"lambda seed {i}")))
+    if "guidance" in parts:
+        n = args.guidance_n
+        for i in range(args.guidance_seeds):
+            entries = [(ZEROTH, n, 0.0), (DGS, n, 0.0)] + [(critic_label(x), n, 0.0) for x in _floats(args.guidance_scales)]
+            jobs.append((1, ("guidance", SINGLE, (single_motions[i],), "tracking", i, entries, f"guidance seed {i}")))
     if "hybrid" in parts:
         for i in range(args.hybrid_seeds):
             for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):

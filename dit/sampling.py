@@ -26,6 +26,13 @@ design's embodiment tokens when the motion-to-robot model is asked only for that
 dynamics. Before each network call they are set to their given value noised to the
 current step's level, q(x_t | x0) with fresh noise (the replacement method; the network
 sees them as it saw diffused tokens in training), and the result holds their given values.
+
+Differentiable sampling (``differentiable=True``, no guide): autograd stays on through every
+step, nothing is detached, and the result's tokens carry the graph back to the given
+tokens' values. A conditioning value that requires grad then gets the gradient of anything
+computed from the sample, e.g. a dynamics critic's predicted reward with respect to the
+design it is given (`tt.guidance.critic_grad`). The noise comes from `generator` as without
+it, so both modes draw the same sample.
 """
 
 from __future__ import annotations
@@ -74,7 +81,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
            num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
            guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
            guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
-           known: Mapping[str, torch.Tensor] | None = None) -> SampleResult:
+           known: Mapping[str, torch.Tensor] | None = None, differentiable: bool = False) -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
     model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
@@ -84,7 +91,8 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     generator: on the tokens' device, for the initial noise and eta > 0; guide, guided,
     guide_grad: see the module docstring; keep_x0: record x0_hat per step; bf16: autocast
     the network to bfloat16 (CUDA only); known: type -> (B, L) bool, diffused tokens whose
-    given values are kept (inpainting, see the module docstring).
+    given values are kept (inpainting, see the module docstring); differentiable: keep the
+    graph through every step (see the module docstring; not with a guide).
     """
     layout = model.layout
     layout.check(tokens)
@@ -93,6 +101,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
         raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
     if eta < 0:
         raise ValueError(f"eta must be >= 0, got {eta}")
+    if differentiable and guide is not None:
+        raise ValueError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
+                         "on its own (give one or the other)")
     device = tokens.device
     b = len(tokens)
     masks = task_masks(task, layout, tokens)
@@ -111,12 +122,13 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
         v = tokens.values[s.name]
         if s.name in updated:
             noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
-            x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float())
+            x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float().detach())
         else:
-            x[s.name] = v.float()
+            x[s.name] = v.float() if differentiable else v.float().detach()
     steps = scheduler.timesteps(num_steps)
     history = [] if keep_x0 else None
-    use_grad = guide is not None and guide_grad
+    use_grad = (guide is not None and guide_grad) or differentiable
+    keep = (lambda v: v) if differentiable else torch.Tensor.detach  # what crosses a step keeps its graph or not
     prediction = getattr(model, "prediction", "eps")
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=bf16 and device.type == "cuda")
     for i, t in enumerate(steps):
@@ -125,7 +137,10 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
         for n, (m, x0_given) in given.items():
             noise = torch.randn(x0_given.shape, generator=generator, device=device, dtype=torch.float32)
             x[n] = torch.where(m.unsqueeze(-1), scheduler.add_noise(x0_given, noise, t), x[n])
-        x_in = {n: (v.detach().requires_grad_(n in updated) if use_grad else v) for n, v in x.items()}
+        if differentiable:
+            x_in = x
+        else:
+            x_in = {n: (v.detach().requires_grad_(n in updated) if use_grad else v) for n, v in x.items()}
         with torch.set_grad_enabled(use_grad), autocast:
             out = model(x_in, tokens.ids, masks.noised, time, masks.attend, outputs=wanted)
         with torch.set_grad_enabled(use_grad):
@@ -141,10 +156,11 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
                     eps[n] = torch.where(guided_masks[n].unsqueeze(-1), e, eps[n])
         if history is not None:
             history.append({n: v.detach() for n, v in x0.items()})
-        for n in wanted:
-            x_prev, _ = scheduler.step(x[n].detach(), eps[n].detach(), t, t_prev, eta=eta, generator=generator)
-            x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, x[n].detach())
+        with torch.set_grad_enabled(differentiable):
+            for n in wanted:
+                x_prev, _ = scheduler.step(keep(x[n]), keep(eps[n]), t, t_prev, eta=eta, generator=generator)
+                x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, keep(x[n]))
     for n, (m, x0_given) in given.items():
         x[n] = torch.where(m.unsqueeze(-1), x0_given, x[n])
-    out = TokenBatch({n: x[n].detach().to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
+    out = TokenBatch({n: keep(x[n]).to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
     return SampleResult(out, updated, history)

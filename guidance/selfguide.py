@@ -29,6 +29,11 @@ candidate (`tt.guidance.simgrad`): grad = (1 - lambda) grad R_model + lambda gra
 both with respect to x_t (the simulator's gradient with respect to x0_hat is carried to
 x_t through the network like the model's). lambda = 0 is pure self-guidance, 1 the pure
 simulator gradient.
+
+Critic guidance (``guide_by="critic"``): R's gradient comes from a dynamics critic's
+prediction for x0_hat's embodiment instead of the sampling model's own jointly sampled
+dynamics (`tt.guidance.critic_grad`): grad = (1 - lambda) grad R_critic + lambda grad R_sim.
+``guide_start`` skips guidance at the noisiest steps, where x0_hat is no design yet.
 """
 
 from __future__ import annotations
@@ -42,6 +47,10 @@ from tt.baselines.problem import Problem
 from tt.dit.sampling import GuideFn
 from tt.dit.tasks import ROBOT
 from tt.guidance.zeroth import Decoder, Generation, GuideContext, SamplerConfig, ZerothOrder
+
+
+#: What the guidance gradient differentiates (`DGSConfig.guide_by`).
+GUIDES = ("model", "critic")
 
 
 # ------------------------------------------------------------------------------ scales
@@ -98,10 +107,13 @@ class SelfGuidance:
     """The DGS hook factory (`tt.guidance.zeroth.Guidance`).
 
     scale: s; sim: a `tt.guidance.simgrad.SimGradient` (or anything with its
-    ``token_gradient``), required when sim_weight > 0; sim_weight: lambda in [0, 1].
+    ``token_gradient``), required when sim_weight > 0; sim_weight: lambda in [0, 1];
+    critic: a `tt.guidance.critic_grad.CriticGradient` (or anything with its
+    ``token_gradient``) whose gradient replaces the model's own objective's; start_step:
+    first guided step (0 = noisiest; the earlier ones keep the model's eps).
     """
 
-    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0):
+    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0):
         if not 0.0 <= sim_weight <= 1.0:
             raise ValueError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
@@ -109,26 +121,40 @@ class SelfGuidance:
         self.scale = float(scale)
         self.sim = sim
         self.sim_weight = float(sim_weight)
+        self.critic = critic
+        self.start_step = int(start_step)
         self.stats = GuidanceStats()
 
     def summary(self) -> dict:
         out = self.stats.to_dict()
         if self.sim is not None and self.sim_weight > 0:
             out["sim"] = self.sim.summary()
+        if self.critic is not None:
+            out["critic_grad"] = self.critic.summary()
         return out
 
     def hook(self, ctx: GuideContext) -> GuideFn:
         stats = self.stats
         stats.objective_trace = []
+        if self.critic is not None and hasattr(self.critic, "reset"):
+            self.critic.reset()
         lam = self.sim_weight
 
         def guide(step: int, x_t: dict[str, torch.Tensor], eps: dict[str, torch.Tensor],
                   x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
             t = ctx.timesteps[step]
             names = [n for n in ctx.embodiment if n in x_t and x_t[n].requires_grad]
+            if step < self.start_step:
+                return {}
             objective = ctx.objective(x0, True).mean(1)  # (n,)
             stats.objective_trace.append(float(objective.detach().nanmean()))
-            surrogate = (1.0 - lam) * objective.sum() if lam < 1.0 else torch.zeros((), device=objective.device)
+            surrogate = torch.zeros((), device=objective.device)
+            if lam < 1.0 and self.critic is not None:
+                gc = self.critic.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+                for n in names:
+                    surrogate = surrogate + (1.0 - lam) * (gc[n].to(device=x0[n].device, dtype=x0[n].dtype) * x0[n]).sum()
+            elif lam < 1.0:
+                surrogate = (1.0 - lam) * objective.sum()
             if lam > 0.0:
                 g0 = self.sim.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
                 for n in names:
@@ -165,7 +191,11 @@ class DGSConfig(SamplerConfig):
     scale: guidance scale (None: `scales` for the problem's space and motion count);
     scales: per-space defaults; sim_grad_weight: lambda of the simulator gradient (0: none);
     sim_grad_start: first step (0 = noisiest) at which the simulator gradient is mixed in;
-    before it x0_hat is too noisy to decode to a design.
+    before it x0_hat is too noisy to decode to a design. guide_by: "model" (the sampling
+    model's own jointly sampled dynamics, the paper's) or "critic" (the dynamics critic's
+    prediction for x0_hat's embodiment: ``critic_checkpoint`` / ``critic_model``, else the
+    sampling model's own dynamics task; `tt.guidance.critic_grad`). guide_start: first guided
+    step (0 = noisiest); the earlier steps sample unguided.
     """
 
     eta: float = 1.0
@@ -173,9 +203,15 @@ class DGSConfig(SamplerConfig):
     scales: GuidanceScales = field(default_factory=GuidanceScales)
     sim_grad_weight: float = 0.0
     sim_grad_start: int = 0
+    guide_by: str = "model"
+    guide_start: int = 0
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.guide_by not in GUIDES:
+            raise ValueError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
+        if self.guide_start < 0:
+            raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
             raise ValueError(f"sim_grad_weight = {self.sim_grad_weight}; must be in [0, 1]")
         if self.sim_grad_start < 0:
@@ -209,15 +245,26 @@ class DynamicsSelfGuidance(ZerothOrder):
             exact = decoder.exact() if hasattr(decoder, "exact") else decoder
             sim = SimGradient(problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start,
                               device=problem.device)
-        guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight)
+        guide_critic = None
+        if c.guide_by == "critic":
+            from tt.guidance.critic_grad import CriticGradient
+
+            judge = self._critic or self._trained
+            if not judge.trained_on("dynamics"):
+                raise ValueError("guide_by='critic' needs a dynamics critic: give critic_checkpoint (a checkpoint trained "
+                                 f"on the dynamics task); the sampling model was trained on {list(judge.tasks)}")
+            guide_critic = CriticGradient(judge, cfg, decoder=decoder, seed=problem.seed)
+        guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
+                                start_step=c.guide_start)
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
                 "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input(), "scale": scale,
-                "sim_grad_weight": c.sim_grad_weight, **summary, "rollouts": rollouts}
+                "sim_grad_weight": c.sim_grad_weight, "guide_by": c.guide_by, "guide_start": c.guide_start, **summary,
+                "rollouts": rollouts}
         return gen, decoder, info
 
 
-__all__ = ["DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]
+__all__ = ["GUIDES", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]

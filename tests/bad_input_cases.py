@@ -275,6 +275,8 @@ CASES: list[Case] = [
     Case("optimize --popsize 1 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--popsize", "1"], ("--popsize",)),
     Case("optimize --method nope lists the methods", 6, lambda f: ["optimize", "--motion", "toss", "--method", "nope"], ("random", "cmaes", "zeroth", "dgs")),
     Case("optimize --samples 0 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--samples", "0"], ("--samples",)),
+    Case("optimize --guide-by nope lists the sources", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"], ("--guide-by", "model", "critic")),
+    Case("optimize --guide-by critic for cmaes names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"], ("--guide-by", "dgs")),
     Case("rollout --n 0 names the flag", 6, lambda f: ["rollout", "--n", "0"], ("--n",)),
     Case("designs --n 0 names the flag", 6, lambda f: ["designs", "--n", "0", "--out", f.root + "/d0"], ("--n",)),
     Case("generate --designs 0 names the flag", 6, lambda f: ["generate", "--designs", "0", "--out", f.root + "/g0"], ("--designs",)),

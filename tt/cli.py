@@ -400,6 +400,7 @@ def optimize(
     critic_on: Optional[str] = typer.Option(None, help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first). Default: 'designs' for a critic trained with --dynamics-start, else 'tokens'."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
+    guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design; give a --scale, e.g. 0.5)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
@@ -462,6 +463,12 @@ def optimize(
                   "sampled candidates")
     if not 0.0 <= sim_grad_weight <= 1.0:
         _fail(f"--sim-grad-weight must be in [0, 1], got {sim_grad_weight}")
+    from tt.guidance.selfguide import GUIDES
+
+    if guide_by not in GUIDES:
+        _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
+    if guide_by != "model" and method not in ("dgs", "dgs-sim"):
+        _fail(f"--guide-by applies to dgs and dgs-sim, not --method {method}")
     _output(json_out, "--json")
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     options: dict = {}
@@ -485,7 +492,7 @@ def optimize(
         if critic_on is not None:
             options.update(critic_on=critic_on)
         if method in ("dgs", "dgs-sim"):
-            options.update(scale=scale, sim_grad_weight=sim_grad_weight)
+            options.update(scale=scale, sim_grad_weight=sim_grad_weight, guide_by=guide_by)
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
     opt = get_optimizer(method, **options)
