@@ -65,6 +65,12 @@ class ContinuousParam:
     high: float
     unit: str = "m"
 
+    @property
+    def tolerance(self) -> float:
+        """How far outside the bounds a value may lie and still count as inside: float
+        round-off of values that came through float32."""
+        return 1e-9 * max(1.0, abs(self.high - self.low))
+
 
 @dataclass(frozen=True)
 class Design:
@@ -182,9 +188,7 @@ class DesignSpace(ABC):
         for i, (p, v) in enumerate(zip(cparams, design.continuous)):
             if not isinstance(v, (float, int, np.floating)) or isinstance(v, bool) or not math.isfinite(v):
                 raise DesignError(f"continuous[{i}] ({p.name!r}) = {v!r} is not a finite number")
-            # Tolerate float round-off at the bounds (values that came through float32).
-            tol = 1e-9 * max(1.0, abs(p.high - p.low))
-            if not p.low - tol <= v <= p.high + tol:
+            if not p.low - p.tolerance <= v <= p.high + p.tolerance:
                 raise DesignError(
                     f"continuous[{i}] ({p.name!r}) = {v!r} {p.unit} is outside [{p.low}, {p.high}] {p.unit}"
                 )
@@ -220,7 +224,7 @@ class DesignSpace(ABC):
                 types = {type(v) for row in values for v in row}
                 ok = all(issubclass(t, (float, int, np.floating)) and not issubclass(t, bool) for t in types)
             if ok:
-                tol = np.array([1e-9 * max(1.0, abs(p.high - p.low)) for p in cparams])
+                tol = np.array([p.tolerance for p in cparams])
                 low, high = np.array([p.low for p in cparams]) - tol, np.array([p.high for p in cparams]) + tol
                 try:
                     x = np.array(values, dtype=float).reshape(len(members), len(cparams))
