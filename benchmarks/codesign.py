@@ -24,8 +24,8 @@ Parts (``--parts``, run in this order, the tracking reward first):
   `--guidance-n`: Zeroth-Order, Self-Guidance as the paper has it (the sampling model's own
   dynamics, scale 50) and Self-Guidance steered by the dynamics critic's gradient
   (``guide_by="critic"``, `tt.guidance.critic_grad`; the `--critic-checkpoint`, else the
-  sampling model's own dynamics task) at each scale of `--guidance-scales`, with paired
-  differences against Zeroth-Order.
+  sampling model's own dynamics task) at each scale of `--guidance-scales` and DDIM eta of
+  `--guidance-etas`, with paired differences against Zeroth-Order.
 
 Timing. Every optimize time is the optimizer's wall time for its problem; validation is
 excluded. One-time costs are excluded and reported: the Warp kernel compile (or cache
@@ -141,17 +141,23 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return SimVerified(zeroth(), VerifyConfig(verify=args.hybrid_verify))
     if method == CMAES_INIT:
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
-    scales = {critic_label(x): x for x in _floats(args.guidance_scales)}
-    if method in scales:
-        return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, guide_by="critic", scale=scales[method]),
+    variants = {critic_label(s, e): (s, e) for s, e in guidance_variants(args)}
+    if method in variants:
+        scale, eta = variants[method]
+        return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta),
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
-def critic_label(scale: float) -> str:
-    return f"{DGS_CRITIC} (s = {scale:g})"
+def critic_label(scale: float, eta: float) -> str:
+    return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g})"
+
+
+def guidance_variants(args) -> list[tuple[float, float]]:
+    """(scale, eta) of every critic-steered Self-Guidance of part "guidance"."""
+    return [(s, e) for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)]
 
 
 # ------------------------------------------------------------------------------ runs
@@ -371,8 +377,7 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
     Self-Guidance at the same n on the same seeds; paired differences against Zeroth-Order.
     Returns (section, the issue's target lines)."""
     n = records[0]["n"]
-    methods = [ZEROTH, DGS] + sorted({r["method"] for r in records if r["method"].startswith(DGS_CRITIC)},
-                                     key=lambda m: float(m.split("s = ")[1].rstrip(")")))
+    methods = [ZEROTH, DGS] + list(dict.fromkeys(r["method"] for r in records if r["method"].startswith(DGS_CRITIC)))
     rows, goal = [], []
     for method in methods:
         mr = [r for r in records if r["method"] == method]
@@ -686,6 +691,7 @@ def main() -> None:
     ap.add_argument("--guidance-seeds", type=int, default=9, help="guidance: runs (seed i: validation motion i)")
     ap.add_argument("--guidance-n", type=int, default=1, help="guidance: samples of every method")
     ap.add_argument("--guidance-scales", default="0.5,5", help="guidance: scales of critic-steered Self-Guidance")
+    ap.add_argument("--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
@@ -754,7 +760,7 @@ def main() -> None:
             pass
     if "guidance" in parts:
         try:
-            optimizer(critic_label(_floats(args.guidance_scales)[0]), argparse.Namespace(**{**vars(args), "steps": 2}),
+            optimizer(critic_label(*guidance_variants(args)[0]), argparse.Namespace(**{**vars(args), "steps": 2}),
                       learned).optimize(Problem(SPACE, short, "tracking", 1, seed=0, device="cpu"))
         except ValueError:
             pass
@@ -812,7 +818,7 @@ def main() -> None:
     if "guidance" in parts:
         n = args.guidance_n
         for i in range(args.guidance_seeds):
-            entries = [(ZEROTH, n, 0.0), (DGS, n, 0.0)] + [(critic_label(x), n, 0.0) for x in _floats(args.guidance_scales)]
+            entries = [(ZEROTH, n, 0.0), (DGS, n, 0.0)] + [(critic_label(*v), n, 0.0) for v in guidance_variants(args)]
             jobs.append((1, ("guidance", SINGLE, (single_motions[i],), "tracking", i, entries, f"guidance seed {i}")))
     if "hybrid" in parts:
         for i in range(args.hybrid_seeds):
