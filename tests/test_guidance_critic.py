@@ -15,11 +15,8 @@ import dataclasses
 import pytest
 import torch
 
-from tt.dit.checkpoint import TrainedModel
-from tt.dit.model import RoboDiT, get_config
 from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
-from tt.dit.toy import toy_episodes
 from tt.guidance.critic_grad import CriticGradient
 from tt.guidance.predicted import build_query
 from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, SelfGuidance
@@ -28,9 +25,8 @@ from tt.baselines.problem import Problem
 from tt.sim.motions import for_space, get_motion
 from tt.sim.rewards import get_reward
 from tt.tokens.schema import STEP_ROLES
+from tiny_dit import tiny_model
 
-COUNTS = dict(link=6, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
-              control=3, target_pose=1)
 STEPS = 6
 
 pytestmark = pytest.mark.usefixtures("single_thread")
@@ -38,14 +34,7 @@ pytestmark = pytest.mark.usefixtures("single_thread")
 
 @pytest.fixture(scope="module")
 def critic():
-    episodes = toy_episodes(episodes=16, steps=16, seed=0, schema_counts=COUNTS)
-    layout = episodes.layout(8)
-    torch.manual_seed(0)
-    model = RoboDiT(layout, get_config("tiny")).eval()
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    return TrainedModel(model, episodes.fit_normalizer(), layout, 0, tasks=("robot", "dynamics"))
+    return tiny_model(("robot", "dynamics"))
 
 
 @pytest.fixture(scope="module")

@@ -23,11 +23,10 @@ from tt.baselines.problem import Problem
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import layout_from_schema
-from tt.dit.model import RoboDiT, get_config
+from tt.dit.model import RoboDiT
 from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import sample
 from tt.dit.tasks import ROBOT, task_masks
-from tt.dit.toy import toy_episodes
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens
 from tt.guidance.predicted import build_query, query_steps
 from tt.sim.rewards import get_reward
@@ -43,9 +42,8 @@ from tt.guidance.zeroth import (
 )
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
+from tiny_dit import tiny_model
 
-COUNTS = dict(link=6, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
-              control=3, target_pose=1)
 STEPS = 8  # DDIM steps in these tests (of the process's 100)
 
 
@@ -53,14 +51,7 @@ STEPS = 8  # DDIM steps in these tests (of the process's 100)
 def tiny():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: a second thread only waits
-    episodes = toy_episodes(episodes=16, steps=16, seed=0, schema_counts=COUNTS)
-    layout = episodes.layout(8)
-    torch.manual_seed(0)
-    model = RoboDiT(layout, get_config("tiny")).eval()
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    yield TrainedModel(model, episodes.fit_normalizer(), layout, 0)
+    yield tiny_model()
     torch.set_num_threads(threads)
 
 
