@@ -62,15 +62,29 @@ def _paper_multi() -> dict[str, float]:
     return {"viperx": 500.0, "aloha": 500.0}
 
 
+def _critic_scales() -> dict[str, float]:
+    # tt's, measured on ViperX (benchmarks/results/codesign_guidance.md); ALOHA is two ViperX arms.
+    return {"viperx": 0.5, "aloha": 0.5}
+
+
 @dataclass(frozen=True)
 class GuidanceScales:
     """Guidance scale per design space: `single` for one motion, `multi` for several
-    (spaces missing from `multi` use `single`). Defaults: the paper's (module docstring)."""
+    (spaces missing from `multi` use `single`), both for guidance by the model's own
+    dynamics (defaults: the paper's, module docstring); `critic` for guidance by the dynamics
+    critic (``guide_by="critic"``: the log form's gradient is far larger than the reward's; one
+    scale for any number of motions, as its objective is their mean)."""
 
     single: Mapping[str, float] = field(default_factory=_paper_single)
     multi: Mapping[str, float] = field(default_factory=_paper_multi)
+    critic: Mapping[str, float] = field(default_factory=_critic_scales)
 
-    def scale(self, space: str, motions: int) -> float:
+    def scale(self, space: str, motions: int, guide_by: str = "model") -> float:
+        if guide_by == "critic":
+            if space not in self.critic:
+                raise ValueError(f"no critic guidance scale for design space {space!r}; spaces with one: "
+                                 f"{sorted(self.critic)} (give DGSConfig.scale)")
+            return float(self.critic[space])
         if motions > 1 and space in self.multi:
             return float(self.multi[space])
         if space not in self.single:
@@ -236,7 +250,7 @@ class DynamicsSelfGuidance(ZerothOrder):
         and, under "rollouts", the simulator-gradient rollouts it ran)."""
         c: DGSConfig = self.config
         sampler, decoder, cfg, n = self._setup(problem)
-        scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions))
+        scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions), c.guide_by)
         sim = None
         if c.sim_grad_weight > 0:
             from tt.guidance.simgrad import SimGradient

@@ -19,7 +19,7 @@ from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
 from tt.guidance.critic_grad import CriticGradient
 from tt.guidance.predicted import build_query
-from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, SelfGuidance
+from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, GuidanceScales, SelfGuidance
 from tt.guidance.zeroth import CandidateSampler, GuideContext
 from tt.baselines.problem import Problem
 from tt.sim.motions import for_space, get_motion
@@ -139,9 +139,15 @@ def test_guide_by_critic_config(critic, motions):
 
 def test_dgs_guided_by_a_critic_records_its_gradient(critic, motions):
     problem = Problem("viperx", tuple(motions[:1]), "tracking", 2, seed=0, device="cpu")
-    gen, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=3, guide_by="critic", scale=1.0, guide_start=1),
+    gen, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=3, guide_by="critic", guide_start=1),
                                         model=critic).generate(problem)
     assert info["guide_by"] == "critic" and info["guide_start"] == 1
+    scales = GuidanceScales()
+    # The critic's own scale, not the paper's 50 for the model's own dynamics; one for any motion count.
+    assert info["scale"] == scales.critic["viperx"] != scales.single["viperx"]
+    assert scales.scale("viperx", 3, "critic") == scales.scale("viperx", 1, "critic")
+    with pytest.raises(ValueError, match="no critic guidance scale"):
+        scales.scale("bimanual", 1, "critic")
     grad = info["critic_grad"]
     assert grad["steps"] == 2 and grad["candidates"] == 4 and len(grad["reward_trace"]) == 2
     assert gen.objective.shape == (2,)

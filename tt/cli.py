@@ -400,7 +400,7 @@ def optimize(
     critic_on: Optional[str] = typer.Option(None, help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first). Default: 'designs' for a critic trained with --dynamics-start, else 'tokens'."),
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
-    guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design; give a --scale, e.g. 0.5)."),
+    guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
