@@ -27,9 +27,10 @@ dynamics. Before each network call they are set to their given value noised to t
 current step's level, q(x_t | x0) with fresh noise (the replacement method; the network
 sees them as it saw diffused tokens in training), and the result holds their given values.
 
-Differentiable sampling (``differentiable=True``, no guide): autograd stays on through every
-step, nothing is detached, and the result's tokens carry the graph back to the given
-tokens' values. A conditioning value that requires grad then gets the gradient of anything
+Differentiable sampling (``differentiable=True``, no guide; under ``torch.no_grad`` it
+samples as usual): autograd stays on through every step, the denoised tokens are not
+detached between steps, and the result's tokens carry the graph back to the given
+conditioning values (the given values of diffused tokens only decide where the noise goes). A conditioning value that requires grad then gets the gradient of anything
 computed from the sample, e.g. a dynamics critic's predicted reward with respect to the
 design it is given (`tt.guidance.critic_grad`). The noise comes from `generator` as without
 it, so both modes draw the same sample.
@@ -104,6 +105,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     if differentiable and guide is not None:
         raise ValueError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
                          "on its own (give one or the other)")
+    differentiable = differentiable and torch.is_grad_enabled()
     device = tokens.device
     b = len(tokens)
     masks = task_masks(task, layout, tokens)

@@ -43,7 +43,7 @@ import torch
 from tt.dit.layout import Layout, LayoutError, slot_ids
 from tt.kernels.errors import TTError
 from tt.kernels.rotations import quat_to_mat
-from tt.sim.rewards import RewardConfig, RewardInputs, evaluate
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, log_reward
 from tt.sim.motions.base import Motion
 from tt.tokens.encodings import decode_binary, decode_log
 from tt.tokens.normalize import Normalizer, is_padding
@@ -240,6 +240,16 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, mo
             for s in layout.specs if s.role in STEP_ROLES and s.role is not Role.CONDITION}
 
 
+def with_start(tokens: TokenBatch, first: dict[str, torch.Tensor]) -> TokenBatch:
+    """A "start" query's tokens with step 0 set: first, type -> (B, P, D), one motion's slice of
+    `start_tokens` (P: the slots per step; step 0 is the first P slots of each per-step type)."""
+    values = dict(tokens.values)
+    for name, v in first.items():
+        values[name] = values[name].clone()
+        values[name][:, : v.shape[1]] = v
+    return TokenBatch(values, tokens.ids, tokens.mask)
+
+
 # ------------------------------------------------------------------------------ critic
 class CheckpointSpaceError(TTError):
     """A checkpoint trained on one design space asked about designs of another."""
@@ -356,11 +366,7 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         q, kn = design_query(layout, norm, m, repeated, placement="start" if from_start else placement,
                              generator=torch.Generator().manual_seed(int(seed)), device=device)
         if first is not None:
-            values = dict(q.tokens.values)
-            for name, v in first.items():
-                values[name] = values[name].clone()
-                values[name][:, : v.shape[2]] = v[j].repeat_interleave(K, dim=0)
-            q.tokens = TokenBatch(values, q.tokens.ids, q.tokens.mask)
+            q.tokens = with_start(q.tokens, {name: v[j].repeat_interleave(K, dim=0) for name, v in first.items()})
         queries.append(q)
         tokens.append(q.tokens)
         known.append(kn)
@@ -527,9 +533,12 @@ class PredictedReward:
         return RewardInputs(ee_pos=ee_pos, ee_quat=ee_quat, target_pos=q.target_pos.to(dtype),
                             target_quat=q.target_quat.to(dtype), **{k: v.to(dtype) for k, v in fields.items()})
 
-    def __call__(self, x0: dict[str, torch.Tensor], *, guidance: bool = False) -> torch.Tensor:
-        """Episode reward estimate (T / S) x R_S, (B,); guidance: the guidance alphas."""
-        return self.scale * evaluate(self.inputs(x0), self.cfg, guidance=guidance).reward
+    def __call__(self, x0: dict[str, torch.Tensor], *, guidance: bool = False, log: bool = False) -> torch.Tensor:
+        """Episode reward estimate (T / S) x R_S, (B,); guidance: the guidance alphas; log: the
+        smooth stand-in `tt.sim.rewards.log_reward` instead of the reward, scaled the same way."""
+        inputs = self.inputs(x0)
+        return self.scale * (log_reward(inputs, self.cfg, guidance=guidance) if log else
+                             evaluate(inputs, self.cfg, guidance=guidance).reward)
 
 
 def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

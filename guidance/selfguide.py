@@ -100,7 +100,7 @@ class GuidanceStats:
 
     steps: guided steps (summed over calls); nonfinite_entries: gradient entries that were
     NaN or inf and set to 0; nonfinite_candidates: (candidate, step) pairs with at least one
-    such entry; nonfinite_sim_entries: entries of the simulator's x0-gradient that were not
+    such entry; nonfinite_sim_entries: entries of the simulator's (or critic's) x0-gradient that were not
     finite and set to 0 before mixing; objective_trace: per step of the last call, the mean
     over candidates of the guidance objective at x0_hat.
     """
@@ -160,24 +160,29 @@ class SelfGuidance:
             names = [n for n in ctx.embodiment if n in x_t and x_t[n].requires_grad]
             if step < self.start_step:
                 return {}
-            objective = ctx.objective(x0, True).mean(1)  # (n,)
+            by_critic = self.critic is not None
+            with torch.set_grad_enabled(not by_critic):  # guided by the critic, the own objective is only traced
+                objective = ctx.objective(x0, True).mean(1)  # (n,)
             stats.objective_trace.append(float(objective.detach().nanmean()))
-            surrogate = torch.zeros((), device=objective.device)
-            if lam < 1.0 and self.critic is not None:
-                gc = self.critic.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
-                for n in names:
-                    surrogate = surrogate + (1.0 - lam) * (gc[n].to(device=x0[n].device, dtype=x0[n].dtype) * x0[n]).sum()
-            elif lam < 1.0:
-                surrogate = (1.0 - lam) * objective.sum()
-            if lam > 0.0:
-                g0 = self.sim.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+
+            def chained(source) -> torch.Tensor:
+                # sum(g * x0): its gradient with respect to x_t carries an x0-gradient g through the network.
+                g0 = source.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+                out = torch.zeros((), device=objective.device)
                 for n in names:
                     g = g0[n].to(device=x0[n].device, dtype=x0[n].dtype)
                     bad = ~torch.isfinite(g)
                     if bool(bad.any()):
                         stats.nonfinite_sim_entries += int(bad.sum())
                         g = torch.where(bad, torch.zeros_like(g), g)
-                    surrogate = surrogate + lam * (g * x0[n]).sum()
+                    out = out + (g * x0[n]).sum()
+                return out
+
+            surrogate = torch.zeros((), device=objective.device)
+            if lam < 1.0:
+                surrogate = (1.0 - lam) * (chained(self.critic) if by_critic else objective.sum())
+            if lam > 0.0:
+                surrogate = surrogate + lam * chained(self.sim)
             grads = torch.autograd.grad(surrogate, [x_t[n] for n in names], allow_unused=True)
             out = {}
             flagged = torch.zeros(objective.shape[0], dtype=torch.bool, device=objective.device)
@@ -263,11 +268,16 @@ class DynamicsSelfGuidance(ZerothOrder):
         if c.guide_by == "critic":
             from tt.guidance.critic_grad import CriticGradient
 
+            from tt.guidance.zeroth import check_critic
+
             judge = self._critic or self._trained
             if not judge.trained_on("dynamics"):
                 raise ValueError("guide_by='critic' needs a dynamics critic: give critic_checkpoint (a checkpoint trained "
                                  f"on the dynamics task); the sampling model was trained on {list(judge.tasks)}")
-            guide_critic = CriticGradient(judge, cfg, decoder=decoder, seed=problem.seed)
+            if judge is not self._trained:
+                check_critic(self._trained, judge)
+            guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
+                                          seed=problem.seed)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
                                 start_step=c.guide_start)
         critic = self.critic()

@@ -52,8 +52,6 @@ from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, rob
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
-from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import STEP_ROLES
 
 log = logging.getLogger(__name__)
 
@@ -385,19 +383,15 @@ class SimGradient:
     def token_gradient(self, ctx, x0: dict[str, torch.Tensor], step: int) -> dict[str, torch.Tensor]:
         """dR_sim/dx0 for the embodiment types of `x0` (normalised, (n, L, D) each); zero for
         candidates that do not decode and before `start_step`."""
-        from tt.guidance.zeroth import embodiment_batch
+        from tt.guidance.zeroth import decode_x0
         from tt.tokens.normalize import is_padding
 
         out = {n: torch.zeros_like(v) for n, v in x0.items()}
         if step < self.start_step:
             return out
-        layout, norm = self.trained.layout, self.trained.normalizer
-        base = ctx.queries[0].tokens
-        names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
-        tokens = TokenBatch({n: x0[n] for n in names}, {n: base.ids[n] for n in names}, {n: base.mask[n] for n in names})
-        batch = embodiment_batch(layout, norm, tokens)
-        n = len(tokens)
-        decoded = [self.decoder(batch, i) for i in range(n)]
+        norm = self.trained.normalizer
+        decoded = decode_x0(self.trained.layout, norm, x0, ctx.queries[0].tokens, self.decoder)
+        n = len(decoded)
         ok = [i for i in range(n) if decoded[i].design is not None]
         self.stats.steps += 1
         self.stats.decode_failures += n - len(ok)

@@ -422,6 +422,17 @@ def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenBatch)
     return normalizer.denormalize(batch, detect_padding=True, clip=True).to_numpy()
 
 
+def decode_x0(layout: Layout, normalizer: Normalizer, x0: dict[str, torch.Tensor], like: TokenBatch,
+              decoder: Decoder) -> list[Decoded]:
+    """Each candidate of predicted clean tokens decoded: x0, type -> (n, L, D) normalised
+    (only the embodiment types are read); like: tokens whose IDs and masks they have (the
+    sampling query's)."""
+    names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
+    tokens = TokenBatch({k: x0[k] for k in names}, {k: like.ids[k] for k in names}, {k: like.mask[k] for k in names})
+    batch = embodiment_batch(layout, normalizer, tokens)
+    return [decoder(batch, i) for i in range(len(tokens))]
+
+
 @dataclass
 class Ranking:
     """Candidates ranked: order (n,) candidate indices, best first (decoded or not yet tried
@@ -659,6 +670,7 @@ __all__ = [
     "SamplerConfig",
     "ZerothOrder",
     "check_critic",
+    "decode_x0",
     "embodiment_batch",
     "learned_result",
     "rank_candidates",

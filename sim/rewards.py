@@ -35,6 +35,10 @@ Conventions that the paper leaves open, fixed here:
   signal (embodiment tokens attend mostly to themselves, so their gradients are larger); the
   rewards reported always use the full alphas. Both live on `RewardConfig`
   (``size_alpha`` / ``size_alpha_guidance``), selected by ``guidance=``.
+* A smooth stand-in for gradients (`log_reward`): the same sum over counted steps and
+  penalties with log track_t = -(eps_p,t^2 / sigma_p + eps_o,t^2 / sigma_o) in place of
+  track_t. At errors of tens of cm track_t is flat (30 cm at sigma_p = 0.01 m^2: e^-9), its
+  log is not; tt's critic guidance differentiates it (`tt.guidance.critic_grad`).
 """
 
 from __future__ import annotations
@@ -383,11 +387,7 @@ def evaluate(inputs: RewardInputs, cfg: RewardConfig, *, guidance: bool = False)
     motion_steps = _motion_steps(inputs)  # (W,)
     survived = counted.sum(1) == motion_steps
 
-    r = torch.exp(-eps_p.square() / cfg.sigma_p - eps_o.square() / cfg.sigma_o)  # (W, T)
-    if cfg.torque_alpha > 0:
-        r = r - cfg.torque_alpha * inputs.act_force.to(r.dtype).square().sum(-1)
-    if cfg.velocity_alpha > 0:
-        r = r - cfg.velocity_alpha * inputs.act_vel.to(r.dtype).square().sum(-1)
+    r = torch.exp(-eps_p.square() / cfg.sigma_p - eps_o.square() / cfg.sigma_o) - _effort(inputs, cfg, eps_p.dtype)
     # Clipping at 0 keeps a costly step from making termination attractive (paper, eq. 2).
     r = torch.clamp(r, min=0.0)
     # where, not a product: values at steps that do not count may be non-finite.
@@ -404,6 +404,27 @@ def evaluate(inputs: RewardInputs, cfg: RewardConfig, *, guidance: bool = False)
         penalty = penalty + mass_alpha * motion_steps.to(r.dtype) * excess
     total = step_reward.sum(1) - penalty
     return RewardTerms(pos_err, orn_err, counted, survived, step_reward, penalty, total)
+
+
+def _effort(inputs: RewardInputs, cfg: RewardConfig, dtype: torch.dtype) -> torch.Tensor:
+    """alpha_torque |tau_t|^2 + alpha_velocity |qdot_t|^2, (W, T) (0 for rewards without them)."""
+    out = torch.zeros((), dtype=dtype, device=inputs.ee_pos.device)
+    if cfg.torque_alpha > 0:
+        out = out + cfg.torque_alpha * inputs.act_force.to(dtype).square().sum(-1)
+    if cfg.velocity_alpha > 0:
+        out = out + cfg.velocity_alpha * inputs.act_vel.to(dtype).square().sum(-1)
+    return out
+
+
+def log_reward(inputs: RewardInputs, cfg: RewardConfig, *, guidance: bool = False) -> torch.Tensor:
+    """The smooth stand-in of the module docstring, (W,): sum over counted steps of
+    -(eps_p^2 / sigma_p + eps_o^2 / sigma_o) minus the effort terms, minus the embodiment
+    penalty. Not a reward anyone reports; a direction for gradients where the reward is flat."""
+    terms = evaluate(inputs, cfg, guidance=guidance)
+    eps_p, eps_o = terms.pos_err.sum(-1), terms.orn_err.sum(-1)
+    step = -(eps_p.square() / cfg.sigma_p + eps_o.square() / cfg.sigma_o) - _effort(inputs, cfg, eps_p.dtype)
+    step = torch.where(terms.counted, step, torch.zeros((), dtype=step.dtype, device=step.device))
+    return step.sum(1) - terms.penalty
 
 
 def reward(inputs: RewardInputs, cfg: RewardConfig, *, guidance: bool = False) -> torch.Tensor:
@@ -521,6 +542,7 @@ __all__ = [
     "counted_steps",
     "evaluate",
     "get_reward",
+    "log_reward",
     "metrics",
     "orientation_error",
     "position_error",
