@@ -20,7 +20,7 @@ Parts (``--parts``, run in this order, the tracking reward first):
 * lambda: Self-Guidance with the differentiable-simulation gradient mixed in
   (``--sim-grad-weight`` lambda = `--lambdas`) on `--lambda-seeds` single-trajectory runs
   with `--lambda-n` samples; the simulator gradient runs from guided step `--lambda-start`.
-* guidance: single trajectory, tracking, seeds 0 .. `--guidance-seeds` - 1, n =
+* guidance: single trajectory, tracking, `--guidance-seeds` seeds from `--guidance-first-seed`, n =
   `--guidance-n`: Zeroth-Order, Self-Guidance as the paper has it (the sampling model's own
   dynamics, scale 50) and Self-Guidance steered by the dynamics critic's gradient
   (``guide_by="critic"``, `tt.guidance.critic_grad`; the `--critic-checkpoint`, else the
@@ -690,6 +690,8 @@ def main() -> None:
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
     ap.add_argument("--guidance-seeds", type=int, default=9, help="guidance: runs (seed i: validation motion i)")
     ap.add_argument("--guidance-n", type=int, default=1, help="guidance: samples of every method")
+    ap.add_argument("--guidance-first-seed", type=int, default=0,
+                    help="guidance: first seed (seeds first .. first + --guidance-seeds - 1; e.g. fresh seeds for a scale chosen on others)")
     ap.add_argument("--guidance-scales", default="0.5,5", help="guidance: scales of critic-steered Self-Guidance")
     ap.add_argument("--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
@@ -728,7 +730,8 @@ def main() -> None:
 
     val = for_space(motion_set("val", arms=1), SPACE)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
-    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds, args.guidance_seeds)
+    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds,
+                       args.guidance_first_seed + args.guidance_seeds)
     single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
     step = max(1, len(val) // args.multi_motions)
     multi_motions = tuple(val[::step][: args.multi_motions])
@@ -817,7 +820,7 @@ def main() -> None:
             jobs.append((1, ("lambda", SINGLE, (single_motions[i],), "tracking", i, entries, f"lambda seed {i}")))
     if "guidance" in parts:
         n = args.guidance_n
-        for i in range(args.guidance_seeds):
+        for i in range(args.guidance_first_seed, args.guidance_first_seed + args.guidance_seeds):
             entries = [(ZEROTH, n, 0.0), (DGS, n, 0.0)] + [(critic_label(*v), n, 0.0) for v in guidance_variants(args)]
             jobs.append((1, ("guidance", SINGLE, (single_motions[i],), "tracking", i, entries, f"guidance seed {i}")))
     if "hybrid" in parts:
