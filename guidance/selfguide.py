@@ -209,7 +209,7 @@ class SelfGuidance:
 class DGSConfig(SamplerConfig):
     """`SamplerConfig` (eta defaults to the paper's 1 for DGS) plus
 
-    scale: guidance scale (None: `scales` for the problem's space and motion count);
+    scale: guidance scale (None: `scales` for the problem's space, motion count and guide_by);
     scales: per-space defaults; sim_grad_weight: lambda of the simulator gradient (0: none);
     sim_grad_start: first step (0 = noisiest) at which the simulator gradient is mixed in;
     before it x0_hat is too noisy to decode to a design. guide_by: "model" (the sampling
