@@ -755,17 +755,14 @@ def main() -> None:
         warm_up(space.sample(200, seed=12345), val[:1], reward=reward, backend="warp", device="cpu")
         warm_up(space.sample(1, seed=12345), val[:1], reward=reward, backend="mujoco")
     short = (Motion(val[0].name, val[0].pos[:20], val[0].quat[:20], val[0].dt),)
-    for method in (m for m in LEARNED if m != ZEROTH_SIM_TOP):  # the same first calls as Zeroth + sim
+    first_calls = [m for m in LEARNED if m != ZEROTH_SIM_TOP]  # the same first calls as Zeroth + sim
+    if "guidance" in parts:
+        first_calls.append(critic_label(*guidance_variants(args)[0]))
+    for method in first_calls:
         try:
             optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
                 Problem(SPACE, short, "tracking", 2, seed=0, device="cpu"))
         except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
-            pass
-    if "guidance" in parts:
-        try:
-            optimizer(critic_label(*guidance_variants(args)[0]), argparse.Namespace(**{**vars(args), "steps": 2}),
-                      learned).optimize(Problem(SPACE, short, "tracking", 1, seed=0, device="cpu"))
-        except ValueError:
             pass
     if "lambda" in parts:
         from tt.sim.rewards import get_reward

@@ -106,6 +106,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
         raise ValueError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
                          "on its own (give one or the other)")
     differentiable = differentiable and torch.is_grad_enabled()
+    keep = (lambda v: v) if differentiable else torch.Tensor.detach  # what crosses a step keeps its graph or not
     device = tokens.device
     b = len(tokens)
     masks = task_masks(task, layout, tokens)
@@ -126,11 +127,10 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
             noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
             x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float().detach())
         else:
-            x[s.name] = v.float() if differentiable else v.float().detach()
+            x[s.name] = keep(v.float())
     steps = scheduler.timesteps(num_steps)
     history = [] if keep_x0 else None
     use_grad = (guide is not None and guide_grad) or differentiable
-    keep = (lambda v: v) if differentiable else torch.Tensor.detach  # what crosses a step keeps its graph or not
     prediction = getattr(model, "prediction", "eps")
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=bf16 and device.type == "cuda")
     for i, t in enumerate(steps):

@@ -84,7 +84,8 @@ class CriticGradient:
     def __init__(self, critic: TrainedModel, cfg: RewardConfig, *, normalizer: Normalizer | None = None, decoder=None,
                  num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log"):
         if not critic.trained_on("dynamics"):
-            raise ValueError(f"the critic was trained on {list(critic.tasks)}, not the dynamics task its gradient needs")
+            raise ValueError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
+                             "not the dynamics task its gradient needs (give a critic checkpoint trained on it)")
         if critic.dynamics_start and decoder is None:
             raise ValueError("a critic trained told the episode's start needs a decoder: its start is simulated for the "
                              "design each candidate decodes to")

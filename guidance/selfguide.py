@@ -269,13 +269,9 @@ class DynamicsSelfGuidance(ZerothOrder):
         guide_critic = None
         if c.guide_by == "critic":
             from tt.guidance.critic_grad import CriticGradient
-
             from tt.guidance.zeroth import check_critic
 
             judge = self._critic or self._trained
-            if not judge.trained_on("dynamics"):
-                raise ValueError("guide_by='critic' needs a dynamics critic: give critic_checkpoint (a checkpoint trained "
-                                 f"on the dynamics task); the sampling model was trained on {list(judge.tasks)}")
             if judge is not self._trained:
                 check_critic(self._trained, judge)
             guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
