@@ -402,6 +402,13 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
         wins = sum(x > 0 for x in d)
         lines.append(f"- {method} minus Zeroth-Order: {_fmt(m, h)} over {len(d)} seeds (95% CI {_verdict(m, h)}; higher "
                      f"in {wins} of {len(d)})")
+        if method.startswith(DGS_CRITIC):
+            dr = paired(records, (method, n), (DGS, n), "reward")
+            dp = [x for x in paired(records, (method, n), (DGS, n), "pos_err") if math.isfinite(x)]
+            if dr:
+                lines.append(f"- {method} minus the paper's Self-Guidance: reward {_fmt(*mean_ci(dr))} (95% CI "
+                             f"{_verdict(*mean_ci(dr))}; higher in {sum(x > 0 for x in dr)} of {len(dr)}), position error "
+                             f"{_fmt(*mean_ci(dp))} cm over the {len(dp)} seeds where both have one")
         if n == 1:
             met = math.isfinite(h) and m - h > 0
             goal.append(f"- {method} vs Zeroth-Order at n=1, single trajectory, tracking, {len(d)} paired runs (part "
