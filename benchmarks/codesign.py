@@ -141,23 +141,32 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return SimVerified(zeroth(), VerifyConfig(verify=args.hybrid_verify))
     if method == CMAES_INIT:
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
-    variants = {critic_label(s, e): (s, e) for s, e in guidance_variants(args)}
+    variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
-        scale, eta = variants[method]
-        return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta),
+        scale, eta, at = variants[method]
+        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta,
+                           critic_at="design" if at == "project" else at, project=at == "project")
+        return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
-def critic_label(scale: float, eta: float) -> str:
-    return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g})"
+#: Part "guidance"'s --guidance-at: where the critic's gradient is taken ("project": at the
+#: decoded design, and every guided step continues from that design).
+GUIDANCE_AT = ("tokens", "design", "project")
 
 
-def guidance_variants(args) -> list[tuple[float, float]]:
-    """(scale, eta) of every critic-steered Self-Guidance of part "guidance"."""
-    return [(s, e) for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)]
+def critic_label(scale: float, eta: float, at: str = "tokens") -> str:
+    where = {"tokens": "", "design": ", at the design", "project": ", projected"}[at]
+    return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where})"
+
+
+def guidance_variants(args) -> list[tuple[float, float, str]]:
+    """(scale, eta, where the gradient is taken) of every critic-steered Self-Guidance of part "guidance"."""
+    return [(s, e, a) for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas)
+            for s in _floats(args.guidance_scales)]
 
 
 # ------------------------------------------------------------------------------ runs
@@ -193,12 +202,12 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
     return records
 
 
-def run_hybrid(setting: str, motions: tuple, seed: int, args, learned: Learned) -> list[dict]:
+def run_hybrid(setting: str, motions: tuple, reward: str, seed: int, args, learned: Learned) -> list[dict]:
     """The hybrids and the baselines at equal rollouts on one problem, then the baselines at
     the budget that takes the slowest hybrid's wall time (scaled from their equal-rollout time)."""
     b = args.hybrid_budget
     top = [(ZEROTH_SIM_TOP, b, 0.0)] if args.hybrid_verify is not None else []
-    first = run_group("hybrid", setting, motions, "tracking", seed,
+    first = run_group("hybrid", setting, motions, reward, seed,
                       [(ZEROTH_SIM, b, 0.0)] + top + [(CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)],
                       args, learned)
     t_hybrid = max(r["seconds"] for r in first if r["method"] in HYBRIDS)
@@ -206,7 +215,7 @@ def run_hybrid(setting: str, motions: tuple, seed: int, args, learned: Learned) 
     for base, timed in ((RANDOM, RANDOM_T), (CMAES_B, CMAES_T)):
         t_base = next(r["seconds"] for r in first if r["method"] == base)
         again.append((timed, max(args.popsize, int(round(b * t_hybrid / max(t_base, 1e-9)))), 0.0))
-    return first + run_group("hybrid", setting, motions, "tracking", seed, again, args, learned)
+    return first + run_group("hybrid", setting, motions, reward, seed, again, args, learned)
 
 
 # ------------------------------------------------------------------------------ statistics
@@ -695,12 +704,17 @@ def main() -> None:
     ap.add_argument("--hybrid-verify", type=int, default=None,
                     help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
+    ap.add_argument("--hybrid-rewards", default="tracking", help="hybrid: comma-separated rewards or 'all'")
     ap.add_argument("--guidance-seeds", type=int, default=9, help="guidance: runs (seed i: validation motion i)")
     ap.add_argument("--guidance-n", type=int, default=1, help="guidance: samples of every method")
     ap.add_argument("--guidance-first-seed", type=int, default=0,
                     help="guidance: first seed (seeds first .. first + --guidance-seeds - 1; e.g. fresh seeds for a scale chosen on others)")
     ap.add_argument("--guidance-scales", default="0.5,5", help="guidance: scales of critic-steered Self-Guidance")
     ap.add_argument("--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)")
+    ap.add_argument("--guidance-at", default="tokens",
+                    help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
+                         "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
+                         "guided step continues from it)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
@@ -726,14 +740,20 @@ def main() -> None:
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
     if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
         sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
+    if sorted(set(a for a in args.guidance_at.split(",") if a) - set(GUIDANCE_AT)) or not args.guidance_at.strip(","):
+        sys.exit(f"--guidance-at: {args.guidance_at!r}; valid: {', '.join(GUIDANCE_AT)}")
     unknown = sorted(set(parts) - set(PARTS))
     if unknown:
         sys.exit(f"--parts: unknown {unknown}; valid: {', '.join(PARTS)}")
     rewards = list(REWARDS) if args.rewards == "all" else [r for r in args.rewards.split(",") if r]
     multi_rewards = list(REWARDS) if args.multi_rewards == "all" else [r for r in args.multi_rewards.split(",") if r]
+    hybrid_rewards = list(REWARDS) if args.hybrid_rewards == "all" else [r for r in args.hybrid_rewards.split(",") if r]
+    bad = sorted(set(rewards + multi_rewards + hybrid_rewards) - set(REWARDS))
+    if bad:
+        sys.exit(f"unknown reward(s) {bad}; valid: {', '.join(REWARDS)} or 'all'")
     # The tracking reward first, then the others (a --max-minutes cut drops the others first).
-    rewards.sort(key=lambda r: r != "tracking")
-    multi_rewards.sort(key=lambda r: r != "tracking")
+    for names in (rewards, multi_rewards, hybrid_rewards):
+        names.sort(key=lambda r: r != "tracking")
 
     val = for_space(motion_set("val", arms=1), SPACE)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
@@ -758,13 +778,13 @@ def main() -> None:
                 parameters=sum(p.numel() for p in learned.trained.model.parameters()))
     t = time.perf_counter()
     space = get_space(SPACE)
-    for reward in dict.fromkeys(rewards + multi_rewards + ["tracking"]):
+    for reward in dict.fromkeys(rewards + multi_rewards + hybrid_rewards + ["tracking"]):
         warm_up(space.sample(200, seed=12345), val[:1], reward=reward, backend="warp", device="cpu")
         warm_up(space.sample(1, seed=12345), val[:1], reward=reward, backend="mujoco")
     short = (Motion(val[0].name, val[0].pos[:20], val[0].quat[:20], val[0].dt),)
     first_calls = [m for m in LEARNED if m != ZEROTH_SIM_TOP]  # the same first calls as Zeroth + sim
     if "guidance" in parts:
-        first_calls.append(critic_label(*guidance_variants(args)[0]))
+        first_calls += list(dict.fromkeys(critic_label(*v) for v in guidance_variants(args)))
     for method in first_calls:
         try:
             optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
@@ -828,17 +848,19 @@ def main() -> None:
             entries = [(ZEROTH, n, 0.0), (DGS, n, 0.0)] + [(critic_label(*v), n, 0.0) for v in guidance_variants(args)]
             jobs.append((1, ("guidance", SINGLE, (single_motions[i],), "tracking", i, entries, f"guidance seed {i}")))
     if "hybrid" in parts:
-        for i in range(args.hybrid_seeds):
-            for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
-                if setting.split()[0] not in hybrid_settings:
-                    continue
-                jobs.append((1, ("hybrid", setting, motions, "tracking", i, None, f"hybrid {setting} seed {i}")))
+        for reward in hybrid_rewards:
+            for i in range(args.hybrid_seeds):
+                for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
+                    if setting.split()[0] not in hybrid_settings:
+                        continue
+                    jobs.append((1 if reward == "tracking" else 3, ("hybrid", setting, motions, reward, i, None,
+                                                                    f"hybrid {setting} {reward} seed {i}")))
     for _, job in sorted(jobs, key=lambda j: j[0]):
         if job[0] == "hybrid":
             if over():
                 skipped.append(job[-1])
                 continue
-            records.extend(run_hybrid(job[1], job[2], job[4], args, learned))
+            records.extend(run_hybrid(job[1], job[2], job[3], job[4], args, learned))
             continue
         group(*job)
 

@@ -21,9 +21,15 @@ A critic trained told the episode's start (``dynamics_start``) is given each can
 simulated first control step (`tt.guidance.predicted.start_tokens`) for the design x0_hat
 decodes to (projected onto the nearest structure when it has none exactly); the start is a
 constant of the gradient: it moves with the design, but not differentiably. Candidates that
-do not decode get a zero gradient and are counted. The critic is asked about x0_hat's own
-tokens (in the critic's units when its normaliser differs from the sampler's), not the
-decoded design's, so its gradient is that of the tokens the sampler moves.
+do not decode get a zero gradient and are counted.
+
+Where the gradient is taken (`AT`): by default at x0_hat's own tokens (in the critic's units
+when its normaliser differs from the sampler's), so it is the gradient of the tokens the
+sampler moves. With ``at="design"`` it is taken at the tokens of the design x0_hat decodes
+to, the question the critic ranks designs by (its held-out r is measured there), and lands
+on x0_hat's slots: the direction in which the nearest real design's tokens improve. Noisy
+x0_hat lie off the designs' token manifold (most winners are projected onto a structure
+edit distances of ~20 away), where the critic was never trained.
 """
 
 from __future__ import annotations
@@ -34,7 +40,9 @@ from dataclasses import dataclass, field
 import torch
 
 from tt.dit.checkpoint import TrainedModel
+from tt.dit.layout import robot_embodiment
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, PredictedReward, build_query, start_tokens, with_start
+from tt.sim.designs import get_space
 from tt.sim.rewards import RewardConfig
 from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
@@ -51,6 +59,10 @@ NO_TERMINATION = 1e6
 #: predicted dynamics (the reward's tracking term exp(-e_p^2 / sigma_p) is flat at the errors
 #: most sampled designs are predicted to have, its log is not); "reward", the predicted reward.
 FORMS = ("log", "reward")
+
+#: Where the gradient is taken: "tokens", at x0_hat's own embodiment tokens; "design", at the
+#: tokens of the design x0_hat decodes to (module docstring).
+AT = ("tokens", "design")
 
 
 @dataclass
@@ -78,11 +90,13 @@ class CriticGradient:
     (`tt.guidance.zeroth.Decoder`), needed by a start-aware critic; num_steps: the critic's
     DDIM steps; seed: of the critic's sampling noise, the same at every step so the objective
     does not jitter; terminate: keep the reward's termination (default off: every query step
-    counts, see `NO_TERMINATION`); form: what is differentiated (`FORMS`).
+    counts, see `NO_TERMINATION`); form: what is differentiated (`FORMS`); at: where (`AT`;
+    "design" needs the decoder).
     """
 
     def __init__(self, critic: TrainedModel, cfg: RewardConfig, *, normalizer: Normalizer | None = None, decoder=None,
-                 num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log"):
+                 num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log",
+                 at: str = "tokens"):
         if not critic.trained_on("dynamics"):
             raise ValueError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
                              "not the dynamics task its gradient needs (give a critic checkpoint trained on it)")
@@ -93,10 +107,18 @@ class CriticGradient:
             raise ValueError(f"num_steps = {num_steps}; must be >= 1")
         if form not in FORMS:
             raise ValueError(f"form = {form!r}; valid: {list(FORMS)}")
+        if at not in AT:
+            raise ValueError(f"at = {at!r}; valid: {list(AT)}")
+        if at == "design" and decoder is None:
+            raise ValueError("the critic's gradient at the decoded design needs a decoder")
         # A design predicted to terminate at its first counted step scores a flat 0 around it, so
         # its gradient says nothing; without termination it still points to smaller error.
         self.cfg = cfg if terminate else dataclasses.replace(cfg, threshold=NO_TERMINATION)
-        self.critic, self.decoder, self.form = critic, decoder, form
+        self.critic, self.decoder, self.form, self.at = critic, decoder, form, at
+        #: at="design": (rows, tokens) of the last call, the candidates that decoded and their
+        #: designs' embodiment tokens (type -> (len(rows), L, D), `normalizer`'s units), which
+        #: `SelfGuidance(project=True)` moves x0_hat to.
+        self.anchor: tuple[list[int], dict[str, torch.Tensor]] | None = None
         self.normalizer = critic.normalizer if normalizer is None else normalizer
         self.num_steps, self.seed = int(num_steps), int(seed)
         self.stats = CriticStats()
@@ -160,19 +182,29 @@ class CriticGradient:
         n = x0[names[0]].shape[0]
         device = x0[names[0]].device
         ok = list(range(n))
-        first = None
-        if critic.dynamics_start:
+        first = models = None
+        if critic.dynamics_start or self.at == "design":
             decoded = decode_x0(layout, self.normalizer, x0, ctx.queries[0].tokens, self.decoder)
             ok = [i for i in range(n) if decoded[i].design is not None]
             self.stats.decode_failures += n - len(ok)
             if ok:
-                first = start_tokens(layout, critic.normalizer, [decoded[i].design for i in ok], ctx.motions,
-                                     device=device)
+                designs = [decoded[i].design for i in ok]
+                space = get_space(designs[0].space)
+                models = [space.model(d) for d in designs]
+                if critic.dynamics_start:
+                    first = start_tokens(layout, critic.normalizer, designs, ctx.motions, models=models, device=device)
         self.stats.steps += 1
+        self.anchor = ([], {})
         if not ok:
             return out
         rows = torch.as_tensor(ok, dtype=torch.long, device=device)
-        leaf = {k: x0[k].detach()[rows].clone().requires_grad_(True) for k in names}
+        if self.at == "design":
+            at, _ = robot_embodiment(layout, self.normalizer, models, device)
+            at = at.values
+            self.anchor = (ok, {k: at[k].detach().to(x0[k].dtype) for k in names})
+        else:
+            at = {k: x0[k].detach()[rows] for k in names}
+        leaf = {k: at[k].detach().to(x0[k].dtype).clone().requires_grad_(True) for k in names}
         with torch.enable_grad():
             value = self.objective(ctx, leaf, first)
             grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names], allow_unused=True)
@@ -189,4 +221,4 @@ class CriticGradient:
         return out
 
 
-__all__ = ["FORMS", "NO_TERMINATION", "CriticGradient", "CriticStats"]
+__all__ = ["AT", "FORMS", "NO_TERMINATION", "CriticGradient", "CriticStats"]

@@ -126,19 +126,35 @@ class SelfGuidance:
     ``token_gradient``), required when sim_weight > 0; sim_weight: lambda in [0, 1];
     critic: a `tt.guidance.critic_grad.CriticGradient` (or anything with its
     ``token_gradient``) whose gradient replaces the model's own objective's; start_step:
-    first guided step (0 = noisiest; the earlier ones keep the model's eps).
+    first guided step (0 = noisiest; the earlier ones keep the model's eps); project: move
+    x0_hat onto the design it decodes to before the step (the critic's ``anchor``, a
+    `CriticGradient` with at="design"), plus a step along the critic's x0-gradient g0 at
+    that design, normalised per candidate to unit RMS:
+
+        x0' = e_design + s (1 - abar_t) g0 / rms(g0),   eps' = (x_t - sqrt(abar_t) x0') / sqrt(1 - abar_t)
+
+    so every guided step continues from a real design, whose tokens the critic was trained
+    on. Here s is the RMS token change (normalised units) of a step at full noise, shrinking
+    to 0 at the clean end; the gradient is normalised because its size in x0 has no scale
+    the sampler knows (without projection the network's Jacobian damps the noisy steps).
+    Candidates that do not decode move from x0_hat itself.
     """
 
-    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0):
+    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0,
+                 project: bool = False):
         if not 0.0 <= sim_weight <= 1.0:
             raise ValueError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
             raise ValueError("sim_weight > 0 needs a simulator gradient (sim=SimGradient(...))")
+        if project and (critic is None or getattr(critic, "at", None) != "design" or sim_weight > 0):
+            raise ValueError("project needs a critic whose gradient is taken at the decoded design (at='design') "
+                             "and no simulator gradient")
         self.scale = float(scale)
         self.sim = sim
         self.sim_weight = float(sim_weight)
         self.critic = critic
         self.start_step = int(start_step)
+        self.project = bool(project)
         self.stats = GuidanceStats()
 
     def summary(self) -> dict:
@@ -162,6 +178,8 @@ class SelfGuidance:
             names = [n for n in ctx.embodiment if n in x_t and x_t[n].requires_grad]
             if step < self.start_step:
                 return {}
+            if self.project:
+                return projected(step, t, x_t, eps, x0)
             by_critic = self.critic is not None
             with torch.set_grad_enabled(not by_critic):  # guided by the critic, the own objective is only traced
                 objective = ctx.objective(x0, True).mean(1)  # (n,)
@@ -201,6 +219,39 @@ class SelfGuidance:
             stats.steps += 1
             return out
 
+        def projected(step, t, x_t, eps, x0) -> dict[str, torch.Tensor]:
+            names = [n for n in ctx.embodiment if n in x_t]
+            with torch.no_grad():
+                stats.objective_trace.append(float(ctx.objective(x0, True).mean(1).nanmean()))
+            g0 = self.critic.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+            rows, anchor = self.critic.anchor
+            ab = float(ctx.scheduler.alpha_bar(t))
+            grads = {}
+            for n in names:
+                g = g0[n].to(device=x0[n].device, dtype=x0[n].dtype)
+                bad = ~torch.isfinite(g)
+                if bool(bad.any()):
+                    stats.nonfinite_sim_entries += int(bad.sum())
+                    g = torch.where(bad, torch.zeros_like(g), g)
+                grads[n] = g
+            square = sum(g.flatten(1).square().sum(1) for g in grads.values())
+            entries = sum(g[0].numel() for g in grads.values())
+            rms = (square / entries).sqrt().clamp_min(1e-12)  # (n,)
+            out = {}
+            for n in names:
+                g = grads[n] / rms.view(-1, *([1] * (grads[n].dim() - 1)))
+                shift = self.scale * (1.0 - ab)
+                # Undecodable candidates move from x0_hat itself.
+                target = x0[n].detach() + shift * g
+                if rows:
+                    idx = torch.as_tensor(rows, dtype=torch.long, device=x0[n].device)
+                    target[idx] = anchor[n].to(target.device) + shift * g[idx]
+                if ctx.scheduler.clip_x0 is not None:
+                    target = target.clamp(-ctx.scheduler.clip_x0, ctx.scheduler.clip_x0)
+                out[n] = ctx.scheduler.predict_eps(x_t[n].detach(), target, t).to(eps[n].dtype)
+            stats.steps += 1
+            return out
+
         return guide
 
 
@@ -216,7 +267,10 @@ class DGSConfig(SamplerConfig):
     model's own jointly sampled dynamics, the paper's) or "critic" (the dynamics critic's
     prediction for x0_hat's embodiment: ``critic_checkpoint`` / ``critic_model``, else the
     sampling model's own dynamics task; `tt.guidance.critic_grad`). guide_start: first guided
-    step (0 = noisiest); the earlier steps sample unguided.
+    step (0 = noisiest); the earlier steps sample unguided. critic_at: where the critic's
+    gradient is taken, "tokens" (x0_hat's own) or "design" (the design x0_hat decodes to;
+    `tt.guidance.critic_grad.AT`). project: every guided step continues from the design
+    x0_hat decodes to (`SelfGuidance`'s ``project``; needs critic_at="design").
     """
 
     eta: float = 1.0
@@ -226,11 +280,19 @@ class DGSConfig(SamplerConfig):
     sim_grad_start: int = 0
     guide_by: str = "model"
     guide_start: int = 0
+    critic_at: str = "tokens"
+    project: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.guide_by not in GUIDES:
             raise ValueError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
+        from tt.guidance.critic_grad import AT
+
+        if self.critic_at not in AT:
+            raise ValueError(f"critic_at = {self.critic_at!r}; valid: {list(AT)}")
+        if self.project and (self.guide_by != "critic" or self.critic_at != "design" or self.sim_grad_weight > 0):
+            raise ValueError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
         if self.guide_start < 0:
             raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
@@ -275,16 +337,17 @@ class DynamicsSelfGuidance(ZerothOrder):
             if judge is not self._trained:
                 check_critic(self._trained, judge)
             guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
-                                          seed=problem.seed)
+                                          seed=problem.seed, at=c.critic_at)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
-                                start_step=c.guide_start)
+                                start_step=c.guide_start, project=c.project)
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
                 "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input(), "scale": scale,
-                "sim_grad_weight": c.sim_grad_weight, "guide_by": c.guide_by, "guide_start": c.guide_start, **summary,
+                "sim_grad_weight": c.sim_grad_weight, "guide_by": c.guide_by, "guide_start": c.guide_start,
+                "critic_at": c.critic_at, "project": c.project, **summary,
                 "rollouts": rollouts}
         return gen, decoder, info
 

@@ -277,6 +277,8 @@ CASES: list[Case] = [
     Case("optimize --samples 0 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--samples", "0"], ("--samples",)),
     Case("optimize --guide-by nope lists the sources", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"], ("--guide-by", "model", "critic")),
     Case("optimize --guide-by critic for cmaes names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"], ("--guide-by", "dgs")),
+    Case("optimize --critic-at nope lists the places", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "nope"], ("--critic-at", "tokens", "design", "project")),
+    Case("optimize --critic-at design without --guide-by critic", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--critic-at", "design"], ("--critic-at", "--guide-by critic")),
     Case("rollout --n 0 names the flag", 6, lambda f: ["rollout", "--n", "0"], ("--n",)),
     Case("designs --n 0 names the flag", 6, lambda f: ["designs", "--n", "0", "--out", f.root + "/d0"], ("--n",)),
     Case("generate --designs 0 names the flag", 6, lambda f: ["generate", "--designs", "0", "--out", f.root + "/g0"], ("--designs",)),

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import torch
 
+from tt.dit.ddim import CosineDDIM
 from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
 from tt.guidance.critic_grad import FORMS, CriticGradient
@@ -159,6 +160,55 @@ def test_start_aware_critic_gets_the_simulated_start_of_the_decoded_designs(crit
         CriticGradient(aware, get_reward("tracking", "viperx"))
 
 
+def test_gradient_at_the_decoded_design(motions):
+    """at="design": the critic is asked about the tokens of the design each candidate decodes
+    to. For candidates that are designs' own tokens it is the gradient at x0 itself; for noisy
+    ones it is the gradient at the design, not at x0; a failed decode gets zero."""
+    from tt.dit.layout import robot_embodiment
+    from tt.guidance.zeroth import Decoded
+
+    from tt.dit.checkpoint import TrainedModel, load_model
+    from tt.dit.model import RoboDiT, get_config
+
+    # The shipped critic's layout and units (they hold ViperX designs), on a tiny random network.
+    shipped = load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")
+    torch.manual_seed(0)
+    net = RoboDiT(shipped.layout, get_config("tiny")).eval()
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    critic = TrainedModel(net, shipped.normalizer, shipped.layout, 0, tasks=("dynamics",))
+    space = get_space("viperx")
+    designs = space.sample(3, seed=2)
+    cfg = dataclasses.replace(get_reward("tracking", "viperx"), threshold=1e9)
+    ctx = _context(critic, motions[:1], 3)
+    own, _ = robot_embodiment(critic.layout, critic.normalizer, [space.model(d) for d in designs])
+    x0 = {n: own.values[n].clone() for n in ctx.embodiment}
+    decoder = lambda batch, i: Decoded(designs[i])  # noqa: E731
+    at_tokens = CriticGradient(critic, cfg, num_steps=STEPS, seed=1).token_gradient(ctx, x0, 0)
+    g = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1, at="design").token_gradient(ctx, x0, 0)
+    for n in ctx.embodiment:
+        # float32 through the network: x0 and the designs' tokens agree to rounding.
+        torch.testing.assert_close(g[n], at_tokens[n], atol=1e-5, rtol=1e-4)
+    assert bool((g["link"] != 0).any())
+    noisy = {n: v + 0.2 * torch.randn(v.shape, generator=torch.Generator().manual_seed(3)) for n, v in x0.items()}
+    moved = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1, at="design").token_gradient(ctx, noisy, 0)
+    torch.testing.assert_close(moved["link"], g["link"])  # the same designs, so the same gradient
+    assert not torch.allclose(CriticGradient(critic, cfg, num_steps=STEPS, seed=1).token_gradient(ctx, noisy, 0)["link"],
+                              g["link"], atol=1e-3)
+    failing = lambda batch, i: Decoded(None, "no") if i == 1 else Decoded(designs[i])  # noqa: E731
+    some = CriticGradient(critic, cfg, decoder=failing, num_steps=STEPS, seed=1, at="design")
+    g = some.token_gradient(ctx, x0, 0)
+    assert some.stats.decode_failures == 1 and some.stats.candidates == 2
+    assert bool((g["link"][1] == 0).all()) and bool((g["link"][[0, 2]] != 0).any())
+    with pytest.raises(ValueError, match="needs a decoder"):
+        CriticGradient(critic, cfg, at="design")
+    with pytest.raises(ValueError, match="at = 'x0'"):
+        CriticGradient(critic, cfg, decoder=decoder, at="x0")
+    with pytest.raises(ValueError, match="critic_at"):
+        DGSConfig(critic_at="x0")
+
+
 class FixedGradient:
     """A stand-in x0-gradient source (critic or simulator): a fixed closed-form gradient."""
 
@@ -192,6 +242,59 @@ def test_critic_gradient_steers_as_the_simulators_and_start_step(critic, motions
     late = FixedGradient()
     assert torch.equal(run(SelfGuidance(2.0, critic=late, start_step=STEPS)), plain)
     assert late.calls == 0
+
+
+class AnchoredGradient(FixedGradient):
+    """A stand-in critic taken at the decoded design: every candidate "decodes" to the fixed
+    tokens `anchor`; the gradient is `gain` on three features of every slot, 0 elsewhere."""
+
+    at = "design"
+
+    def __init__(self, anchor, gain):
+        super().__init__()
+        self.tokens, self.gain, self.anchor = anchor, gain, None
+
+    def token_gradient(self, ctx, x0, step):
+        self.calls += 1
+        n = next(iter(x0.values())).shape[0]
+        self.anchor = (list(range(n)), {k: v.expand(n, *v.shape[1:]) for k, v in self.tokens.items()})
+        return {k: self.direction(v) for k, v in x0.items()}
+
+    def direction(self, like):
+        out = torch.zeros_like(like)
+        if like.shape[-1] >= 6:
+            out[..., 3:6] = self.gain
+        return out
+
+
+def test_projected_guidance_lands_on_the_decoded_design(critic, motions):
+    """project=True: each guided step continues from the anchor design plus the x0 shift
+    s (1 - abar_t) g0 / rms(g0), so the sample ends at the anchor plus the last step's shift
+    (exactly the anchor with a zero gradient), whatever the network predicts."""
+    sampler = CandidateSampler(critic, "cpu")
+    cfg = get_reward("tracking", "viperx")
+    names = ctx_names(critic)
+    q = build_query(critic.layout, critic.normalizer, motions[0], 1)
+    gen = torch.Generator().manual_seed(8)
+    anchor = {n: (0.6 * torch.rand(q.tokens.values[n].shape, generator=gen) - 0.3) for n in names}
+    for eta in (0.0, 1.0):
+        for gain in (0.0, 1.0):
+            source = AnchoredGradient(anchor, gain)
+            guidance = SelfGuidance(2.0, critic=source, project=True)
+            out = sampler.run(motions[:1], cfg, 3, seed=5, num_steps=STEPS, eta=eta, guidance=guidance).tokens.values
+            assert source.calls == STEPS and guidance.stats.steps == STEPS
+            scheduler = CosineDDIM(critic.robot_diffusion_steps)
+            ab = float(scheduler.alpha_bar(scheduler.timesteps(STEPS)[-1]))
+            for n in names:
+                # The stand-in's gradient is `gain` on 3 features of every slot: RMS gain * sqrt(3 / D) overall.
+                entries = sum(out[k][0].numel() for k in names)
+                rms = gain * math.sqrt(sum(3 * out[k].shape[1] for k in names) / entries) if gain else 1.0
+                want = anchor[n].expand_as(out[n]) + 2.0 * (1 - ab) * source.direction(out[n]) / rms
+                torch.testing.assert_close(out[n], want.clamp(-1, 1), atol=1e-4, rtol=0)
+    with pytest.raises(ValueError, match="project"):
+        SelfGuidance(2.0, critic=FixedGradient(), project=True)
+    with pytest.raises(ValueError, match="project"):
+        DGSConfig(guide_by="critic", project=True)
 
 
 def test_guide_by_critic_config(critic, motions):

@@ -401,6 +401,7 @@ def optimize(
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
+    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
@@ -469,6 +470,12 @@ def optimize(
         _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
     if guide_by != "model" and method not in ("dgs", "dgs-sim"):
         _fail(f"--guide-by applies to dgs and dgs-sim, not --method {method}")
+    if critic_at not in ("tokens", "design", "project"):
+        _fail(f"--critic-at {critic_at!r}: valid are 'tokens', 'design' and 'project'")
+    if critic_at != "tokens" and guide_by != "critic":
+        _fail(f"--critic-at {critic_at} steers by the critic's gradient; it needs --guide-by critic")
+    if critic_at == "project" and sim_grad_weight > 0:
+        _fail("--critic-at project does not mix in the simulator's gradient (--sim-grad-weight 0)")
     _output(json_out, "--json")
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     options: dict = {}
@@ -493,6 +500,8 @@ def optimize(
             options.update(critic_on=critic_on)
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight, guide_by=guide_by)
+            if critic_at != "tokens":
+                options.update(critic_at="design", project=critic_at == "project")
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
     opt = get_optimizer(method, **options)
