@@ -333,13 +333,17 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
     time-vs-reward plot."""
     plt = _plt()
     groups = list(dict.fromkeys((r["setting"], r["reward_name"]) for r in records))
-    fig, axes = plt.subplots(1, len(groups), figsize=(6 * len(groups), 4.5), squeeze=False)
+    cols = min(2, len(groups))
+    rows_ = math.ceil(len(groups) / cols)
+    fig, axes = plt.subplots(rows_, cols, figsize=(6 * cols, 4.5 * rows_), squeeze=False)
+    for ax in axes.flat[len(groups):]:
+        ax.set_visible(False)
     text = ["## Hybrids: the model proposes, the batched simulator verifies\n",
             "Random / CMA-ES at the hybrids' rollout budget (equal rollouts), and again at the budget that takes the "
             "hybrid's wall time (equal wall time: the equal-rollout run's time scaled to the slowest hybrid's, per seed). "
             "Paired differences are the hybrid's validated reward minus the baseline's, seed by seed (95% CI).\n",
             f"![hybrids]({plot.name})\n"]
-    for ax, (setting, reward) in zip(axes[0], groups):
+    for ax, (setting, reward) in zip(axes.flat, groups):
         sub = [r for r in records if r["setting"] == setting and r["reward_name"] == reward]
         rows = []
         for method in (RANDOM, CMAES_B, RANDOM_T, CMAES_T) + HYBRIDS:
