@@ -29,7 +29,10 @@ sampler moves. With ``at="design"`` it is taken at the tokens of the design x0_h
 to, the question the critic ranks designs by (its held-out r is measured there), and lands
 on x0_hat's slots: the direction in which the nearest real design's tokens improve. Noisy
 x0_hat lie off the designs' token manifold (most winners are projected onto a structure
-edit distances of ~20 away), where the critic was never trained.
+edit distances of ~20 away), where the critic was never trained. On ViperX at n = 1 it did
+worse than the default (validated reward 29 against 142 over 9 seeds,
+benchmarks/results/codesign_guidance_design.md): the designs noisy x0_hat decode to are poor
+places to take the gradient.
 """
 
 from __future__ import annotations

@@ -137,7 +137,8 @@ class SelfGuidance:
     on. Here s is the RMS token change (normalised units) of a step at full noise, shrinking
     to 0 at the clean end; the gradient is normalised because its size in x0 has no scale
     the sampler knows (without projection the network's Jacobian damps the noisy steps).
-    Candidates that do not decode move from x0_hat itself.
+    Candidates that do not decode move from x0_hat itself. Measured on ViperX at n = 1 it
+    loses to guidance at x0_hat's tokens (benchmarks/results/codesign_guidance_project.md).
     """
 
     def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0,
