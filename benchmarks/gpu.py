@@ -124,8 +124,6 @@ def run_tests(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
 
 
 def run_rollout(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
-    import numpy as np
-
     from tt.kernels.model import build_tree_model
     from tt.kernels.rollout import motion_arrays, rollout_tree
     from tt.sim.controller import IKConfig

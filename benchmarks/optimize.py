@@ -31,7 +31,6 @@ import math
 import time
 from pathlib import Path
 
-import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
 from tt.sim.rewards import REWARDS

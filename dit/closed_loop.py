@@ -192,7 +192,6 @@ class ArmWorlds:
         first_pos = np.stack([m.pos[:1] for m in self.motions])  # (M, 1, A, 3)
         first_quat = np.stack([m.quat[:1] for m in self.motions])
         marrays = motion_arrays(first_pos, first_quat, [1] * M, device=self.device)
-        weights = self.config.ik_weights()
         hold = torch.zeros(self.world_count, self.nu, device=self.torch_device)
         for g in self.groups:
             start = start_postures(g.tree, marrays, self.config.init_ik_weights(), self.config.init_iterations, device=self.device)

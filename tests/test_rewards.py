@@ -314,7 +314,7 @@ def test_metrics_without_counted_steps_are_nan_and_skipped_in_summary():
 
 
 def test_from_episode_reads_views():
-    W, T, A, nq, nu = 2, 3, 1, 4, 4
+    W, T, nq, nu = 2, 3, 4, 4
     inputs0 = make_inputs([[[0.01]] * T] * W, [[[0.0]] * T] * W, nu=nu)
     ep = Episode(
         qpos=torch.zeros(W, T, nq), qvel=torch.zeros(W, T, nq), ctrl=torch.zeros(W, T, nu),

@@ -16,7 +16,7 @@ import torch
 from tt.sim.designs import get_space
 from tt.sim.motions import augment_se2
 from tt.tokens import SCHEMA, TokenBatch, Normalizer, tokenize_model
-from tt.tokens.frames import quat_to_mat
+from tt.kernels.rotations import quat_to_mat
 from tt.generate import GenerateConfig, generate
 from tt.dit.loader import SE2Augment, StoreTokenSource, augment_se2_tokens, make_loader, window_steps
 from tt.tokens.store import (

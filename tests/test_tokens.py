@@ -49,7 +49,7 @@ from tt.tokens.encodings import (
     encode_signed_log,
     project_rotation,
 )
-from tt.tokens.frames import mat_to_quat, quat_to_mat
+from tt.kernels.rotations import mat_to_quat, quat_to_mat
 from tt.tokens.inertia import fit_masses, primitive_inertia, primitive_volume, repair_moments, valid_moments
 from tt.tokens.schema import GEOM_TYPES, Encoding
 
@@ -222,7 +222,7 @@ def test_joint_tokens_hold_link_poses_in_the_joint_frame():
 
 
 def test_tokenizer_rejects_what_tokens_cannot_hold():
-    links = "".join(f'<body pos="0 0 0.01"><joint type="hinge"/><geom size="0.01"/>' for _ in range(130)) + "</body>" * 130
+    links = "".join('<body pos="0 0 0.01"><joint type="hinge"/><geom size="0.01"/>' for _ in range(130)) + "</body>" * 130
     with pytest.raises(TokenizeError, match="130 links; schema allows at most 127"):
         tokenize_models([mujoco.MjModel.from_xml_string(f"<mujoco><worldbody>{links}</worldbody></mujoco>")])
     with pytest.raises(TokenizeError, match="end-effector site 'tip'"):

@@ -21,7 +21,6 @@ import torch
 
 from tt.sim.episode import Episode
 from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import SCHEMA
 from tt.tokens.tokenize import RobotIndex
 
 STEP_MODES = ("random", "consecutive")

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from tt.kernels.rotations import mat_to_quat, quat_to_mat
-
 
 def compose(ra: np.ndarray, pa: np.ndarray, rb: np.ndarray, pb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``T_ab * T_bc``: (ra, pa) is T_ab, (rb, pb) is T_bc; returns T_ac."""

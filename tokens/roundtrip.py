@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from tt.tokens.frames import compose, mat_to_quat, quat_to_mat
+from tt.kernels.rotations import mat_to_quat, quat_to_mat
+from tt.tokens.frames import compose
 from tt.tokens.tokenize import RobotIndex
 
 #: Inertia scale [kg m^2] below which inertia differences count absolutely (see the report).

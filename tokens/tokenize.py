@@ -38,9 +38,10 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.kernels.rotations import quat_to_mat
 from tt.tokens.batch import TokenBatch
 from tt.tokens.encodings import encode_attribute
-from tt.tokens.frames import compose, invert, quat_to_mat, z_to_axis
+from tt.tokens.frames import compose, invert, z_to_axis
 from tt.tokens.inertia import SIZE_DIMS, fit_masses, principal_axes, split_lumped_inertia
 from tt.tokens.schema import (
     ACTUATOR_TYPES,
