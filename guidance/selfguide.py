@@ -173,6 +173,20 @@ class SelfGuidance:
             self.critic.reset()
         lam = self.sim_weight
 
+        def x0_gradient(source, step, x0, names) -> dict[str, torch.Tensor]:
+            """The source's x0-gradient (critic or simulator), in x0's dtype, non-finite entries
+            set to 0 and counted."""
+            g0 = source.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+            out = {}
+            for n in names:
+                g = g0[n].to(device=x0[n].device, dtype=x0[n].dtype)
+                bad = ~torch.isfinite(g)
+                if bool(bad.any()):
+                    stats.nonfinite_sim_entries += int(bad.sum())
+                    g = torch.where(bad, torch.zeros_like(g), g)
+                out[n] = g
+            return out
+
         def guide(step: int, x_t: dict[str, torch.Tensor], eps: dict[str, torch.Tensor],
                   x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
             t = ctx.timesteps[step]
@@ -188,16 +202,8 @@ class SelfGuidance:
 
             def chained(source) -> torch.Tensor:
                 # sum(g * x0): its gradient with respect to x_t carries an x0-gradient g through the network.
-                g0 = source.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
-                out = torch.zeros((), device=objective.device)
-                for n in names:
-                    g = g0[n].to(device=x0[n].device, dtype=x0[n].dtype)
-                    bad = ~torch.isfinite(g)
-                    if bool(bad.any()):
-                        stats.nonfinite_sim_entries += int(bad.sum())
-                        g = torch.where(bad, torch.zeros_like(g), g)
-                    out = out + (g * x0[n]).sum()
-                return out
+                g0 = x0_gradient(source, step, x0, names)
+                return sum(((g0[n] * x0[n]).sum() for n in names), torch.zeros((), device=objective.device))
 
             surrogate = torch.zeros((), device=objective.device)
             if lam < 1.0:
@@ -224,17 +230,9 @@ class SelfGuidance:
             names = [n for n in ctx.embodiment if n in x_t]
             with torch.no_grad():
                 stats.objective_trace.append(float(ctx.objective(x0, True).mean(1).nanmean()))
-            g0 = self.critic.token_gradient(ctx, {n: x0[n].detach() for n in names}, step)
+            grads = x0_gradient(self.critic, step, x0, names)
             rows, anchor = self.critic.anchor
             ab = float(ctx.scheduler.alpha_bar(t))
-            grads = {}
-            for n in names:
-                g = g0[n].to(device=x0[n].device, dtype=x0[n].dtype)
-                bad = ~torch.isfinite(g)
-                if bool(bad.any()):
-                    stats.nonfinite_sim_entries += int(bad.sum())
-                    g = torch.where(bad, torch.zeros_like(g), g)
-                grads[n] = g
             square = sum(g.flatten(1).square().sum(1) for g in grads.values())
             entries = sum(g[0].numel() for g in grads.values())
             rms = (square / entries).sqrt().clamp_min(1e-12)  # (n,)
