@@ -202,12 +202,12 @@ class CriticGradient:
             return out
         rows = torch.as_tensor(ok, dtype=torch.long, device=device)
         if self.at == "design":
-            at, _ = robot_embodiment(layout, self.normalizer, models, device)
-            at = at.values
-            self.anchor = (ok, {k: at[k].detach().to(x0[k].dtype) for k in names})
+            tokens, _ = robot_embodiment(layout, self.normalizer, models, device)
+            point = {k: tokens.values[k].detach().to(x0[k].dtype) for k in names}
+            self.anchor = (ok, point)
         else:
-            at = {k: x0[k].detach()[rows] for k in names}
-        leaf = {k: at[k].detach().to(x0[k].dtype).clone().requires_grad_(True) for k in names}
+            point = {k: x0[k].detach()[rows] for k in names}
+        leaf = {k: point[k].clone().requires_grad_(True) for k in names}
         with torch.enable_grad():
             value = self.objective(ctx, leaf, first)
             grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names], allow_unused=True)

@@ -236,10 +236,10 @@ class SelfGuidance:
             square = sum(g.flatten(1).square().sum(1) for g in grads.values())
             entries = sum(g[0].numel() for g in grads.values())
             rms = (square / entries).sqrt().clamp_min(1e-12)  # (n,)
+            shift = self.scale * (1.0 - ab)
             out = {}
             for n in names:
                 g = grads[n] / rms.view(-1, *([1] * (grads[n].dim() - 1)))
-                shift = self.scale * (1.0 - ab)
                 # Undecodable candidates move from x0_hat itself.
                 target = x0[n].detach() + shift * g
                 if rows:
@@ -292,6 +292,10 @@ class DGSConfig(SamplerConfig):
             raise ValueError(f"critic_at = {self.critic_at!r}; valid: {list(AT)}")
         if self.project and (self.guide_by != "critic" or self.critic_at != "design" or self.sim_grad_weight > 0):
             raise ValueError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
+        if self.project and self.scale is None:
+            # Its scale is a token step, not a gradient multiplier: the spaces' defaults do not apply.
+            raise ValueError("project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
+                             "on ViperX, benchmarks/results/codesign_guidance_project.md)")
         if self.guide_start < 0:
             raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:

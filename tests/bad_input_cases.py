@@ -278,6 +278,7 @@ CASES: list[Case] = [
     Case("optimize --guide-by nope lists the sources", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"], ("--guide-by", "model", "critic")),
     Case("optimize --guide-by critic for cmaes names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"], ("--guide-by", "dgs")),
     Case("optimize --critic-at nope lists the places", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "nope"], ("--critic-at", "tokens", "design", "project")),
+    Case("optimize --critic-at project without --scale", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "project"], ("--critic-at project", "--scale")),
     Case("optimize --critic-at design without --guide-by critic", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--critic-at", "design"], ("--critic-at", "--guide-by critic")),
     Case("rollout --n 0 names the flag", 6, lambda f: ["rollout", "--n", "0"], ("--n",)),
     Case("designs --n 0 names the flag", 6, lambda f: ["designs", "--n", "0", "--out", f.root + "/d0"], ("--n",)),

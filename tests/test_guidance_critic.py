@@ -294,7 +294,10 @@ def test_projected_guidance_lands_on_the_decoded_design(critic, motions):
     with pytest.raises(ValueError, match="project"):
         SelfGuidance(2.0, critic=FixedGradient(), project=True)
     with pytest.raises(ValueError, match="project"):
-        DGSConfig(guide_by="critic", project=True)
+        DGSConfig(guide_by="critic", project=True, scale=0.1)
+    with pytest.raises(ValueError, match="explicit scale"):
+        DGSConfig(guide_by="critic", critic_at="design", project=True)
+    DGSConfig(guide_by="critic", critic_at="design", project=True, scale=0.1)
 
 
 def test_guide_by_critic_config(critic, motions):

@@ -476,6 +476,8 @@ def optimize(
         _fail(f"--critic-at {critic_at} steers by the critic's gradient; it needs --guide-by critic")
     if critic_at == "project" and sim_grad_weight > 0:
         _fail("--critic-at project does not mix in the simulator's gradient (--sim-grad-weight 0)")
+    if critic_at == "project" and scale is None:
+        _fail("--critic-at project needs --scale: the RMS token step at full noise (e.g. 0.1)")
     _output(json_out, "--json")
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     options: dict = {}
