@@ -126,7 +126,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     if method in (CMAES_B, CMAES_T):
         return CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
     from tt.guidance.hybrid import ModelInitCMAES, SimVerified, VerifyConfig
-    from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
+    from tt.guidance.selfguide import CRITIC_PLACES, DGSConfig, DynamicsSelfGuidance
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
     def zeroth() -> ZerothOrder:
@@ -144,18 +144,12 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
         scale, eta, at = variants[method]
-        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta,
-                           critic_at="design" if at == "project" else at, project=at == "project")
+        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta, **CRITIC_PLACES[at])
         return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
-
-
-#: Part "guidance"'s --guidance-at: where the critic's gradient is taken ("project": at the
-#: decoded design, and every guided step continues from that design).
-GUIDANCE_AT = ("tokens", "design", "project")
 
 
 def critic_label(scale: float, eta: float, at: str = "tokens") -> str:
@@ -744,8 +738,10 @@ def main() -> None:
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
     if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
         sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
-    if sorted(set(a for a in args.guidance_at.split(",") if a) - set(GUIDANCE_AT)) or not args.guidance_at.strip(","):
-        sys.exit(f"--guidance-at: {args.guidance_at!r}; valid: {', '.join(GUIDANCE_AT)}")
+    from tt.guidance.selfguide import CRITIC_PLACES
+
+    if sorted(set(a for a in args.guidance_at.split(",") if a) - set(CRITIC_PLACES)) or not args.guidance_at.strip(","):
+        sys.exit(f"--guidance-at: {args.guidance_at!r}; valid: {', '.join(CRITIC_PLACES)}")
     unknown = sorted(set(parts) - set(PARTS))
     if unknown:
         sys.exit(f"--parts: unknown {unknown}; valid: {', '.join(PARTS)}")

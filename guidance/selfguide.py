@@ -52,6 +52,15 @@ from tt.guidance.zeroth import Decoder, Generation, GuideContext, SamplerConfig,
 #: What the guidance gradient differentiates (`DGSConfig.guide_by`).
 GUIDES = ("model", "critic")
 
+#: Where critic guidance steers (`tt optimize --critic-at`, `benchmarks/codesign.py
+#: --guidance-at`), as `DGSConfig` options: at x0_hat's tokens, at the design x0_hat decodes
+#: to, or from that design (every guided step continues from it).
+CRITIC_PLACES: dict[str, dict] = {
+    "tokens": {"critic_at": "tokens", "project": False},
+    "design": {"critic_at": "design", "project": False},
+    "project": {"critic_at": "design", "project": True},
+}
+
 
 # ------------------------------------------------------------------------------ scales
 def _paper_single() -> dict[str, float]:
@@ -355,4 +364,4 @@ class DynamicsSelfGuidance(ZerothOrder):
         return gen, decoder, info
 
 
-__all__ = ["GUIDES", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]
+__all__ = ["CRITIC_PLACES", "GUIDES", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]

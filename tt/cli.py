@@ -464,14 +464,14 @@ def optimize(
                   "sampled candidates")
     if not 0.0 <= sim_grad_weight <= 1.0:
         _fail(f"--sim-grad-weight must be in [0, 1], got {sim_grad_weight}")
-    from tt.guidance.selfguide import GUIDES
+    from tt.guidance.selfguide import CRITIC_PLACES, GUIDES
 
     if guide_by not in GUIDES:
         _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
     if guide_by != "model" and method not in ("dgs", "dgs-sim"):
         _fail(f"--guide-by applies to dgs and dgs-sim, not --method {method}")
-    if critic_at not in ("tokens", "design", "project"):
-        _fail(f"--critic-at {critic_at!r}: valid are 'tokens', 'design' and 'project'")
+    if critic_at not in CRITIC_PLACES:
+        _fail(f"--critic-at {critic_at!r}: valid are {', '.join(map(repr, CRITIC_PLACES))}")
     if critic_at != "tokens" and guide_by != "critic":
         _fail(f"--critic-at {critic_at} steers by the critic's gradient; it needs --guide-by critic")
     if critic_at == "project" and sim_grad_weight > 0:
@@ -503,7 +503,7 @@ def optimize(
         if method in ("dgs", "dgs-sim"):
             options.update(scale=scale, sim_grad_weight=sim_grad_weight, guide_by=guide_by)
             if critic_at != "tokens":
-                options.update(critic_at="design", project=critic_at == "project")
+                options.update(CRITIC_PLACES[critic_at])
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
     opt = get_optimizer(method, **options)
