@@ -18,9 +18,29 @@ It separates what the data allows at a given number of windows from what the dif
 training reaches: a regressor that cannot control from 100k windows says the DiT will not
 either at that budget.
 
-Usage: ``python benchmarks/control_ceiling.py [--rows 16384x20 65536x20 262144x20 98304x1]`` (training
-windows x epochs per row; the last row sees about the DiT's 96,000 windows);
-writes ``benchmarks/results/control_ceiling.md``.
+Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/daggerK]``):
+
+* anchor ``command``: the offset from the last command, which the regressor is given (the
+  DiT's ``--anchor-control command --known-command``); ``joints``: DiffIK's own form, the next
+  command's offset from the current joint positions, the last command left out of the features;
+* loss ``mse``, or ``huber`` (`--huber-delta` in units of the offset's RMS): DiffIK's
+  increments are heavy-tailed (the header gives the share of their squares the largest 1 % of
+  windows carry), and a squared loss fits those few;
+* ``daggerK``: K rounds of DAgger. Each runs the regressor in closed loop on
+  `--dagger-refreshes` online refreshes of new training designs and motions, labels every
+  state it visits with DiffIK's command from that state (`tt.dit.policies.IKPolicy`), adds
+  those windows to the training set and refits; a row per round. A window's last command is
+  the one the regressor executed, its next command DiffIK's label.
+
+Every row also reports how far the regressor moves the command from its anchor on the states
+it visits itself, relative to DiffIK's move from the same states (1: as far as DiffIK); and
+``--ik-noise`` adds DiffIK with Gaussian command noise in the same loop, which tells errors a
+closed loop tolerates from errors it does not.
+
+Usage: ``python benchmarks/control_ceiling.py [--rows 16384x20 65536x20 262144x20 98304x1]
+[--variants command/mse,joints/huber/dagger2] [--ik-noise 0.03]`` (training windows x epochs per
+row; the last row sees about the DiT's 96,000 windows); writes
+``benchmarks/results/control_ceiling.md``.
 """
 
 from __future__ import annotations
@@ -30,6 +50,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +62,8 @@ from machine import machine_header, write_report  # noqa: E402
 
 #: Steps of a control window (the DiT's layout).
 STEPS = 8
+ANCHORS = ("command", "joints")
+LOSSES = ("mse", "huber")
 
 
 def emit(**fields) -> dict:
@@ -48,10 +71,37 @@ def emit(**fields) -> dict:
     return fields
 
 
-def features(tokens, layout) -> torch.Tensor:
+@dataclass(frozen=True)
+class Variant:
+    """How the regressor is set up: anchor (`ANCHORS`), loss (`LOSSES`), DAgger rounds."""
+
+    anchor: str = "command"
+    loss: str = "mse"
+    dagger: int = 0
+
+    @classmethod
+    def parse(cls, text: str) -> "Variant":
+        """``ANCHOR/LOSS[/daggerK]``, e.g. ``joints/huber/dagger2``."""
+        parts = text.strip().split("/")
+        if len(parts) not in (2, 3) or parts[0] not in ANCHORS or parts[1] not in LOSSES:
+            raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/daggerK] with ANCHOR in {ANCHORS}, LOSS in {LOSSES}")
+        rounds = 0
+        if len(parts) == 3:
+            if not parts[2].startswith("dagger") or not parts[2][6:].isdigit() or int(parts[2][6:]) < 1:
+                raise ValueError(f"variant {text!r}: the third part is daggerK with K >= 1")
+            rounds = int(parts[2][6:])
+        return cls(parts[0], parts[1], rounds)
+
+    @property
+    def label(self) -> str:
+        return f"{self.anchor}/{self.loss}" + (f"/dagger{self.dagger}" if self.dagger else "")
+
+
+def features(tokens, layout, command: bool = True) -> torch.Tensor:
     """(n, F) float32: the control query's clean conditions of normalised windows `tokens`
     (padding at PAD_VALUE, as the DiT reads it): every embodiment token, step 0 of every
-    per-step type (the current state and the last command) and the target poses of all steps."""
+    per-step type (the current state and, with `command`, the last command) and the target
+    poses of all steps."""
     from tt.tokens.schema import STEP_ROLES
 
     parts = []
@@ -62,7 +112,7 @@ def features(tokens, layout) -> torch.Tensor:
             parts.append(v.reshape(n, -1))
         elif s.name == "target_pose":
             parts.append(v.reshape(n, -1))
-        else:
+        elif s.name != "control" or command:
             parts.append(v.reshape(n, layout.steps, -1)[:, 0])
     return torch.cat(parts, 1)
 
@@ -77,8 +127,58 @@ def commands(raw, layout) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     return c[:, 0], c[:, 1], m[:, 0] & m[:, 1]
 
 
+def window_joints(values, layout) -> torch.Tensor:
+    """(n, P) joint positions of window step 0 (the current state) from raw or denormalised
+    ``dyna_joint_obs`` values, in control-slot order (a ViperX joint slot is its actuator's)."""
+    P = layout["control"].per_step
+    return values.reshape(len(values), layout.steps, -1, 2)[:, 0, :P, 0].float()
+
+
+@dataclass
+class Windows:
+    """Control windows as the regressor reads them: features with and without the last
+    command (n, F) / (n, F'), last and next command c0, c1 (n, P) [rad], the slots real in
+    both (n, P) bool and the current joint positions q (n, P) [rad]."""
+
+    X: torch.Tensor
+    X_free: torch.Tensor
+    c0: torch.Tensor
+    c1: torch.Tensor
+    real: torch.Tensor
+    q: torch.Tensor
+
+    @classmethod
+    def of(cls, raw, layout, norm, labels=None) -> "Windows":
+        """Windows of raw tokens; `labels`: the same windows with DiffIK's commands as control
+        tokens (DAgger), which then give the next command while `raw`'s (what was executed)
+        give the last one and the features."""
+        tokens = norm.normalize(raw)
+        c0, c1, real = commands(raw, layout)
+        if labels is not None:
+            _, c1, real_next = commands(labels, layout)
+            real = real & real_next
+        return cls(features(tokens, layout), features(tokens, layout, command=False), c0, c1, real,
+                   window_joints(raw.values["dyna_joint_obs"], layout))
+
+    @classmethod
+    def cat(cls, parts: list["Windows"]) -> "Windows":
+        return cls(*(torch.cat([getattr(w, f) for w in parts]) for f in ("X", "X_free", "c0", "c1", "real", "q")))
+
+    def __len__(self) -> int:
+        return len(self.c0)
+
+    def take(self, rows) -> "Windows":
+        return Windows(self.X[rows], self.X_free[rows], self.c0[rows], self.c1[rows], self.real[rows], self.q[rows])
+
+    def inputs(self, variant: Variant) -> torch.Tensor:
+        return self.X if variant.anchor == "command" else self.X_free
+
+    def anchor(self, variant: Variant) -> torch.Tensor:
+        return self.c0 if variant.anchor == "command" else self.q
+
+
 class Regressor(torch.nn.Module):
-    """MLP: features -> the next command's offset from the last, in units of `scale` (P,)."""
+    """MLP: features -> the next command's offset from its anchor, in units of `scale` (P,)."""
 
     def __init__(self, width_in: int, joints: int, scale: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
                  hidden: int = 512, depth: int = 3):
@@ -98,38 +198,31 @@ class Regressor(torch.nn.Module):
         return self.net((x - self.mean) / self.std) * self.scale
 
 
-def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, refreshes: int = 1):
-    """n raw windows of `source` -> (features (n, F), c0, c1, real, q (n, P)), an equal share
-    from each of its first `refreshes` online refreshes (one held at a time, so memory stays
-    one refresh's), in a random order."""
+def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, refreshes: int = 1) -> Windows:
+    """n raw windows of `source`, an equal share from each of its first `refreshes` online
+    refreshes (one held at a time, so memory stays one refresh's), in a random order."""
     from tt.dit.tasks import CONTROL, task_windows
 
     gen = torch.Generator().manual_seed(seed)
-    X, C0, C1, R, Q = [], [], [], [], []
     shares = [n // refreshes + (k < n % refreshes) for k in range(refreshes)]
     draws = []
     for k, share in enumerate(shares):
         if refreshes > 1:
             source.start_step(k * source.config.refresh_every)
         for a in range(0, share, chunk):
-            draws.append(task_windows(source, layout, min(chunk, share - a), CONTROL, gen))
-    for raw in draws:
-        X.append(features(norm.normalize(raw), layout))
-        c0, c1, real = commands(raw, layout)
-        P = c0.shape[1]
-        Q.append(raw.values["dyna_joint_obs"].reshape(len(c0), layout.steps, -1, 2)[:, 0, :P, 0].float())
-        C0.append(c0), C1.append(c1), R.append(real)
-    order = torch.randperm(n, generator=gen)
-    return tuple(torch.cat(x)[order] for x in (X, C0, C1, R, Q))
+            draws.append(Windows.of(task_windows(source, layout, min(chunk, share - a), CONTROL, gen), layout, norm))
+    return Windows.cat(draws).take(torch.randperm(n, generator=gen))
 
 
-def fit(X, c0, c1, real, *, epochs: int, batch: int, lr: float, seed: int) -> tuple[Regressor, list[float]]:
-    """Masked MSE on the offsets in units of each joint slot's RMS offset; AdamW, cosine schedule."""
+def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float, seed: int,
+        huber_delta: float = 0.1) -> tuple[Regressor, list[float]]:
+    """The variant's loss on the offsets from its anchor, in units of each joint slot's RMS
+    offset, masked to real slots; AdamW, one-cycle schedule."""
     torch.manual_seed(seed)
-    y = torch.where(real, c1 - c0, torch.zeros_like(c0))
-    scale = (y.pow(2).sum(0) / real.sum(0).clamp_min(1)).sqrt().clamp_min(1e-4)
-    mean, std = X.mean(0), X.std(0).clamp_min(1e-3)
-    model = Regressor(X.shape[1], c0.shape[1], scale, mean, std)
+    X = data.inputs(variant)
+    y = torch.where(data.real, data.c1 - data.anchor(variant), torch.zeros_like(data.c0))
+    scale = (y.pow(2).sum(0) / data.real.sum(0).clamp_min(1)).sqrt().clamp_min(1e-4)
+    model = Regressor(X.shape[1], y.shape[1], scale, X.mean(0), X.std(0).clamp_min(1e-3))
     steps = max(1, int(epochs * len(X) // batch))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.05)
@@ -137,9 +230,13 @@ def fit(X, c0, c1, real, *, epochs: int, batch: int, lr: float, seed: int) -> tu
     losses = []
     for k in range(steps):
         i = torch.randint(0, len(X), (batch,), generator=gen)
-        m = real[i].float()
+        m = data.real[i].float()
         err = (model(X[i]) - y[i]) / model.scale
-        loss = (err.pow(2) * m).sum() / m.sum().clamp_min(1)
+        if variant.loss == "huber":
+            per = torch.nn.functional.huber_loss(err, torch.zeros_like(err), reduction="none", delta=huber_delta)
+        else:
+            per = err.pow(2)
+        loss = (per * m).sum() / m.sum().clamp_min(1)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -148,31 +245,112 @@ def fit(X, c0, c1, real, *, epochs: int, batch: int, lr: float, seed: int) -> tu
     return model.eval(), losses
 
 
-def one_step(model, X, c0, c1, real, q) -> dict:
-    """RMSE [rad] of the next command: the regressor's, holding the current joints', repeating the last command's."""
+def one_step(model: Regressor, data: Windows, variant: Variant) -> dict:
+    """RMSE [rad] of the next command: the regressor's, holding the current joints', repeating
+    the last command's; R^2 of the offset from the last command, over all windows and over
+    the typical ones (each slot's offsets up to its 99th percentile)."""
     with torch.no_grad():
-        pred = c0 + model(X)
+        pred = data.anchor(variant) + model(data.inputs(variant))
+    real, c1 = data.real, data.c1
     rmse = lambda e: float(e[real].pow(2).mean().sqrt())  # noqa: E731
-    y = (c1 - c0)[real]
-    return {"rmse": rmse(pred - c1), "hold": rmse(q - c1), "repeat": rmse(c0 - c1),
-            "r2": float(1 - ((pred - c1)[real]).pow(2).mean() / y.pow(2).mean())}
+    y = c1 - data.c0
+    typical = real & (y.abs() <= tail_quantile(y, real, 0.99))
+    return {"rmse": rmse(pred - c1), "hold": rmse(data.q - c1), "repeat": rmse(data.c0 - c1),
+            "r2": float(1 - (pred - c1)[real].pow(2).mean() / y[real].pow(2).mean()),
+            "r2_typical": float(1 - (pred - c1)[typical].pow(2).mean() / y[typical].pow(2).mean())}
 
 
-def regressor_policy(model: Regressor, layout, norm):
+def tail_quantile(y: torch.Tensor, real: torch.Tensor, q: float) -> torch.Tensor:
+    """(P,) per-slot quantile `q` of |y| over real entries (inf where a slot has none)."""
+    out = torch.full((y.shape[1],), float("inf"))
+    for j in range(y.shape[1]):
+        if bool(real[:, j].any()):
+            out[j] = y[:, j][real[:, j]].abs().quantile(q)
+    return out
+
+
+def tail_share(y: torch.Tensor, real: torch.Tensor, top: float) -> float:
+    """Share of the summed squares of y's real entries carried by the largest `top` fraction, pooled over slots."""
+    v = y[real].pow(2).sort(descending=True).values
+    return float(v[: max(1, int(top * len(v)))].sum() / v.sum().clamp_min(1e-30))
+
+
+def regressor_policy(model: Regressor, layout, norm, variant: Variant, labels: bool = False):
     """A closed-loop policy (`tt.dit.closed_loop.Policy`) that builds the DiT controller's query
-    (`ModelPolicy.query`) and executes the last command plus the regressor's offset."""
+    (`ModelPolicy.query`) and executes the variant's anchor plus the regressor's offset.
+
+    It also calls DiffIK (`IKPolicy`) on every state it visits: ``moved`` / ``ik_moved`` sum
+    the mean |offset from the anchor| of its commands and of DiffIK's over steps (real slots),
+    and with `labels` it keeps DiffIK's commands, (W, T, nu), for DAgger."""
     from tt.dit.checkpoint import TrainedModel
-    from tt.dit.policies import ModelPolicy
+    from tt.dit.policies import IKPolicy, ModelPolicy
 
     class RegressorPolicy(ModelPolicy):
+        def reset(self, ctx):
+            super().reset(ctx)
+            self.ik = IKPolicy()
+            self.ik.reset(ctx)
+            self.moved, self.ik_moved, self.labels = 0.0, 0.0, None
+            if labels:
+                self.labels = torch.zeros(ctx.world_count, int(ctx.motion_steps.max()), ctx.worlds.nu)
+
         def __call__(self, step, worlds, state):
             tokens, slot = self.query(step, worlds, state)
             c0 = self.control_slot(tokens, 0)  # the last command (given: step 0 of the window)
+            ik = self.ik(step, worlds, state)  # (n, nu)
+            if self.labels is not None:
+                self.labels[worlds, step] = ik.float().cpu()
+            if slot == 0:
+                return self.commands(worlds, state, c0)
+            if variant.anchor == "command":
+                anchor = c0
+            else:
+                joint_obs = self.trained.normalizer.denormalize_values("dyna_joint_obs", tokens.values["dyna_joint_obs"].float())
+                anchor = window_joints(joint_obs, self.layout)
             with torch.no_grad():
-                target = c0 + model(features(tokens, self.layout)) if slot == 1 else c0
+                target = anchor + model(features(tokens, self.layout, command=variant.anchor == "command"))
+            act = self._actuator[self.ctx.design_index[worlds]]  # (n, P) actuator of each slot, -1: none
+            real = act >= 0
+            ik_slots = torch.gather(ik, 1, act.clamp_min(0))
+            self.moved += float((target - anchor)[real].abs().mean())
+            self.ik_moved += float((ik_slots - anchor)[real].abs().mean())
             return self.commands(worlds, state, target)
 
     return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=SPACE, tasks=("control",)))
+
+
+def dagger_windows(source, k: int, model: Regressor, layout, norm, variant: Variant, n: int, seed: int) -> tuple[Windows, dict]:
+    """DAgger: the regressor controls refresh `k`'s designs x motions of `source`; every state it
+    visits is labelled with DiffIK's command from that state (the episode's ``action``, which
+    the control tokens read). Returns n windows of those episodes and their statistics."""
+    from tt.dit.closed_loop import closed_loop_rollout
+    from tt.dit.data import EpisodeTokens
+    from tt.dit.tasks import CONTROL, task_windows
+    from tt.tokens.episodes import episode_tokens
+    from tt.tokens.tokenize import Tokenizer
+
+    designs, motions = source.draw(k)
+    policy = regressor_policy(model, layout, norm, variant, labels=True)
+    ep = closed_loop_rollout(designs, motions, policy)
+    W, T = ep.worlds, ep.steps
+    embodiment = Tokenizer()([source.space.model(d) for d in designs])
+    lengths = ep.lengths()
+    keep = (lengths >= STEPS).nonzero()[:, 0]
+    if not len(keep):
+        raise RuntimeError(f"DAgger refresh {k}: every episode ended within {STEPS} steps")
+    steps = torch.arange(T, device=lengths.device).expand(W, T)
+    raws = []
+    # Twice, the same windows: control tokens of what was executed (the last command, read by
+    # the command anchor) and of DiffIK's labels (the next command).
+    for action in (ep.ctrl, policy.labels[:, :T].to(ep.ctrl.device)):
+        ep.action = action
+        dynamics = episode_tokens(ep, embodiment.index, step_index=steps)
+        episodes = EpisodeTokens.from_token_batches(embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(),
+                                                    design_index=ep.design_index.cpu(), max_time=source.config.max_time)
+        episodes = episodes.subset(keep.cpu()).pad_to(source.maxima)
+        raws.append(task_windows(episodes, layout, n, CONTROL, torch.Generator().manual_seed(seed)))
+    windows = Windows.of(raws[0], layout, norm, labels=raws[1])
+    return windows, {"episodes": W, "kept": len(keep), "mean_steps": float(lengths.float().mean())}
 
 
 class Repeat:
@@ -186,10 +364,34 @@ class Repeat:
         return state.ctrl[worlds].clone()
 
 
+class NoisyIK:
+    """DiffIK with independent Gaussian noise of `sigma` [rad] on every command."""
+
+    def __init__(self, sigma: float, seed: int = 0):
+        from tt.dit.policies import IKPolicy
+
+        self.sigma, self.ik = sigma, IKPolicy()
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def reset(self, ctx) -> None:
+        self.ik.reset(ctx)
+
+    def __call__(self, step, worlds, state):
+        cmd = self.ik(step, worlds, state)
+        return cmd + self.sigma * torch.randn(cmd.shape, generator=self.generator).to(cmd.device)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", nargs="+", default=["16384x20", "65536x20", "262144x20", "98304x1"],
                         help="one row per WINDOWSxEPOCHS: the first WINDOWS training windows, EPOCHS passes over them")
+    parser.add_argument("--variants", default="command/mse",
+                        help="comma-separated ANCHOR/LOSS[/daggerK] (anchor: command, joints; loss: mse, huber); "
+                             "every variant runs every row")
+    parser.add_argument("--huber-delta", type=float, default=0.1, help="huber loss: delta in units of the offset's RMS")
+    parser.add_argument("--dagger-refreshes", type=int, default=2, help="DAgger: online refreshes of new designs per round")
+    parser.add_argument("--dagger-windows", type=int, default=32768, help="DAgger: windows added per round")
+    parser.add_argument("--ik-noise", default="", help="comma-separated stds [rad]: DiffIK with command noise in the same loop")
     parser.add_argument("--refreshes", type=int, default=16, help="online refreshes (64 new designs x 4 motions each) "
                         "the training windows are drawn from: the designs seen")
     parser.add_argument("--batch", type=int, default=1024)
@@ -207,6 +409,17 @@ def main() -> None:
         parser.error(f"--rows {args.rows}: each row is WINDOWSxEPOCHS, e.g. 65536x20")
     if any(w < 1 or not e > 0 for w, e in plan):
         parser.error(f"--rows {args.rows}: windows must be >= 1 and epochs > 0")
+    try:
+        variants = [Variant.parse(v) for v in args.variants.split(",") if v.strip()]
+        noise = [float(x) for x in args.ik_noise.split(",") if x.strip()]
+    except ValueError as e:
+        parser.error(str(e))
+    if not variants:
+        parser.error("--variants is empty")
+    if any(not (x >= 0) for x in noise):
+        parser.error(f"--ik-noise {args.ik_noise}: stds must be >= 0")
+    if not args.huber_delta > 0 or args.dagger_refreshes < 1 or args.dagger_windows < 1:
+        parser.error("--huber-delta must be > 0, --dagger-refreshes and --dagger-windows >= 1")
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
@@ -223,7 +436,11 @@ def main() -> None:
     train_src = OnlineTokenSource(cfg, device="cpu")
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
     test_src = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device="cpu")
-    Xt, c0t, c1t, realt, qt = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
+    test = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
+    y_test = test.c1 - test.c0
+    tails = {"top1": tail_share(y_test, test.real, 0.01), "top5": tail_share(y_test, test.real, 0.05),
+             "median": float(y_test[test.real].abs().median()), "rms": float(y_test[test.real].pow(2).mean().sqrt())}
+    emit(**{f"tail_{k}": v for k, v in tails.items()})
 
     space = get_space(SPACE)
     designs = space.sample(args.designs, seed=args.design_seed)
@@ -235,30 +452,58 @@ def main() -> None:
     emit(ik_share=float(r_ik.mean() / r_oracle.mean()))
     r_still, m_still = score_episode(closed_loop_rollout(designs, motions, Repeat()), designs, motions, "tracking")
     emit(repeat_share=float(r_still.mean() / r_oracle.mean()))
+    noisy = []
+    for sigma in noise:
+        r, m = score_episode(closed_loop_rollout(designs, motions, NoisyIK(sigma, args.seed)), designs, motions, "tracking")
+        noisy.append(emit(ik_noise=sigma, share=float(r.mean() / r_oracle.mean()), survival=float(np.mean(m["survival"]))))
 
-    rows = []
     t = time.perf_counter()
-    X, c0, c1, real, _ = draw_windows(train_src, max(w for w, _ in plan), layout, norm, args.seed, refreshes=args.refreshes)
+    train = draw_windows(train_src, max(w for w, _ in plan), layout, norm, args.seed, refreshes=args.refreshes)
     # Other windows of the training designs (another draw of the last refresh's episodes):
     # generalising to new windows of designs seen, against generalising to new designs.
     seen = draw_windows(train_src, args.test_windows, layout, norm, args.seed + 2)
     gen_s = time.perf_counter() - t
     emit(episodes=train_src.stats["episodes"], generate_seconds=gen_s)
-    for n, epochs in plan:
+
+    def measure(data: Windows, variant: Variant, epochs: float, **extra) -> dict:
         t = time.perf_counter()
-        model, losses = fit(X[:n], c0[:n], c1[:n], real[:n], epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed)
+        model, losses = fit(data, variant, epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed,
+                            huber_delta=args.huber_delta)
         fit_s = time.perf_counter() - t
-        step = one_step(model, Xt, c0t, c1t, realt, qt)
-        step["r2_seen"] = one_step(model, *seen)["r2"]
+        step = one_step(model, test, variant)
+        step["r2_seen"] = one_step(model, seen, variant)["r2"]
         t = time.perf_counter()
-        ep = closed_loop_rollout(designs, motions, regressor_policy(model, layout, norm))
+        policy = regressor_policy(model, layout, norm, variant)
+        ep = closed_loop_rollout(designs, motions, policy)
         loop_s = time.perf_counter() - t
         r, m = score_episode(ep, designs, motions, "tracking")
-        rows.append(emit(windows=n, epochs=epochs, samples=len(losses) * args.batch, fit_seconds=fit_s, loss=float(np.mean(losses[-50:])),
-                         **step, share=float(r.mean() / r_oracle.mean()), pos_err_cm=float(np.nanmean(m["pos_err"])),
-                         survival=float(np.mean(m["survival"])), pearson=pearson(r_oracle.ravel(), r.ravel()),
-                         loop_seconds=loop_s))
+        row = emit(variant=variant.label, windows=len(data), epochs=epochs, samples=len(losses) * args.batch, fit_seconds=fit_s,
+                   loss=float(np.mean(losses[-50:])), **step, share=float(r.mean() / r_oracle.mean()),
+                   pos_err_cm=float(np.nanmean(m["pos_err"])), survival=float(np.mean(m["survival"])),
+                   pearson=pearson(r_oracle.ravel(), r.ravel()), moved=policy.moved / max(policy.ik_moved, 1e-12),
+                   loop_seconds=loop_s, **extra)
+        return row, model
+
+    rows = []
+    for variant in variants:
+        for n, epochs in plan:
+            row, model = measure(train.take(slice(0, n)), variant, epochs)
+            rows.append(row)
+            data = train.take(slice(0, n))
+            for rnd in range(1, variant.dagger + 1):
+                added = []
+                for j in range(args.dagger_refreshes):
+                    k = args.refreshes + (rnd - 1) * args.dagger_refreshes + j  # designs no earlier draw saw
+                    share = args.dagger_windows // args.dagger_refreshes + (j < args.dagger_windows % args.dagger_refreshes)
+                    w, stats = dagger_windows(train_src, k, model, layout, norm, variant, share, args.seed + 1000 + k)
+                    emit(dagger_round=rnd, refresh=k, **stats)
+                    added.append(w)
+                data = Windows.cat([data, *added])
+                row, model = measure(data, variant, epochs, dagger_round=rnd)
+                rows.append(row)
     load_after = os.getloadavg()
+    ik_noise = "; ".join(f"DiffIK with command noise of std {r['ik_noise']:g} rad: {100 * r['share']:.1f} %, survival "
+                         f"{100 * r['survival']:.0f} %" for r in noisy)
     lines = [
         "# A supervised ceiling for the control task (ViperX)",
         "",
@@ -270,28 +515,41 @@ def main() -> None:
         f"{args.refreshes * cfg.designs} designs ({args.refreshes} online refreshes of {cfg.designs} designs x "
         f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
         "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
-        f"conditions ({X.shape[1]} values: embodiment, step 0's state and command, 8 target poses), normalised as the "
-        f"DiT reads them; MLP 3 x 512 (GELU), batch {args.batch}, AdamW lr {args.lr:g} one-cycle; "
-        "target: the next command minus the last, masked MSE per joint in units of its RMS",
+        f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
+        f"leaves the command out: {train.X_free.shape[1]}), normalised as the DiT reads them; MLP 3 x 512 (GELU), batch "
+        f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's anchor (the last "
+        "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
+        f"(delta {args.huber_delta:g}) masked to real slots",
         f"- one step: {args.test_windows} windows of fresh episodes of other designs (online refresh 0, seed "
-        f"{args.design_seed}, no perturbation), as `dit_control.md`'s",
+        f"{args.design_seed}, no perturbation), as `dit_control.md`'s. DiffIK's increments (next command minus the last) are "
+        f"heavy-tailed: median |increment| {tails['median']:.4f} rad, RMS {tails['rms']:.4f} rad; the largest 1 % of them "
+        f"carry {100 * tails['top1']:.0f} % of the summed squares (the largest 5 %: {100 * tails['top5']:.0f} %), so RMSE and "
+        "R^2 over all windows mostly score those few; 'typical' R^2 leaves out each slot's largest 1 %",
         f"- closed loop: {len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
         f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}), Warp physics; oracle (MuJoCo C + mink) "
         f"mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, survival "
         f"{100 * np.mean(m_oracle['survival']):.0f} %; DiffIK in the same closed loop (the teacher): "
         f"{100 * r_ik.mean() / r_oracle.mean():.1f} % of the oracle, pos err {np.nanmean(m_ik['pos_err']):.1f} cm; "
         f"repeating the start posture's command every step (a still arm): {100 * r_still.mean() / r_oracle.mean():.1f} %, "
-        f"pos err {np.nanmean(m_still['pos_err']):.1f} cm, survival {100 * np.mean(m_still['survival']):.0f} %",
+        f"pos err {np.nanmean(m_still['pos_err']):.1f} cm, survival {100 * np.mean(m_still['survival']):.0f} %"
+        + (f"; {ik_noise}" if ik_noise else ""),
+        "- moved: on the states the regressor visits in closed loop, the mean |offset from its anchor| of its commands over "
+        "DiffIK's from the same states (1: it moves the command as far as DiffIK would)",
+        f"- DAgger rounds (variants .../daggerK): {args.dagger_refreshes} online refreshes of new designs per round, "
+        f"{args.dagger_windows:,} windows of the regressor's own closed-loop episodes labelled by DiffIK added per round, refit "
+        "on everything so far",
         "- targets (issue 17, for the DiT): >= 50 % of the oracle's reward; one-step RMSE <= half of holding's",
         "",
-        "| training windows | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE | R^2 of the offset, held-out designs "
-        "| R^2, training designs' other windows | share of oracle reward | pos err (cm) | survival (%) | r vs oracle |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| variant | DAgger round | training windows | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE "
+        "| R^2 of the increment, held-out designs | typical R^2 | R^2, training designs' other windows | moved | share of oracle reward "
+        "| pos err (cm) | survival (%) | r vs oracle |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['windows']:,} | {r['epochs']:g} | {r['samples']:,} | {r['fit_seconds']:.0f} | {r['rmse']:.4f} | {r['hold']:.4f} | "
-                     f"{r['repeat']:.4f} | {r['r2']:.2f} | {r['r2_seen']:.2f} | {100 * r['share']:.1f} % | {r['pos_err_cm']:.1f} | "
-                     f"{100 * r['survival']:.0f} | {r['pearson']:.2f} |")
+        lines.append(f"| {r['variant']} | {r.get('dagger_round', 0)} | {r['windows']:,} | {r['epochs']:g} | {r['samples']:,} | "
+                     f"{r['fit_seconds']:.0f} | {r['rmse']:.4f} | {r['hold']:.4f} | {r['repeat']:.4f} | {r['r2']:.2f} | "
+                     f"{r['r2_typical']:.2f} | {r['r2_seen']:.2f} | {r['moved']:.2f} | {100 * r['share']:.1f} % | "
+                     f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} |")
     emit(written=str(write_report(args.out, lines)))
 
 
