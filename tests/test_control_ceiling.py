@@ -1,0 +1,57 @@
+"""benchmarks/control_ceiling.py: its variants' grammar, and DAgger windows that read the last
+command from what was executed and the next one from DiffIK's labels."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "control_ceiling.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("tt_bench_control_ceiling", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    try:
+        spec.loader.exec_module(module)
+        yield module
+    finally:
+        sys.modules.pop(spec.name, None)
+
+
+def test_variants_parse_and_bad_ones_are_refused(bench):
+    v = bench.Variant.parse("joints/huber/dagger2")
+    assert (v.anchor, v.loss, v.dagger, v.label) == ("joints", "huber", 2, "joints/huber/dagger2")
+    assert bench.Variant.parse("command/mse") == bench.Variant("command", "mse", 0)
+    for bad in ("joint/mse", "command/l1", "command", "command/mse/dagger0", "command/mse/rounds2", "a/b/c/d"):
+        with pytest.raises(ValueError, match="variant"):
+            bench.Variant.parse(bad)
+
+
+def test_labelled_windows_take_the_next_command_from_the_labels(bench):
+    from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.tasks import CONTROL, task_windows
+
+    source = OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8),
+                               device="cpu")
+    layout, norm = source.layout(bench.STEPS), source.fit_normalizer()
+    raw = task_windows(source, layout, 16, CONTROL, torch.Generator().manual_seed(0))
+    labels = raw.clone()
+    labels.values["control"] = labels.values["control"] + 0.25  # DiffIK's commands, other than what ran
+    plain = bench.Windows.of(raw, layout, norm)
+    mixed = bench.Windows.of(raw, layout, norm, labels=labels)
+    assert bool(plain.real.any())
+    torch.testing.assert_close(mixed.c0, plain.c0)  # the last command: what was executed
+    torch.testing.assert_close(mixed.c1[mixed.real], plain.c1[plain.real] + 0.25)  # the next: the label
+    torch.testing.assert_close(mixed.X, plain.X)  # the features see what ran
+    torch.testing.assert_close(mixed.q, plain.q)
+    # The joints anchor's features leave the last command out; the command anchor's keep it.
+    P = layout["control"].per_step
+    assert plain.X.shape[1] - plain.X_free.shape[1] == P
+    command, joints = bench.Variant("command", "mse"), bench.Variant("joints", "mse")
+    assert plain.inputs(command) is plain.X and plain.inputs(joints) is plain.X_free
+    assert plain.anchor(command) is plain.c0 and plain.anchor(joints) is plain.q
