@@ -153,7 +153,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
 
 
 def critic_label(scale: float, eta: float, at: str = "tokens") -> str:
-    where = {"tokens": "", "design": ", at the design", "project": ", projected"}[at]
+    where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only"}[at]
     return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where})"
 
 
@@ -712,7 +712,8 @@ def main() -> None:
     ap.add_argument("--guidance-at", default="tokens",
                     help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
                          "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
-                         "guided step continues from it)")
+                         "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
+                         "of its real tokens)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")

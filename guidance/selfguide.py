@@ -54,12 +54,30 @@ GUIDES = ("model", "critic")
 
 #: Where critic guidance steers (`tt optimize --critic-at`, `benchmarks/codesign.py
 #: --guidance-at`), as `DGSConfig` options: at x0_hat's tokens, at the design x0_hat decodes
-#: to, or from that design (every guided step continues from it).
+#: to, from that design (every guided step continues from it), or at x0_hat's tokens with
+#: the structure left as sampled (only continuous attributes of real tokens steered).
 CRITIC_PLACES: dict[str, dict] = {
-    "tokens": {"critic_at": "tokens", "project": False},
-    "design": {"critic_at": "design", "project": False},
-    "project": {"critic_at": "design", "project": True},
+    "tokens": {"critic_at": "tokens", "project": False, "continuous_only": False},
+    "design": {"critic_at": "design", "project": False, "continuous_only": False},
+    "project": {"critic_at": "design", "project": True, "continuous_only": False},
+    "continuous": {"critic_at": "tokens", "project": False, "continuous_only": True},
 }
+
+
+def continuous_columns(name: str, width: int, device=None) -> torch.Tensor:
+    """(width,) bool: the value columns of embodiment type `name` that are not binary codes
+    (`tt.tokens.schema.Encoding.BINARY`: geometry and joint types, contact, IDs), i.e. what
+    can change without changing the design's structure."""
+    from tt.tokens.schema import SCHEMA, Encoding
+
+    spec = SCHEMA[name]
+    if spec.width != width:
+        raise ValueError(f"token type {name!r} has {width} values here; its schema has {spec.width}")
+    cols = torch.ones(width, dtype=torch.bool, device=device)
+    for a in spec.attributes:
+        if a.encoding is Encoding.BINARY:
+            cols[spec.slice(a.name)] = False
+    return cols
 
 
 # ------------------------------------------------------------------------------ scales
@@ -148,10 +166,16 @@ class SelfGuidance:
     the sampler knows (without projection the network's Jacobian damps the noisy steps).
     Candidates that do not decode move from x0_hat itself. Measured on ViperX at n = 1 it
     loses to guidance at x0_hat's tokens (benchmarks/results/codesign_guidance_project.md).
+
+    continuous_only: the guided eps moves only the continuous attributes of the tokens x0_hat
+    holds as real (`continuous_columns`; `tt.tokens.is_padding`), so guidance tunes the
+    sampled structure's lengths, masses and gains and never adds, drops or recodes a token
+    (at n = 1 even small unrestricted steps change, on some seeds, which structure the
+    sample decodes to: benchmarks/results/codesign_guidance_eta0.md).
     """
 
     def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0,
-                 project: bool = False):
+                 project: bool = False, continuous_only: bool = False):
         if not 0.0 <= sim_weight <= 1.0:
             raise ValueError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
@@ -164,7 +188,10 @@ class SelfGuidance:
         self.sim_weight = float(sim_weight)
         self.critic = critic
         self.start_step = int(start_step)
+        if project and continuous_only:
+            raise ValueError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
         self.project = bool(project)
+        self.continuous_only = bool(continuous_only)
         self.stats = GuidanceStats()
 
     def summary(self) -> dict:
@@ -230,6 +257,11 @@ class SelfGuidance:
                     stats.nonfinite_entries += int(bad.sum())
                     flagged |= bad.flatten(1).any(1)
                     g = torch.where(bad, torch.zeros_like(g), g)
+                if self.continuous_only:
+                    from tt.tokens.normalize import is_padding
+
+                    real = ~is_padding(x0[n].detach())  # (N, L): the tokens x0_hat holds
+                    g = g * (real[..., None] & continuous_columns(n, g.shape[-1], g.device)).to(g.dtype)
                 out[n] = ctx.scheduler.guided_eps(eps[n], g, self.scale, t)
             stats.nonfinite_candidates += int(flagged.sum())
             stats.steps += 1
@@ -279,6 +311,8 @@ class DGSConfig(SamplerConfig):
     gradient is taken, "tokens" (x0_hat's own) or "design" (the design x0_hat decodes to;
     `tt.guidance.critic_grad.AT`). project: every guided step continues from the design
     x0_hat decodes to (`SelfGuidance`'s ``project``; needs critic_at="design").
+    continuous_only: guidance moves only the continuous attributes of x0_hat's real tokens
+    (`SelfGuidance`'s ``continuous_only``; not with project).
     """
 
     eta: float = 1.0
@@ -290,6 +324,7 @@ class DGSConfig(SamplerConfig):
     guide_start: int = 0
     critic_at: str = "tokens"
     project: bool = False
+    continuous_only: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -305,6 +340,8 @@ class DGSConfig(SamplerConfig):
             # Its scale is a token step, not a gradient multiplier: the spaces' defaults do not apply.
             raise ValueError("project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
                              "on ViperX, benchmarks/results/codesign_guidance_project.md)")
+        if self.project and self.continuous_only:
+            raise ValueError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
         if self.guide_start < 0:
             raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
@@ -351,7 +388,7 @@ class DynamicsSelfGuidance(ZerothOrder):
             guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
                                           seed=problem.seed, at=c.critic_at)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
-                                start_step=c.guide_start, project=c.project)
+                                start_step=c.guide_start, project=c.project, continuous_only=c.continuous_only)
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
@@ -359,9 +396,9 @@ class DynamicsSelfGuidance(ZerothOrder):
         info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
                 "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input(), "scale": scale,
                 "sim_grad_weight": c.sim_grad_weight, "guide_by": c.guide_by, "guide_start": c.guide_start,
-                "critic_at": c.critic_at, "project": c.project, **summary,
+                "critic_at": c.critic_at, "project": c.project, "continuous_only": c.continuous_only, **summary,
                 "rollouts": rollouts}
         return gen, decoder, info
 
 
-__all__ = ["CRITIC_PLACES", "GUIDES", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]
+__all__ = ["CRITIC_PLACES", "GUIDES", "continuous_columns", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]

@@ -327,3 +327,58 @@ def test_dgs_guided_by_a_critic_records_its_gradient(critic, motions):
     grad = info["critic_grad"]
     assert grad["steps"] == 2 and grad["candidates"] == 4 and len(grad["objective_trace"]) == 2
     assert gen.objective.shape == (2,)
+
+
+class EveryValue(FixedGradient):
+    """A stand-in critic whose x0-gradient is 1 on every value of every token."""
+
+    def token_gradient(self, ctx, x0, step):
+        self.calls += 1
+        return {n: torch.ones_like(v) for n, v in x0.items()}
+
+
+def test_continuous_columns_are_the_schemas_non_binary_values():
+    from tt.guidance.selfguide import continuous_columns
+    from tt.tokens.schema import SCHEMA, Encoding
+
+    for name in ("link", "dyna_joint", "fixed_joint", "actuator"):
+        spec = SCHEMA[name]
+        cols = continuous_columns(name, spec.width)
+        bits = sum(a.width for a in spec.attributes if a.encoding is Encoding.BINARY)
+        assert bits > 0 and int((~cols).sum()) == bits
+        for a in spec.attributes:
+            assert bool(cols[spec.slice(a.name)].all()) == (a.encoding is not Encoding.BINARY), (name, a.name)
+    with pytest.raises(ValueError, match="schema has 35"):
+        continuous_columns("link", 34)
+
+
+def test_continuous_only_guidance_moves_only_continuous_values_of_real_tokens(critic, motions):
+    """With continuous_only the guided eps differs from the model's only in the non-binary
+    values of the tokens x0_hat holds as real; without it, everywhere the gradient reaches."""
+    from tt.guidance.selfguide import continuous_columns
+
+    names = ctx_names(critic)
+    scheduler = CosineDDIM(critic.robot_diffusion_steps)
+    q = build_query(critic.layout, critic.normalizer, motions[0], 2)
+    gen = torch.Generator().manual_seed(4)
+    base = {n: 0.5 * torch.rand(q.tokens.values[n].shape, generator=gen) for n in names}
+    base["link"][:, 0] = -2.0  # x0_hat = x_t / 2: the first link slot is padding (all values -1)
+    eps = {n: torch.randn(v.shape, generator=gen) for n, v in base.items()}
+    ctx = GuideContext(objective=lambda x0, flag: torch.zeros(2, 1), scheduler=scheduler, timesteps=scheduler.timesteps(STEPS),
+                       embodiment=tuple(names), layout=critic.layout, motions=tuple(motions[:1]), queries=[q], split=None)
+    moved = {}
+    for only in (False, True):
+        x_t = {n: v.clone().requires_grad_() for n, v in base.items()}
+        x0 = {n: 0.5 * v for n, v in x_t.items()}
+        guidance = SelfGuidance(2.0, critic=EveryValue(), continuous_only=only)
+        out = guidance.hook(ctx)(1, x_t, eps, x0)
+        moved[only] = {n: (out[n] - eps[n]).detach().abs() > 0 for n in names}
+    for n in names:
+        cols = continuous_columns(n, base[n].shape[-1])
+        assert bool(moved[False][n].all())
+        assert bool(moved[True][n][..., cols].any()) and not bool(moved[True][n][..., ~cols].any())
+    assert not bool(moved[True]["link"][:, 0].any()) and bool(moved[True]["link"][:, 1:][..., continuous_columns("link", 35)].all())
+    with pytest.raises(ValueError, match="choose one"):
+        SelfGuidance(2.0, critic=AnchoredGradient({}, 1.0), project=True, continuous_only=True)
+    with pytest.raises(ValueError, match="choose one"):
+        DGSConfig(guide_by="critic", critic_at="design", project=True, scale=0.1, continuous_only=True)

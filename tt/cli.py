@@ -401,7 +401,7 @@ def optimize(
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
-    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise). 'tokens' measured best (README)."),
+    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens). README has the measurements."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
