@@ -398,7 +398,10 @@ def main() -> None:
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--seed", type=int, default=0, help="training data and MLP seed")
     parser.add_argument("--design-seed", type=int, default=20261122, help="held-out designs and one-step windows")
-    parser.add_argument("--designs", type=int, default=25, help="held-out designs of the closed loop")
+    parser.add_argument("--designs", type=int, default=25, help="designs of the closed loop")
+    parser.add_argument("--loop-designs", choices=("held-out", "seen"), default="held-out",
+                        help="closed loop on held-out designs, or on designs of the last training refresh (what a "
+                             "regressor that learned those designs, not kinematics, can do)")
     parser.add_argument("--motions", type=int, default=5, help="validation motions of the closed loop")
     parser.add_argument("--test-windows", type=int, default=4096, help="one-step windows of held-out designs")
     parser.add_argument("--out", default=str(RESULTS / "control_ceiling.md"))
@@ -433,6 +436,8 @@ def main() -> None:
     load_before, started = os.getloadavg(), time.perf_counter()
     # The DiT's training data: tt generate's draws, control perturbation included.
     cfg = OnlineConfig(space=SPACE, seed=args.seed, refresh_every=1, buffer=1)
+    if args.loop_designs == "seen" and args.designs > cfg.designs:
+        parser.error(f"--designs {args.designs}: a refresh has {cfg.designs} designs to take seen ones from")
     train_src = OnlineTokenSource(cfg, device="cpu")
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
     test_src = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device="cpu")
@@ -443,7 +448,10 @@ def main() -> None:
     emit(**{f"tail_{k}": v for k, v in tails.items()})
 
     space = get_space(SPACE)
-    designs = space.sample(args.designs, seed=args.design_seed)
+    if args.loop_designs == "seen":
+        designs = train_src.draw(args.refreshes - 1)[0][: args.designs]
+    else:
+        designs = space.sample(args.designs, seed=args.design_seed)
     motions = cut(validation_motions(args.motions), 0)
     t = time.perf_counter()
     r_oracle, m_oracle = score_episode(oracle_rollout(designs, motions), designs, motions, "tracking")
@@ -525,7 +533,10 @@ def main() -> None:
         f"heavy-tailed: median |increment| {tails['median']:.4f} rad, RMS {tails['rms']:.4f} rad; the largest 1 % of them "
         f"carry {100 * tails['top1']:.0f} % of the summed squares (the largest 5 %: {100 * tails['top5']:.0f} %), so RMSE and "
         "R^2 over all windows mostly score those few; 'typical' R^2 leaves out each slot's largest 1 %",
-        f"- closed loop: {len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
+        "- closed loop: " + (f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`)"
+                             if args.loop_designs == "held-out" else
+                             f"{len(designs)} designs the regressor trained on (the first of online refresh {args.refreshes - 1})")
+        + " x "
         f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}), Warp physics; oracle (MuJoCo C + mink) "
         f"mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, survival "
         f"{100 * np.mean(m_oracle['survival']):.0f} %; DiffIK in the same closed loop (the teacher): "
