@@ -32,6 +32,10 @@ Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/da
   those windows to the training set and refits; a row per round. A window's last command is
   the one the regressor executed, its next command DiffIK's label.
 
+``--trim Q`` fits without the windows whose offset exceeds, in any joint, that joint's Q
+quantile, so that the small steady increments carry the fit; ``--loop-designs seen`` runs the
+closed loop on designs the regressor trained on instead of held-out ones.
+
 Every row also reports how far the regressor moves the command from its anchor on the states
 it visits itself, relative to DiffIK's move from the same states (1: as far as DiffIK); and
 ``--ik-noise`` adds DiffIK with Gaussian command noise in the same loop, which tells errors a
@@ -269,6 +273,16 @@ def tail_quantile(y: torch.Tensor, real: torch.Tensor, q: float) -> torch.Tensor
     return out
 
 
+def trimmed(data: Windows, variant: Variant, q: float) -> Windows:
+    """`data` without the windows whose offset from the variant's anchor exceeds, in any real
+    slot, that slot's quantile `q` of |offset| (q = 1: all of them)."""
+    if q >= 1.0:
+        return data
+    y = data.c1 - data.anchor(variant)
+    out = (data.real & (y.abs() > tail_quantile(y, data.real, q))).any(1)
+    return data.take((~out).nonzero()[:, 0])
+
+
 def tail_share(y: torch.Tensor, real: torch.Tensor, top: float) -> float:
     """Share of the summed squares of y's real entries carried by the largest `top` fraction, pooled over slots."""
     v = y[real].pow(2).sort(descending=True).values
@@ -389,6 +403,9 @@ def main() -> None:
                         help="comma-separated ANCHOR/LOSS[/daggerK] (anchor: command, joints; loss: mse, huber); "
                              "every variant runs every row")
     parser.add_argument("--huber-delta", type=float, default=0.1, help="huber loss: delta in units of the offset's RMS")
+    parser.add_argument("--trim", type=float, default=1.0,
+                        help="fit without the training windows whose offset exceeds, in any joint, that joint's TRIM "
+                             "quantile (e.g. 0.9; 1: keep all): the rare large jumps that dominate a squared loss")
     parser.add_argument("--dagger-refreshes", type=int, default=2, help="DAgger: online refreshes of new designs per round")
     parser.add_argument("--dagger-windows", type=int, default=32768, help="DAgger: windows added per round")
     parser.add_argument("--ik-noise", default="", help="comma-separated stds [rad]: DiffIK with command noise in the same loop")
@@ -421,6 +438,8 @@ def main() -> None:
         parser.error("--variants is empty")
     if any(not (x >= 0) for x in noise):
         parser.error(f"--ik-noise {args.ik_noise}: stds must be >= 0")
+    if not 0.5 <= args.trim <= 1.0:
+        parser.error(f"--trim {args.trim}: a quantile in [0.5, 1]")
     if not args.huber_delta > 0 or args.dagger_refreshes < 1 or args.dagger_windows < 1:
         parser.error("--huber-delta must be > 0, --dagger-refreshes and --dagger-windows >= 1")
     import warp as wp
@@ -475,6 +494,8 @@ def main() -> None:
 
     def measure(data: Windows, variant: Variant, epochs: float, **extra) -> dict:
         t = time.perf_counter()
+        windows = len(data)
+        data = trimmed(data, variant, args.trim)
         model, losses = fit(data, variant, epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed,
                             huber_delta=args.huber_delta)
         fit_s = time.perf_counter() - t
@@ -485,7 +506,7 @@ def main() -> None:
         ep = closed_loop_rollout(designs, motions, policy)
         loop_s = time.perf_counter() - t
         r, m = score_episode(ep, designs, motions, "tracking")
-        row = emit(variant=variant.label, windows=len(data), epochs=epochs, samples=len(losses) * args.batch, fit_seconds=fit_s,
+        row = emit(variant=variant.label, windows=windows, fitted=len(data), epochs=epochs, samples=len(losses) * args.batch, fit_seconds=fit_s,
                    loss=float(np.mean(losses[-50:])), **step, share=float(r.mean() / r_oracle.mean()),
                    pos_err_cm=float(np.nanmean(m["pos_err"])), survival=float(np.mean(m["survival"])),
                    pearson=pearson(r_oracle.ravel(), r.ravel()), moved=policy.moved / max(policy.ik_moved, 1e-12),
@@ -544,6 +565,8 @@ def main() -> None:
         f"repeating the start posture's command every step (a still arm): {100 * r_still.mean() / r_oracle.mean():.1f} %, "
         f"pos err {np.nanmean(m_still['pos_err']):.1f} cm, survival {100 * np.mean(m_still['survival']):.0f} %"
         + (f"; {ik_noise}" if ik_noise else ""),
+        *([f"- trimmed: each fit leaves out the windows whose offset from the anchor exceeds, in any joint, that joint's "
+           f"{args.trim:g} quantile (the 'fitted' column counts the rest; epochs are passes over those)"] if args.trim < 1 else []),
         "- moved: on the states the regressor visits in closed loop, the mean |offset from its anchor| of its commands over "
         "DiffIK's from the same states (1: it moves the command as far as DiffIK would)",
         f"- DAgger rounds (variants .../daggerK): {args.dagger_refreshes} online refreshes of new designs per round, "
@@ -551,13 +574,13 @@ def main() -> None:
         "on everything so far",
         "- targets (issue 17, for the DiT): >= 50 % of the oracle's reward; one-step RMSE <= half of holding's",
         "",
-        "| variant | DAgger round | training windows | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE "
+        "| variant | DAgger round | training windows | fitted | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE "
         "| R^2 of the increment, held-out designs | typical R^2 | R^2, training designs' other windows | moved | share of oracle reward "
         "| pos err (cm) | survival (%) | r vs oracle |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['variant']} | {r.get('dagger_round', 0)} | {r['windows']:,} | {r['epochs']:g} | {r['samples']:,} | "
+        lines.append(f"| {r['variant']} | {r.get('dagger_round', 0)} | {r['windows']:,} | {r['fitted']:,} | {r['epochs']:g} | {r['samples']:,} | "
                      f"{r['fit_seconds']:.0f} | {r['rmse']:.4f} | {r['hold']:.4f} | {r['repeat']:.4f} | {r['r2']:.2f} | "
                      f"{r['r2_typical']:.2f} | {r['r2_seen']:.2f} | {r['moved']:.2f} | {100 * r['share']:.1f} % | "
                      f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} |")

@@ -55,3 +55,23 @@ def test_labelled_windows_take_the_next_command_from_the_labels(bench):
     command, joints = bench.Variant("command", "mse"), bench.Variant("joints", "mse")
     assert plain.inputs(command) is plain.X and plain.inputs(joints) is plain.X_free
     assert plain.anchor(command) is plain.c0 and plain.anchor(joints) is plain.q
+
+
+def test_trimming_drops_the_windows_with_a_large_offset_in_any_joint(bench):
+    gen = torch.Generator().manual_seed(1)
+    n, P = 200, 3
+    c0 = torch.randn(n, P, generator=gen)
+    step = 0.01 * torch.randn(n, P, generator=gen)
+    step[:10, 1] = 5.0  # ten windows with one large jump each
+    real = torch.ones(n, P, dtype=torch.bool)
+    real[:, 2] = False  # a slot no design has: its values never count
+    step[:, 2] = 100.0
+    data = bench.Windows(torch.randn(n, 4, generator=gen), torch.randn(n, 2, generator=gen), c0, c0 + step, real,
+                         c0 - 0.1)
+    command = bench.Variant("command", "mse")
+    assert bench.trimmed(data, command, 1.0) is data
+    kept = bench.trimmed(data, command, 0.9)
+    assert len(kept) < n - 10 and not bool(((kept.c1 - kept.c0).abs()[:, :2] > 1.0).any())
+    # Relative to the joints (c1 - q = step + 0.1) the same ten jumps are out.
+    joints = bench.trimmed(data, bench.Variant("joints", "mse"), 0.95)
+    assert len(joints) <= n - 10 and not bool(((joints.c1 - joints.q).abs()[:, :2] > 1.0).any())
