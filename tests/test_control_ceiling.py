@@ -75,3 +75,13 @@ def test_trimming_drops_the_windows_with_a_large_offset_in_any_joint(bench):
     # Relative to the joints (c1 - q = step + 0.1) the same ten jumps are out.
     joints = bench.trimmed(data, bench.Variant("joints", "mse"), 0.95)
     assert len(joints) <= n - 10 and not bool(((joints.c1 - joints.q).abs()[:, :2] > 1.0).any())
+
+
+def test_one_design_space_draws_only_its_design(bench):
+    from tt.sim.designs import get_space
+
+    space = get_space(bench.SPACE)
+    design = space.sample(1, seed=3)[0]
+    one = bench.OneDesign(space, design)
+    assert one.sample(5, seed=9) == [design] * 5
+    assert one.ee_sites() == space.ee_sites()  # everything else is the wrapped space's
