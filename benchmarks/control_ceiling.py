@@ -34,8 +34,9 @@ Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/da
 
 ``--trim Q`` fits without the windows whose offset exceeds, in any joint, that joint's Q
 quantile, so that the small steady increments carry the fit; ``--loop-designs seen`` runs the
-closed loop on designs the regressor trained on instead of held-out ones; ``--one-design SEED``
-makes every window one design's (on fresh motions), the control task's memorisation rung.
+closed loop on designs the regressor trained on instead of held-out ones; ``--pool N`` makes
+every window one of N designs' (on fresh motions); with N = 1 it is the control task's
+memorisation rung.
 
 Every row also reports how far the regressor moves the command from its anchor on the states
 it visits itself, relative to DiffIK's move from the same states (1: as far as DiffIK); and
@@ -368,15 +369,16 @@ def dagger_windows(source, k: int, model: Regressor, layout, norm, variant: Vari
     return windows, {"episodes": W, "kept": len(keep), "mean_steps": float(lengths.float().mean())}
 
 
-class OneDesign:
-    """A design space whose every draw is one design (`--one-design`): the online source then
-    rolls that design out on fresh motions. Everything else is the wrapped space's."""
+class DesignPool:
+    """A design space whose every draw cycles through a fixed pool of designs (`--pool`): the
+    online source then rolls those designs out on fresh motions. Everything else is the
+    wrapped space's."""
 
-    def __init__(self, space, design):
-        self._space, self.design = space, design
+    def __init__(self, space, designs):
+        self._space, self.designs = space, list(designs)
 
     def sample(self, n: int, seed=None) -> list:
-        return [self.design] * n
+        return [self.designs[i % len(self.designs)] for i in range(n)]
 
     def __getattr__(self, name):
         return getattr(self._space, name)
@@ -431,9 +433,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="training data and MLP seed")
     parser.add_argument("--design-seed", type=int, default=20261122, help="held-out designs and one-step windows")
     parser.add_argument("--designs", type=int, default=25, help="designs of the closed loop")
-    parser.add_argument("--one-design", type=int, default=None, metavar="SEED",
-                        help="train, test and run the closed loop on one design (`space.sample(1, seed=SEED)`), on fresh "
-                             "motions each time: whether the windows carry what control needs when the design is known")
+    parser.add_argument("--pool", type=int, default=None, metavar="N",
+                        help="train, test and run the closed loop on a pool of N designs (`space.sample(N, seed="
+                             "--pool-seed)`; the loop on the first --designs of them), on fresh motions each time: "
+                             "whether the windows carry what control needs when the designs are few and known")
+    parser.add_argument("--pool-seed", type=int, default=3, help="--pool: seed of the pool's designs")
     parser.add_argument("--loop-designs", choices=("held-out", "seen"), default="held-out",
                         help="closed loop on held-out designs, or on designs of the last training refresh (what a "
                              "regressor that learned those designs, not kinematics, can do)")
@@ -456,8 +460,8 @@ def main() -> None:
         parser.error("--variants is empty")
     if any(not (x >= 0) for x in noise):
         parser.error(f"--ik-noise {args.ik_noise}: stds must be >= 0")
-    if args.one_design is not None and args.loop_designs != "held-out":
-        parser.error("--one-design runs the closed loop on its one design; leave --loop-designs out")
+    if args.pool is not None and (args.loop_designs != "held-out" or args.pool < 1):
+        parser.error("--pool N (N >= 1) runs the closed loop on the pool's designs; leave --loop-designs out")
     if not 0.5 <= args.trim <= 1.0:
         parser.error(f"--trim {args.trim}: a quantile in [0.5, 1]")
     if not args.huber_delta > 0 or args.dagger_refreshes < 1 or args.dagger_windows < 1:
@@ -478,14 +482,14 @@ def main() -> None:
     if args.loop_designs == "seen" and args.designs > cfg.designs:
         parser.error(f"--designs {args.designs}: a refresh has {cfg.designs} designs to take seen ones from")
     train_src = OnlineTokenSource(cfg, device="cpu")
-    one = None
-    if args.one_design is not None:
-        one = get_space(SPACE).sample(1, seed=args.one_design)[0]
-        train_src.space = OneDesign(train_src.space, one)
+    pool = None
+    if args.pool is not None:
+        pool = get_space(SPACE).sample(args.pool, seed=args.pool_seed)
+        train_src.space = DesignPool(train_src.space, pool)
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
     test_src = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device="cpu")
-    if one is not None:
-        test_src.space = OneDesign(test_src.space, one)
+    if pool is not None:
+        test_src.space = DesignPool(test_src.space, pool)
     test = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
     y_test = test.c1 - test.c0
     tails = {"top1": tail_share(y_test, test.real, 0.01), "top5": tail_share(y_test, test.real, 0.05),
@@ -493,8 +497,8 @@ def main() -> None:
     emit(**{f"tail_{k}": v for k, v in tails.items()})
 
     space = get_space(SPACE)
-    if one is not None:
-        designs = [one]
+    if pool is not None:
+        designs = pool[: args.designs]
     elif args.loop_designs == "seen":
         designs = train_src.draw(args.refreshes - 1)[0][: args.designs]
     else:
@@ -569,8 +573,8 @@ def main() -> None:
         f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all",
         f"- command: `python benchmarks/control_ceiling.py {' '.join(sys.argv[1:])}`",
         f"- training windows: 8 consecutive steps of {train_src.stats['episodes']} episodes of "
-        + ("1 design " if one is not None else f"{args.refreshes * cfg.designs} designs ")
-        + f"({args.refreshes} online refreshes of {cfg.designs} {'copies of it' if one is not None else 'designs'} x "
+        + (f"a pool of {args.pool} designs " if pool is not None else f"{args.refreshes * cfg.designs} designs ")
+        + f"({args.refreshes} online refreshes of {cfg.designs} {'draws from it' if pool is not None else 'designs'} x "
         f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
         "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
         f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
@@ -579,13 +583,14 @@ def main() -> None:
         "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
         f"(delta {args.huber_delta:g}) masked to real slots",
         f"- one step: {args.test_windows} windows of fresh episodes of "
-        f"{'the same design on other motions' if one is not None else 'other designs'} (online refresh 0, seed "
+        f"{'the same designs on other motions' if pool is not None else 'other designs'} (online refresh 0, seed "
         f"{args.design_seed}, no perturbation), as `dit_control.md`'s. DiffIK's increments (next command minus the last) are "
         f"heavy-tailed: median |increment| {tails['median']:.4f} rad, RMS {tails['rms']:.4f} rad; the largest 1 % of them "
         f"carry {100 * tails['top1']:.0f} % of the summed squares (the largest 5 %: {100 * tails['top5']:.0f} %), so RMSE and "
         "R^2 over all windows mostly score those few; 'typical' R^2 leaves out each slot's largest 1 %",
-        "- closed loop: " + (f"the one design every window is of (`space.sample(1, seed={args.one_design})`; training and "
-                             "one-step windows are that design on fresh training motions)" if one is not None else
+        "- closed loop: " + (f"{len(designs)} of the {args.pool} designs every window is of (`space.sample({args.pool}, "
+                             f"seed={args.pool_seed})`; training and one-step windows are those designs on fresh training "
+                             "motions)" if pool is not None else
                              f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`)"
                              if args.loop_designs == "held-out" else
                              f"{len(designs)} designs the regressor trained on (the first of online refresh {args.refreshes - 1})")

@@ -77,11 +77,12 @@ def test_trimming_drops_the_windows_with_a_large_offset_in_any_joint(bench):
     assert len(joints) <= n - 10 and not bool(((joints.c1 - joints.q).abs()[:, :2] > 1.0).any())
 
 
-def test_one_design_space_draws_only_its_design(bench):
+def test_design_pool_draws_cycle_through_its_designs(bench):
     from tt.sim.designs import get_space
 
     space = get_space(bench.SPACE)
-    design = space.sample(1, seed=3)[0]
-    one = bench.OneDesign(space, design)
-    assert one.sample(5, seed=9) == [design] * 5
-    assert one.ee_sites() == space.ee_sites()  # everything else is the wrapped space's
+    designs = space.sample(2, seed=3)
+    pool = bench.DesignPool(space, designs)
+    assert pool.sample(5, seed=9) == [designs[0], designs[1], designs[0], designs[1], designs[0]]
+    assert bench.DesignPool(space, designs[:1]).sample(3) == [designs[0]] * 3
+    assert pool.ee_sites() == space.ee_sites()  # everything else is the wrapped space's
