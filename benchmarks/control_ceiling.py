@@ -524,7 +524,7 @@ def main() -> None:
     gen_s = time.perf_counter() - t
     emit(episodes=train_src.stats["episodes"], generate_seconds=gen_s)
 
-    def measure(data: Windows, variant: Variant, epochs: float, **extra) -> dict:
+    def measure(data: Windows, variant: Variant, epochs: float, **extra) -> tuple[dict, Regressor]:
         t = time.perf_counter()
         windows = len(data)
         data = trimmed(data, variant, args.trim)
@@ -548,9 +548,9 @@ def main() -> None:
     rows = []
     for variant in variants:
         for n, epochs in plan:
-            row, model = measure(train.take(slice(0, n)), variant, epochs)
-            rows.append(row)
             data = train.take(slice(0, n))
+            row, model = measure(data, variant, epochs)
+            rows.append(row)
             for rnd in range(1, variant.dagger + 1):
                 added = []
                 for j in range(args.dagger_refreshes):

@@ -208,6 +208,7 @@ class SelfGuidance:
         if self.critic is not None and hasattr(self.critic, "reset"):
             self.critic.reset()
         lam = self.sim_weight
+        columns: dict[str, torch.Tensor] = {}  # continuous_only: each type's continuous columns, built once per call
 
         def x0_gradient(source, step, x0, names) -> dict[str, torch.Tensor]:
             """The source's x0-gradient (critic or simulator), in x0's dtype, non-finite entries
@@ -260,8 +261,10 @@ class SelfGuidance:
                 if self.continuous_only:
                     from tt.tokens.normalize import is_padding
 
+                    if n not in columns:
+                        columns[n] = continuous_columns(n, g.shape[-1], g.device)
                     real = ~is_padding(x0[n].detach())  # (N, L): the tokens x0_hat holds
-                    g = g * (real[..., None] & continuous_columns(n, g.shape[-1], g.device)).to(g.dtype)
+                    g = g * (real[..., None] & columns[n]).to(g.dtype)
                 out[n] = ctx.scheduler.guided_eps(eps[n], g, self.scale, t)
             stats.nonfinite_candidates += int(flagged.sum())
             stats.steps += 1
