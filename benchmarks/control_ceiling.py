@@ -30,7 +30,9 @@ Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/da
   `--dagger-refreshes` online refreshes of new training designs and motions, labels every
   state it visits with DiffIK's command from that state (`tt.dit.policies.IKPolicy`), adds
   those windows to the training set and refits; a row per round. A window's last command is
-  the one the regressor executed, its next command DiffIK's label.
+  the one the regressor executed, its next command DiffIK's label;
+* model ``film`` (``ANCHOR/LOSS/film``): the design modulates every hidden layer of an MLP of
+  the state and targets (`FiLMRegressor`) instead of entering the plain MLP beside them.
 
 ``--trim Q`` fits without the windows whose offset exceeds, in any joint, that joint's Q
 quantile, so that the small steady increments carry the fit; ``--loop-designs seen`` runs the
@@ -70,6 +72,7 @@ from machine import machine_header, write_report  # noqa: E402
 STEPS = 8
 ANCHORS = ("command", "joints")
 LOSSES = ("mse", "huber")
+MODELS = ("mlp", "film")
 
 
 def emit(**fields) -> dict:
@@ -79,28 +82,38 @@ def emit(**fields) -> dict:
 
 @dataclass(frozen=True)
 class Variant:
-    """How the regressor is set up: anchor (`ANCHORS`), loss (`LOSSES`), DAgger rounds."""
+    """How the regressor is set up: anchor (`ANCHORS`), loss (`LOSSES`), DAgger rounds, model
+    (`MODELS`)."""
 
     anchor: str = "command"
     loss: str = "mse"
     dagger: int = 0
+    model: str = "mlp"
 
     @classmethod
     def parse(cls, text: str) -> "Variant":
-        """``ANCHOR/LOSS[/daggerK]``, e.g. ``joints/huber/dagger2``."""
+        """``ANCHOR/LOSS[/film][/daggerK]``, e.g. ``joints/huber/film/dagger2``."""
         parts = text.strip().split("/")
-        if len(parts) not in (2, 3) or parts[0] not in ANCHORS or parts[1] not in LOSSES:
-            raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/daggerK] with ANCHOR in {ANCHORS}, LOSS in {LOSSES}")
-        rounds = 0
-        if len(parts) == 3:
-            if not parts[2].startswith("dagger") or not parts[2][6:].isdigit() or int(parts[2][6:]) < 1:
-                raise ValueError(f"variant {text!r}: the third part is daggerK with K >= 1")
-            rounds = int(parts[2][6:])
-        return cls(parts[0], parts[1], rounds)
+        if len(parts) not in (2, 3, 4) or parts[0] not in ANCHORS or parts[1] not in LOSSES:
+            raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK] with ANCHOR in {ANCHORS}, "
+                             f"LOSS in {LOSSES}")
+        rest, model, rounds = parts[2:], "mlp", 0
+        if rest and rest[0] in MODELS:
+            model = rest.pop(0)
+        if rest:
+            last = rest.pop(0)
+            if not last.startswith("dagger") or not last[6:].isdigit() or int(last[6:]) < 1:
+                raise ValueError(f"variant {text!r}: the last part is daggerK with K >= 1")
+        if rest:
+            raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK]")
+        if len(parts) > 2 and parts[-1].startswith("dagger"):
+            rounds = int(parts[-1][6:])
+        return cls(parts[0], parts[1], rounds, model)
 
     @property
     def label(self) -> str:
-        return f"{self.anchor}/{self.loss}" + (f"/dagger{self.dagger}" if self.dagger else "")
+        return (f"{self.anchor}/{self.loss}" + (f"/{self.model}" if self.model != "mlp" else "")
+                + (f"/dagger{self.dagger}" if self.dagger else ""))
 
 
 def features(tokens, layout, command: bool = True) -> torch.Tensor:
@@ -123,6 +136,35 @@ def features(tokens, layout, command: bool = True) -> torch.Tensor:
     return torch.cat(parts, 1)
 
 
+def command_free(layout) -> torch.Tensor:
+    """(F',) long: the columns of `features` that `features(..., command=False)` keeps, i.e.
+    all but the last command's."""
+    from tt.tokens.schema import STEP_ROLES
+
+    keep, at = [], 0
+    for s in layout.specs:
+        width = s.dim * (s.length if s.role not in STEP_ROLES or s.name == "target_pose" else s.per_step)
+        if s.name != "control":
+            keep.append(torch.arange(at, at + width))
+        at += width
+    return torch.cat(keep)
+
+
+def design_columns(layout, command: bool = True) -> torch.Tensor:
+    """(F,) bool: which columns of `features(..., command)` are embodiment tokens (the design)."""
+    from tt.tokens.schema import STEP_ROLES
+
+    parts = []
+    for s in layout.specs:
+        if s.role not in STEP_ROLES:
+            parts.append(torch.ones(s.dim * s.length, dtype=torch.bool))
+        elif s.name == "target_pose":
+            parts.append(torch.zeros(s.dim * s.length, dtype=torch.bool))
+        elif s.name != "control" or command:
+            parts.append(torch.zeros(s.dim * s.per_step, dtype=torch.bool))
+    return torch.cat(parts)
+
+
 def commands(raw, layout) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Raw windows -> (c0, c1, real): the last and next commands (n, P) [rad] and the joint
     slots both are real in (n, P)."""
@@ -142,16 +184,16 @@ def window_joints(values, layout) -> torch.Tensor:
 
 @dataclass
 class Windows:
-    """Control windows as the regressor reads them: features with and without the last
-    command (n, F) / (n, F'), last and next command c0, c1 (n, P) [rad], the slots real in
-    both (n, P) bool and the current joint positions q (n, P) [rad]."""
+    """Control windows as the regressor reads them: features (n, F), last and next command
+    c0, c1 (n, P) [rad], the slots real in both (n, P) bool, the current joint positions q
+    (n, P) [rad] and the feature columns without the last command, `command_free` (F',)."""
 
     X: torch.Tensor
-    X_free: torch.Tensor
     c0: torch.Tensor
     c1: torch.Tensor
     real: torch.Tensor
     q: torch.Tensor
+    free: torch.Tensor
 
     @classmethod
     def of(cls, raw, layout, norm, labels=None) -> "Windows":
@@ -163,21 +205,22 @@ class Windows:
         if labels is not None:
             _, c1, real_next = commands(labels, layout)
             real = real & real_next
-        return cls(features(tokens, layout), features(tokens, layout, command=False), c0, c1, real,
-                   window_joints(raw.values["dyna_joint_obs"], layout))
+        return cls(features(tokens, layout), c0, c1, real, window_joints(raw.values["dyna_joint_obs"], layout),
+                   command_free(layout))
 
     @classmethod
     def cat(cls, parts: list["Windows"]) -> "Windows":
-        return cls(*(torch.cat([getattr(w, f) for w in parts]) for f in ("X", "X_free", "c0", "c1", "real", "q")))
+        return cls(*(torch.cat([getattr(w, f) for w in parts]) for f in ("X", "c0", "c1", "real", "q")), parts[0].free)
 
     def __len__(self) -> int:
         return len(self.c0)
 
     def take(self, rows) -> "Windows":
-        return Windows(self.X[rows], self.X_free[rows], self.c0[rows], self.c1[rows], self.real[rows], self.q[rows])
+        return Windows(self.X[rows], self.c0[rows], self.c1[rows], self.real[rows], self.q[rows], self.free)
 
     def inputs(self, variant: Variant) -> torch.Tensor:
-        return self.X if variant.anchor == "command" else self.X_free
+        """(n, F) or, for the joints anchor, (n, F') features (a copy: the command's columns dropped)."""
+        return self.X if variant.anchor == "command" else self.X[:, self.free]
 
     def anchor(self, variant: Variant) -> torch.Tensor:
         return self.c0 if variant.anchor == "command" else self.q
@@ -204,6 +247,39 @@ class Regressor(torch.nn.Module):
         return self.net((x - self.mean) / self.std) * self.scale
 
 
+class FiLMRegressor(torch.nn.Module):
+    """An MLP over the state and target columns whose every hidden layer the design scales and
+    shifts (FiLM): h <- GELU(W h (1 + gamma(d)) + beta(d)), gamma and beta from an MLP of the
+    embodiment columns `design` (F,) bool. DiffIK's increment is a design-dependent linear map
+    of the tracking error; a plain MLP must build such products from sums, this one has them.
+    The modulation starts at zero, so it starts as the plain MLP of the non-design columns."""
+
+    def __init__(self, design: torch.Tensor, joints: int, scale: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
+                 hidden: int = 512, depth: int = 3):
+        super().__init__()
+        self.register_buffer("design", design.nonzero()[:, 0])
+        self.register_buffer("state", (~design).nonzero()[:, 0])
+        self.layers = torch.nn.ModuleList(
+            torch.nn.Linear(len(self.state) if k == 0 else hidden, hidden) for k in range(depth))
+        self.cond = torch.nn.Sequential(torch.nn.Linear(len(self.design), hidden), torch.nn.GELU(),
+                                        torch.nn.Linear(hidden, 2 * hidden * depth))
+        torch.nn.init.zeros_(self.cond[-1].weight)
+        torch.nn.init.zeros_(self.cond[-1].bias)
+        self.out = torch.nn.Linear(hidden, joints)
+        self.register_buffer("scale", scale)
+        self.register_buffer("mean", mean)
+        self.register_buffer("std", std)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """(n, F) features -> (n, P) offsets [rad]."""
+        z = (x - self.mean) / self.std
+        film = self.cond(z[:, self.design]).chunk(2 * len(self.layers), 1)
+        h = z[:, self.state]
+        for k, layer in enumerate(self.layers):
+            h = torch.nn.functional.gelu(layer(h) * (1 + film[2 * k]) + film[2 * k + 1])
+        return self.out(h) * self.scale
+
+
 def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, refreshes: int = 1) -> Windows:
     """n raw windows of `source`, an equal share from each of its first `refreshes` online
     refreshes (one held at a time, so memory stays one refresh's), in a random order."""
@@ -217,18 +293,39 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
             source.start_step(k * source.config.refresh_every)
         for a in range(0, share, chunk):
             draws.append(Windows.of(task_windows(source, layout, min(chunk, share - a), CONTROL, gen), layout, norm))
-    return Windows.cat(draws).take(torch.randperm(n, generator=gen))
+    # Shuffled into place chunk by chunk, each freed once placed: at a million windows the
+    # features are gigabytes, and concatenating then permuting would hold three copies.
+    order = torch.empty(n, dtype=torch.long)
+    order[torch.randperm(n, generator=gen)] = torch.arange(n)
+    fields = ("X", "c0", "c1", "real", "q")
+    out = Windows(*(torch.empty((n, *getattr(draws[0], f).shape[1:]), dtype=getattr(draws[0], f).dtype) for f in fields),
+                  draws[0].free)
+    at = 0
+    while draws:
+        part = draws.pop(0)
+        rows = order[at:at + len(part)]
+        for f in fields:
+            getattr(out, f)[rows] = getattr(part, f)
+        at += len(part)
+    return out
 
 
 def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float, seed: int,
-        huber_delta: float = 0.1) -> tuple[Regressor, list[float]]:
+        huber_delta: float = 0.1, layout=None) -> tuple[torch.nn.Module, list[float]]:
     """The variant's loss on the offsets from its anchor, in units of each joint slot's RMS
-    offset, masked to real slots; AdamW, one-cycle schedule."""
+    offset, masked to real slots; AdamW, one-cycle schedule. `layout` (the windows') tells a
+    FiLM model its design columns."""
     torch.manual_seed(seed)
     X = data.inputs(variant)
     y = torch.where(data.real, data.c1 - data.anchor(variant), torch.zeros_like(data.c0))
     scale = (y.pow(2).sum(0) / data.real.sum(0).clamp_min(1)).sqrt().clamp_min(1e-4)
-    model = Regressor(X.shape[1], y.shape[1], scale, X.mean(0), X.std(0).clamp_min(1e-3))
+    if variant.model == "film":
+        if layout is None:
+            raise ValueError("fit: a FiLM variant needs the windows' layout")
+        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, X.mean(0),
+                              X.std(0).clamp_min(1e-3))
+    else:
+        model = Regressor(X.shape[1], y.shape[1], scale, X.mean(0), X.std(0).clamp_min(1e-3))
     steps = max(1, int(epochs * len(X) // batch))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.05)
@@ -251,7 +348,7 @@ def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float
     return model.eval(), losses
 
 
-def one_step(model: Regressor, data: Windows, variant: Variant) -> dict:
+def one_step(model: torch.nn.Module, data: Windows, variant: Variant) -> dict:
     """RMSE [rad] of the next command: the regressor's, holding the current joints', repeating
     the last command's; R^2 of the offset from the last command, over all windows and over
     the typical ones (each slot's offsets up to its 99th percentile)."""
@@ -291,7 +388,7 @@ def tail_share(y: torch.Tensor, real: torch.Tensor, top: float) -> float:
     return float(v[: max(1, int(top * len(v)))].sum() / v.sum().clamp_min(1e-30))
 
 
-def regressor_policy(model: Regressor, layout, norm, variant: Variant, labels: bool = False):
+def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, labels: bool = False):
     """A closed-loop policy (`tt.dit.closed_loop.Policy`) that builds the DiT controller's query
     (`ModelPolicy.query`) and executes the variant's anchor plus the regressor's offset.
 
@@ -335,7 +432,7 @@ def regressor_policy(model: Regressor, layout, norm, variant: Variant, labels: b
     return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=SPACE, tasks=("control",)))
 
 
-def dagger_windows(source, k: int, model: Regressor, layout, norm, variant: Variant, n: int, seed: int) -> tuple[Windows, dict]:
+def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant: Variant, n: int, seed: int) -> tuple[Windows, dict]:
     """DAgger: the regressor controls refresh `k`'s designs x motions of `source`; every state it
     visits is labelled with DiffIK's command from that state (the episode's ``action``, which
     the control tokens read). Returns n windows of those episodes and their statistics."""
@@ -524,12 +621,12 @@ def main() -> None:
     gen_s = time.perf_counter() - t
     emit(episodes=train_src.stats["episodes"], generate_seconds=gen_s)
 
-    def measure(data: Windows, variant: Variant, epochs: float, **extra) -> tuple[dict, Regressor]:
+    def measure(data: Windows, variant: Variant, epochs: float, **extra) -> tuple[dict, torch.nn.Module]:
         t = time.perf_counter()
         windows = len(data)
         data = trimmed(data, variant, args.trim)
         model, losses = fit(data, variant, epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed,
-                            huber_delta=args.huber_delta)
+                            huber_delta=args.huber_delta, layout=layout)
         fit_s = time.perf_counter() - t
         step = one_step(model, test, variant)
         step["r2_seen"] = one_step(model, seen, variant)["r2"]
@@ -578,7 +675,7 @@ def main() -> None:
         f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
         "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
         f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
-        f"leaves the command out: {train.X_free.shape[1]}), normalised as the DiT reads them; MLP 3 x 512 (GELU), batch "
+        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP 3 x 512 (GELU; film: the same over the state and target columns, each hidden layer scaled and shifted by an MLP 512 of the embodiment columns), batch "
         f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's anchor (the last "
         "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
         f"(delta {args.huber_delta:g}) masked to real slots",

@@ -27,7 +27,11 @@ def test_variants_parse_and_bad_ones_are_refused(bench):
     v = bench.Variant.parse("joints/huber/dagger2")
     assert (v.anchor, v.loss, v.dagger, v.label) == ("joints", "huber", 2, "joints/huber/dagger2")
     assert bench.Variant.parse("command/mse") == bench.Variant("command", "mse", 0)
-    for bad in ("joint/mse", "command/l1", "command", "command/mse/dagger0", "command/mse/rounds2", "a/b/c/d"):
+    v = bench.Variant.parse("command/mse/film/dagger1")
+    assert (v.model, v.dagger, v.label) == ("film", 1, "command/mse/film/dagger1")
+    assert bench.Variant.parse("joints/mse/film") == bench.Variant("joints", "mse", 0, "film")
+    for bad in ("joint/mse", "command/l1", "command", "command/mse/dagger0", "command/mse/rounds2", "a/b/c/d",
+                "command/mse/dagger1/film", "command/mse/film/film", "command/mse/cnn"):
         with pytest.raises(ValueError, match="variant"):
             bench.Variant.parse(bad)
 
@@ -51,9 +55,12 @@ def test_labelled_windows_take_the_next_command_from_the_labels(bench):
     torch.testing.assert_close(mixed.q, plain.q)
     # The joints anchor's features leave the last command out; the command anchor's keep it.
     P = layout["control"].per_step
-    assert plain.X.shape[1] - plain.X_free.shape[1] == P
     command, joints = bench.Variant("command", "mse"), bench.Variant("joints", "mse")
-    assert plain.inputs(command) is plain.X and plain.inputs(joints) is plain.X_free
+    assert plain.inputs(command) is plain.X
+    tokens = norm.normalize(raw)
+    free = bench.features(tokens, layout, command=False)
+    assert plain.X.shape[1] - free.shape[1] == P
+    torch.testing.assert_close(plain.inputs(joints), free)
     assert plain.anchor(command) is plain.c0 and plain.anchor(joints) is plain.q
 
 
@@ -66,8 +73,7 @@ def test_trimming_drops_the_windows_with_a_large_offset_in_any_joint(bench):
     real = torch.ones(n, P, dtype=torch.bool)
     real[:, 2] = False  # a slot no design has: its values never count
     step[:, 2] = 100.0
-    data = bench.Windows(torch.randn(n, 4, generator=gen), torch.randn(n, 2, generator=gen), c0, c0 + step, real,
-                         c0 - 0.1)
+    data = bench.Windows(torch.randn(n, 4, generator=gen), c0, c0 + step, real, c0 - 0.1, torch.tensor([0, 2]))
     command = bench.Variant("command", "mse")
     assert bench.trimmed(data, command, 1.0) is data
     kept = bench.trimmed(data, command, 0.9)
@@ -86,3 +92,32 @@ def test_design_pool_draws_cycle_through_its_designs(bench):
     assert pool.sample(5, seed=9) == [designs[0], designs[1], designs[0], designs[1], designs[0]]
     assert bench.DesignPool(space, designs[:1]).sample(3) == [designs[0]] * 3
     assert pool.ee_sites() == space.ee_sites()  # everything else is the wrapped space's
+
+
+def test_film_reads_the_design_columns_and_starts_as_the_plain_state_mlp(bench):
+    from tt.dit.online import OnlineConfig, OnlineTokenSource
+
+    layout = OnlineTokenSource(OnlineConfig(space=bench.SPACE, seed=0), device="cpu").layout(bench.STEPS)
+    for command in (True, False):
+        design = bench.design_columns(layout, command=command)
+        n_design = sum(s.dim * s.length for s in layout.specs if s.role.value == "embodiment")
+        assert int(design.sum()) == n_design and bool(design[:n_design].all())  # embodiment types come first
+        F = len(design)
+        assert F == n_design + sum(s.dim * (s.length if s.name == "target_pose" else s.per_step)
+                                   for s in layout.specs if s.role.value != "embodiment"
+                                   and (command or s.name != "control"))
+    design = bench.design_columns(layout)
+    F, P = len(design), layout["control"].per_step
+    torch.manual_seed(0)
+    model = bench.FiLMRegressor(design, P, torch.ones(P), torch.zeros(F), torch.ones(F), hidden=16, depth=2)
+    x = torch.randn(5, F)
+    other = x.clone()
+    other[:, design] = torch.randn(5, int(design.sum()))
+    # Zero-initialised modulation: the design does not matter yet ...
+    torch.testing.assert_close(model(x), model(other))
+    # ... and once the modulation is trained it does, while the state columns always do.
+    torch.nn.init.normal_(model.cond[-1].weight)
+    assert not torch.allclose(model(x), model(other))
+    moved = x.clone()
+    moved[:, ~design] += 1.0
+    assert not torch.allclose(model(x), model(moved))
