@@ -437,33 +437,27 @@ def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant
     visits is labelled with DiffIK's command from that state (the episode's ``action``, which
     the control tokens read). Returns n windows of those episodes and their statistics."""
     from tt.dit.closed_loop import closed_loop_rollout
-    from tt.dit.data import EpisodeTokens
+    from tt.dit.online import episode_token_batch
     from tt.dit.tasks import CONTROL, task_windows
-    from tt.tokens.episodes import episode_tokens
     from tt.tokens.tokenize import Tokenizer
 
     designs, motions = source.draw(k)
     policy = regressor_policy(model, layout, norm, variant, labels=True)
     ep = closed_loop_rollout(designs, motions, policy)
-    W, T = ep.worlds, ep.steps
     embodiment = Tokenizer()([source.space.model(d) for d in designs])
     lengths = ep.lengths()
     keep = (lengths >= STEPS).nonzero()[:, 0]
     if not len(keep):
         raise RuntimeError(f"DAgger refresh {k}: every episode ended within {STEPS} steps")
-    steps = torch.arange(T, device=lengths.device).expand(W, T)
     raws = []
     # Twice, the same windows: control tokens of what was executed (the last command, read by
     # the command anchor) and of DiffIK's labels (the next command).
-    for action in (ep.ctrl, policy.labels[:, :T].to(ep.ctrl.device)):
+    for action in (ep.ctrl, policy.labels[:, :ep.steps].to(ep.ctrl.device)):
         ep.action = action
-        dynamics = episode_tokens(ep, embodiment.index, step_index=steps)
-        episodes = EpisodeTokens.from_token_batches(embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(),
-                                                    design_index=ep.design_index.cpu(), max_time=source.config.max_time)
-        episodes = episodes.subset(keep.cpu()).pad_to(source.maxima)
+        episodes = episode_token_batch(ep, embodiment, lengths, keep, source.config.max_time, source.maxima)
         raws.append(task_windows(episodes, layout, n, CONTROL, torch.Generator().manual_seed(seed)))
     windows = Windows.of(raws[0], layout, norm, labels=raws[1])
-    return windows, {"episodes": W, "kept": len(keep), "mean_steps": float(lengths.float().mean())}
+    return windows, {"episodes": ep.worlds, "kept": len(keep), "mean_steps": float(lengths.float().mean())}
 
 
 class DesignPool:

@@ -172,7 +172,6 @@ class OnlineTokenSource:
             return self._refreshes[k]
         from tt.sim.controller import IKConfig
         from tt.sim.rollout import group_episode, rollout_records
-        from tt.tokens.episodes import episode_tokens
         from tt.tokens.draws import _seed_int, finite_worlds
 
         cfg, t0 = self.config, time.perf_counter()
@@ -200,13 +199,7 @@ class OnlineTokenSource:
             dropped += int((~keep).sum())
             if not bool(keep.any()):
                 continue
-            W, T = ep.worlds, ep.steps
-            dynamics = episode_tokens(ep, embodiment.index, step_index=torch.arange(T, device=lengths.device).expand(W, T))
-            # Dropped worlds (some end at step 0) are cut out right after; clamped so they
-            # pass EpisodeTokens' length check until then.
-            tokens = EpisodeTokens.from_token_batches(embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(),
-                                                      design_index=ep.design_index.cpu(), max_time=cfg.max_time)
-            parts.append(tokens.subset(keep.nonzero()[:, 0].cpu()).pad_to(self.maxima))
+            parts.append(episode_token_batch(ep, embodiment, lengths, keep.nonzero()[:, 0], cfg.max_time, self.maxima))
         if not parts:
             raise RuntimeError(f"online refresh {k}: all {dropped} episodes were dropped (non-finite or shorter than "
                                f"{cfg.min_steps} steps)")
@@ -223,4 +216,19 @@ class OnlineTokenSource:
         return out
 
 
-__all__ = ["OnlineConfig", "OnlineTokenSource"]
+def episode_token_batch(ep, embodiment, lengths: torch.Tensor, keep: torch.Tensor, max_time: int, maxima) -> EpisodeTokens:
+    """The token episodes of worlds `keep` (k,) of a rollout's episode batch `ep` (W worlds x T
+    steps), each `lengths` (W,) steps long, with the designs' embodiment tokens (`Tokenizer`
+    output), time IDs up to `max_time`, padded to `maxima`."""
+    from tt.tokens.episodes import episode_tokens
+
+    W, T = ep.worlds, ep.steps
+    dynamics = episode_tokens(ep, embodiment.index, step_index=torch.arange(T, device=lengths.device).expand(W, T))
+    # Worlds left out (some end at step 0) are cut out right after; clamped so they pass
+    # EpisodeTokens' length check until then.
+    tokens = EpisodeTokens.from_token_batches(embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(),
+                                              design_index=ep.design_index.cpu(), max_time=max_time)
+    return tokens.subset(keep.cpu()).pad_to(maxima)
+
+
+__all__ = ["OnlineConfig", "OnlineTokenSource", "episode_token_batch"]
