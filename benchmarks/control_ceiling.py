@@ -18,7 +18,7 @@ It separates what the data allows at a given number of windows from what the dif
 training reaches: a regressor that cannot control from 100k windows says the DiT will not
 either at that budget.
 
-Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/daggerK]``):
+Levers (``--variants``, one row per variant and training size; ``ANCHOR/LOSS[/film][/daggerK]``):
 
 * anchor ``command``: the offset from the last command, which the regressor is given (the
   DiT's ``--anchor-control command --known-command``); ``joints``: DiffIK's own form, the next
@@ -98,16 +98,15 @@ class Variant:
             raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK] with ANCHOR in {ANCHORS}, "
                              f"LOSS in {LOSSES}")
         rest, model, rounds = parts[2:], "mlp", 0
-        if rest and rest[0] in MODELS:
+        if rest and rest[0] == "film":  # the plain MLP is the default, never named
             model = rest.pop(0)
         if rest:
             last = rest.pop(0)
             if not last.startswith("dagger") or not last[6:].isdigit() or int(last[6:]) < 1:
                 raise ValueError(f"variant {text!r}: the last part is daggerK with K >= 1")
+            rounds = int(last[6:])
         if rest:
             raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK]")
-        if len(parts) > 2 and parts[-1].startswith("dagger"):
-            rounds = int(parts[-1][6:])
         return cls(parts[0], parts[1], rounds, model)
 
     @property
@@ -116,34 +115,37 @@ class Variant:
                 + (f"/dagger{self.dagger}" if self.dagger else ""))
 
 
+def feature_blocks(layout, command: bool = True) -> list[tuple]:
+    """The blocks of `features`, in order, as (spec, whole, width): embodiment types and the
+    target poses whole (all their tokens), the other per-step types at step 0 only, the last
+    command only with `command`; width: the block's columns."""
+    from tt.tokens.schema import STEP_ROLES
+
+    out = []
+    for s in layout.specs:
+        whole = s.role not in STEP_ROLES or s.name == "target_pose"
+        if whole or s.name != "control" or command:
+            out.append((s, whole, s.dim * (s.length if whole else s.per_step)))
+    return out
+
+
 def features(tokens, layout, command: bool = True) -> torch.Tensor:
     """(n, F) float32: the control query's clean conditions of normalised windows `tokens`
     (padding at PAD_VALUE, as the DiT reads it): every embodiment token, step 0 of every
     per-step type (the current state and, with `command`, the last command) and the target
     poses of all steps."""
-    from tt.tokens.schema import STEP_ROLES
-
     parts = []
-    for s in layout.specs:
+    for s, whole, _ in feature_blocks(layout, command):
         v = tokens.values[s.name].float()
-        n = v.shape[0]
-        if s.role not in STEP_ROLES:
-            parts.append(v.reshape(n, -1))
-        elif s.name == "target_pose":
-            parts.append(v.reshape(n, -1))
-        elif s.name != "control" or command:
-            parts.append(v.reshape(n, layout.steps, -1)[:, 0])
+        parts.append(v.reshape(len(v), -1) if whole else v.reshape(len(v), layout.steps, -1)[:, 0])
     return torch.cat(parts, 1)
 
 
 def command_free(layout) -> torch.Tensor:
     """(F',) long: the columns of `features` that `features(..., command=False)` keeps, i.e.
     all but the last command's."""
-    from tt.tokens.schema import STEP_ROLES
-
     keep, at = [], 0
-    for s in layout.specs:
-        width = s.dim * (s.length if s.role not in STEP_ROLES or s.name == "target_pose" else s.per_step)
+    for s, _, width in feature_blocks(layout):
         if s.name != "control":
             keep.append(torch.arange(at, at + width))
         at += width
@@ -154,15 +156,7 @@ def design_columns(layout, command: bool = True) -> torch.Tensor:
     """(F,) bool: which columns of `features(..., command)` are embodiment tokens (the design)."""
     from tt.tokens.schema import STEP_ROLES
 
-    parts = []
-    for s in layout.specs:
-        if s.role not in STEP_ROLES:
-            parts.append(torch.ones(s.dim * s.length, dtype=torch.bool))
-        elif s.name == "target_pose":
-            parts.append(torch.zeros(s.dim * s.length, dtype=torch.bool))
-        elif s.name != "control" or command:
-            parts.append(torch.zeros(s.dim * s.per_step, dtype=torch.bool))
-    return torch.cat(parts)
+    return torch.cat([torch.full((width,), s.role not in STEP_ROLES) for s, _, width in feature_blocks(layout, command)])
 
 
 def commands(raw, layout) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -219,7 +213,7 @@ class Windows:
         return Windows(self.X[rows], self.c0[rows], self.c1[rows], self.real[rows], self.q[rows], self.free)
 
     def inputs(self, variant: Variant) -> torch.Tensor:
-        """(n, F) or, for the joints anchor, (n, F') features (a copy: the command's columns dropped)."""
+        """(n, F) or, for the joints anchor, (n, F') features (a copy without the command's columns)."""
         return self.X if variant.anchor == "command" else self.X[:, self.free]
 
     def anchor(self, variant: Variant) -> torch.Tensor:
@@ -248,8 +242,9 @@ class Regressor(torch.nn.Module):
 
 
 class FiLMRegressor(torch.nn.Module):
-    """An MLP over the state and target columns whose every hidden layer the design scales and
-    shifts (FiLM): h <- GELU(W h (1 + gamma(d)) + beta(d)), gamma and beta from an MLP of the
+    """An MLP over the columns other than the embodiment's (the state, the targets and, with
+    the command anchor, the last command) whose every hidden layer the design scales and shifts
+    (FiLM): h <- GELU((W h + b)(1 + gamma(d)) + beta(d)), gamma and beta from an MLP of the
     embodiment columns `design` (F,) bool. DiffIK's increment is a design-dependent linear map
     of the tracking error; a plain MLP must build such products from sums, this one has them.
     The modulation starts at zero, so it starts as the plain MLP of the non-design columns."""
@@ -298,8 +293,9 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
     order = torch.empty(n, dtype=torch.long)
     order[torch.randperm(n, generator=gen)] = torch.arange(n)
     fields = ("X", "c0", "c1", "real", "q")
-    out = Windows(*(torch.empty((n, *getattr(draws[0], f).shape[1:]), dtype=getattr(draws[0], f).dtype) for f in fields),
-                  draws[0].free)
+    first = draws[0]
+    out = Windows(*(torch.empty((n, *getattr(first, f).shape[1:]), dtype=getattr(first, f).dtype, device=getattr(first, f).device)
+                    for f in fields), first.free)
     at = 0
     while draws:
         part = draws.pop(0)
@@ -316,16 +312,20 @@ def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float
     offset, masked to real slots; AdamW, one-cycle schedule. `layout` (the windows') tells a
     FiLM model its design columns."""
     torch.manual_seed(seed)
-    X = data.inputs(variant)
+    X, cols = data.X, (None if variant.anchor == "command" else data.free)
+    # The joints anchor's columns are picked per batch: a copy of X without the command
+    # would double the memory at a million windows.
+    mean, std = X.mean(0), X.std(0).clamp_min(1e-3)
+    if cols is not None:
+        mean, std = mean[cols], std[cols]
     y = torch.where(data.real, data.c1 - data.anchor(variant), torch.zeros_like(data.c0))
     scale = (y.pow(2).sum(0) / data.real.sum(0).clamp_min(1)).sqrt().clamp_min(1e-4)
     if variant.model == "film":
         if layout is None:
             raise ValueError("fit: a FiLM variant needs the windows' layout")
-        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, X.mean(0),
-                              X.std(0).clamp_min(1e-3))
+        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, mean, std)
     else:
-        model = Regressor(X.shape[1], y.shape[1], scale, X.mean(0), X.std(0).clamp_min(1e-3))
+        model = Regressor(len(mean), y.shape[1], scale, mean, std)
     steps = max(1, int(epochs * len(X) // batch))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.05)
@@ -334,7 +334,7 @@ def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float
     for k in range(steps):
         i = torch.randint(0, len(X), (batch,), generator=gen)
         m = data.real[i].float()
-        err = (model(X[i]) - y[i]) / model.scale
+        err = (model(X[i] if cols is None else X[i][:, cols]) - y[i]) / model.scale
         if variant.loss == "huber":
             per = torch.nn.functional.huber_loss(err, torch.zeros_like(err), reduction="none", delta=huber_delta)
         else:
@@ -508,7 +508,8 @@ def main() -> None:
     parser.add_argument("--rows", nargs="+", default=["16384x20", "65536x20", "262144x20", "98304x1"],
                         help="one row per WINDOWSxEPOCHS: the first WINDOWS training windows, EPOCHS passes over them")
     parser.add_argument("--variants", default="command/mse",
-                        help="comma-separated ANCHOR/LOSS[/daggerK] (anchor: command, joints; loss: mse, huber); "
+                        help="comma-separated ANCHOR/LOSS[/film][/daggerK] (anchor: command, joints; loss: mse, huber; "
+                             "film: the design modulates every hidden layer); "
                              "every variant runs every row")
     parser.add_argument("--huber-delta", type=float, default=0.1, help="huber loss: delta in units of the offset's RMS")
     parser.add_argument("--trim", type=float, default=1.0,
@@ -669,7 +670,9 @@ def main() -> None:
         f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
         "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
         f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
-        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP 3 x 512 (GELU; film: the same over the state and target columns, each hidden layer scaled and shifted by an MLP 512 of the embodiment columns), batch "
+        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP 3 x 512 (GELU"
+        + ("; film: the same over the columns other than the embodiment's, each hidden layer scaled and shifted by an MLP 512 "
+           "of the embodiment columns" if any(v.model == "film" for v in variants) else "") + f"), batch "
         f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's anchor (the last "
         "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
         f"(delta {args.huber_delta:g}) masked to real slots",

@@ -31,7 +31,7 @@ def test_variants_parse_and_bad_ones_are_refused(bench):
     assert (v.model, v.dagger, v.label) == ("film", 1, "command/mse/film/dagger1")
     assert bench.Variant.parse("joints/mse/film") == bench.Variant("joints", "mse", 0, "film")
     for bad in ("joint/mse", "command/l1", "command", "command/mse/dagger0", "command/mse/rounds2", "a/b/c/d",
-                "command/mse/dagger1/film", "command/mse/film/film", "command/mse/cnn"):
+                "command/mse/dagger1/film", "command/mse/film/film", "command/mse/cnn", "command/mse/mlp"):
         with pytest.raises(ValueError, match="variant"):
             bench.Variant.parse(bad)
 
@@ -96,16 +96,18 @@ def test_design_pool_draws_cycle_through_its_designs(bench):
 
 def test_film_reads_the_design_columns_and_starts_as_the_plain_state_mlp(bench):
     from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.tasks import CONTROL, task_windows
 
-    layout = OnlineTokenSource(OnlineConfig(space=bench.SPACE, seed=0), device="cpu").layout(bench.STEPS)
+    source = OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8),
+                               device="cpu")
+    layout, norm = source.layout(bench.STEPS), source.fit_normalizer()
+    tokens = norm.normalize(task_windows(source, layout, 8, CONTROL, torch.Generator().manual_seed(0)))
+    embodiment = torch.cat([tokens.values[s.name].float().reshape(8, -1) for s in layout.specs
+                            if s.role.value == "embodiment"], 1)
     for command in (True, False):
-        design = bench.design_columns(layout, command=command)
-        n_design = sum(s.dim * s.length for s in layout.specs if s.role.value == "embodiment")
-        assert int(design.sum()) == n_design and bool(design[:n_design].all())  # embodiment types come first
-        F = len(design)
-        assert F == n_design + sum(s.dim * (s.length if s.name == "target_pose" else s.per_step)
-                                   for s in layout.specs if s.role.value != "embodiment"
-                                   and (command or s.name != "control"))
+        X, design = bench.features(tokens, layout, command=command), bench.design_columns(layout, command=command)
+        assert design.shape == X.shape[1:]
+        torch.testing.assert_close(X[:, design], embodiment)  # exactly the embodiment tokens' values
     design = bench.design_columns(layout)
     F, P = len(design), layout["control"].per_step
     torch.manual_seed(0)
