@@ -123,3 +123,27 @@ def test_film_reads_the_design_columns_and_starts_as_the_plain_state_mlp(bench):
     moved = x.clone()
     moved[:, ~design] += 1.0
     assert not torch.allclose(model(x), model(moved))
+
+
+def test_drawn_windows_are_the_concatenated_draws_in_one_random_order(bench):
+    from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.tasks import CONTROL, task_windows
+
+    def source():
+        return OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=1, buffer=1, min_steps=8),
+                                 device="cpu")
+
+    src = source()
+    layout, norm = src.layout(bench.STEPS), src.fit_normalizer()
+    n, chunk, refreshes = 11, 3, 2
+    drawn = bench.draw_windows(src, n, layout, norm, seed=5, chunk=chunk, refreshes=refreshes)
+    # Reference: the same draws, concatenated, then permuted by the generator's next draw.
+    ref_src, gen, parts = source(), torch.Generator().manual_seed(5), []
+    for k, share in enumerate((6, 5)):
+        ref_src.start_step(k)
+        for a in range(0, share, chunk):
+            parts.append(bench.Windows.of(task_windows(ref_src, layout, min(chunk, share - a), CONTROL, gen), layout, norm))
+    ref = bench.Windows.cat(parts).take(torch.randperm(n, generator=gen))
+    assert len(drawn) == n
+    for field in ("X", "c0", "c1", "real", "q"):
+        torch.testing.assert_close(getattr(drawn, field), getattr(ref, field))
