@@ -307,7 +307,7 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
 
 
 def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float, seed: int,
-        huber_delta: float = 0.1, layout=None) -> tuple[torch.nn.Module, list[float]]:
+        huber_delta: float = 0.1, layout=None, hidden: int = 512, depth: int = 3) -> tuple[torch.nn.Module, list[float]]:
     """The variant's loss on the offsets from its anchor, in units of each joint slot's RMS
     offset, masked to real slots; AdamW, one-cycle schedule. `layout` (the windows') tells a
     FiLM model its design columns."""
@@ -323,9 +323,10 @@ def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float
     if variant.model == "film":
         if layout is None:
             raise ValueError("fit: a FiLM variant needs the windows' layout")
-        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, mean, std)
+        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, mean, std,
+                              hidden=hidden, depth=depth)
     else:
-        model = Regressor(len(mean), y.shape[1], scale, mean, std)
+        model = Regressor(len(mean), y.shape[1], scale, mean, std, hidden=hidden, depth=depth)
     steps = max(1, int(epochs * len(X) // batch))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.05)
@@ -521,6 +522,8 @@ def main() -> None:
     parser.add_argument("--refreshes", type=int, default=16, help="online refreshes (64 new designs x 4 motions each) "
                         "the training windows are drawn from: the designs seen")
     parser.add_argument("--batch", type=int, default=1024)
+    parser.add_argument("--hidden", type=int, default=512, help="width of the regressor's hidden layers")
+    parser.add_argument("--depth", type=int, default=3, help="hidden layers of the regressor")
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--seed", type=int, default=0, help="training data and MLP seed")
     parser.add_argument("--design-seed", type=int, default=20261122, help="held-out designs and one-step windows")
@@ -556,6 +559,8 @@ def main() -> None:
         parser.error("--pool N (N >= 1) runs the closed loop on the pool's designs; leave --loop-designs out")
     if not 0.5 <= args.trim <= 1.0:
         parser.error(f"--trim {args.trim}: a quantile in [0.5, 1]")
+    if args.hidden < 1 or args.depth < 1:
+        parser.error(f"--hidden {args.hidden} --depth {args.depth}: both must be >= 1")
     if not args.huber_delta > 0 or args.dagger_refreshes < 1 or args.dagger_windows < 1:
         parser.error("--huber-delta must be > 0, --dagger-refreshes and --dagger-windows >= 1")
     import warp as wp
@@ -621,7 +626,7 @@ def main() -> None:
         windows = len(data)
         data = trimmed(data, variant, args.trim)
         model, losses = fit(data, variant, epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed,
-                            huber_delta=args.huber_delta, layout=layout)
+                            huber_delta=args.huber_delta, layout=layout, hidden=args.hidden, depth=args.depth)
         fit_s = time.perf_counter() - t
         step = one_step(model, test, variant)
         step["r2_seen"] = one_step(model, seen, variant)["r2"]
@@ -670,8 +675,8 @@ def main() -> None:
         f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
         "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
         f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
-        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP 3 x 512 (GELU"
-        + ("; film: the same over the columns other than the embodiment's, each hidden layer scaled and shifted by an MLP 512 "
+        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP {args.depth} x {args.hidden} (GELU"
+        + (f"; film: the same over the columns other than the embodiment's, each hidden layer scaled and shifted by an MLP {args.hidden} "
            "of the embodiment columns" if any(v.model == "film" for v in variants) else "") + f"), batch "
         f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's anchor (the last "
         "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
