@@ -72,7 +72,6 @@ from machine import machine_header, write_report  # noqa: E402
 STEPS = 8
 ANCHORS = ("command", "joints")
 LOSSES = ("mse", "huber")
-MODELS = ("mlp", "film")
 
 
 def emit(**fields) -> dict:
@@ -83,7 +82,7 @@ def emit(**fields) -> dict:
 @dataclass(frozen=True)
 class Variant:
     """How the regressor is set up: anchor (`ANCHORS`), loss (`LOSSES`), DAgger rounds, model
-    (`MODELS`)."""
+    ("mlp": `Regressor`, the default; "film": `FiLMRegressor`)."""
 
     anchor: str = "command"
     loss: str = "mse"
