@@ -22,6 +22,13 @@ cd "$(dirname "$0")/.."
 OUT=${OUT:-/tmp/tt_gpu_out}
 STAGE=/tmp/tt_wheels
 TRAIN_SECONDS=${TRAIN_SECONDS:-90}
+# The recipe of step 2 (default: the generalist, robot + control). The controller's open
+# question (issue 17) is whether a design-conditioned, joints-anchored model learns DiffIK's
+# map at the reference's sample count (`control_ceiling_film*.md`); its run:
+#   TRAIN_ARGS="--task control --size mini --batch-size 1024 --online-designs 256 --online-motions 4
+#     --refresh-every 20 --no-future-states --anchor-control joints --known-command
+#     --control-target-offset 2 --design-cond" bash benchmarks/gpu_call.sh run
+TRAIN_ARGS=${TRAIN_ARGS:---task both --size mini --batch-size 256 --online-designs 256 --online-motions 4 --refresh-every 50}
 mkdir -p "$OUT" "$STAGE"
 export PYTHONUNBUFFERED=1
 
@@ -53,8 +60,8 @@ timeout 520 $PY benchmarks/gpu.py --device cuda --out "$OUT/gpu.md" 2>&1 | tee "
 
 # 2. Online training on the GPU, stopped at TRAIN_SECONDS; checkpoints every 100 steps.
 RUN=/tmp/tt_run_online
-timeout "$TRAIN_SECONDS" tt train --online --device cuda --space viperx --task both --size mini --batch-size 256 \
-  --online-designs 256 --online-motions 4 --refresh-every 50 --steps 100000 --checkpoint-every 100 \
+# shellcheck disable=SC2086  # TRAIN_ARGS is a list of flags
+timeout "$TRAIN_SECONDS" tt train --online --device cuda --space viperx $TRAIN_ARGS --steps 100000 --checkpoint-every 100 \
   --out "$RUN" > "$OUT/train.log" 2>&1 || echo "training stopped at ${TRAIN_SECONDS} s (expected)" >> "$OUT/train.log"
 tail -c 4000 "$OUT/train.log" | tr '\r' '\n' | tail -5
 
