@@ -40,10 +40,7 @@ class DiTConfig:
     """Backbone size. hidden: token width; depth: DiT blocks; heads: attention heads;
     mlp_ratio: MLP width / hidden; freq_dim: sinusoidal features of the diffusion time;
     time_ids: how a token's time-step ID is embedded, "sinusoidal" (`TimeIdEmbedder`) or
-    "learned" (a lookup table like every other ID kind, as checkpoints before the choice);
-    design_cond: the adaLN condition of every block and head is the diffusion time's embedding
-    plus an MLP of the clean embodiment tokens (`DesignEmbedder`), so the design scales and
-    shifts every token's features (FiLM), not only the time."""
+    "learned" (a lookup table like every other ID kind, as checkpoints before the choice)."""
 
     hidden: int = 256
     depth: int = 8
@@ -51,7 +48,6 @@ class DiTConfig:
     mlp_ratio: float = 4.0
     freq_dim: int = 256
     time_ids: str = "sinusoidal"
-    design_cond: bool = False
 
     def __post_init__(self) -> None:
         if self.time_ids not in TIME_ID_EMBEDDINGS:
@@ -122,32 +118,6 @@ class TimeIdEmbedder(nn.Module):
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
         args = ids.to(self.freqs.dtype).unsqueeze(-1) * self.freqs  # (..., half)
         return self.proj(torch.cat([torch.cos(args), torch.sin(args)], dim=-1).to(self.proj.weight.dtype))
-
-
-class DesignEmbedder(nn.Module):
-    """Clean embodiment tokens -> (B, H): a 2-layer MLP of every embodiment slot's value and a
-    flag of whether it is clean, in layout order. Noised slots (the motion-to-robot task's)
-    enter as zeros with flag 0, so only a given design conditions.
-
-    Why: DiffIK's command is a design-dependent linear map of the tracking error. An MLP whose
-    layers the design scales and shifts learns such a map from 21 M windows where a plain one
-    does not (`benchmarks/results/control_ceiling_pool16_film21m.md`); attention alone mixes
-    design and state only through its softmax weights.
-    """
-
-    def __init__(self, specs, hidden: int):
-        super().__init__()
-        self.names = tuple(s.name for s in specs)
-        width = sum(s.length * (s.dim + 1) for s in specs)
-        self.mlp = nn.Sequential(nn.Linear(width, hidden), nn.SiLU(), nn.Linear(hidden, hidden))
-
-    def forward(self, values: Mapping[str, torch.Tensor], noised: Mapping[str, torch.Tensor]) -> torch.Tensor:
-        parts = []
-        for name in self.names:
-            clean = (~noised[name].bool()).unsqueeze(-1).to(values[name].dtype)  # (B, L, 1)
-            parts.append(torch.cat([values[name] * clean, clean], dim=-1).flatten(1))  # (B, L (D + 1))
-        x = torch.cat(parts, dim=1)  # (B, F)
-        return self.mlp(x.to(self.mlp[0].weight.dtype))  # (B, H)
 
 
 class Attention(nn.Module):
@@ -236,12 +206,6 @@ class RoboDiT(nn.Module):
         self.type_embed = nn.Embedding(len(layout.specs), h)
         self.noised_embed = nn.Embedding(2, h)
         self.time_embed = TimestepEmbedder(h, config.freq_dim)
-        self.design_embed = None
-        if config.design_cond:
-            specs = [s for s in layout.specs if s.role is Role.EMBODIMENT]
-            if not specs:
-                raise LayoutError("design_cond needs embodiment token types in the layout; it has none")
-            self.design_embed = DesignEmbedder(specs, h)
         self.blocks = nn.ModuleList([DiTBlock(h, config.heads, config.mlp_ratio) for _ in range(config.depth)])
         self.heads = nn.ModuleDict({s.name: OutputHead(h, s.dim) for s in layout.specs if s.role is not Role.CONDITION})
         for name, anchor in self.anchors.items():
@@ -312,8 +276,6 @@ class RoboDiT(nn.Module):
         """
         x = self.embed(values, ids, noised)  # (B, N, H)
         c = self.time_embed(time)  # (B, H)
-        if self.design_embed is not None:
-            c = c + self.design_embed(values, noised)  # (B, H)
         for block in self.blocks:
             x = block(x, c, attend)  # (B, N, H)
         out, start = {}, 0

@@ -101,8 +101,7 @@ class TrainConfig:
     reference's conditioning, each command beside the target DiffIK aimed it at with the
     offset `IKConfig.lookahead_steps`); dynamics_start: the dynamics task's windows hold
     step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids: "sinusoidal" or "learned" time-step
-    ID embeddings (`tt.dit.model.DiTConfig.time_ids`); design_cond: every block's adaLN also
-    reads the clean embodiment (`tt.dit.model.DiTConfig.design_cond`); drop_types: per-step token types left
+    ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
     out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task; without all
     three, which the tracking reward does not read, the ViperX sequence is 71 tokens instead of
     239 (not with the control task, which reads and writes them). Measured as an ablation: on
@@ -146,7 +145,6 @@ class TrainConfig:
     control_target_offset: int = 0
     dynamics_start: bool = False
     time_ids: str = "sinusoidal"
-    design_cond: bool = False
     drop_types: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -206,10 +204,10 @@ class TrainConfig:
                              f"{self.grad_clip}, {self.weight_decay}")
 
     def model_config(self):
-        """The network's `tt.dit.model.DiTConfig`: the size's, with `time_ids` and `design_cond`."""
+        """The network's `tt.dit.model.DiTConfig`: the size's, with `time_ids`."""
         import dataclasses
 
-        return dataclasses.replace(get_config(self.size), time_ids=self.time_ids, design_cond=self.design_cond)
+        return dataclasses.replace(get_config(self.size), time_ids=self.time_ids)
 
     @property
     def learning_rate(self) -> float:
@@ -343,7 +341,7 @@ RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size"
               "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
               "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
               "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command", "control_target_offset": "--control-target-offset", "dynamics_start": "--dynamics-start",
-              "time_ids": "--time-ids", "design_cond": "--design-cond", "drop_types": "--drop-type"}
+              "time_ids": "--time-ids", "drop_types": "--drop-type"}
 
 
 def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
@@ -375,7 +373,7 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
         raise LayoutError(f"{where} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
     if model.config != config.model_config():
         raise ValueError(f"{where} holds a {model.config} model, config asks for size {config.size!r} with --time-ids "
-                         f"{config.time_ids!r}" + (" and --design-cond" if config.design_cond else " without --design-cond"))
+                         f"{config.time_ids!r}")
     if model.prediction != config.prediction:
         raise ValueError(f"{where} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
     for flag, name, on in (("anchor_track", "track_link_obs", config.anchor_track), ("anchor_control", "control", bool(config.anchor_control))):

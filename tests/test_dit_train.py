@@ -217,6 +217,3 @@ def test_resume_check_skips_fields_newer_than_the_run(tmp_path):
     check_same_run(stored, config, tmp_path)
     with pytest.raises(ValueError, match="trained with --prediction 'eps'"):
         check_same_run({**stored, "prediction": "eps"}, config, tmp_path)
-    with pytest.raises(ValueError, match="trained with --design-cond True"):
-        check_same_run({**stored, "design_cond": True}, config, tmp_path)
-    assert TrainConfig(design_cond=True).model_config().design_cond

@@ -670,7 +670,6 @@ def train(
     dynamics_start: bool = typer.Option(False, help="Dynamics task: every window holds the episode's first step, its state and command a clean condition; tt predict then simulates each design's first control step and tells the model where it starts (benchmarks/results/critic_failures.md)."),
     future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
     time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
-    design_cond: bool = typer.Option(False, help="Condition every block's adaLN on the clean embodiment too (FiLM by the design), not only on the diffusion time (benchmarks/results/control_ceiling_pool16_film21m.md)."),
     drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out of the model's sequence (repeatable): dyna_joint_obs, actuator_obs, control; a lean critic (--task dynamics) trains on a shorter sequence, measured to learn far less (benchmarks/results/dit_ladder_r2f.md). Not with the control task."),
     select_designs: int = typer.Option(0, help="Score every checkpoint on this many held-out designs x --select-motions validation motions (predicted vs simulated reward, as tt predict) and keep the best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs --task with robot or dynamics."),
     select_motions: int = typer.Option(5, help="--select-designs: validation motions."),
@@ -704,7 +703,7 @@ def train(
                   control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
                   anchor_control=anchor_control, known_command=known_command, control_target_offset=control_target_offset,
                   dynamics_start=dynamics_start,
-                  future_states=future_states, time_ids=time_ids, design_cond=design_cond,
+                  future_states=future_states, time_ids=time_ids,
                   drop_types=tuple(drop_type or ()))
     _output(out, "--out", folder=True)
     selector = None
