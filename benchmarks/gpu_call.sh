@@ -23,11 +23,12 @@ OUT=${OUT:-/tmp/tt_gpu_out}
 STAGE=/tmp/tt_wheels
 TRAIN_SECONDS=${TRAIN_SECONDS:-90}
 # The recipe of step 2 (default: the generalist, robot + control). The controller's open
-# question (issue 17) is whether a design-conditioned, joints-anchored model learns DiffIK's
-# map at the reference's sample count (`control_ceiling_film*.md`); its run:
+# question (issue 17) is whether the DiT learns DiffIK's map across designs at the reference's
+# sample count, which no regressor did on 2 cores (`control_ceiling_21m.md`,
+# `control_ceiling_film_heldout.md`); the best CPU recipe (`dit_control_offset.md`) at scale:
 #   TRAIN_ARGS="--task control --size mini --batch-size 1024 --online-designs 256 --online-motions 4
-#     --refresh-every 20 --no-future-states --anchor-control joints --known-command
-#     --control-target-offset 2 --design-cond" bash benchmarks/gpu_call.sh run
+#     --refresh-every 20 --no-future-states --anchor-control command --known-command
+#     --control-target-offset 2" bash benchmarks/gpu_call.sh run
 TRAIN_ARGS=${TRAIN_ARGS:---task both --size mini --batch-size 256 --online-designs 256 --online-motions 4 --refresh-every 50}
 mkdir -p "$OUT" "$STAGE"
 export PYTHONUNBUFFERED=1
