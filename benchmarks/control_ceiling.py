@@ -388,7 +388,7 @@ def tail_share(y: torch.Tensor, real: torch.Tensor, top: float) -> float:
     return float(v[: max(1, int(top * len(v)))].sum() / v.sum().clamp_min(1e-30))
 
 
-def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, labels: bool = False):
+def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, labels: bool = False, space: str = SPACE):
     """A closed-loop policy (`tt.dit.closed_loop.Policy`) that builds the DiT controller's query
     (`ModelPolicy.query`) and executes the variant's anchor plus the regressor's offset.
 
@@ -429,7 +429,7 @@ def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, lab
             self.ik_moved += float((ik_slots - anchor)[real].abs().mean())
             return self.commands(worlds, state, target)
 
-    return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=SPACE, tasks=("control",)))
+    return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=space, tasks=("control",)))
 
 
 def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant: Variant, n: int, seed: int) -> tuple[Windows, dict]:
@@ -442,7 +442,7 @@ def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant
     from tt.tokens.tokenize import Tokenizer
 
     designs, motions = source.draw(k)
-    policy = regressor_policy(model, layout, norm, variant, labels=True)
+    policy = regressor_policy(model, layout, norm, variant, labels=True, space=source.config.space)
     ep = closed_loop_rollout(designs, motions, policy)
     embodiment = Tokenizer()([source.space.model(d) for d in designs])
     lengths = ep.lengths()
@@ -537,6 +537,9 @@ def main() -> None:
                              "regressor that learned those designs, not kinematics, can do)")
     parser.add_argument("--motions", type=int, default=5, help="validation motions of the closed loop")
     parser.add_argument("--test-windows", type=int, default=4096, help="one-step windows of held-out designs")
+    parser.add_argument("--space", choices=("viperx", "viperx-nominal"), default=SPACE,
+                        help="design space of every design: the full ViperX space, or one structure (the nominal "
+                             "discrete choices, continuous ones varied: the ladder's R1)")
     parser.add_argument("--out", default=str(RESULTS / "control_ceiling.md"))
     args = parser.parse_args()
     try:
@@ -574,16 +577,16 @@ def main() -> None:
 
     load_before, started = os.getloadavg(), time.perf_counter()
     # The DiT's training data: tt generate's draws, control perturbation included.
-    cfg = OnlineConfig(space=SPACE, seed=args.seed, refresh_every=1, buffer=1)
+    cfg = OnlineConfig(space=args.space, seed=args.seed, refresh_every=1, buffer=1)
     if args.loop_designs == "seen" and args.designs > cfg.designs:
         parser.error(f"--designs {args.designs}: a refresh has {cfg.designs} designs to take seen ones from")
     train_src = OnlineTokenSource(cfg, device="cpu")
     pool = None
     if args.pool is not None:
-        pool = get_space(SPACE).sample(args.pool, seed=args.pool_seed)
+        pool = get_space(args.space).sample(args.pool, seed=args.pool_seed)
         train_src.space = DesignPool(train_src.space, pool)
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
-    test_src = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device="cpu")
+    test_src = OnlineTokenSource(OnlineConfig(space=args.space, seed=args.design_seed, action_noise=0.0), device="cpu")
     if pool is not None:
         test_src.space = DesignPool(test_src.space, pool)
     test = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
@@ -592,7 +595,7 @@ def main() -> None:
              "median": float(y_test[test.real].abs().median()), "rms": float(y_test[test.real].pow(2).mean().sqrt())}
     emit(**{f"tail_{k}": v for k, v in tails.items()})
 
-    space = get_space(SPACE)
+    space = get_space(args.space)
     if pool is not None:
         designs = pool[: args.designs]
     elif args.loop_designs == "seen":
@@ -630,7 +633,7 @@ def main() -> None:
         step = one_step(model, test, variant)
         step["r2_seen"] = one_step(model, seen, variant)["r2"]
         t = time.perf_counter()
-        policy = regressor_policy(model, layout, norm, variant)
+        policy = regressor_policy(model, layout, norm, variant, space=args.space)
         ep = closed_loop_rollout(designs, motions, policy)
         loop_s = time.perf_counter() - t
         r, m = score_episode(ep, designs, motions, "tracking")
@@ -662,7 +665,7 @@ def main() -> None:
     ik_noise = "; ".join(f"DiffIK with command noise of std {r['ik_noise']:g} rad: {100 * r['share']:.1f} %, survival "
                          f"{100 * r['survival']:.0f} %" for r in noisy)
     lines = [
-        "# A supervised ceiling for the control task (ViperX)",
+        f"# A supervised ceiling for the control task ({args.space})",
         "",
         machine_header("cpu").rstrip(),
         f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after: {load_before[0]:.1f} / "
@@ -689,7 +692,7 @@ def main() -> None:
         "- closed loop: " + (f"{len(designs)} of the {args.pool} designs every window is of (`space.sample({args.pool}, "
                              f"seed={args.pool_seed})`; training and one-step windows are those designs on fresh training "
                              "motions)" if pool is not None else
-                             f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`)"
+                             f"{len(designs)} held-out {args.space} designs (`space.sample({args.designs}, seed={args.design_seed})`)"
                              if args.loop_designs == "held-out" else
                              f"{len(designs)} designs the regressor trained on (the first of online refresh {args.refreshes - 1})")
         + " x "
