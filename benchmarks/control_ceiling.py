@@ -388,7 +388,7 @@ def tail_share(y: torch.Tensor, real: torch.Tensor, top: float) -> float:
     return float(v[: max(1, int(top * len(v)))].sum() / v.sum().clamp_min(1e-30))
 
 
-def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, labels: bool = False, space: str = SPACE):
+def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, space: str, labels: bool = False):
     """A closed-loop policy (`tt.dit.closed_loop.Policy`) that builds the DiT controller's query
     (`ModelPolicy.query`) and executes the variant's anchor plus the regressor's offset.
 
@@ -581,9 +581,10 @@ def main() -> None:
     if args.loop_designs == "seen" and args.designs > cfg.designs:
         parser.error(f"--designs {args.designs}: a refresh has {cfg.designs} designs to take seen ones from")
     train_src = OnlineTokenSource(cfg, device="cpu")
+    space = get_space(args.space)
     pool = None
     if args.pool is not None:
-        pool = get_space(args.space).sample(args.pool, seed=args.pool_seed)
+        pool = space.sample(args.pool, seed=args.pool_seed)
         train_src.space = DesignPool(train_src.space, pool)
     layout, norm = train_src.layout(STEPS), train_src.fit_normalizer()
     test_src = OnlineTokenSource(OnlineConfig(space=args.space, seed=args.design_seed, action_noise=0.0), device="cpu")
@@ -595,7 +596,6 @@ def main() -> None:
              "median": float(y_test[test.real].abs().median()), "rms": float(y_test[test.real].pow(2).mean().sqrt())}
     emit(**{f"tail_{k}": v for k, v in tails.items()})
 
-    space = get_space(args.space)
     if pool is not None:
         designs = pool[: args.designs]
     elif args.loop_designs == "seen":
