@@ -1,9 +1,11 @@
 """The DiT as controller, several checkpoints side by side against the IK oracle (issue 17).
 
 For each checkpoint (a file or run folder, given as LABEL=PATH): the model controls held-out
-ViperX designs on validation motions in closed loop (`tt.dit.policies.model_rollout`, Warp
-physics), and its mean tracking reward is reported as a share of the MuJoCo + mink oracle's
-on the same designs and motions (the oracle runs once). Beside it, one step at a time
+designs of the checkpoints' design space (all must share one: ViperX, or the ladder's R1,
+the one-structure `viperx-nominal`) on validation motions in closed loop
+(`tt.dit.policies.model_rollout`, Warp physics), and its mean tracking reward is reported
+as a share of the MuJoCo + mink oracle's on the same designs and motions (the oracle runs
+once). Beside it, one step at a time
 (teacher-forced, `dit_eval.teacher_forced`): the RMSE of the executed command (window slot 1,
 the command that follows the current state) against DiffIK's, and that of holding the current
 joint positions, and of repeating the last command (a stronger baseline where the servo lags
@@ -87,7 +89,17 @@ def main() -> None:
 
     load_before = os.getloadavg()
     started = time.perf_counter()
-    space = get_space(SPACE)
+    ckpts = []
+    for label, path in runs:
+        ckpt = latest_checkpoint(path) if path.is_dir() else path
+        if ckpt is None:
+            parser.error(f"run folder {path} has no checkpoints")
+        ckpts.append((label, ckpt, load_checkpoint(ckpt).get("space") or SPACE))
+    spaces = sorted({s for *_, s in ckpts})
+    if len(spaces) > 1:  # one oracle run and one set of held-out designs for all rows
+        parser.error("the checkpoints were trained on different design spaces: "
+                     + ", ".join(f"{label} on {s}" for label, _, s in ckpts))
+    space = get_space(spaces[0])
     designs = space.sample(args.designs, seed=args.design_seed)
     motions = cut(validation_motions(args.motions), args.control_steps)
     t = time.perf_counter()
@@ -96,10 +108,7 @@ def main() -> None:
     r_oracle, m_oracle = score_episode(oracle, designs, motions, "tracking")
     emit(oracle_reward=float(r_oracle.mean()), seconds=oracle_s)
     rows = []
-    for label, path in runs:
-        ckpt = latest_checkpoint(path) if path.is_dir() else path
-        if ckpt is None:
-            parser.error(f"run folder {path} has no checkpoints")
+    for label, ckpt, _ in ckpts:
         state = load_checkpoint(ckpt)
         info, task = describe(label, ckpt, state), control_task_of(state.get("train_config"), f"checkpoint {ckpt}")
         del state
@@ -111,7 +120,7 @@ def main() -> None:
                                config=ControllerConfig(num_steps=args.num_steps, seed=args.seed))
         model_s = time.perf_counter() - t
         r_model, m_model = score_episode(ep, designs, motions, "tracking")
-        tf = teacher_forced(trained, task, args)
+        tf = teacher_forced(trained, task, args, space.name)
         slot = tf["slots"][EXECUTED_SLOT]
         rows.append(emit(**info, share=float(r_model.mean() / r_oracle.mean()), reward=float(r_model.mean()),
                          pos_err_cm=float(np.nanmean(m_model["pos_err"])), survival=float(np.mean(m_model["survival"])),
@@ -120,13 +129,13 @@ def main() -> None:
     load_after = os.getloadavg()
     steps = sorted({m.steps for m in motions})
     lines = [
-        "# The DiT as controller: checkpoints side by side (ViperX)",
+        f"# The DiT as controller: checkpoints side by side ({space.name})",
         "",
         machine_header(args.device).rstrip(),
         f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after: {load_before[0]:.1f} / "
         f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all",
         f"- command: `python benchmarks/dit_control.py {' '.join(sys.argv[1:])}`",
-        f"- {len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
+        f"- {len(designs)} held-out {space.name} designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
         f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}; {steps[0]}..{steps[-1]} control steps), "
         f"{args.num_steps} DDIM steps per control step, Warp physics; oracle: MuJoCo C + mink on the same designs and "
         f"motions, mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, "

@@ -513,7 +513,7 @@ def section_b(out: dict, args, space) -> str:
 
 
 # ------------------------------------------------------------------------------ (c)
-def teacher_forced(trained, task, args) -> dict:
+def teacher_forced(trained, task, args, space: str = SPACE) -> dict:
     """One-step control accuracy on fresh episodes: the control task's query built from
     recorded windows (true current state and targets), its predicted commands against the
     recorded ones, and the same error for holding the current joint positions (ViperX: one
@@ -527,7 +527,7 @@ def teacher_forced(trained, task, args) -> dict:
     from tt.dit.tasks import task_windows
 
     # Unperturbed, as the shipped checkpoint's dataset was generated.
-    source = OnlineTokenSource(OnlineConfig(space=SPACE, seed=args.design_seed, action_noise=0.0), device=args.device)
+    source = OnlineTokenSource(OnlineConfig(space=space, seed=args.design_seed, action_noise=0.0), device=args.device)
     layout, norm, S = trained.layout, trained.normalizer, trained.layout.steps
     raw = task_windows(source, layout, args.teacher_windows, task, torch.Generator().manual_seed(args.seed))
     res = sample(trained.model, norm.normalize(raw).to(args.device), task, scheduler=CosineDDIM(task.diffusion_steps),
