@@ -67,6 +67,8 @@ def main() -> None:
     parser.add_argument("--motions", type=int, default=5, help="validation motions")
     parser.add_argument("--control-steps", type=int, default=0, help="control steps per motion (0: whole motions)")
     parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
+    parser.add_argument("--spacing", choices=("leading", "trailing"), default="leading",
+                        help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
     parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--device", default="cpu", help="torch / Warp device")
@@ -117,10 +119,10 @@ def main() -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             ep = model_rollout(designs, motions, trained, task=task, device=args.device,
-                               config=ControllerConfig(num_steps=args.num_steps, seed=args.seed))
+                               config=ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing))
         model_s = time.perf_counter() - t
         r_model, m_model = score_episode(ep, designs, motions, "tracking")
-        tf = teacher_forced(trained, task, args, space.name)
+        tf = teacher_forced(trained, task, args, space.name, args.num_steps, args.spacing)
         slot = tf["slots"][EXECUTED_SLOT]
         rows.append(emit(**info, share=float(r_model.mean() / r_oracle.mean()), reward=float(r_model.mean()),
                          pos_err_cm=float(np.nanmean(m_model["pos_err"])), survival=float(np.mean(m_model["survival"])),
@@ -137,7 +139,7 @@ def main() -> None:
         f"- command: `python benchmarks/dit_control.py {' '.join(sys.argv[1:])}`",
         f"- {len(designs)} held-out {space.name} designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
         f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}; {steps[0]}..{steps[-1]} control steps), "
-        f"{args.num_steps} DDIM steps per control step, Warp physics; oracle: MuJoCo C + mink on the same designs and "
+        f"{args.num_steps} DDIM steps per control step ({args.spacing} spacing), Warp physics; oracle: MuJoCo C + mink on the same designs and "
         f"motions, mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, "
         f"survival {100 * np.mean(m_oracle['survival']):.0f} % ({oracle_s:.0f} s)",
         f"- one step (teacher-forced): {args.teacher_windows} windows of fresh episodes (`tt.dit.online` refresh 0, seed "

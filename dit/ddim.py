@@ -51,6 +51,8 @@ COSINE_OFFSET = 0.008
 MAX_BETA = 0.999
 #: What a network may predict (see the module docstring).
 PREDICTIONS = ("eps", "x0", "v")
+#: Spacings of the sampling steps (`CosineDDIM.timesteps`).
+SPACINGS = ("leading", "trailing")
 #: Noise-level loss weightings (see the module docstring).
 WEIGHTINGS = ("none", "min_snr", "edm")
 #: gamma of min-SNR weighting (Hang et al. 2023).
@@ -109,11 +111,18 @@ class CosineDDIM:
         """The noise level as the fraction (t + 1) / T in (0, 1], float32 (shape of t)."""
         return (torch.as_tensor(t, dtype=torch.float32) + 1.0) / self.train_steps
 
-    def timesteps(self, num_steps: int | None = None) -> list[int]:
-        """Sampling steps, descending, evenly spaced from 0 ("leading" spacing): T // n apart."""
+    def timesteps(self, num_steps: int | None = None, spacing: str = "leading") -> list[int]:
+        """Sampling steps, descending, n of the T. spacing (`SPACINGS`): "leading", T // n apart
+        from 0 (tt's default, the paper's); "trailing", T / n apart down from T - 1 (Lin et al.
+        2024), so even one step starts at the noisiest level, where from pure noise the
+        network's x0_hat is its estimate of the conditional mean. Both are all T steps at n = T."""
         n = self.train_steps if num_steps is None else int(num_steps)
         if not 1 <= n <= self.train_steps:
             raise ValueError(f"num_steps must be in 1 .. {self.train_steps}, got {num_steps}")
+        if spacing not in SPACINGS:
+            raise ValueError(f"spacing = {spacing!r}; valid: {list(SPACINGS)}")
+        if spacing == "trailing":
+            return [round(self.train_steps - i * self.train_steps / n) - 1 for i in range(n)]
         ratio = self.train_steps // n
         return [i * ratio for i in range(n - 1, -1, -1)]
 

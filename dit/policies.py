@@ -79,17 +79,25 @@ class IKPolicy:
 class ControllerConfig:
     """How the model controls. num_steps: DDIM steps per control step (the paper's 5, all
     of the control process's); eta: DDIM noise (0: deterministic given the seed); seed: of
-    the initial noise of every query (one generator for the whole run)."""
+    the initial noise of every query (one generator for the whole run); spacing: of the DDIM
+    steps (`tt.dit.ddim.SPACINGS`; "trailing" with num_steps 1 executes one network call
+    from pure noise at the noisiest level: the model's estimate of the mean command, not a
+    sample of its distribution)."""
 
     num_steps: int = 5
     eta: float = 0.0
     seed: int = 0
+    spacing: str = "leading"
 
     def __post_init__(self) -> None:
+        from tt.dit.ddim import SPACINGS
+
         if self.num_steps < 1:
             raise ValueError(f"ControllerConfig.num_steps = {self.num_steps}; must be >= 1")
         if not self.eta >= 0:
             raise ValueError(f"ControllerConfig.eta = {self.eta}; must be >= 0")
+        if self.spacing not in SPACINGS:
+            raise ValueError(f"ControllerConfig.spacing = {self.spacing!r}; valid: {list(SPACINGS)}")
 
 
 def control_task(checkpoint: str | Path) -> TaskSpec:
@@ -226,7 +234,7 @@ class ModelPolicy:
         c = self.config
         with torch.no_grad():
             res = sample(self.model, tokens, self.task, scheduler=CosineDDIM(self.task.diffusion_steps),
-                         num_steps=c.num_steps, eta=c.eta, generator=self.generator)
+                         num_steps=c.num_steps, eta=c.eta, generator=self.generator, spacing=c.spacing)
         return self.commands(worlds, state, self.control_slot(res.tokens, slot))
 
     def control_slot(self, tokens: TokenBatch, slot: int) -> torch.Tensor:

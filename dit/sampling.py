@@ -82,7 +82,8 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
            num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
            guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
            guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
-           known: Mapping[str, torch.Tensor] | None = None, differentiable: bool = False) -> SampleResult:
+           known: Mapping[str, torch.Tensor] | None = None, differentiable: bool = False,
+           spacing: str = "leading") -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
     model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
@@ -93,7 +94,8 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     guide_grad: see the module docstring; keep_x0: record x0_hat per step; bf16: autocast
     the network to bfloat16 (CUDA only); known: type -> (B, L) bool, diffused tokens whose
     given values are kept (inpainting, see the module docstring); differentiable: keep the
-    graph through every step (see the module docstring; not with a guide).
+    graph through every step (see the module docstring; not with a guide); spacing: of the
+    num_steps sampling steps (`CosineDDIM.timesteps`).
     """
     layout = model.layout
     layout.check(tokens)
@@ -128,7 +130,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
             x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float().detach())
         else:
             x[s.name] = keep(v.float())
-    steps = scheduler.timesteps(num_steps)
+    steps = scheduler.timesteps(num_steps, spacing)
     history = [] if keep_x0 else None
     use_grad = (guide is not None and guide_grad) or differentiable
     prediction = getattr(model, "prediction", "eps")

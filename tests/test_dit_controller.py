@@ -284,6 +284,8 @@ def test_seeded_runs_repeat_and_seeds_differ(problem, trained):
     assert not torch.equal(a.ctrl, c.ctrl)
     with pytest.raises(ValueError, match="num_steps"):
         ModelPolicy(trained, config=ControllerConfig(num_steps=6))
+    with pytest.raises(ValueError, match="spacing"):
+        ControllerConfig(spacing="middle")
 
 
 def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):

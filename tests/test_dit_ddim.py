@@ -113,8 +113,23 @@ def test_timesteps_leading_spacing():
     assert CosineDDIM(5).timesteps() == [4, 3, 2, 1, 0]
     with pytest.raises(ValueError, match="num_steps"):
         CosineDDIM(5).timesteps(6)
+    with pytest.raises(ValueError, match="spacing"):
+        CosineDDIM(5).timesteps(2, "middle")
     with pytest.raises(ValueError, match="diffusion step"):
         CosineDDIM(5).alpha_bar(5)
+
+
+def test_timesteps_trailing_spacing():
+    # Lin et al. 2024, Table 2: trailing steps start at T - 1 and are T / n apart.
+    assert CosineDDIM(1000).timesteps(10, "trailing") == [999, 899, 799, 699, 599, 499, 399, 299, 199, 99]
+    assert CosineDDIM(100).timesteps(1, "trailing") == [99]
+    assert CosineDDIM(5).timesteps(1, "trailing") == [4]
+    assert CosineDDIM(5).timesteps(1) == [0]  # leading: one step starts at the least noisy level
+    for T in (5, 100):
+        assert CosineDDIM(T).timesteps(T, "trailing") == CosineDDIM(T).timesteps(T)
+        for n in range(1, T + 1):
+            steps = CosineDDIM(T).timesteps(n, "trailing")
+            assert len(steps) == n and steps[0] == T - 1 and steps == sorted(set(steps), reverse=True) and steps[-1] >= 0
 
 
 # ------------------------------------------------------------------ sampling a known Gaussian
@@ -189,6 +204,29 @@ def test_ddim_recovers_known_gaussian(eta):
     assert float(x.std()) == pytest.approx(STD, rel=0.05 if eta == 0.0 else 0.1)
     # Conditioning tokens come back bit-identical.
     assert torch.equal(out.tokens.values["goal"], tokens.values["goal"])
+
+
+def test_one_trailing_step_gives_the_conditional_mean():
+    """One trailing step from pure noise returns x0_hat at the noisiest level, E[x0 | x_T]:
+    for N(MU, STD^2) data (MU (1 - ab) + sqrt(ab) STD^2 x_T) / v, v = ab STD^2 + 1 - ab, so
+    mean MU (1 - ab) / v (~ MU) and std sqrt(ab) STD^2 / v (~ 0). One leading step denoises pure noise as if
+    it were nearly clean and returns noise."""
+    sched = CosineDDIM(100, clip_x0=None)
+    task = TaskSpec("robot", 100, "random")
+    tokens = _tokens(4000)
+    ab = float(sched.alpha_bar(99))
+    v = ab * STD**2 + 1 - ab
+    draw = lambda spacing: torch.cat([  # noqa: E731
+        t.reshape(-1) for t in (lambda o: (o.tokens.values["shape"], o.tokens.values["extra"]))(
+            sample(GaussianEps(sched), tokens, task, scheduler=sched, num_steps=1, spacing=spacing,
+                   generator=torch.Generator().manual_seed(2)))])
+    x = draw("trailing")
+    # Here the exact x0_hat is MU to 1e-8; eps -> x0_hat divides x_T - sqrt(1 - ab) eps (float32,
+    # |x_T| < 5) by sqrt(ab) = 5e-4, which costs up to ~5e-4 of rounding.
+    assert abs(MU * (1 - ab) / v - MU) < 1e-7 and math.sqrt(ab) * STD**2 / v < 1e-4
+    assert float((x - MU).abs().max()) < 1e-3
+    assert float(x.mean()) == pytest.approx(MU, abs=1e-4)
+    assert float(draw("leading").std()) > 0.5
 
 
 def test_guide_hook_shifts_only_guided_types():
