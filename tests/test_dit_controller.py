@@ -168,13 +168,21 @@ def test_query_holds_the_training_window_of_the_episode(problem, trained):
         clean = slice(None) if s.role.value == "condition" else slice(0, 1)
         if s.role.value != "action":
             torch.testing.assert_close(got_v[:, clean, :e], want_v[:, clean], atol=1e-6, rtol=0, msg=s.name)
+        else:  # the last command, clean for a model trained told it (known_command)
+            torch.testing.assert_close(got_v[:, 0, :e], want_v[:, 0], atol=1e-6, rtol=0, msg=s.name)
     # The model is told which tokens are clean and which it must denoise, as in training.
+    import dataclasses
+
     from tt.dit.tasks import task_masks
 
     masks = task_masks(CONTROL, layout, tokens)
     dyn = masks.noised["dyna_joint_obs"].reshape(ep.worlds, 8, -1)
     assert not dyn[:, 0].any() and bool(dyn[:, 1:][tokens.mask["dyna_joint_obs"].reshape(ep.worlds, 8, -1)[:, 1:]].all())
     assert bool(masks.noised["control"][tokens.mask["control"]].all())
+    known = task_masks(dataclasses.replace(CONTROL, known_command=True), layout, tokens).noised["control"]
+    real = tokens.mask["control"].reshape(ep.worlds, 8, -1)
+    known = known.reshape(ep.worlds, 8, -1)
+    assert not known[:, 0].any() and bool(known[:, 1:][real[:, 1:]].all())
 
 
 def test_query_with_a_target_offset_gives_the_later_targets(problem, trained):
