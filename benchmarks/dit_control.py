@@ -33,6 +33,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from dit_eval import RESULTS, SPACE, cut, pearson, teacher_forced, validation_motions  # noqa: E402
 from machine import machine_header, write_report  # noqa: E402
 
+from tt.dit.ddim import SPACINGS  # noqa: E402
+
 #: Window slot whose command the policy executes (`tt.dit.policies`: the one after the current state).
 EXECUTED_SLOT = 1
 
@@ -67,7 +69,7 @@ def main() -> None:
     parser.add_argument("--motions", type=int, default=5, help="validation motions")
     parser.add_argument("--control-steps", type=int, default=0, help="control steps per motion (0: whole motions)")
     parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
-    parser.add_argument("--spacing", choices=("leading", "trailing"), default="leading",
+    parser.add_argument("--spacing", choices=SPACINGS, default="leading",
                         help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
     parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
@@ -91,17 +93,21 @@ def main() -> None:
 
     load_before = os.getloadavg()
     started = time.perf_counter()
-    ckpts = []
+    ckpts = []  # (checkpoint, its recipe, its control task, its design space), one read of each file
     for label, path in runs:
         ckpt = latest_checkpoint(path) if path.is_dir() else path
         if ckpt is None:
             parser.error(f"run folder {path} has no checkpoints")
-        ckpts.append((label, ckpt, load_checkpoint(ckpt).get("space") or SPACE))
+        state = load_checkpoint(ckpt)
+        ckpts.append((ckpt, describe(label, ckpt, state), control_task_of(state.get("train_config"), f"checkpoint {ckpt}"),
+                      state.get("space") or SPACE))
+        del state
     spaces = sorted({s for *_, s in ckpts})
     if len(spaces) > 1:  # one oracle run and one set of held-out designs for all rows
         parser.error("the checkpoints were trained on different design spaces: "
-                     + ", ".join(f"{label} on {s}" for label, _, s in ckpts))
+                     + ", ".join(f"{info['label']} on {s}" for _, info, _, s in ckpts))
     space = get_space(spaces[0])
+    config = ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing)
     designs = space.sample(args.designs, seed=args.design_seed)
     motions = cut(validation_motions(args.motions), args.control_steps)
     t = time.perf_counter()
@@ -110,19 +116,15 @@ def main() -> None:
     r_oracle, m_oracle = score_episode(oracle, designs, motions, "tracking")
     emit(oracle_reward=float(r_oracle.mean()), seconds=oracle_s)
     rows = []
-    for label, ckpt, _ in ckpts:
-        state = load_checkpoint(ckpt)
-        info, task = describe(label, ckpt, state), control_task_of(state.get("train_config"), f"checkpoint {ckpt}")
-        del state
+    for ckpt, info, task, _ in ckpts:
         trained = load_model(ckpt, device=args.device)
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            ep = model_rollout(designs, motions, trained, task=task, device=args.device,
-                               config=ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing))
+            ep = model_rollout(designs, motions, trained, task=task, device=args.device, config=config)
         model_s = time.perf_counter() - t
         r_model, m_model = score_episode(ep, designs, motions, "tracking")
-        tf = teacher_forced(trained, task, args, space.name, args.num_steps, args.spacing)
+        tf = teacher_forced(trained, task, args, space.name, config)
         slot = tf["slots"][EXECUTED_SLOT]
         rows.append(emit(**info, share=float(r_model.mean() / r_oracle.mean()), reward=float(r_model.mean()),
                          pos_err_cm=float(np.nanmean(m_model["pos_err"])), survival=float(np.mean(m_model["survival"])),

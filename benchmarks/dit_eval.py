@@ -513,26 +513,30 @@ def section_b(out: dict, args, space) -> str:
 
 
 # ------------------------------------------------------------------------------ (c)
-def teacher_forced(trained, task, args, space: str = SPACE, num_steps: int = 5, spacing: str = "leading") -> dict:
+def teacher_forced(trained, task, args, space: str = SPACE, config=None) -> dict:
     """One-step control accuracy on fresh episodes: the control task's query built from
     recorded windows (true current state and targets), its predicted commands against the
     recorded ones, and the same error for holding the current joint positions (ViperX: one
     position actuator per hinge, in joint order) and for repeating the last command (the
-    window's first, which led to the current state). num_steps, spacing: DDIM steps of the
-    control process per query and their spacing, as the closed loop's.
+    window's first, which led to the current state). config: the closed loop's
+    `tt.dit.policies.ControllerConfig` (None: its defaults), whose DDIM steps and spacing
+    each query is sampled with.
 
     Returns {"windows", "episodes", "slots": [(slot, model, hold, spread, repeat), ...]} (RMSE in rad)."""
     from tt.dit.ddim import CosineDDIM
     from tt.dit.online import OnlineConfig, OnlineTokenSource
+    from tt.dit.policies import ControllerConfig
     from tt.dit.sampling import sample
     from tt.dit.tasks import task_windows
 
+    config = ControllerConfig() if config is None else config
     # Unperturbed, as the shipped checkpoint's dataset was generated.
     source = OnlineTokenSource(OnlineConfig(space=space, seed=args.design_seed, action_noise=0.0), device=args.device)
     layout, norm, S = trained.layout, trained.normalizer, trained.layout.steps
     raw = task_windows(source, layout, args.teacher_windows, task, torch.Generator().manual_seed(args.seed))
     res = sample(trained.model, norm.normalize(raw).to(args.device), task, scheduler=CosineDDIM(task.diffusion_steps),
-                 num_steps=num_steps, spacing=spacing, generator=torch.Generator(device=args.device).manual_seed(args.seed))
+                 num_steps=config.num_steps, spacing=config.spacing,
+                 generator=torch.Generator(device=args.device).manual_seed(args.seed))
     n, P = raw.values["control"].shape[0], layout["control"].per_step
     pred = norm.denormalize_values("control", res.tokens.values["control"].cpu()).reshape(n, S, P)
     true = raw.values["control"].reshape(n, S, P)

@@ -209,17 +209,19 @@ def test_ddim_recovers_known_gaussian(eta):
 def test_one_trailing_step_gives_the_conditional_mean():
     """One trailing step from pure noise returns x0_hat at the noisiest level, E[x0 | x_T]:
     for N(MU, STD^2) data (MU (1 - ab) + sqrt(ab) STD^2 x_T) / v, v = ab STD^2 + 1 - ab, so
-    mean MU (1 - ab) / v (~ MU) and std sqrt(ab) STD^2 / v (~ 0). One leading step denoises pure noise as if
-    it were nearly clean and returns noise."""
+    mean MU (1 - ab) / v (~ MU) and std sqrt(ab) STD^2 / v (~ 0). One leading step denoises
+    pure noise as if it were nearly clean and returns noise."""
     sched = CosineDDIM(100, clip_x0=None)
     task = TaskSpec("robot", 100, "random")
     tokens = _tokens(4000)
     ab = float(sched.alpha_bar(99))
     v = ab * STD**2 + 1 - ab
-    draw = lambda spacing: torch.cat([  # noqa: E731
-        t.reshape(-1) for t in (lambda o: (o.tokens.values["shape"], o.tokens.values["extra"]))(
-            sample(GaussianEps(sched), tokens, task, scheduler=sched, num_steps=1, spacing=spacing,
-                   generator=torch.Generator().manual_seed(2)))])
+
+    def draw(spacing: str) -> torch.Tensor:
+        out = sample(GaussianEps(sched), tokens, task, scheduler=sched, num_steps=1, spacing=spacing,
+                     generator=torch.Generator().manual_seed(2))
+        return torch.cat([out.tokens.values["shape"].reshape(-1), out.tokens.values["extra"].reshape(-1)])
+
     x = draw("trailing")
     # Here the exact x0_hat is MU to 1e-8; eps -> x0_hat divides x_T - sqrt(1 - ab) eps (float32,
     # |x_T| < 5) by sqrt(ab) = 5e-4, which costs up to ~5e-4 of rounding.
