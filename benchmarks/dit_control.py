@@ -71,6 +71,11 @@ def main() -> None:
     parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
     parser.add_argument("--spacing", choices=SPACINGS, default="leading",
                         help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
+    parser.add_argument("--ensemble", default="1",
+                        help="comma-separated: queries whose chunks each executed command averages (temporal "
+                             "ensembling; 1: the current query's alone); one closed loop per value and checkpoint")
+    parser.add_argument("--ensemble-decay", type=float, default=0.0,
+                        help="weight exp(-decay * age in control steps) of an older query's prediction")
     parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--device", default="cpu", help="torch / Warp device")
@@ -107,7 +112,14 @@ def main() -> None:
         parser.error("the checkpoints were trained on different design spaces: "
                      + ", ".join(f"{info['label']} on {s}" for _, info, _, s in ckpts))
     space = get_space(spaces[0])
-    config = ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing)
+    try:
+        ensembles = [int(x) for x in args.ensemble.split(",") if x]
+        configs = [ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing, ensemble=m,
+                                    ensemble_decay=args.ensemble_decay) for m in ensembles]
+    except ValueError as e:
+        parser.error(f"--ensemble {args.ensemble!r} / --ensemble-decay {args.ensemble_decay}: {e}")
+    if not configs:
+        parser.error("--ensemble: give at least one value")
     designs = space.sample(args.designs, seed=args.design_seed)
     motions = cut(validation_motions(args.motions), args.control_steps)
     t = time.perf_counter()
@@ -118,18 +130,20 @@ def main() -> None:
     rows = []
     for ckpt, info, task, _ in ckpts:
         trained = load_model(ckpt, device=args.device)
-        t = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ep = model_rollout(designs, motions, trained, task=task, device=args.device, config=config)
-        model_s = time.perf_counter() - t
-        r_model, m_model = score_episode(ep, designs, motions, "tracking")
-        tf = teacher_forced(trained, task, args, space.name, config)
+        tf = teacher_forced(trained, task, args, space.name, configs[0])  # one query: the ensemble does not enter
         slot = tf["slots"][EXECUTED_SLOT]
-        rows.append(emit(**info, share=float(r_model.mean() / r_oracle.mean()), reward=float(r_model.mean()),
-                         pos_err_cm=float(np.nanmean(m_model["pos_err"])), survival=float(np.mean(m_model["survival"])),
-                         pearson=pearson(r_oracle.ravel(), r_model.ravel()), model_seconds=model_s,
-                         rmse=slot[1], hold_rmse=slot[2], repeat_rmse=slot[4], slots=tf["slots"]))
+        for config in configs:
+            t = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ep = model_rollout(designs, motions, trained, task=task, device=args.device, config=config)
+            model_s = time.perf_counter() - t
+            r_model, m_model = score_episode(ep, designs, motions, "tracking")
+            label = info["label"] if len(configs) == 1 else f"{info['label']}, ensemble {config.ensemble}"
+            rows.append(emit(**{**info, "label": label}, run=info["label"], ensemble=config.ensemble, share=float(r_model.mean() / r_oracle.mean()),
+                             reward=float(r_model.mean()), pos_err_cm=float(np.nanmean(m_model["pos_err"])),
+                             survival=float(np.mean(m_model["survival"])), pearson=pearson(r_oracle.ravel(), r_model.ravel()),
+                             model_seconds=model_s, rmse=slot[1], hold_rmse=slot[2], repeat_rmse=slot[4], slots=tf["slots"]))
     load_after = os.getloadavg()
     steps = sorted({m.steps for m in motions})
     lines = [
@@ -148,6 +162,9 @@ def main() -> None:
         f"{args.design_seed}, no control perturbation); RMSE of the executed command (window slot {EXECUTED_SLOT}) "
         "against DiffIK's, beside holding the current joint positions and repeating the last command",
         "- targets (issue 17): share of the oracle's reward >= 50 %; one-step RMSE <= half of holding's",
+        *([f"- temporal ensembling (`ControllerConfig.ensemble`): each executed command is the mean of what the last m "
+           f"queries predicted for that step, the prediction made a steps ago weighted exp(-{args.ensemble_decay:g} a); "
+           "the one-step check is of one query, so it is the same for every m"] if ensembles != [1] else []),
         "",
         "| run | commands | step | windows seen | share of oracle reward | pos err (cm) | survival (%) | r vs oracle "
         "| one-step RMSE (rad) | hold RMSE (rad) | repeat RMSE (rad) | RMSE / hold | closed loop (s) |",
@@ -156,21 +173,23 @@ def main() -> None:
     for r in rows:
         kind = {"joints": "delta from the current joints", "command": "delta from the last command"}.get(
             r["anchor_control"], "absolute") + (", last command given" if r["known_command"] else "") + (
-            f", targets {r['target_offset']} steps ahead" if r.get("target_offset") else "")
+            f", targets {r['target_offset']} steps ahead" if r.get("target_offset") else "") + (
+            f", the last {r['ensemble']} queries' predictions averaged" if r["ensemble"] > 1 else "")
         lines.append(f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
                      f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
                      f"{r['hold_rmse']:.4f} | {r['repeat_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | {r['model_seconds']:.0f} |")
+    per_checkpoint = list({r["checkpoint"]: r for r in reversed(rows)}.values())[::-1]  # the first row of each
     lines += ["", "Checkpoints and recipes:", ""]
-    for r in rows:
-        lines.append(f"- {r['label']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
+    for r in per_checkpoint:
+        lines.append(f"- {r['run']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
                      f"prediction {r['prediction']}, future states {r['future_states']}, anchor_control {r['anchor_control'] or 'none'}, "
                      f"known_command {r['known_command']}, target offset {r['target_offset']}, "
                      f"training loss {r['loss']:.4f} (mean of the last 100 steps)")
     lines += ["", "One-step RMSE per window slot (rad; slot 1 is executed):", "",
               "| run | " + " | ".join(f"slot {k}" for k, *_ in rows[0]["slots"]) + " |",
               "|---|" + "---:|" * len(rows[0]["slots"])]
-    for r in rows:
-        lines.append(f"| {r['label']} | " + " | ".join(f"{s[1]:.4f}" for s in r["slots"]) + " |")
+    for r in per_checkpoint:
+        lines.append(f"| {r['run']} | " + " | ".join(f"{s[1]:.4f}" for s in r["slots"]) + " |")
     lines.append("| hold the current joints | " + " | ".join(f"{s[2]:.4f}" for s in rows[0]["slots"]) + " |")
     lines.append("| repeat the last command | " + " | ".join(f"{s[4]:.4f}" for s in rows[0]["slots"]) + " |")
     emit(written=str(write_report(args.out, lines)))

@@ -82,12 +82,18 @@ class ControllerConfig:
     the initial noise of every query (one generator for the whole run); spacing: of the DDIM
     steps (`tt.dit.ddim.SPACINGS`; "trailing" with num_steps 1 executes one network call
     from pure noise at the noisiest level: the model's estimate of the mean command, not a
-    sample of its distribution)."""
+    sample of its distribution); ensemble: how many recent queries' chunks the executed
+    command averages (temporal ensembling, Zhao et al. 2023: every query predicts the
+    commands of its whole window, so step k's command was also predicted by the queries of
+    steps k - 1, k - 2, ...; 1: the current query's alone, the paper's); ensemble_decay: the
+    weight of a prediction made a steps ago is exp(-ensemble_decay * a)."""
 
     num_steps: int = 5
     eta: float = 0.0
     seed: int = 0
     spacing: str = "leading"
+    ensemble: int = 1
+    ensemble_decay: float = 0.0
 
     def __post_init__(self) -> None:
         from tt.dit.ddim import SPACINGS
@@ -98,6 +104,10 @@ class ControllerConfig:
             raise ValueError(f"ControllerConfig.eta = {self.eta}; must be >= 0")
         if self.spacing not in SPACINGS:
             raise ValueError(f"ControllerConfig.spacing = {self.spacing!r}; valid: {list(SPACINGS)}")
+        if self.ensemble < 1:
+            raise ValueError(f"ControllerConfig.ensemble = {self.ensemble}; must be >= 1")
+        if not self.ensemble_decay >= 0:
+            raise ValueError(f"ControllerConfig.ensemble_decay = {self.ensemble_decay}; must be >= 0")
 
 
 def control_task(checkpoint: str | Path) -> TaskSpec:
@@ -145,6 +155,10 @@ class ModelPolicy:
         self.task = task
         self.config = config
         self.layout: Layout = layout
+        if config.ensemble > layout.steps - 1:
+            # A query at step k' (window start k' - 1) predicts steps up to k' + S - 2.
+            raise ValueError(f"ControllerConfig.ensemble = {config.ensemble}; the model's {layout.steps}-step window "
+                             f"predicts a step at most {layout.steps - 1} queries ahead")
         self.model = trained.model.eval()
         self.device = next(self.model.parameters()).device
 
@@ -171,6 +185,7 @@ class ModelPolicy:
             act[d, : len(r.actuator_mj)] = torch.as_tensor(np.asarray(r.actuator_mj), dtype=torch.long)
         self._actuator = act.to(ctx.target_pos.device)  # (D, P): MuJoCo actuator of each control slot
         self.generator = torch.Generator(device=dev).manual_seed(int(self.config.seed))
+        self._chunks: list[tuple[int, int, torch.Tensor]] = []  # (step, window start, (W, S, P) commands) of recent queries
 
     def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenBatch, int]:
         """Normalised control-task tokens of worlds `worlds` at control step `step`, and the
@@ -235,13 +250,37 @@ class ModelPolicy:
         with torch.no_grad():
             res = sample(self.model, tokens, self.task, scheduler=CosineDDIM(self.task.diffusion_steps),
                          num_steps=c.num_steps, eta=c.eta, generator=self.generator, spacing=c.spacing)
-        return self.commands(worlds, state, self.control_slot(res.tokens, slot))
+        if c.ensemble == 1:
+            return self.commands(worlds, state, self.control_slot(res.tokens, slot))
+        return self.commands(worlds, state, self._ensembled(step, worlds, self.control_chunk(res.tokens)))
+
+    def _ensembled(self, step: int, worlds: torch.Tensor, chunk: torch.Tensor) -> torch.Tensor:
+        """(n, P) weighted mean of step `step`'s command over the current query's `chunk`
+        (n, S, P) and the chunks of the last ``ensemble - 1`` queries."""
+        S, P = chunk.shape[1], chunk.shape[2]
+        rows = worlds.to(chunk.device)
+        full = torch.full((self.ctx.world_count, S, P), float("nan"), device=chunk.device)
+        full[rows] = chunk
+        self._chunks = [c for c in self._chunks if step - c[0] < self.config.ensemble]
+        self._chunks.append((step, max(step - 1, 0), full))
+        total = torch.zeros(len(rows), P, device=chunk.device)
+        weight = torch.zeros(len(rows), 1, device=chunk.device)
+        for k, start, c in self._chunks:
+            pred = c[rows, step - start]  # (n, P); NaN rows: worlds that query did not run
+            w = torch.where(torch.isnan(pred[:, :1]), 0.0, float(np.exp(-self.config.ensemble_decay * (step - k))))
+            total += w * torch.nan_to_num(pred)
+            weight += w
+        return total / weight
+
+    def control_chunk(self, tokens: TokenBatch) -> torch.Tensor:
+        """(n, S, P) denormalised commands [rad or m] of every window slot of normalised tokens."""
+        P = self.layout["control"].per_step
+        out = tokens.values["control"].reshape(len(tokens), self.layout.steps, P, -1)  # (n, S, P, 1)
+        return self.trained.normalizer.denormalize_values("control", out.float())[..., 0]
 
     def control_slot(self, tokens: TokenBatch, slot: int) -> torch.Tensor:
         """(n, P) denormalised commands [rad or m] of window slot `slot` of normalised tokens."""
-        P = self.layout["control"].per_step
-        out = tokens.values["control"].reshape(len(tokens), self.layout.steps, P, -1)[:, slot]  # (n, P, 1)
-        return self.trained.normalizer.denormalize_values("control", out.float())[..., 0]
+        return self.control_chunk(tokens)[:, slot]
 
     def commands(self, worlds: torch.Tensor, state: StepState, target: torch.Tensor) -> torch.Tensor:
         """The worlds' actuator commands (n, nu): the last ones, with each real control slot's

@@ -11,6 +11,7 @@ mapping): it must reproduce the DiffIK episode.
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import mujoco
@@ -283,6 +284,57 @@ def test_model_path_with_an_ik_network_reproduces_the_ik_episode(problem, traine
     assert torch.equal(ep.alive, ref.alive[:, :STEPS])
 
 
+class ChunkEps(torch.nn.Module):
+    """A stand-in network whose clean control tokens, at every control slot, are
+    `value(query, time ID)`: each query's chunk differs from the last one's at every step."""
+
+    def __init__(self, model: RoboDiT):
+        super().__init__()
+        self.layout = model.layout
+        self.anchor = torch.nn.Parameter(torch.zeros(1))
+        self.scheduler = CosineDDIM(CONTROL.diffusion_steps)
+        self.query = 0
+
+    @staticmethod
+    def value(query: int, time_id):
+        return 0.1 * math.sin(1.7 * query) + 0.01 * time_id - 0.1  # inside every joint's command range
+
+    def forward(self, values, ids, noised, time, attend=None, outputs=None):
+        t = int(round(float(time[0]) * self.scheduler.train_steps)) - 1
+        ab = float(self.scheduler.alpha_bar(t))
+        out = {n: torch.zeros_like(values[n]) for n in outputs if n != "control"}
+        spec = self.layout["control"]
+        x0 = self.value(self.query, ids["control"][..., spec.time_index].float())[..., None]
+        out["control"] = (values["control"] - ab**0.5 * x0) / (1 - ab) ** 0.5
+        return out
+
+
+@pytest.mark.parametrize("ensemble,decay", [(1, 0.0), (3, 0.0), (7, 0.5)])
+def test_temporal_ensembling_averages_the_recent_chunks(problem, trained, ensemble, decay):
+    """With ``ensemble`` m, step k's command is the exp(-decay * age)-weighted mean of what
+    the queries of steps k - m + 1 .. k predicted for step k (each from its own window)."""
+    _, designs, motions, _ = problem
+    stand_in = ChunkEps(trained.model)
+
+    class Scripted(ModelPolicy):
+        def __call__(self, step, worlds, state):
+            stand_in.query = step
+            return super().__call__(step, worlds, state)
+
+    config = ControllerConfig(ensemble=ensemble, ensemble_decay=decay)
+    policy = Scripted(TrainedModel(stand_in, trained.normalizer, trained.layout, 0), config=config)
+    ep = closed_loop_rollout(designs[:1], motions[:1], policy, device="cpu", steps=10)
+    P = trained.layout["control"].per_step
+    nu = ep.ctrl.shape[-1]
+    for k in range(int(ep.lengths()[0])):
+        queries = range(max(0, k - ensemble + 1), k + 1)
+        w = np.array([math.exp(-decay * (k - q)) for q in queries])
+        mean = float(np.dot(w, [ChunkEps.value(q, k) for q in queries]) / w.sum())
+        want = trained.normalizer.denormalize_values("control", torch.full((P, 1), mean))[:nu, 0]
+        torch.testing.assert_close(ep.ctrl[0, k], want.float(), atol=1e-5, rtol=0, msg=f"step {k}")
+    assert k == 9  # every step compared; the queries' chunks differ, so a wrong window or weight shows
+
+
 def test_seeded_runs_repeat_and_seeds_differ(problem, trained):
     _, designs, motions, _ = problem
     run = lambda seed: closed_loop_rollout(designs[:1], motions[:1], ModelPolicy(trained, config=ControllerConfig(seed=seed)),  # noqa: E731
@@ -294,6 +346,10 @@ def test_seeded_runs_repeat_and_seeds_differ(problem, trained):
         ModelPolicy(trained, config=ControllerConfig(num_steps=6))
     with pytest.raises(ValueError, match="spacing"):
         ControllerConfig(spacing="middle")
+    with pytest.raises(ValueError, match="ensemble"):
+        ControllerConfig(ensemble=0)
+    with pytest.raises(ValueError, match="8-step window"):
+        ModelPolicy(trained, config=ControllerConfig(ensemble=8))
 
 
 def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
