@@ -143,8 +143,9 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
-        scale, eta, at = variants[method]
-        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta, **CRITIC_PLACES[at])
+        scale, eta, at, first = variants[method]
+        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta, guide_start=first,
+                           **CRITIC_PLACES[at])
         return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
@@ -152,15 +153,17 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
-def critic_label(scale: float, eta: float, at: str = "tokens") -> str:
+def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0) -> str:
     where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only"}[at]
-    return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where})"
+    start = f", from step {first}" if first else ""
+    return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where}{start})"
 
 
-def guidance_variants(args) -> list[tuple[float, float, str]]:
-    """(scale, eta, where the gradient is taken) of every critic-steered Self-Guidance of part "guidance"."""
-    return [(s, e, a) for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas)
-            for s in _floats(args.guidance_scales)]
+def guidance_variants(args) -> list[tuple[float, float, str, int]]:
+    """(scale, eta, where the gradient is taken, first guided step) of every critic-steered
+    Self-Guidance of part "guidance"."""
+    return [(s, e, a, f) for f in _ints(args.guidance_starts) for a in args.guidance_at.split(",") if a
+            for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)]
 
 
 # ------------------------------------------------------------------------------ runs
@@ -714,6 +717,9 @@ def main() -> None:
                          "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
                          "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
                          "of its real tokens)")
+    ap.add_argument("--guidance-starts", default="0",
+                    help="guidance: comma-separated first guided DDIM steps (0 = noisiest; the steps before sample "
+                         "unguided, `DGSConfig.guide_start`), each with every scale, eta and place")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
@@ -743,6 +749,9 @@ def main() -> None:
 
     if sorted(set(a for a in args.guidance_at.split(",") if a) - set(CRITIC_PLACES)) or not args.guidance_at.strip(","):
         sys.exit(f"--guidance-at: {args.guidance_at!r}; valid: {', '.join(CRITIC_PLACES)}")
+    starts = _ints(args.guidance_starts)
+    if not starts or any(not 0 <= f < args.steps for f in starts):
+        sys.exit(f"--guidance-starts: {args.guidance_starts!r}; each must be a DDIM step in 0..{args.steps - 1}")
     unknown = sorted(set(parts) - set(PARTS))
     if unknown:
         sys.exit(f"--parts: unknown {unknown}; valid: {', '.join(PARTS)}")

@@ -71,9 +71,10 @@ def main() -> None:
     parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
     parser.add_argument("--spacing", choices=SPACINGS, default="leading",
                         help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
-    parser.add_argument("--ensemble", default="1",
+    parser.add_argument("--ensemble", default="7",
                         help="comma-separated: queries whose chunks each executed command averages (temporal "
-                             "ensembling; 1: the current query's alone); one closed loop per value and checkpoint")
+                             "ensembling, `ControllerConfig.ensemble`; 1: the current query's alone, the paper's); "
+                             "one closed loop per value and checkpoint")
     parser.add_argument("--ensemble-decay", type=float, default=0.0,
                         help="weight exp(-decay * age in control steps) of an older query's prediction")
     parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
@@ -164,7 +165,8 @@ def main() -> None:
         "- targets (issue 17): share of the oracle's reward >= 50 %; one-step RMSE <= half of holding's",
         *([f"- temporal ensembling (`ControllerConfig.ensemble`): each executed command is the mean of what the last m "
            f"queries predicted for that step, the prediction made a steps ago weighted exp(-{args.ensemble_decay:g} a); "
-           "the one-step check is of one query, so it is the same for every m"] if ensembles != [1] else []),
+           "the one-step check is of one query, so it is the same for every m"] if ensembles != [1] else
+          ["- one query per executed command (the paper's; `--ensemble 1`)"]),
         "",
         "| run | commands | step | windows seen | share of oracle reward | pos err (cm) | survival (%) | r vs oracle "
         "| one-step RMSE (rad) | hold RMSE (rad) | repeat RMSE (rad) | RMSE / hold | closed loop (s) |",

@@ -276,7 +276,8 @@ def test_model_path_with_an_ik_network_reproduces_the_ik_episode(problem, traine
             stand_in.step = step
             return super().__call__(step, worlds, state)
 
-    policy = Scripted(TrainedModel(stand_in, trained.normalizer, trained.layout, 0))
+    # One query per command: the stand-in knows only the current step's command.
+    policy = Scripted(TrainedModel(stand_in, trained.normalizer, trained.layout, 0), config=ControllerConfig(ensemble=1))
     ep = closed_loop_rollout(designs, motions, policy, device="cpu", steps=STEPS)
     # Normalising and denormalising the command rounds it by ~1e-7 rad per step.
     for name in ("qpos", "ctrl", "ee_pos"):
@@ -309,7 +310,7 @@ class ChunkEps(torch.nn.Module):
         return out
 
 
-@pytest.mark.parametrize("ensemble,decay", [(1, 0.0), (3, 0.0), (7, 0.5)])
+@pytest.mark.parametrize("ensemble,decay", [(1, 0.0), (3, 0.0), (7, 0.5), (None, 0.0)])
 def test_temporal_ensembling_averages_the_recent_chunks(problem, trained, ensemble, decay):
     """With ``ensemble`` m, step k's command is the exp(-decay * age)-weighted mean of what
     the queries of steps k - m + 1 .. k predicted for step k (each from its own window)."""
@@ -326,8 +327,9 @@ def test_temporal_ensembling_averages_the_recent_chunks(problem, trained, ensemb
     ep = closed_loop_rollout(designs[:1], motions[:1], policy, device="cpu", steps=10)
     P = trained.layout["control"].per_step
     nu = ep.ctrl.shape[-1]
+    m = trained.layout.steps - 1 if ensemble is None else ensemble  # None: all queries whose window holds the step
     for k in range(int(ep.lengths()[0])):
-        queries = range(max(0, k - ensemble + 1), k + 1)
+        queries = range(max(0, k - m + 1), k + 1)
         w = np.array([math.exp(-decay * (k - q)) for q in queries])
         mean = float(np.dot(w, [ChunkEps.value(q, k) for q in queries]) / w.sum())
         want = trained.normalizer.denormalize_values("control", torch.full((P, 1), mean))[:nu, 0]
@@ -391,5 +393,14 @@ def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
     ep = model_rollout(designs, placed, ckpt, device="cpu")
     _, metrics = score_episode(ep, designs, placed, "tracking")
     np.testing.assert_allclose(data["per_motion"]["reward"], metrics["reward"], rtol=1e-6)
+    # --ensemble 1: one query per command, as model_rollout with that config.
+    res = CliRunner().invoke(app, args + ["--ensemble", "1"])
+    assert res.exit_code == 0, res.output
+    ep1 = model_rollout(designs, placed, ckpt, device="cpu", config=ControllerConfig(ensemble=1))
+    np.testing.assert_allclose(json.loads(out.read_text())["per_motion"]["reward"],
+                               score_episode(ep1, designs, placed, "tracking")[1]["reward"], rtol=1e-6)
+    assert not torch.equal(ep1.ctrl, ep.ctrl)  # the default averages the recent queries
+    res = CliRunner().invoke(app, args + ["--ensemble", "8"])
+    assert res.exit_code == 2 and "8-step window" in res.output
     res = CliRunner().invoke(app, args[:-2] + ["--controller", "pid"])
     assert res.exit_code == 2 and "controllers: ik, model" in res.output

@@ -230,9 +230,10 @@ def validate(
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
     episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
-    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (5 DDIM steps per control step) on tt's batched Warp physics."),
+    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (5 DDIM steps per control step, each command the mean of the recent queries' predictions for it) on tt's batched Warp physics."),
     checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
     device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
+    ensemble: Optional[int] = typer.Option(None, help="--controller model: queries whose predictions each command averages (default: all whose window holds the step, 7 for the shipped models; 1: the paper's single query). README has the measurements."),
 ) -> None:
     """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
     from types import SimpleNamespace
@@ -261,10 +262,15 @@ def validate(
     else:
         from tt.baselines.evaluate import score_episode
         from tt.dit.checkpoint import default_checkpoint
-        from tt.dit.policies import model_rollout
+        from tt.dit.policies import ControllerConfig, model_rollout
 
+        if ensemble is not None:
+            _at_least("--ensemble", ensemble, 1)
         ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name, task="control")
-        ep = model_rollout(designs, ms, ckpt, device=device, progress=True)
+        try:
+            ep = model_rollout(designs, ms, ckpt, device=device, progress=True, config=ControllerConfig(ensemble=ensemble))
+        except ValueError as e:
+            _fail(str(e))
         ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
         title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
     rows = []
