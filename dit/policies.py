@@ -26,6 +26,7 @@ repeat its last pose, as the DiffIK's look-ahead does.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -91,7 +92,8 @@ class ControllerConfig:
     controller's share of the oracle's reward from 21.8 to 31.9 % (R1) and 18.9 to 35.5 %
     (the shipped checkpoint, full space) with 7 (`benchmarks/results/dit_control_r1_ensemble.md`,
     `dit_control_viperx_ensemble.md`), hence the default. ensemble_decay: the weight of a
-    prediction made a steps ago is exp(-ensemble_decay * a)."""
+    prediction made a steps ago is exp(-ensemble_decay * a) (negative: older predictions weigh
+    more, as in ACT)."""
 
     num_steps: int = 5
     eta: float = 0.0
@@ -111,8 +113,8 @@ class ControllerConfig:
             raise ValueError(f"ControllerConfig.spacing = {self.spacing!r}; valid: {list(SPACINGS)}")
         if self.ensemble is not None and self.ensemble < 1:
             raise ValueError(f"ControllerConfig.ensemble = {self.ensemble}; must be >= 1")
-        if not self.ensemble_decay >= 0:
-            raise ValueError(f"ControllerConfig.ensemble_decay = {self.ensemble_decay}; must be >= 0")
+        if not math.isfinite(self.ensemble_decay):
+            raise ValueError(f"ControllerConfig.ensemble_decay = {self.ensemble_decay}; must be finite")
 
 
 def control_task(checkpoint: str | Path) -> TaskSpec:

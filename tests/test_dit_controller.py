@@ -310,7 +310,7 @@ class ChunkEps(torch.nn.Module):
         return out
 
 
-@pytest.mark.parametrize("ensemble,decay", [(1, 0.0), (3, 0.0), (7, 0.5), (None, 0.0)])
+@pytest.mark.parametrize("ensemble,decay", [(1, 0.0), (3, 0.0), (7, 0.5), (4, -0.3), (None, 0.0)])
 def test_temporal_ensembling_averages_the_recent_chunks(problem, trained, ensemble, decay):
     """With ``ensemble`` m, step k's command is the exp(-decay * age)-weighted mean of what
     the queries of steps k - m + 1 .. k predicted for step k (each from its own window)."""
@@ -350,6 +350,8 @@ def test_seeded_runs_repeat_and_seeds_differ(problem, trained):
         ControllerConfig(spacing="middle")
     with pytest.raises(ValueError, match="ensemble"):
         ControllerConfig(ensemble=0)
+    with pytest.raises(ValueError, match="ensemble_decay"):
+        ControllerConfig(ensemble_decay=float("nan"))
     with pytest.raises(ValueError, match="8-step window"):
         ModelPolicy(trained, config=ControllerConfig(ensemble=8))
 
