@@ -34,6 +34,7 @@ from dit_eval import RESULTS, SPACE, cut, pearson, teacher_forced, validation_mo
 from machine import machine_header, write_report  # noqa: E402
 
 from tt.dit.ddim import SPACINGS  # noqa: E402
+from tt.dit.policies import ControllerConfig  # noqa: E402
 
 #: Window slot whose command the policy executes (`tt.dit.policies`: the one after the current state).
 EXECUTED_SLOT = 1
@@ -68,8 +69,10 @@ def main() -> None:
     parser.add_argument("--design-seed", type=int, default=20261122, help="seed of the held-out designs and fresh episodes")
     parser.add_argument("--motions", type=int, default=5, help="validation motions")
     parser.add_argument("--control-steps", type=int, default=0, help="control steps per motion (0: whole motions)")
-    parser.add_argument("--num-steps", type=int, default=5, help="DDIM steps per control step")
-    parser.add_argument("--spacing", choices=SPACINGS, default="leading",
+    default = ControllerConfig()
+    parser.add_argument("--num-steps", type=int, default=default.num_steps,
+                        help="DDIM steps per control step (the paper's: 5)")
+    parser.add_argument("--spacing", choices=SPACINGS, default=default.spacing,
                         help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
     parser.add_argument("--ensemble", default="7",
                         help="comma-separated: queries whose chunks each executed command averages (temporal "
@@ -93,7 +96,7 @@ def main() -> None:
     wp.config.log_level = wp.LOG_WARNING
     from tt.baselines.evaluate import score_episode
     from tt.dit.checkpoint import latest_checkpoint, load_checkpoint, load_model
-    from tt.dit.policies import ControllerConfig, control_task_of, model_rollout
+    from tt.dit.policies import control_task_of, model_rollout
     from tt.sim.designs import get_space
     from tt.sim.validate import oracle_rollout
 

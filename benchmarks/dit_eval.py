@@ -16,7 +16,7 @@
     exactly, and that project onto a ViperX design (nearest structure, continuous choices
     fitted), with the projection's distance; and the distribution of the designs' DoF count
     and mount against the training episodes'.
-(c) The model as controller (`tt.dit.policies`, 5 DDIM steps per control step, Warp
+(c) The model as controller (`tt.dit.policies`, `ControllerConfig`'s defaults, Warp
     physics) on held-out ViperX designs (sampled with a seed no training shard used) x
     validation motions, against the MuJoCo + mink oracle on the same designs and motions:
     mean tracking reward as a share of the oracle's, the paper's tracking metrics, and
@@ -587,7 +587,9 @@ def section_c(trained, task, args, space) -> str:
         f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`; the "
         f"training shards draw from other seeds) x {len(motions)} validation motions ({', '.join(m.name for m in motions)}; "
         f"{length}: {steps[0]}..{steps[-1]} steps). Model: `tt.dit.policies.ModelPolicy`, "
-        f"{ControllerConfig().num_steps} DDIM steps per control step, batched over the running worlds, Warp physics. "
+        f"{ControllerConfig().num_steps} DDIM step(s) per control step ({ControllerConfig().spacing} spacing), each command "
+        "the mean of the recent queries' predictions for it (`ControllerConfig`'s defaults), batched over the running "
+        "worlds, Warp physics. "
         "Oracle: MuJoCo C + mink DiffIK (`tt.sim.validate`). Both start at the oracle's start posture.",
         "",
         f"**Model / oracle mean tracking reward: {100 * share:.1f} %** (the paper's small model: 83 %, on the "
@@ -603,7 +605,8 @@ def section_c(trained, task, args, space) -> str:
         "",
         f"One step at a time (teacher-forced): {tf['windows']} windows of 8 consecutive steps from {tf['episodes']} fresh "
         f"episodes (`tt.dit.online` refresh 0 with seed {args.design_seed}: designs and augmented motions no training "
-        "shard drew; no control perturbation), the control query built from the recorded current state and targets, 5 DDIM steps; RMSE of the "
+        "shard drew; no control perturbation), the control query built from the recorded current state and targets, "
+        f"{ControllerConfig().num_steps} DDIM step(s) ({ControllerConfig().spacing} spacing); RMSE of the "
         "predicted joint-position commands against the recorded DiffIK commands, beside the RMSE of simply holding "
         "the current joint positions. Where the model's error is not below holding's, the control head has not "
         "learned DiffIK's increments. " + ("Commands are predicted as residuals from the current joint positions "

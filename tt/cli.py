@@ -230,7 +230,7 @@ def validate(
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
     episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
-    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (5 DDIM steps per control step, each command the mean of the recent queries' predictions for it) on tt's batched Warp physics."),
+    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per control step, each command the mean of the recent queries' predictions for it: `tt.dit.policies.ControllerConfig`) on tt's batched Warp physics."),
     checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
     device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
     ensemble: Optional[int] = typer.Option(None, help="--controller model: queries whose predictions each command averages (default: all whose window holds the step, 7 for the shipped models; 1: the paper's single query). README has the measurements."),
