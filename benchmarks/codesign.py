@@ -154,7 +154,8 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
 
 
 def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0) -> str:
-    where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only"}[at]
+    where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only",
+             "start": ", through the start"}[at]
     start = f", from step {first}" if first else ""
     return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where}{start})"
 
@@ -716,7 +717,8 @@ def main() -> None:
                     help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
                          "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
                          "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
-                         "of its real tokens)")
+                         "of its real tokens), start (x0_hat's, plus the term through the decoded design's simulated "
+                         "start)")
     ap.add_argument("--guidance-starts", default="0",
                     help="guidance: comma-separated first guided DDIM steps (0 = noisiest; the steps before sample "
                          "unguided, `DGSConfig.guide_start`), each with every scale, eta and place")

@@ -30,7 +30,8 @@ sees them as it saw diffused tokens in training), and the result holds their giv
 Differentiable sampling (``differentiable=True``, no guide; under ``torch.no_grad`` it
 samples as usual): autograd stays on through every step, the denoised tokens are not
 detached between steps, and the result's tokens carry the graph back to the given
-conditioning values (the given values of diffused tokens only decide where the noise goes). A conditioning value that requires grad then gets the gradient of anything
+conditioning values, the clean slots of diffused types included (the given values of the
+diffused slots only decide where the noise goes). A conditioning value that requires grad then gets the gradient of anything
 computed from the sample, e.g. a dynamics critic's predicted reward with respect to the
 design it is given (`tt.guidance.critic_grad`). The noise comes from `generator` as without
 it, so both modes draw the same sample.
@@ -127,7 +128,8 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
         v = tokens.values[s.name]
         if s.name in updated:
             noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
-            x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, v.float().detach())
+            # Clean slots of a diffused type (a window's given first step) are conditions too.
+            x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, keep(v.float()))
         else:
             x[s.name] = keep(v.float())
     steps = scheduler.timesteps(num_steps, spacing)

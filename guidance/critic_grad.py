@@ -19,9 +19,24 @@ through the sampling network, as it does the simulator's gradient (`tt.guidance.
 
 A critic trained told the episode's start (``dynamics_start``) is given each candidate's
 simulated first control step (`tt.guidance.predicted.start_tokens`) for the design x0_hat
-decodes to (projected onto the nearest structure when it has none exactly); the start is a
-constant of the gradient: it moves with the design, but not differentiably. Candidates that
-do not decode get a zero gradient and are counted.
+decodes to (projected onto the nearest structure when it has none exactly). By default the
+start is a constant of the gradient: it moves with the design, but not differentiably.
+Candidates that do not decode get a zero gradient and are counted.
+
+Through the start (``through_start``): most of what a change of the design does to the
+reward goes through where the design starts (on R1, critic differences along random design
+directions follow the simulator's at r = 0.82 with the start re-simulated and 0.28 with it
+held fixed, `benchmarks/results/critic_start.md`). So the gradient adds the start's term,
+
+    d R / d c  +=  (d R / d start) (d start / d c),
+
+with d R / d start by autograd through the critic, d start / d c by central differences of
+the simulated start over the design's continuous choices c (`START_REL_STEP` of each range;
+one batched one-step rollout for all of them), carried to x0_hat's tokens as the simulator's
+gradient is (`tt.guidance.simgrad.tokens_from_choice_gradient`: the least-squares decode,
+linearised). Candidates that decode to a design of exactly their token structure get
+it on their own slots; a candidate projected onto another structure gets it on the slots that
+structure uses, by position, as the gradient at the decoded design lands (counted).
 
 Where the gradient is taken (`AT`): by default at x0_hat's own tokens (in the critic's units
 when its normaliser differs from the sampler's), so it is the gradient of the tokens the
@@ -67,6 +82,11 @@ FORMS = ("log", "reward")
 #: tokens of the design x0_hat decodes to (module docstring).
 AT = ("tokens", "design")
 
+#: Central-difference step of the start's derivative along each continuous choice, as a share
+#: of the choice's range: the start is one float32 control step after an iterative IK, so a
+#: step much smaller would difference its rounding.
+START_REL_STEP = 1e-2
+
 
 @dataclass
 class CriticStats:
@@ -74,13 +94,17 @@ class CriticStats:
     differentiated; decode_failures: candidate-steps whose x0_hat did not decode (a start-aware
     critic needs the design; zero gradient); nonfinite_entries: gradient entries set to 0;
     objective_trace: per step of the last call, the mean over candidates of the critic's
-    objective at x0_hat (the form's, guidance alphas, no termination unless asked)."""
+    objective at x0_hat (the form's, guidance alphas, no termination unless asked);
+    start_terms / start_projected: candidate-steps that got the start's term / of them, the
+    ones decoded by projection onto another structure (``through_start``)."""
 
     steps: int = 0
     candidates: int = 0
     decode_failures: int = 0
     nonfinite_entries: int = 0
     objective_trace: list[float] = field(default_factory=list)
+    start_terms: int = 0
+    start_projected: int = 0
 
 
 class CriticGradient:
@@ -94,12 +118,13 @@ class CriticGradient:
     DDIM steps; seed: of the critic's sampling noise, the same at every step so the objective
     does not jitter; terminate: keep the reward's termination (default off: every query step
     counts, see `NO_TERMINATION`); form: what is differentiated (`FORMS`); at: where (`AT`;
-    "design" needs the decoder).
+    "design" needs the decoder); through_start: add the start's term (module docstring; a
+    start-aware critic, at="tokens"); start_rel_step: its central-difference step.
     """
 
     def __init__(self, critic: TrainedModel, cfg: RewardConfig, *, normalizer: Normalizer | None = None, decoder=None,
                  num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log",
-                 at: str = "tokens"):
+                 at: str = "tokens", through_start: bool = False, start_rel_step: float = START_REL_STEP):
         if not critic.trained_on("dynamics"):
             raise ValueError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
                              "not the dynamics task its gradient needs (give a critic checkpoint trained on it)")
@@ -114,6 +139,14 @@ class CriticGradient:
             raise ValueError(f"at = {at!r}; valid: {list(AT)}")
         if at == "design" and decoder is None:
             raise ValueError("the critic's gradient at the decoded design needs a decoder")
+        if through_start and not critic.dynamics_start:
+            raise ValueError("through_start differentiates the critic's start: it needs a critic trained told the start "
+                             "(--dynamics-start)")
+        if through_start and at != "tokens":
+            raise ValueError(f"through_start adds to the gradient at x0_hat's tokens, not at={at!r}")
+        if not 0 < start_rel_step < 0.5:
+            raise ValueError(f"start_rel_step = {start_rel_step}; must be in (0, 0.5)")
+        self.through_start, self.start_rel_step = bool(through_start), float(start_rel_step)
         # A design predicted to terminate at its first counted step scores a flat 0 around it, so
         # its gradient says nothing; without termination it still points to smaller error.
         self.cfg = cfg if terminate else dataclasses.replace(cfg, threshold=NO_TERMINATION)
@@ -129,7 +162,8 @@ class CriticGradient:
     def summary(self) -> dict:
         s = self.stats
         return {"steps": s.steps, "candidates": s.candidates, "decode_failures": s.decode_failures,
-                "nonfinite_grad_entries": s.nonfinite_entries, "objective_trace": list(s.objective_trace)}
+                "nonfinite_grad_entries": s.nonfinite_entries, "objective_trace": list(s.objective_trace),
+                "start_terms": s.start_terms, "start_projected": s.start_projected}
 
     def reset(self) -> None:
         """Start a new sampling call's trace."""
@@ -208,9 +242,12 @@ class CriticGradient:
         else:
             point = {k: x0[k].detach()[rows] for k in names}
         leaf = {k: point[k].clone().requires_grad_(True) for k in names}
+        starts = {k: v.clone().requires_grad_(True) for k, v in first.items()} if self.through_start else {}
         with torch.enable_grad():
-            value = self.objective(ctx, leaf, first)
-            grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names], allow_unused=True)
+            value = self.objective(ctx, leaf, starts or first)
+            grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names] + list(starts.values()), allow_unused=True)
+        start_grads = dict(zip(starts, grads[len(names):]))
+        grads = grads[:len(names)]
         self.stats.objective_trace.append(float(value.detach().mean()))
         for k, g in zip(names, grads):
             if g is None:
@@ -221,7 +258,45 @@ class CriticGradient:
                 g = torch.where(bad, torch.zeros_like(g), g)
             out[k][rows] = g.to(out[k].dtype)
         self.stats.candidates += len(ok)
+        if start_grads:
+            self._add_start_term(ctx, out, x0, ok, decoded, start_grads)
         return out
 
+    def _add_start_term(self, ctx, out: dict[str, torch.Tensor], x0: dict[str, torch.Tensor], ok: list[int], decoded,
+                        start_grads: dict[str, torch.Tensor | None]) -> None:
+        """Add (dR/dstart)(dstart/dc), carried to tokens, to `out` for the candidates of `ok`
+        (all decoded). start_grads: type -> (M, len(ok), P, D), dR/d(step-0 tokens)."""
+        import numpy as np
 
-__all__ = ["AT", "FORMS", "NO_TERMINATION", "CriticGradient", "CriticStats"]
+        from tt.guidance.simgrad import _stencil, place_token_gradient, token_jacobian, tokens_from_choice_gradient
+
+        pairs = list(enumerate(ok))
+        designs = [decoded[i].design for _, i in pairs]
+        space = get_space(designs[0].space)
+        # Each design's own token slots: x0_hat's where it decoded exactly; where it was
+        # projected onto another structure, the term lands on the slots that structure uses
+        # (by position, as the gradient at="design" does).
+        device = next(iter(x0.values())).device
+        own, _ = robot_embodiment(self.critic.layout, self.normalizer, [space.model(d) for d in designs], device)
+        self.stats.start_projected += sum(decoded[i].distance > 0 for i in ok)
+        stencils = [_stencil(space, d, self.start_rel_step) for d in designs]
+        moved = start_tokens(self.critic.layout, self.critic.normalizer, [d for st, _ in stencils for d in st], ctx.motions,
+                             device=device)  # type -> (M, sum of 2 p, P, D)
+        at = 0
+        for (r, i), design, (_, span) in zip(pairs, designs, stencils):
+            real = {n: own.mask[n][r].bool() for n in own.mask if n in out}
+            p = len(span)
+            grad_c = np.zeros(p)
+            for name, g in start_grads.items():
+                if g is None:
+                    continue
+                s = moved[name][:, at: at + 2 * p].double()
+                ds_dc = (s[:, 0::2] - s[:, 1::2]) / torch.as_tensor(span, dtype=torch.float64)[None, :, None, None]
+                grad_c += torch.einsum("mjpd,mpd->j", ds_dc, g[:, r].double()).cpu().numpy()
+            at += 2 * p
+            place_token_gradient(out, i, tokens_from_choice_gradient(token_jacobian(space, design), grad_c),
+                                 self.normalizer, real, add=True)
+        self.stats.start_terms += len(pairs)
+
+
+__all__ = ["AT", "FORMS", "NO_TERMINATION", "START_REL_STEP", "CriticGradient", "CriticStats"]

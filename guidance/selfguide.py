@@ -54,13 +54,15 @@ GUIDES = ("model", "critic")
 
 #: Where critic guidance steers (`tt optimize --critic-at`, `benchmarks/codesign.py
 #: --guidance-at`), as `DGSConfig` options: at x0_hat's tokens, at the design x0_hat decodes
-#: to, from that design (every guided step continues from it), or at x0_hat's tokens with
-#: the structure left as sampled (only continuous attributes of real tokens steered).
+#: to, from that design (every guided step continues from it), at x0_hat's tokens with
+#: the structure left as sampled (only continuous attributes of real tokens steered), or at
+#: x0_hat's tokens and through the decoded design's simulated start.
 CRITIC_PLACES: dict[str, dict] = {
     "tokens": {"critic_at": "tokens", "project": False, "continuous_only": False},
     "design": {"critic_at": "design", "project": False, "continuous_only": False},
     "project": {"critic_at": "design", "project": True, "continuous_only": False},
     "continuous": {"critic_at": "tokens", "project": False, "continuous_only": True},
+    "start": {"critic_at": "tokens", "project": False, "continuous_only": False, "through_start": True},
 }
 
 
@@ -315,7 +317,9 @@ class DGSConfig(SamplerConfig):
     `tt.guidance.critic_grad.AT`). project: every guided step continues from the design
     x0_hat decodes to (`SelfGuidance`'s ``project``; needs critic_at="design").
     continuous_only: guidance moves only the continuous attributes of x0_hat's real tokens
-    (`SelfGuidance`'s ``continuous_only``; not with project).
+    (`SelfGuidance`'s ``continuous_only``; not with project). through_start: the critic's
+    gradient also goes through the simulated start of the decoded design
+    (`tt.guidance.critic_grad`; a critic trained told the start, critic_at "tokens").
     """
 
     eta: float = 1.0
@@ -328,6 +332,7 @@ class DGSConfig(SamplerConfig):
     critic_at: str = "tokens"
     project: bool = False
     continuous_only: bool = False
+    through_start: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -345,6 +350,8 @@ class DGSConfig(SamplerConfig):
                              "on ViperX, benchmarks/results/codesign_guidance_project.md)")
         if self.project and self.continuous_only:
             raise ValueError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
+        if self.through_start and (self.guide_by != "critic" or self.critic_at != "tokens"):
+            raise ValueError("through_start needs guide_by='critic' and critic_at='tokens'")
         if self.guide_start < 0:
             raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
@@ -389,7 +396,7 @@ class DynamicsSelfGuidance(ZerothOrder):
             if judge is not self._trained:
                 check_critic(self._trained, judge)
             guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
-                                          seed=problem.seed, at=c.critic_at)
+                                          seed=problem.seed, at=c.critic_at, through_start=c.through_start)
         guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
                                 start_step=c.guide_start, project=c.project, continuous_only=c.continuous_only)
         critic = self.critic()

@@ -384,7 +384,6 @@ class SimGradient:
         """dR_sim/dx0 for the embodiment types of `x0` (normalised, (n, L, D) each); zero for
         candidates that do not decode and before `start_step`."""
         from tt.guidance.zeroth import decode_x0
-        from tt.tokens.normalize import is_padding
 
         out = {n: torch.zeros_like(v) for n, v in x0.items()}
         if step < self.start_step:
@@ -404,18 +403,34 @@ class SimGradient:
         self.stats.rollouts += result.rollouts
         for k, i in enumerate(ok):
             grad_e = tokens_from_choice_gradient(token_jacobian(self.space, designs[k], rel_step=self.rel_step), result.grad[k])
-            for name, g in grad_e.items():
-                if name not in out:
-                    continue
-                real = ~is_padding(x0[name][i])  # (L,) slots the decoded robot uses, in order
-                if int(real.sum()) != g.shape[0]:
-                    raise RuntimeError(f"candidate {i}: {int(real.sum())} real {name} tokens but its design has {g.shape[0]}")
-                # The normaliser is affine per feature: de/dx is the raw change of a unit step.
-                unit = torch.ones(1, x0[name].shape[-1], dtype=torch.float64)
-                de_dx = (norm.denormalize_values(name, unit) - norm.denormalize_values(name, 0 * unit))[0]
-                value = torch.as_tensor(g, dtype=torch.float64) * de_dx  # dR/dx = dR/de de/dx
-                out[name][i, real.to(out[name].device)] = value.to(device=out[name].device, dtype=out[name].dtype)
+            place_token_gradient(out, i, grad_e, norm, real_slots(x0, i))
         return out
+
+
+def real_slots(x0: dict[str, torch.Tensor], i: int) -> dict[str, torch.Tensor]:
+    """type -> (L,) bool: the slots candidate i of x0 (normalised, (n, L, width)) does not pad."""
+    from tt.tokens.normalize import is_padding
+
+    return {name: ~is_padding(v[i]) for name, v in x0.items()}
+
+
+def place_token_gradient(out: dict[str, torch.Tensor], i: int, grad_e: dict[str, np.ndarray], normalizer,
+                         real: dict[str, torch.Tensor], *, add: bool = False) -> None:
+    """Write candidate i's gradient in encoded token space (`tokens_from_choice_gradient`:
+    type -> (n_real, width)) into `out` (normalised units, type -> (n, L, width)) at the
+    slots `real` marks (type -> (L,) bool; `real_slots` of the candidate itself, or of the
+    design it decodes to), in order; add: add to what is there instead of replacing it."""
+    for name, g in grad_e.items():
+        if name not in out:
+            continue
+        slots = real[name].to(out[name].device)
+        if int(slots.sum()) != g.shape[0]:
+            raise RuntimeError(f"candidate {i}: {int(slots.sum())} real {name} tokens but its design has {g.shape[0]}")
+        # The normaliser is affine per feature: de/dx is the raw change of a unit step.
+        unit = torch.ones(1, out[name].shape[-1], dtype=torch.float64)
+        de_dx = (normalizer.denormalize_values(name, unit) - normalizer.denormalize_values(name, 0 * unit))[0]
+        value = (torch.as_tensor(g, dtype=torch.float64) * de_dx).to(device=out[name].device, dtype=out[name].dtype)
+        out[name][i, slots] = out[name][i, slots] + value if add else value  # dR/dx = dR/de de/dx
 
 
 __all__ = [
@@ -431,6 +446,8 @@ __all__ = [
     "design_reward_gradient",
     "encoded_tokens",
     "field_jacobian",
+    "place_token_gradient",
+    "real_slots",
     "token_jacobian",
     "tokens_from_choice_gradient",
 ]

@@ -160,6 +160,20 @@ def test_start_aware_critic_gets_the_simulated_start_of_the_decoded_designs(crit
         CriticGradient(aware, get_reward("tracking", "viperx"))
 
 
+def _tiny_shipped_critic(dynamics_start: bool):
+    """The shipped critic's layout and units (they hold ViperX designs) on a tiny random network."""
+    from tt.dit.checkpoint import TrainedModel, load_model
+    from tt.dit.model import RoboDiT, get_config
+
+    shipped = load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")
+    torch.manual_seed(0)
+    net = RoboDiT(shipped.layout, get_config("tiny")).eval()
+    with torch.no_grad():
+        for p in net.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    return TrainedModel(net, shipped.normalizer, shipped.layout, 0, tasks=("dynamics",), dynamics_start=dynamics_start)
+
+
 def test_gradient_at_the_decoded_design(motions):
     """at="design": the critic is asked about the tokens of the design each candidate decodes
     to. For candidates that are designs' own tokens it is the gradient at x0 itself; for noisy
@@ -167,17 +181,7 @@ def test_gradient_at_the_decoded_design(motions):
     from tt.dit.layout import robot_embodiment
     from tt.guidance.zeroth import Decoded
 
-    from tt.dit.checkpoint import TrainedModel, load_model
-    from tt.dit.model import RoboDiT, get_config
-
-    # The shipped critic's layout and units (they hold ViperX designs), on a tiny random network.
-    shipped = load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")
-    torch.manual_seed(0)
-    net = RoboDiT(shipped.layout, get_config("tiny")).eval()
-    with torch.no_grad():
-        for p in net.parameters():
-            p.add_(0.05 * torch.randn_like(p))
-    critic = TrainedModel(net, shipped.normalizer, shipped.layout, 0, tasks=("dynamics",))
+    critic = _tiny_shipped_critic(dynamics_start=False)
     space = get_space("viperx")
     designs = space.sample(3, seed=2)
     cfg = dataclasses.replace(get_reward("tracking", "viperx"), threshold=1e9)
@@ -207,6 +211,66 @@ def test_gradient_at_the_decoded_design(motions):
         CriticGradient(critic, cfg, decoder=decoder, at="x0")
     with pytest.raises(ValueError, match="critic_at"):
         DGSConfig(critic_at="x0")
+
+
+def test_gradient_through_the_start_matches_central_differences(motions):
+    """through_start adds (dR/dstart)(dstart/dc), carried to the tokens. Along the token change
+    of each continuous choice c_j (the tokenizer's de/dc_j), what it adds is the central
+    difference of the critic's objective with the design's tokens held and its start
+    re-simulated at c_j +- h."""
+    from tt.dit.layout import robot_embodiment
+    from tt.guidance.critic_grad import START_REL_STEP
+    from tt.guidance.predicted import start_tokens
+    from tt.guidance.simgrad import _stencil, token_jacobian
+    from tt.guidance.zeroth import Decoded
+    from tt.tokens.normalize import is_padding
+
+    from tt.dit.checkpoint import load_model
+
+    # The shipped critic itself: a random network's objective hardly moves with the start, and
+    # its differences would be float32 rounding.
+    critic = load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")
+    space = get_space("viperx")
+    design = space.sample(1, seed=5)[0]
+    cfg = dataclasses.replace(get_reward("tracking", "viperx"), threshold=1e9)
+    ctx = _context(critic, motions[:1], 1)
+    own, _ = robot_embodiment(critic.layout, critic.normalizer, [space.model(design)])
+    x0 = {n: own.values[n].clone() for n in ctx.embodiment}
+    decoder = lambda batch, i: Decoded(design)  # noqa: E731
+    plain = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1).token_gradient(ctx, x0, 0)
+    through = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1, through_start=True)
+    added = {n: v - plain[n] for n, v in through.token_gradient(ctx, x0, 0).items()}
+    assert through.stats.start_terms == 1 and through.stats.start_projected == 0
+    jac = token_jacobian(space, design)  # type -> (p, n_real, width), encoded units
+    stencil, span = _stencil(space, design, START_REL_STEP)
+    moved = start_tokens(critic.layout, critic.normalizer, stencil, ctx.motions)
+    numeric, analytic = [], []
+    for j in range(len(design.continuous)):
+        with torch.no_grad():
+            value = [float(through.objective(ctx, x0, {n: v[:, [2 * j + s]] for n, v in moved.items()})) for s in (0, 1)]
+        numeric.append((value[0] - value[1]) / span[j])
+        total = 0.0
+        for n, d_e in jac.items():
+            real = ~is_padding(x0[n][0])
+            unit = torch.ones(1, x0[n].shape[-1], dtype=torch.float64)
+            de_dx = (critic.normalizer.denormalize_values(n, unit) - critic.normalizer.denormalize_values(n, 0 * unit))[0]
+            total += float((added[n][0, real].double() * torch.as_tensor(d_e[j]) / de_dx).sum())
+        analytic.append(total)
+    numeric, analytic = np.array(numeric), np.array(analytic)
+    assert np.abs(numeric).max() > 0.3, numeric  # the start does move the critic's objective
+    # Linearising the objective over one difference step of the start: a few % of the largest.
+    np.testing.assert_allclose(analytic, numeric, rtol=5e-2, atol=2e-2 * np.abs(numeric).max())
+    # Decoded by projection: the same term, on the slots the design's structure uses.
+    projected = CriticGradient(critic, cfg, decoder=lambda batch, i: Decoded(design, distance=2), num_steps=STEPS, seed=1,
+                               through_start=True)
+    g = projected.token_gradient(ctx, x0, 0)
+    assert projected.stats.start_projected == 1 and projected.stats.start_terms == 1
+    for n in g:
+        torch.testing.assert_close(g[n] - plain[n], added[n])
+    with pytest.raises(ValueError, match="told the start"):
+        CriticGradient(_tiny_shipped_critic(dynamics_start=False), cfg, decoder=decoder, through_start=True)
+    with pytest.raises(ValueError, match="through_start"):
+        DGSConfig(guide_by="model", through_start=True)
 
 
 class FixedGradient:
