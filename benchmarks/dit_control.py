@@ -183,7 +183,7 @@ def main() -> None:
         lines.append(f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
                      f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
                      f"{r['hold_rmse']:.4f} | {r['repeat_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | {r['model_seconds']:.0f} |")
-    per_checkpoint = list({r["checkpoint"]: r for r in reversed(rows)}.values())[::-1]  # the first row of each
+    per_checkpoint = rows[::len(configs)]  # rows come in one group of len(configs) per checkpoint
     lines += ["", "Checkpoints and recipes:", ""]
     for r in per_checkpoint:
         lines.append(f"- {r['run']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "

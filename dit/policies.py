@@ -198,7 +198,7 @@ class ModelPolicy:
             act[d, : len(r.actuator_mj)] = torch.as_tensor(np.asarray(r.actuator_mj), dtype=torch.long)
         self._actuator = act.to(ctx.target_pos.device)  # (D, P): MuJoCo actuator of each control slot
         self.generator = torch.Generator(device=dev).manual_seed(int(self.config.seed))
-        self._chunks: list[tuple[int, int, torch.Tensor]] = []  # (step, window start, (W, S, P) commands) of recent queries
+        self._chunks: list[tuple[int, torch.Tensor]] = []  # (step, (W, S, P) commands) of the recent queries
 
     def query(self, step: int, worlds: torch.Tensor, state: StepState) -> tuple[TokenBatch, int]:
         """Normalised control-task tokens of worlds `worlds` at control step `step`, and the
@@ -275,11 +275,13 @@ class ModelPolicy:
         full = torch.full((self.ctx.world_count, S, P), float("nan"), device=chunk.device)
         full[rows] = chunk
         self._chunks = [c for c in self._chunks if step - c[0] < self.ensemble]
-        self._chunks.append((step, max(step - 1, 0), full))
+        self._chunks.append((step, full))
         total = torch.zeros(len(rows), P, device=chunk.device)
         weight = torch.zeros(len(rows), 1, device=chunk.device)
-        for k, start, c in self._chunks:
-            pred = c[rows, step - start]  # (n, P); NaN rows: worlds that query did not run
+        for k, c in self._chunks:
+            # (n, P): step `step`'s slot in the window of query k (which starts at k - 1); NaN
+            # rows: worlds that query did not run.
+            pred = c[rows, step - max(k - 1, 0)]
             w = torch.where(torch.isnan(pred[:, :1]), 0.0, float(np.exp(-self.config.ensemble_decay * (step - k))))
             total += w * torch.nan_to_num(pred)
             weight += w

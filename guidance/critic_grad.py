@@ -55,6 +55,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from tt.dit.checkpoint import TrainedModel
@@ -259,15 +260,14 @@ class CriticGradient:
             out[k][rows] = g.to(out[k].dtype)
         self.stats.candidates += len(ok)
         if start_grads:
-            self._add_start_term(ctx, out, x0, ok, decoded, start_grads)
+            self._add_start_term(ctx, out, x0, ok, decoded, models, start_grads)
         return out
 
     def _add_start_term(self, ctx, out: dict[str, torch.Tensor], x0: dict[str, torch.Tensor], ok: list[int], decoded,
-                        start_grads: dict[str, torch.Tensor | None]) -> None:
+                        models, start_grads: dict[str, torch.Tensor | None]) -> None:
         """Add (dR/dstart)(dstart/dc), carried to tokens, to `out` for the candidates of `ok`
-        (all decoded). start_grads: type -> (M, len(ok), P, D), dR/d(step-0 tokens)."""
-        import numpy as np
-
+        (all decoded; models: their designs' compiled models). start_grads: type -> (M,
+        len(ok), P, D), dR/d(step-0 tokens)."""
         from tt.guidance.simgrad import _stencil, place_token_gradient, token_jacobian, tokens_from_choice_gradient
 
         pairs = list(enumerate(ok))
@@ -277,7 +277,7 @@ class CriticGradient:
         # projected onto another structure, the term lands on the slots that structure uses
         # (by position, as the gradient at="design" does).
         device = next(iter(x0.values())).device
-        own, _ = robot_embodiment(self.critic.layout, self.normalizer, [space.model(d) for d in designs], device)
+        own, _ = robot_embodiment(self.critic.layout, self.normalizer, models, device)
         self.stats.start_projected += sum(decoded[i].distance > 0 for i in ok)
         stencils = [_stencil(space, d, self.start_rel_step) for d in designs]
         moved = start_tokens(self.critic.layout, self.critic.normalizer, [d for st, _ in stencils for d in st], ctx.motions,
