@@ -84,7 +84,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
            guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
            guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
            known: Mapping[str, torch.Tensor] | None = None, differentiable: bool = False,
-           spacing: str = "leading") -> SampleResult:
+           spacing: str = "leading", init_noise: Mapping[str, torch.Tensor] | None = None) -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
     model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
@@ -96,7 +96,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     the network to bfloat16 (CUDA only); known: type -> (B, L) bool, diffused tokens whose
     given values are kept (inpainting, see the module docstring); differentiable: keep the
     graph through every step (see the module docstring; not with a guide); spacing: of the
-    num_steps sampling steps (`CosineDDIM.timesteps`).
+    num_steps sampling steps (`CosineDDIM.timesteps`); init_noise: type -> (B, L, D) starting
+    noise of diffused types, in place of `generator`'s draw (types left out are drawn), so
+    callers can give several sequences the same noise (common random numbers).
     """
     layout = model.layout
     layout.check(tokens)
@@ -127,7 +129,12 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     for s in layout.specs:
         v = tokens.values[s.name]
         if s.name in updated:
-            noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
+            if init_noise is not None and s.name in init_noise:
+                noise = init_noise[s.name].to(device=device, dtype=torch.float32)
+                if noise.shape != v.shape:
+                    raise ValueError(f"init_noise[{s.name!r}] has shape {tuple(noise.shape)}; the tokens' is {tuple(v.shape)}")
+            else:
+                noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
             # Clean slots of a diffused type (a window's given first step) are conditions too.
             x[s.name] = torch.where(updated[s.name].unsqueeze(-1), noise, keep(v.float()))
         else:

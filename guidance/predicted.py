@@ -301,7 +301,8 @@ def default_via(trained) -> str:
 def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: int = 1,
                     num_steps: int | None = CRITIC_DDIM_STEPS,
                     seed: int = 0, placement: str = "even", chunk: int | None = None,
-                    device: str | torch.device | None = None, via: str | None = None) -> DesignPrediction:
+                    device: str | torch.device | None = None, via: str | None = None,
+                    common_noise: bool = False) -> DesignPrediction:
     """The model as a critic: predicted dynamics and reward of each design on each motion.
 
     Each design's embodiment tokens are given to the model (`design_query`), the model
@@ -319,7 +320,11 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     trained: `tt.dit.checkpoint.TrainedModel`; designs: D `tt.sim.designs.Design` of one
     space, the space the checkpoint was trained on (`check_space`); motions: M motions
     placed for the space; cfg: the reward; num_steps: DDIM steps (`CRITIC_DDIM_STEPS` by
-    default; None: all of the robot task's); seed: of the sampling noise; device: None for the model's; via: see above.
+    default; None: all of the robot task's); seed: of the sampling noise; device: None for the model's; via: see above;
+    common_noise: every design gets the same starting noise for a given motion and sample, so
+    differences between the designs' predictions are the designs' and not the noise's (central
+    differences, `tt.guidance.refine`; with eta 0 and via "dynamics" the sampling is then
+    deterministic per row, inpainting draws fresh noise each step).
     Raises CheckpointSpaceError, LayoutError (a robot or motion the layout cannot hold) and
     ValueError (bad arguments).
     """
@@ -375,6 +380,11 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     total = len(tokens)
     chunk = total if chunk is None else min(int(chunk), total)
     generator = torch.Generator(device=device).manual_seed(int(seed))
+    shared = None
+    if common_noise:
+        # Rows are motion-major, then design, then sample: one draw per (motion, sample).
+        shared = {n: torch.randn((M, 1, K, *v.shape[1:]), generator=generator, device=device).expand(M, D, K, *v.shape[1:])
+                  .reshape(total, *v.shape[1:]) for n, v in tokens.values.items()}
     task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps,
                     "start" if from_start else "random")
     scheduler = CosineDDIM(task.diffusion_steps)
@@ -383,7 +393,8 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         rows = slice(c0, min(c0 + chunk, total))
         part = tokens.select(rows)
         res = sample(model, part, task, scheduler=scheduler, num_steps=num_steps, generator=generator,
-                     known=None if via == "dynamics" else {n: k[rows] for n, k in known.items()})
+                     known=None if via == "dynamics" else {n: k[rows] for n, k in known.items()},
+                     init_noise=None if shared is None else {n: v[rows] for n, v in shared.items()})
         values.append(res.tokens.values)
     values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
     reward = np.zeros((D, M))

@@ -34,6 +34,12 @@ Critic guidance (``guide_by="critic"``): R's gradient comes from a dynamics crit
 prediction for x0_hat's embodiment instead of the sampling model's own jointly sampled
 dynamics (`tt.guidance.critic_grad`): grad = (1 - lambda) grad R_critic + lambda grad R_sim.
 ``guide_start`` skips guidance at the noisiest steps, where x0_hat is no design yet.
+
+At the decoded design (``refine``, `SamplerConfig`'s): once sampling has ended, the
+returned design's continuous choices climb the critic's prediction along its central
+differences, each design's start re-simulated (`tt.guidance.refine`). Token-space guidance
+acts on an x0_hat that decodes only by projection and on a start the gradient cannot see;
+the decoded design has neither problem (benchmarks/results/codesign_guidance_refine.md).
 """
 
 from __future__ import annotations

@@ -96,7 +96,9 @@ class SamplerConfig:
         sampled embodiments) or "designs" (the decoded designs; see the module docstring);
         None: "designs" when the dynamics critic was trained told the episode's start
         (``dynamics_start``: it needs each design's simulated first step, which only a
-        decoded design has), else "tokens".
+        decoded design has), else "tokens". refine: iterations of critic refinement of the
+        returned design (`tt.guidance.refine`: its continuous choices climb the dynamics
+        critic's predicted reward along central differences, the start re-simulated; 0: none).
     """
 
     checkpoint: str | Path | None = None
@@ -110,8 +112,11 @@ class SamplerConfig:
     critic_samples: int = 1
     critic_checkpoint: str | Path | None = None
     critic_on: str | None = None
+    refine: int = 0
 
     def __post_init__(self) -> None:
+        if self.refine < 0:
+            raise ValueError(f"refine = {self.refine}; must be >= 0")
         if self.samples is not None and self.samples < 1:
             raise ValueError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
@@ -651,8 +656,38 @@ class ZerothOrder(Optimizer):
         start = time.perf_counter()
         gen, decoder, info = self.generate(problem)
         ranking = self.rank(gen, decoder)
-        return learned_result(self.name, problem, gen, ranking, time.perf_counter() - start,
-                              rollouts=int(info.pop("rollouts", 0)), info=info)
+        result = learned_result(self.name, problem, gen, ranking, time.perf_counter() - start,
+                                rollouts=int(info.pop("rollouts", 0)), info=info)
+        if self.config.refine:
+            result = self.refined(problem, result)
+            result.seconds = time.perf_counter() - start
+        return result
+
+    def refined(self, problem: Problem, result: Result) -> Result:
+        """`result` with its best design refined by the dynamics critic (``config.refine``
+        iterations, `tt.guidance.refine`); best_reward becomes the critic's predicted
+        objective of the refined design, info["refine"] records the climb."""
+        import dataclasses
+
+        from tt.guidance.predicted import predict_designs
+        from tt.guidance.refine import RefineConfig, refine_designs
+
+        judge = self._critic or self._trained
+        if not judge.trained_on("dynamics"):
+            raise ValueError(f"refine climbs the dynamics critic's prediction: the model was trained on "
+                             f"{list(judge.tasks)}; give a critic checkpoint trained on the dynamics task")
+        cfg = get_reward(problem.reward, problem.space)
+        out = refine_designs(judge, [result.best], problem.motions, cfg, RefineConfig(iterations=self.config.refine),
+                             seed=problem.seed, device=problem.device)
+        best = out.designs[0]
+        objective = float(predict_designs(judge, [best], problem.motions, cfg, samples=self.config.critic_samples,
+                                          num_steps=self.config.num_steps, seed=problem.seed,
+                                          device=problem.device).reward.mean())
+        info = {**result.info, "refine": {**out.summary(), "iterations": self.config.refine,
+                                          "objective_before": result.best_reward}}
+        return dataclasses.replace(result, best=best, best_reward=objective, designs=[best] + result.designs,
+                                   rewards=np.concatenate([[objective], result.rewards]),
+                                   history=result.history + [objective], info=info)
 
 
 __all__ = [

@@ -408,6 +408,7 @@ def optimize(
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
     critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens), or 'start' (as 'tokens', plus the gradient through the decoded design's simulated start, which a critic told the start otherwise takes as a constant). README has the measurements."),
+    refine: int = typer.Option(0, help="zeroth/dgs: iterations of critic refinement of the returned design: its continuous choices climb the dynamics critic's predicted reward along central differences, each design's start re-simulated (tt.guidance.refine; 0: none). README has the measurements."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
@@ -468,6 +469,11 @@ def optimize(
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
+    _at_least("--refine", refine, 0)
+    if refine and method not in ("zeroth", "dgs"):
+        _fail(f"--refine refines the design zeroth or dgs returns; it does not apply to --method {method}")
+    if refine and critic == "joint":
+        _fail("--refine climbs the dynamics critic's prediction; it does not go with --critic joint")
     if not 0.0 <= sim_grad_weight <= 1.0:
         _fail(f"--sim-grad-weight must be in [0, 1], got {sim_grad_weight}")
     from tt.guidance.selfguide import CRITIC_PLACES, GUIDES
@@ -502,6 +508,8 @@ def optimize(
             critic_checkpoint = shipped_critic(space, checkpoint)
         options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic,
                        critic_samples=critic_samples)
+        if refine:
+            options.update(refine=refine)
         if critic_checkpoint is not None:
             options.update(critic_checkpoint=str(critic_checkpoint))
         if critic_on is not None:
@@ -535,6 +543,11 @@ def optimize(
         console.print(f"verified {info['verified']} of {info['samples']} sampled candidates in the batched simulator: "
                       f"predicted vs simulated r = {info['predicted_vs_simulated_r']:.2f}; the simulator's pick was the "
                       f"model's #{info['best_predicted_rank'] + 1}")
+    if "refine" in result.info:
+        r = result.info["refine"]
+        console.print(f"refined by the dynamics critic: {r['steps'][0]} of {r['iterations']} steps taken, critic's objective "
+                      f"{r['before'][0]:.2f} -> {r['after'][0]:.2f} (predicted reward {r['objective_before']:.2f} -> "
+                      f"{result.best_reward:.2f}) in {r['seconds']:.1f} s")
     console.print_json(json.dumps(sp.to_dict(result.best)))
     console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
