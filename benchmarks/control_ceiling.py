@@ -475,17 +475,6 @@ class DesignPool:
         return getattr(self._space, name)
 
 
-class Repeat:
-    """The still arm: every step repeats the last command (the start posture's), what a
-    controller that learned no increment does (`dit_control.md`)."""
-
-    def reset(self, ctx) -> None:
-        pass
-
-    def __call__(self, step, worlds, state):
-        return state.ctrl[worlds].clone()
-
-
 class NoisyIK:
     """DiffIK with independent Gaussian noise of `sigma` [rad] on every command."""
 
@@ -571,7 +560,7 @@ def main() -> None:
     from tt.baselines.evaluate import score_episode
     from tt.dit.closed_loop import closed_loop_rollout
     from tt.dit.online import OnlineConfig, OnlineTokenSource
-    from tt.dit.policies import IKPolicy
+    from tt.dit.policies import HoldPolicy, IKPolicy
     from tt.sim.designs import get_space
     from tt.sim.validate import oracle_rollout
 
@@ -608,7 +597,7 @@ def main() -> None:
     emit(oracle_reward=float(r_oracle.mean()), seconds=time.perf_counter() - t)
     r_ik, m_ik = score_episode(closed_loop_rollout(designs, motions, IKPolicy()), designs, motions, "tracking")
     emit(ik_share=float(r_ik.mean() / r_oracle.mean()))
-    r_still, m_still = score_episode(closed_loop_rollout(designs, motions, Repeat()), designs, motions, "tracking")
+    r_still, m_still = score_episode(closed_loop_rollout(designs, motions, HoldPolicy()), designs, motions, "tracking")
     emit(repeat_share=float(r_still.mean() / r_oracle.mean()))
     noisy = []
     for sigma in noise:

@@ -554,7 +554,8 @@ def teacher_forced(trained, task, args, space: str = SPACE, config=None) -> dict
 
 def section_c(trained, task, args, space) -> str:
     from tt.baselines.evaluate import score_episode
-    from tt.dit.policies import ControllerConfig, model_rollout
+    from tt.dit.closed_loop import closed_loop_rollout
+    from tt.dit.policies import ControllerConfig, HoldPolicy, IKPolicy, model_rollout
     from tt.sim.validate import oracle_rollout
 
     designs = space.sample(args.designs, seed=args.design_seed)
@@ -568,16 +569,22 @@ def section_c(trained, task, args, space) -> str:
     oracle_s = time.perf_counter() - t
     r_model, m_model = score_episode(ep_model, designs, motions, "tracking")
     r_oracle, m_oracle = score_episode(ep_oracle, designs, motions, "tracking")
+    # The floor and the teacher in the same closed loop: a still arm, and DiffIK itself.
+    r_still, m_still = score_episode(closed_loop_rollout(designs, motions, HoldPolicy()), designs, motions, "tracking")
+    r_ik, m_ik = score_episode(closed_loop_rollout(designs, motions, IKPolicy()), designs, motions, "tracking")
     share = float(r_model.mean() / r_oracle.mean())
+    still_share, ik_share = float(r_still.mean() / r_oracle.mean()), float(r_ik.mean() / r_oracle.mean())
     r = pearson(r_oracle.ravel(), r_model.ravel())
     tf = teacher_forced(trained, task, args)
     emit(part="c", designs=len(designs), motions=len(motions), steps=[m.steps for m in motions],
          model_reward=float(r_model.mean()), oracle_reward=float(r_oracle.mean()), share=share, pearson=r,
+         still_share=still_share, ik_share=ik_share,
          model_seconds=model_s, oracle_seconds=oracle_s)
 
     def row(name, m):
         return (f"| {name} | {np.nanmean(m['pos_err']):.1f} | {np.nanmean(m['orn_err']):.1f} | "
-                f"{100 * np.mean(m['survival']):.1f} | {np.mean(m['reward']):.1f} |")
+                f"{100 * np.mean(m['survival']):.1f} | {np.mean(m['reward']):.1f} | "
+                f"{100 * np.mean(m['reward']) / r_oracle.mean():.1f} % |")
 
     steps = sorted({m.steps for m in motions})
     length = f"cut to their first {args.control_steps} control steps" if args.control_steps else "whole"
@@ -594,11 +601,15 @@ def section_c(trained, task, args, space) -> str:
         "",
         f"**Model / oracle mean tracking reward: {100 * share:.1f} %** (the paper's small model: 83 %, on the "
         "bimanual space). Pearson r of per-episode rewards, model vs oracle: "
-        f"{r:.2f} over {r_model.size} episodes.",
+        f"{r:.2f} over {r_model.size} episodes. A still arm (every step repeats the start posture's command, "
+        f"`tt.dit.policies.HoldPolicy`) scores {100 * still_share:.1f} % in the same closed loop, DiffIK (the teacher, "
+        f"`IKPolicy`) {100 * ik_share:.1f} %.",
         "",
-        "| controller | pos err (cm) | orn err (deg) | survival (%) | tracking reward |",
-        "|---|---:|---:|---:|---:|",
+        "| controller | pos err (cm) | orn err (deg) | survival (%) | tracking reward | share of the oracle's |",
+        "|---|---:|---:|---:|---:|---:|",
         row("DiT (this checkpoint)", m_model),
+        row("a still arm (the start posture's command repeated)", m_still),
+        row("DiffIK in the same closed loop (the teacher)", m_ik),
         row("MuJoCo + mink (oracle)", m_oracle),
         "",
         f"Time: model controller {model_s:.0f} s ({ep_model.worlds} worlds x {ep_model.steps} steps), oracle {oracle_s:.0f} s.",

@@ -77,6 +77,17 @@ class IKPolicy:
         return ctrl[worlds]
 
 
+class HoldPolicy:
+    """A still arm: every step repeats the last command (the start posture's), which is what
+    a controller that learned no increment does; the floor a learned controller must clear."""
+
+    def reset(self, ctx: LoopContext) -> None:
+        pass
+
+    def __call__(self, step: int, worlds: torch.Tensor, state: StepState) -> torch.Tensor:
+        return state.ctrl[worlds].clone()
+
+
 @dataclass(frozen=True)
 class ControllerConfig:
     """How the model controls. num_steps: DDIM steps per control step (the paper's: 5, all
@@ -340,4 +351,4 @@ def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str 
     return closed_loop_rollout(designs, motions, policy, config=ik_config, device=device, steps=steps, progress=progress)
 
 
-__all__ = ["CONTROLLERS", "ControllerConfig", "IKPolicy", "ModelPolicy", "control_task", "control_task_of", "model_rollout"]
+__all__ = ["CONTROLLERS", "ControllerConfig", "HoldPolicy", "IKPolicy", "ModelPolicy", "control_task", "control_task_of", "model_rollout"]
