@@ -170,7 +170,8 @@ def guidance_variants(args) -> list[tuple[float, float, str, int, int]]:
     every critic-steered Self-Guidance of part "guidance"; scale 0 guides only the decoded
     design (one variant per eta and refinement, whatever the place and first step)."""
     out = [(s, e, a, f, r) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
-           for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)]
+           for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)
+           if s != 0 or r > 0]  # scale 0 without refinement would be Zeroth-Order itself
     return list({critic_label(*v): v for v in out}.values())
 
 
@@ -782,8 +783,8 @@ def main() -> None:
     refines = _ints(args.guidance_refine)
     if not refines or any(r < 0 for r in refines):
         sys.exit(f"--guidance-refine: {args.guidance_refine!r}; each must be >= 0")
-    if 0 in _floats(args.guidance_scales) and 0 in refines:
-        sys.exit("--guidance-scales 0 guides no token step: give it only with --guidance-refine > 0")
+    if "guidance" in parts and not guidance_variants(args):
+        sys.exit("--guidance-scales 0 guides no token step: give it with a --guidance-refine > 0")
     unknown = sorted(set(parts) - set(PARTS))
     if unknown:
         sys.exit(f"--parts: unknown {unknown}; valid: {', '.join(PARTS)}")

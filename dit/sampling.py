@@ -118,6 +118,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     wanted = output_types(task, layout)
     updated = {n: masks.noised[n] & masks.visible[n] for n in wanted}
     guided_masks = _guided_masks(guided, updated) if guide is not None else {}
+    stray = sorted(set(init_noise or ()) - set(updated))
+    if stray:
+        raise ValueError(f"init_noise names types {stray} that this task does not diffuse; diffused: {sorted(updated)}")
     given = {}
     for n, m in (known or {}).items():
         if n not in updated:

@@ -380,13 +380,18 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     total = len(tokens)
     chunk = total if chunk is None else min(int(chunk), total)
     generator = torch.Generator(device=device).manual_seed(int(seed))
-    shared = None
-    if common_noise:
-        # Rows are motion-major, then design, then sample: one draw per (motion, sample).
-        shared = {n: torch.randn((M, 1, K, *v.shape[1:]), generator=generator, device=device).expand(M, D, K, *v.shape[1:])
-                  .reshape(total, *v.shape[1:]) for n, v in tokens.values.items()}
     task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps,
                     "start" if from_start else "random")
+    shared = None
+    if common_noise:
+        from tt.dit.tasks import output_types
+
+        # Rows are motion-major, then design, then sample: one draw per (motion, sample). Every
+        # type is drawn, in the tokens' order, so the stream (and the recorded results) stay
+        # those of the first version; only the types the task diffuses are used.
+        shared = {n: torch.randn((M, 1, K, *v.shape[1:]), generator=generator, device=device).expand(M, D, K, *v.shape[1:])
+                  .reshape(total, *v.shape[1:]) for n, v in tokens.values.items()}
+        shared = {n: v for n, v in shared.items() if n in output_types(task, layout)}
     scheduler = CosineDDIM(task.diffusion_steps)
     values = []
     for c0 in range(0, total, chunk):

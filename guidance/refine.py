@@ -24,7 +24,8 @@ sample (``common_noise``), so J is a deterministic function of the design and it
 differences measure the design, not the sampling noise. The simulator only runs each
 design's first control step (the critic's start); the reward itself is never simulated.
 All designs of a call go through one prediction per stage: (1 + 2 p) per design for the
-gradient, ``len(step_sizes)`` for the line search.
+gradient, ``len(step_sizes)`` for the line search and, with ``check``, 2 per design whose
+line search found a step.
 """
 
 from __future__ import annotations
@@ -143,7 +144,8 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         asked += len(batch) * len(motions)
         pred = predict_designs(critic, batch, motions, cfg, samples=config.samples, num_steps=config.num_steps,
                                seed=draw, device=device, via="dynamics", common_noise=True)
-        return np.nan_to_num(pred.reward.mean(axis=1), nan=-np.inf)
+        value = pred.reward.mean(axis=1)
+        return np.where(np.isfinite(value), value, -np.inf)
 
     n = len(designs)
     h = config.rel_step

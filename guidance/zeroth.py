@@ -554,6 +554,8 @@ class ZerothOrder(Optimizer):
         # On designs, `judge_designs` asks the critic model itself; the sampler only samples.
         sampler = CandidateSampler(self._trained, problem.device,
                                    critic_model=self._critic if self.critic_input() == "tokens" else None)
+        if c.refine:
+            self._refine_critic()  # before any sampling, not after it
         if self._decoder is not None:
             decoder = self._decoder
         else:
@@ -665,29 +667,42 @@ class ZerothOrder(Optimizer):
 
     def refined(self, problem: Problem, result: Result) -> Result:
         """`result` with its best design refined by the dynamics critic (``config.refine``
-        iterations, `tt.guidance.refine`); best_reward becomes the critic's predicted
-        objective of the refined design, info["refine"] records the climb."""
+        iterations, `tt.guidance.refine`, ``critic_samples`` per prediction); info["refine"]
+        records the climb. When a step was taken, the refined design leads ``designs`` and its
+        re-predicted objective is ``best_reward``; the given best is re-predicted in the same
+        call (same noise, info["refine"]["objective_before"]), since the ranking's figure came
+        from another noise draw. With no step taken the result is the given one."""
         import dataclasses
 
         from tt.guidance.predicted import predict_designs
         from tt.guidance.refine import RefineConfig, refine_designs
 
+        c = self.config
+        judge = self._refine_critic()
+        cfg = get_reward(problem.reward, problem.space)
+        out = refine_designs(judge, [result.best], problem.motions, cfg,
+                             RefineConfig(iterations=c.refine, samples=c.critic_samples), seed=problem.seed,
+                             device=problem.device)
+        record = {**out.summary(), "iterations": c.refine, "ranked_objective": result.best_reward}
+        if out.steps[0] == 0:
+            return dataclasses.replace(result, info={**result.info, "refine": record})
+        best = out.designs[0]
+        before, objective = predict_designs(judge, [result.best, best], problem.motions, cfg, samples=c.critic_samples,
+                                            num_steps=c.num_steps, seed=problem.seed, placement=c.placement,
+                                            chunk=c.chunk, device=problem.device, common_noise=True).reward.mean(axis=1)
+        record["objective_before"] = float(before)
+        return dataclasses.replace(result, best=best, best_reward=float(objective), designs=[best] + result.designs,
+                                   rewards=np.concatenate([[objective], result.rewards]),
+                                   history=result.history + [float(objective)], info={**result.info, "refine": record})
+
+    def _refine_critic(self) -> TrainedModel:
+        """The model refinement climbs (the critic, else the sampling model); ValueError when
+        it was not trained on the dynamics task."""
         judge = self._critic or self._trained
         if not judge.trained_on("dynamics"):
             raise ValueError(f"refine climbs the dynamics critic's prediction: the model was trained on "
                              f"{list(judge.tasks)}; give a critic checkpoint trained on the dynamics task")
-        cfg = get_reward(problem.reward, problem.space)
-        out = refine_designs(judge, [result.best], problem.motions, cfg, RefineConfig(iterations=self.config.refine),
-                             seed=problem.seed, device=problem.device)
-        best = out.designs[0]
-        objective = float(predict_designs(judge, [best], problem.motions, cfg, samples=self.config.critic_samples,
-                                          num_steps=self.config.num_steps, seed=problem.seed,
-                                          device=problem.device).reward.mean())
-        info = {**result.info, "refine": {**out.summary(), "iterations": self.config.refine,
-                                          "objective_before": result.best_reward}}
-        return dataclasses.replace(result, best=best, best_reward=objective, designs=[best] + result.designs,
-                                   rewards=np.concatenate([[objective], result.rewards]),
-                                   history=result.history + [objective], info=info)
+        return judge
 
 
 __all__ = [

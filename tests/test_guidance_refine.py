@@ -15,6 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from tt.baselines.problem import Problem, Result
 from tt.guidance.critic_grad import NO_TERMINATION
@@ -32,9 +33,7 @@ pytestmark = pytest.mark.usefixtures("single_thread")
 
 @pytest.fixture(scope="module")
 def critic():
-    from tt.dit.checkpoint import load_model
-
-    return load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")
+    return _shipped_critic()
 
 
 @pytest.fixture(scope="module")
@@ -128,9 +127,40 @@ def test_zeroth_order_returns_the_refined_design(critic, motion):
     expected = refine_designs(critic, [design], (motion,), get_reward("tracking", "viperx"),
                               RefineConfig(iterations=1), seed=4)
     assert out.best == expected.designs[0] != design
-    assert out.designs == [out.best, design] and out.info["refine"]["objective_before"] == 1.0
-    assert out.best_reward == pytest.approx(predict_designs(critic, [out.best], (motion,), get_reward("tracking", "viperx"),
-                                                            num_steps=STEPS, seed=4).reward.mean())
+    assert out.designs == [out.best, design] and out.info["refine"]["ranked_objective"] == 1.0
+    # Both re-predicted in one call with common noise: the same as each alone.
+    before, after = (predict_designs(critic, [d], (motion,), get_reward("tracking", "viperx"), num_steps=STEPS, seed=4,
+                                     common_noise=True).reward.mean() for d in (design, out.best))
+    assert out.best_reward == pytest.approx(after, rel=1e-4, abs=1e-3)
+    assert out.info["refine"]["objective_before"] == pytest.approx(before, rel=1e-4, abs=1e-3)
+
+
+def test_zeroth_order_keeps_its_result_when_no_step_is_taken(critic, motion, monkeypatch):
+    import tt.guidance.refine as refine
+    from tt.guidance.refine import Refined
+
+    design = get_space("viperx").sample(1, seed=11)[0]
+    monkeypatch.setattr(refine, "refine_designs", lambda critic, designs, *a, **k: Refined(
+        list(designs), np.array([5.0]), np.array([5.0]), np.array([0]), [[5.0]], 3, 0.1))
+    problem = Problem("viperx", (motion,), "tracking", 1, seed=4, device="cpu")
+    given = Result("zeroth", design, 1.0, [design], np.array([1.0]), 0.1, 0, [1.0], {"samples": 1})
+    out = ZerothOrder(SamplerConfig(num_steps=STEPS, refine=2), model=critic).refined(problem, given)
+    assert out.best == design and out.best_reward == 1.0 and out.designs == [design] and out.history == [1.0]
+    assert out.info["refine"]["steps"] == [0] and out.info["refine"]["ranked_objective"] == 1.0
+
+
+def test_init_noise_of_a_type_the_task_does_not_diffuse_is_refused(critic, motion):
+    from tt.dit.sampling import sample
+    from tt.dit.tasks import TaskSpec
+    from tt.guidance.predicted import build_query
+
+    q = build_query(critic.layout, critic.normalizer, motion, 2)
+    task = TaskSpec("dynamics", critic.robot_diffusion_steps, "start")
+    with pytest.raises(ValueError, match="does not diffuse"):
+        sample(critic.model, q.tokens, task, num_steps=1, init_noise={"link": torch.zeros_like(q.tokens.values["link"])})
+    name = next(n for n in q.tokens.values if n == "track_link_obs")
+    with pytest.raises(ValueError, match="shape"):
+        sample(critic.model, q.tokens, task, num_steps=1, init_noise={name: torch.zeros(1, 2, 3)})
 
 
 def test_bad_refine_settings_are_refused(critic, motion):
@@ -146,3 +176,33 @@ def test_bad_refine_settings_are_refused(critic, motion):
     mixed = [get_space("viperx").sample(1, seed=0)[0], get_space("viperx-nominal").sample(1, seed=0)[0]]
     with pytest.raises(ValueError, match="several spaces"):
         refine_designs(critic, mixed, (motion,), cfg)
+
+
+def test_tt_optimize_refine_reports_the_climb(tmp_path):
+    """The CLI end to end with the shipped checkpoints: the refined design is the one validated and saved."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from tt.cli import app
+
+    out = tmp_path / "result.json"
+    result = CliRunner().invoke(app, ["optimize", "--method", "zeroth", "--motion", "reach_place", "--samples", "1",
+                                      "--budget", "1", "--num-steps", "10", "--refine", "2", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "refined by the dynamics critic" in result.output
+    saved = json.loads(out.read_text())
+    refine = saved["info"]["refine"]
+    assert refine["iterations"] == 2 and len(refine["trace"][0]) == refine["steps"][0] + 1
+    # The saved objective is the saved design's prediction: re-predicted with common noise
+    # after a step, the ranking's own figure (one candidate, row 0) without one.
+    expected = predict_designs(_shipped_critic(), [get_space("viperx").from_dict(saved["design"])],
+                               for_space([get_motion("reach_place")], "viperx"), get_reward("tracking", "viperx"),
+                               num_steps=10, seed=0, common_noise=refine["steps"][0] > 0).reward.mean()
+    assert saved["objective"] == pytest.approx(expected, rel=1e-4, abs=1e-3)
+
+
+def _shipped_critic():
+    from tt.dit.checkpoint import load_model
+
+    return load_model("checkpoints/viperx_mini_dynamics.pt", device="cpu")

@@ -545,9 +545,13 @@ def optimize(
                       f"model's #{info['best_predicted_rank'] + 1}")
     if "refine" in result.info:
         r = result.info["refine"]
-        console.print(f"refined by the dynamics critic: {r['steps'][0]} of {r['iterations']} steps taken, critic's objective "
-                      f"{r['before'][0]:.2f} -> {r['after'][0]:.2f} (predicted reward {r['objective_before']:.2f} -> "
-                      f"{result.best_reward:.2f}) in {r['seconds']:.1f} s")
+        if r["steps"][0]:
+            console.print(f"refined by the dynamics critic: {r['steps'][0]} of at most {r['iterations']} steps taken, its "
+                          f"objective {r['before'][0]:.2f} -> {r['after'][0]:.2f} (predicted reward "
+                          f"{r['objective_before']:.2f} -> {result.best_reward:.2f}, same noise) in {r['seconds']:.1f} s")
+        else:
+            console.print(f"refined by the dynamics critic: no step raised its prediction ({r['seconds']:.1f} s); the "
+                          "sampled design is returned")
     console.print_json(json.dumps(sp.to_dict(result.best)))
     console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
