@@ -130,8 +130,8 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
     def zeroth() -> ZerothOrder:
-        return ZerothOrder(SamplerConfig(num_steps=args.steps), model=learned.trained, decoder=learned.decoder,
-                           critic_model=learned.critic)
+        return ZerothOrder(SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples), model=learned.trained,
+                           decoder=learned.decoder, critic_model=learned.critic)
 
     if method == ZEROTH:
         return zeroth()
@@ -146,12 +146,13 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         scale, eta, at, first, refine = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
             first = args.steps
-        config = DGSConfig(num_steps=args.steps, guide_by="critic", scale=scale, eta=eta, guide_start=first,
-                           refine=refine, **CRITIC_PLACES[at])
+        config = DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, guide_by="critic", scale=scale,
+                           eta=eta, guide_start=first, refine=refine, **CRITIC_PLACES[at])
         return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
-    return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, sim_grad_weight=lam, sim_grad_start=start),
+    return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, sim_grad_weight=lam,
+                                          sim_grad_start=start),
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
@@ -748,6 +749,8 @@ def main() -> None:
                     help="guidance: comma-separated iterations of critic refinement of the returned design "
                          "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
                          "scale 0 in --guidance-scales guides no token step, only the decoded design")
+    ap.add_argument("--critic-samples", type=int, default=1,
+                    help="every learned method: critic predictions averaged per candidate (ranking and refinement)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,
                     help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
@@ -780,6 +783,8 @@ def main() -> None:
     starts = _ints(args.guidance_starts)
     if not starts or any(not 0 <= f < args.steps for f in starts):
         sys.exit(f"--guidance-starts: {args.guidance_starts!r}; each must be a DDIM step in 0..{args.steps - 1}")
+    if args.critic_samples < 1:
+        sys.exit(f"--critic-samples {args.critic_samples}: must be >= 1")
     refines = _ints(args.guidance_refine)
     if not refines or any(r < 0 for r in refines):
         sys.exit(f"--guidance-refine: {args.guidance_refine!r}; each must be >= 0")
