@@ -201,7 +201,8 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
             rec.update(ok=True, seconds=res.seconds, rollouts=res.rollouts, objective=res.best_reward,
                        warmup_seconds=info.get("warmup_seconds", 0.0), decode_failures=info.get("decode_failures"),
                        distance=info.get("distance_best"), projected=info.get("projected"), decoded=info.get("decoded"),
-                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"), critic_grad=info.get("critic_grad"), refine=info.get("refine"),
+                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"), critic_grad=info.get("critic_grad"),
+                       refine=info.get("refine"),
                        **summary_row(ev.metrics, k), design=get_space(SPACE).to_dict(res.best))
             k += 1
         records.append(rec)
