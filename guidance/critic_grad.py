@@ -268,7 +268,7 @@ class CriticGradient:
         """Add (dR/dstart)(dstart/dc), carried to tokens, to `out` for the candidates of `ok`
         (all decoded; models: their designs' compiled models). start_grads: type -> (M,
         len(ok), P, D), dR/d(step-0 tokens)."""
-        from tt.guidance.simgrad import _stencil, place_token_gradient, token_jacobian, tokens_from_choice_gradient
+        from tt.guidance.simgrad import design_stencil, place_token_gradient, token_jacobian, tokens_from_choice_gradient
 
         pairs = list(enumerate(ok))
         designs = [decoded[i].design for _, i in pairs]
@@ -279,7 +279,7 @@ class CriticGradient:
         device = next(iter(x0.values())).device
         own, _ = robot_embodiment(self.critic.layout, self.normalizer, models, device)
         self.stats.start_projected += sum(decoded[i].distance > 0 for i in ok)
-        stencils = [_stencil(space, d, self.start_rel_step) for d in designs]
+        stencils = [design_stencil(space, d, self.start_rel_step) for d in designs]
         moved = start_tokens(self.critic.layout, self.critic.normalizer, [d for st, _ in stencils for d in st], ctx.motions,
                              device=device)  # type -> (M, sum of 2 p, P, D)
         at = 0

@@ -12,7 +12,7 @@ c (link lengths, masses, gains, mount offsets, in units of each choice's range) 
 
 (`tt.guidance.predicted.predict_designs`, each design's first control step re-simulated,
 as `tt predict` asks), with its gradient by central differences over c (half step
-``rel_step``; a step that would leave the range is cut at the bound), and a line search
+``rel_step``, `tt.guidance.stencil`: a step that would leave the range is cut at the bound), and a line search
 along g / max|g| over ``step_sizes`` (the largest move of one choice). A step is taken only
 when it raises J, and, with ``check`` (the default), also J under a second, independent
 draw of the critic's noise: a climb that only exploits the one draw it was searched with
@@ -39,6 +39,7 @@ import numpy as np
 
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
+from tt.guidance.stencil import central_points
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import Motion
 from tt.sim.rewards import RewardConfig
@@ -160,13 +161,9 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         # Gradient: the centre and a +/- pair per choice, cut at the bounds.
         batch, pairs = [], []
         for i in active:
-            batch.append(make(i, u[i]))
-            hi, lo = np.minimum(u[i] + h, 1.0), np.maximum(u[i] - h, 0.0)
-            for j in range(len(u[i])):
-                xp, xm = u[i].copy(), u[i].copy()
-                xp[j], xm[j] = hi[j], lo[j]
-                batch += [make(i, xp), make(i, xm)]
-            pairs.append(hi - lo)
+            points, width = central_points(u[i], h, 0.0, 1.0)
+            batch += [make(i, u[i])] + [make(i, x) for x in points]
+            pairs.append(width)
         values = judge(batch)
         directions, at = {}, 0
         for i, width in zip(active, pairs):

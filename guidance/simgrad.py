@@ -52,6 +52,7 @@ from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, rob
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
+from tt.guidance.stencil import central_points
 
 log = logging.getLogger(__name__)
 
@@ -145,19 +146,13 @@ def _bounds(space: DesignSpace, design: Design) -> tuple[np.ndarray, np.ndarray]
     return np.array([p.low for p in params], dtype=np.float64), np.array([p.high for p in params], dtype=np.float64)
 
 
-def _stencil(space: DesignSpace, design: Design, rel_step: float) -> tuple[list[Design], np.ndarray]:
-    """Designs c0 + h e_j and c0 - h e_j (kept in bounds) for every choice j, and the spans."""
-    c0 = np.asarray(design.continuous, dtype=np.float64)
+def design_stencil(space: DesignSpace, design: Design, rel_step: float) -> tuple[list[Design], np.ndarray]:
+    """Designs c0 + h e_j and c0 - h e_j (kept in bounds; h a share ``rel_step`` of each
+    range) for every choice j, in the order (+, -) per j, and each pair's width
+    (`tt.guidance.stencil.central_points`)."""
     lo, hi = _bounds(space, design)
-    h = rel_step * np.maximum(hi - lo, 1e-12)
-    plus, minus = np.minimum(c0 + h, hi), np.maximum(c0 - h, lo)
-    out = []
-    for j in range(len(c0)):
-        for v in (plus[j], minus[j]):
-            c = c0.copy()
-            c[j] = v
-            out.append(Design(design.space, design.discrete, tuple(float(x) for x in c)))
-    return out, plus - minus
+    points, width = central_points(design.continuous, rel_step * np.maximum(hi - lo, 1e-12), lo, hi)
+    return [Design(design.space, design.discrete, tuple(float(x) for x in c)) for c in points], width
 
 
 def _host_fields(tree, models) -> dict:
@@ -175,7 +170,7 @@ def field_jacobian(space: DesignSpace, design: Design, sites: Sequence[str], *, 
     docstring); derivatives=False: the fields only, with zero derivatives (no extra compiles)."""
     from tt.kernels.model import build_tree_model
 
-    stencil, span = _stencil(space, design, rel_step) if derivatives else ([], np.zeros(len(design.continuous)))
+    stencil, span = design_stencil(space, design, rel_step) if derivatives else ([], np.zeros(len(design.continuous)))
     models = [space.model(design)] + [space.model(d) for d in stencil]
     tree = build_tree_model(models, sites, device=device)
     host = _host_fields(tree, models)
@@ -319,7 +314,7 @@ def encoded_tokens(space: DesignSpace, designs: Sequence[Design]) -> list[dict[s
 def token_jacobian(space: DesignSpace, design: Design, *, rel_step: float = REL_STEP) -> dict[str, np.ndarray]:
     """d(encoded real embodiment tokens)/dc by central differences of the tokenizer: type ->
     (p, n_real, width)."""
-    stencil, span = _stencil(space, design, rel_step)
+    stencil, span = design_stencil(space, design, rel_step)
     toks = encoded_tokens(space, stencil)
     p = len(design.continuous)
     return {n: np.stack([(toks[2 * j][n] - toks[2 * j + 1][n]) / span[j] for j in range(p)]) for n in toks[0]}

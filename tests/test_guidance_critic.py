@@ -221,7 +221,7 @@ def test_gradient_through_the_start_matches_central_differences(motions):
     from tt.dit.layout import robot_embodiment
     from tt.guidance.critic_grad import START_REL_STEP
     from tt.guidance.predicted import start_tokens
-    from tt.guidance.simgrad import _stencil, token_jacobian
+    from tt.guidance.simgrad import design_stencil, token_jacobian
     from tt.guidance.zeroth import Decoded
     from tt.tokens.normalize import is_padding
 
@@ -242,7 +242,7 @@ def test_gradient_through_the_start_matches_central_differences(motions):
     added = {n: v - plain[n] for n, v in through.token_gradient(ctx, x0, 0).items()}
     assert through.stats.start_terms == 1 and through.stats.start_projected == 0
     jac = token_jacobian(space, design)  # type -> (p, n_real, width), encoded units
-    stencil, span = _stencil(space, design, START_REL_STEP)
+    stencil, span = design_stencil(space, design, START_REL_STEP)
     moved = start_tokens(critic.layout, critic.normalizer, stencil, ctx.motions)
     numeric, analytic = [], []
     for j in range(len(design.continuous)):

@@ -1,0 +1,30 @@
+"""Central-difference stencils over a design's continuous choices.
+
+Two guidance paths take slopes of an objective over a design's continuous choices c by
+central differences: the simulator's and the start's terms (`tt.guidance.simgrad`, in
+physical units, step a share of each range) and the critic refinement
+(`tt.guidance.refine`, in units of each range). Both use these points: c + h_j e_j and
+c - h_j e_j for every choice j, each cut at its bound, so a choice at a bound gets a
+one-sided difference over the width that is left.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def central_points(x: np.ndarray, h, low, high) -> tuple[np.ndarray, np.ndarray]:
+    """The stencil around x, (p,): rows x + h_j e_j and x - h_j e_j, cut at [low, high], in
+    the order (+, -) per choice j, (2 p, p) float64; and each pair's width, (p,).
+
+    h, low, high: scalars or (p,) arrays.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    plus, minus = np.minimum(x + h, high), np.maximum(x - h, low)
+    points = np.repeat(x[None], 2 * len(x), axis=0)
+    j = np.arange(len(x))
+    points[2 * j, j], points[2 * j + 1, j] = plus, minus
+    return points, plus - minus
+
+
+__all__ = ["central_points"]
