@@ -143,11 +143,11 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
-        scale, eta, at, first, refine = variants[method]
+        scale, eta, at, first, refine, objective = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
             first = args.steps
         config = DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, guide_by="critic", scale=scale,
-                           eta=eta, guide_start=first, refine=refine, **CRITIC_PLACES[at])
+                           eta=eta, guide_start=first, refine=refine, refine_objective=objective, **CRITIC_PLACES[at])
         return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
@@ -156,21 +156,24 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
 
 
-def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0) -> str:
+def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0,
+                 objective: str = "reward") -> str:
     where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only",
              "start": ", through the start"}[at]
+    climbs = ", climbing the log form" if objective == "log" else ""
     if scale == 0:
-        return f"{DGS_CRITIC} (eta = {eta:g}, at the decoded design only, {refine} iterations)"
+        return f"{DGS_CRITIC} (eta = {eta:g}, at the decoded design only, {refine} iterations{climbs})"
     start = f", from step {first}" if first else ""
-    tail = f", then {refine} iterations at the decoded design" if refine else ""
+    tail = f", then {refine} iterations at the decoded design{climbs}" if refine else ""
     return f"{DGS_CRITIC} (s = {scale:g}, eta = {eta:g}{where}{start}{tail})"
 
 
-def guidance_variants(args) -> list[tuple[float, float, str, int, int]]:
-    """(scale, eta, where the gradient is taken, first guided step, refinement iterations) of
-    every critic-steered Self-Guidance of part "guidance"; scale 0 guides only the decoded
-    design (one variant per eta and refinement, whatever the place and first step)."""
-    out = [(s, e, a, f, r) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
+def guidance_variants(args) -> list[tuple[float, float, str, int, int, str]]:
+    """(scale, eta, where the gradient is taken, first guided step, refinement iterations, what
+    refinement climbs) of every critic-steered Self-Guidance of part "guidance"; scale 0
+    guides only the decoded design (one variant per eta and refinement, whatever the place
+    and first step)."""
+    out = [(s, e, a, f, r, args.guidance_refine_objective) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
            for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)
            if s != 0 or r > 0]  # scale 0 without refinement would be Zeroth-Order itself
     return list({critic_label(*v): v for v in out}.values())
@@ -750,6 +753,9 @@ def main() -> None:
                     help="guidance: comma-separated iterations of critic refinement of the returned design "
                          "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
                          "scale 0 in --guidance-scales guides no token step, only the decoded design")
+    ap.add_argument("--guidance-refine-objective", choices=("reward", "log"), default="reward",
+                    help="guidance: what refinement climbs (`SamplerConfig.refine_objective`): the critic's predicted "
+                         "reward, or its smooth stand-in (`tt.sim.rewards.log_reward`)")
     ap.add_argument("--critic-samples", type=int, default=1,
                     help="every learned method: critic predictions averaged per candidate (ranking and refinement)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,

@@ -271,13 +271,16 @@ class DesignPrediction:
 
     reward: (D, M) predicted episode reward (reported alphas), the mean over `samples`
     samples; metrics: name -> (D, M) predicted metrics (`predicted_metrics`), means over the
-    samples (NaN-free ones); samples: K; seconds: wall time of sampling and scoring.
+    samples (NaN-free ones); samples: K; seconds: wall time of sampling and scoring;
+    log_reward: (D, M) the smooth stand-in `tt.sim.rewards.log_reward` of the same samples,
+    their mean, when asked for (``predict_designs(log=True)``), else None.
     """
 
     reward: np.ndarray
     metrics: dict[str, np.ndarray]
     samples: int
     seconds: float
+    log_reward: np.ndarray | None = None
 
 
 #: DDIM steps of a critic's prediction by default. On the R2 dynamics critic
@@ -302,7 +305,7 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
                     num_steps: int | None = CRITIC_DDIM_STEPS,
                     seed: int = 0, placement: str = "even", chunk: int | None = None,
                     device: str | torch.device | None = None, via: str | None = None,
-                    common_noise: bool = False) -> DesignPrediction:
+                    common_noise: bool = False, log: bool = False) -> DesignPrediction:
     """The model as a critic: predicted dynamics and reward of each design on each motion.
 
     Each design's embodiment tokens are given to the model (`design_query`), the model
@@ -324,7 +327,8 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     common_noise: every design gets the same starting noise for a given motion and sample, so
     differences between the designs' predictions are the designs' and not the noise's (central
     differences, `tt.guidance.refine`; with eta 0 and via "dynamics" the sampling is then
-    deterministic per row, inpainting draws fresh noise each step).
+    deterministic per row, inpainting draws fresh noise each step); log: also score the
+    samples with the reward's smooth stand-in (`DesignPrediction.log_reward`).
     Raises CheckpointSpaceError, LayoutError (a robot or motion the layout cannot hold) and
     ValueError (bad arguments).
     """
@@ -403,18 +407,23 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         values.append(res.tokens.values)
     values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
     reward = np.zeros((D, M))
+    log_reward = np.zeros((D, M)) if log else None
     metrics: dict[str, np.ndarray] = {}
     for j, q in enumerate(queries):
         rows = slice(j * D * K, (j + 1) * D * K)
         scorer = PredictedReward(layout, norm, cfg, q)
         per = predicted_metrics(scorer, {n: v[rows] for n, v in values.items()})
+        if log:
+            with torch.no_grad():
+                smooth = scorer({n: v[rows] for n, v in values.items()}, log=True)
+            log_reward[:, j] = smooth.double().cpu().numpy().reshape(D, K).mean(1)
         for name, v in per.items():
             arr = v.double().cpu().numpy().reshape(D, K)
             counted = np.isfinite(arr)
             mean = np.where(counted, arr, 0.0).sum(1) / np.maximum(counted.sum(1), 1)
             metrics.setdefault(name, np.full((D, M), np.nan))[:, j] = np.where(counted.any(1), mean, np.nan)
         reward[:, j] = metrics["reward"][:, j]
-    return DesignPrediction(reward, metrics, K, time.perf_counter() - start)
+    return DesignPrediction(reward, metrics, K, time.perf_counter() - start, log_reward)
 
 
 # ------------------------------------------------------------------------------ geometry

@@ -10,6 +10,10 @@ c (link lengths, masses, gains, mount offsets, in units of each choice's range) 
 
     J(c) = the critic's predicted reward of the design, mean over the problem's motions
 
+(or, with ``objective`` "log", its smooth stand-in `tt.sim.rewards.log_reward`: minus the
+summed squared errors, which still has a slope where the reward's exp(-e^2 / sigma) terms
+have all but vanished)
+
 (`tt.guidance.predicted.predict_designs`, each design's first control step re-simulated,
 as `tt predict` asks), with its gradient by central differences over c (half step
 ``rel_step``, `tt.guidance.stencil`: a step that would leave the range is cut at the bound), and a line search
@@ -45,6 +49,10 @@ from tt.sim.motions import Motion
 from tt.sim.rewards import RewardConfig
 
 
+#: What refinement climbs: the predicted reward, or its smooth stand-in (module docstring).
+OBJECTIVES = ("reward", "log")
+
+
 @dataclass(frozen=True)
 class RefineConfig:
     """iterations: gradient steps at most per design; rel_step: half step of the central
@@ -54,7 +62,8 @@ class RefineConfig:
     critic's DDIM steps; terminate: keep the reward's termination in J (False: every query
     step counts, as critic guidance's gradient does, `tt.guidance.critic_grad.NO_TERMINATION`;
     a design predicted to stop at its first step then still has a slope); check: a step must
-    also raise J under a second noise draw (module docstring).
+    also raise J under a second noise draw (module docstring); objective: what J is, "reward"
+    (the predicted reward) or "log" (its smooth stand-in, module docstring).
     """
 
     iterations: int = 5
@@ -64,8 +73,11 @@ class RefineConfig:
     num_steps: int = CRITIC_DDIM_STEPS
     terminate: bool = False
     check: bool = True
+    objective: str = "reward"
 
     def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective = {self.objective!r}; must be one of {list(OBJECTIVES)}")
         if self.iterations < 1:
             raise ValueError(f"iterations = {self.iterations}; must be >= 1")
         if not 0 < self.rel_step < 0.5:
@@ -144,8 +156,9 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         nonlocal asked
         asked += len(batch) * len(motions)
         pred = predict_designs(critic, batch, motions, cfg, samples=config.samples, num_steps=config.num_steps,
-                               seed=draw, device=device, via="dynamics", common_noise=True)
-        value = pred.reward.mean(axis=1)
+                               seed=draw, device=device, via="dynamics", common_noise=True,
+                               log=config.objective == "log")
+        value = (pred.log_reward if config.objective == "log" else pred.reward).mean(axis=1)
         return np.where(np.isfinite(value), value, -np.inf)
 
     n = len(designs)
@@ -203,4 +216,4 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
     return Refined([make(i, u[i]) for i in range(n)], before, current, steps, trace, asked, time.perf_counter() - start)
 
 
-__all__ = ["RefineConfig", "Refined", "refine_designs"]
+__all__ = ["OBJECTIVES", "RefineConfig", "Refined", "refine_designs"]

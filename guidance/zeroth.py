@@ -59,6 +59,7 @@ from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import DYNAMICS, ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
 from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
+from tt.guidance.refine import OBJECTIVES as REFINE_OBJECTIVES
 from tt.sim.rewards import RewardConfig, get_reward
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
@@ -99,6 +100,8 @@ class SamplerConfig:
         decoded design has), else "tokens". refine: iterations of critic refinement of the
         returned design (`tt.guidance.refine`: its continuous choices climb the dynamics
         critic's predicted reward along central differences, the start re-simulated; 0: none).
+        refine_objective: what refinement climbs, "reward" (the predicted reward) or "log"
+        (its smooth stand-in; `tt.guidance.refine.RefineConfig.objective`).
     """
 
     checkpoint: str | Path | None = None
@@ -113,10 +116,13 @@ class SamplerConfig:
     critic_checkpoint: str | Path | None = None
     critic_on: str | None = None
     refine: int = 0
+    refine_objective: str = "reward"
 
     def __post_init__(self) -> None:
         if self.refine < 0:
             raise ValueError(f"refine = {self.refine}; must be >= 0")
+        if self.refine_objective not in REFINE_OBJECTIVES:
+            raise ValueError(f"refine_objective = {self.refine_objective!r}; must be one of {list(REFINE_OBJECTIVES)}")
         if self.samples is not None and self.samples < 1:
             raise ValueError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
@@ -681,7 +687,8 @@ class ZerothOrder(Optimizer):
         judge = self._refine_critic()
         cfg = get_reward(problem.reward, problem.space)
         out = refine_designs(judge, [result.best], problem.motions, cfg,
-                             RefineConfig(iterations=c.refine, samples=c.critic_samples), seed=problem.seed,
+                             RefineConfig(iterations=c.refine, samples=c.critic_samples, objective=c.refine_objective),
+                             seed=problem.seed,
                              device=problem.device)
         record = {**out.summary(), "iterations": c.refine, "ranked_objective": result.best_reward}
         if out.steps[0] == 0:

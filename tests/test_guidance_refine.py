@@ -117,6 +117,37 @@ def test_refined_designs_score_higher_under_both_draws(critic, motion):
         assert out.after[i] == pytest.approx(first[1], rel=1e-4, abs=1e-3)
 
 
+def test_log_prediction_scores_the_same_samples_with_the_smooth_stand_in(critic, motion, monkeypatch):
+    import tt.guidance.predicted as predicted
+
+    designs = get_space("viperx").sample(2, seed=8)
+    cfg = get_reward("tracking", "viperx")
+    seen = []
+    plain_metrics = predicted.predicted_metrics
+    monkeypatch.setattr(predicted, "predicted_metrics", lambda scorer, x0: seen.append((scorer, x0)) or plain_metrics(scorer, x0))
+    both = predict_designs(critic, designs, (motion,), cfg, samples=2, num_steps=STEPS, seed=3, log=True)
+    plain = predict_designs(critic, designs, (motion,), cfg, samples=2, num_steps=STEPS, seed=3)
+    assert plain.log_reward is None and both.log_reward.shape == (2, 1)
+    np.testing.assert_array_equal(both.reward, plain.reward)  # the same samples, scored twice
+    scorer, x0 = seen[0]
+    with torch.no_grad():
+        expected = scorer(x0, log=True).double().numpy().reshape(2, 2).mean(1)  # rows: design, then sample
+    np.testing.assert_allclose(both.log_reward[:, 0], expected, rtol=1e-6)
+    assert np.all(both.log_reward < 0)
+
+
+def test_log_objective_climbs_the_smooth_stand_in(critic, motion):
+    design = _middle(get_space("viperx").sample(1, seed=11)[0], seed=2)
+    cfg = get_reward("tracking", "viperx")
+    out = refine_designs(critic, [design], (motion,), cfg, RefineConfig(iterations=1, num_steps=STEPS, check=False,
+                                                                        objective="log"), seed=4)
+    smooth = dataclasses.replace(cfg, threshold=NO_TERMINATION)
+    before, after = (predict_designs(critic, [d], (motion,), smooth, num_steps=STEPS, seed=4, common_noise=True,
+                                     log=True).log_reward[0, 0] for d in (design, out.designs[0]))
+    assert out.steps[0] == 1 and out.after[0] > out.before[0]
+    assert out.before[0] == pytest.approx(before, rel=1e-4) and out.after[0] == pytest.approx(after, rel=1e-4)
+
+
 def test_zeroth_order_returns_the_refined_design(critic, motion):
     space = get_space("viperx")
     design = _middle(space.sample(1, seed=11)[0], seed=2)
@@ -165,11 +196,13 @@ def test_init_noise_of_a_type_the_task_does_not_diffuse_is_refused(critic, motio
 
 def test_bad_refine_settings_are_refused(critic, motion):
     for bad in (dict(iterations=0), dict(rel_step=0.5), dict(step_sizes=()), dict(step_sizes=(0.1, 1.5)),
-                dict(samples=0), dict(num_steps=0)):
+                dict(samples=0), dict(num_steps=0), dict(objective="rank")):
         with pytest.raises(ValueError):
             RefineConfig(**bad)
     with pytest.raises(ValueError, match="refine"):
         SamplerConfig(refine=-1)
+    with pytest.raises(ValueError, match="refine_objective"):
+        SamplerConfig(refine=1, refine_objective="rank")
     cfg = get_reward("tracking", "viperx")
     with pytest.raises(ValueError, match="at least one design"):
         refine_designs(critic, [], (motion,), cfg)
