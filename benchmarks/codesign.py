@@ -143,11 +143,11 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
-        scale, eta, at, first, refine, objective = variants[method]
+        scale, eta, at, first, refine, form = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
             first = args.steps
         config = DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, guide_by="critic", scale=scale,
-                           eta=eta, guide_start=first, refine=refine, refine_objective=objective, **CRITIC_PLACES[at])
+                           eta=eta, guide_start=first, refine=refine, refine_form=form, **CRITIC_PLACES[at])
         return DynamicsSelfGuidance(config,
                                     model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
@@ -157,10 +157,10 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
 
 
 def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0,
-                 objective: str = "reward") -> str:
+                 form: str = "reward") -> str:
     where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only",
              "start": ", through the start"}[at]
-    climbs = ", climbing the log form" if objective == "log" else ""
+    climbs = ", climbing the log form" if form == "log" else ""
     if scale == 0:
         return f"{DGS_CRITIC} (eta = {eta:g}, at the decoded design only, {refine} iterations{climbs})"
     start = f", from step {first}" if first else ""
@@ -173,7 +173,7 @@ def guidance_variants(args) -> list[tuple[float, float, str, int, int, str]]:
     refinement climbs) of every critic-steered Self-Guidance of part "guidance"; scale 0
     guides only the decoded design (one variant per eta and refinement, whatever the place
     and first step)."""
-    out = [(s, e, a, f, r, args.guidance_refine_objective) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
+    out = [(s, e, a, f, r, args.guidance_refine_form) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
            for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)
            if s != 0 or r > 0]  # scale 0 without refinement would be Zeroth-Order itself
     return list({critic_label(*v): v for v in out}.values())
@@ -416,7 +416,8 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
              "critic: the dynamics critic's prediction for each step's x0_hat differentiated instead (the log of the "
              "tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. At the decoded design "
              "(only, or after the guided steps): once sampling has ended, the returned design's continuous choices "
-             "climb the critic's predicted reward (no termination) along its central differences, each design's start "
+             "climb the critic's predicted reward (no termination; where the label says so, its log form, "
+             "`tt.sim.rewards.log_reward`) along its central differences, each design's start "
              "re-simulated, a step kept only when it also raises the prediction under a second noise draw "
              "(`tt.guidance.refine`, `SamplerConfig.refine` iterations at most); with eta 0 and no guided token step "
              "the design it starts from is Zeroth-Order's own. Paired differences are "
@@ -703,6 +704,8 @@ def _floats(text: str) -> list[float]:
 
 
 def main() -> None:
+    from tt.guidance.critic_grad import FORMS
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
     ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
@@ -753,9 +756,9 @@ def main() -> None:
                     help="guidance: comma-separated iterations of critic refinement of the returned design "
                          "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
                          "scale 0 in --guidance-scales guides no token step, only the decoded design")
-    ap.add_argument("--guidance-refine-objective", choices=("reward", "log"), default="reward",
-                    help="guidance: what refinement climbs (`SamplerConfig.refine_objective`): the critic's predicted "
-                         "reward, or its smooth stand-in (`tt.sim.rewards.log_reward`)")
+    ap.add_argument("--guidance-refine-form", choices=FORMS, default="reward",
+                    help="guidance: what refinement climbs (`SamplerConfig.refine_form`): the critic's predicted "
+                         "reward, or its smooth stand-in (log; `tt.sim.rewards.log_reward`)")
     ap.add_argument("--critic-samples", type=int, default=1,
                     help="every learned method: critic predictions averaged per candidate (ranking and refinement)")
     ap.add_argument("--critic-checkpoint", type=Path, default=None,

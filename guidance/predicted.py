@@ -273,7 +273,7 @@ class DesignPrediction:
     samples; metrics: name -> (D, M) predicted metrics (`predicted_metrics`), means over the
     samples (NaN-free ones); samples: K; seconds: wall time of sampling and scoring;
     log_reward: (D, M) the smooth stand-in `tt.sim.rewards.log_reward` of the same samples,
-    their mean, when asked for (``predict_designs(log=True)``), else None.
+    the mean of the finite ones, when asked for (``predict_designs(log=True)``), else None.
     """
 
     reward: np.ndarray
@@ -407,7 +407,7 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         values.append(res.tokens.values)
     values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
     reward = np.zeros((D, M))
-    log_reward = np.zeros((D, M)) if log else None
+    smooth = np.full((D, M), np.nan) if log else None
     metrics: dict[str, np.ndarray] = {}
     for j, q in enumerate(queries):
         rows = slice(j * D * K, (j + 1) * D * K)
@@ -415,15 +415,19 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         per = predicted_metrics(scorer, {n: v[rows] for n, v in values.items()})
         if log:
             with torch.no_grad():
-                smooth = scorer({n: v[rows] for n, v in values.items()}, log=True)
-            log_reward[:, j] = smooth.double().cpu().numpy().reshape(D, K).mean(1)
+                smooth[:, j] = _finite_mean(scorer({n: v[rows] for n, v in values.items()}, log=True), D, K)
         for name, v in per.items():
-            arr = v.double().cpu().numpy().reshape(D, K)
-            counted = np.isfinite(arr)
-            mean = np.where(counted, arr, 0.0).sum(1) / np.maximum(counted.sum(1), 1)
-            metrics.setdefault(name, np.full((D, M), np.nan))[:, j] = np.where(counted.any(1), mean, np.nan)
+            metrics.setdefault(name, np.full((D, M), np.nan))[:, j] = _finite_mean(v, D, K)
         reward[:, j] = metrics["reward"][:, j]
-    return DesignPrediction(reward, metrics, K, time.perf_counter() - start, log_reward)
+    return DesignPrediction(reward, metrics, K, time.perf_counter() - start, smooth)
+
+
+def _finite_mean(v: torch.Tensor, D: int, K: int) -> np.ndarray:
+    """(D * K,) values, design-major -> (D,) the mean of each design's finite samples (NaN where none is)."""
+    arr = v.double().cpu().numpy().reshape(D, K)
+    counted = np.isfinite(arr)
+    mean = np.where(counted, arr, 0.0).sum(1) / np.maximum(counted.sum(1), 1)
+    return np.where(counted.any(1), mean, np.nan)
 
 
 # ------------------------------------------------------------------------------ geometry

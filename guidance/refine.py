@@ -10,9 +10,9 @@ c (link lengths, masses, gains, mount offsets, in units of each choice's range) 
 
     J(c) = the critic's predicted reward of the design, mean over the problem's motions
 
-(or, with ``objective`` "log", its smooth stand-in `tt.sim.rewards.log_reward`: minus the
-summed squared errors, which still has a slope where the reward's exp(-e^2 / sigma) terms
-have all but vanished)
+(or, with ``form`` "log", its smooth stand-in `tt.sim.rewards.log_reward`: minus the summed
+squared errors, each over its sigma, less the effort and embodiment penalties, which still has
+a slope where the reward's exp(-e^2 / sigma) terms have all but vanished; `critic_grad.FORMS`)
 
 (`tt.guidance.predicted.predict_designs`, each design's first control step re-simulated,
 as `tt predict` asks), with its gradient by central differences over c (half step
@@ -42,15 +42,12 @@ from typing import Sequence
 import numpy as np
 
 from tt.dit.checkpoint import TrainedModel
+from tt.guidance.critic_grad import FORMS, NO_TERMINATION
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
 from tt.guidance.stencil import central_points
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import Motion
 from tt.sim.rewards import RewardConfig
-
-
-#: What refinement climbs: the predicted reward, or its smooth stand-in (module docstring).
-OBJECTIVES = ("reward", "log")
 
 
 @dataclass(frozen=True)
@@ -62,8 +59,10 @@ class RefineConfig:
     critic's DDIM steps; terminate: keep the reward's termination in J (False: every query
     step counts, as critic guidance's gradient does, `tt.guidance.critic_grad.NO_TERMINATION`;
     a design predicted to stop at its first step then still has a slope); check: a step must
-    also raise J under a second noise draw (module docstring); objective: what J is, "reward"
-    (the predicted reward) or "log" (its smooth stand-in, module docstring).
+    also raise J under a second noise draw (module docstring); form: what J is
+    (`tt.guidance.critic_grad.FORMS`): "reward", the predicted reward, or "log", its smooth
+    stand-in (module docstring), which only goes without termination (its per-step terms are
+    negative, so an episode that stops early would score higher).
     """
 
     iterations: int = 5
@@ -73,11 +72,14 @@ class RefineConfig:
     num_steps: int = CRITIC_DDIM_STEPS
     terminate: bool = False
     check: bool = True
-    objective: str = "reward"
+    form: str = "reward"
 
     def __post_init__(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise ValueError(f"objective = {self.objective!r}; must be one of {list(OBJECTIVES)}")
+        if self.form not in FORMS:
+            raise ValueError(f"form = {self.form!r}; must be one of {list(FORMS)}")
+        if self.form == "log" and self.terminate:
+            raise ValueError("form 'log' with terminate: the log form's steps are negative, so the climb would "
+                             "favour designs predicted to stop early; climb it without termination")
         if self.iterations < 1:
             raise ValueError(f"iterations = {self.iterations}; must be >= 1")
         if not 0 < self.rel_step < 0.5:
@@ -131,8 +133,6 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
     reward; seed: of the critic's (common) sampling noise; device: torch device (None: the
     critic's). Raises ValueError for no designs or designs of several spaces.
     """
-    from tt.guidance.critic_grad import NO_TERMINATION
-
     start = time.perf_counter()
     designs, motions = list(designs), list(motions)
     if not designs:
@@ -157,8 +157,8 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         asked += len(batch) * len(motions)
         pred = predict_designs(critic, batch, motions, cfg, samples=config.samples, num_steps=config.num_steps,
                                seed=draw, device=device, via="dynamics", common_noise=True,
-                               log=config.objective == "log")
-        value = (pred.log_reward if config.objective == "log" else pred.reward).mean(axis=1)
+                               log=config.form == "log")
+        value = (pred.log_reward if config.form == "log" else pred.reward).mean(axis=1)
         return np.where(np.isfinite(value), value, -np.inf)
 
     n = len(designs)
@@ -216,4 +216,4 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
     return Refined([make(i, u[i]) for i in range(n)], before, current, steps, trace, asked, time.perf_counter() - start)
 
 
-__all__ = ["OBJECTIVES", "RefineConfig", "Refined", "refine_designs"]
+__all__ = ["RefineConfig", "Refined", "refine_designs"]

@@ -47,12 +47,12 @@ import torch
 import warp as wp
 
 from tt.dit.checkpoint import TrainedModel
+from tt.guidance.stencil import central_points
 from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
-from tt.guidance.stencil import central_points
 
 log = logging.getLogger(__name__)
 
@@ -439,6 +439,7 @@ __all__ = [
     "WarpFunction",
     "WarpProgram",
     "design_reward_gradient",
+    "design_stencil",
     "encoded_tokens",
     "field_jacobian",
     "place_token_gradient",

@@ -1,11 +1,12 @@
 """Central-difference stencils over a design's continuous choices.
 
-Two guidance paths take slopes of an objective over a design's continuous choices c by
-central differences: the simulator's and the start's terms (`tt.guidance.simgrad`, in
-physical units, step a share of each range) and the critic refinement
-(`tt.guidance.refine`, in units of each range). Both use these points: c + h_j e_j and
-c - h_j e_j for every choice j, each cut at its bound, so a choice at a bound gets a
-one-sided difference over the width that is left.
+Several guidance paths take slopes over a design's continuous choices c by central
+differences: the model fields' and tokens' Jacobians of the simulator's gradient
+(`tt.guidance.simgrad`) and the start's term of the critic's gradient
+(`tt.guidance.critic_grad`), both through `simgrad.design_stencil` in physical units with the
+step a share of each range, and the critic refinement (`tt.guidance.refine`, in units of each
+range). All use these points: c + h_j e_j and c - h_j e_j for every choice j, each cut at its
+bound, so a choice at a bound gets a one-sided difference over the width that is left.
 """
 
 from __future__ import annotations

@@ -59,7 +59,8 @@ from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import DYNAMICS, ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
 from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
-from tt.guidance.refine import OBJECTIVES as REFINE_OBJECTIVES
+from tt.guidance.critic_grad import FORMS
+from tt.guidance.refine import RefineConfig, refine_designs
 from tt.sim.rewards import RewardConfig, get_reward
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
@@ -100,8 +101,8 @@ class SamplerConfig:
         decoded design has), else "tokens". refine: iterations of critic refinement of the
         returned design (`tt.guidance.refine`: its continuous choices climb the dynamics
         critic's predicted reward along central differences, the start re-simulated; 0: none).
-        refine_objective: what refinement climbs, "reward" (the predicted reward) or "log"
-        (its smooth stand-in; `tt.guidance.refine.RefineConfig.objective`).
+        refine_form: what refinement climbs, "reward" (the predicted reward) or "log" (its
+        smooth stand-in; `tt.guidance.refine.RefineConfig.form`).
     """
 
     checkpoint: str | Path | None = None
@@ -116,13 +117,13 @@ class SamplerConfig:
     critic_checkpoint: str | Path | None = None
     critic_on: str | None = None
     refine: int = 0
-    refine_objective: str = "reward"
+    refine_form: str = "reward"
 
     def __post_init__(self) -> None:
         if self.refine < 0:
             raise ValueError(f"refine = {self.refine}; must be >= 0")
-        if self.refine_objective not in REFINE_OBJECTIVES:
-            raise ValueError(f"refine_objective = {self.refine_objective!r}; must be one of {list(REFINE_OBJECTIVES)}")
+        if self.refine_form not in FORMS:
+            raise ValueError(f"refine_form = {self.refine_form!r}; must be one of {list(FORMS)}")
         if self.samples is not None and self.samples < 1:
             raise ValueError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
@@ -681,16 +682,15 @@ class ZerothOrder(Optimizer):
         import dataclasses
 
         from tt.guidance.predicted import predict_designs
-        from tt.guidance.refine import RefineConfig, refine_designs
 
         c = self.config
         judge = self._refine_critic()
         cfg = get_reward(problem.reward, problem.space)
         out = refine_designs(judge, [result.best], problem.motions, cfg,
-                             RefineConfig(iterations=c.refine, samples=c.critic_samples, objective=c.refine_objective),
+                             RefineConfig(iterations=c.refine, samples=c.critic_samples, form=c.refine_form),
                              seed=problem.seed,
                              device=problem.device)
-        record = {**out.summary(), "iterations": c.refine, "ranked_objective": result.best_reward}
+        record = {**out.summary(), "iterations": c.refine, "form": c.refine_form, "ranked_objective": result.best_reward}
         if out.steps[0] == 0:
             return dataclasses.replace(result, info={**result.info, "refine": record})
         best = out.designs[0]

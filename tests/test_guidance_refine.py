@@ -121,26 +121,28 @@ def test_log_prediction_scores_the_same_samples_with_the_smooth_stand_in(critic,
     import tt.guidance.predicted as predicted
 
     designs = get_space("viperx").sample(2, seed=8)
+    motions = (motion, for_space([get_motion("wipe")], "viperx")[0])
     cfg = get_reward("tracking", "viperx")
     seen = []
     plain_metrics = predicted.predicted_metrics
     monkeypatch.setattr(predicted, "predicted_metrics", lambda scorer, x0: seen.append((scorer, x0)) or plain_metrics(scorer, x0))
-    both = predict_designs(critic, designs, (motion,), cfg, samples=2, num_steps=STEPS, seed=3, log=True)
-    plain = predict_designs(critic, designs, (motion,), cfg, samples=2, num_steps=STEPS, seed=3)
-    assert plain.log_reward is None and both.log_reward.shape == (2, 1)
+    both = predict_designs(critic, designs, motions, cfg, samples=2, num_steps=STEPS, seed=3, log=True)
+    plain = predict_designs(critic, designs, motions, cfg, samples=2, num_steps=STEPS, seed=3)
+    assert plain.log_reward is None and both.log_reward.shape == (2, 2)
     np.testing.assert_array_equal(both.reward, plain.reward)  # the same samples, scored twice
-    scorer, x0 = seen[0]
-    with torch.no_grad():
-        expected = scorer(x0, log=True).double().numpy().reshape(2, 2).mean(1)  # rows: design, then sample
-    np.testing.assert_allclose(both.log_reward[:, 0], expected, rtol=1e-6)
-    assert np.all(both.log_reward < 0)
+    assert len(seen) == 4  # one scoring per motion and call
+    for j, (scorer, x0) in enumerate(seen[:2]):  # motion j's rows: design 0's two samples, then design 1's
+        with torch.no_grad():
+            smooth = scorer(x0, log=True).double().numpy()
+        np.testing.assert_allclose(both.log_reward[:, j], [smooth[:2].mean(), smooth[2:].mean()], rtol=1e-6)
+    assert np.all(both.log_reward < 0) and both.log_reward[0, 0] != both.log_reward[0, 1]
 
 
 def test_log_objective_climbs_the_smooth_stand_in(critic, motion):
     design = _middle(get_space("viperx").sample(1, seed=11)[0], seed=2)
     cfg = get_reward("tracking", "viperx")
     out = refine_designs(critic, [design], (motion,), cfg, RefineConfig(iterations=1, num_steps=STEPS, check=False,
-                                                                        objective="log"), seed=4)
+                                                                        form="log"), seed=4)
     smooth = dataclasses.replace(cfg, threshold=NO_TERMINATION)
     before, after = (predict_designs(critic, [d], (motion,), smooth, num_steps=STEPS, seed=4, common_noise=True,
                                      log=True).log_reward[0, 0] for d in (design, out.designs[0]))
@@ -159,6 +161,7 @@ def test_zeroth_order_returns_the_refined_design(critic, motion):
                               RefineConfig(iterations=1), seed=4)
     assert out.best == expected.designs[0] != design
     assert out.designs == [out.best, design] and out.info["refine"]["ranked_objective"] == 1.0
+    assert out.info["refine"]["form"] == "reward"
     # Both re-predicted in one call with common noise: the same as each alone.
     before, after = (predict_designs(critic, [d], (motion,), get_reward("tracking", "viperx"), num_steps=STEPS, seed=4,
                                      common_noise=True).reward.mean() for d in (design, out.best))
@@ -167,11 +170,11 @@ def test_zeroth_order_returns_the_refined_design(critic, motion):
 
 
 def test_zeroth_order_keeps_its_result_when_no_step_is_taken(critic, motion, monkeypatch):
-    import tt.guidance.refine as refine
+    import tt.guidance.zeroth as zeroth
     from tt.guidance.refine import Refined
 
     design = get_space("viperx").sample(1, seed=11)[0]
-    monkeypatch.setattr(refine, "refine_designs", lambda critic, designs, *a, **k: Refined(
+    monkeypatch.setattr(zeroth, "refine_designs", lambda critic, designs, *a, **k: Refined(
         list(designs), np.array([5.0]), np.array([5.0]), np.array([0]), [[5.0]], 3, 0.1))
     problem = Problem("viperx", (motion,), "tracking", 1, seed=4, device="cpu")
     given = Result("zeroth", design, 1.0, [design], np.array([1.0]), 0.1, 0, [1.0], {"samples": 1})
@@ -196,13 +199,13 @@ def test_init_noise_of_a_type_the_task_does_not_diffuse_is_refused(critic, motio
 
 def test_bad_refine_settings_are_refused(critic, motion):
     for bad in (dict(iterations=0), dict(rel_step=0.5), dict(step_sizes=()), dict(step_sizes=(0.1, 1.5)),
-                dict(samples=0), dict(num_steps=0), dict(objective="rank")):
+                dict(samples=0), dict(num_steps=0), dict(form="rank"), dict(form="log", terminate=True)):
         with pytest.raises(ValueError):
             RefineConfig(**bad)
     with pytest.raises(ValueError, match="refine"):
         SamplerConfig(refine=-1)
-    with pytest.raises(ValueError, match="refine_objective"):
-        SamplerConfig(refine=1, refine_objective="rank")
+    with pytest.raises(ValueError, match="refine_form"):
+        SamplerConfig(refine=1, refine_form="rank")
     cfg = get_reward("tracking", "viperx")
     with pytest.raises(ValueError, match="at least one design"):
         refine_designs(critic, [], (motion,), cfg)
