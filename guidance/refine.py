@@ -44,7 +44,7 @@ import numpy as np
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.critic_grad import FORMS, NO_TERMINATION
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
-from tt.guidance.stencil import central_points
+from tt.guidance.stencil import central_points, choice_bounds
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import Motion
 from tt.sim.rewards import RewardConfig
@@ -117,9 +117,8 @@ class Refined:
 
 def _unit(space, design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(u, low, span): the design's continuous choices in units of their ranges, and the ranges."""
-    params = space.continuous_params(design.discrete)
-    low = np.array([p.low for p in params], dtype=np.float64)
-    span = np.array([p.high for p in params], dtype=np.float64) - low
+    low, high = choice_bounds(space, design)
+    span = high - low
     u = (np.asarray(design.continuous, dtype=np.float64) - low) / np.where(span > 0, span, 1.0)
     return np.clip(u, 0.0, 1.0), low, span
 

@@ -47,7 +47,7 @@ import torch
 import warp as wp
 
 from tt.dit.checkpoint import TrainedModel
-from tt.guidance.stencil import central_points
+from tt.guidance.stencil import central_points, choice_bounds
 from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
 from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
@@ -141,16 +141,11 @@ class FieldJacobian:
     jacobian: dict
 
 
-def _bounds(space: DesignSpace, design: Design) -> tuple[np.ndarray, np.ndarray]:
-    params = space.continuous_params(design.discrete)
-    return np.array([p.low for p in params], dtype=np.float64), np.array([p.high for p in params], dtype=np.float64)
-
-
 def design_stencil(space: DesignSpace, design: Design, rel_step: float) -> tuple[list[Design], np.ndarray]:
     """Designs c0 + h e_j and c0 - h e_j (kept in bounds; h a share ``rel_step`` of each
     range) for every choice j, in the order (+, -) per j, and each pair's width
     (`tt.guidance.stencil.central_points`)."""
-    lo, hi = _bounds(space, design)
+    lo, hi = choice_bounds(space, design)
     points, width = central_points(design.continuous, rel_step * np.maximum(hi - lo, 1e-12), lo, hi)
     return [Design(design.space, design.discrete, tuple(float(x) for x in c)) for c in points], width
 

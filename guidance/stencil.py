@@ -13,6 +13,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from tt.sim.designs import Design, DesignSpace
+
+
+def choice_bounds(space: DesignSpace, design: Design) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high), each (p,) float64: the ranges of the design's continuous choices."""
+    params = space.continuous_params(design.discrete)
+    return np.array([p.low for p in params], dtype=np.float64), np.array([p.high for p in params], dtype=np.float64)
+
 
 def central_points(x: np.ndarray, h, low, high) -> tuple[np.ndarray, np.ndarray]:
     """The stencil around x, (p,): rows x + h_j e_j and x - h_j e_j, cut at [low, high], in
@@ -28,4 +36,4 @@ def central_points(x: np.ndarray, h, low, high) -> tuple[np.ndarray, np.ndarray]
     return points, plus - minus
 
 
-__all__ = ["central_points"]
+__all__ = ["central_points", "choice_bounds"]

@@ -688,8 +688,7 @@ class ZerothOrder(Optimizer):
         cfg = get_reward(problem.reward, problem.space)
         out = refine_designs(judge, [result.best], problem.motions, cfg,
                              RefineConfig(iterations=c.refine, samples=c.critic_samples, form=c.refine_form),
-                             seed=problem.seed,
-                             device=problem.device)
+                             seed=problem.seed, device=problem.device)
         record = {**out.summary(), "iterations": c.refine, "form": c.refine_form, "ranked_objective": result.best_reward}
         if out.steps[0] == 0:
             return dataclasses.replace(result, info={**result.info, "refine": record})
