@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
-import click
 import typer
 from typer.core import TyperGroup
 
@@ -40,7 +39,10 @@ def error_message(e: BaseException) -> str:
     return " ".join(line.strip() for line in text.splitlines() if line.strip())
 
 
-#: typer ships its own copy of click; its usage errors (`typer.BadParameter`) derive from this.
+#: typer (0.29 on) ships its own copy of click and dispatches through it, so tt imports no
+#: `click`: the real package is not a dependency of tt (nor of typer), and its exception
+#: classes would never match what typer raises. Usage errors (`typer.BadParameter` and the
+#: rest) derive from this class of typer's copy.
 _TYPER_CLICK_ERROR = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
 
 
@@ -48,10 +50,10 @@ class _Commands(TyperGroup):
     """The one error handler of every command: ``error: ...`` on stderr, exit code 2, the
     traceback only with ``tt -v``."""
 
-    def invoke(self, ctx: click.Context):
+    def invoke(self, ctx: typer.Context):
         try:
             return super().invoke(ctx)
-        except (typer.Exit, click.exceptions.Exit, click.ClickException, _TYPER_CLICK_ERROR, click.Abort, KeyboardInterrupt):
+        except (typer.Exit, typer.Abort, _TYPER_CLICK_ERROR, KeyboardInterrupt):
             raise  # usage errors (a flag out of its range, say) are click's to report
         except Exception as e:
             if ctx.params.get("verbose"):
@@ -666,6 +668,9 @@ def train(
     refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
     online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
     online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
+    online_select: int = typer.Option(1, help="--online: designs screened per kept episode; each motion keeps its --online-designs best of --online-designs x K screened designs (tt.tokens.draws.select_episodes), so the generator learns which designs suit a motion. 1: uniform designs, unselected."),
+    uniform_share: float = typer.Option(0.0, help="--online-select: share of each motion's kept episodes drawn uniformly from the screen instead of the best (a critic then still sees failures)."),
+    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by."),
     action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
     task: str = typer.Option("robot", help="robot | dynamics | control, or several joined by '+' (robot+dynamics: a generator that is also a critic for tt predict); both = robot+control."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
@@ -705,7 +710,7 @@ def train(
         _fail("give exactly one source of training data: --data DATASET or --online")
     for flag, value, low in (("--steps", steps, 1), ("--batch-size", batch_size, 1), ("--checkpoint-every", checkpoint_every, 1),
                              ("--online-designs", online_designs, 1), ("--online-motions", online_motions, 1),
-                             ("--refresh-every", refresh_every, 1), ("--online-buffer", online_buffer, 1),
+                             ("--refresh-every", refresh_every, 1), ("--online-buffer", online_buffer, 1), ("--online-select", online_select, 1),
                              ("--action-noise", action_noise, 0.0), ("--seed", seed, 0)):
         _at_least(flag, value, low)
     if lr is not None and not lr > 0:
@@ -762,7 +767,8 @@ def train(
         extra = {} if action_noise is None else {"action_noise": action_noise}
         online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
                                      refresh_every=refresh_every, buffer=online_buffer, seed=seed,
-                                     absorbing=online_absorbing, **extra)
+                                     absorbing=online_absorbing, select=online_select, uniform_share=uniform_share,
+                                     reward=select_by, **extra)
     result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                        device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
                        online=online_config, on_checkpoint=selector, **recipe)
