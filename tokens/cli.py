@@ -23,8 +23,11 @@ class TokenCommandError(TTError):
     """What went wrong, phrased for the command line."""
 
 
-def _load_robots(path: Path) -> list[tuple[str, str, mujoco.MjModel]]:
-    """(name, MJCF text, model) of every robot in an MJCF / URDF file or a designs.json."""
+def _load_robots(spec: str) -> list[tuple[str, str, mujoco.MjModel]]:
+    """(name, MJCF text, model) of every robot in an MJCF / URDF file or a design file
+    (designs.json, or one design of it: designs.json#i)."""
+    base, sep, index = spec.rpartition("#")
+    path = Path(base if sep and base.endswith(".json") else spec)
     if not path.exists():
         raise TokenCommandError(f"{path} does not exist")
     if path.is_dir():
@@ -36,11 +39,12 @@ def _load_robots(path: Path) -> list[tuple[str, str, mujoco.MjModel]]:
         from tt.sim.designs import DesignError, load_designs
 
         try:
-            designs = load_designs(path)
+            designs = load_designs(spec)
             robots = resolve_designs(designs, who=f"tokenizing {path}", one_space=False)
         except (DesignError, ValueError) as e:
             raise TokenCommandError(str(e)) from None
-        return [(f"{d.space}#{i}", text, model) for i, (d, text, model) in enumerate(zip(designs, robots.mjcf, robots.models))]
+        numbers = [int(index)] if path != Path(spec) else range(len(designs))  # load_designs checked the index
+        return [(f"{d.space}#{i}", text, model) for i, d, text, model in zip(numbers, designs, robots.mjcf, robots.models)]
     try:
         # From the path, so meshes and includes resolve next to the file.
         model = mujoco.MjModel.from_xml_path(str(path))
@@ -56,7 +60,7 @@ def tokenize_cmd(path: str, as_json: bool = False, out: str | None = None) -> st
     the total and the MJCF text size in characters, as a table or as JSON. `out` saves the
     tokens (with the schema version) for ``tt detokenize``.
     """
-    robots = _load_robots(Path(path))
+    robots = _load_robots(str(path))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TokenizeWarning)
         try:

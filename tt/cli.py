@@ -133,11 +133,12 @@ def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at IN
 @app.command()
 def designs(
     space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual, quadruped."),
-    n: int = typer.Option(8, help="Number of designs to sample."),
-    seed: int = typer.Option(0, help="Random seed."),
+    n: Optional[int] = typer.Option(None, help="Number of designs to sample (default 8)."),
+    seed: Optional[int] = typer.Option(None, help="Random seed (default 0)."),
+    nominal: bool = typer.Option(False, "--nominal", help="Write the space's nominal design (the robot it is built around) instead of sampling."),
     out: Path = typer.Option(Path("designs"), help="Output folder for MJCF files and designs.json."),
 ) -> None:
-    """Sample designs of a space; write one MJCF file each and designs.json.
+    """Sample designs of a space (or take its nominal one); write one MJCF file each and designs.json.
 
     Over a folder of an earlier `tt designs` run, its files (designs.json and SPACE_NNNN.xml)
     that this run does not rewrite are removed, and the command says so; other files stay."""
@@ -145,9 +146,11 @@ def designs(
 
     from tt.sim.designs import SPACE_NAMES, get_space, save_designs
 
+    if nominal and (n is not None or seed is not None):
+        _fail(f"--nominal writes the one nominal design; {'--n' if n is not None else '--seed'} does not apply to it")
     _at_least("--n", n, 1)
     sp = get_space(space)
-    ds = sp.sample(n, seed)
+    ds = [sp.nominal()] if nominal else sp.sample(8 if n is None else n, 0 if seed is None else seed)
     _output(out, "--out", folder=True)
     own = re.compile(rf"^({'|'.join(SPACE_NAMES)})_\d{{4}}\.xml$")
     names = {f"{space}_{i:04d}.xml" for i in range(len(ds))}
@@ -160,7 +163,8 @@ def designs(
     if stale:
         typer.echo(f"removed {len(stale)} design file(s) of an earlier run from {out}/ ({stale[0]} ...); "
                    "other files there are left as they were")
-    typer.echo(f"wrote {len(ds)} {space} designs to {out}/ (designs.json + {len(ds)} MJCF files)")
+    what = f"the nominal {space} design" if nominal else f"{len(ds)} {space} designs"
+    typer.echo(f"wrote {what} to {out}/ (designs.json + {len(ds)} MJCF file{'s' if len(ds) > 1 else ''})")
 
 
 def _motions(names: list[str] | None, files: list[Path] | None, space: str | None = None):
@@ -801,18 +805,21 @@ def generate(
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
     action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the dataset is the same for any count."),
+    select: int = typer.Option(1, help="Designs screened per kept episode: each motion of a rollout group keeps the best 1/K of the group's designs on it (--designs counts the screen), so the data pairs motions with designs chosen for them. 1: every episode."),
+    uniform_share: float = typer.Option(0.0, help="--select: share of each motion's kept episodes drawn uniformly from the screen instead of the best (a critic still sees failures)."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
     from tt.generate import generate_cmd
 
     for flag, value, low in (("--designs", designs, 1), ("--episodes-per-design", episodes_per_design, 1),
                              ("--workers", workers, 1), ("--designs-per-shard", designs_per_shard, 1),
-                             ("--min-steps", min_steps, 1), ("--action-noise", action_noise, 0.0), ("--seed", seed, 0)):
+                             ("--min-steps", min_steps, 1), ("--action-noise", action_noise, 0.0), ("--seed", seed, 0),
+                             ("--select", select, 1)):
         _at_least(flag, value, low)
     _output(out, "--out", folder=True)
     typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
                             bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
-                            action_noise=action_noise, threads=threads))
+                            action_noise=action_noise, threads=threads, select=select, uniform_share=uniform_share))
 
 
 dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")

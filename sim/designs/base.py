@@ -341,8 +341,37 @@ def save_designs(designs: Sequence[Design], path: str | Path) -> None:
     Path(path).write_text(json.dumps({"designs": out}, indent=1))
 
 
+def design_items(data, path: str | Path) -> list:
+    """The design objects (not yet checked) in the parsed JSON of a file tt wrote, in order.
+
+    Every form tt writes designs in: ``{"designs": [...]}`` (``tt designs``, ``tt rollout
+    --out``, ``tt validate --json``, ``tt detokenize --space``), ``{"design": {...}, ...}``
+    (``tt optimize --json``), ``{"designs": {label: {...}, ...}}`` (``tt demo``'s
+    demo.json, in its order), and a bare design or list of designs.
+    """
+    # tt optimize --json's file has its 'space' beside 'design': a design's own fields decide
+    if isinstance(data, dict) and not {"discrete", "continuous"} & set(data) and ("designs" in data or "design" in data):
+        if "designs" in data:
+            items = data["designs"]
+            if isinstance(items, dict) and "space" not in items and items and all(isinstance(v, dict) for v in items.values()):
+                items = list(items.values())  # labelled designs
+        else:
+            items = [data["design"]]
+    elif isinstance(data, dict) and not {"space", "discrete", "continuous"} & set(data):
+        raise DesignError(f"{path} holds no designs: expected a design file tt wrote ('designs': [...] from "
+                          f"`tt designs`, or 'design': {{...}} from `tt optimize --json`); its fields are {sorted(data)[:8]}")
+    else:
+        items = data
+    if isinstance(items, dict):
+        items = [items]
+    if not isinstance(items, list):
+        raise DesignError(f"{path}: expected a list of designs or {{'designs': [...]}}")
+    return items
+
+
 def load_designs(spec: str | Path) -> list[Design]:
-    """Read designs from ``designs.json`` or one of them with ``designs.json#i``."""
+    """Read designs from a design file tt wrote (`design_items` lists the forms), all of them
+    or one with ``FILE#i``."""
     from tt.sim.designs import get_space
 
     spec = str(spec)
@@ -358,11 +387,7 @@ def load_designs(spec: str | Path) -> list[Design]:
         data = read_json(path, "design file")
     except CorruptFileError as e:
         raise DesignError(str(e)) from None
-    items = data["designs"] if isinstance(data, dict) and "designs" in data else data
-    if isinstance(items, dict):
-        items = [items]
-    if not isinstance(items, list):
-        raise DesignError(f"{path}: expected a list of designs or {{'designs': [...]}}")
+    items = design_items(data, path)
     if not items:
         raise DesignError(f"{path} holds no designs")
     numbers = list(range(len(items)))
