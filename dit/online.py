@@ -24,10 +24,12 @@ sees values in the same units.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from tt.dit.data import EpisodeTokens
@@ -40,7 +42,7 @@ log = logging.getLogger(__name__)
 
 # Random streams of a refresh (the third SeedSequence entry), apart from tt generate's
 # shard streams (0..3) so an online run and a dataset with the same seed differ.
-_STREAM_DESIGNS, _STREAM_MOTIONS, _STREAM_NOISE = 10, 11, 12
+_STREAM_DESIGNS, _STREAM_MOTIONS, _STREAM_NOISE, _STREAM_SELECT = 10, 11, 12, 13
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,12 @@ class OnlineConfig:
     query's evenly placed steps ask about; without it (the default, as `tt generate`) windows
     stop at the end and episodes shorter than `min_steps` are dropped, so the data never shows
     a design failing.
+    select: designs screened per kept episode. Refresh k then rolls ``designs * select`` new
+    designs out on every motion and keeps, per motion, the `designs` episodes that
+    `tt.tokens.draws.select_episodes` picks by `reward` (the best, and a `uniform_share` of
+    them drawn uniformly), so each episode's design was chosen for that episode's motion and
+    the motion-to-robot task learns which designs suit a motion, not the prior. 1: every
+    design on every motion, unselected (``designs * motions`` episodes a refresh).
     """
 
     space: str = "viperx"
@@ -72,12 +80,24 @@ class OnlineConfig:
     max_motion_steps: int | None = None
     max_time: int = 1024
     absorbing: bool = False
+    select: int = 1
+    uniform_share: float = 0.0
+    reward: str = "tracking"
 
     def __post_init__(self) -> None:
         from tt.sim.designs import get_space
+        from tt.sim.rewards import REWARDS
 
         if self.refresh_every < 1 or self.buffer < 1:
             raise ValueError(f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}")
+        if not (isinstance(self.select, int) and self.select >= 1):
+            raise ValueError(f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+        if not 0.0 <= self.uniform_share <= 1.0:
+            raise ValueError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
+        if self.uniform_share > 0 and self.select == 1:
+            raise ValueError("--uniform-share applies only with --online-select above 1 (without selection every design is uniform)")
+        if self.reward not in REWARDS:
+            raise ValueError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}")
         if get_space(self.space).has_contacts:
             raise ValueError(f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
                              "kernels (contact-free trees): generate a dataset with `tt generate` instead")
@@ -111,6 +131,8 @@ class OnlineTokenSource:
         self.maxima = {k: int(v) for k, v in space_token_maxima(config.space)["maxima"].items() if int(v) > 0}
         self._tokenizer = Tokenizer()
         self._refreshes: dict[int, EpisodeTokens] = {}
+        #: refresh -> the (design, motion) pairs its selection kept (``select`` > 1), before the filters.
+        self.selected: dict[int, list[tuple[int, int]]] = {}
         self._data: EpisodeTokens | None = None
         self._current: int | None = None
         self.stats = {"refreshes": 0, "episodes": 0, "dropped": 0, "world_steps": 0, "seconds": 0.0}
@@ -155,12 +177,12 @@ class OnlineTokenSource:
 
     # -------------------------------------------------------------- one refresh
     def draw(self, k: int) -> tuple[list, list]:
-        """The designs and augmented, placed training motions of refresh `k` (every design
-        runs every motion), a function of (seed, k)."""
+        """The designs (``designs * select``: the screen) and augmented, placed training motions
+        of refresh `k` (every design runs every motion), a function of (seed, k)."""
         from tt.tokens.draws import _rng, _seed_int, episode_motion, training_motions
 
         cfg = self.config
-        designs = self.space.sample(cfg.designs, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
+        designs = self.space.sample(cfg.designs * cfg.select, seed=_seed_int(cfg.seed, k, _STREAM_DESIGNS))
         rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
         base = training_motions(cfg.space)
         motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
@@ -186,8 +208,7 @@ class OnlineTokenSource:
         trees = self.space.trees(designs)
         records = rollout_records(models if trees is None else trees, self.space.ee_sites(), motions, device=self.device,
                                   action_noise=cfg.action_noise, noise_seed=_seed_int(cfg.seed, k, _STREAM_NOISE))
-        embodiment = self._tokenizer(models)
-        parts, dropped, world_steps = [], 0, 0
+        parts, dropped, world_steps, groups = [], 0, 0, []
         for members, arrays in records:
             ep = group_episode(members, arrays, len(motions), models[members[0]].nu, perturbed=cfg.action_noise > 0,
                                dt=IKConfig().control_dt)
@@ -197,8 +218,24 @@ class OnlineTokenSource:
                 lengths = torch.tensor([m.steps for m in motions], device=lengths.device)[ep.motion_index.to(lengths.device)]
             keep = torch.as_tensor(finite_worlds(ep), device=lengths.device) & (lengths >= cfg.min_steps)
             dropped += int((~keep).sum())
+            groups.append((members, ep, lengths, keep))
+        if cfg.select == 1:
+            embodiment = self._tokenizer(models)
+        else:
+            groups = self._select(k, groups, motions)
+            # Only the kept designs are tokenized; a group's unkept worlds borrow a kept
+            # member's index (they are cut out before their tokens are used).
+            used = sorted({int(d) for _, ep, _, keep in groups for d in ep.design_index[keep].tolist()})
+            embodiment = self._tokenizer([models[d] for d in used]) if used else None
+            slot = torch.full((len(models),), -1, dtype=torch.long)
+            slot[used] = torch.arange(len(used))
+        for members, ep, lengths, keep in groups:
             if not bool(keep.any()):
                 continue
+            if cfg.select > 1:
+                local = slot[ep.design_index.cpu()]
+                local[local < 0] = int(local[local >= 0][0])
+                ep = dataclasses.replace(ep, design_index=local.to(ep.design_index.device))
             parts.append(episode_token_batch(ep, embodiment, lengths, keep.nonzero()[:, 0], cfg.max_time, self.maxima))
         if not parts:
             raise RuntimeError(f"online refresh {k}: all {dropped} episodes were dropped (non-finite or shorter than "
@@ -213,6 +250,37 @@ class OnlineTokenSource:
         log.info("online refresh %d: %d episodes (%d dropped), %d world-steps in %.1f s", k, len(out), dropped,
                  world_steps, seconds)
         self._refreshes[k] = out
+        return out
+
+
+    def _select(self, k: int, groups: list, motions: list) -> list:
+        """The groups' keep masks narrowed to the episodes `select_episodes` picks per motion."""
+        from tt.sim.rewards import RewardInputs, get_reward, metrics
+        from tt.tokens.draws import _rng, select_episodes
+
+        cfg = self.config
+        reward_cfg = get_reward(cfg.reward, cfg.space)
+        rewards, motion_of, eligible = [], [], []
+        for _, ep, _, keep in groups:
+            dev = ep.ee_pos.device
+            steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
+            # float64 sums: the ranking does not depend on the rollout's thread count.
+            inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
+                                  act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive,
+                                  fallen=ep.fallen, motion_steps=steps)
+            rewards.append(metrics(inputs, reward_cfg)["reward"].cpu().numpy())
+            motion_of.append(ep.motion_index.cpu().numpy())
+            eligible.append(keep.cpu().numpy())
+        chosen = select_episodes(np.concatenate(rewards), np.concatenate(motion_of), np.concatenate(eligible),
+                                 cfg.designs, cfg.uniform_share, _rng(cfg.seed, k, _STREAM_SELECT))
+        out, start = [], 0
+        for members, ep, lengths, keep in groups:
+            mask = torch.as_tensor(chosen[start:start + ep.worlds], device=keep.device)
+            start += ep.worlds
+            out.append((members, ep, lengths, keep & mask))
+        self.stats["screened"] = self.stats.get("screened", 0) + start
+        design_of = np.concatenate([ep.design_index.cpu().numpy() for _, ep, _, _ in groups])
+        self.selected[k] = [(int(design_of[w]), int(m)) for w, m in zip(np.nonzero(chosen)[0], np.concatenate(motion_of)[chosen])]
         return out
 
 

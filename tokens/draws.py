@@ -23,7 +23,7 @@ from tt.tokens.schema import SCHEMA
 #: Data biasing methods of ``--bias``.
 BIASES = ("cmaes",)
 #: Random streams of a shard (the third SeedSequence entry).
-_STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES, _STREAM_NOISE = 0, 1, 2, 3
+_STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES, _STREAM_NOISE, _STREAM_SELECT = 0, 1, 2, 3, 4
 #: Default control perturbation [rad or m] (measured, see the module docstring).
 DEFAULT_ACTION_NOISE = 0.01
 #: Which robot count (`tt.tokens.tokenize.RobotIndex.counts`) sets each per-step type's tokens per step.
@@ -51,6 +51,10 @@ class GenerateConfig:
     action_noise: control perturbation, the standard deviation [rad or m] of the Gaussian
     noise on every executed command (clean commands are logged); 0: none ("warp" backend
     only when > 0). CMA-ES biasing scores its candidates without it.
+    select: designs screened per kept episode: each group keeps, per motion, the
+    ``ceil(group / select)`` episodes `select_episodes` picks by `reward` (the best, and a
+    `uniform_share` of them drawn uniformly), so every stored episode's design was chosen for
+    that episode's motion; 1: every episode (no selection). `designs` counts the screen.
     """
 
     space: str
@@ -69,6 +73,8 @@ class GenerateConfig:
     backend: str = "warp"
     reward: str = "tracking"
     action_noise: float = DEFAULT_ACTION_NOISE
+    select: int = 1
+    uniform_share: float = 0.0
 
     def __post_init__(self) -> None:
         from tt.sim.rewards import REWARDS
@@ -100,6 +106,12 @@ class GenerateConfig:
             raise ValueError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
         if not (isinstance(self.action_noise, (int, float, np.integer, np.floating)) and math.isfinite(self.action_noise) and self.action_noise >= 0):
             raise ValueError(f"GenerateConfig.action_noise = {self.action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+        if not (isinstance(self.select, (int, np.integer)) and self.select >= 1):
+            raise ValueError(f"--select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+        if not 0.0 <= self.uniform_share <= 1.0:
+            raise ValueError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
+        if self.uniform_share > 0 and self.select == 1:
+            raise ValueError("--uniform-share applies only with --select above 1 (without selection every design is uniform)")
         if self.action_noise > 0 and self.backend != "warp":
             raise ValueError(f"GenerateConfig.action_noise = {self.action_noise} needs backend 'warp' (the backend that "
                              f"perturbs commands); backend {self.backend!r} needs action_noise=0")
@@ -114,8 +126,16 @@ class GenerateConfig:
             raise ValueError(f"shard {index} does not exist; the dataset has shards 0..{self.shards - 1}")
         return min(self.designs_per_shard, self.designs - index * self.designs_per_shard)
 
+    def group_keep(self, group: int) -> int:
+        """Episodes a group of `group` designs keeps per motion under selection."""
+        return -(-group // self.select)
+
     def to_dict(self) -> dict:
-        return {**asdict(self), "shards": self.shards}
+        d = asdict(self)
+        if self.select == 1 and self.uniform_share == 0.0:
+            # Unselected datasets keep the root they had before selection existed.
+            del d["select"], d["uniform_share"]
+        return {**d, "shards": self.shards}
 
     @staticmethod
     def from_dict(d: Mapping) -> "GenerateConfig":
@@ -228,3 +248,38 @@ def finite_worlds(ep) -> np.ndarray:
         bad = ~torch.isfinite(x).reshape(x.shape[0], x.shape[1], -1).all(-1)
         ok &= ~(bad & alive).any(1)
     return ok.cpu().numpy()
+
+
+# ------------------------------------------------------------------------------ motion-selected episodes
+def select_episodes(reward: np.ndarray, motion: np.ndarray, eligible: np.ndarray, keep: int, uniform_share: float,
+                    rng: np.random.Generator | None) -> np.ndarray:
+    """Which screened episodes a dataset keeps so that each design was chosen for its motion.
+
+    Every design of a screen runs every motion; per motion, the `keep` eligible episodes are
+    its ``keep - round(keep * uniform_share)`` best by `reward` (ties to the lower world
+    index) and ``round(keep * uniform_share)`` drawn uniformly from the other eligible ones,
+    so a model trained on them still sees designs that fail. Without selection the data pairs
+    a uniform design with an independent motion, and motion-to-robot learns p(design), the
+    prior (issue 51).
+
+    reward: (W,) float, each world's reward on its own motion; motion: (W,) int, its motion;
+    eligible: (W,) bool, worlds the filters kept (finite, long enough). rng: the uniform
+    share's draws (unused when it is 0). Returns (W,) bool.
+    """
+    reward = np.asarray(reward, np.float64)
+    motion = np.asarray(motion)
+    eligible = np.asarray(eligible, bool)
+    if not 0.0 <= uniform_share <= 1.0:
+        raise ValueError(f"uniform share {uniform_share} must lie in [0, 1]")
+    n_uniform = int(round(keep * uniform_share))
+    out = np.zeros(len(reward), bool)
+    for m in np.unique(motion):
+        idx = np.nonzero((motion == m) & eligible)[0]
+        # lexsort: the last key is primary; stable on the world index for equal rewards.
+        order = idx[np.lexsort((idx, -np.nan_to_num(reward[idx], nan=-np.inf)))]
+        top = order[:max(keep - n_uniform, 0)]
+        out[top] = True
+        rest = order[len(top):]
+        if n_uniform and len(rest):
+            out[rng.choice(rest, size=min(n_uniform, len(rest)), replace=False)] = True
+    return out

@@ -20,7 +20,10 @@ One shard:
    m] per actuator and step, the clean command is logged (`tt.sim.rollout.rollout`);
 3. filter: episodes shorter than `min_steps` control steps (the rollout terminated them:
    the end effector left the target by more than the space's threshold) or with non-finite
-   states are dropped and counted by reason;
+   states are dropped and counted by reason; with ``select`` > 1 each motion of the group
+   then keeps only the episodes `tt.tokens.draws.select_episodes` picks by reward (its
+   designs chosen for that motion, a ``uniform_share`` drawn uniformly), the others are
+   counted as "unselected";
 4. tokenize: embodiment tokens per design, dynamics and target tokens of every executed
    step (states and actuator forces / velocities of the perturbed execution, control tokens
    from the clean commands, ``Episode.action``), padded to the design space's maxima
@@ -60,6 +63,7 @@ from tt.tokens.draws import (
     _STREAM_DESIGNS,
     _STREAM_EPISODES,
     _STREAM_NOISE,
+    _STREAM_SELECT,
     BIASES,
     DEFAULT_ACTION_NOISE,
     GenerateConfig,
@@ -67,6 +71,7 @@ from tt.tokens.draws import (
     _seed_int,
     episode_motion,
     finite_worlds,
+    select_episodes,
     space_token_maxima,
     training_motions,
 )
@@ -326,7 +331,13 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             dropped["short"] += int((finite & short).sum())
             # Stored in random order: a block of consecutive episodes (what loaders read at once)
             # then holds many robots, not the K episodes of a few.
-            keep = rng.permutation(np.nonzero(finite & ~short)[0])
+            eligible = finite & ~short
+            if config.select > 1:
+                eligible &= select_episodes(score["reward"], ep.motion_index.cpu().numpy(), eligible,
+                                            config.group_keep(len(group)), config.uniform_share,
+                                            _rng(config.seed, index, _STREAM_SELECT, g0))
+                dropped["unselected"] = dropped.get("unselected", 0) + int((finite & ~short).sum() - eligible.sum())
+            keep = rng.permutation(np.nonzero(eligible)[0])
             generated += W
             seconds["score"] += time.perf_counter() - t
 
@@ -609,9 +620,11 @@ def _run_ray(config, todo, out, device, widths, workers, address, bar) -> list[d
 def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_design: int = 10, device: str | None = None,
                  workers: int = 1, bias: str | None = None, seed: int = 0, ray: str | None = None,
                  designs_per_shard: int = 1024, min_steps: int = 100, max_motion_steps: int | None = None,
-                 action_noise: float | None = None, progress: bool = True, threads: int | None = None) -> str:
+                 action_noise: float | None = None, progress: bool = True, threads: int | None = None,
+                 select: int = 1, uniform_share: float = 0.0) -> str:
     """``tt generate --space S --designs N --episodes-per-design K --out DATASET [--device D]
-    [--workers W] [--threads T] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]``.
+    [--workers W] [--threads T] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]
+    [--select K [--uniform-share F]]``.
 
     The rollout backend is `tt.baselines.problem.default_backend` of the space: "warp" for
     contact-free spaces, "mujoco" (the oracle, one world at a time) for the quadruped.
@@ -628,7 +641,8 @@ def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_desi
         action_noise = DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
     config = GenerateConfig(space=space, designs=designs, episodes_per_design=episodes_per_design, seed=seed,
                             designs_per_shard=designs_per_shard, bias=bias, min_steps=min_steps,
-                            max_motion_steps=max_motion_steps, backend=backend, action_noise=action_noise)
+                            max_motion_steps=max_motion_steps, backend=backend, action_noise=action_noise,
+                            select=select, uniform_share=uniform_share)
     report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress, threads=threads)
     return report.text()
 
