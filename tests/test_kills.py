@@ -112,3 +112,41 @@ def test_generate_killed_at_ten_random_points(tmp_path):
     assert a.episode_digests() == b.episode_digests()
     for i, folder in shard_dirs(reference).items():
         assert read_manifest(shard_dirs(path)[i]) == read_manifest(folder)
+
+
+def test_view_serve_listens_on_the_loopback_and_its_server_dies_with_it(tmp_path):
+    """``tt view --serve`` binds meshcat's web server and command socket to 127.0.0.1 (meshcat
+    alone listens on every interface), and SIGKILL of tt view takes its server down: no
+    orphan keeps the ports."""
+    sys.path.insert(0, os.path.dirname(__file__))
+    from listening import children, listening, running, wait_gone
+
+    from tt.sim.designs import get_space, save_designs
+
+    save_designs([get_space("viperx").nominal()], tmp_path / "designs.json")
+    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "view", str(tmp_path / "designs.json"), "--serve"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    server = None
+    try:
+        lines = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            lines.append(line)
+            if "serving" in line or not line:
+                break
+        url = next((x.split(": ", 1)[1].strip() for x in lines if x.startswith("meshcat viewer: ")), None)
+        assert url and url.startswith("http://127.0.0.1:"), "".join(lines)
+        (server,) = children(proc.pid)
+        addresses = listening(server)
+        assert len(addresses) == 2, addresses  # the web server and the command socket
+        assert {host for host, _ in addresses} == {"127.0.0.1"}, addresses
+        assert int(url.split(":")[2].split("/")[0]) in {port for _, port in addresses}, (url, addresses)
+
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        assert wait_gone(server, timeout=10), f"meshcat server {server} outlived its killed tt view"
+    finally:
+        proc.kill()
+        if server is not None and running(server):
+            os.kill(server, signal.SIGKILL)

@@ -581,6 +581,31 @@ def test_serve_starts_a_live_server_that_holds_the_scene(tmp_path):
     assert vis.window.server_proc.poll() is not None
 
 
+def test_serve_listens_where_asked_and_host_needs_serve(tmp_path, tt_cli):
+    """The web server on --host (every interface here), the command socket on the loopback
+    still; --host without --serve, or an address not of this machine, is refused."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from listening import listening
+
+    from tt.viz.live import close_visualizer
+
+    save_designs([get_space("viperx").nominal()], tmp_path / "d.json")
+    res = view_cmd(str(tmp_path / "d.json"), serve=True, host="0.0.0.0", block=False, echo=lambda _: None)
+    try:
+        addresses = listening(res.visualizer.window.server_proc.pid)
+        web = int(res.url.split(":")[2].split("/")[0])
+        assert ("0.0.0.0", web) in addresses and [h for h, p in addresses if p != web] == ["127.0.0.1"], addresses
+    finally:
+        close_visualizer(res.visualizer)
+    code, text = tt_cli(["view", str(tmp_path / "d.json"), "--host", "0.0.0.0", "--html", str(tmp_path / "v.html")])
+    assert code == 2 and "--host" in text and "--serve" in text, text
+    code, text = tt_cli(["view", str(tmp_path / "d.json"), "--serve", "--host", "198.51.100.77"])  # TEST-NET-2: no machine's own
+    assert code == 2 and "--host 198.51.100.77" in text and "cannot listen" in text, text
+
+
 # ---------------------------------------------------------------- plots
 def test_bar_table_draws_values_and_intervals(tmp_path):
     from tt.viz.plots import PlotError, bar_table_figure, save_bar_table

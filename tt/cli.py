@@ -505,7 +505,7 @@ def optimize(
         if checkpoint is None:
             from tt.dit.checkpoint import default_checkpoint
 
-            checkpoint = default_checkpoint(space)  # the shipped one, or an error naming the spaces that have one
+            checkpoint = default_checkpoint(space, task="robot")  # the shipped generator, or an error naming the spaces that have one
         if critic_checkpoint is None and critic != "joint" and critic_on != "tokens" and method != "cmaes-init-model":
             from tt.dit.checkpoint import shipped_critic
 
@@ -651,6 +651,7 @@ def view(
     motion: Optional[str] = typer.Option(None, help="Target motion to draw: library name or file."),
     html: Optional[Path] = typer.Option(None, help="Write one self-contained offline HTML file."),
     serve: bool = typer.Option(False, help="Start a live meshcat server and print its URL."),
+    host: Optional[str] = typer.Option(None, help="--serve: the address the viewer listens on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)."),
     png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium."),
     time: Optional[float] = typer.Option(None, help="Animation time [s] the HTML opens paused at."),
 ) -> None:
@@ -659,7 +660,7 @@ def view(
 
     _output(html, "--html")
     _output(png, "--png")
-    view_cmd(source, motion=motion, html=html, serve=serve, png=png, time=time, echo=typer.echo)
+    view_cmd(source, motion=motion, html=html, serve=serve, host=host, png=png, time=time, echo=typer.echo)
 
 
 @app.command()

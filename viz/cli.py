@@ -93,6 +93,7 @@ def view_cmd(
     png: str | Path | None = None,
     time: float | None = None,
     zmq_url: str | None = None,
+    host: str | None = None,
     block: bool = True,
     echo: Callable[[str], None] = print,
     motion_lookup: Callable[[str], Motion] | None = None,
@@ -106,11 +107,17 @@ def view_cmd(
     html: write one self-contained HTML file (works offline). Default when neither `html`
         nor `serve` is given: ``<source name>.html`` in the current folder.
     serve: start a live meshcat server (or use `zmq_url`'s) and report its URL; with
-        `block` wait until interrupted (Ctrl-C) so the server stays up.
+        `block` wait until interrupted (Ctrl-C) so the server stays up. The server's web
+        server listens on `host` (default: the loopback, 127.0.0.1); the server dies with
+        this process.
     png: also render the HTML to a PNG with headless Chromium (800 x 600).
     time: animation time [s] the HTML opens paused at, and that `png` shows.
     echo: where messages for the user go (the CLI passes its printer).
     """
+    if host is not None and not serve:
+        raise ViewError(f"--host {host} is where --serve's viewer listens; give --serve too")
+    if host is not None and zmq_url is not None:
+        raise ViewError(f"--host {host} is for a server tt view starts; the server at {zmq_url} listens where it was started")
     motion_obj = load_motion_spec(motion, motion_lookup) if motion else None
     scene = scene_for_source(source, motion=motion_obj)
     result = ViewResult(scene)
@@ -130,9 +137,9 @@ def view_cmd(
         result.png = screenshot_html(result.html, png, time=time)
         echo(f"wrote {result.png}")
     if serve:
-        from tt.viz.live import serve_scene
+        from tt.viz.live import DEFAULT_HOST, serve_scene
 
-        result.visualizer = serve_scene(scene, zmq_url=zmq_url)
+        result.visualizer = serve_scene(scene, zmq_url=zmq_url, host=DEFAULT_HOST if host is None else host)
         result.url = result.visualizer.url()
         echo(f"meshcat viewer: {result.url}")
         if block:
