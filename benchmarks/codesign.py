@@ -779,7 +779,7 @@ def main() -> None:
     t0 = time.perf_counter()
     from tt.dit.checkpoint import default_checkpoint
 
-    checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE)
+    checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE, task="robot")
     parts = [p for p in args.parts.split(",") if p]
     hybrid_settings = [s for s in args.hybrid_settings.split(",") if s]
     if sorted(set(hybrid_settings) - {"single", "multi"}):

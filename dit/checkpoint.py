@@ -136,15 +136,16 @@ def default_checkpoint(space: str, folder: str | Path | None = None, *, task: st
 
 def shipped_critic(space: str, checkpoint: str | Path, folder: str | Path | None = None) -> Path | None:
     """The critic to rank the samples of `checkpoint` by: the space's shipped dynamics
-    specialist when `checkpoint` is the space's shipped generalist and a specialist ships
-    beside it, else None (the sampling model's own dynamics task; a user's own checkpoint
-    is not paired with a shipped critic it was not trained beside)."""
+    specialist when `checkpoint` is the space's shipped generalist or generator (robot
+    specialist) and a dynamics specialist ships beside it, else None (the sampling model's own
+    dynamics task; a user's own checkpoint is not paired with a shipped critic it was not
+    trained beside)."""
     try:
-        generalist = default_checkpoint(space, folder)
+        shipped = {default_checkpoint(space, folder).resolve(), default_checkpoint(space, folder, task="robot").resolve()}
         critic = default_checkpoint(space, folder, task="dynamics")
     except NoCheckpointError:
         return None
-    if critic == generalist or Path(checkpoint).resolve() != generalist.resolve():
+    if critic.resolve() in shipped or Path(checkpoint).resolve() not in shipped:
         return None
     return critic
 

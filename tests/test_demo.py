@@ -54,6 +54,12 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
     assert ckpt.shipped_critic("viperx", tmp_path / "elsewhere.pt", tmp_path) is None
     assert ckpt.shipped_critic("quadruped", tmp_path / "quadruped.pt", tmp_path) is None
     assert ckpt.shipped_critic("bimanual", tmp_path / "x.pt", tmp_path) is None
+    # A shipped generator (robot specialist) is what the learned optimizers sample, ranked by the same critic.
+    (tmp_path / "viperx_mini_robot.pt").write_bytes(b"")
+    assert ckpt.default_checkpoint("viperx", tmp_path, task="robot") == tmp_path / "viperx_mini_robot.pt"
+    assert ckpt.default_checkpoint("viperx", tmp_path) == tmp_path / "viperx_small.pt"
+    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_mini_robot.pt", tmp_path) == tmp_path / "viperx_mini_dynamics.pt"
+    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_small.pt", tmp_path) == tmp_path / "viperx_mini_dynamics.pt"
     # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
     assert ckpt.shipped_folder().name == "checkpoints" and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
 

@@ -98,7 +98,7 @@ def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
     if config.checkpoint is not None:
         return Path(config.checkpoint), f"checkpoint {config.checkpoint}"
     try:
-        path = default_checkpoint(config.space)
+        path = default_checkpoint(config.space, task="robot")
     except NoCheckpointError as e:
         return None, f"the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped: {e}"
     return path, f"shipped checkpoint {path.name}"
