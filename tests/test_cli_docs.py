@@ -1,0 +1,28 @@
+"""docs/cli.md is the CLI's own help: the committed page equals what `python -m tt.cli_docs` writes."""
+
+from pathlib import Path
+
+from tt.cli_docs import PAGE, REGENERATE, command_paths, page
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_cli_page_matches_the_cli():
+    committed = (ROOT / PAGE).read_text() if (ROOT / PAGE).exists() else ""
+    generated = page()
+    if committed != generated:
+        old, new = committed.splitlines(), generated.splitlines()
+        first = next((i for i, (a, b) in enumerate(zip(old, new)) if a != b), min(len(old), len(new)))
+        raise AssertionError(
+            f"{PAGE} is out of date with the CLI (first difference at line {first + 1}: "
+            f"{old[first] if first < len(old) else '<end>'!r} vs {new[first] if first < len(new) else '<end>'!r}); "
+            f"regenerate it with `{REGENERATE}` and commit it"
+        )
+
+
+def test_cli_page_holds_every_command():
+    text = (ROOT / PAGE).read_text()
+    paths = command_paths()
+    assert ("optimize",) in paths and ("dataset", "info") in paths, paths
+    for p in paths:
+        assert f"## `{' '.join(('tt',) + p)}`" in text, p
