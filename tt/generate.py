@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -368,8 +369,13 @@ def _shard_task(config: dict, index: int, out: str, device: str, widths: dict, q
     return generate_shard(cfg, index, out, device=device, widths=widths, progress=report, threads=threads).to_dict()
 
 
-def _init_worker() -> None:
-    # One thread per worker: the workers are the parallelism.
+def _init_worker(parent: int) -> None:
+    """A pool worker's start: it dies with the run that started it (`parent`: SIGKILL of
+    ``tt generate`` leaves no worker writing shards), and runs one torch thread (the workers
+    are the parallelism)."""
+    from tt.kernels.processes import die_with_parent
+
+    die_with_parent(parent)
     torch.set_num_threads(1)
 
 
@@ -545,12 +551,18 @@ def _totals(done: Mapping[int, dict], out: Path) -> dict:
 
 def _run_pool(config, todo, out, device, widths, workers, bar, threads: int) -> list[dict]:
     import multiprocessing as mp
+    from multiprocessing.managers import SyncManager
+
+    from tt.kernels.processes import die_with_parent
 
     ctx = mp.get_context("spawn")  # fork would copy Warp/torch thread state
-    with ctx.Manager() as manager:
+    manager = SyncManager(ctx=ctx)
+    manager.start(die_with_parent, (os.getpid(),))  # the progress queue's server dies with this run too
+    with manager:
         queue = manager.Queue()
         results = []
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                                 initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue, threads) for i in todo}
             try:
                 while pending:
