@@ -12,6 +12,8 @@ from typing import List, Optional
 import typer
 from typer.core import TyperGroup
 
+from tt.api import DEFAULT_BUDGET, DEFAULT_CONTROLLER, DEFAULT_METHOD, DEFAULT_REWARD, DEFAULT_SEED, DEFAULT_SPACE
+
 #: Words of library messages that advise loading pickles (torch.load, np.load); tt never passes them on.
 _PICKLE_WORDS = ("allow_pickle", "weights_only", "untrusted")
 
@@ -232,21 +234,19 @@ def validate(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
-    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    reward: str = typer.Option(DEFAULT_REWARD, help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
     episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
-    controller: str = typer.Option("ik", help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per control step, each command the mean of the recent queries' predictions for it: `tt.dit.policies.ControllerConfig`) on tt's batched Warp physics."),
+    controller: str = typer.Option(DEFAULT_CONTROLLER, help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per control step, each command the mean of the recent queries' predictions for it: `tt.dit.policies.ControllerConfig`) on tt's batched Warp physics."),
     checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
     device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
-    ensemble: Optional[int] = typer.Option(None, help="--controller model: queries whose predictions each command averages (default: all whose window holds the step, 7 for the shipped models; 1: the paper's single query). README has the measurements."),
+    ensemble: Optional[int] = typer.Option(None, help="--controller model: queries whose predictions each command averages (default: all whose window holds the step, 7 for the shipped models; 1: the paper's single query); measurements: docs/results/controller.md."),
 ) -> None:
     """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
-    from types import SimpleNamespace
-
     from rich.console import Console
 
-    from tt.baselines.evaluate import evaluate_designs
+    from tt.api import control_checkpoint, validate as validate_designs
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.designs import get_space, load_designs
 
@@ -262,23 +262,13 @@ def validate(
     ms = _motions(motion, motion_file, sp_name)
     if controller not in ("ik", "model"):
         _fail(f"--controller {controller!r} does not exist; controllers: ik, model")
-    if controller == "ik":
-        ev = evaluate_designs(designs, ms, reward, backend="mujoco")
-        title = "oracle (MuJoCo C + mink)"
-    else:
-        from tt.baselines.evaluate import score_episode
-        from tt.dit.checkpoint import default_checkpoint
-        from tt.dit.policies import ControllerConfig, model_rollout
-
-        if ensemble is not None:
-            _at_least("--ensemble", ensemble, 1)
-        ckpt = checkpoint if checkpoint is not None else default_checkpoint(sp_name, task="control")
-        try:
-            ep = model_rollout(designs, ms, ckpt, device=device, progress=True, config=ControllerConfig(ensemble=ensemble))
-        except ValueError as e:
-            _fail(str(e))
-        ev = SimpleNamespace(metrics=score_episode(ep, designs, ms, reward)[1])
-        title = f"DiT controller ({Path(ckpt).name}, Warp physics)"
+    if controller == "model" and ensemble is not None:
+        _at_least("--ensemble", ensemble, 1)
+    ckpt = control_checkpoint(sp_name, checkpoint) if controller == "model" else None
+    ev = validate_designs(designs, ms, reward, controller=controller, checkpoint=ckpt, device=device, ensemble=ensemble,
+                          progress=controller == "model")
+    ep = ev.episode
+    title = "oracle (MuJoCo C + mink)" if ckpt is None else f"DiT controller ({ckpt.name}, Warp physics)"
     rows = []
     for i, _ in enumerate(designs):
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
@@ -389,15 +379,15 @@ def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dic
 
 @app.command()
 def optimize(
-    space: str = typer.Option("viperx", help="Design space."),
+    space: str = typer.Option(DEFAULT_SPACE, help="Design space."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
-    reward: str = typer.Option("tracking", help="Reward name."),
-    method: str = typer.Option("cmaes", help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim (the hybrids: the model proposes, the batched simulator verifies; cmaes --init model is the third)."),
+    reward: str = typer.Option(DEFAULT_REWARD, help="Reward name."),
+    method: str = typer.Option(DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim (the hybrids: the model proposes, the batched simulator verifies; cmaes --init model is the third)."),
     init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts CMA-ES from the model's samples (screen and step sizes) instead of random designs."),
     verify: Optional[int] = typer.Option(None, help="zeroth-sim/dgs-sim: candidates (best predicted first) the simulator checks (default: all --samples)."),
-    budget: int = typer.Option(60, help="Candidate designs per motion."),
-    seed: int = typer.Option(0, help="Random seed."),
+    budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion."),
+    seed: int = typer.Option(DEFAULT_SEED, help="Random seed."),
     popsize: int = typer.Option(5, help="CMA-ES population size."),
     generations: int = typer.Option(3, help="CMA-ES generations per restart."),
     sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
@@ -413,8 +403,8 @@ def optimize(
     scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
     sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
     guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
-    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens), or 'start' (as 'tokens', plus the gradient through the decoded design's simulated start, which a critic told the start otherwise takes as a constant). README has the measurements."),
-    refine: int = typer.Option(0, help="zeroth/dgs: iterations of critic refinement of the returned design: its continuous choices climb the dynamics critic's predicted reward along central differences, each design's start re-simulated (tt.guidance.refine; 0: none). README has the measurements."),
+    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens), or 'start' (as 'tokens', plus the gradient through the decoded design's simulated start, which a critic told the start otherwise takes as a constant); measurements: docs/experiments.md."),
+    refine: int = typer.Option(0, help="zeroth/dgs: iterations of critic refinement of the returned design: its continuous choices climb the dynamics critic's predicted reward along central differences, each design's start re-simulated (tt.guidance.refine; 0: none); measurements: docs/results/codesign.md."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
@@ -430,7 +420,7 @@ def optimize(
     import numpy as np
 
     from tt.baselines import Problem
-    from tt.optimizers import LEARNED, METHODS, get_optimizer
+    from tt.optimizers import LEARNED, METHODS, run_optimizer
     from tt.report import columns_for, rich_table
     from tt.sim.designs import get_space
 
@@ -502,22 +492,11 @@ def optimize(
     if method in ("cmaes", "cmaes-init-model"):
         options = {"popsize": popsize, "generations": generations, "sequential": sequential}
     if method in LEARNED:
-        if checkpoint is None:
-            from tt.dit.checkpoint import default_checkpoint
-
-            checkpoint = default_checkpoint(space, task="robot")  # the shipped generator, or an error naming the spaces that have one
-        if critic_checkpoint is None and critic != "joint" and critic_on != "tokens" and method != "cmaes-init-model":
-            from tt.dit.checkpoint import shipped_critic
-
-            # The shipped critic told the start ranks by far better than the generalist's own
-            # dynamics task (benchmarks/results/zeroth_ranking_start_critic.md).
-            critic_checkpoint = shipped_critic(space, checkpoint)
-        options.update(checkpoint=str(checkpoint), samples=samples, num_steps=num_steps, critic=critic,
-                       critic_samples=critic_samples)
+        # checkpoint and critic_checkpoint None: the space's shipped ones (tt.optimizers.learned_defaults)
+        options.update(checkpoint=checkpoint, critic_checkpoint=critic_checkpoint, samples=samples, num_steps=num_steps,
+                       critic=critic, critic_samples=critic_samples)
         if refine:
             options.update(refine=refine)
-        if critic_checkpoint is not None:
-            options.update(critic_checkpoint=str(critic_checkpoint))
         if critic_on is not None:
             options.update(critic_on=critic_on)
         if method in ("dgs", "dgs-sim"):
@@ -526,14 +505,9 @@ def optimize(
                 options.update(CRITIC_PLACES[critic_at])
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
-    opt = get_optimizer(method, **options)
     problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device,
                       threads=threads)
-    if method == "cmaes":
-        opt.plan(problem)  # a budget below one population fails here, before any work
-    if method == "cmaes-init-model":
-        opt.cmaes.plan(problem)
-    result = opt.optimize(problem)
+    result = run_optimizer(problem, method, **options)  # what tt.optimize runs
     rewards = np.asarray(result.rewards, dtype=np.float64)
     if method in ("random", "cmaes") and rewards.size and not np.any(np.isfinite(rewards) & (rewards != 0.0)):
         # A rollout that terminates at its first step scores exactly 0 under every reward.
@@ -575,10 +549,10 @@ def predict(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, <space>_<size>_dynamics.pt, else its shipped generalist)."),
-    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    reward: str = typer.Option(DEFAULT_REWARD, help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
     num_steps: Optional[int] = typer.Option(None, help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md)."),
-    seed: int = typer.Option(0, help="Seed of the sampling noise."),
+    seed: int = typer.Option(DEFAULT_SEED, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
     via: Optional[str] = typer.Option(None, help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task (default: dynamics when the checkpoint was trained on it)."),
@@ -610,16 +584,11 @@ def predict(
     space = spaces[0]
     ms = _motions(motion, motion_file, space)
     try:
-        from tt.dit.checkpoint import default_checkpoint, load_model
-        from tt.guidance.predicted import predict_designs
-        from tt.sim.rewards import get_reward
-        from tt.kernels.device import default_device
+        from tt.api import predict as predict_designs, predict_checkpoint
 
-        cfg = get_reward(reward, space)
-        ckpt = checkpoint if checkpoint is not None else default_checkpoint(space, task="dynamics")
-        trained = load_model(ckpt, device=device or default_device())
-        pred = predict_designs(trained, designs, ms, cfg, samples=samples, seed=seed, via=via,
-                               **({} if num_steps is None else {"num_steps": num_steps}))
+        ckpt = predict_checkpoint(space, checkpoint)
+        pred = predict_designs(designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed,
+                               device=device, via=via)
     except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
 

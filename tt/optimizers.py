@@ -7,7 +7,11 @@ learned samplers of `tt.guidance` (Zeroth-Order, Dynamics Self-Guidance).
 
 from __future__ import annotations
 
-from tt.baselines import CMAES, CMAESConfig, Optimizer, RandomSearch
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the baselines load with the first optimizer, so `tt.api` and the CLI import this module fast
+    from tt.baselines import Optimizer, Problem, Result
 
 #: Optimizer names accepted by `get_optimizer` and `tt optimize --method`; zeroth and dgs
 #: are the learned samplers of `tt.guidance`, behind the same interface; zeroth-sim,
@@ -18,8 +22,57 @@ METHODS = ("random", "cmaes", "zeroth", "dgs", "zeroth-sim", "dgs-sim", "cmaes-i
 LEARNED = ("zeroth", "dgs", "zeroth-sim", "dgs-sim", "cmaes-init-model")
 
 
-def get_optimizer(method: str, **options) -> Optimizer:
-    """An optimizer by name; options go to its config (e.g. popsize=8 for cmaes)."""
+#: The methods that rank their samples with a critic (all learned ones but cmaes-init-model,
+#: which ranks by simulating them).
+RANKED = ("zeroth", "dgs", "zeroth-sim", "dgs-sim")
+
+
+def learned_defaults(method: str, space: str, options: dict) -> dict:
+    """`options` with the learned methods' defaults for design space `space` filled in, the
+    one definition `tt optimize` and `tt.optimize` share:
+
+    - ``checkpoint`` None: the space's shipped generator (`tt.dit.checkpoint.default_checkpoint`
+      with task "robot"; an error naming the spaces that ship one if `space` has none);
+    - ``critic_checkpoint`` None, for a method that ranks samples (`RANKED`) unless
+      ``critic="joint"`` or ``critic_on="tokens"``: the space's shipped dynamics critic when
+      ``checkpoint`` is the shipped model (`tt.dit.checkpoint.shipped_critic`; it ranks far
+      better than the generalist's own dynamics task, 9 of 9 seeds against 5 of 9:
+      benchmarks/results/zeroth_ranking_start_critic.md, zeroth_ranking.md), else none (the
+      sampling model's own dynamics task).
+
+    Other methods' options are returned unchanged."""
+    if method not in LEARNED:
+        return dict(options)
+    out = dict(options)
+    if out.get("checkpoint") is None:
+        from tt.dit.checkpoint import default_checkpoint
+
+        out["checkpoint"] = str(default_checkpoint(space, task="robot"))
+    if (out.get("critic_checkpoint") is None and method in RANKED and out.get("critic") != "joint"
+            and out.get("critic_on") != "tokens"):
+        from tt.dit.checkpoint import shipped_critic
+
+        critic = shipped_critic(space, out["checkpoint"])
+        out["critic_checkpoint"] = None if critic is None else str(critic)
+    for key in ("checkpoint", "critic_checkpoint"):
+        if isinstance(out.get(key), Path):
+            out[key] = str(out[key])
+    if out.get("critic_checkpoint") is None:
+        out.pop("critic_checkpoint", None)
+    return out
+
+
+def get_optimizer(method: str, *, space: str | None = None, **options) -> Optimizer:
+    """An optimizer by name; options go to its config (e.g. popsize=8 for cmaes).
+
+    space: the design space it will optimize; with it, a learned method's checkpoint and
+    critic default to the space's shipped ones (`learned_defaults`), as in `tt optimize`.
+    Without it a learned method needs ``checkpoint=`` and ranks by that model's own dynamics
+    unless ``critic_checkpoint=`` is given."""
+    from tt.baselines import CMAES, CMAESConfig, RandomSearch
+
+    if space is not None:
+        options = learned_defaults(method, space, options)
     if method == "random":
         if options:
             raise ValueError(f"random search takes no options, got {sorted(options)}")
@@ -55,3 +108,15 @@ def get_optimizer(method: str, **options) -> Optimizer:
         return ModelInitCMAES(ZerothOrder(SamplerConfig(**{k: v for k, v in options.items() if k not in cma_names})),
                               CMAESConfig(**cma))
     raise ValueError(f"unknown method {method!r}; valid: {list(METHODS)}")
+
+
+def run_optimizer(problem: Problem, method: str = "cmaes", **options) -> Result:
+    """Optimize `problem` with the optimizer `method` (`get_optimizer`, the learned defaults of
+    the problem's space filled in); a CMA-ES budget below one population fails before any
+    work. What `tt optimize` and `tt.optimize` run."""
+    opt = get_optimizer(method, space=problem.space, **options)
+    if method == "cmaes":
+        opt.plan(problem)
+    if method == "cmaes-init-model":
+        opt.cmaes.plan(problem)
+    return opt.optimize(problem)
