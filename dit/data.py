@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from tt.dit.layout import Layout, LayoutError, TokenSpec
-from tt.kernels.files import CorruptFileError, read_npz, reason
+from tt.kernels.files import CorruptFileError, atomic_write, read_npz, reason
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES, Role
 from tt.tokens.normalize import Normalizer
@@ -321,7 +321,8 @@ class EpisodeTokens:
         for group in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask"):
             for k, v in getattr(self, group).items():
                 arrays[f"{group}/{k}"] = v.numpy()
-        np.savez_compressed(Path(path), **arrays)
+        with atomic_write(path) as f:  # through a handle: np.savez appends .npz to names without it
+            np.savez_compressed(f, **arrays)
 
     @staticmethod
     def load(path: str | Path) -> "EpisodeTokens":

@@ -17,7 +17,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from tt.kernels.files import CorruptFileError, read_npz
+from tt.kernels.files import CorruptFileError, atomic_write, read_npz
 from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, check_version
 
 
@@ -193,7 +193,8 @@ class TokenBatch:
             arrays[f"{n}/values"] = _np(self.values[n]).astype(np.float32)
             arrays[f"{n}/ids"] = _np(self.ids[n]).astype(np.int64)
             arrays[f"{n}/mask"] = _np(self.mask[n]).astype(bool)
-        np.savez_compressed(Path(path), **arrays)
+        with atomic_write(path) as f:  # through a handle: np.savez appends .npz to names without it
+            np.savez_compressed(f, **arrays)
 
     @staticmethod
     def load(path: str | Path) -> "TokenBatch":

@@ -13,6 +13,7 @@ from pathlib import Path
 import mujoco
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import write_text
 from tt.tokens.batch import TokenBatch
 from tt.tokens.detokenize import DetokenizeConfig, detokenize
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA_VERSION
@@ -105,7 +106,7 @@ def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None
         raise TokenCommandError(f"index {index} is out of range: {path} holds {len(tokens)} robot(s)")
     result = detokenize(tokens.select(index), DetokenizeConfig(model=Path(out).stem))[0]
     if result.xml:
-        Path(out).write_text(result.xml)
+        write_text(out, result.xml)
     if not result.ok:
         raise TokenCommandError(f"{result.error}" + (f" (MJCF written to {out})" if result.xml else ""))
     m = result.model

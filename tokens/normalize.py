@@ -233,7 +233,9 @@ class Normalizer:
         return Normalizer(low, high, int(data["schema_version"]))
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+        from tt.kernels.files import write_text
+
+        write_text(path, json.dumps(self.to_dict(), indent=1))
 
     @staticmethod
     def load(path: str | Path) -> "Normalizer":

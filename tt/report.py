@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Mapping, Sequence
 
 #: (key, header) of the columns every metrics table shows, in the paper's order.
@@ -146,5 +147,8 @@ def plot_method_bars(settings: Mapping[str, Sequence[Mapping]], path, order: Seq
             ax.set_title(f"{space}, {name}")
             ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from tt.kernels.files import atomic_write
+
+    with atomic_write(path) as f:
+        fig.savefig(f, dpi=110, format=Path(path).suffix.lstrip(".").lower() or "png")
     plt.close(fig)

@@ -37,7 +37,7 @@ import mujoco
 import numpy as np
 
 from tt.kernels.errors import TTError
-from tt.kernels.files import CorruptFileError, read_npz
+from tt.kernels.files import CorruptFileError, atomic_write, read_npz
 from tt.sim.designs import Design, DesignError, get_space
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion, MotionError
@@ -332,7 +332,7 @@ def save_episode_npz(
         arrays["target_pos"] = record.target_pos
         arrays["target_quat"] = record.target_quat
     # np.savez appends .npz to names without it; write through a handle to keep the name.
-    with open(path, "wb") as f:
+    with atomic_write(path) as f:
         np.savez_compressed(f, **arrays)
     return path
 

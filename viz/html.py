@@ -98,9 +98,12 @@ def scene_html(scene: Scene, *, title: str = "tt viewer", paused_at: float | Non
 
 def write_html(scene: Scene, path: str | Path, *, title: str = "tt viewer", paused_at: float | None = None) -> Path:
     """Write `scene_html` to `path` (parent folders created); returns the path."""
+    from tt.kernels.files import is_stdout, write_text
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(scene_html(scene, title=title, paused_at=paused_at), encoding="utf-8")
+    if not is_stdout(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, scene_html(scene, title=title, paused_at=paused_at))
     return path
 
 

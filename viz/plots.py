@@ -57,11 +57,15 @@ def _error_distances(name: str, values: np.ndarray, interval: _Interval | None) 
 
 
 def _finish(fig: Figure, path: str | Path, dpi: int) -> Path:
+    from tt.kernels.files import atomic_write, is_stdout
+
     path = Path(path)
-    if path.suffix.lower() != ".png":
+    if path.suffix.lower() != ".png" and not is_stdout(path):
         raise PlotError(f"path {path} must end in .png")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    if not is_stdout(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as f:
+        fig.savefig(f, dpi=dpi, format="png")
     return path
 
 

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 from tt.kernels.errors import TTError
+from tt.kernels.files import is_stdout, write_bytes
 
 #: Executable names tried in order.
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -53,31 +55,35 @@ def screenshot_html(
     html = Path(html).resolve()
     if not html.is_file():
         raise FileNotFoundError(f"HTML file {html} does not exist")
-    png = Path(png).resolve()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    png.unlink(missing_ok=True)
     fragment = []
     if time is not None:
         fragment.append(f"t={float(time)!r}")
     if hide_gui:
         fragment.append("gui=0")
     url = html.as_uri() + ("#" + "&".join(fragment) if fragment else "")
-    cmd = [
-        exe,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--enable-unsafe-swiftshader",
-        "--hide-scrollbars",
-        f"--window-size={int(width)},{int(height)}",
-        f"--virtual-time-budget={int(budget_ms)}",
-        f"--screenshot={png}",
-        url,
-    ]
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        raise ScreenshotError(f"Chromium did not finish within {timeout_s} s rendering {html}") from None
-    if not png.is_file():
-        raise ScreenshotError(f"Chromium wrote no screenshot (exit {proc.returncode}): {proc.stderr[-2000:]}")
-    return png
+    # Chromium writes into a folder of its own; the PNG then replaces `png` in one step
+    # (`tt.kernels.files.atomic_write`), so a failed render leaves an earlier file whole.
+    with tempfile.TemporaryDirectory(prefix="tt-screenshot-") as tmp:
+        shot = Path(tmp) / "screenshot.png"
+        cmd = [
+            exe,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--enable-unsafe-swiftshader",
+            "--hide-scrollbars",
+            f"--window-size={int(width)},{int(height)}",
+            f"--virtual-time-budget={int(budget_ms)}",
+            f"--screenshot={shot}",
+            url,
+        ]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise ScreenshotError(f"Chromium did not finish within {timeout_s} s rendering {html}") from None
+        if not shot.is_file():
+            raise ScreenshotError(f"Chromium wrote no screenshot (exit {proc.returncode}): {proc.stderr[-2000:]}")
+        if not is_stdout(png):
+            Path(png).parent.mkdir(parents=True, exist_ok=True)
+        write_bytes(png, shot.read_bytes())
+    return Path(png)

@@ -18,7 +18,7 @@ from typing import Sequence, Any
 
 import numpy as np
 
-from tt.kernels.files import CorruptFileError, read_npz
+from tt.kernels.files import CorruptFileError, atomic_write, read_npz
 from tt.sim.motions.base import (
     MOTION_DT,
     Motion,
@@ -134,7 +134,7 @@ def save_npz(motion: Motion, path: str | Path) -> None:
     arrays = {"pos": motion.pos[:, 0], "quat": motion.quat[:, 0], "dt": np.float64(motion.dt), "name": np.str_(motion.name)}
     if motion.arms == 2:
         arrays |= {"pos2": motion.pos[:, 1], "quat2": motion.quat[:, 1]}
-    with open(Path(path), "wb") as f:
+    with atomic_write(path) as f:  # through a handle: np.savez appends .npz to names without it
         np.savez(f, **arrays)
 
 
