@@ -333,12 +333,18 @@ class DesignSpace(ABC):
         return design
 
 
-def save_designs(designs: Sequence[Design], path: str | Path) -> None:
-    """Write designs to a JSON file: ``{"designs": [...]}``."""
+def save_designs(designs: Sequence[Design], path: str | Path, *, files: Sequence[str] | None = None) -> None:
+    """Write designs to a JSON file: ``{"designs": [...]}`` (`tt.kernels.files.atomic_write`:
+    the old file stays whole until the new one is; ``-`` is stdout). files: also record
+    these file names (``"files"``: the MJCF files ``tt designs`` wrote beside it, the only
+    ones a later run there removes)."""
+    from tt.kernels.files import write_text
     from tt.sim.designs import get_space
 
-    out = [get_space(d.space).to_dict(d) for d in designs]
-    Path(path).write_text(json.dumps({"designs": out}, indent=1))
+    data: dict = {"designs": [get_space(d.space).to_dict(d) for d in designs]}
+    if files is not None:
+        data["files"] = list(files)
+    write_text(path, json.dumps(data, indent=1))
 
 
 def design_items(data, path: str | Path) -> list:
