@@ -11,7 +11,7 @@ from tt.dit.train import DataParallel, TrainConfig, TrainResult, train
 def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "small", out: str | Path = "runs/dit",
               steps: int = 10_000, batch_size: int = 64, lr: float | None = None, device: str | None = None,
               seed: int = 0, checkpoint_every: int = 1000, resume: bool = True, init: str | Path | None = None,
-              online: OnlineConfig | None = None, progress: bool = True, on_checkpoint=None,
+              online: OnlineConfig | None = None, progress: bool = True, on_checkpoint=None, on_start_over=None,
               **recipe) -> TrainResult:
     """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
 
@@ -21,7 +21,8 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
     resume: continue from the run folder's latest checkpoint if it has one; init: start a new
     run (step 0) from this checkpoint's EMA weights and normaliser; online: generate the
     training episodes with the batched sim instead of reading `data` (`tt.dit.online`);
-    on_checkpoint: called with (step, path) after each checkpoint (`tt.dit.train.train`);
+    on_checkpoint: called with (step, path) after each checkpoint, on_start_over: when a run
+    started over has emptied its folder (`tt.dit.train.train`);
     recipe: further `TrainConfig` fields (prediction, weighting, type_weights, bf16_cpu,
     robot_diffusion_steps, ...).
     Raises ValueError (bad arguments, mismatched run folder), FileNotFoundError and
@@ -47,6 +48,6 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
             bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
 
     try:
-        return train(config, on_step=on_step, on_checkpoint=on_checkpoint)
+        return train(config, on_step=on_step, on_checkpoint=on_checkpoint, on_start_over=on_start_over)
     finally:
         bar.close()

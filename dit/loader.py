@@ -22,6 +22,7 @@ the store is never loaded whole.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 from collections import OrderedDict
@@ -181,8 +182,15 @@ class StoreTokenSource:
             raise DatasetError(f"dataset {path}: every shard with episodes fails verification "
                                f"({'; '.join(f'shard {i}: {w}' for i, w in sorted(self.store.damaged.items())[:3])}); "
                                "re-run the `tt generate` command that wrote it to regenerate them")
+        if self.store.episodes == 0 and self.store.attrs.get("complete"):
+            totals = self.store.attrs.get("totals") or {}
+            dropped = ", ".join(f"{v:,} {k}" for k, v in sorted((totals.get("dropped") or {}).items()) if v)
+            min_steps = (self.store.attrs.get("config") or {}).get("min_steps")
+            raise DatasetError(f"dataset {path} is complete but holds no episodes: all {totals.get('generated', '?')} "
+                               f"generated episodes were dropped ({dropped or 'every one'}; it was generated with "
+                               f"--min-steps {min_steps}); generate it again into another --out with a lower --min-steps")
         if self.store.episodes == 0:
-            raise ValueError(f"dataset {path} holds no episodes yet; run `tt generate` first")
+            raise ValueError(f"dataset {path} holds no episodes yet; run its `tt generate` command to generate them")
         if not self.store.attrs.get("complete"):
             logger.warning("dataset %s is incomplete; training on its %d episodes so far", path, self.store.episodes)
         if windows_per_block < 1:
@@ -338,6 +346,44 @@ def make_loader(path: str | Path, *, batch_size: int = 64, steps: int = 8, kind:
                                        persistent_workers=workers > 0 and epochs is None)
 
 
+def data_identity(path: str | Path) -> dict:
+    """What training data `path` holds, beyond its path: a dataset folder's
+    `tt.tokens.store.dataset_fingerprint` (its generating config and a digest of its shards'
+    manifests), or an episode token file's size and BLAKE2b digest. A resumed ``tt train``
+    compares it with its run's (`describe_data_change`)."""
+    path = Path(path)
+    if is_dataset(path):
+        from tt.tokens.store import dataset_fingerprint
+
+        return dataset_fingerprint(path)
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return {"kind": "file", "bytes": path.stat().st_size, "digest": h.hexdigest()}
+
+
+def describe_data_change(before: dict, now: dict) -> str | None:
+    """None when two `data_identity` values are of the same data, else how the data changed
+    (for a message: "it was regenerated with other arguments: --seed 0 then, 1 now")."""
+    if before == now:
+        return None
+    if before.get("kind") != now.get("kind"):
+        return f"it is now {'a dataset folder' if now.get('kind') == 'dataset' else 'an episode token file'}"
+    if now.get("kind") == "dataset":
+        a, b = before.get("config") or {}, now.get("config") or {}
+        changed = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        if changed:
+            return "it was regenerated with other arguments: " + ", ".join(
+                f"--{k.replace('_', '-')} {a.get(k)} then, {b.get(k)} now" for k in changed[:4])
+        if before.get("shards") != now.get("shards"):
+            return f"its shards changed: {before.get('shards')} then, {now.get('shards')} now"
+        return "its shards' content changed since (regenerated or replaced)"
+    if before.get("bytes") != now.get("bytes"):
+        return f"its content changed: {before.get('bytes')} bytes then, {now.get('bytes')} now"
+    return "its content changed since (another file of the same size)"
+
+
 def open_token_source(path: str | Path, **kwargs):
     """Training data at `path`: a `StoreTokenSource` for a dataset folder (``tt generate``),
     else a `tt.dit.data.EpisodeTokens` file. Keyword arguments go to `StoreTokenSource`."""
@@ -348,5 +394,5 @@ def open_token_source(path: str | Path, **kwargs):
     return EpisodeTokens.load(path)
 
 
-__all__ = ["EpisodeWindows", "SE2Augment", "StoreTokenSource", "WINDOW_KINDS", "augment_se2_tokens", "make_loader",
-           "open_token_source", "window_steps"]
+__all__ = ["EpisodeWindows", "SE2Augment", "StoreTokenSource", "WINDOW_KINDS", "augment_se2_tokens", "data_identity",
+           "describe_data_change", "make_loader", "open_token_source", "window_steps"]

@@ -48,12 +48,12 @@ from tt.dit.data import EpisodeTokens
 from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
 from tt.dit.layout import LayoutError
-from tt.dit.model import RoboDiT, get_config
+from tt.dit.model import DIT_CONFIGS, RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
 from tt.tokens.normalize import Normalizer
 from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names, task_windows
-from tt.kernels.files import CorruptFileError
+from tt.kernels.files import CorruptFileError, atomic_write, write_text
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +61,23 @@ log = logging.getLogger(__name__)
 #: the states and commands no reward reads (`tt.guidance.predicted.PredictedReward` reads the
 #: track-link poses, and the actuator observations for the effort rewards).
 DROPPABLE = ("dyna_joint_obs", "actuator_obs", "control")
+
+#: `tt train`'s flag of each `TrainConfig` field that has one, for messages.
+FLAGS = {"data": "--data", "out": "--out", "task": "--task", "size": "--size", "steps": "--steps",
+         "batch_size": "--batch-size", "lr": "--lr", "warmup_steps": "--warmup-steps", "seed": "--seed",
+         "checkpoint_every": "--checkpoint-every", "robot_diffusion_steps": "--robot-diffusion-steps",
+         "control_diffusion_steps": "--control-diffusion-steps", "future_states": "--no-future-states",
+         "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
+         "type_weights": "--type-weight", "bf16_cpu": "--bf16-cpu", "anchor_track": "--anchor-track",
+         "anchor_control": "--anchor-control", "known_command": "--known-command",
+         "control_target_offset": "--control-target-offset", "dynamics_start": "--dynamics-start",
+         "time_ids": "--time-ids", "drop_types": "--drop-type", "init": "--init", "online": "--online"}
+
+#: `tt train`'s flag of each `OnlineConfig` field that has one, for messages.
+ONLINE_FLAGS = {"space": "--space", "designs": "--online-designs", "motions": "--online-motions",
+                "refresh_every": "--refresh-every", "buffer": "--online-buffer", "seed": "--seed",
+                "action_noise": "--action-noise", "absorbing": "--online-absorbing", "select": "--online-select",
+                "uniform_share": "--uniform-share", "reward": "--select-by"}
 
 #: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
 DEFAULT_LR = {"tiny": 5e-3, "mini": 1e-3, "small": 5e-3, "large": 1e-4}
@@ -153,51 +170,50 @@ class TrainConfig:
         if isinstance(self.online, dict):
             self.online = OnlineConfig(**self.online)
         if self.prediction not in PREDICTIONS:
-            raise ValueError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+            raise ValueError(f"--prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
-        for flag, on in (("anchor_track (--anchor-track)", self.anchor_track), ("anchor_control (--anchor-control)", self.anchor_control)):
+            raise ValueError(f"--weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        for flag, on in (("--anchor-track", self.anchor_track), ("--anchor-control", self.anchor_control)):
             if on and self.prediction != "x0":
-                raise ValueError(f"{flag} needs prediction 'x0', got {self.prediction!r}")
+                raise ValueError(f"{flag} needs --prediction x0, got {self.prediction!r}")
         if self.anchor_control not in ("", *CONTROL_BASES):
-            raise ValueError(f"anchor_control {self.anchor_control!r} does not exist; use '' (none) or one of "
-                             f"{', '.join(CONTROL_BASES)}")
+            raise ValueError(f"--anchor-control {self.anchor_control!r} does not exist; use one of "
+                             f"{', '.join(CONTROL_BASES)} (or leave it out)")
         if self.anchor_control == "command" and not self.known_command:
-            raise ValueError("anchor_control 'command' (--anchor-control command) needs known_command (--known-command): "
-                             "the last command must be given to be a base")
+            raise ValueError("--anchor-control command needs --known-command: the last command must be given to be a base")
         if self.control_target_offset < 0 or (self.control_target_offset and "control" not in task_names(self.task)):
-            raise ValueError(f"control_target_offset (--control-target-offset) {self.control_target_offset} must be >= 0 "
-                             f"and needs the control task; the run trains {self.task!r}")
+            raise ValueError(f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
+                             f"task; the run trains --task {self.task}")
         if self.dynamics_start and "dynamics" not in task_names(self.task):
-            raise ValueError(f"dynamics_start (--dynamics-start) needs the dynamics task; the run trains {self.task!r}")
+            raise ValueError(f"--dynamics-start needs the dynamics task; the run trains --task {self.task}")
         if not self.min_snr_gamma > 0:
-            raise ValueError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
+            raise ValueError(f"--min-snr-gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
         bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
         if bad:
-            raise ValueError(f"type_weights must be finite and >= 0, got {bad}")
+            raise ValueError(f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}")
         if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
-            raise ValueError(f"robot_diffusion_steps and control_diffusion_steps must be >= 1, got "
+            raise ValueError(f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
                              f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
         if self.online is not None and self.data:
-            raise ValueError(f"give training data either as a dataset (data={self.data!r}) or online, not both")
+            raise ValueError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
         bad = [str(n) for n in self.drop_types if n not in DROPPABLE]
         if bad:
-            raise ValueError(f"drop_types {bad} cannot be dropped; droppable types: {list(DROPPABLE)} (the embodiment, "
-                             "the targets and the track-link poses the rewards read stay)")
+            raise ValueError(f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
+                             "embodiment, the targets and the track-link poses the rewards read stay)")
         self.drop_types = tuple(n for n in DROPPABLE if n in self.drop_types)  # one order, whatever the flags
         if self.drop_types and "control" in self.task_names():
-            raise ValueError(f"drop_types {list(self.drop_types)} with task {self.task!r}: the control task reads and "
+            raise ValueError(f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
                              "writes every per-step type; drop types for the robot and dynamics tasks only")
         if self.loss not in ("huber", "mse"):
             raise ValueError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+                raise ValueError(f"{FLAGS.get(name, name)} must be >= 1, got {getattr(self, name)}")
         if self.batch_size < len(self.task_names()):
-            raise ValueError(f"task {self.task!r} trains {len(self.task_names())} tasks, so it needs batch_size >= "
+            raise ValueError(f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
                              f"{len(self.task_names())}, got {self.batch_size}")
         if self.warmup_steps < 0 or self.grad_clip <= 0 or self.weight_decay < 0:
             raise ValueError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
@@ -267,7 +283,7 @@ def write_loss_curve(losses: torch.Tensor, folder: str | Path) -> Path:
     folder = Path(folder)
     y = losses.double().numpy()
     steps = range(1, len(y) + 1)
-    (folder / "loss.csv").write_text("step,loss\n" + "".join(f"{s},{v:.6g}\n" for s, v in zip(steps, y)))
+    write_text(folder / "loss.csv", "step,loss\n" + "".join(f"{s},{v:.6g}\n" for s, v in zip(steps, y)))
     fig, ax = plt.subplots(figsize=(6, 3.5), dpi=120)
     ax.plot(list(steps), y, lw=0.5, alpha=0.4, label="per step")
     w = max(1, len(y) // 100)
@@ -283,7 +299,8 @@ def write_loss_curve(losses: torch.Tensor, folder: str | Path) -> Path:
     ax.legend()
     fig.tight_layout()
     path = folder / "loss.png"
-    fig.savefig(path)
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png")
     plt.close(fig)
     return path
 
@@ -358,11 +375,50 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
             before, now = saved.learning_rate, config.learning_rate
         elif name == "data":
             before, now = (str(Path(v).resolve()) if v else "" for v in (before, now))
+            if bool(before) != bool(now):  # one run on a dataset, the other online
+                def source(path):
+                    return f"--data {path}" if path else "--online"
+                raise ValueError(f"run {out} was trained with {source(before)}, this run asks for {source(now)}; resume "
+                                 "it with its own arguments, or give another --out (or --no-resume to start it over)")
         elif name == "online":
-            before, now = (asdict(v) if v is not None else None for v in (before, now))
+            if before is None or now is None:
+                continue  # one of them trains on --data: said above
+            a, b = asdict(before), asdict(now)
+            changed = [k for k in a if a[k] != b.get(k)]
+            if changed:
+                named = ", ".join(f"{ONLINE_FLAGS.get(k, k)} {a[k]} (now {b.get(k)})" for k in changed)
+                raise ValueError(f"run {out} was trained online with {named}; resume it with its own arguments, or "
+                                 "give another --out (or --no-resume to start it over)")
+            continue
         if before != now:
-            raise ValueError(f"run {out} was trained with {flag} {before!r}, this run asks for {now!r}; resume it with "
-                             "its own arguments, or give another --out (or --no-resume to start it over)")
+            def shown(v):
+                return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else \
+                    ", ".join(f"{k}={w}" for k, w in v.items()) if isinstance(v, dict) else v
+            raise ValueError(f"run {out} was trained with {flag} {shown(before)!r}, this run asks for {shown(now)!r}; "
+                             "resume it with its own arguments, or give another --out (or --no-resume to start it over)")
+
+
+def layout_difference(a, b) -> str:
+    """How token layout `a` (a model's) differs from `b` (the data's), in a few words."""
+    sa, sb = {s.name: s for s in a.specs}, {s.name: s for s in b.specs}
+    parts = []
+    if set(sa) - set(sb):
+        parts.append(f"types only the model has: {', '.join(sorted(set(sa) - set(sb)))}")
+    if set(sb) - set(sa):
+        parts.append(f"types only the data has: {', '.join(sorted(set(sb) - set(sa)))}")
+    longer = [f"{n} {sa[n].length} vs {sb[n].length}" for n in sa if n in sb and sa[n].length != sb[n].length]
+    if longer:
+        parts.append(f"tokens per type (model vs data): {', '.join(longer[:4])}")
+    wider = [f"{n} {sa[n].dim} vs {sb[n].dim}" for n in sa if n in sb and sa[n].dim != sb[n].dim]
+    if wider:
+        parts.append(f"values per token (model vs data): {', '.join(wider[:4])}")
+    if a.steps != b.steps:
+        parts.append(f"window steps {a.steps} vs {b.steps}")
+    if dict(a.id_sizes) != dict(b.id_sizes):
+        ids = [f"{k} {a.id_sizes.get(k)} vs {b.id_sizes.get(k)}" for k in sorted(set(a.id_sizes) | set(b.id_sizes))
+               if a.id_sizes.get(k) != b.id_sizes.get(k)]
+        parts.append(f"ID ranges (model vs data): {', '.join(ids[:4])}")
+    return "; ".join(parts) or "another token order or schema version"
 
 
 def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> None:
@@ -370,15 +426,22 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
     `config` on data of `layout` when the network is not the one `config` would build:
     LayoutError for another layout, ValueError naming the differing choice otherwise."""
     if model.layout != layout:
-        raise LayoutError(f"{where} was trained on layout {model.layout.to_dict()}, the data has {layout.to_dict()}")
+        raise LayoutError(f"{where} was trained on other tokens than the data's ({layout_difference(model.layout, layout)}): "
+                          "a model trained on another design space, or with other --drop-type")
     if model.config != config.model_config():
-        raise ValueError(f"{where} holds a {model.config} model, config asks for size {config.size!r} with --time-ids "
-                         f"{config.time_ids!r}")
+        import dataclasses
+
+        sizes = [s for s, c in DIT_CONFIGS.items() if dataclasses.replace(c, time_ids=model.config.time_ids) == model.config]
+        size = f"--size {sizes[0]}" if sizes else f"a network of {model.config.depth} blocks of width {model.config.hidden}"
+        raise ValueError(f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
+                         f"--size {config.size} with --time-ids {config.time_ids}")
     if model.prediction != config.prediction:
-        raise ValueError(f"{where} predicts {model.prediction!r}, config asks for prediction {config.prediction!r}")
-    for flag, name, on in (("anchor_track", "track_link_obs", config.anchor_track), ("anchor_control", "control", bool(config.anchor_control))):
+        raise ValueError(f"{where} predicts {model.prediction!r}, this run asks for --prediction {config.prediction}")
+    for flag, name, on in (("--anchor-track", "track_link_obs", config.anchor_track), ("--anchor-control", "control", bool(config.anchor_control))):
         if (name in model.anchors) != on:
-            raise ValueError(f"{where} was trained with {flag}={name in model.anchors}, config asks for {on}")
+            was = "with" if name in model.anchors else "without"
+            now = "gives" if on else "does not give"
+            raise ValueError(f"{where} was trained {was} {flag}, this run {now} it")
 
 
 def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
@@ -406,9 +469,33 @@ def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
     return None, None
 
 
+#: Files of a run folder that a run started over (``--no-resume``) removes, beside its checkpoints.
+RUN_FILES = ("loss.csv", "loss.png")
+
+
+def start_over(out: Path) -> list[str]:
+    """Empty run folder `out` for a run that starts over (``--no-resume``): its checkpoints
+    (damaged ones and unfinished writes too) and loss curve, so no later resume or
+    ``--checkpoint RUN`` loads the earlier run's step. Other files stay. Returns the names
+    removed."""
+    removed = []
+    folder = out / "checkpoints"
+    if folder.is_dir():
+        for pattern in ("step_*.pt", "step_*.pt.damaged", ".step_*.pt.tmp-*"):
+            for path in sorted(folder.glob(pattern)):
+                path.unlink(missing_ok=True)
+                removed.append(f"checkpoints/{path.name}")
+    for name in RUN_FILES:
+        if (out / name).is_file():
+            (out / name).unlink()
+            removed.append(name)
+    return removed
+
+
 def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
           on_step: Callable[[int, float], None] | None = None,
-          on_checkpoint: Callable[[int, Path], None] | None = None) -> TrainResult:
+          on_checkpoint: Callable[[int, Path], None] | None = None,
+          on_start_over: Callable[[], None] | None = None) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
 
     episodes: training data in memory (else loaded from ``config.data``); space: the design
@@ -416,8 +503,19 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     ``design_space``, if it has one); on_step: called after every optimizer step with
     (step, loss), e.g. to drive a progress bar; on_checkpoint: called with (step, path) after
     each checkpoint is written, on the process that writes it (e.g. `tt.selection`'s
-    held-out scoring), while a data-parallel run's other processes wait at the barrier.
+    held-out scoring), while a data-parallel run's other processes wait at the barrier;
+    on_start_over: called, holding the run's lock, when a run without ``resume`` has emptied
+    its folder (`start_over`), to remove files of its own (`tt.selection`'s).
+
+    One process writes a run folder: the writing process holds ``OUT/.lock``
+    (`tt.tokens.lock.DatasetLock`, as `tt generate` does its dataset) for the whole run, and
+    a second writer is refused. A resumed run checks its data's identity
+    (`tt.dit.loader.data_identity`), not only its path.
     """
+    from contextlib import nullcontext
+
+    from tt.tokens.lock import DatasetLock
+
     dp = DataParallel.from_env()
     device = _resolve_device(config.device)
     if dp is not None and device.type == "cuda":
@@ -428,20 +526,48 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
     writer = dp is None or dp.rank == 0
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
+    with DatasetLock(out, what="run folder") if writer else nullcontext():
+        if writer and not config.resume:
+            removed = start_over(out)
+            if removed:
+                log.warning("--no-resume: removed %d file(s) of the earlier run from %s (%s)", len(removed), out,
+                            ", ".join(removed[:3]) + (" ..." if len(removed) > 3 else ""))
+            if on_start_over is not None:
+                on_start_over()
+        return _train(config, out, dp, device, writer, episodes, space, on_step, on_checkpoint)
+
+
+def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torch.device, writer: bool,
+           episodes, space: str | None, on_step, on_checkpoint) -> TrainResult:
+    """`train`'s work, with the run folder locked."""
+    identity = None
     if episodes is None and config.online is not None:
         episodes = OnlineTokenSource(config.online, device=str(device))
     elif episodes is None:
         if not config.data:
-            raise ValueError("TrainConfig.data is empty: give a dataset or an episode token file, online=, or episodes=")
-        from tt.dit.loader import open_token_source
+            raise ValueError("no training data: give --data DATASET (or an episode token file) or --online")
+        from tt.dit.loader import data_identity, open_token_source
 
         episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
+        identity = data_identity(config.data)
     layout = episodes.layout(config.window).without(config.drop_types)
     space = space if space is not None else getattr(episodes, "design_space", None)
     resume_from, state = newest_intact_checkpoint(out) if config.resume else (None, None)
 
     if resume_from is not None:
-        check_same_run(state.get("train_config") or {}, config, out)
+        stored = state.get("train_config") or {}
+        check_same_run(stored, config, out)
+        if config.init and config.init != stored.get("init"):
+            raise ValueError(f"--init {config.init} starts a new run, but run {out} has checkpoints to resume (step "
+                             f"{int(state['step'])}{', started from --init ' + stored['init'] if stored.get('init') else ''}); "
+                             "give --no-resume to start it over from --init, or another --out")
+        if identity is not None and state.get("data_identity") is not None:
+            from tt.dit.loader import describe_data_change
+
+            why = describe_data_change(state["data_identity"], identity)
+            if why is not None:
+                raise ValueError(f"run {out} was trained on --data {config.data}, but {why}; resume it on the data it "
+                                 "was trained on, or start it over with --no-resume (or give another --out)")
         model = RoboDiT.from_description(state["model"])
         check_network(model, layout, config, f"run {out}")
         model.load_state_dict(state["state_dict"])
@@ -555,6 +681,7 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
                     "step": step,
                     "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
                     "losses": torch.tensor(losses, dtype=torch.float32),
+                    "data_identity": identity,
                 })
                 for old in list_checkpoints(out)[:-config.keep_checkpoints]:
                     old.unlink()
@@ -566,5 +693,6 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         if on_step is not None:
             on_step(step, value)
     if last is None:
-        raise ValueError(f"run {out} has nothing to do: it is at step {step} and config.steps is {config.steps}")
+        raise ValueError(f"run {out} has nothing to do: it is at step {step} and --steps is {config.steps}; give a "
+                         "larger --steps to train on, or --no-resume to start it over")
     return TrainResult(step, torch.tensor(losses, dtype=torch.float32), last, model.parameter_count())

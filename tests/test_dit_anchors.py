@@ -67,7 +67,7 @@ def test_descriptions_round_trip_and_bad_anchors_fail(schema_toy):
         Anchor("target_pose", (1.0,) * 3, (0.0,) * 3).check(layout, "track_link_obs")
     from tt.dit.train import TrainConfig
 
-    with pytest.raises(ValueError, match="anchor_track .* needs prediction 'x0'"):
+    with pytest.raises(ValueError, match="--anchor-track needs --prediction x0"):
         TrainConfig(anchor_track=True, prediction="eps")
 
 
@@ -124,11 +124,11 @@ def test_control_anchor_round_trips_and_refuses_what_it_cannot_anchor(schema_toy
         RoboDiT(layout, get_config("tiny"), prediction="x0", anchors={"control": Anchor("dyna_joint_obs", (1.0,), (0.0,))})
     from tt.dit.train import TrainConfig
 
-    with pytest.raises(ValueError, match="anchor_control .* needs prediction 'x0'"):
+    with pytest.raises(ValueError, match="--anchor-control needs --prediction x0"):
         TrainConfig(anchor_control="joints", prediction="eps")
-    with pytest.raises(ValueError, match="anchor_control 'command' .* needs known_command"):
+    with pytest.raises(ValueError, match="--anchor-control command needs --known-command"):
         TrainConfig(anchor_control="command")
-    with pytest.raises(ValueError, match="anchor_control 'velocity' does not exist"):
+    with pytest.raises(ValueError, match="--anchor-control 'velocity' does not exist"):
         TrainConfig(anchor_control="velocity", known_command=True)
 
 

@@ -202,7 +202,7 @@ def test_tasks_split_the_batch():
     for bad in ("dynamic", "robot+robot", "robot,dynamics", ""):
         with pytest.raises(ValueError, match="is not one task or distinct tasks joined by"):
             TrainConfig(task=bad)
-    with pytest.raises(ValueError, match="trains 3 tasks, so it needs batch_size >= 3"):
+    with pytest.raises(ValueError, match="trains 3 tasks, so it needs --batch-size >= 3"):
         TrainConfig(task="robot+dynamics+control", batch_size=2)
 
 

@@ -133,4 +133,6 @@ def test_other_settings_are_refused_and_a_fresh_run_starts_over(tmp_path):
         CheckpointSelector(tmp_path, SelectionConfig(designs=5, motions=2, num_steps=2, device="cpu"))
     fresh = CheckpointSelector(tmp_path, SelectionConfig(designs=5), fresh=True)
     assert fresh.rows == [] and fresh.best is None
+    assert (tmp_path / "selection.csv").exists()  # removed by start_over, which train calls holding the run's lock
+    fresh.start_over()
     assert not any((tmp_path / n).exists() for n in ("best.pt", "best.json", "selection.csv", "selection.json"))

@@ -1,4 +1,5 @@
-"""One writer per dataset folder: `DatasetLock`, the ``DATASET/.lock`` file `tt generate` holds.
+"""One writer per dataset folder: `DatasetLock`, the ``DATASET/.lock`` file `tt generate` holds
+(and the ``RUN/.lock`` file `tt train` holds for its run folder).
 
 The writer holds an exclusive `fcntl.flock` on the file, which also holds its host name and
 pid for messages. The kernel drops the flock of a process that dies (killed, or a zombie),
@@ -31,8 +32,10 @@ class DatasetLock:
     of this host, or any process of another host (where flock may not reach), is refused.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, what: str = ""):
+        """what: what the folder is, for messages ("run folder"); default: nothing said."""
         self.file = Path(path) / ".lock"
+        self.what = f"{what} " if what else ""
         self.held = False
         self._fd: int | None = None
 
@@ -59,7 +62,7 @@ class DatasetLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 other = self._owner(fd)
-                self._refuse(fd, f"{self.file.parent} is being written by process {other.get('pid', '?')} on "
+                self._refuse(fd, f"{self.what}{self.file.parent} is being written by process {other.get('pid', '?')} on "
                                  f"{other.get('host', 'this host')}; wait for it or stop it first")
             try:  # a holder that released (unlinked) the file between our open and flock: retry on the new file
                 same = os.fstat(fd).st_ino == os.stat(self.file).st_ino
@@ -72,11 +75,11 @@ class DatasetLock:
             pid = other.get("pid", -1)
             pid = pid if isinstance(pid, int) else -1
             if other.get("host") == me["host"] and pid != me["pid"] and _pid_alive(pid):
-                self._refuse(fd, f"{self.file.parent} is being written by process {pid} on this host; "
+                self._refuse(fd, f"{self.what}{self.file.parent} is being written by process {pid} on this host; "
                                  "wait for it or stop it first")
             if other.get("host") not in (None, me["host"]):
-                self._refuse(fd, f"{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if that "
-                                 f"run is gone, delete {self.file}")
+                self._refuse(fd, f"{self.what}{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if "
+                                 f"that run is gone, delete {self.file}")
             if other:
                 logger.info("taking over the lock %s of a run that is gone (%s)", self.file, other)
             os.ftruncate(fd, 0)

@@ -242,6 +242,24 @@ def dataset_verify_cmd(path: str | Path) -> str:
     return text
 
 
+def dataset_fingerprint(path: str | Path) -> dict:
+    """The identity of dataset `path`'s content, beyond its path: its generating config,
+    its shard count and a digest of its shards' manifests (size and CRC-32 of every file;
+    a shard is a pure function of the config and its index). A dataset regenerated at the
+    same path with other arguments, or whose shards changed, has another fingerprint."""
+    path = Path(path)
+    attrs = read_root(path)
+    h = hashlib.blake2b(digest_size=16)
+    shards = shard_dirs(path)
+    for _, folder in sorted(shards.items()):
+        h.update(folder.name.encode())
+        try:
+            h.update((folder / _MANIFEST).read_bytes())
+        except OSError:
+            h.update(b"(no manifest)")
+    return {"kind": "dataset", "config": _jsonable(attrs.get("config", {})), "shards": len(shards), "digest": h.hexdigest()}
+
+
 def read_manifest(folder: str | Path) -> dict:
     return json.loads((Path(folder) / _MANIFEST).read_text())
 
@@ -734,7 +752,8 @@ class TokenStore:
 
 __all__ = [
     "BLOCK_EPISODES", "DatasetError", "EpisodeBlock", "FORMAT", "ShardPart", "ShardReader",
-    "ShardWriter", "TokenStore", "check_shards", "clear_partial", "create_root", "dataset_verify_cmd", "discard_shard",
+    "ShardWriter", "TokenStore", "check_shards", "clear_partial", "create_root", "dataset_fingerprint", "dataset_verify_cmd",
+    "discard_shard",
     "is_dataset", "merge_stats", "normalizer_from_stats", "read_manifest", "read_root", "shard_dirs",
     "shard_name", "update_root", "verify_shard",
 ]

@@ -25,7 +25,6 @@ import csv
 import json
 import logging
 import math
-import os
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
+from tt.kernels.files import CorruptFileError, atomic_write, read_json, reason, write_text
 
 log = logging.getLogger(__name__)
 
@@ -90,17 +90,22 @@ class CheckpointSelector:
     """
 
     def __init__(self, run: str | Path, config: SelectionConfig | None = None, *, fresh: bool = False):
-        """fresh: the run starts over (``--no-resume``): an earlier selection in `run` is removed.
-        Otherwise it is read back, and refused (ValueError) if it was scored another way."""
+        """fresh: the run starts over (``--no-resume``): an earlier selection in `run` is not
+        read, and `start_over` (which `tt.dit.train.train` calls holding the run's lock, as
+        its ``on_start_over``) removes it. Otherwise it is read back, and refused
+        (ValueError) if it was scored another way."""
         self.run = Path(run)
         self.config = config or SelectionConfig()
-        if fresh:
-            for path in (self.csv_path, self.best_path, self.best_meta_path, self.config_path,
-                         self.run / "selection.png"):
-                path.unlink(missing_ok=True)
-        self._check_config()
-        self.rows: list[SelectionRow] = self._read()
+        self.rows: list[SelectionRow] = []
+        if not fresh:
+            self._check_config()
+            self.rows = self._read()
         self._pairs = None  # (space, designs, motions), drawn at the first call
+
+    def start_over(self) -> None:
+        """Remove an earlier selection's files from the run folder."""
+        for path in (self.csv_path, self.best_path, self.best_meta_path, self.config_path, self.run / "selection.png"):
+            path.unlink(missing_ok=True)
 
     @property
     def config_path(self) -> Path:
@@ -111,7 +116,11 @@ class CheckpointSelector:
             return
         # The device changes the sampling noise, not what r measures, so a run trained on
         # one device may be resumed and scored on another.
-        before = {k: v for k, v in json.loads(self.config_path.read_text()).items() if k != "device"}
+        stored = read_json(self.config_path, "selection settings")
+        if not isinstance(stored, dict):
+            raise CorruptFileError(f"selection settings {self.config_path} hold a {type(stored).__name__}, not the "
+                                   "settings tt train writes; move it away, or start the run over with --no-resume")
+        before = {k: v for k, v in stored.items() if k != "device"}
         now = {k: v for k, v in json.loads(json.dumps(asdict(self.config))).items() if k != "device"}
         if before != now:
             raise ValueError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
@@ -138,13 +147,20 @@ class CheckpointSelector:
     def _read(self) -> list[SelectionRow]:
         if not self.csv_path.exists():
             return []
-        with self.csv_path.open() as f:
-            reader = csv.DictReader(f)
-            if tuple(reader.fieldnames or ()) != _COLUMNS:
-                raise ValueError(f"{self.csv_path} has columns {reader.fieldnames}, not {list(_COLUMNS)}; "
-                                 "move it away to start the selection over")
-            return [SelectionRow(int(r["step"]), float(r["within_r"]), float(r["pooled_r"]), float(r["seconds"]))
-                    for r in reader]
+        try:
+            with self.csv_path.open(encoding="utf-8", newline="") as f:
+                reader = csv.DictReader(f)
+                if tuple(reader.fieldnames or ()) != _COLUMNS:
+                    raise CorruptFileError(f"selection table {self.csv_path} has columns {reader.fieldnames}, not "
+                                           f"{list(_COLUMNS)}; move it away to start the selection over")
+                return [SelectionRow(int(r["step"]), float(r["within_r"]), float(r["pooled_r"]), float(r["seconds"]))
+                        for r in reader]
+        except UnicodeDecodeError as e:
+            why = f"it is not text (byte {e.start} is not UTF-8)"
+        except (ValueError, TypeError, KeyError, csv.Error) as e:
+            why = f"a row is not step,within_r,pooled_r,seconds numbers ({reason(e)})"
+        raise CorruptFileError(f"selection table {self.csv_path} is damaged: {why}; move it away to start the selection "
+                               "over, or start the run over with --no-resume")
 
     def _pairs_for(self, space: str):
         from tt.ladder import heldout_designs, validation_motions
@@ -196,25 +212,29 @@ class CheckpointSelector:
     def kept_step(self) -> int | None:
         """The step whose checkpoint ``best.pt`` holds (``best.json``), or None."""
         meta = self.best_meta_path
-        return int(json.loads(meta.read_text())["step"]) if meta.exists() and self.best_path.exists() else None
+        if not (meta.exists() and self.best_path.exists()):
+            return None
+        data = read_json(meta, "best-checkpoint record")
+        try:
+            return int(data["step"])
+        except (KeyError, TypeError, ValueError):
+            raise CorruptFileError(f"best-checkpoint record {meta} has no step number; move it away, or start the run "
+                                   "over with --no-resume") from None
 
     def _keep(self, checkpoint: Path, row: SelectionRow) -> None:
         # Copied, not linked: the run prunes old checkpoints (`keep_checkpoints`).
-        tmp = self.best_path.with_suffix(".pt.partial")
-        shutil.copyfile(checkpoint, tmp)
-        os.replace(tmp, self.best_path)
-        self.best_meta_path.write_text(json.dumps({**asdict(row), "checkpoint": checkpoint.name,
-                                                        "config": asdict(self.config)}, indent=1))
+        with open(checkpoint, "rb") as src, atomic_write(self.best_path) as dst:
+            shutil.copyfileobj(src, dst)
+        write_text(self.best_meta_path, json.dumps({**asdict(row), "checkpoint": checkpoint.name,
+                                                    "config": asdict(self.config)}, indent=1))
 
     def _write(self) -> None:
-        self.config_path.write_text(json.dumps(asdict(self.config), indent=1))
-        tmp = self.csv_path.with_suffix(".csv.partial")
-        with tmp.open("w", newline="") as f:
+        write_text(self.config_path, json.dumps(asdict(self.config), indent=1))
+        with atomic_write(self.csv_path, "w") as f:
             w = csv.writer(f)
             w.writerow(_COLUMNS)
             for r in self.rows:
                 w.writerow([r.step, f"{r.within_r:.6g}", f"{r.pooled_r:.6g}", f"{r.seconds:.3f}"])
-        os.replace(tmp, self.csv_path)
         if len(self.rows) >= 2:
             from tt.viz.plots import save_curve
 
