@@ -1,13 +1,16 @@
-"""Sweep of bad inputs across every ``tt`` command (issue 22): how many give a clear one-line
-error, a traceback, a silent success or lost data, and which of the issue's classes of
-failure are fixed.
+"""Sweep of bad inputs across every ``tt`` command (issues 22 and 50): how many give a clear
+one-line error, a traceback, a silent success, a misleading message or lost data (or a
+leaked process), and which of the issues' classes of failure are fixed.
 
-Runs the table of ``tests/bad_input_cases.py`` through the real CLI (typer's runner, in process)
-and the scenarios a table row cannot hold (resume from a damaged checkpoint, a resume with
-another learning rate, ``tt view --serve`` under SIGTERM, detokenizing noisy tokens), each
-classified as clear | ok (odd but valid input, handled) | traceback | misleading | silent |
-loss. Prints one JSON line per case (``{"bench": "bad_inputs", ...}``) and writes
-``benchmarks/results/bad_inputs.md``. Takes a few minutes (one small `tt generate` dataset).
+Runs the table of ``tests/bad_input_cases.py`` through the real CLI (typer's runner, in process),
+its `SCENARIOS` (issue 50's second round: a full disk, ``-`` as stdout, a named pipe,
+``tt designs`` over a user's files, ``tt train``'s run folder, a regenerated dataset, a killed
+``tt generate --workers 2``, flags that do not apply, messages) and the scenarios of issue 22
+a table row cannot hold (resume from a damaged checkpoint, a resume with another learning
+rate, ``tt view --serve`` under SIGTERM, detokenizing noisy tokens), each classified as
+clear | ok (odd but valid input, handled) | traceback | misleading | silent | loss. Prints one
+JSON line per case (``{"bench": "bad_inputs", ...}``) and writes
+``benchmarks/results/bad_inputs.md``. Takes a few minutes (two small `tt generate` datasets).
 
     python benchmarks/bad_inputs.py [--out benchmarks/results/bad_inputs.md]
 """
@@ -28,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bad_input_cases import CASES, CLASSES, Case, Outcome, make_files, noisy_detokenized, outcome  # noqa: E402
+from bad_input_cases import CASES, CLASSES, SCENARIOS, Case, Outcome, make_files, noisy_detokenized, outcome  # noqa: E402
 from machine import machine_header  # noqa: E402
 
 
@@ -128,6 +131,10 @@ def main() -> None:
                                 max_motion_steps=24), dataset, device="cpu", progress=False)
         files = make_files(work / "files", dataset)
         results = [outcome(c, files, _invoke) for c in CASES]
+        for k, s in enumerate(SCENARIOS):
+            folder = work / f"scenario_{k:02d}"
+            folder.mkdir()
+            results.append(_scenario(s.name, s.cls, lambda s=s, folder=folder: s.run(files, folder)))
         for name, cls, run in (("train: resume when the latest checkpoint is truncated", 2, _resume_fallback),
                                ("train: resume with another --lr", 4, _resume_other_lr),
                                ("view --serve stopped by SIGTERM", 5, _serve_sigterm),
@@ -143,15 +150,16 @@ def main() -> None:
     for r in results:
         by_class[r.case.cls].append(r)
     fixed = [c for c in CLASSES if by_class[c] and all(r.kind in ("clear", "ok") for r in by_class[c])]
-    lines = ["# Bad-input sweep (issue 22)", "", machine_header("cpu").rstrip(), f"- sweep time: {seconds:.0f} s", "",
+    lines = ["# Bad-input sweep (issues 22 and 50)", "", machine_header("cpu").rstrip(), f"- sweep time: {seconds:.0f} s", "",
              f"{len(results)} cases across every command; `python benchmarks/bad_inputs.py` reruns it "
              "(`tests/test_bad_inputs.py` asserts the same table).", "",
              "| outcome | cases |", "|---|---:|"]
     for kind, label in (("clear", "clear one-line error naming the file, flag or field"), ("ok", "odd but valid input, handled"),
                         ("traceback", "traceback or internal error"), ("misleading", "misleading message"),
-                        ("silent", "success reported for a bad input"), ("loss", "data lost or a process leaked")):
+                        ("silent", "success reported for a bad input or garbage output"),
+                        ("loss", "data lost or a process leaked")):
         lines.append(f"| {label} | {counts.get(kind, 0)} |")
-    lines += ["", f"Classes of failure of the issue fixed: {len(fixed)} of {len(CLASSES)} (every case of the class clear or handled).", "",
+    lines += ["", f"Classes of failure of the issues fixed: {len(fixed)} of {len(CLASSES)} (every case of the class clear or handled).", "",
               "| class | cases | clear or handled | fixed |", "|---|---:|---:|---|"]
     for c, label in CLASSES.items():
         rs = by_class[c]

@@ -176,7 +176,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu", 
             warnings.simplefilter("ignore")
             state = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # torch raises RuntimeError, EOFError, UnpicklingError, ... for damaged files
-        raise CorruptFileError(f"checkpoint {path} cannot be read: {reason(e)}") from None
+        raise CorruptFileError(f"checkpoint {path} cannot be read: {reason(e, path)}") from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         found = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise CorruptFileError(f"{path} is not a tt DiT checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")

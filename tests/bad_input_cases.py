@@ -3,9 +3,13 @@
 
 `make_files` writes good files and damaged, truncated, foreign or odd ones into a folder;
 `CASES` is the table: each case is a command line over those files, the class of failure
-of issue 22 it belongs to, what the one-line error must name (or, for inputs that are odd
-but valid, that the command succeeds), and an optional check of what is on disk after it.
-`outcome` runs one case through the real CLI and says how it went.
+of issue 22 (1-7) or of issue 50's second round (8-15) it belongs to, what the one-line
+error must name (or, for inputs that are odd but valid, that the command succeeds), and an
+optional check of what is on disk after it. `outcome` runs one case through the real CLI
+and says how it went; no error may name a Python class or field (`INTERNAL_NAMES`).
+`SCENARIOS` are the cases a table row cannot hold (a full disk, stdout, a regenerated
+dataset, ...): each runs itself and says how it went; `tests/test_bad_inputs.py` and the
+sweep run them too.
 """
 
 from __future__ import annotations
@@ -28,7 +32,20 @@ CLASSES = {
     5: "data loss and leaks",
     6: "misleading message",
     7: "detokenizer names",
+    8: "output written unsafely (links, devices, a full disk)",
+    9: "- as stdout",
+    10: "tt designs removes files it did not write",
+    11: "run folder reused (--no-resume, two writers, --init)",
+    12: "resume on other data at the same path",
+    13: "workers outliving a killed run",
+    14: "flag that does not apply, ignored",
+    15: "message naming internals",
 }
+
+#: Words of Python internals (config classes and fields) no error line may carry: a message
+#: names the flag or file instead.
+INTERNAL_NAMES = ("GenerateConfig", "TrainConfig", "OnlineConfig", "DiTConfig", "SelectionConfig", "SamplerConfig",
+                  "drop_types", "type_weights", "config.steps", "arms must be 1, 2 or None")
 
 #: Words of torch's and numpy's advice about loading pickles; no message may carry them.
 PICKLE_ADVICE = ("allow_pickle", "weights_only", "untrusted")
@@ -128,6 +145,12 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
 
     toy_episodes(episodes=6, steps=12, seed=0).save(root / "episodes.npz")
     put("episodes", root / "episodes.npz")
+    from tt.dit.train import TrainConfig, train
+
+    with torch.random.fork_rng(devices=[]):  # a real (tiny, one-step) checkpoint of the toy episodes
+        trained = train(TrainConfig(data=str(root / "episodes.npz"), out=str(root / "trained"), size="tiny", steps=1,
+                                    batch_size=4, device="cpu")).checkpoint
+    put("trained", trained)
     put("episodes_truncated", _truncate(root / "episodes.npz", root / "episodes_truncated.npz"))
 
     (root / "ckpt_empty.pt").write_bytes(b"")
@@ -141,6 +164,8 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     put("ckpt_v1", root / "ckpt_v1.pt")
     (root / "ckpt_pickle.pt").write_bytes(b"\x80\x04\x95" + b"\x00" * 40)
     put("ckpt_pickle", root / "ckpt_pickle.pt")
+    (root / "ckpt_random.pt").write_bytes(np.random.default_rng(50).integers(0, 256, 3000, dtype=np.uint8).tobytes())
+    put("ckpt_random", root / "ckpt_random.pt")
 
     (root / "robots_dir").mkdir(exist_ok=True)
     put("robots_dir", root / "robots_dir")
@@ -156,6 +181,33 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     (root / "foreign" / "notes.txt").write_text("someone's notes")
     put("foreign", root / "foreign")
     put("missing", root / "missing" / "deeper")
+
+    # Output targets: a link to an existing file, a dangling link, a socket, a folder with a space.
+    (root / "link_target.json").write_text("old content")
+    (root / "link.json").symlink_to("link_target.json")
+    put("link", root / "link.json")
+    put("link_target", root / "link_target.json")
+    (root / "dangling.npz").symlink_to("made_by_link.npz")
+    put("dangling", root / "dangling.npz")
+    put("dangling_target", root / "made_by_link.npz")
+    import socket
+
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(str(root / "sock"))
+    sock.close()  # the socket file stays
+    put("socket", root / "sock")
+    (root / "with space").mkdir(exist_ok=True)
+    put("spaced", root / "with space")
+    # A folder no `tt designs` ran in, holding a user's files named as tt names MJCF files.
+    (root / "user_designs").mkdir(exist_ok=True)
+    (root / "user_designs" / "viperx_0001.xml").write_text("<mujoco model='mine'/>")
+    (root / "user_designs" / "aloha_0007.xml").write_text("<mujoco model='also mine'/>")
+    put("user_designs", root / "user_designs")
+    # Run folders whose selection record is damaged.
+    for name, content in (("run_sel_json", b'{"designs": 16, "motions":'), ("run_sel_csv", b"\xff\xfe\x00garbage")):
+        (root / name).mkdir(exist_ok=True)
+        (root / name / ("selection.json" if name.endswith("json") else "selection.csv")).write_bytes(content)
+        put(name, root / name)
 
     if dataset is not None:
         flipped = root / "ds_flipped"
@@ -187,6 +239,31 @@ def _earlier_designs(f: SimpleNamespace) -> None:
     folder = Path(f.root) / "designs_out"
     CliRunner().invoke(app, ["designs", "--n", "4", "--out", str(folder)])
     (folder / "mine.txt").write_text("kept")
+
+
+def _shipped_critic() -> Path:
+    """A checkpoint of the viperx space trained on the dynamics task (a shipped one)."""
+    from tt.dit.checkpoint import default_checkpoint
+
+    return default_checkpoint("viperx", task="dynamics")
+
+
+def _written_through(link: str, target: str):
+    """A check: the link at files.<link> is still a link, and files.<target> holds what was written."""
+    def check(f: SimpleNamespace, out: str) -> str | None:
+        if not Path(getattr(f, link)).is_symlink():
+            return f"{getattr(f, link)} was replaced by a regular file"
+        data = Path(getattr(f, target)).read_bytes() if Path(getattr(f, target)).exists() else b""
+        return None if data.startswith(b"PK") else f"{getattr(f, target)} does not hold the output"
+    return check
+
+
+def _user_designs_kept(f: SimpleNamespace, out: str) -> str | None:
+    folder = Path(f.user_designs)
+    for name, model in (("viperx_0001.xml", "mine"), ("aloha_0007.xml", "also mine")):
+        if not (folder / name).exists() or model not in (folder / name).read_text():
+            return f"the user's {name} was removed or overwritten"
+    return None
 
 
 V = ["validate", "--design"]
@@ -305,6 +382,80 @@ CASES: list[Case] = [
     Case("rollout: unknown backend", 6, lambda f: ["rollout", "--n", "1", "--backend", "bullet"], ("bullet", "warp")),
     Case("validate: unknown reward", 6, lambda f: [*V, f.designs, "--motion", "toss", "--reward", "speed"], ("speed",)),
     Case("motions --name nope", 6, lambda f: ["motions", "--name", "nope", "--out", f.root + "/m.npz"], ("nope",)),
+    # -- 8: outputs written safely: through links, never over a socket
+    Case("tokenize --out through a symlink writes its target", 8, lambda f: ["tokenize", f.designs, "--out", f.link], ok=True,
+         check=_written_through("link", "link_target")),
+    Case("motions --out through a dangling symlink creates its target", 8,
+         lambda f: ["motions", "--name", "toss", "--out", f.dangling], ok=True, check=_written_through("dangling", "dangling_target")),
+    Case("validate --json onto a socket is refused", 8, lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", f.socket],
+         ("--json", "sock", "socket")),
+    Case("view --html onto a socket is refused", 8, lambda f: ["view", f.designs, "--html", f.socket], ("--html", "socket")),
+    # -- 9: '-' is stdout: a folder cannot go there, and two outputs cannot share it
+    Case("rollout --out - (a folder) is refused", 9, lambda f: ["rollout", "--n", "1", "--out", "-"], ("--out -", "folder")),
+    Case("validate --json - with --episode - is refused", 9,
+         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", "-", "--episode", "-"], ("--json", "--episode", "stdout")),
+    Case("detokenize --out - with --space is refused", 9, lambda f: ["detokenize", f.tokens, "--out", "-", "--space", "viperx"],
+         ("--space", "--out")),
+    # -- 10: tt designs removes and overwrites only its own files
+    Case("designs --out over a user's viperx_0001.xml", 10, lambda f: ["designs", "--n", "3", "--out", f.user_designs],
+         ("--out", "viperx_0001.xml", "no earlier `tt designs` run"), check=_user_designs_kept),
+    Case("designs --out beside a user's aloha_0007.xml", 10, lambda f: ["designs", "--n", "1", "--out", f.user_designs], ok=True,
+         check=_user_designs_kept),
+    # -- 14: a flag that does not apply to the method or mode is refused, naming both
+    Case("optimize --critic-checkpoint with --method cmaes", 14,
+         lambda f: ["optimize", "--motion", "toss", "--critic-checkpoint", f.ckpt_nokey], ("--critic-checkpoint", "--method cmaes")),
+    Case("optimize --samples with --method random", 14, lambda f: ["optimize", "--motion", "toss", "--method", "random", "--samples", "4"],
+         ("--samples", "--method random")),
+    Case("optimize --num-steps with --method random", 14,
+         lambda f: ["optimize", "--motion", "toss", "--method", "random", "--num-steps", "5"], ("--num-steps", "--method random")),
+    Case("optimize --critic-samples with --method random", 14,
+         lambda f: ["optimize", "--motion", "toss", "--method", "random", "--critic-samples", "2"], ("--critic-samples", "--method random")),
+    Case("optimize --popsize with --method zeroth", 14, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--popsize", "4"],
+         ("--popsize", "--method zeroth")),
+    Case("validate --checkpoint with --controller ik", 14,
+         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--checkpoint", f.ckpt_nokey], ("--checkpoint", "--controller ik")),
+    Case("detokenize --project without --space", 14, lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--project"],
+         ("--project", "--space")),
+    Case("motions --out without --name", 14, lambda f: ["motions", "--out", f.root + "/m.npz"], ("--out", "--name")),
+    Case("rollout --n with --design", 14, lambda f: ["rollout", "--design", f.designs, "--n", "3"], ("--n", "--design")),
+    Case("train --online-designs with --data", 14,
+         lambda f: ["train", "--data", f.episodes, "--online-designs", "8", "--out", f.root + "/r14"], ("--online-designs", "--data")),
+    Case("train --select-motions without --select-designs", 14,
+         lambda f: ["train", "--data", f.episodes, "--select-motions", "3", "--out", f.root + "/r14"], ("--select-motions", "--select-designs")),
+    # -- 15: messages name flags and files, never Python names (`outcome` checks every case for them)
+    Case("generate --bias nope lists the biases", 15, lambda f: ["generate", "--designs", "1", "--bias", "nope", "--out", f.root + "/g15"],
+         ("--bias", "cmaes")),
+    Case("generate --seed 2**32 names the flag", 15, lambda f: ["generate", "--designs", "1", "--seed", str(2**32), "--out", f.root + "/g15"],
+         ("--seed",)),
+    Case("generate --action-noise nan names the flag", 15,
+         lambda f: ["generate", "--designs", "1", "--action-noise", "nan", "--out", f.root + "/g15"], ("--action-noise",)),
+    Case("generate --action-noise on a space with contacts", 15,
+         lambda f: ["generate", "--space", "quadruped", "--designs", "1", "--action-noise", "0.1", "--out", f.root + "/g15"],
+         ("--action-noise", "quadruped")),
+    Case("train --drop-type nope names the flag", 15,
+         lambda f: ["train", "--data", f.episodes, "--drop-type", "nope", "--out", f.root + "/r15"], ("--drop-type", "nope")),
+    Case("train --online --action-noise nan names the flag", 15,
+         lambda f: ["train", "--online", "--action-noise", "nan", "--out", f.root + "/r15"], ("--action-noise",)),
+    Case("motions --arms 3 names the flag", 15, lambda f: ["motions", "--arms", "3"], ("--arms", "1 or 2")),
+    Case("train --init of another size names --size", 15,
+         lambda f: ["train", "--data", f.episodes, "--init", f.trained, "--size", "mini", "--out", f.root + "/r15"],
+         ("--init", "--size tiny", "--size mini")),
+    Case("optimize: a truncated --critic-checkpoint names that flag", 15,
+         lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint", f.ckpt_truncated],
+         ("--critic-checkpoint", "ckpt_truncated.pt")),
+    Case("optimize: a --critic-checkpoint of another space", 15,
+         lambda f: ["optimize", "--space", "aloha", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint",
+                    str(_shipped_critic())], ("--critic-checkpoint", "'viperx'", "'aloha'")),
+    Case("train: random bytes as --init are not called pickled data", 15,
+         lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_random, "--out", f.root + "/r15"], ("ckpt_random.pt", "no file tt wrote"),
+         check=lambda f, out: "said to hold pickled data" if "pickled data)" in out or "Python objects" in out else None),
+    Case("train --select-designs over a damaged selection.json", 15,
+         lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_json], ("selection.json", "not valid JSON")),
+    Case("train --select-designs over a damaged selection.csv", 15,
+         lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_csv], ("selection.csv", "not text")),
+    Case("validate --episode: the tt view hint is shell-quoted", 15,
+         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--episode", f.spaced + "/ep.npz"], ok=True,
+         check=lambda f, out: None if f"tt view '{f.spaced}/ep.npz'" in out else "the printed `tt view` command is not shell-quoted"),
 ]
 
 
@@ -342,6 +493,9 @@ def outcome(case: Case, files: SimpleNamespace, invoke: Callable[[list[str]], tu
     errors = [line for line in out.splitlines() if line.startswith("error: ")]
     if "Traceback" in out or "internal error" in out:
         return Outcome(case, "traceback", code, out, "a traceback or an internal error")
+    internal = [w for w in INTERNAL_NAMES if any(w in e for e in errors)]
+    if internal:
+        return Outcome(case, "misleading", code, out, f"the error names Python internals: {internal}")
     if any(w in out for w in PICKLE_ADVICE):
         return Outcome(case, "misleading", code, out, "advice about loading pickles")
     try:
@@ -386,3 +540,394 @@ def noisy_detokenized(sigmas=(0.3, 1.0, 3.0)):
         noisy = TokenBatch({k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
                            clean.ids, clean.mask)
         yield from detokenize(norm.denormalize(noisy, detect_padding=True))
+
+
+# ------------------------------------------------------------------ scenarios (issue 50, round two)
+@dataclass
+class Scenario:
+    """A bad input a table row cannot hold: run(files, work) -> (kind, why), kind as `Outcome`'s
+    (clear | ok | traceback | silent | misleading | loss); work: a folder of its own."""
+
+    name: str
+    cls: int
+    run: Callable[[SimpleNamespace, Path], tuple[str, str]]
+
+
+def _cli(args: list, cwd: Path | None = None) -> tuple[int, str, str]:
+    """The real CLI in process: (exit code, stdout, stderr)."""
+    import contextlib
+
+    from typer.testing import CliRunner
+
+    from tt.cli import app
+
+    with contextlib.chdir(cwd) if cwd is not None else contextlib.nullcontext():
+        res = CliRunner().invoke(app, [str(a) for a in args])
+    out, err = res.stdout, res.stderr if res.stderr_bytes is not None else ""
+    if res.exception is not None and not isinstance(res.exception, SystemExit):
+        err += f"\nTraceback (uncaught): {type(res.exception).__name__}: {res.exception}"
+    return res.exit_code, out, err
+
+
+def _error(code: int, out: str, err: str, *names: str) -> tuple[str, str]:
+    """How a refusal went: clear when it exits non-zero with one error line naming `names`."""
+    text = out + err
+    if "Traceback" in text or "internal error" in text:
+        return "traceback", text[-300:]
+    if code == 0:
+        return "silent", "exit 0 for a bad input"
+    errors = [line for line in text.splitlines() if line.startswith("error: ")]
+    if len(set(errors)) != 1:
+        return "misleading", f"{len(set(errors))} distinct error lines: {text[-300:]}"
+    missing = [n for n in names if n not in errors[0]]
+    internal = [w for w in INTERNAL_NAMES if w in errors[0]]
+    if missing or internal:
+        return "misleading", f"the error {errors[0]!r} does not name {missing}" if missing else f"names {internal}"
+    return "clear", ""
+
+
+class _Quota:
+    """A disk with `free` bytes left for files under `folder`: while active (a context), every
+    file opened for writing there (``open``, ``io.open``, ``os.fdopen``) fails its writes with
+    ENOSPC once the folder's new bytes pass `free`, as a full disk's do."""
+
+    def __init__(self, folder: Path, free: int):
+        self.folder, self.free, self.used = str(Path(folder).resolve()), free, 0
+
+    def _inside(self, file) -> bool:
+        import os
+
+        try:
+            path = os.readlink(f"/proc/self/fd/{file}") if isinstance(file, int) else os.path.realpath(file)
+        except (OSError, TypeError):
+            return False
+        return str(path).startswith(self.folder + os.sep)
+
+    def __enter__(self):
+        import builtins
+        import io
+        from unittest import mock
+
+        real = io.open
+        quota = self
+
+        class Full:
+            def __init__(self, f):
+                self._f = f
+
+            def write(self, data):
+                import errno
+                import os
+
+                quota.used += len(data)
+                if quota.used > quota.free:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                return self._f.write(data)
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                self._f.close()
+
+            def __getattr__(self, name):
+                return getattr(self._f, name)
+
+        def opener(file, mode="r", *args, **kwargs):
+            f = real(file, mode, *args, **kwargs)
+            return Full(f) if any(c in mode for c in "wax+") and self._inside(file) else f
+
+        self._patches = [mock.patch("io.open", opener), mock.patch.object(builtins, "open", opener)]
+        for p in self._patches:
+            p.start()
+        return self
+
+    def __exit__(self, *exc):
+        for p in self._patches:
+            p.stop()
+
+
+def _files_of(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()} if folder.is_dir() else {}
+
+
+def _full_disk_html(files, work: Path) -> tuple[str, str]:
+    """A full disk while tt view overwrites an existing --html file: the old page stays whole,
+    no temporary file is left, and the error names the file."""
+    page = work / "page.html"
+    page.write_text("the earlier page")
+    with _Quota(work, 1000):
+        code, out, err = _cli(["view", files.designs, "--html", page])
+    if page.read_text() != "the earlier page":
+        return "loss", f"the earlier {page.name} was destroyed ({page.stat().st_size} bytes left)"
+    if sorted(p.name for p in work.iterdir()) != ["page.html"]:
+        return "loss", f"files left beside it: {sorted(p.name for p in work.iterdir())}"
+    return _error(code, out, err, "No space left", str(page))
+
+
+def _full_disk_designs(files, work: Path) -> tuple[str, str]:
+    """A full disk in the middle of `tt designs` over an earlier run's folder: the folder stays
+    as the earlier run left it (no half set, no 0-byte file), and the error names a file."""
+    folder = work / "designs"
+    _cli(["designs", "--n", "3", "--out", folder])
+    before = _files_of(folder)
+    size = len(before["viperx_0000.xml"])
+    with _Quota(folder, int(2.5 * size)):
+        code, out, err = _cli(["designs", "--n", "6", "--seed", "1", "--out", folder])
+    after = _files_of(folder)
+    if after != before or sorted(p.name for p in folder.iterdir()) != sorted(before):
+        changed = sorted(set(after) ^ set(before)) + sorted(k for k in before if k in after and after[k] != before[k])
+        return "loss", f"the folder changed: {changed[:6]} (of {len(after)} files)"
+    return _error(code, out, err, "No space left", str(folder))
+
+
+def _fifo_output(files, work: Path) -> tuple[str, str]:
+    """--out onto a named pipe writes into the pipe (a reader gets the file) and leaves it a pipe."""
+    import os
+    import stat
+    import threading
+
+    fifo = work / "out.fifo"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()), daemon=True)
+    reader.start()
+    code, out, err = _cli(["motions", "--name", "toss", "--out", fifo])
+    reader.join(30)
+    if reader.is_alive() and stat.S_ISFIFO(os.stat(fifo).st_mode):
+        open(fifo, "wb").close()  # release the reader
+    if not stat.S_ISFIFO(os.lstat(fifo).st_mode):
+        return "loss", "the named pipe was replaced by a regular file"
+    if code != 0:
+        return "misleading", f"exit {code}: {(out + err)[-300:]}"
+    return ("ok", "") if got and got[0].startswith(b"PK") else ("silent", "the reader got no .npz")
+
+
+def _stdout_outputs(files, work: Path) -> tuple[str, str]:
+    """``-`` is stdout: stdout holds the output alone (the table goes to stderr) and no file
+    named ``-`` appears."""
+    cases = [
+        ("validate --json -", [*V, files.designs + "#0", "--motion", "toss", "--json", "-"], "json"),
+        ("optimize --json -", ["optimize", "--motion", "toss", "--method", "random", "--budget", "2", "--json", "-"], "json"),
+        ("predict --json -", ["predict", "--design", files.designs + "#0", "--motion", "toss", "--device", "cpu", "--json", "-"], "json"),
+        ("motions --out -", ["motions", "--name", "toss", "--out", "-"], "npz"),
+        ("view --html -", ["view", files.designs + "#0", "--html", "-"], "html"),
+    ]
+    for name, args, kind in cases:
+        code, out, err = _cli(args, cwd=work)
+        if code != 0:
+            return "misleading", f"{name}: exit {code}: {(out + err)[-300:]}"
+        if (work / "-").exists():
+            return "silent", f"{name} wrote a file named -"
+        if kind == "json":
+            try:
+                json.loads(out)
+            except ValueError:
+                return "silent", f"{name}: stdout is not the JSON alone: {out[:120]!r}"
+        elif kind == "npz" and not out.encode("utf-8", "surrogateescape").startswith(b"PK"):
+            return "silent", f"{name}: stdout is not the .npz"
+        elif kind == "html" and not out.lstrip().lower().startswith("<!doctype html"):
+            return "silent", f"{name}: stdout is not the HTML alone: {out[:80]!r}"
+    return "ok", ""
+
+
+def _train(files, out: Path, steps: int, *extra, data: str | None = None) -> list:
+    return ["train", "--data", data or files.episodes, "--size", "tiny", "--batch-size", "4", "--device", "cpu",
+            "--steps", str(steps), "--checkpoint-every", "2", "--out", out, *extra]
+
+
+def _no_resume_empties(files, work: Path) -> tuple[str, str]:
+    """--no-resume over a finished run (step 4) empties it: the new run's step 2 is its only
+    checkpoint, and a later resume continues from that step, not the old run's."""
+    from tt.dit.checkpoint import list_checkpoints, load_checkpoint
+
+    run = work / "run"
+    code, out, err = _cli(_train(files, run, 4))
+    if code:
+        return "misleading", (out + err)[-300:]
+    code, out, err = _cli(_train(files, run, 2, "--no-resume"))
+    if code:
+        return "misleading", (out + err)[-300:]
+    names = [p.name for p in list_checkpoints(run)]
+    if names != ["step_0000002.pt"]:
+        return "loss", f"the earlier run's checkpoints are left beside the new one: {names}"
+    code, out, err = _cli(_train(files, run, 3))
+    state = load_checkpoint(list_checkpoints(run)[-1])
+    if code or state["step"] != 3 or len(state["losses"]) != 3:
+        return "loss", f"the resume did not continue the new run (step {state['step']}, {len(state['losses'])} losses)"
+    return "ok", ""
+
+
+def _two_writers(files, work: Path) -> tuple[str, str]:
+    """A second `tt train` on a run folder another process writes is refused, before it
+    touches the folder (its checkpoints stay)."""
+    from tt.dit.checkpoint import list_checkpoints
+    from tt.tokens.lock import DatasetLock
+
+    run = work / "run"
+    _cli(_train(files, run, 2))
+    before = [p.name for p in list_checkpoints(run)]
+    with DatasetLock(run):  # the first writer
+        code, out, err = _cli(_train(files, run, 2, "--no-resume"))
+    if [p.name for p in list_checkpoints(run)] != before:
+        return "loss", f"the second writer changed the run's checkpoints: {before} -> {[p.name for p in list_checkpoints(run)]}"
+    return _error(code, out, err, str(run), "being written")
+
+
+def _init_on_a_run(files, work: Path) -> tuple[str, str]:
+    """--init on a run folder that has checkpoints (which a resume would use instead) is refused."""
+    run = work / "run"
+    _cli(_train(files, run, 2))
+    code, out, err = _cli(_train(files, run, 4, "--init", files.trained))
+    return _error(code, out, err, "--init", str(run), "--no-resume")
+
+
+def _regenerated_dataset(files, work: Path) -> tuple[str, str]:
+    """A dataset regenerated at the same path with another --seed is refused on resume."""
+    from dataclasses import replace
+
+    from tt.generate import GenerateConfig, generate
+    from tt.tokens.store import read_root
+
+    data = work / "ds"
+    shutil.copytree(files.dataset, data)
+    run = work / "run"
+    code, out, err = _cli(_train(files, run, 1, "--batch-size", "2", data=str(data)))
+    if code:
+        return "misleading", (out + err)[-300:]
+    config = GenerateConfig.from_dict(read_root(data)["config"])
+    shutil.rmtree(data)
+    generate(replace(config, seed=config.seed + 1), data, device="cpu", progress=False)
+    code, out, err = _cli(_train(files, run, 2, "--batch-size", "2", data=str(data)))
+    return _error(code, out, err, "--data", "--seed 0 then, 1 now")
+
+
+def _rewritten_episode_file(files, work: Path) -> tuple[str, str]:
+    """An episode token file rewritten with other episodes at the same path is refused on resume."""
+    from tt.dit.toy import toy_episodes
+
+    data = work / "episodes.npz"
+    shutil.copy(files.episodes, data)
+    run = work / "run"
+    _cli(_train(files, run, 1, data=str(data)))
+    toy_episodes(episodes=6, steps=12, seed=1).save(data)
+    code, out, err = _cli(_train(files, run, 2, data=str(data)))
+    return _error(code, out, err, "--data", "content changed")
+
+
+def _all_dropped(files, work: Path) -> tuple[str, str]:
+    """A complete dataset whose episodes --min-steps all dropped says so (not "run tt generate first")."""
+    from tt.generate import GenerateConfig, generate
+
+    data = work / "ds"
+    generate(GenerateConfig(space="viperx", designs=1, episodes_per_design=1, designs_per_shard=1, min_steps=100_000,
+                            max_motion_steps=None), data, device="cpu", progress=False)
+    code, out, err = _cli(_train(files, work / "run", 1, data=str(data)))
+    kind, why = _error(code, out, err, "complete", "--min-steps 100000")
+    if kind == "clear" and "first" in out + err:
+        return "misleading", "it says to run `tt generate` first"
+    return kind, why
+
+
+def _online_resume_message(files, work: Path) -> tuple[str, str]:
+    """Resuming an online run with other online settings names the flags, not two OnlineConfig dicts."""
+    from tt.dit.online import OnlineConfig
+    from tt.dit.train import TrainConfig, check_same_run
+
+    stored = TrainConfig(online=OnlineConfig(designs=64), out=str(work)).to_dict()
+    try:
+        check_same_run(stored, TrainConfig(online=OnlineConfig(designs=32), out=str(work)), work)
+    except ValueError as e:
+        text = str(e)
+        if "--online-designs" not in text or "{" in text or any(w in text for w in INTERNAL_NAMES):
+            return "misleading", text
+        return "clear", ""
+    return "silent", "resumed with another --online-designs"
+
+
+def _serve_with_time(files, work: Path) -> tuple[str, str]:
+    """--time with --serve alone (no HTML to open paused) is refused, naming both."""
+    from tt.viz.cli import ViewError, view_cmd
+
+    try:
+        result = view_cmd(files.designs, serve=True, time=1.0, block=False, echo=lambda text: None)
+    except ViewError as e:
+        return ("clear", "") if "--time" in str(e) and "--html" in str(e) else ("misleading", str(e))
+    from tt.viz.live import close_visualizer
+
+    close_visualizer(result.visualizer)
+    return "silent", "--time ignored by --serve"
+
+
+def killed_generate_leaves_no_workers(work: Path) -> tuple[str, str]:
+    """SIGKILL of ``tt generate --workers 2`` once both workers are writing shards: every
+    process it started stops, and no shard is written after. (tests/test_kills.py runs it.)"""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from listening import children, running, wait_gone
+
+    def descendants(pid: int) -> list[int]:
+        found, todo = [], [pid]
+        while todo:
+            try:
+                kids = children(todo.pop())
+            except (FileNotFoundError, ProcessLookupError):
+                continue
+            found += kids
+            todo += kids
+        return found
+
+    out = work / "ds"
+    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "generate", "--designs", "40", "--designs-per-shard", "1",
+                             "--episodes-per-design", "1", "--min-steps", "10", "--workers", "2", "--device", "cpu",
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=work,
+                            env=dict(os.environ, OMP_NUM_THREADS="1"))
+    left: list[int] = []
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and proc.poll() is None:  # both workers started and writing shards
+            partial = out / ".partial"
+            if len(descendants(proc.pid)) >= 3 and partial.is_dir() and any(partial.iterdir()):
+                break
+            time.sleep(0.2)
+        if proc.poll() is not None:
+            return "misleading", "tt generate ended before its workers were busy"
+        family = descendants(proc.pid)
+        if len(family) < 3:
+            return "misleading", f"expected a queue server and two workers, found {family}"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+        left = [p for p in family if not wait_gone(p, timeout=15)]
+        if left:
+            return "loss", f"processes {left} of the killed tt generate still run"
+        shards = sorted(p.name for p in (out / "shards").iterdir()) if (out / "shards").is_dir() else []
+        time.sleep(2.0)
+        later = sorted(p.name for p in (out / "shards").iterdir()) if (out / "shards").is_dir() else []
+        return ("loss", "shards were still written after the run was killed") if later != shards else ("ok", "")
+    finally:
+        proc.kill()
+        for pid in left:
+            if running(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+SCENARIOS: list[Scenario] = [
+    Scenario("view --html over an existing page on a full disk", 8, _full_disk_html),
+    Scenario("motions --out onto a named pipe", 8, _fifo_output),
+    Scenario("validate, optimize, predict --json -; motions --out -; view --html -", 9, _stdout_outputs),
+    Scenario("designs over an earlier run on a full disk", 10, _full_disk_designs),
+    Scenario("train --no-resume over a finished run", 11, _no_resume_empties),
+    Scenario("train: two writers on one run folder", 11, _two_writers),
+    Scenario("train --init on a run that has checkpoints", 11, _init_on_a_run),
+    Scenario("train resume on a dataset regenerated with another --seed", 12, _regenerated_dataset),
+    Scenario("train resume on a rewritten episode file", 12, _rewritten_episode_file),
+    Scenario("generate --workers 2 killed with SIGKILL", 13, lambda files, work: killed_generate_leaves_no_workers(work)),
+    Scenario("view --serve --time", 14, _serve_with_time),
+    Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
+    Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
+]

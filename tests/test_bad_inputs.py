@@ -1,10 +1,13 @@
 """Every bad input through the real ``tt`` command line: a non-zero exit, one ``error:`` line
-naming the offending file, flag or field, no traceback, nothing lost (issue 22).
+naming the offending file, flag or field, no traceback, nothing lost (issues 22 and 50).
 
-The table is `tests/bad_input_cases.py` (also run by the sweep ``benchmarks/bad_inputs.py``);
-the tests after it cover what a table row cannot: resuming from a damaged checkpoint,
-refusing a resume with other arguments, fsync before rename, strict JSON, the dataset
-lock, a full disk, ``tt view --serve`` under SIGTERM and unique detokenized names.
+The table is `tests/bad_input_cases.py` (also run by the sweep ``benchmarks/bad_inputs.py``),
+with its scenarios (issue 50's second round: a full disk, ``-`` as stdout, a named pipe,
+``tt designs`` over a user's files, ``tt train``'s run folder and resumed data, flags that do
+not apply, messages); the tests after it cover what neither holds: resuming from a damaged
+checkpoint, refusing a resume with other arguments, fsync before rename, strict JSON, the
+dataset lock, a full disk in ``tt generate``, ``tt view --serve`` under SIGTERM and unique
+detokenized names. Killed runs are `tests/test_kills.py`'s.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bad_input_cases import CASES, CLASSES, make_files, noisy_detokenized, outcome  # noqa: E402
+from bad_input_cases import CASES, CLASSES, SCENARIOS, make_files, noisy_detokenized, outcome  # noqa: E402
 
 from tt.generate import GenerateConfig, generate  # noqa: E402
 
@@ -46,7 +49,7 @@ class _AnyFile:
 def test_the_table_covers_every_class_and_command():
     from tt.cli import app, dataset_app
 
-    assert {c.cls for c in CASES} >= set(CLASSES) - {2, 7}  # 2 and 7 are tests below
+    assert {c.cls for c in CASES} | {s.cls for s in SCENARIOS} >= set(CLASSES) - {2, 7}  # 2 and 7 are tests below
     used = {" ".join(c.args(_AnyFile())[:2 if c.args(_AnyFile())[0] == "dataset" else 1]) for c in CASES}
     commands = {c.name or c.callback.__name__ for c in app.registered_commands}
     commands |= {f"dataset {c.name}" for c in dataset_app.registered_commands}
@@ -58,6 +61,46 @@ def test_the_table_covers_every_class_and_command():
 def test_bad_input(case, files, tt_cli):
     result = outcome(case, files, tt_cli)
     assert result.kind in ("clear", "ok"), f"{result.kind}: {result.why}\n{result.output}"
+
+
+@pytest.mark.parametrize("scenario", [s for s in SCENARIOS if s.cls != 13], ids=[s.name for s in SCENARIOS if s.cls != 13])
+def test_bad_input_scenario(scenario, files, tmp_path, single_thread):
+    kind, why = scenario.run(files, tmp_path)  # class 13 (a killed tt generate) is tests/test_kills.py's
+    assert kind in ("clear", "ok"), f"{kind}: {why}"
+
+
+def test_atomic_write_keeps_the_old_file_and_names_it_on_a_full_disk(tmp_path, monkeypatch):
+    """The safe writer itself: a failing fsync (a full disk's delayed error) leaves the old
+    file, removes the temporary one and names the file; a link is written through with the
+    target's permissions; a socket is refused naming the flag."""
+    import socket
+
+    import tt.kernels.files as files_mod
+    from tt.kernels.errors import TTError
+    from tt.kernels.files import write_text
+
+    target = tmp_path / "target.txt"
+    target.write_text("old")
+    target.chmod(0o600)
+    (tmp_path / "link.txt").symlink_to("target.txt")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with monkeypatch.context() as m:
+        m.setattr(files_mod.os, "fsync", full)
+        with pytest.raises(OSError) as e:
+            write_text(tmp_path / "link.txt", "new")
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(tmp_path / "link.txt")
+    assert target.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["link.txt", "target.txt"]
+    write_text(tmp_path / "link.txt", "new")
+    assert (tmp_path / "link.txt").is_symlink() and target.read_text() == "new"
+    assert target.stat().st_mode & 0o777 == 0o600
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(str(tmp_path / "sock"))
+    sock.close()
+    with pytest.raises(TTError, match="--json .*sock is a socket"):
+        write_text(tmp_path / "sock", "x", flag="--json")
 
 
 def test_optimize_help_lists_every_method(tt_cli):

@@ -5,6 +5,8 @@
   weights equal an uninterrupted run's.
 * ``tt generate`` killed with SIGKILL at 10 random points: no complete shard is ever lost
   or damaged, and the finished dataset equals an uninterrupted run's, every episode once.
+* Parent kills (issue 50): SIGKILL of ``tt view --serve`` takes its meshcat server down, and
+  SIGKILL of ``tt generate --workers 2`` its worker processes and queue server.
 """
 
 from __future__ import annotations
@@ -152,53 +154,12 @@ def test_view_serve_listens_on_the_loopback_and_its_server_dies_with_it(tmp_path
             os.kill(server, signal.SIGKILL)
 
 
-def _descendants(pid: int) -> list[int]:
-    sys.path.insert(0, os.path.dirname(__file__))
-    from listening import children
-
-    found, todo = [], [pid]
-    while todo:
-        try:
-            kids = children(todo.pop())
-        except (FileNotFoundError, ProcessLookupError):
-            continue
-        found += kids
-        todo += kids
-    return found
-
 
 def test_generate_workers_die_with_a_killed_run(tmp_path):
     """SIGKILL of ``tt generate --workers 2`` takes its worker processes (and the progress
     queue's server) down with it: none is left writing shards."""
     sys.path.insert(0, os.path.dirname(__file__))
-    from listening import running, wait_gone
+    from bad_input_cases import killed_generate_leaves_no_workers
 
-    out = tmp_path / "ds"
-    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "generate", "--designs", "40", "--designs-per-shard", "1",
-                             "--episodes-per-design", "1", "--min-steps", "10", "--workers", "2", "--device", "cpu",
-                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path,
-                            env=dict(os.environ, OMP_NUM_THREADS="1"))
-    left: list[int] = []
-    try:
-        deadline = time.monotonic() + 240
-        while time.monotonic() < deadline and proc.poll() is None:  # both workers started and writing shards
-            partial = out / ".partial"
-            if len(_descendants(proc.pid)) >= 3 and partial.is_dir() and any(partial.iterdir()):
-                break
-            time.sleep(0.2)
-        assert proc.poll() is None, "tt generate ended before its workers were busy"
-        family = _descendants(proc.pid)
-        assert len(family) >= 3, family  # the queue's manager and two workers
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=30)
-        left = [p for p in family if not wait_gone(p, timeout=15)]
-        assert not left, f"processes {left} of the killed tt generate still run"
-        shards = sorted(p.name for p in (out / "shards").iterdir()) if (out / "shards").is_dir() else []
-        time.sleep(2.0)
-        later = sorted(p.name for p in (out / "shards").iterdir()) if (out / "shards").is_dir() else []
-        assert later == shards, "shards were still written after the run was killed"
-    finally:
-        proc.kill()
-        for pid in left:
-            if running(pid):
-                os.kill(pid, signal.SIGKILL)
+    kind, why = killed_generate_leaves_no_workers(tmp_path)
+    assert kind == "ok", f"{kind}: {why}"

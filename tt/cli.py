@@ -80,9 +80,45 @@ def _fail(message: str) -> None:
 
 
 def _at_least(flag: str, value: int | float | None, low: int | float) -> None:
-    """Refuse a flag below its range, naming the flag (not the config field it fills)."""
-    if value is not None and value < low:
+    """Refuse a flag below its range (or NaN), naming the flag (not the config field it fills)."""
+    if value is not None and not value >= low:
         _fail(f"{flag} must be >= {low}, got {value}")
+
+
+def _draw_flags(space: str, seed: int, action_noise: float | None) -> None:
+    """Refuse, naming the flag, what `tt generate`'s and `tt train --online`'s episode draws
+    (`tt.tokens.draws.GenerateConfig`) cannot take."""
+    import math
+
+    from tt.sim.designs import get_space
+
+    if seed >= 2**32:
+        _fail(f"--seed must be below 2**32 = {2**32}, got {seed}")
+    if action_noise is not None and not math.isfinite(action_noise):
+        _fail(f"--action-noise must be a finite standard deviation >= 0 [rad or m], got {action_noise}")
+    if action_noise and get_space(space).has_contacts:
+        _fail(f"--action-noise perturbs the commands of tt's Warp rollouts; --space {space} has contacts and rolls out "
+              "on the MuJoCo oracle, which runs the clean commands: leave --action-noise out (or give 0)")
+
+
+def _given(ctx: typer.Context, *names: str) -> list[str]:
+    """The flags, among the command's parameters `names`, that the command line gave (a value
+    left at its default is not given), in the command's order."""
+    flags = []
+    for param in ctx.command.params:
+        if param.name in names:
+            source = ctx.get_parameter_source(param.name)
+            if source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP"):
+                flags.append(param.opts[0] if param.opts else param.name)
+    return flags
+
+
+def _applies(ctx: typer.Context, names, to: str, chosen: str) -> None:
+    """Refuse a flag among parameters `names` the command line gave when it does not apply
+    to the chosen method or mode: "FLAG applies to `to`, not `chosen`"."""
+    given = _given(ctx, *names)
+    if given:
+        _fail(f"{given[0]} applies to {to}, not {chosen}")
 
 
 def _output(path: Path | None, flag: str, *, folder: bool = False) -> None:
@@ -93,11 +129,39 @@ def _output(path: Path | None, flag: str, *, folder: bool = False) -> None:
         prepare_output(path, flag, folder=folder)
 
 
-def _write_json(path: Path, data: dict) -> None:
+def _on_stdout(*outputs: tuple[str, Path | None]) -> bool:
+    """Whether one of the (flag, path) outputs goes to stdout (``-``, or ``/dev/stdout``): then
+    the command's tables and messages go to stderr, so stdout holds the output alone. Two
+    outputs on stdout are refused."""
+    from tt.kernels.errors import TTError
+    from tt.kernels.files import output_target
+
+    on = []
+    for flag, path in outputs:
+        if path is None:
+            continue
+        try:
+            if output_target(path, flag)[0] == "stdout":
+                on.append(flag)
+        except TTError:
+            pass  # not writable: `_output` says why
+    if len(on) > 1:
+        _fail(f"{on[0]} and {on[1]} both write to stdout; give one of them a file name")
+    return bool(on)
+
+
+def _shell(*words) -> str:
+    """A command line to print for the user to copy: every word shell-quoted."""
+    import shlex
+
+    return " ".join(shlex.quote(str(w)) for w in words)
+
+
+def _write_json(path: Path, data: dict, flag: str) -> None:
     """Strict JSON (NaN as null, and the file says why); a note when any value was NaN."""
     from tt.kernels.files import write_json
 
-    nulls = write_json(path, data)
+    nulls = write_json(path, data, flag=flag)
     if nulls:
         typer.echo(f"note: {path}: {len(nulls)} NaN/inf value(s) written as null (strict JSON has no NaN), "
                    f"e.g. {nulls[0]}; the file's null_values entry lists them", err=True)
@@ -142,11 +206,12 @@ def designs(
 ) -> None:
     """Sample designs of a space (or take its nominal one); write one MJCF file each and designs.json.
 
-    Over a folder of an earlier `tt designs` run, its files (designs.json and SPACE_NNNN.xml)
-    that this run does not rewrite are removed, and the command says so; other files stay."""
-    import re
-
-    from tt.sim.designs import SPACE_NAMES, get_space, save_designs
+    Over a folder of an earlier `tt designs` run, the MJCF files its designs.json records
+    that this run does not rewrite are removed, and the command says so; other files stay,
+    and a file this run would overwrite that no earlier run wrote is refused. The set is
+    written whole or not at all (a full disk leaves the folder as it was)."""
+    from tt.sim.designs import get_space
+    from tt.sim.designs.folder import write_design_folder
 
     if nominal and (n is not None or seed is not None):
         _fail(f"--nominal writes the one nominal design; {'--n' if n is not None else '--seed'} does not apply to it")
@@ -154,14 +219,7 @@ def designs(
     sp = get_space(space)
     ds = [sp.nominal()] if nominal else sp.sample(8 if n is None else n, 0 if seed is None else seed)
     _output(out, "--out", folder=True)
-    own = re.compile(rf"^({'|'.join(SPACE_NAMES)})_\d{{4}}\.xml$")
-    names = {f"{space}_{i:04d}.xml" for i in range(len(ds))}
-    stale = sorted(p.name for p in out.iterdir() if p.is_file() and own.match(p.name) and p.name not in names)
-    for name in stale:
-        (out / name).unlink()
-    for i, d in enumerate(ds):
-        (out / f"{space}_{i:04d}.xml").write_text(sp.to_mjcf(d))
-    save_designs(ds, out / "designs.json")
+    stale = write_design_folder(ds, out, [sp.to_mjcf(d) for d in ds]).removed
     if stale:
         typer.echo(f"removed {len(stale)} design file(s) of an earlier run from {out}/ ({stale[0]} ...); "
                    "other files there are left as they were")
@@ -183,6 +241,7 @@ def _motions(names: list[str] | None, files: list[Path] | None, space: str | Non
 
 @app.command()
 def motions(
+    ctx: typer.Context,
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
     out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
@@ -194,6 +253,12 @@ def motions(
 
     from tt.sim.motions import list_motions, motion_set, motion_stats, resolve_motion, save_npz
 
+    if arms is not None and arms not in (1, 2):
+        _fail(f"--arms must be 1 or 2 (end effectors), got {arms}")
+    if name is None:
+        _applies(ctx, ("out",), "--name (the motion it exports: --name NAME --out FILE.npz)", "the listing")
+    else:
+        _applies(ctx, ("arms", "stats"), "the listing", "--name, which exports one motion")
     if stats:
         skills = [r.name for r in list_motions(arms=arms)]
         by_skill: dict[str, list] = {s: [] for s in skills}
@@ -225,12 +290,14 @@ def motions(
         _fail("--name needs --out FILE.npz")
     m = resolve_motion(name)
     _output(out, "--out")
+    quiet = _on_stdout(("--out", out))
     save_npz(m, out)
-    typer.echo(f"wrote {m.name}: {m.steps} steps, {m.arms} arm(s), {m.duration:.2f} s to {out}")
+    typer.echo(f"wrote {m.name}: {m.steps} steps, {m.arms} arm(s), {m.duration:.2f} s to {out}", err=quiet)
 
 
 @app.command()
 def validate(
+    ctx: typer.Context,
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
@@ -252,6 +319,7 @@ def validate(
 
     _output(json_out, "--json")
     _output(episode, "--episode")
+    quiet = _on_stdout(("--json", json_out), ("--episode", episode))
     designs = load_designs(design)
     spaces = {d.space for d in designs}
     if space is not None and spaces != {space}:
@@ -262,6 +330,8 @@ def validate(
     ms = _motions(motion, motion_file, sp_name)
     if controller not in ("ik", "model"):
         _fail(f"--controller {controller!r} does not exist; controllers: ik, model")
+    if controller == "ik":
+        _applies(ctx, ("checkpoint", "device", "ensemble"), "--controller model", "--controller ik")
     if controller == "model" and ensemble is not None:
         _at_least("--ensemble", ensemble, 1)
     ckpt = control_checkpoint(sp_name, checkpoint) if controller == "model" else None
@@ -274,26 +344,28 @@ def validate(
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
     if len(designs) > 1:
         rows.append({"name": "mean", **summary_row(ev.metrics)})
-    Console().print(rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}"))
+    Console(stderr=quiet).print(rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}"))
     if json_out is not None:
         sp = get_space(sp_name)
         _write_json(json_out, {
             "reward": reward, "controller": controller, "motions": [m.name for m in ms],
             "designs": [sp.to_dict(d) for d in designs], "metrics": rows,
             "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
-        })
+        }, "--json")
     if episode is not None:
         from tt.viz.episode_file import save_episode_npz
 
         path = save_episode_npz(episode, ev.episode if controller == "ik" else ep, designs,
                                 motion_name=", ".join(m.name for m in ms))
-        typer.echo(f"wrote {path}: {len(designs) * len(ms)} rollouts; show them with `tt view {path}`")
+        hint = "" if quiet else f"; show them with `{_shell('tt', 'view', path)}`"
+        typer.echo(f"wrote {path}: {len(designs) * len(ms)} rollouts{hint}", err=quiet)
 
 
 @app.command()
 def rollout(
+    ctx: typer.Context,
     space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual, quadruped."),
-    n: int = typer.Option(16, help="Random designs of the space (seed --seed); ignored with --design."),
+    n: int = typer.Option(16, help="Random designs of the space (seed --seed); not with --design."),
     seed: int = typer.Option(0, help="Random seed of the designs."),
     design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable; default: toss); see `tt motions`."),
@@ -320,6 +392,7 @@ def rollout(
     _output(out, "--out", folder=True)
     sp = get_space(space)
     if design is not None:
+        _applies(ctx, ("n", "seed"), "random designs", "--design, which reads them from a file")
         designs = load_designs(design)
         spaces = {d.space for d in designs}
         if spaces != {space}:
@@ -364,8 +437,26 @@ def rollout(
             "motions": [mo.name for mo in ms], "designs": len(designs), "worlds": worlds, "world_steps": world_steps,
             "seconds": seconds, "world_steps_per_s": rate, "threads": used, "metrics": rows,
             "per_world": {k: v.tolist() for k, v in metrics.items()},
-        })
-        typer.echo(f"wrote {out}/designs.json, episode.npz (show with `tt view {out / 'episode.npz'}`) and summary.json")
+        }, "--out")
+        typer.echo(f"wrote {out}/designs.json, episode.npz (show with `{_shell('tt', 'view', out / 'episode.npz')}`) and summary.json")
+
+
+def _check_critic(path: Path, space: str) -> None:
+    """Refuse a --critic-checkpoint that cannot be the dynamics critic of --space's designs,
+    each message naming --critic-checkpoint (the sampling model's --checkpoint is another
+    file): unreadable, of another space, or not trained on the dynamics task."""
+    from tt.dit.checkpoint import load_model
+
+    try:
+        critic = load_model(path, device="cpu")
+    except (ValueError, OSError) as e:
+        _fail(f"--critic-checkpoint: {error_message(e)}")
+    if critic.space is not None and critic.space != space:
+        _fail(f"--critic-checkpoint {path} was trained on design space {critic.space!r}, and --space is {space!r}; "
+              f"give a critic trained on {space!r}")
+    if not critic.trained_on("dynamics"):
+        _fail(f"--critic-checkpoint {path} was trained on --task {'+'.join(critic.tasks)}, not the dynamics task a "
+              "critic needs (train one with --task dynamics)")
 
 
 def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dict]:
@@ -379,6 +470,7 @@ def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dic
 
 @app.command()
 def optimize(
+    ctx: typer.Context,
     space: str = typer.Option(DEFAULT_SPACE, help="Design space."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
@@ -462,6 +554,8 @@ def optimize(
             _fail("--critic-checkpoint is a dynamics critic; it does not go with --critic joint")
         if critic_checkpoint is not None and not critic_checkpoint.exists():
             _fail(f"--critic-checkpoint {critic_checkpoint} does not exist")
+        if critic_checkpoint is not None:
+            _check_critic(critic_checkpoint, space)
         if verify is not None and verify > (samples or budget):
             _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
                   "sampled candidates")
@@ -476,6 +570,14 @@ def optimize(
 
     if guide_by not in GUIDES:
         _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
+    chosen = "--method cmaes --init model" if method == "cmaes-init-model" else f"--method {method}"
+    for names, methods in ((("checkpoint", "samples", "num_steps", "critic", "critic_samples", "critic_checkpoint",
+                             "critic_on"), LEARNED),
+                           (("popsize", "generations", "sequential"), ("cmaes", "cmaes-init-model")),
+                           (("scale", "sim_grad_weight", "guide_by"), ("dgs", "dgs-sim"))):
+        if method not in methods:
+            shown = [("cmaes --init model" if m == "cmaes-init-model" else m) for m in methods]
+            _applies(ctx, names, ", ".join(shown[:-1]) + " and " + shown[-1], chosen)
     if guide_by != "model" and method not in ("dgs", "dgs-sim"):
         _fail(f"--guide-by applies to dgs and dgs-sim, not --method {method}")
     if critic_at not in CRITIC_PLACES:
@@ -487,6 +589,7 @@ def optimize(
     if critic_at == "project" and scale is None:
         _fail("--critic-at project needs --scale: the RMS token step at full noise (e.g. 0.1)")
     _output(json_out, "--json")
+    quiet = _on_stdout(("--json", json_out))
     ms = _motions(motion, motion_file, space if _space_ok(space) else None)
     options: dict = {}
     if method in ("cmaes", "cmaes-init-model"):
@@ -516,7 +619,7 @@ def optimize(
     sp = get_space(space)
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds
-    console = Console()
+    console = Console(stderr=quiet)
     console.print(f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective {result.best_reward:.2f}")
     if "verified_simulated" in result.info:
         info = result.info
@@ -540,7 +643,7 @@ def optimize(
             "budget": budget, "seed": seed, "backend": problem.backend, "optimize_seconds": result.seconds,
             "rollouts": result.rollouts, "objective": result.best_reward, "design": sp.to_dict(result.best),
             "validated": rows[0], "info": result.info,
-        })
+        }, "--json")
 
 
 @app.command()
@@ -569,6 +672,7 @@ def predict(
     _at_least("--samples", samples, 1)
     _at_least("--num-steps", num_steps, 1)
     _output(json_out, "--json")
+    quiet = _on_stdout(("--json", json_out))
     try:
         designs = load_designs(design)
         spec, _, tail = design.rpartition("#") if "#" in design else (design, "", "")
@@ -604,14 +708,14 @@ def predict(
             if values.get("survival") is not None:
                 row["survival_pct"] = 100.0 * values["survival"]
             rows.append(row)
-    Console().print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
+    Console(stderr=quiet).print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
                                title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)"))
     if json_out is not None:
         _write_json(json_out, {
             "reward": reward, "motions": [m.name for m in ms], "space": space, "checkpoint": str(ckpt),
             "samples": samples, "predictions": predictions,
-        })
-        typer.echo(f"wrote {len(predictions)} predictions to {json_out}")
+        }, "--json")
+        typer.echo(f"wrote {len(predictions)} predictions to {json_out}", err=quiet)
 
 
 @app.command()
@@ -627,13 +731,20 @@ def view(
     """Show designs or rollouts in meshcat, live or as standalone HTML."""
     from tt.viz.cli import view_cmd
 
+    from tt.kernels.files import is_stdout
+
     _output(html, "--html")
     _output(png, "--png")
-    view_cmd(source, motion=motion, html=html, serve=serve, host=host, png=png, time=time, echo=typer.echo)
+    quiet = _on_stdout(("--html", html), ("--png", png))
+    if png is not None and is_stdout(html):
+        _fail("--png renders the HTML file --html writes; give --html a file name, not -")
+    view_cmd(source, motion=motion, html=html, serve=serve, host=host, png=png, time=time,
+             echo=lambda text: typer.echo(text, err=quiet))
 
 
 @app.command()
 def train(
+    ctx: typer.Context,
     data: Optional[Path] = typer.Option(None, help="Dataset folder written by `tt generate` (or an episode token file)."),
     online: bool = typer.Option(False, help="Train on episodes the batched Warp sim generates as training goes (no --data)."),
     space: str = typer.Option("viperx", help="--online: design space (contact-free)."),
@@ -682,6 +793,13 @@ def train(
 
     if online == (data is not None):
         _fail("give exactly one source of training data: --data DATASET or --online")
+    if not online:
+        _applies(ctx, ("space", "online_designs", "online_motions", "refresh_every", "online_buffer", "online_absorbing",
+                       "online_select", "uniform_share", "select_by", "action_noise"), "--online training",
+                 "--data, whose episodes are generated already")
+    if not select_designs:
+        _applies(ctx, ("select_motions", "select_reward"), "--select-designs (checkpoint selection)",
+                 "a run without it")
     for flag, value, low in (("--steps", steps, 1), ("--batch-size", batch_size, 1), ("--checkpoint-every", checkpoint_every, 1),
                              ("--online-designs", online_designs, 1), ("--online-motions", online_motions, 1),
                              ("--refresh-every", refresh_every, 1), ("--online-buffer", online_buffer, 1), ("--online-select", online_select, 1),
@@ -738,6 +856,7 @@ def train(
     if online:
         from tt.dit.online import OnlineConfig
 
+        _draw_flags(space, seed, action_noise)
         extra = {} if action_noise is None else {"action_noise": action_noise}
         online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
                                      refresh_every=refresh_every, buffer=online_buffer, seed=seed,
@@ -745,7 +864,8 @@ def train(
                                      reward=select_by, **extra)
     result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
                        device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
-                       online=online_config, on_checkpoint=selector, **recipe)
+                       online=online_config, on_checkpoint=selector,
+                       on_start_over=selector.start_over if selector is not None else None, **recipe)
     import os
 
     if int(os.environ.get("RANK", "0")) != 0:
@@ -779,7 +899,11 @@ def generate(
     uniform_share: float = typer.Option(0.0, help="--select: share of each motion's kept episodes drawn uniformly from the screen instead of the best (a critic still sees failures)."),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
-    from tt.generate import generate_cmd
+    from tt.generate import BIASES, generate_cmd
+
+    if bias is not None and bias not in BIASES:
+        _fail(f"--bias {bias!r} does not exist; biases: {', '.join(BIASES)}")
+    _draw_flags(space, seed, action_noise)
 
     for flag, value, low in (("--designs", designs, 1), ("--episodes-per-design", episodes_per_design, 1),
                              ("--workers", workers, 1), ("--designs-per-shard", designs_per_shard, 1),
@@ -808,6 +932,9 @@ def dataset_info(
     from tt.viz.plots import save_reward_histogram
 
     _output(plot, "--plot")
+    quiet = _on_stdout(("--plot", plot))
+    if quiet and json_out:
+        _fail("--json prints to stdout, where --plot - writes the PNG; give --plot a file name")
     info, rewards = summarize(path)
     if plot is not None:
         save_reward_histogram(plot, rewards, title=f"{info['space']} dataset {Path(path).name}")
@@ -817,7 +944,7 @@ def dataset_info(
             clean["null_values"] = {"why": "NaN or infinite values, written as null (JSON has no NaN)", "fields": nulls}
         typer.echo(json.dumps(clean, indent=1, allow_nan=False))
         return
-    typer.echo(info_text(info, rewards) + (f"\nwrote {plot}" if plot is not None else ""))
+    typer.echo(info_text(info, rewards) + (f"\nwrote {plot}" if plot is not None else ""), err=quiet)
 
 
 @dataset_app.command("verify")
@@ -871,7 +998,10 @@ def tokenize(
     from tt.tokens.cli import tokenize_cmd
 
     _output(out, "--out")
-    typer.echo(tokenize_cmd(path, as_json=as_json, out=None if out is None else str(out)))
+    quiet = _on_stdout(("--out", out))
+    if quiet and as_json:
+        _fail("--json prints the counts to stdout, where --out - writes the tokens; give --out a file name")
+    typer.echo(tokenize_cmd(path, as_json=as_json, out=None if out is None else str(out)), err=quiet)
 
 
 @app.command()
@@ -885,8 +1015,13 @@ def detokenize(
     """Turn RoboTokens back into MJCF (and, for tt's spaces, design choices)."""
     from tt.tokens.cli import detokenize_cmd
 
+    if project and space is None:
+        _fail("--project applies to --space (fitting a space's design to the tokens); give --space too")
     _output(out, "--out")
-    typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project))
+    quiet = _on_stdout(("--out", out))
+    if quiet and space is not None:
+        _fail("--space writes OUT.design.json beside --out's file; give --out a file name, not -")
+    typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project), err=quiet)
 
 
 def _space_ok(space: str) -> bool:

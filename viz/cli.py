@@ -125,8 +125,11 @@ def view_cmd(
         html = Path(Path(source.rpartition("#")[0] or source).stem + ".html")
     if png is not None and html is None:
         raise ViewError("--png renders the exported HTML; give --html too")
+    if time is not None and html is None:
+        raise ViewError("--time applies to the exported HTML (the time it opens paused at), not --serve's live viewer; "
+                        "give --html too")
     if time is not None and not 0.0 <= time <= scene.duration + 1e-9:
-        raise ViewError(f"time = {time} s is outside the animation, which runs 0..{scene.duration:.2f} s")
+        raise ViewError(f"--time {time} s is outside the animation, which runs 0..{scene.duration:.2f} s")
     if html is not None:
         result.html = write_html(scene, html, title=f"tt view {source}", paused_at=time)
         extra = f", {scene.duration:.2f} s animation" if scene.frames > 1 else ""
