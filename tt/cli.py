@@ -243,7 +243,7 @@ def _motions(names: list[str] | None, files: list[Path] | None, space: str | Non
 def motions(
     ctx: typer.Context,
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
-    out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file."),
+    out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file (-: stdout)."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
     stats: bool = typer.Option(False, "--stats", help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions (min-max)."),
 ) -> None:
@@ -303,8 +303,8 @@ def validate(
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     reward: str = typer.Option(DEFAULT_REWARD, help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file."),
-    episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view`."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file (-: stdout, the table then goes to stderr)."),
+    episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view` (-: stdout)."),
     controller: str = typer.Option(DEFAULT_CONTROLLER, help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per control step, each command the mean of the recent queries' predictions for it: `tt.dit.policies.ControllerConfig`) on tt's batched Warp physics."),
     checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
     device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
@@ -497,7 +497,7 @@ def optimize(
     guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
     critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens), or 'start' (as 'tokens', plus the gradient through the decoded design's simulated start, which a critic told the start otherwise takes as a constant); measurements: docs/experiments.md."),
     refine: int = typer.Option(0, help="zeroth/dgs: iterations of critic refinement of the returned design: its continuous choices climb the dynamics critic's predicted reward along central differences, each design's start re-simulated (tt.guidance.refine; 0: none); measurements: docs/results/codesign.md."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics here."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics to this JSON file (-: stdout, the tables then go to stderr)."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
@@ -657,7 +657,7 @@ def predict(
     num_steps: Optional[int] = typer.Option(None, help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md)."),
     seed: int = typer.Option(DEFAULT_SEED, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file (-: stdout, the table then goes to stderr)."),
     via: Optional[str] = typer.Option(None, help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task (default: dynamics when the checkpoint was trained on it)."),
 ) -> None:
     """The model as a critic: predict each design's dynamics on each motion (its embodiment
@@ -722,10 +722,10 @@ def predict(
 def view(
     source: str = typer.Argument(..., help="designs.json[#i] or an episode file episode.npz[#w]."),
     motion: Optional[str] = typer.Option(None, help="Target motion to draw: library name or file."),
-    html: Optional[Path] = typer.Option(None, help="Write one self-contained offline HTML file."),
+    html: Optional[Path] = typer.Option(None, help="Write one self-contained offline HTML file (-: stdout)."),
     serve: bool = typer.Option(False, help="Start a live meshcat server and print its URL."),
     host: Optional[str] = typer.Option(None, help="--serve: the address the viewer listens on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)."),
-    png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium."),
+    png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium (-: stdout)."),
     time: Optional[float] = typer.Option(None, help="Animation time [s] the HTML opens paused at."),
 ) -> None:
     """Show designs or rollouts in meshcat, live or as standalone HTML."""
@@ -923,7 +923,7 @@ app.add_typer(dataset_app, name="dataset")
 @dataset_app.command("info")
 def dataset_info(
     path: Path = typer.Argument(..., help="Dataset folder."),
-    plot: Optional[Path] = typer.Option(None, help="Also save the histogram of episode rewards as this PNG."),
+    plot: Optional[Path] = typer.Option(None, help="Also save the histogram of episode rewards as this PNG (-: stdout)."),
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
 ) -> None:
     """Counts, token-type maxima, normalisation statistics and the reward histogram of a dataset."""
@@ -992,7 +992,7 @@ def demo(
 def tokenize(
     path: str = typer.Argument(..., help="MJCF .xml, URDF, or designs.json[#i]."),
     as_json: bool = typer.Option(False, "--json", help="Print the counts as JSON."),
-    out: Optional[Path] = typer.Option(None, help="Save the tokens to this .npz file."),
+    out: Optional[Path] = typer.Option(None, help="Save the tokens to this .npz file (-: stdout)."),
 ) -> None:
     """Tokenize robots into RoboTokens; print counts per token type and the MJCF text size."""
     from tt.tokens.cli import tokenize_cmd
@@ -1007,7 +1007,7 @@ def tokenize(
 @app.command()
 def detokenize(
     path: Path = typer.Argument(..., help="Tokens .npz (from `tt tokenize --out`)."),
-    out: Path = typer.Option(..., help="Write the robot's MJCF here."),
+    out: Path = typer.Option(..., help="Write the robot's MJCF here (-: stdout)."),
     index: int = typer.Option(0, help="Which robot of the file."),
     space: Optional[str] = typer.Option(None, help="Also fit the design choices of this space (writes OUT.design.json)."),
     project: bool = typer.Option(False, help="With --space: take the nearest design when no choice has these tokens' exact structure."),
