@@ -1,0 +1,200 @@
+"""Do the generator's samples beat uniform draws? Sample quality before any ranking (issue 51).
+
+For each (seed, validation motion) this draws n designs three ways, and validates every one
+on the oracle (MuJoCo C + mink):
+
+* ``uniform``: n designs drawn uniformly from the space (what Random screens);
+* one row per checkpoint: n samples of its motion-to-robot task for the motion (20 DDIM steps,
+  evenly placed query steps), each decoded to the nearest design of the space.
+
+It reports, per source, the validated reward's median and quartiles, the share of episodes
+that track the whole motion (survival 1) and the median position error, pooled over every
+(seed, motion) and per motion. The targets (issue 51): a generator's median at or above the
+75th percentile of uniform designs on the same motions, and a tracking share at least 20
+points above uniform's.
+
+The same pools give the test-time comparisons at equal rollouts, each pick validated on the
+oracle, for n in ``--ns`` (the first n draws of each pool):
+
+* ``Random(n)``: the uniform pool's best by the batched simulator (tt's ``warp`` backend);
+* ``zeroth-sim(n)``: a checkpoint's pool, best by the same simulator;
+* ``Zeroth-Order(n)``: a checkpoint's pool, best by the shipped dynamics critic's prediction
+  (`tt.guidance.predicted.predict_designs`, no rollout).
+
+Paired differences against Random(n) are given with 95 % CIs (`tt.report.mean_ci`) over every
+(seed, motion).
+
+Usage: ``python benchmarks/sample_quality.py CKPT [CKPT ...] [--seeds 9] [--motions 9] [--n 64]
+[--ns 1 4 16 64] [--steps 20] [--reward tracking] [--out benchmarks/results/sample_quality.md]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from machine import load_line, machine_header, write_report  # noqa: E402
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def motions_for(space: str, count: int) -> list:
+    """`count` validation motions, one per skill first (variant 100 of each), then the others."""
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, motion_set
+
+    val = for_space(motion_set("val", arms=get_space(space).ee_count), space)
+    order = [m for v in range(3) for m in val[v::3]]
+    return order[:count]
+
+
+def model_pool(trained, decoder, motion, reward_cfg, n: int, seed: int, steps: int) -> list:
+    """n decoded samples of `trained`'s motion-to-robot task for `motion` (sampling order)."""
+    from tt.guidance.zeroth import CandidateSampler, embodiment_batch
+
+    gen = CandidateSampler(trained, "cpu").run((motion,), reward_cfg, n, seed=seed, num_steps=steps, critic="joint")
+    batch = embodiment_batch(trained.layout, trained.normalizer, gen.tokens)
+    return [decoder(batch, i).design for i in range(n)]
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("checkpoints", nargs="+", help="generators to compare (checkpoint files)")
+    p.add_argument("--seeds", type=int, default=9)
+    p.add_argument("--motions", type=int, default=9, help="validation motions per seed (one per skill first)")
+    p.add_argument("--paired", action="store_true", help="seed i runs motion i only (codesign.py's single-trajectory runs)")
+    p.add_argument("--n", type=int, default=64, help="designs per source, seed and motion")
+    p.add_argument("--ns", type=int, nargs="+", default=[1, 4, 16, 64], help="budgets of the best-of-n comparisons")
+    p.add_argument("--steps", type=int, default=20, help="DDIM steps of each sample")
+    p.add_argument("--reward", default="tracking")
+    p.add_argument("--critic", default=None, help="dynamics critic of the Zeroth-Order rows (default: the shipped one)")
+    p.add_argument("--out", default=str(RESULTS / "sample_quality.md"))
+    p.add_argument("--records", default=None, help="also write every validated draw to this JSON file")
+    args = p.parse_args()
+    if args.n < max(args.ns) or min(args.ns) < 1:
+        p.error("--ns must lie in 1 .. --n")
+
+    from tt.baselines import evaluate_designs
+    from tt.dit.checkpoint import default_checkpoint, load_model
+    from tt.guidance.predicted import predict_designs
+    from tt.guidance.zeroth import DesignDecoder
+    from tt.report import mean_ci
+    from tt.sim.designs import get_space
+    from tt.sim.rewards import get_reward
+
+    models = [(Path(c).name, load_model(c, device="cpu")) for c in args.checkpoints]
+    space = models[0][1].space
+    sp = get_space(space)
+    critic_path = args.critic or default_checkpoint(space, task="dynamics")
+    critic = load_model(critic_path, device="cpu")
+    reward_cfg = get_reward(args.reward, space)
+    decoder = DesignDecoder(sp)
+    motions = motions_for(space, args.motions)
+    load_start, start = load_line(), time.perf_counter()
+    records = []
+    pairs = [(seed, mi) for seed in range(args.seeds) for mi in range(len(motions))]
+    if args.paired:
+        pairs = [(seed, seed % len(motions)) for seed in range(args.seeds)]
+    for seed, mi in pairs:
+        motion = motions[mi]
+        t0 = time.perf_counter()
+        pools = {"uniform": sp.sample(args.n, seed=10_000 * seed + mi)}
+        for name, trained in models:
+            pools[name] = model_pool(trained, decoder, motion, reward_cfg, args.n, 10_000 * seed + mi, args.steps)
+        rec = {"seed": seed, "motion": motion.name}
+        for name, designs in pools.items():
+            oracle = evaluate_designs(designs, (motion,), args.reward, backend="mujoco")
+            sim = evaluate_designs(designs, (motion,), args.reward, backend="warp", threads=1)
+            row = {"reward": oracle.reward[:, 0].tolist(), "sim_reward": sim.reward[:, 0].tolist(),
+                   "pos_err": np.asarray(oracle.metrics["pos_err"])[:, 0].tolist(),
+                   "survival": np.asarray(oracle.metrics["survival"])[:, 0].tolist()}
+            if name != "uniform":
+                pred = predict_designs(critic, designs, (motion,), reward_cfg, num_steps=args.steps, seed=seed)
+                row["predicted"] = np.where(np.isfinite(pred.reward[:, 0]), pred.reward[:, 0], -np.inf).tolist()
+            rec[name] = row
+        records.append(rec)
+        summary = {k: round(float(np.median(v["reward"])), 1) for k, v in rec.items() if isinstance(v, dict)}
+        print(json.dumps({"seed": seed, "motion": motion.name, "median_reward": summary,
+                          "seconds": round(time.perf_counter() - t0, 1)}), flush=True)
+    minutes = (time.perf_counter() - start) / 60
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if args.records is not None:
+        Path(args.records).write_text(json.dumps({"args": vars(args), "records": records}))
+    write_report(out, report(records, [n for n, _ in models], args, motions, critic_path, minutes, load_start, mean_ci))
+
+
+def _pick(row: dict, key: str, n: int) -> float:
+    """The validated reward of the first n designs' best by `key`."""
+    score = np.asarray(row[key][:n], float)
+    return float(row["reward"][int(np.argmax(score))])
+
+
+def report(records: list, names: list[str], args, motions, critic_path, minutes: float, load_start: str, mean_ci) -> list[str]:
+    sources = ["uniform", *names]
+    lines = ["# Sample quality: generator samples against uniform designs (issue 51)", "",
+             machine_header("cpu").rstrip(), f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_line()}",
+             f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(m.name for m in motions)})"
+             f"{' (seed i on motion i only)' if args.paired else ''}, "
+             f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
+             f"validated on the oracle (MuJoCo C + mink); {minutes:.1f} min in all",
+             f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
+             f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns {' '.join(map(str, args.ns))} --steps {args.steps}`", "",
+             "## Validated reward of the draws, pooled over every seed and motion", "",
+             "| source | designs | reward p25 | median | p75 | tracks the whole motion | median position error [cm] |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    pooled = {}
+    for s in sources:
+        r = np.concatenate([rec[s]["reward"] for rec in records])
+        surv = np.concatenate([rec[s]["survival"] for rec in records])
+        pe = np.concatenate([rec[s]["pos_err"] for rec in records])
+        pooled[s] = (r, surv)
+        q = np.percentile(r, [25, 50, 75])
+        lines.append(f"| {s} | {len(r)} | {q[0]:.1f} | {q[1]:.1f} | {q[2]:.1f} | {100 * np.mean(surv >= 1.0):.1f} % | "
+                     f"{np.nanmedian(pe):.2f} |")
+    u75 = np.percentile(pooled["uniform"][0], 75)
+    u_share = 100 * np.mean(pooled["uniform"][1] >= 1.0)
+    lines += ["", f"Targets: median at or above uniform's 75th percentile ({u75:.1f}); tracking share at least "
+              f"{u_share + 20:.1f} % (uniform's + 20 points).", ""]
+    for s in names:
+        med = np.median(pooled[s][0])
+        share = 100 * np.mean(pooled[s][1] >= 1.0)
+        lines.append(f"- `{s}`: median {med:.1f} ({'meets' if med >= u75 else 'misses'} the first), tracking "
+                     f"{share:.1f} % ({'meets' if share >= u_share + 20 else 'misses'} the second)")
+    lines += ["", "## Per motion: median validated reward (share tracking the whole motion)", "",
+              "| motion | " + " | ".join(sources) + " |", "|---|" + "---:|" * len(sources)]
+    for m in dict.fromkeys(rec["motion"] for rec in records):
+        recs = [rec for rec in records if rec["motion"] == m]
+        cells = []
+        for s in sources:
+            r = np.concatenate([rec[s]["reward"] for rec in recs])
+            surv = np.concatenate([rec[s]["survival"] for rec in recs])
+            cells.append(f"{np.median(r):.1f} ({100 * np.mean(surv >= 1):.0f} %)")
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    lines += ["", "## Best of n at equal rollouts, validated on the oracle", "",
+              "Random(n) and zeroth-sim(n) pick the simulator's best of the first n draws of their pool; Zeroth-Order(n) "
+              f"picks by the critic `{Path(critic_path).name}` without a rollout. Mean validated reward over "
+              f"{len(records)} (seed, motion) pairs; the paired difference against Random(n) with its 95 % CI.", "",
+              "| n | method | validated reward | minus Random(n) | higher / lower |", "|---:|---|---:|---:|---:|"]
+    for n in args.ns:
+        base = np.array([_pick(rec["uniform"], "sim_reward", n) for rec in records])
+        m, h = mean_ci(base)
+        lines.append(f"| {n} | Random | {m:.1f} ± {h:.1f} | | |")
+        for s in names:
+            for label, key in (("zeroth-sim", "sim_reward"), ("Zeroth-Order", "predicted")):
+                v = np.array([_pick(rec[s], key, n) for rec in records])
+                m, h = mean_ci(v)
+                dm, dh = mean_ci(v - base)
+                lines.append(f"| {n} | {label} `{s}` | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} | "
+                             f"{int(np.sum(v > base))} / {int(np.sum(v < base))} |")
+    return lines
+
+
+if __name__ == "__main__":
+    main()
