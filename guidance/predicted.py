@@ -14,6 +14,14 @@ Which steps. ``"even"`` (default) takes the midpoints of S equal strata of the m
 the steps cover the whole motion. ``"random"`` draws S distinct steps uniformly per
 sequence, as training windows are drawn (`tt.tokens.episodes.sample_steps`).
 
+A motion shorter than the window (T < S). Every placement then takes all T steps, in
+order, and fills the window's S - T later slots with the last step repeated, as
+`tt.tokens.episodes.sample_steps` lays out a short episode; those slots are not the
+motion's and are not scored (`scored_steps`): the reward, its termination, the
+embodiment penalty and every metric count the motion's own T steps, as `tt validate`
+does. (No training window is shorter than S, so the model's predictions on such a motion
+are out of its training distribution; they are scored, not trusted more.)
+
 The predicted reward. From the predicted clean tokens x0 (normalised; `sample`'s x0_hat
 or its final tokens): denormalise (`tt.dit.Normalizer`, differentiable), then
 
@@ -29,7 +37,8 @@ These fill a `RewardInputs` of S steps, evaluated by `tt.sim.rewards.evaluate`, 
 one definition of each reward. The S steps are a sample of the motion's T steps, so the
 episode reward is estimated as (T / S) x the S-step reward: each counted step stands for
 T / S steps of the motion, and the embodiment penalty, S alpha excess over S steps, scales
-to T alpha excess, exactly the full episode's penalty. Termination applies to the
+to T alpha excess, exactly the full episode's penalty. (For T < S: the T scored steps are
+the motion's, each stands for itself, and the factor is 1.) Termination applies to the
 subsample (the first of the S steps whose summed position error exceeds the threshold
 ends the count). Falls are not predicted (no token says the robot fell).
 """
@@ -65,12 +74,17 @@ def query_steps(motion_steps: int, window: int, count: int, *, placement: str = 
     """Control steps of `count` sequences of one motion, (count, window) long, ascending.
 
     motion_steps: T of the motion; window: S steps per sequence; placement: "even" or
-    "random"; generator: CPU generator for "random".
+    "random"; generator: CPU generator for "random". A motion shorter than the window gets
+    its T steps, then its last step repeated, whatever the placement (`scored_steps`: only
+    the first T are scored).
     """
     if placement not in PLACEMENTS:
         raise ValueError(f"placement {placement!r} is not one of {list(PLACEMENTS)}")
     if motion_steps < 1 or window < 1:
         raise ValueError(f"a query needs motion_steps >= 1 and window >= 1, got {motion_steps} and {window}")
+    if motion_steps < window:  # every step, then the last repeated (not scored, `scored_steps`)
+        steps = torch.arange(window).clamp(max=motion_steps - 1)
+        return steps[None].expand(count, window).clone()
     if placement in ("even", "start"):
         k = torch.arange(window, dtype=torch.float64)
         steps = torch.floor((k + 0.5) * motion_steps / window).long().clamp(max=motion_steps - 1)
@@ -82,6 +96,13 @@ def query_steps(motion_steps: int, window: int, count: int, *, placement: str = 
     steps, _ = sample_steps(torch.full((count,), motion_steps, dtype=torch.long), window, "random", generator,
                             horizon=motion_steps)
     return steps
+
+
+def scored_steps(motion_steps: int, window: int) -> int:
+    """How many of a query's `window` steps are scored: all S of them, or the T steps of a
+    motion shorter than the window (`query_steps` puts them first; the window's later slots
+    repeat the last step and are no steps of the motion)."""
+    return min(int(motion_steps), int(window))
 
 
 # ------------------------------------------------------------------------------ query
@@ -104,6 +125,11 @@ class RobotQuery:
     @property
     def track_count(self) -> int:
         return int(self.target_pos.shape[2])
+
+    @property
+    def scored(self) -> int:
+        """Steps of the window the reward counts (`scored_steps`): S, or T for a shorter motion."""
+        return scored_steps(self.motion_steps, self.steps.shape[1])
 
 
 def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: int, *, placement: str = "even",
@@ -523,8 +549,9 @@ class PredictedReward:
 
     @property
     def scale(self) -> float:
-        """T / S: motion steps each predicted step stands for."""
-        return self.query.motion_steps / self.layout.steps
+        """T / S: motion steps each predicted step stands for (1 for a motion shorter than
+        the window, whose T steps are all scored)."""
+        return self.query.motion_steps / self.query.scored
 
     def _step_view(self, name: str, raw: torch.Tensor) -> torch.Tensor:
         """(B, S * P, D) -> (B, S, P, D)."""
@@ -559,8 +586,11 @@ class PredictedReward:
             fields["mass"] = token_mass(decode_log(_attr("link", link, "mass")[..., 0], mass_attr.log_offset), real)
         q = self.query
         dtype = ee_pos.dtype
+        # The window's slots past a short motion's last step are no steps of it: not scored.
+        scored = torch.full((ee_pos.shape[0],), q.scored, dtype=torch.long, device=ee_pos.device)
         return RewardInputs(ee_pos=ee_pos, ee_quat=ee_quat, target_pos=q.target_pos.to(dtype),
-                            target_quat=q.target_quat.to(dtype), **{k: v.to(dtype) for k, v in fields.items()})
+                            target_quat=q.target_quat.to(dtype), motion_steps=scored,
+                            **{k: v.to(dtype) for k, v in fields.items()})
 
     def __call__(self, x0: dict[str, torch.Tensor], *, guidance: bool = False, log: bool = False) -> torch.Tensor:
         """Episode reward estimate (T / S) x R_S, (B,); guidance: the guidance alphas; log: the
@@ -571,17 +601,19 @@ class PredictedReward:
 
 
 def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """Predicted metrics of each sequence (`tt.sim.rewards.metrics` on the S steps;
-    reward scaled to the motion length), detached, each (B,); plus ``query_pos_err``, the
-    mean position error [cm] over all S steps, counted or not: how far off the model puts
-    the end effector, also where its prediction terminates the episode."""
+    """Predicted metrics of each sequence (`tt.sim.rewards.metrics` on the scored steps: S,
+    or a shorter motion's T, so ``length`` counts at most T; reward scaled to the motion
+    length), detached, each (B,); plus ``query_pos_err``, the mean position error [cm] over
+    all scored steps, counted or not: how far off the model puts the end effector, also
+    where its prediction terminates the episode."""
     from tt.sim.rewards import metrics
 
     with torch.no_grad():
         inputs = reward.inputs(x0)
         out = metrics(inputs, reward.cfg)
         out["reward"] = out["reward"] * reward.scale
-        out["query_pos_err"] = query_position_error(inputs.ee_pos, inputs.target_pos)
+        n = reward.query.scored
+        out["query_pos_err"] = query_position_error(inputs.ee_pos[:, :n], inputs.target_pos[:, :n])
     return out
 
 
@@ -610,6 +642,7 @@ __all__ = [
     "predicted_metrics",
     "query_position_error",
     "query_steps",
+    "scored_steps",
     "token_mass",
     "token_size",
 ]

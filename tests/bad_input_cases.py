@@ -40,6 +40,7 @@ CLASSES = {
     13: "workers outliving a killed run",
     14: "flag that does not apply, ignored",
     15: "message naming internals",
+    16: "a motion shorter than the model's window scored past its end",
 }
 
 #: Words of Python internals (config classes and fields) no error line may carry: a message
@@ -859,6 +860,60 @@ def _serve_with_time(files, work: Path) -> tuple[str, str]:
     return "silent", "--time ignored by --serve"
 
 
+def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
+    """tt predict on motions of 1, 2 and 3 frames (shorter than the model's 8-step window)
+    scores their own steps, as tt validate does: through the CLI, no prediction counts more
+    steps than its motion has, and survival means all of them counted; with the reward's
+    termination threshold lifted, predict counts every step of the motion, as many as
+    validate counts of an episode the rollout ran to the end."""
+    from dataclasses import replace
+
+    import torch
+
+    from tt.api import predict_checkpoint
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.dit.checkpoint import load_model
+    from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
+    from tt.sim.designs import load_designs
+    from tt.sim.motions import for_space, load_motion_file, save_npz
+    from tt.sim.motions.base import Motion
+    from tt.sim.rewards import RewardInputs, get_reward, metrics
+
+    full = load_motion_file(files.motion, place=False)
+    paths = []
+    for T in (1, 2, 3):
+        paths.append(work / f"frames_{T}.npz")
+        save_npz(Motion(f"frames_{T}", full.pos[:T], full.quat[:T], full.dt), paths[-1])
+    motion_args = [a for p in paths for a in ("--motion-file", p)]
+    predicted, validated = work / "predicted.json", work / "validated.json"
+    for args, out in ((["predict", "--design", files.designs, "--device", "cpu"], predicted),
+                      ([*V, files.designs], validated)):
+        code, text, err = _cli([*args, *motion_args, "--json", out])
+        if code:
+            return "misleading", f"{args[0]}: exit {code}: {(text + err)[-300:]}"
+    frames = {f"frames_{T}": T for T in (1, 2, 3)}
+    for p in json.loads(predicted.read_text())["predictions"]:
+        T, m = frames[p["motion"]], p["metrics"]
+        if m["length"] > T or (m["survival"] == 1.0) != (m["length"] == T):
+            return "silent", (f"tt predict scored {m['length']:g} steps (survival {m['survival']:g}) of design "
+                              f"#{p['design']} on the {T}-frame motion {p['motion']}")
+    # Nothing terminating: both count every step of the motion, and only those.
+    designs = load_designs(files.designs)
+    motions = for_space([load_motion_file(p) for p in paths], "viperx")
+    cfg = replace(get_reward("tracking", "viperx"), threshold=1e6)
+    trained = load_model(predict_checkpoint("viperx"), device="cpu")
+    pred = predict_designs(trained, designs, motions, cfg, num_steps=CRITIC_DDIM_STEPS).metrics["length"]
+    ep = evaluate_designs(designs, motions, "tracking", device="cpu").episode
+    steps = torch.tensor([m.steps for m in motions])[ep.motion_index.cpu()]
+    sim = metrics(RewardInputs.from_episode(ep, motion_steps=steps.to(ep.ee_pos.device)), cfg)["length"]
+    sim = sim.cpu().numpy().reshape(len(designs), len(motions))
+    ran = ep.alive.sum(1).cpu().numpy().reshape(len(designs), len(motions)) == np.array([m.steps for m in motions])
+    if not ran.any() or not (pred == np.array([m.steps for m in motions])).all() or not (pred == sim)[ran].all():
+        return "silent", (f"with no termination tt predict counts {pred.tolist()} steps of the {[m.steps for m in motions]}, "
+                          f"tt validate {sim.tolist()} (episodes that ran every step: {ran.tolist()})")
+    return "ok", ""
+
+
 def killed_generate_leaves_no_workers(work: Path) -> tuple[str, str]:
     """SIGKILL of ``tt generate --workers 2`` once both workers are writing shards: every
     process it started stops, and no shard is written after. (tests/test_kills.py runs it.)"""
@@ -930,4 +985,5 @@ SCENARIOS: list[Scenario] = [
     Scenario("view --serve --time", 14, _serve_with_time),
     Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
     Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
+    Scenario("predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted),
 ]

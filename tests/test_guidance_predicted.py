@@ -170,6 +170,48 @@ def test_perfect_tracking_scores_the_motion_length(truth):
     torch.testing.assert_close(guided, T - T * 0.005 * (size - 2.0).clamp_min(0), rtol=1e-5, atol=1e-3)
 
 
+@pytest.mark.parametrize("T", [1, 2, 3])
+def test_a_motion_shorter_than_the_window_scores_its_own_steps(truth, T):
+    """A motion of T < S steps: the query takes its T steps, then the last repeated, and the
+    reward scores the T steps alone, as `tt validate` scores the simulated episode: perfect
+    tracking there scores T whatever the window's later slots hold, ``length`` is T and
+    ``survival`` 1; a miss at step T - 1 terminates there; the size penalty is T alpha excess."""
+    from tt.guidance.predicted import predicted_metrics, scored_steps
+    from tt.sim.motions.base import Motion
+
+    t = truth
+    B = len(t["models"])
+    full = t["motion"]
+    motion = Motion(f"{full.name}_{T}", full.pos[:T], full.quat[:T], full.dt)
+    assert scored_steps(T, S) == T and scored_steps(full.steps, S) == S
+    for placement in ("even", "start", "random"):
+        steps = query_steps(T, S, 1, placement=placement, generator=torch.Generator().manual_seed(0))[0]
+        assert steps.tolist() == [min(k, T - 1) for k in range(S)], placement
+    query = build_query(t["layout"], t["norm"], motion, B)
+    assert query.scored == T
+    rot = Rotation.from_quat(np.roll(query.target_quat.reshape(-1, 4).numpy(), -1, axis=-1)).as_matrix().reshape(B, S, 9)
+    raw = torch.cat([query.target_pos[:, :, 0], torch.tensor(rot, dtype=torch.float32)], -1)
+    raw[:, T:, :3] += 10.0  # the window's later slots far off: no step of the motion, not scored
+    x0 = dict(t["x0"], track_link_obs=t["norm"].normalize_values("track_link_obs", raw))
+    scorer = PredictedReward(t["layout"], t["norm"], get_reward("tracking", "viperx"), query)
+    torch.testing.assert_close(scorer(x0), torch.full((B,), float(T)), rtol=1e-5, atol=0)
+    m = predicted_metrics(scorer, x0)
+    assert m["length"].tolist() == [T] * B and m["survival"].tolist() == [1.0] * B
+    assert m["within_2cm"].tolist() == [1.0] * B and float(m["query_pos_err"].max()) < 1e-3
+    size = robot_size(t["models"])
+    sized = PredictedReward(t["layout"], t["norm"], get_reward("tracking_size", "viperx"), query)(x0)
+    torch.testing.assert_close(sized, T - T * 0.1 * (size - 2.0).clamp_min(0), rtol=1e-5, atol=1e-3)
+    # The reward of the same poses as `tt validate` scores them: T steps, no window.
+    inputs = scorer.inputs(x0)
+    sim = RewardInputs(inputs.ee_pos[:, :T].double(), inputs.ee_quat[:, :T].double(),
+                       torch.tensor(motion.pos, dtype=torch.float64), torch.tensor(motion.quat, dtype=torch.float64))
+    torch.testing.assert_close(scorer(x0).double(), evaluate(sim, get_reward("tracking", "viperx")).reward, rtol=1e-5, atol=1e-5)
+    raw[:, T - 1, :3] += 10.0  # a miss at the motion's last step ends the count there
+    x0 = dict(t["x0"], track_link_obs=t["norm"].normalize_values("track_link_obs", raw))
+    m = predicted_metrics(scorer, x0)
+    assert m["length"].tolist() == [T - 1] * B and m["survival"].tolist() == [0.0] * B
+
+
 def test_padding_slots_do_not_count(truth):
     """Actuator slots the robot does not use are padding (PAD_VALUE) and contribute no torque,
     whatever their observation tokens hold."""

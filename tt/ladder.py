@@ -142,7 +142,7 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     import torch
 
     from tt.baselines.evaluate import evaluate_designs
-    from tt.guidance.predicted import predict_designs, query_position_error, query_steps
+    from tt.guidance.predicted import predict_designs, query_position_error, query_steps, scored_steps
     from tt.sim.rewards import RewardInputs, evaluate, get_reward
 
     designs, motions = list(designs), list(motions)
@@ -160,11 +160,12 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     world = torch.full((D, len(motions)), -1, dtype=torch.long)
     world[ep.design_index.cpu(), ep.motion_index.cpu()] = torch.arange(len(ep.design_index))
     for j, m in enumerate(motions):
-        st = query_steps(m.steps, S, 1)[0].to(ep.ee_pos.device)
+        n = scored_steps(m.steps, S)  # a motion shorter than the window: its own steps only
+        st = query_steps(m.steps, S, 1)[0][:n].to(ep.ee_pos.device)
         w = world[:, j].to(ep.ee_pos.device)
         inputs = RewardInputs(ep.ee_pos[w][:, st].double(), ep.ee_quat[w][:, st].double(),
                               ep.target_pos[w][:, st].double(), ep.target_quat[w][:, st].double())
-        estimator[:, j] = (m.steps / S) * evaluate(inputs, cfg).reward.cpu().numpy()
+        estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
     return LadderScore(pred.reward, ev.reward, estimator, [m.name for m in motions],
                        pearson(pred.reward, ev.reward), within_motion(pred.reward, ev.reward),
