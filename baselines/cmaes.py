@@ -25,6 +25,7 @@ from typing import NamedTuple, Sequence
 import cma
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 from tt.sim.designs import Design, DesignSpace
@@ -49,13 +50,13 @@ class CMAESConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.popsize, int) or self.popsize < 2:
-            raise ValueError(f"CMAESConfig.popsize = {self.popsize!r}; CMA-ES needs an integer >= 2")
+            raise TTError(f"CMAESConfig.popsize = {self.popsize!r}; CMA-ES needs an integer >= 2")
         if not isinstance(self.generations, int) or self.generations < 1:
-            raise ValueError(f"CMAESConfig.generations = {self.generations!r}; must be an integer >= 1")
+            raise TTError(f"CMAESConfig.generations = {self.generations!r}; must be an integer >= 1")
         if not 0 < self.sigma0 <= 1:
-            raise ValueError(f"CMAESConfig.sigma0 = {self.sigma0}; must be in (0, 1]")
+            raise TTError(f"CMAESConfig.sigma0 = {self.sigma0}; must be in (0, 1]")
         if not 0 <= self.screen < 1:
-            raise ValueError(f"CMAESConfig.screen = {self.screen}; must be in [0, 1)")
+            raise TTError(f"CMAESConfig.screen = {self.screen}; must be in [0, 1)")
 
 
 class CMAESPlan(NamedTuple):
@@ -140,7 +141,7 @@ class CMAES(Optimizer):
         """How the budget is spent; raises ValueError if it is below one population."""
         c = self.config
         if problem.budget < c.popsize:
-            raise ValueError(
+            raise TTError(
                 f"budget {problem.budget} is below the CMA-ES population size {c.popsize}; "
                 f"give --budget >= {c.popsize} or a smaller population"
             )
@@ -186,7 +187,7 @@ class CMAES(Optimizer):
         if proposals is not None:
             proposals = list(proposals)
             if any(d.space != space.name for d in proposals):
-                raise ValueError(f"CMA-ES proposals must be designs of space {space.name!r}")
+                raise TTError(f"CMA-ES proposals must be designs of space {space.name!r}")
             take = min(len(proposals), -(-plan.screen // 2))
             screened = (proposals[:take] + screened)[: plan.screen]
         warmup_seconds = warm_up(list(screened) + list(fallback), problem.motions, reward=problem.reward, backend=backend,

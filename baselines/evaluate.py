@@ -11,6 +11,7 @@ import mujoco
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
 from tt.sim.designs import Design, get_space
 from tt.sim.designs.trees import DesignTrees
@@ -134,14 +135,14 @@ def evaluate_designs(
     (progress: a tqdm bar over the rollout; threads: CPU threads of the "warp" backend,
     None for every core; graph: CUDA graphs, see `tt.sim.rollout.rollout`)."""
     if not designs:
-        raise ValueError("evaluate_designs needs at least one design")
+        raise TTError("evaluate_designs needs at least one design")
     spaces = {d.space for d in designs}
     if len(spaces) > 1:
-        raise ValueError(f"designs from several spaces in one evaluation: {sorted(spaces)}")
+        raise TTError(f"designs from several spaces in one evaluation: {sorted(spaces)}")
     sp = get_space(designs[0].space)
     get_reward(reward, sp.name)  # an unknown reward fails before the rollout
     if backend == "warp" and sp.has_contacts:
-        raise ValueError(
+        raise TTError(
             f"design space {sp.name!r} has contacts; backend 'warp' simulates contact-free trees only, "
             "use backend='mujoco' or 'mjwarp'"
         )

@@ -17,6 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
 from tt.sim.backends import BACKENDS as _ROLLOUT_BACKENDS
@@ -63,27 +64,27 @@ class Problem:
         get_reward(self.reward, self.space)  # raises on an unknown reward
         object.__setattr__(self, "motions", tuple(self.motions))
         if not self.motions:
-            raise ValueError("Problem.motions is empty; give at least one target motion")
+            raise TTError("Problem.motions is empty; give at least one target motion")
         for m in self.motions:
             if not isinstance(m, Motion):
-                raise ValueError(f"Problem.motions holds a {type(m).__name__}; expected tt Motion objects")
+                raise TTError(f"Problem.motions holds a {type(m).__name__}; expected tt Motion objects")
             if m.arms != sp.ee_count:
-                raise ValueError(
+                raise TTError(
                     f"motion {m.name!r} has {m.arms} end effector(s); space {self.space!r} has {sp.ee_count}"
                 )
         dts = {round(m.dt, 9) for m in self.motions}
         if len(dts) > 1:
-            raise ValueError(f"motions have different rates (dt {sorted(dts)} s); resample them to one rate")
+            raise TTError(f"motions have different rates (dt {sorted(dts)} s); resample them to one rate")
         if not isinstance(self.budget, (int, np.integer)) or isinstance(self.budget, bool) or self.budget < 1:
-            raise ValueError(f"Problem.budget = {self.budget!r}; must be an integer >= 1")
+            raise TTError(f"Problem.budget = {self.budget!r}; must be an integer >= 1")
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
-            raise ValueError(f"Problem.seed = {self.seed!r}; must be an integer >= 0")
+            raise TTError(f"Problem.seed = {self.seed!r}; must be an integer >= 0")
         if self.backend is None:
             object.__setattr__(self, "backend", default_backend(self.space))
         if self.backend not in BACKENDS:
-            raise ValueError(f"unknown backend {self.backend!r}; valid: {list(BACKENDS)}")
+            raise TTError(f"unknown backend {self.backend!r}; valid: {list(BACKENDS)}")
         if self.backend == "warp" and sp.has_contacts:
-            raise ValueError(
+            raise TTError(
                 f"Problem.backend = 'warp' cannot evaluate design space {self.space!r}: it has contacts, which "
                 "tt's kernels do not simulate; use 'mujoco' (the oracle), 'mjwarp', or None for the default"
             )
@@ -94,7 +95,7 @@ class Problem:
         if self.threads is not None and (
             not isinstance(self.threads, (int, np.integer)) or isinstance(self.threads, bool) or self.threads < 1
         ):
-            raise ValueError(f"Problem.threads = {self.threads!r}; must be an integer >= 1, or None for every core")
+            raise TTError(f"Problem.threads = {self.threads!r}; must be an integer >= 1, or None for every core")
 
     @property
     def design_space(self):

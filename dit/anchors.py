@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.layout import Layout, LayoutError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
@@ -147,7 +148,7 @@ def control_anchors(layout: Layout, normalizer: Normalizer, windows: TokenBatch 
     the root mean square of their residuals (command minus the anchor) in normalised units,
     per value. None: gain 1."""
     if base not in CONTROL_BASES:
-        raise ValueError(f"control anchor base {base!r} does not exist; bases: {', '.join(CONTROL_BASES)}")
+        raise TTError(f"control anchor base {base!r} does not exist; bases: {', '.join(CONTROL_BASES)}")
     out = {}
     for name, (on, value) in {"control": CONTROL_BASES[base]}.items():
         if name not in layout or on not in layout:

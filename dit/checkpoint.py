@@ -35,6 +35,7 @@ from pathlib import Path
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
@@ -119,7 +120,7 @@ def default_checkpoint(space: str, folder: str | Path | None = None, *, task: st
     folder = shipped_folder() if folder is None else Path(folder)
     shipped = shipped_checkpoints(folder)
     if task is not None and task not in TASK_NAMES:
-        raise ValueError(f"task {task!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
+        raise TTError(f"task {task!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
     files = shipped.get(space, [])
     for p in [p for p in files if _shipped_name(p)[2] == task] + [p for p in files if _shipped_name(p)[2] is None]:
         return p

@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.sim.controller import IKConfig, check_fixed_base
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -125,13 +126,13 @@ class ArmWorlds:
         self.config = config
         D, M = len(self.models), len(self.motions)
         if D == 0 or M == 0:
-            raise ValueError(f"need at least one design and one motion, got {D} and {M}")
+            raise TTError(f"need at least one design and one motion, got {D} and {M}")
         for i, m in enumerate(self.models):
             check_fixed_base(m)
             check_supported(m, i)
         subs = {config.substeps(m) for m in self.models}
         if len(subs) != 1:
-            raise ValueError(f"designs need different physics steps per control step {sorted(subs)}; give designs of one timestep")
+            raise TTError(f"designs need different physics steps per control step {sorted(subs)}; give designs of one timestep")
         self.substeps = subs.pop()
         self.world_count = D * M
         self.nq = max(m.nq for m in self.models)
@@ -206,7 +207,7 @@ class ArmWorlds:
         """One control period of every world with joint position targets `ctrl` (W, NU)
         (clipped to each actuator's ctrlrange, as MuJoCo executes them); returns the new state."""
         if tuple(ctrl.shape) != (self.world_count, self.nu):
-            raise ValueError(f"ctrl has shape {tuple(ctrl.shape)}; expected (W={self.world_count}, NU={self.nu})")
+            raise TTError(f"ctrl has shape {tuple(ctrl.shape)}; expected (W={self.world_count}, NU={self.nu})")
         return self._advance(ctrl, self.substeps)
 
     def _advance(self, ctrl: torch.Tensor, substeps: int) -> StepState:
@@ -251,14 +252,14 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
     models, sites = _models(designs)
     motions = tuple(motions)
     if not motions:
-        raise ValueError("motions is empty; a closed-loop rollout needs at least one motion")
+        raise TTError("motions is empty; a closed-loop rollout needs at least one motion")
     for j, m in enumerate(motions):
         if not isinstance(m, Motion):
             raise TypeError(f"motions[{j}] is a {type(m).__name__}; expected tt.sim.motions.base.Motion")
         if abs(m.dt - config.control_dt) > 1e-9:
-            raise ValueError(f"motions[{j}] ({m.name!r}) has dt = {m.dt} s; the controller runs at {config.control_dt} s")
+            raise TTError(f"motions[{j}] ({m.name!r}) has dt = {m.dt} s; the controller runs at {config.control_dt} s")
         if m.arms != len(sites):
-            raise ValueError(f"motions[{j}] ({m.name!r}) has {m.arms} arm(s); the designs have {len(sites)} end effector(s)")
+            raise TTError(f"motions[{j}] ({m.name!r}) has {m.arms} arm(s); the designs have {len(sites)} end effector(s)")
     sim = ArmWorlds(models, sites, motions, config=config, device=device)
     log.debug("closed loop: %d designs x %d motions in %d topology group(s), policy %s",
               len(models), len(motions), len(sim.groups), type(policy).__name__)
@@ -266,7 +267,7 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
     W, A = sim.world_count, len(sites)
     T = max(m.steps for m in motions) if steps is None else int(steps)
     if T < 1:
-        raise ValueError(f"steps = {steps}; a rollout needs at least one control step")
+        raise TTError(f"steps = {steps}; a rollout needs at least one control step")
     lengths = torch.tensor([min(m.steps, T) for m in motions], device=dev)[sim.motion_index]  # (W,)
     horizon = max(T, max(m.steps for m in motions))
     pos = np.zeros((len(motions), horizon, A, 3), np.float32)
@@ -300,7 +301,7 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
         if len(worlds):
             cmd = policy(k, worlds, state)
             if tuple(cmd.shape[:1]) != (len(worlds),) or cmd.ndim != 2 or cmd.shape[1] < sim.nu:
-                raise ValueError(f"policy returned commands of shape {tuple(cmd.shape)} at step {k}; expected ({len(worlds)}, {sim.nu})")
+                raise TTError(f"policy returned commands of shape {tuple(cmd.shape)} at step {k}; expected ({len(worlds)}, {sim.nu})")
             ctrl[worlds] = cmd[:, : sim.nu].to(dev, torch.float32)
         # Stopped worlds keep their last command; their physics runs on unrecorded.
         state = sim.step(ctrl)

@@ -23,6 +23,7 @@ from typing import Mapping, Protocol
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.layout import Layout, LayoutError, TokenSpec
 from tt.kernels.files import CorruptFileError, atomic_write, read_npz, reason
 from tt.tokens.batch import TokenBatch
@@ -178,7 +179,7 @@ class EpisodeTokens:
         if kind == "consecutive":
             start = (torch.rand(n, generator=generator) * (lengths - steps + 1)).long()
             return start[:, None] + torch.arange(steps)[None, :]
-        raise ValueError(f"window kind {kind!r} does not exist; kinds: random, start, consecutive")
+        raise TTError(f"window kind {kind!r} does not exist; kinds: random, start, consecutive")
 
     def window(self, episodes: torch.Tensor, step_index: torch.Tensor) -> TokenBatch:
         """Raw tokens of windows: episodes (n,) long, step_index (n, steps) from `window_steps`."""
@@ -286,7 +287,7 @@ class EpisodeTokens:
         """Episodes of several sets (e.g. generation batches) in one, each type padded to
         the longest (tokens per robot, tokens per step, steps)."""
         if not parts:
-            raise ValueError("concatenate needs at least one EpisodeTokens")
+            raise TTError("concatenate needs at least one EpisodeTokens")
         first = parts[0]
         for p in parts[1:]:
             if p.roles != first.roles or p.id_names != first.id_names or p.schema_version != first.schema_version:

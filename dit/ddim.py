@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 
 import torch
+from tt.kernels.errors import TTError
 
 #: Offset s of the cosine schedule.
 COSINE_OFFSET = 0.008
@@ -78,9 +79,9 @@ class CosineDDIM:
 
     def __init__(self, train_steps: int, *, clip_x0: float | None = 1.0):
         if train_steps < 1:
-            raise ValueError(f"train_steps must be >= 1, got {train_steps}")
+            raise TTError(f"train_steps must be >= 1, got {train_steps}")
         if clip_x0 is not None and clip_x0 <= 0:
-            raise ValueError(f"clip_x0 must be positive or None, got {clip_x0}")
+            raise TTError(f"clip_x0 must be positive or None, got {clip_x0}")
         self.train_steps = int(train_steps)
         self.clip_x0 = clip_x0
         u = torch.arange(self.train_steps + 1, dtype=torch.float64) / self.train_steps
@@ -96,7 +97,7 @@ class CosineDDIM:
         """alpha_bar_t as float64; t = -1 gives 1 (the clean end). t: int or long tensor (B,)."""
         t = torch.as_tensor(t, dtype=torch.long)
         if bool(((t < -1) | (t >= self.train_steps)).any()):
-            raise ValueError(f"diffusion step {t.tolist()} outside -1 .. {self.train_steps - 1}")
+            raise TTError(f"diffusion step {t.tolist()} outside -1 .. {self.train_steps - 1}")
         padded = torch.cat([torch.ones(1, dtype=torch.float64), self.alpha_bars])
         return padded[t.cpu() + 1]
 
@@ -118,9 +119,9 @@ class CosineDDIM:
         network's x0_hat is its estimate of the conditional mean. Both are all T steps at n = T."""
         n = self.train_steps if num_steps is None else int(num_steps)
         if not 1 <= n <= self.train_steps:
-            raise ValueError(f"num_steps must be in 1 .. {self.train_steps}, got {num_steps}")
+            raise TTError(f"num_steps must be in 1 .. {self.train_steps}, got {num_steps}")
         if spacing not in SPACINGS:
-            raise ValueError(f"spacing = {spacing!r}; valid: {list(SPACINGS)}")
+            raise TTError(f"spacing = {spacing!r}; valid: {list(SPACINGS)}")
         if spacing == "trailing":
             return [round(self.train_steps - i * self.train_steps / n) - 1 for i in range(n)]
         ratio = self.train_steps // n
@@ -180,14 +181,14 @@ class CosineDDIM:
         `prediction` (see the module docstring)."""
         _check_prediction(prediction)
         if weighting not in WEIGHTINGS:
-            raise ValueError(f"loss weighting {weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+            raise TTError(f"loss weighting {weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
         snr = self.snr(t)
         if weighting == "none":
             return torch.ones_like(snr)
         to_target = {"eps": 1.0 / snr, "x0": torch.ones_like(snr), "v": 1.0 / (1.0 + snr)}[prediction]
         if weighting == "min_snr":
             if not gamma > 0:
-                raise ValueError(f"min-SNR gamma must be > 0, got {gamma}")
+                raise TTError(f"min-SNR gamma must be > 0, got {gamma}")
             return snr.clamp(max=gamma) * to_target
         sd2 = sigma_data**2
         w_x0 = (1.0 / snr + sd2) * snr / sd2
@@ -208,7 +209,7 @@ class CosineDDIM:
         """One reverse step t -> t_prev; returns (x_prev, x0_hat). `noise` (shape of x_t) or a
         `generator` supplies z when eta > 0."""
         if not -1 <= t_prev < t:
-            raise ValueError(f"a reverse step needs -1 <= t_prev < t, got t={t}, t_prev={t_prev}")
+            raise TTError(f"a reverse step needs -1 <= t_prev < t, got t={t}, t_prev={t_prev}")
         ab_prev = float(self.alpha_bar(t_prev))
         x0 = self.predict_x0(x_t, eps, t)
         sig = self.sigma(t, t_prev, eta)
@@ -222,4 +223,4 @@ class CosineDDIM:
 
 def _check_prediction(prediction: str) -> None:
     if prediction not in PREDICTIONS:
-        raise ValueError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+        raise TTError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")

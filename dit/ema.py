@@ -19,6 +19,7 @@ from typing import Iterator
 
 import torch
 import torch.nn as nn
+from tt.kernels.errors import TTError
 
 
 class EMA:
@@ -27,7 +28,7 @@ class EMA:
     def __init__(self, model: nn.Module, *, power: float = 0.75, inv_gamma: float = 1.0,
                  min_decay: float = 0.0, max_decay: float = 0.9999):
         if power <= 0 or inv_gamma <= 0 or not 0 <= min_decay <= max_decay < 1:
-            raise ValueError(f"need power > 0, inv_gamma > 0, 0 <= min_decay <= max_decay < 1; got power={power}, "
+            raise TTError(f"need power > 0, inv_gamma > 0, 0 <= min_decay <= max_decay < 1; got power={power}, "
                              f"inv_gamma={inv_gamma}, min_decay={min_decay}, max_decay={max_decay}")
         self.power, self.inv_gamma, self.min_decay, self.max_decay = power, inv_gamma, min_decay, max_decay
         self.shadow = [p.detach().clone().float() for p in model.parameters()]
@@ -74,10 +75,10 @@ class EMA:
 
     def load_state_dict(self, state: dict) -> None:
         if len(state["shadow"]) != len(self.shadow):
-            raise ValueError(f"EMA state has {len(state['shadow'])} tensors, this model {len(self.shadow)}")
+            raise TTError(f"EMA state has {len(state['shadow'])} tensors, this model {len(self.shadow)}")
         for a, b in zip(self.shadow, state["shadow"]):
             if a.shape != b.shape:
-                raise ValueError(f"EMA tensor of shape {tuple(b.shape)} does not fit parameter of shape {tuple(a.shape)}")
+                raise TTError(f"EMA tensor of shape {tuple(b.shape)} does not fit parameter of shape {tuple(a.shape)}")
             a.copy_(b)
         self.updates = int(state["updates"])
         self.power, self.inv_gamma = float(state["power"]), float(state["inv_gamma"])

@@ -33,6 +33,7 @@ from typing import Iterator
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.tokens.schema import SCHEMA
 from tt.tokens.store import BLOCK_EPISODES, DatasetError, EpisodeBlock, TokenStore, is_dataset
 
@@ -56,7 +57,7 @@ class SE2Augment:
 
     def __post_init__(self) -> None:
         if not (0 <= self.max_yaw <= math.pi and self.max_shift >= 0):
-            raise ValueError(f"SE2Augment needs 0 <= max_yaw <= pi and max_shift >= 0, got {self.max_yaw}, {self.max_shift}")
+            raise TTError(f"SE2Augment needs 0 <= max_yaw <= pi and max_shift >= 0, got {self.max_yaw}, {self.max_shift}")
 
     def draw(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """yaw, dx, dy of n windows, each (n,) float64."""
@@ -112,9 +113,9 @@ def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.
     steps start .. start + steps - 1 with a uniform start. Same draws as
     `tt.dit.data.EpisodeTokens.window_steps`."""
     if kind not in WINDOW_KINDS:
-        raise ValueError(f"window kind {kind!r} does not exist; kinds: {list(WINDOW_KINDS)}")
+        raise TTError(f"window kind {kind!r} does not exist; kinds: {list(WINDOW_KINDS)}")
     if len(lengths) and int(lengths.min()) < steps:
-        raise ValueError(f"an episode has {int(lengths.min())} steps, fewer than the window's {steps}")
+        raise TTError(f"an episode has {int(lengths.min())} steps, fewer than the window's {steps}")
     n = lengths.shape[0]
     if kind in ("random", "start"):
         width = int(lengths.max()) if n else steps
@@ -190,11 +191,11 @@ class StoreTokenSource:
                                f"generated episodes were dropped ({dropped or 'every one'}; it was generated with "
                                f"--min-steps {min_steps}); generate it again into another --out with a lower --min-steps")
         if self.store.episodes == 0:
-            raise ValueError(f"dataset {path} holds no episodes yet; run its `tt generate` command to generate them")
+            raise TTError(f"dataset {path} holds no episodes yet; run its `tt generate` command to generate them")
         if not self.store.attrs.get("complete"):
             logger.warning("dataset %s is incomplete; training on its %d episodes so far", path, self.store.episodes)
         if windows_per_block < 1:
-            raise ValueError(f"windows_per_block must be >= 1, got {windows_per_block}")
+            raise TTError(f"windows_per_block must be >= 1, got {windows_per_block}")
         self.augment = augment
         self.windows_per_block = windows_per_block
         self.max_time = max_time
@@ -231,7 +232,7 @@ class StoreTokenSource:
         part: (a, b): only windows a .. b - 1 of the n (a data-parallel rank's share): the
         random numbers drawn are those of all n, and only those windows are built."""
         if steps > self.shortest:
-            raise ValueError(f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}")
+            raise TTError(f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}")
         lo, hi = (0, n) if part is None else part
         g = max(1, -(-n // self.windows_per_block))
         chosen = torch.multinomial(self.block_sizes, g, replacement=True, generator=generator)
@@ -274,10 +275,10 @@ class EpisodeWindows(torch.utils.data.IterableDataset):
                  drop_last: bool = False):
         super().__init__()
         if kind not in WINDOW_KINDS:
-            raise ValueError(f"window kind {kind!r} does not exist; kinds: {list(WINDOW_KINDS)}")
+            raise TTError(f"window kind {kind!r} does not exist; kinds: {list(WINDOW_KINDS)}")
         for name in ("batch_size", "steps", "windows_per_episode", "shuffle_blocks", "block_episodes"):
             if locals()[name] < 1:
-                raise ValueError(f"{name} must be >= 1, got {locals()[name]}")
+                raise TTError(f"{name} must be >= 1, got {locals()[name]}")
         self.path = str(path)
         self.batch_size, self.steps, self.kind = batch_size, steps, kind
         self.augment, self.seed, self.epochs = augment, seed, epochs

@@ -26,6 +26,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from tt.kernels.errors import TTError
 from tt.tokens.schema import Role
 from tt.dit.anchors import Anchor
 from tt.dit.layout import Layout, LayoutError
@@ -51,11 +52,11 @@ class DiTConfig:
 
     def __post_init__(self) -> None:
         if self.time_ids not in TIME_ID_EMBEDDINGS:
-            raise ValueError(f"time_ids {self.time_ids!r} does not exist; choices: {list(TIME_ID_EMBEDDINGS)}")
+            raise TTError(f"time_ids {self.time_ids!r} does not exist; choices: {list(TIME_ID_EMBEDDINGS)}")
         if self.hidden % self.heads:
-            raise ValueError(f"hidden {self.hidden} must be a multiple of heads {self.heads}")
+            raise TTError(f"hidden {self.hidden} must be a multiple of heads {self.heads}")
         if self.depth < 1 or self.freq_dim < 2 or self.freq_dim % 2:
-            raise ValueError(f"depth must be >= 1 and freq_dim even >= 2, got depth={self.depth}, freq_dim={self.freq_dim}")
+            raise TTError(f"depth must be >= 1 and freq_dim even >= 2, got depth={self.depth}, freq_dim={self.freq_dim}")
 
 
 #: Size variants: the paper's small (256 hidden, 8 layers, 4 heads) and large (512, 12, 8)
@@ -71,7 +72,7 @@ DIT_CONFIGS: dict[str, DiTConfig] = {
 
 def get_config(size: str) -> DiTConfig:
     if size not in DIT_CONFIGS:
-        raise ValueError(f"model size {size!r} does not exist; sizes: {list(DIT_CONFIGS)}")
+        raise TTError(f"model size {size!r} does not exist; sizes: {list(DIT_CONFIGS)}")
     return DIT_CONFIGS[size]
 
 
@@ -185,10 +186,10 @@ class RoboDiT(nn.Module):
         from tt.dit.ddim import PREDICTIONS
 
         if prediction not in PREDICTIONS:
-            raise ValueError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+            raise TTError(f"prediction {prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         self.anchors = dict(anchors or {})
         if self.anchors and prediction != "x0":
-            raise ValueError(f"anchors act on the clean prediction: they need prediction 'x0', not {prediction!r}")
+            raise TTError(f"anchors act on the clean prediction: they need prediction 'x0', not {prediction!r}")
         for name, anchor in self.anchors.items():
             anchor.check(layout, name)
             base_roles = (Role.CONDITION,) if anchor.value is None else (Role.CONDITION, Role.DYNAMICS, Role.ACTION)

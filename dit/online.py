@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.data import EpisodeTokens
 from tt.dit.layout import Layout, LayoutError
 from tt.tokens.batch import TokenBatch
@@ -89,17 +90,17 @@ class OnlineConfig:
         from tt.sim.rewards import REWARDS
 
         if self.refresh_every < 1 or self.buffer < 1:
-            raise ValueError(f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}")
+            raise TTError(f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}")
         if not (isinstance(self.select, int) and self.select >= 1):
-            raise ValueError(f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+            raise TTError(f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
         if not 0.0 <= self.uniform_share <= 1.0:
-            raise ValueError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
+            raise TTError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
         if self.uniform_share > 0 and self.select == 1:
-            raise ValueError("--uniform-share applies only with --online-select above 1 (without selection every design is uniform)")
+            raise TTError("--uniform-share applies only with --online-select above 1 (without selection every design is uniform)")
         if self.reward not in REWARDS:
-            raise ValueError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}")
+            raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}")
         if get_space(self.space).has_contacts:
-            raise ValueError(f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
+            raise TTError(f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
                              "kernels (contact-free trees): generate a dataset with `tt generate` instead")
         self.generate_config()  # validates the shared fields
 

@@ -34,6 +34,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
 from tt.dit.closed_loop import LoopContext, StepState, closed_loop_rollout
 from tt.dit.layout import Layout, LayoutError
@@ -122,15 +123,15 @@ class ControllerConfig:
         from tt.dit.ddim import SPACINGS
 
         if self.num_steps < 1:
-            raise ValueError(f"ControllerConfig.num_steps = {self.num_steps}; must be >= 1")
+            raise TTError(f"ControllerConfig.num_steps = {self.num_steps}; must be >= 1")
         if not self.eta >= 0:
-            raise ValueError(f"ControllerConfig.eta = {self.eta}; must be >= 0")
+            raise TTError(f"ControllerConfig.eta = {self.eta}; must be >= 0")
         if self.spacing not in SPACINGS:
-            raise ValueError(f"ControllerConfig.spacing = {self.spacing!r}; valid: {list(SPACINGS)}")
+            raise TTError(f"ControllerConfig.spacing = {self.spacing!r}; valid: {list(SPACINGS)}")
         if self.ensemble is not None and self.ensemble < 1:
-            raise ValueError(f"ControllerConfig.ensemble = {self.ensemble}; must be >= 1")
+            raise TTError(f"ControllerConfig.ensemble = {self.ensemble}; must be >= 1")
         if not math.isfinite(self.ensemble_decay):
-            raise ValueError(f"ControllerConfig.ensemble_decay = {self.ensemble_decay}; must be finite")
+            raise TTError(f"ControllerConfig.ensemble_decay = {self.ensemble_decay}; must be finite")
 
 
 def control_task(checkpoint: str | Path) -> TaskSpec:
@@ -151,7 +152,7 @@ def control_task_of(config: dict | None, where: str = "the checkpoint") -> TaskS
     """`control_task` of a loaded checkpoint's train config (a dict, or None when it has none)."""
     cfg = config or {}
     if cfg.get("task", "control") == "robot":
-        raise ValueError(f"{where} was trained on the robot task only; the controller needs task control or both")
+        raise TTError(f"{where} was trained on the robot task only; the controller needs task control or both")
     return TaskSpec("control", int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)), "consecutive",
                     bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)),
                     int(cfg.get("control_target_offset", 0)))
@@ -166,9 +167,9 @@ class ModelPolicy:
 
     def __init__(self, trained: TrainedModel, *, task: TaskSpec = CONTROL, config: ControllerConfig = ControllerConfig()):
         if task.name != "control":
-            raise ValueError(f"ModelPolicy runs the control task, got task {task.name!r}")
+            raise TTError(f"ModelPolicy runs the control task, got task {task.name!r}")
         if config.num_steps > task.diffusion_steps:
-            raise ValueError(f"ControllerConfig.num_steps = {config.num_steps}; the control process has {task.diffusion_steps} steps")
+            raise TTError(f"ControllerConfig.num_steps = {config.num_steps}; the control process has {task.diffusion_steps} steps")
         layout = trained.layout
         need = {"control", "target_pose"}
         missing = sorted(need - set(layout.names))
@@ -181,7 +182,7 @@ class ModelPolicy:
         # A query at step k' (window start k' - 1) predicts steps up to k' + S - 2.
         self.ensemble = layout.steps - 1 if config.ensemble is None else config.ensemble
         if self.ensemble > layout.steps - 1:
-            raise ValueError(f"ControllerConfig.ensemble = {config.ensemble}; the model's {layout.steps}-step window "
+            raise TTError(f"ControllerConfig.ensemble = {config.ensemble}; the model's {layout.steps}-step window "
                              f"predicts a step at most {layout.steps - 1} queries ahead")
         self.model = trained.model.eval()
         self.device = next(self.model.parameters()).device

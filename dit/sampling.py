@@ -44,6 +44,7 @@ from typing import Callable, Iterable, Mapping
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.ddim import CosineDDIM
 from tt.tokens.batch import TokenBatch
 from tt.dit.model import RoboDiT
@@ -70,12 +71,12 @@ def _guided_masks(guided, updated: dict[str, torch.Tensor]) -> dict[str, torch.T
     if isinstance(guided, Mapping):
         unknown = [k for k in guided if k not in updated]
         if unknown:
-            raise ValueError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
+            raise TTError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
         return {k: updated[k] & guided[k].to(updated[k].device) for k in guided}
     names = list(guided)
     unknown = [k for k in names if k not in updated]
     if unknown:
-        raise ValueError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
+        raise TTError(f"guided names types {unknown} that this task does not diffuse; diffused: {sorted(updated)}")
     return {k: updated[k] for k in names}
 
 
@@ -104,11 +105,11 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     layout.check(tokens)
     scheduler = CosineDDIM(task.diffusion_steps) if scheduler is None else scheduler
     if scheduler.train_steps != task.diffusion_steps:
-        raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+        raise TTError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
     if eta < 0:
-        raise ValueError(f"eta must be >= 0, got {eta}")
+        raise TTError(f"eta must be >= 0, got {eta}")
     if differentiable and guide is not None:
-        raise ValueError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
+        raise TTError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
                          "on its own (give one or the other)")
     differentiable = differentiable and torch.is_grad_enabled()
     keep = (lambda v: v) if differentiable else torch.Tensor.detach  # what crosses a step keeps its graph or not
@@ -120,11 +121,11 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     guided_masks = _guided_masks(guided, updated) if guide is not None else {}
     stray = sorted(set(init_noise or ()) - set(updated))
     if stray:
-        raise ValueError(f"init_noise names types {stray} that this task does not diffuse; diffused: {sorted(updated)}")
+        raise TTError(f"init_noise names types {stray} that this task does not diffuse; diffused: {sorted(updated)}")
     given = {}
     for n, m in (known or {}).items():
         if n not in updated:
-            raise ValueError(f"known names type {n!r}, which this task does not diffuse; diffused: {sorted(updated)}")
+            raise TTError(f"known names type {n!r}, which this task does not diffuse; diffused: {sorted(updated)}")
         m = m.to(device).bool() & updated[n]
         updated[n] = updated[n] & ~m
         given[n] = (m, tokens.values[n].float())
@@ -135,7 +136,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
             if init_noise is not None and s.name in init_noise:
                 noise = init_noise[s.name].to(device=device, dtype=torch.float32)
                 if noise.shape != v.shape:
-                    raise ValueError(f"init_noise[{s.name!r}] has shape {tuple(noise.shape)}; the tokens' is {tuple(v.shape)}")
+                    raise TTError(f"init_noise[{s.name!r}] has shape {tuple(noise.shape)}; the tokens' is {tuple(v.shape)}")
             else:
                 noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
             # Clean slots of a diffused type (a window's given first step) are conditions too.
@@ -168,7 +169,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
                     if n not in guided_masks:
                         continue
                     if e.shape != eps[n].shape:
-                        raise ValueError(f"guide returned eps of shape {tuple(e.shape)} for {n!r}, expected {tuple(eps[n].shape)}")
+                        raise TTError(f"guide returned eps of shape {tuple(e.shape)} for {n!r}, expected {tuple(eps[n].shape)}")
                     eps[n] = torch.where(guided_masks[n].unsqueeze(-1), e, eps[n])
         if history is not None:
             history.append({n: v.detach() for n, v in x0.items()})

@@ -56,6 +56,7 @@ from typing import Mapping, Sequence
 import torch
 import torch.nn.functional as F
 
+from tt.kernels.errors import TTError
 from tt.dit.ddim import CosineDDIM
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import Role
@@ -86,15 +87,15 @@ class TaskSpec:
 
     def __post_init__(self) -> None:
         if self.name not in TASK_NAMES:
-            raise ValueError(f"task {self.name!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
+            raise TTError(f"task {self.name!r} does not exist; tasks: {', '.join(TASK_NAMES)}")
         if self.window not in ("random", "consecutive", "start"):
-            raise ValueError(f"task {self.name!r}: window {self.window!r} is not 'random', 'consecutive' or 'start'")
+            raise TTError(f"task {self.name!r}: window {self.window!r} is not 'random', 'consecutive' or 'start'")
         if self.window == "start" and self.name != "dynamics":
-            raise ValueError(f"task {self.name!r}: window 'start' is the dynamics task's only")
+            raise TTError(f"task {self.name!r}: window 'start' is the dynamics task's only")
         if self.diffusion_steps < 1:
-            raise ValueError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
+            raise TTError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
         if self.target_offset < 0 or (self.target_offset and self.name != "control"):
-            raise ValueError(f"task {self.name!r}: target_offset {self.target_offset} must be >= 0, and 0 for tasks other "
+            raise TTError(f"task {self.name!r}: target_offset {self.target_offset} must be >= 0, and 0 for tasks other "
                              "than control")
 
 
@@ -111,14 +112,14 @@ def task_names(task: str) -> list[str]:
     ("robot+dynamics"); "both" is "robot+control". Raises ValueError for anything else."""
     names = ["robot", "control"] if task == "both" else str(task).split("+")
     if any(n not in TASK_NAMES for n in names) or len(set(names)) != len(names):
-        raise ValueError(f"task {task!r} is not one task or distinct tasks joined by '+'; tasks: "
+        raise TTError(f"task {task!r} is not one task or distinct tasks joined by '+'; tasks: "
                          f"{', '.join(TASK_NAMES)} (and 'both' = robot+control)")
     return names
 
 
 def get_task(name: str) -> TaskSpec:
     if name not in TASKS:
-        raise ValueError(f"task {name!r} does not exist; tasks: {list(TASKS)}")
+        raise TTError(f"task {name!r} does not exist; tasks: {list(TASKS)}")
     return TASKS[name]
 
 
@@ -275,7 +276,7 @@ def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: 
         as one process does. None: the tokens are the whole batch.
     """
     if scheduler.train_steps != task.diffusion_steps:
-        raise ValueError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+        raise TTError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
     b, device = len(tokens), tokens.device
     first, batch = (0, b) if part is None else part
     rows = slice(first, first + b)
@@ -299,7 +300,7 @@ def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.T
         return F.huber_loss(pred, target, reduction="none", delta=1.0)
     if kind == "mse":
         return (pred - target) ** 2
-    raise ValueError(f"loss {kind!r} does not exist; losses: huber, mse")
+    raise TTError(f"loss {kind!r} does not exist; losses: huber, mse")
 
 
 def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *, loss: str = "huber",
@@ -317,7 +318,7 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
     type_weights = dict(type_weights or {})
     unknown = sorted(set(type_weights) - set(model.layout.names))
     if unknown:
-        raise ValueError(f"type_weights name {unknown}, not token types of the model's layout: {list(model.layout.names)}")
+        raise TTError(f"type_weights name {unknown}, not token types of the model's layout: {list(model.layout.names)}")
     layout = model.layout
     names = layout.names
     values = {n: torch.cat([p.values[n] for _, p in parts]) for n in names}

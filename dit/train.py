@@ -35,6 +35,7 @@ from typing import Callable
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.checkpoint import (
     RESUME_KEYS,
     checkpoint_path,
@@ -56,6 +57,10 @@ from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names, tas
 from tt.kernels.files import CorruptFileError, atomic_write, write_text
 
 log = logging.getLogger(__name__)
+
+
+class DivergedError(TTError, FloatingPointError):
+    """The training loss became NaN or infinite: the run's settings diverge (not a bug in tt)."""
 
 #: Per-step token types a run may leave out of its model's sequence (`TrainConfig.drop_types`):
 #: the states and commands no reward reads (`tt.guidance.predicted.PredictedReward` reads the
@@ -170,53 +175,53 @@ class TrainConfig:
         if isinstance(self.online, dict):
             self.online = OnlineConfig(**self.online)
         if self.prediction not in PREDICTIONS:
-            raise ValueError(f"--prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+            raise TTError(f"--prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         if self.weighting not in WEIGHTINGS:
-            raise ValueError(f"--weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+            raise TTError(f"--weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
         for flag, on in (("--anchor-track", self.anchor_track), ("--anchor-control", self.anchor_control)):
             if on and self.prediction != "x0":
-                raise ValueError(f"{flag} needs --prediction x0, got {self.prediction!r}")
+                raise TTError(f"{flag} needs --prediction x0, got {self.prediction!r}")
         if self.anchor_control not in ("", *CONTROL_BASES):
-            raise ValueError(f"--anchor-control {self.anchor_control!r} does not exist; use one of "
+            raise TTError(f"--anchor-control {self.anchor_control!r} does not exist; use one of "
                              f"{', '.join(CONTROL_BASES)} (or leave it out)")
         if self.anchor_control == "command" and not self.known_command:
-            raise ValueError("--anchor-control command needs --known-command: the last command must be given to be a base")
+            raise TTError("--anchor-control command needs --known-command: the last command must be given to be a base")
         if self.control_target_offset < 0 or (self.control_target_offset and "control" not in task_names(self.task)):
-            raise ValueError(f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
+            raise TTError(f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
                              f"task; the run trains --task {self.task}")
         if self.dynamics_start and "dynamics" not in task_names(self.task):
-            raise ValueError(f"--dynamics-start needs the dynamics task; the run trains --task {self.task}")
+            raise TTError(f"--dynamics-start needs the dynamics task; the run trains --task {self.task}")
         if not self.min_snr_gamma > 0:
-            raise ValueError(f"--min-snr-gamma must be > 0, got {self.min_snr_gamma}")
+            raise TTError(f"--min-snr-gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
         bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
         if bad:
-            raise ValueError(f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}")
+            raise TTError(f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}")
         if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
-            raise ValueError(f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
+            raise TTError(f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
                              f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
         if self.online is not None and self.data:
-            raise ValueError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
+            raise TTError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
         bad = [str(n) for n in self.drop_types if n not in DROPPABLE]
         if bad:
-            raise ValueError(f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
+            raise TTError(f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
                              "embodiment, the targets and the track-link poses the rewards read stay)")
         self.drop_types = tuple(n for n in DROPPABLE if n in self.drop_types)  # one order, whatever the flags
         if self.drop_types and "control" in self.task_names():
-            raise ValueError(f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
+            raise TTError(f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
                              "writes every per-step type; drop types for the robot and dynamics tasks only")
         if self.loss not in ("huber", "mse"):
-            raise ValueError(f"loss {self.loss!r} does not exist; losses: huber, mse")
+            raise TTError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{FLAGS.get(name, name)} must be >= 1, got {getattr(self, name)}")
+                raise TTError(f"{FLAGS.get(name, name)} must be >= 1, got {getattr(self, name)}")
         if self.batch_size < len(self.task_names()):
-            raise ValueError(f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
+            raise TTError(f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
                              f"{len(self.task_names())}, got {self.batch_size}")
         if self.warmup_steps < 0 or self.grad_clip <= 0 or self.weight_decay < 0:
-            raise ValueError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
+            raise TTError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
                              f"{self.grad_clip}, {self.weight_decay}")
 
     def model_config(self):
@@ -326,7 +331,7 @@ class DataParallel:
     def share(self, n: int, what: str) -> tuple[int, int]:
         """(first, last + 1) of this rank's windows among a task's n."""
         if n % self.world_size:
-            raise ValueError(f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
+            raise TTError(f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
                              f"choose a batch_size divisible by {self.world_size} (by k x {self.world_size} for k tasks)")
         k = n // self.world_size
         return self.rank * k, (self.rank + 1) * k
@@ -345,7 +350,7 @@ def _resolve_device(device: str | None) -> torch.device:
 
         device = default_device()
     if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device {device!r} requested but torch sees no CUDA device; use 'cpu'")
+        raise TTError(f"device {device!r} requested but torch sees no CUDA device; use 'cpu'")
     return torch.device(device)
 
 
@@ -378,7 +383,7 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
             if bool(before) != bool(now):  # one run on a dataset, the other online
                 def source(path):
                     return f"--data {path}" if path else "--online"
-                raise ValueError(f"run {out} was trained with {source(before)}, this run asks for {source(now)}; resume "
+                raise TTError(f"run {out} was trained with {source(before)}, this run asks for {source(now)}; resume "
                                  "it with its own arguments, or give another --out (or --no-resume to start it over)")
         elif name == "online":
             if before is None or now is None:
@@ -387,14 +392,14 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
             changed = [k for k in a if a[k] != b.get(k)]
             if changed:
                 named = ", ".join(f"{ONLINE_FLAGS.get(k, k)} {a[k]} (now {b.get(k)})" for k in changed)
-                raise ValueError(f"run {out} was trained online with {named}; resume it with its own arguments, or "
+                raise TTError(f"run {out} was trained online with {named}; resume it with its own arguments, or "
                                  "give another --out (or --no-resume to start it over)")
             continue
         if before != now:
             def shown(v):
                 return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else \
                     ", ".join(f"{k}={w}" for k, w in v.items()) if isinstance(v, dict) else v
-            raise ValueError(f"run {out} was trained with {flag} {shown(before)!r}, this run asks for {shown(now)!r}; "
+            raise TTError(f"run {out} was trained with {flag} {shown(before)!r}, this run asks for {shown(now)!r}; "
                              "resume it with its own arguments, or give another --out (or --no-resume to start it over)")
 
 
@@ -433,15 +438,15 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
 
         sizes = [s for s, c in DIT_CONFIGS.items() if dataclasses.replace(c, time_ids=model.config.time_ids) == model.config]
         size = f"--size {sizes[0]}" if sizes else f"a network of {model.config.depth} blocks of width {model.config.hidden}"
-        raise ValueError(f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
+        raise TTError(f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
                          f"--size {config.size} with --time-ids {config.time_ids}")
     if model.prediction != config.prediction:
-        raise ValueError(f"{where} predicts {model.prediction!r}, this run asks for --prediction {config.prediction}")
+        raise TTError(f"{where} predicts {model.prediction!r}, this run asks for --prediction {config.prediction}")
     for flag, name, on in (("--anchor-track", "track_link_obs", config.anchor_track), ("--anchor-control", "control", bool(config.anchor_control))):
         if (name in model.anchors) != on:
             was = "with" if name in model.anchors else "without"
             now = "gives" if on else "does not give"
-            raise ValueError(f"{where} was trained {was} {flag}, this run {now} it")
+            raise TTError(f"{where} was trained {was} {flag}, this run {now} it")
 
 
 def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
@@ -545,7 +550,7 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         episodes = OnlineTokenSource(config.online, device=str(device))
     elif episodes is None:
         if not config.data:
-            raise ValueError("no training data: give --data DATASET (or an episode token file) or --online")
+            raise TTError("no training data: give --data DATASET (or an episode token file) or --online")
         from tt.dit.loader import data_identity, open_token_source
 
         episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
@@ -558,7 +563,7 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         stored = state.get("train_config") or {}
         check_same_run(stored, config, out)
         if config.init and config.init != stored.get("init"):
-            raise ValueError(f"--init {config.init} starts a new run, but run {out} has checkpoints to resume (step "
+            raise TTError(f"--init {config.init} starts a new run, but run {out} has checkpoints to resume (step "
                              f"{int(state['step'])}{', started from --init ' + stored['init'] if stored.get('init') else ''}); "
                              "give --no-resume to start it over from --init, or another --out")
         if identity is not None and state.get("data_identity") is not None:
@@ -566,7 +571,7 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
 
             why = describe_data_change(state["data_identity"], identity)
             if why is not None:
-                raise ValueError(f"run {out} was trained on --data {config.data}, but {why}; resume it on the data it "
+                raise TTError(f"run {out} was trained on --data {config.data}, but {why}; resume it on the data it "
                                  "was trained on, or start it over with --no-resume (or give another --out)")
         model = RoboDiT.from_description(state["model"])
         check_network(model, layout, config, f"run {out}")
@@ -664,7 +669,7 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         value = float(reported)
         if not math.isfinite(value):
             terms = {k: float(v) for k, v in per_type.items()}
-            raise FloatingPointError(f"training loss is {value} at step {step}; per type: {terms}")
+            raise DivergedError(f"training loss is {value} at step {step}; per type: {terms}")
         losses.append(value)
         if step % config.checkpoint_every == 0 or step == config.steps:
             last = checkpoint_path(out, step)
@@ -693,6 +698,6 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         if on_step is not None:
             on_step(step, value)
     if last is None:
-        raise ValueError(f"run {out} has nothing to do: it is at step {step} and --steps is {config.steps}; give a "
+        raise TTError(f"run {out} has nothing to do: it is at step {step} and --steps is {config.steps}; give a "
                          "larger --steps to train on, or --no-resume to start it over")
     return TrainResult(step, torch.tensor(losses, dtype=torch.float32), last, model.parameter_count())

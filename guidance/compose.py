@@ -25,6 +25,7 @@ from typing import Iterable, Mapping, Sequence
 import torch
 import torch.nn as nn
 
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES
 from tt.dit.layout import Layout, LayoutError, TokenSpec
@@ -42,7 +43,7 @@ def composed_layout(layout: Layout, motions: int) -> Layout:
     every per-step type once per motion (``<type>@<m>``), in the model's type order with a
     type's copies side by side."""
     if motions < 1:
-        raise ValueError(f"motions must be >= 1, got {motions}")
+        raise TTError(f"motions must be >= 1, got {motions}")
     bad = [s.name for s in layout.specs if SEPARATOR in s.name]
     if bad:
         raise LayoutError(f"token types {bad} contain {SEPARATOR!r}, which composed layouts reserve")

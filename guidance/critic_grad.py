@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.layout import robot_embodiment
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, PredictedReward, build_query, start_tokens, with_start
@@ -127,26 +128,26 @@ class CriticGradient:
                  num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log",
                  at: str = "tokens", through_start: bool = False, start_rel_step: float = START_REL_STEP):
         if not critic.trained_on("dynamics"):
-            raise ValueError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
+            raise TTError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
                              "not the dynamics task its gradient needs (give a critic checkpoint trained on it)")
         if critic.dynamics_start and decoder is None:
-            raise ValueError("a critic trained told the episode's start needs a decoder: its start is simulated for the "
+            raise TTError("a critic trained told the episode's start needs a decoder: its start is simulated for the "
                              "design each candidate decodes to")
         if num_steps < 1:
-            raise ValueError(f"num_steps = {num_steps}; must be >= 1")
+            raise TTError(f"num_steps = {num_steps}; must be >= 1")
         if form not in FORMS:
-            raise ValueError(f"form = {form!r}; valid: {list(FORMS)}")
+            raise TTError(f"form = {form!r}; valid: {list(FORMS)}")
         if at not in AT:
-            raise ValueError(f"at = {at!r}; valid: {list(AT)}")
+            raise TTError(f"at = {at!r}; valid: {list(AT)}")
         if at == "design" and decoder is None:
-            raise ValueError("the critic's gradient at the decoded design needs a decoder")
+            raise TTError("the critic's gradient at the decoded design needs a decoder")
         if through_start and not critic.dynamics_start:
-            raise ValueError("through_start differentiates the critic's start: it needs a critic trained told the start "
+            raise TTError("through_start differentiates the critic's start: it needs a critic trained told the start "
                              "(--dynamics-start)")
         if through_start and at != "tokens":
-            raise ValueError(f"through_start adds to the gradient at x0_hat's tokens, not at={at!r}")
+            raise TTError(f"through_start adds to the gradient at x0_hat's tokens, not at={at!r}")
         if not 0 < start_rel_step < 0.5:
-            raise ValueError(f"start_rel_step = {start_rel_step}; must be in (0, 0.5)")
+            raise TTError(f"start_rel_step = {start_rel_step}; must be in (0, 0.5)")
         self.through_start, self.start_rel_step = bool(through_start), float(start_rel_step)
         # A design predicted to terminate at its first counted step scores a flat 0 around it, so
         # its gradient says nothing; without termination it still points to smaller error.

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.baselines.cmaes import CMAES, CMAESConfig
 from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
@@ -41,7 +42,7 @@ class VerifyConfig:
 
     def __post_init__(self) -> None:
         if self.verify is not None and (not isinstance(self.verify, (int, np.integer)) or self.verify < 1):
-            raise ValueError(f"--verify = {self.verify!r}; must be an integer >= 1")
+            raise TTError(f"--verify = {self.verify!r}; must be an integer >= 1")
 
 
 class SimVerified(Optimizer):
@@ -59,7 +60,7 @@ class SimVerified(Optimizer):
         n = self.sampler.config.samples or problem.budget
         k = self.config.verify or n
         if k > n:
-            raise ValueError(f"--verify {k} is larger than --samples {n}: the simulator can only check sampled candidates")
+            raise TTError(f"--verify {k} is larger than --samples {n}: the simulator can only check sampled candidates")
         start = time.perf_counter()
         gen, decoder, info = self.sampler.generate(problem)
         ranking = self.sampler.rank(gen, decoder, limit=k)
@@ -109,9 +110,9 @@ class ModelInitCMAES(Optimizer):
 
     def __init__(self, sampler: ZerothOrder, cmaes: CMAESConfig = CMAESConfig()):
         if cmaes.sequential:
-            raise ValueError("cmaes --init model runs the batched CMA-ES; drop --sequential")
+            raise TTError("cmaes --init model runs the batched CMA-ES; drop --sequential")
         if cmaes.screen <= 0:
-            raise ValueError("cmaes --init model needs a screening share (CMAESConfig.screen > 0) to verify the model's samples")
+            raise TTError("cmaes --init model needs a screening share (CMAESConfig.screen > 0) to verify the model's samples")
         self.sampler = sampler
         self.cmaes = CMAES(cmaes)
 

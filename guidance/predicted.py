@@ -79,9 +79,9 @@ def query_steps(motion_steps: int, window: int, count: int, *, placement: str = 
     the first T are scored).
     """
     if placement not in PLACEMENTS:
-        raise ValueError(f"placement {placement!r} is not one of {list(PLACEMENTS)}")
+        raise TTError(f"placement {placement!r} is not one of {list(PLACEMENTS)}")
     if motion_steps < 1 or window < 1:
-        raise ValueError(f"a query needs motion_steps >= 1 and window >= 1, got {motion_steps} and {window}")
+        raise TTError(f"a query needs motion_steps >= 1 and window >= 1, got {motion_steps} and {window}")
     if motion_steps < window:  # every step, then the last repeated (not scored, `scored_steps`)
         steps = torch.arange(window).clamp(max=motion_steps - 1)
         return steps[None].expand(count, window).clone()
@@ -142,7 +142,7 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
     track slots than end effectors, a motion longer than the time-ID table).
     """
     if count < 1:
-        raise ValueError(f"count must be >= 1, got {count}")
+        raise TTError(f"count must be >= 1, got {count}")
     if "target_pose" not in layout:
         raise LayoutError(f"the model's layout has no target_pose tokens to condition on; types: {list(layout.names)}")
     target_spec = layout["target_pose"]
@@ -368,19 +368,19 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     designs, motions = list(designs), list(motions)
     via = default_via(trained) if via is None else via
     if via not in VIAS:
-        raise ValueError(f"via {via!r} is not one of {list(VIAS)}")
+        raise TTError(f"via {via!r} is not one of {list(VIAS)}")
     if via == "dynamics" and not trained.trained_on("dynamics"):
         raise TTError(f"the model was trained on the tasks {list(trained.tasks)}, not 'dynamics', so it cannot take a "
                       "design as a condition; train with --task robot+dynamics, or predict with via='inpaint'")
     if not designs or not motions:
-        raise ValueError(f"predict needs at least one design and one motion, got {len(designs)} and {len(motions)}")
+        raise TTError(f"predict needs at least one design and one motion, got {len(designs)} and {len(motions)}")
     if samples < 1:
-        raise ValueError(f"samples must be >= 1, got {samples}")
+        raise TTError(f"samples must be >= 1, got {samples}")
     if chunk is not None and chunk < 1:
-        raise ValueError(f"chunk must be >= 1 or None, got {chunk}")
+        raise TTError(f"chunk must be >= 1 or None, got {chunk}")
     spaces = sorted({d.space for d in designs})
     if len(spaces) > 1:
-        raise ValueError(f"designs from several spaces in one call: {spaces}")
+        raise TTError(f"designs from several spaces in one call: {spaces}")
     check_space(trained, spaces[0])
     if device is None:
         held = next(iter(trained.model.parameters()), None)

@@ -41,6 +41,7 @@ from typing import Sequence
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.critic_grad import FORMS, NO_TERMINATION
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
@@ -76,20 +77,20 @@ class RefineConfig:
 
     def __post_init__(self) -> None:
         if self.form not in FORMS:
-            raise ValueError(f"form = {self.form!r}; must be one of {list(FORMS)}")
+            raise TTError(f"form = {self.form!r}; must be one of {list(FORMS)}")
         if self.form == "log" and self.terminate:
-            raise ValueError("form 'log' with terminate: the log form's steps are negative, so the climb would "
+            raise TTError("form 'log' with terminate: the log form's steps are negative, so the climb would "
                              "favour designs predicted to stop early; climb it without termination")
         if self.iterations < 1:
-            raise ValueError(f"iterations = {self.iterations}; must be >= 1")
+            raise TTError(f"iterations = {self.iterations}; must be >= 1")
         if not 0 < self.rel_step < 0.5:
-            raise ValueError(f"rel_step = {self.rel_step}; must be in (0, 0.5)")
+            raise TTError(f"rel_step = {self.rel_step}; must be in (0, 0.5)")
         if not self.step_sizes or not all(0 < s <= 1 for s in self.step_sizes):
-            raise ValueError(f"step_sizes = {self.step_sizes}; give at least one, each in (0, 1]")
+            raise TTError(f"step_sizes = {self.step_sizes}; give at least one, each in (0, 1]")
         if self.samples < 1:
-            raise ValueError(f"samples = {self.samples}; must be >= 1")
+            raise TTError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps < 1:
-            raise ValueError(f"num_steps = {self.num_steps}; must be >= 1")
+            raise TTError(f"num_steps = {self.num_steps}; must be >= 1")
 
 
 @dataclass
@@ -135,10 +136,10 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
     start = time.perf_counter()
     designs, motions = list(designs), list(motions)
     if not designs:
-        raise ValueError("refine needs at least one design")
+        raise TTError("refine needs at least one design")
     spaces = sorted({d.space for d in designs})
     if len(spaces) > 1:
-        raise ValueError(f"designs from several spaces in one call: {spaces}")
+        raise TTError(f"designs from several spaces in one call: {spaces}")
     space = get_space(spaces[0])
     if not config.terminate:
         cfg = dataclasses.replace(cfg, threshold=NO_TERMINATION)

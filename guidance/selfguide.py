@@ -49,6 +49,7 @@ from typing import Mapping
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.baselines.problem import Problem
 from tt.dit.sampling import GuideFn
 from tt.dit.tasks import ROBOT
@@ -80,7 +81,7 @@ def continuous_columns(name: str, width: int, device=None) -> torch.Tensor:
 
     spec = SCHEMA[name]
     if spec.width != width:
-        raise ValueError(f"token type {name!r} has {width} values here; its schema has {spec.width}")
+        raise TTError(f"token type {name!r} has {width} values here; its schema has {spec.width}")
     cols = torch.ones(width, dtype=torch.bool, device=device)
     for a in spec.attributes:
         if a.encoding is Encoding.BINARY:
@@ -119,13 +120,13 @@ class GuidanceScales:
     def scale(self, space: str, motions: int, guide_by: str = "model") -> float:
         if guide_by == "critic":
             if space not in self.critic:
-                raise ValueError(f"no critic guidance scale for design space {space!r}; spaces with one: "
+                raise TTError(f"no critic guidance scale for design space {space!r}; spaces with one: "
                                  f"{sorted(self.critic)} (give DGSConfig.scale)")
             return float(self.critic[space])
         if motions > 1 and space in self.multi:
             return float(self.multi[space])
         if space not in self.single:
-            raise ValueError(f"no guidance scale for design space {space!r}; spaces with one: {sorted(self.single)} "
+            raise TTError(f"no guidance scale for design space {space!r}; spaces with one: {sorted(self.single)} "
                              "(give DGSConfig.scale)")
         return float(self.single[space])
 
@@ -185,11 +186,11 @@ class SelfGuidance:
     def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0,
                  project: bool = False, continuous_only: bool = False):
         if not 0.0 <= sim_weight <= 1.0:
-            raise ValueError(f"sim_weight = {sim_weight}; must be in [0, 1]")
+            raise TTError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
-            raise ValueError("sim_weight > 0 needs a simulator gradient (sim=SimGradient(...))")
+            raise TTError("sim_weight > 0 needs a simulator gradient (sim=SimGradient(...))")
         if project and (critic is None or getattr(critic, "at", None) != "design" or sim_weight > 0):
-            raise ValueError("project needs a critic whose gradient is taken at the decoded design (at='design') "
+            raise TTError("project needs a critic whose gradient is taken at the decoded design (at='design') "
                              "and no simulator gradient")
         self.scale = float(scale)
         self.sim = sim
@@ -197,7 +198,7 @@ class SelfGuidance:
         self.critic = critic
         self.start_step = int(start_step)
         if project and continuous_only:
-            raise ValueError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
+            raise TTError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
         self.project = bool(project)
         self.continuous_only = bool(continuous_only)
         self.stats = GuidanceStats()
@@ -343,27 +344,27 @@ class DGSConfig(SamplerConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.guide_by not in GUIDES:
-            raise ValueError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
+            raise TTError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
         from tt.guidance.critic_grad import AT
 
         if self.critic_at not in AT:
-            raise ValueError(f"critic_at = {self.critic_at!r}; valid: {list(AT)}")
+            raise TTError(f"critic_at = {self.critic_at!r}; valid: {list(AT)}")
         if self.project and (self.guide_by != "critic" or self.critic_at != "design" or self.sim_grad_weight > 0):
-            raise ValueError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
+            raise TTError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
         if self.project and self.scale is None:
             # Its scale is a token step, not a gradient multiplier: the spaces' defaults do not apply.
-            raise ValueError("project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
+            raise TTError("project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
                              "on ViperX, benchmarks/results/codesign_guidance_project.md)")
         if self.project and self.continuous_only:
-            raise ValueError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
+            raise TTError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
         if self.through_start and (self.guide_by != "critic" or self.critic_at != "tokens"):
-            raise ValueError("through_start needs guide_by='critic' and critic_at='tokens'")
+            raise TTError("through_start needs guide_by='critic' and critic_at='tokens'")
         if self.guide_start < 0:
-            raise ValueError(f"guide_start = {self.guide_start}; must be >= 0")
+            raise TTError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
-            raise ValueError(f"sim_grad_weight = {self.sim_grad_weight}; must be in [0, 1]")
+            raise TTError(f"sim_grad_weight = {self.sim_grad_weight}; must be in [0, 1]")
         if self.sim_grad_start < 0:
-            raise ValueError(f"sim_grad_start = {self.sim_grad_start}; must be >= 0")
+            raise TTError(f"sim_grad_start = {self.sim_grad_start}; must be >= 0")
 
 
 class DynamicsSelfGuidance(ZerothOrder):

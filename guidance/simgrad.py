@@ -46,6 +46,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.stencil import central_points, choice_bounds
 from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
@@ -239,7 +240,7 @@ def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], 
 
     space = get_space(space) if isinstance(space, str) else space
     if space.has_contacts:
-        raise ValueError(f"design space {space.name!r} has contacts; the differentiable Warp rollout simulates "
+        raise TTError(f"design space {space.name!r} has contacts; the differentiable Warp rollout simulates "
                          "contact-free trees only")
     device = resolve_device(device)
     tdev = wp.device_to_torch(device)
@@ -358,7 +359,7 @@ class SimGradient:
 
         self.space = get_space(space) if isinstance(space, str) else space
         if self.space.has_contacts:
-            raise ValueError(f"--sim-grad-weight needs a contact-free design space; {self.space.name!r} has contacts")
+            raise TTError(f"--sim-grad-weight needs a contact-free design space; {self.space.name!r} has contacts")
         self.cfg, self.trained = cfg, trained
         # Exact structures only: the token gradient is mapped onto the candidate's own tokens,
         # so the decoded design must have them (a projected design has other tokens).

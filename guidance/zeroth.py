@@ -48,6 +48,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.baselines.problem import Optimizer, Problem, Result
 from tt.dit.checkpoint import TrainedModel, load_model
 from tt.dit.ddim import CosineDDIM
@@ -121,35 +122,35 @@ class SamplerConfig:
 
     def __post_init__(self) -> None:
         if self.refine < 0:
-            raise ValueError(f"refine = {self.refine}; must be >= 0")
+            raise TTError(f"refine = {self.refine}; must be >= 0")
         if self.refine_form not in FORMS:
-            raise ValueError(f"refine_form = {self.refine_form!r}; must be one of {list(FORMS)}")
+            raise TTError(f"refine_form = {self.refine_form!r}; must be one of {list(FORMS)}")
         if self.samples is not None and self.samples < 1:
-            raise ValueError(f"samples = {self.samples}; must be >= 1")
+            raise TTError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
-            raise ValueError(f"num_steps = {self.num_steps}; must be in 1 .. {ROBOT.diffusion_steps}")
+            raise TTError(f"num_steps = {self.num_steps}; must be in 1 .. {ROBOT.diffusion_steps}")
         if not self.eta >= 0:
-            raise ValueError(f"eta = {self.eta}; must be >= 0")
+            raise TTError(f"eta = {self.eta}; must be >= 0")
         if self.placement not in PLACEMENTS:
-            raise ValueError(f"placement = {self.placement!r}; valid: {list(PLACEMENTS)}")
+            raise TTError(f"placement = {self.placement!r}; valid: {list(PLACEMENTS)}")
         if self.decode not in DECODE_MODES:
-            raise ValueError(f"decode = {self.decode!r}; valid: {list(DECODE_MODES)}")
+            raise TTError(f"decode = {self.decode!r}; valid: {list(DECODE_MODES)}")
         if self.chunk is not None and self.chunk < 1:
-            raise ValueError(f"chunk = {self.chunk}; must be >= 1 or None")
+            raise TTError(f"chunk = {self.chunk}; must be >= 1 or None")
         if self.critic is not None and self.critic not in CRITICS:
-            raise ValueError(f"critic = {self.critic!r}; valid: {list(CRITICS)} or None")
+            raise TTError(f"critic = {self.critic!r}; valid: {list(CRITICS)} or None")
         if self.critic_samples < 1:
-            raise ValueError(f"critic_samples = {self.critic_samples}; must be >= 1")
+            raise TTError(f"critic_samples = {self.critic_samples}; must be >= 1")
         if self.critic == "joint" and self.critic_samples > 1:
-            raise ValueError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
+            raise TTError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
                              "scores the one draw sampled with the design")
         if self.critic_on is not None and self.critic_on not in CRITIC_INPUTS:
-            raise ValueError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)} or None")
+            raise TTError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)} or None")
         if self.critic == "joint" and self.critic_on == "designs":
-            raise ValueError("critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
+            raise TTError("critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
                              "with critic = 'joint'")
         if self.critic == "joint" and self.critic_checkpoint is not None:
-            raise ValueError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
+            raise TTError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
 
 
 # ------------------------------------------------------------------------------ sampling
@@ -208,7 +209,7 @@ def check_critic(trained: TrainedModel, critic: TrainedModel) -> None:
 
     where = f"critic checkpoint {critic.path}" if critic.path is not None else "the critic model"
     if not critic.trained_on("dynamics"):
-        raise ValueError(f"{where} was trained on {list(critic.tasks)}, not the dynamics task a critic needs "
+        raise TTError(f"{where} was trained on {list(critic.tasks)}, not the dynamics task a critic needs "
                          "(train it with --task dynamics)")
     if trained.space is not None and critic.space is not None and trained.space != critic.space:
         raise CheckpointSpaceError(f"{where} was trained on design space {critic.space!r}, the sampling model on "
@@ -280,18 +281,18 @@ class CandidateSampler:
         and "joint" is refused."""
         motions = tuple(motions)
         if not motions:
-            raise ValueError("motions is empty; give at least one target motion")
+            raise TTError("motions is empty; give at least one target motion")
         if critic not in CRITICS:
-            raise ValueError(f"critic {critic!r} is not one of {list(CRITICS)}")
+            raise TTError(f"critic {critic!r} is not one of {list(CRITICS)}")
         if critic == "joint" and self.critic_model is not None:
-            raise ValueError("this sampler has a critic model, whose dynamics task is the critic; critic 'joint' would "
+            raise TTError("this sampler has a critic model, whose dynamics task is the critic; critic 'joint' would "
                              "ignore it")
         judge = self.critic_model or self.trained
         if critic == "dynamics" and not judge.trained_on("dynamics"):
-            raise ValueError(f"critic 'dynamics' needs a model trained on the dynamics task; this one was trained on "
+            raise TTError(f"critic 'dynamics' needs a model trained on the dynamics task; this one was trained on "
                              f"{list(self.trained.tasks)} (train with --task robot+dynamics, or use critic 'joint')")
         if critic_samples < 1 or (critic == "joint" and critic_samples > 1):
-            raise ValueError(f"critic_samples = {critic_samples}: must be >= 1, and 1 for the joint critic")
+            raise TTError(f"critic_samples = {critic_samples}: must be >= 1, and 1 for the joint critic")
         layout, norm = self.trained.layout, self.trained.normalizer
         M = len(motions)
         composed = ComposedModel(self.model, M)
@@ -387,7 +388,7 @@ class DesignDecoder:
 
     def __init__(self, space: DesignSpace, table=None, max_distance: int | None = None, top_k: int = 2):
         if table is not None and table.space is not space:
-            raise ValueError(f"the candidate table is of space {table.space.name!r}, not {space.name!r}")
+            raise TTError(f"the candidate table is of space {table.space.name!r}, not {space.name!r}")
         self.space = space
         self._table = table
         self.max_distance = max_distance
@@ -495,7 +496,7 @@ def resolve_model(trained: TrainedModel | None, checkpoint, device: str | None) 
     if trained is not None:
         return trained
     if checkpoint is None:
-        raise ValueError("a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model")
+        raise TTError("a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model")
     from tt.kernels.device import default_device
 
     return load_model(checkpoint, device=device or default_device())
@@ -508,7 +509,7 @@ def learned_result(method: str, problem: Problem, gen: Generation, ranking: Rank
     best = ranking.best
     if best is None:
         reasons = sorted({d.error for d in ranking.decoded.values() if d.error})
-        raise ValueError(f"none of the {len(gen.objective)} candidates decoded to a design of space {problem.space!r}: "
+        raise TTError(f"none of the {len(gen.objective)} candidates decoded to a design of space {problem.space!r}: "
                          f"{'; '.join(reasons)}")
     done = [i for i in ranking.order if i in ranking.decoded and ranking.decoded[i].design is not None]
     designs = [ranking.decoded[i].design for i in done]
@@ -656,7 +657,7 @@ class ZerothOrder(Optimizer):
         if self.config.critic_on is None:
             return "designs" if start_aware else "tokens"
         if self.config.critic_on == "tokens" and start_aware:
-            raise ValueError("the dynamics critic was trained told the episode's start (dynamics_start); ask it about "
+            raise TTError("the dynamics critic was trained told the episode's start (dynamics_start); ask it about "
                              "the decoded designs (critic_on='designs', the default for it), whose first step can be "
                              "simulated, not about sampled tokens")
         return self.config.critic_on
@@ -706,7 +707,7 @@ class ZerothOrder(Optimizer):
         it was not trained on the dynamics task."""
         judge = self._critic or self._trained
         if not judge.trained_on("dynamics"):
-            raise ValueError(f"refine climbs the dynamics critic's prediction: the model was trained on "
+            raise TTError(f"refine climbs the dynamics critic's prediction: the model was trained on "
                              f"{list(judge.tasks)}; give a critic checkpoint trained on the dynamics task")
         return judge
 

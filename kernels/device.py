@@ -1,6 +1,7 @@
 """Device selection: CUDA when present, else the CPU; always an explicit parameter."""
 
 from __future__ import annotations
+from tt.kernels.errors import TTError
 
 
 def default_device() -> str:
@@ -23,5 +24,5 @@ def resolve_device(device: str | None) -> str:
     names = [str(d) for d in wp.get_devices()]
     aliases = {"cuda": "cuda:0"}
     if aliases.get(device, device) not in names:
-        raise ValueError(f"device {device!r} does not exist here; available: {names}")
+        raise TTError(f"device {device!r} does not exist here; available: {names}")
     return device

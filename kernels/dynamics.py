@@ -31,6 +31,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.fk import kinematics_funcs
 from tt.kernels.ltdl import ltdl_funcs
 from tt.kernels.model import (
@@ -485,9 +486,9 @@ def simulate(
     device = device or model.device
     W, NV, NU = qpos.shape[0], topo.dof_count, topo.actuator_count
     if qpos.shape != (W, NV) or qvel.shape != (W, NV):
-        raise ValueError(f"qpos {qpos.shape} and qvel {qvel.shape} must both be (W, {NV})")
+        raise TTError(f"qpos {qpos.shape} and qvel {qvel.shape} must both be (W, {NV})")
     if ctrl.ndim != 3 or ctrl.shape[0] != W or ctrl.shape[2] != NU:
-        raise ValueError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, {NU})")
+        raise TTError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, {NU})")
     S = ctrl.shape[1]
     out = SimpleNamespace(
         qpos=wp.array(np.full((W, S + 1, NV), np.inf, np.float32), dtype=float, device=device),

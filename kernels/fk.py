@@ -19,6 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.lie import lie_funcs, wxyz
 from tt.kernels.model import (
     JOINT_HINGE,
@@ -196,7 +197,7 @@ def forward_kinematics(
     topo = model.topology
     device = device or model.device
     if qpos.ndim != 2 or qpos.shape[1] != topo.dof_count:
-        raise ValueError(f"qpos has shape {qpos.shape}; expected (W, {topo.dof_count})")
+        raise TTError(f"qpos has shape {qpos.shape}; expected (W, {topo.dof_count})")
     W = qpos.shape[0]
     if out is None:
         out = kinematics_outputs(model, W, device=device)

@@ -24,6 +24,7 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.fk import kinematics_funcs, model_struct
 from tt.kernels.lie import lie_funcs
 from tt.kernels.ltdl import chain, ltdl_funcs
@@ -200,9 +201,9 @@ def ik_step(
     device = device or model.device
     W = qpos.shape[0]
     if qpos.shape != (W, topo.dof_count):
-        raise ValueError(f"qpos has shape {qpos.shape}; expected (W, {topo.dof_count})")
+        raise TTError(f"qpos has shape {qpos.shape}; expected (W, {topo.dof_count})")
     if target_pos.shape != (W, topo.ee_count) or target_quat.shape != (W, topo.ee_count):
-        raise ValueError(
+        raise TTError(
             f"target_pos {target_pos.shape} and target_quat {target_quat.shape} must be (W={W}, {topo.ee_count})"
         )
     if q_cmd_out is None:

@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.rotations import quat_to_mat
 
 #: MuJoCo joint types that tt's kernels simulate.
@@ -144,7 +145,7 @@ def _site_id(model: mujoco.MjModel, name: str) -> int:
     sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name)
     if sid < 0:
         names = [model.site(i).name for i in range(model.nsite)]
-        raise ValueError(f"end-effector site {name!r} is not in the model; its sites are {names}")
+        raise TTError(f"end-effector site {name!r} is not in the model; its sites are {names}")
     return sid
 
 
@@ -153,35 +154,35 @@ def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
     where = f"model {index}"
     types = set(int(t) for t in model.jnt_type)
     if not types <= {JOINT_HINGE, JOINT_SLIDE}:
-        raise ValueError(f"{where}: jnt_type {sorted(types)}; the warp tree kernels support hinge (3) and slide (2) joints only")
+        raise TTError(f"{where}: jnt_type {sorted(types)}; the warp tree kernels support hinge (3) and slide (2) joints only")
     if model.nq != model.nv or model.nv != model.njnt:
-        raise ValueError(f"{where}: nq={model.nq}, nv={model.nv}, njnt={model.njnt} must be equal for a hinge/slide tree")
+        raise TTError(f"{where}: nq={model.nq}, nv={model.nv}, njnt={model.njnt} must be equal for a hinge/slide tree")
     contact_disabled = bool(model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
     collides = np.any((model.geom_contype[:, None] & model.geom_conaffinity[None, :]) != 0) or model.npair > 0
     if collides and not contact_disabled:
-        raise ValueError(f"{where} has contacts (geom contype/conaffinity or contact pairs); the warp backend is contact-free")
+        raise TTError(f"{where} has contacts (geom contype/conaffinity or contact pairs); the warp backend is contact-free")
     if int(model.opt.integrator) != int(mujoco.mjtIntegrator.mjINT_EULER):
-        raise ValueError(f"{where}: integrator {mujoco.mjtIntegrator(model.opt.integrator).name}; only Euler is replicated")
+        raise TTError(f"{where}: integrator {mujoco.mjtIntegrator(model.opt.integrator).name}; only Euler is replicated")
     for name, count in (("neq", model.neq), ("ntendon", model.ntendon), ("na", model.na)):
         if count:
-            raise ValueError(f"{where}: {name} = {count}; equality constraints, tendons and actuator activations are not supported")
+            raise TTError(f"{where}: {name} = {count}; equality constraints, tendons and actuator activations are not supported")
     if np.any(model.dof_frictionloss != 0):
-        raise ValueError(f"{where}: dof_frictionloss is nonzero; friction loss is a constraint the tree kernels lack")
+        raise TTError(f"{where}: dof_frictionloss is nonzero; friction loss is a constraint the tree kernels lack")
     if np.any(model.jnt_actfrclimited):
-        raise ValueError(f"{where}: jnt_actfrclimited is set; joint-level actuator force limits are not supported")
+        raise TTError(f"{where}: jnt_actfrclimited is set; joint-level actuator force limits are not supported")
     if np.any(model.jnt_margin != 0):
-        raise ValueError(f"{where}: jnt_margin is nonzero; joint limits with margins are not supported")
+        raise TTError(f"{where}: jnt_margin is nonzero; joint limits with margins are not supported")
     if np.any(model.body_gravcomp != 0):
-        raise ValueError(f"{where}: body_gravcomp is nonzero; gravity compensation is not supported")
+        raise TTError(f"{where}: body_gravcomp is nonzero; gravity compensation is not supported")
     for i in range(model.nu):
         if int(model.actuator_trntype[i]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            raise ValueError(f"{where}: actuator {i} transmission {model.actuator_trntype[i]}; only joint transmissions are supported")
+            raise TTError(f"{where}: actuator {i} transmission {model.actuator_trntype[i]}; only joint transmissions are supported")
         if int(model.actuator_dyntype[i]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            raise ValueError(f"{where}: actuator {i} has activation dynamics; only stateless actuators are supported")
+            raise TTError(f"{where}: actuator {i} has activation dynamics; only stateless actuators are supported")
         if int(model.actuator_gaintype[i]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(model.actuator_biastype[i]) not in (
             int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
         ):
-            raise ValueError(f"{where}: actuator {i} gain/bias type; only fixed gain with affine or no bias is supported")
+            raise TTError(f"{where}: actuator {i} gain/bias type; only fixed gain with affine or no bias is supported")
 
 
 @dataclass
@@ -440,12 +441,12 @@ def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> Tr
     Raises ValueError naming the first model whose topology or features do not fit.
     """
     if len(models) == 0:
-        raise ValueError("models is empty; a tree model needs at least one MuJoCo model")
+        raise TTError("models is empty; a tree model needs at least one MuJoCo model")
     key0 = topology_key(models[0], ee_sites)
     for i, m in enumerate(models):
         check_supported(m, i)
         if i and topology_key(m, ee_sites) != key0:
-            raise ValueError(
+            raise TTError(
                 f"model {i} has a different topology from model 0 (body parents, joint types, "
                 f"joint bodies, actuator joints or end-effector bodies differ); group models by "
                 f"`topology_key` first"
@@ -492,9 +493,9 @@ def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> Tr
     D = mujoco.mjtDisableBit
     for i, m in enumerate(models):
         if flag_off(m, D.mjDSBL_EULERDAMP) and np.any(m.dof_damping > 0):
-            raise ValueError(f"model {i}: the eulerdamp flag is disabled; tt replicates Euler with implicit damping only")
+            raise TTError(f"model {i}: the eulerdamp flag is disabled; tt replicates Euler with implicit damping only")
         if m.opt.timestep <= 0:
-            raise ValueError(f"model {i}: timestep {m.opt.timestep} must be positive")
+            raise TTError(f"model {i}: timestep {m.opt.timestep} must be positive")
     values = dict(
         body_pos=body_pos,
         body_quat=body_quat,
@@ -590,7 +591,7 @@ def build_tree_model(
     Raises ValueError naming the first model whose topology or features do not fit.
     """
     if len(models) == 0:
-        raise ValueError("models is empty; build_tree_model needs at least one MuJoCo model")
+        raise TTError("models is empty; build_tree_model needs at least one MuJoCo model")
     # Each distinct model object is read once and the worlds gather its rows: a rollout of
     # D designs on M motions passes each model M times.
     entry_of: dict[int, int] = {}
@@ -605,7 +606,7 @@ def build_tree_model(
         fields = tree_fields([models[i] for i in position], ee_sites)
     except ValueError as e:
         # tree_fields names models by their index among the distinct ones; name them by `models`.
-        raise ValueError(_renumber(str(e), position)) from None
+        raise TTError(_renumber(str(e), position)) from None
     return tree_model(fields, world_entry=world_entry, device=device, requires_grad=requires_grad,
                       limit_sweeps=limit_sweeps)
 
@@ -754,7 +755,7 @@ class TopologyConstants:
 def topology_constants(topology: Topology) -> TopologyConstants:
     """The `TopologyConstants` of a topology (cached: one set of vectors)."""
     if topology.dof_count > MAX_DOFS:
-        raise ValueError(f"a tree has {topology.dof_count} dofs; tt's kernels take at most {MAX_DOFS}")
+        raise TTError(f"a tree has {topology.dof_count} dofs; tt's kernels take at most {MAX_DOFS}")
 
     def ints(values) -> object:
         values = tuple(int(v) for v in values) or (0,)

@@ -61,6 +61,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.dynamics import dynamics_funcs
 from tt.kernels.fk import kinematics_funcs
 from tt.kernels.ik import IKWeights, ik_funcs
@@ -408,9 +409,9 @@ def action_noise_draws(
 
 def _check_noise(action_noise: float, noise_seed: int) -> None:
     if not (np.isfinite(action_noise) and action_noise >= 0.0):
-        raise ValueError(f"action_noise = {action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+        raise TTError(f"action_noise = {action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
     if not isinstance(noise_seed, (int, np.integer)) or not 0 <= noise_seed < 2**31:
-        raise ValueError(f"noise_seed = {noise_seed!r}; must be an integer in 0..2**31-1")
+        raise TTError(f"noise_seed = {noise_seed!r}; must be an integer in 0..2**31-1")
 
 
 @dataclass
@@ -493,7 +494,7 @@ def cpu_threads(threads: int | None = None) -> int:
         except AttributeError:  # not on Linux
             return os.cpu_count() or 1
     if not isinstance(threads, (int, np.integer)) or isinstance(threads, bool) or threads < 1:
-        raise ValueError(f"threads = {threads!r}; must be an integer >= 1 (None: every core)")
+        raise TTError(f"threads = {threads!r}; must be an integer >= 1 (None: every core)")
     return int(threads)
 
 
@@ -643,7 +644,7 @@ def rollout_tree(
     ratio = control_dt / dt
     substeps = np.rint(ratio).astype(int)
     if np.any(substeps < 1) or np.any(np.abs(ratio - substeps) > 1e-6 * ratio) or len(set(substeps.tolist())) != 1:
-        raise ValueError(
+        raise TTError(
             f"model timesteps {sorted(set(dt.tolist()))} s must all divide control_dt "
             f"{control_dt} s into one whole number of physics steps"
         )
@@ -652,11 +653,11 @@ def rollout_tree(
     W, NV, NU, NE = world_count, topo.dof_count, max(topo.actuator_count, 1), topo.ee_count
     world_ids = np.arange(W) if world_ids is None else np.asarray(world_ids)
     if world_ids.shape != (W,):
-        raise ValueError(f"world_ids has shape {world_ids.shape}; expected ({W},), one id per world")
+        raise TTError(f"world_ids has shape {world_ids.shape}; expected ({W},), one id per world")
     if motions.pos.ndim != 3 or motions.pos.shape[2] != NE:
-        raise ValueError(f"motion pos has shape {motions.pos.shape}; expected (M, T, {NE}) for {NE} end effector(s)")
+        raise TTError(f"motion pos has shape {motions.pos.shape}; expected (M, T, {NE}) for {NE} end effector(s)")
     if steps < 1:
-        raise ValueError(f"steps = {steps}; a rollout needs at least one control step")
+        raise TTError(f"steps = {steps}; a rollout needs at least one control step")
     slots = steps * substeps + 1 if differentiable else 1
 
     def zeros(shape, dtype, grad=differentiable):
@@ -684,7 +685,7 @@ def rollout_tree(
     use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
     if use_graph and differentiable:
         if graph:
-            raise ValueError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
+            raise TTError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
         use_graph = False
     threads = cpu_threads(threads)
     if differentiable or use_graph or wp.get_device(device).is_cuda:

@@ -68,6 +68,7 @@ from typing import Any
 import mujoco
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.lie import MINK_JLOG_EPS, lie_funcs
 
 _MODULE = "tt_wbc"
@@ -685,13 +686,13 @@ def _check_inputs(model: WBCModel, qpos: wp.array | None, target_pos: wp.array, 
     if qpos is not None:
         W = qpos.shape[0]
         if qpos.ndim != 2 or qpos.shape[1] != model.nq or qpos.dtype not in _QPOS_DTYPES:
-            raise ValueError(
+            raise TTError(
                 f"qpos has shape {qpos.shape} and dtype {qpos.dtype.__name__}; expected (W, {model.nq}) float32 or float64"
             )
     kinds = [(p, r) for p, r in _TARGET_DTYPES if wp.types.types_equal(target_pos.dtype, p)]
     for name, arr, index in (("target_pos", target_pos, 0), ("target_quat", target_quat, 1)):
         if arr.shape != (W, model.ee_count) or not kinds or not wp.types.types_equal(arr.dtype, kinds[0][index]):
-            raise ValueError(
+            raise TTError(
                 f"{name} has shape {arr.shape} and dtype {arr.dtype.__name__}; expected (W={W}, {model.ee_count}) "
                 "vec3 / vec4 (or vec3d / vec4d for both)"
             )
@@ -772,11 +773,11 @@ def wbc_step(
     if data is None:
         data = make_wbc_data(model, W, device=device)
     elif data.world_count != W:
-        raise ValueError(f"data holds {data.world_count} worlds; qpos has {W}")
+        raise TTError(f"data holds {data.world_count} worlds; qpos has {W}")
     if q_cmd_out is None:
         q_cmd_out = wp.empty((W, model.nq), dtype=qpos.dtype, device=device)
     elif q_cmd_out.shape != (W, model.nq) or q_cmd_out.dtype != qpos.dtype:
-        raise ValueError(f"q_cmd_out has shape {q_cmd_out.shape}; expected (W={W}, {model.nq}) of qpos's dtype")
+        raise TTError(f"q_cmd_out has shape {q_cmd_out.shape}; expected (W={W}, {model.nq}) of qpos's dtype")
     wp.launch(_load_qpos, dim=qpos.shape, inputs=[qpos], outputs=[data.q], device=device)
     _load_step_targets(target_pos, target_quat, data, device)
     _step(model, data, W, device)
@@ -805,7 +806,7 @@ def wbc_initial_q(
     W = _check_inputs(model, None, target_pos, target_quat)
     iterations = int(iterations)
     if iterations < 0:
-        raise ValueError(f"iterations = {iterations}; must be >= 0")
+        raise TTError(f"iterations = {iterations}; must be >= 0")
     if data is None:
         data = make_wbc_data(model, W, device=device)
     _load_step_targets(target_pos, target_quat, data, device)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 import mink
 import mujoco
 import numpy as np
+from tt.kernels.errors import TTError
 
 
 @dataclass(frozen=True)
@@ -121,11 +122,11 @@ class IKConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.init_iterations, int) or self.init_iterations < 0:
-            raise ValueError(f"IKConfig.init_iterations = {self.init_iterations!r}; must be an integer >= 0")
+            raise TTError(f"IKConfig.init_iterations = {self.init_iterations!r}; must be an integer >= 0")
         positive = {"control_dt": self.control_dt, "termination_pos_error": self.termination_pos_error}
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"IKConfig.{name} = {value!r}; must be a positive number")
+                raise TTError(f"IKConfig.{name} = {value!r}; must be a positive number")
         nonneg = {
             "lookahead_time": self.lookahead_time,
             "position_cost": self.position_cost,
@@ -137,7 +138,7 @@ class IKConfig:
         }
         for name, value in nonneg.items():
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"IKConfig.{name} = {value!r}; must be a finite number >= 0")
+                raise TTError(f"IKConfig.{name} = {value!r}; must be a finite number >= 0")
 
     @property
     def lookahead_steps(self) -> int:
@@ -171,7 +172,7 @@ class IKConfig:
         ratio = self.control_dt / model.opt.timestep
         n = int(round(ratio))
         if n < 1 or abs(ratio - n) > 1e-6 * ratio:
-            raise ValueError(
+            raise TTError(
                 f"model timestep {model.opt.timestep} s does not divide IKConfig.control_dt "
                 f"{self.control_dt} s into a whole number of physics steps"
             )
@@ -188,7 +189,7 @@ def ee_site_names(model: mujoco.MjModel) -> tuple[str, ...]:
     while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"ee_{len(names)}") >= 0:
         names.append(f"ee_{len(names)}")
     if not names:
-        raise ValueError(f"model {model_name(model)!r} has no end-effector site 'ee_0'")
+        raise TTError(f"model {model_name(model)!r} has no end-effector site 'ee_0'")
     return tuple(names)
 
 
@@ -203,7 +204,7 @@ def check_fixed_base(model: mujoco.MjModel) -> None:
     free = np.flatnonzero(model.jnt_type == int(mujoco.mjtJoint.mjJNT_FREE))
     if free.size:
         joint = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(free[0]))
-        raise ValueError(
+        raise TTError(
             f"model {model_name(model)!r} has a free joint ({joint!r}): a floating-base robot "
             "(the quadruped) needs the whole-body controller; the DiffIK arm controller "
             "drives fixed-base arms only"
@@ -221,7 +222,7 @@ def actuated_qpos(model: mujoco.MjModel) -> np.ndarray:
         kind = int(model.jnt_type[joint]) if joint >= 0 else -1
         if int(model.actuator_trntype[i]) != int(mujoco.mjtTrn.mjTRN_JOINT) or kind not in _HINGE_OR_SLIDE:
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i)
-            raise ValueError(
+            raise TTError(
                 f"actuator {i} ({name!r}) of model {model_name(model)!r} does not drive a hinge "
                 "or slide joint; the DiffIK controller commands joint position actuators"
             )
@@ -272,9 +273,9 @@ class DiffIKController:
         targets_pos = np.asarray(targets_pos, dtype=np.float64).reshape(-1, 3)
         targets_quat = np.asarray(targets_quat, dtype=np.float64).reshape(-1, 4)
         if q.shape != (self.model.nq,):
-            raise ValueError(f"q has shape {q.shape}; model {model_name(self.model)!r} needs ({self.model.nq},)")
+            raise TTError(f"q has shape {q.shape}; model {model_name(self.model)!r} needs ({self.model.nq},)")
         if len(targets_pos) != len(self.sites) or len(targets_quat) != len(self.sites):
-            raise ValueError(
+            raise TTError(
                 f"got {len(targets_pos)} target positions and {len(targets_quat)} orientations; "
                 f"model {model_name(self.model)!r} has {len(self.sites)} end effectors {list(self.sites)}"
             )

@@ -65,6 +65,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.records import RecordArrays
 from tt.sim.backends import Robots, get_backend
 from tt.sim.controller import IKConfig, actuated_qpos, model_name
@@ -151,7 +152,7 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
     import mujoco_warp as mjw
 
     if len(models) == 0:
-        raise ValueError("models is empty; batch_model needs at least one MuJoCo model")
+        raise TTError("models is empty; batch_model needs at least one MuJoCo model")
     keys = {}
     key0 = structure_key(models[0]) if check else None
     for i, m in enumerate(models if check else ()):
@@ -159,7 +160,7 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
         if key is None:
             key = keys[id(m)] = structure_key(m)
         if key != key0:
-            raise ValueError(
+            raise TTError(
                 f"model {i} ({model_name(m)!r}) has a different structure from model 0 (integer fields or "
                 "options differ); group models by `structure_key` first"
             )
@@ -183,7 +184,7 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
                 continue
             shared = array.numpy()
             if first.size != shared.size or not np.allclose(first.reshape(shared.shape), shared, rtol=1e-6, atol=1e-6):
-                raise ValueError(
+                raise TTError(
                     f"field {'opt.' if owner else ''}{name} differs between the models, but MuJoCo-Warp does not "
                     "store it as MuJoCo does, so it cannot be set per world"
                 )
@@ -222,17 +223,17 @@ def padded_motions(motions: Sequence[Motion], arms: int, control_dt: float, *, d
     from tt.kernels.rollout import motion_arrays
 
     if len(motions) == 0:
-        raise ValueError("motions is empty; a rollout needs at least one motion")
+        raise TTError("motions is empty; a rollout needs at least one motion")
     for j, motion in enumerate(motions):
         if not isinstance(motion, Motion):
             raise TypeError(f"motions[{j}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
         if abs(motion.dt - control_dt) > 1e-9:
-            raise ValueError(
+            raise TTError(
                 f"motions[{j}] ({motion.name!r}) has dt = {motion.dt} s; the controller runs at "
                 f"control_dt = {control_dt} s and needs motions sampled at that period"
             )
         if motion.arms != arms:
-            raise ValueError(f"motions[{j}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+            raise TTError(f"motions[{j}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
     T = max(motion.steps for motion in motions)
     pos = np.zeros((len(motions), T, arms, 3))
     quat = np.zeros((len(motions), T, arms, 4))
@@ -301,7 +302,7 @@ def mjwarp_rollout(
 
     device = resolve_device(device)
     if floating_controller not in FLOATING_CONTROLLERS:
-        raise ValueError(f"floating_controller = {floating_controller!r}; expected one of {FLOATING_CONTROLLERS}")
+        raise TTError(f"floating_controller = {floating_controller!r}; expected one of {FLOATING_CONTROLLERS}")
     if isinstance(config, WBCConfig):
         wbc_config = config  # `tt.sim.rollout.rollout` passes one config for every backend
     robots = designs if isinstance(designs, Robots) else get_backend("mjwarp").resolve(designs)
@@ -316,7 +317,7 @@ def mjwarp_rollout(
         actuated_qpos(m)  # every actuator must drive a hinge or slide joint
     dts = {(wbc_config if floating[i] else config).control_dt for i in range(D)}
     if len(dts) > 1:
-        raise ValueError(f"IKConfig.control_dt and WBCConfig.control_dt differ ({sorted(dts)}); one batch needs one rate")
+        raise TTError(f"IKConfig.control_dt and WBCConfig.control_dt differ ({sorted(dts)}); one batch needs one rate")
     control_dt = dts.pop()
     marrays, T = padded_motions(motions, A, control_dt, device=device)
 
@@ -528,7 +529,7 @@ def mjwarp_simulate(
     ctrl = np.asarray(ctrl, dtype=np.float64)
     nq, nv, nu = (max(getattr(m, k) for m in models) for k in ("nq", "nv", "nu"))
     if ctrl.ndim != 3 or ctrl.shape[0] != W or ctrl.shape[2] < nu:
-        raise ValueError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, >= {nu})")
+        raise TTError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, >= {nu})")
     S = ctrl.shape[1]
     qpos_out = np.zeros((W, S + 1, nq))
     qvel_out = np.zeros((W, S + 1, nv))

@@ -50,6 +50,7 @@ import mujoco
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.flat_joints import actuator_record, apply_actuators, body_site_poses, gather_state
 from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
 from tt.sim.backends import Robots, get_backend
@@ -97,23 +98,23 @@ def _check_newton_model(m: mujoco.MjModel, index: int) -> None:
     where = f"designs[{index}] ({model_name(m)!r})"
     kinds = set(int(t) for t in m.jnt_type)
     if not kinds <= set(_HINGE_OR_SLIDE):
-        raise ValueError(f"{where}: joint types {sorted(kinds)}; the newton backend simulates hinge and slide joints")
+        raise TTError(f"{where}: joint types {sorted(kinds)}; the newton backend simulates hinge and slide joints")
     contact_off = bool(m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
     if not contact_off and (np.any((m.geom_contype[:, None] & m.geom_conaffinity[None, :]) != 0) or m.npair):
-        raise ValueError(f"{where} has contacts; the newton backend runs contact-free arms (use backend='mjwarp')")
+        raise TTError(f"{where} has contacts; the newton backend runs contact-free arms (use backend='mjwarp')")
     if m.neq or m.ntendon:
-        raise ValueError(f"{where}: neq = {m.neq}, ntendon = {m.ntendon}; Featherstone has no equality constraints or tendons")
+        raise TTError(f"{where}: neq = {m.neq}, ntendon = {m.ntendon}; Featherstone has no equality constraints or tendons")
     if int(m.opt.integrator) != int(mujoco.mjtIntegrator.mjINT_EULER):
-        raise ValueError(f"{where}: integrator {mujoco.mjtIntegrator(m.opt.integrator).name}; the newton backend matches Euler")
+        raise TTError(f"{where}: integrator {mujoco.mjtIntegrator(m.opt.integrator).name}; the newton backend matches Euler")
     for u in range(m.nu):
         if int(m.actuator_gaintype[u]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(m.actuator_biastype[u]) not in (
             int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
         ) or int(m.actuator_dyntype[u]) != int(mujoco.mjtDyn.mjDYN_NONE):
-            raise ValueError(f"{where}: actuator {u} is not a stateless fixed-gain affine actuator (position servo)")
+            raise TTError(f"{where}: actuator {u} is not a stateless fixed-gain affine actuator (position servo)")
     if len(set(m.actuator_trnid[:, 0].tolist())) != m.nu:
-        raise ValueError(f"{where}: several actuators drive one joint; the newton backend applies one force per joint")
+        raise TTError(f"{where}: several actuators drive one joint; the newton backend applies one force per joint")
     if np.any(m.body_gravcomp != 0) or np.any(m.dof_frictionloss != 0):
-        raise ValueError(f"{where}: gravity compensation and friction loss are not replicated on Newton")
+        raise TTError(f"{where}: gravity compensation and friction loss are not replicated on Newton")
 
 
 def _design_inputs(designs: Sequence[Design] | Robots) -> tuple[list[mujoco.MjModel], list[str], tuple[str, ...]]:
@@ -363,7 +364,7 @@ def newton_rollout(
     substeps = config.substeps(models[0])
     dt = float(models[0].opt.timestep)
     if any(config.substeps(m) != substeps or m.opt.timestep != dt for m in models):
-        raise ValueError("designs have different timesteps; one Newton model steps all worlds with one dt")
+        raise TTError("designs have different timesteps; one Newton model steps all worlds with one dt")
     marrays, T = padded_motions(motions, A, config.control_dt, device=device)
     worlds = build_worlds(models, xmls, M, device=device)
     model, solver = worlds.model, worlds.solver
@@ -494,11 +495,11 @@ def newton_simulate(
     nq, nv, nu = (max(getattr(m, k) for m in models) for k in ("nq", "nv", "nu"))
     ctrl = np.asarray(ctrl, dtype=np.float64)
     if ctrl.ndim != 3 or ctrl.shape[0] != W or ctrl.shape[2] < nu:
-        raise ValueError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, >= {nu})")
+        raise TTError(f"ctrl has shape {ctrl.shape}; expected (W={W}, S, >= {nu})")
     S = ctrl.shape[1]
     dt = float(models[0].opt.timestep)
     if any(m.opt.timestep != dt for m in models):
-        raise ValueError("designs have different timesteps; one Newton model steps all worlds with one dt")
+        raise TTError("designs have different timesteps; one Newton model steps all worlds with one dt")
     worlds = build_worlds(models, xmls, 1, device=device, requires_grad=requires_grad)
     model, solver = worlds.model, worlds.solver
 

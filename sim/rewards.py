@@ -50,6 +50,7 @@ from typing import Mapping, NamedTuple, Sequence
 import mujoco
 import numpy as np
 import torch
+from tt.kernels.errors import TTError
 
 #: Reward names, in the paper's order.
 REWARDS: tuple[str, ...] = (
@@ -117,12 +118,12 @@ class RewardConfig:
         for f in ("sigma_p", "sigma_o", "threshold"):
             v = getattr(self, f)
             if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"RewardConfig.{f} = {v!r}; must be a finite number > 0")
+                raise TTError(f"RewardConfig.{f} = {v!r}; must be a finite number > 0")
         for f in fields(self):
             if f.name.endswith(("_alpha", "_alpha_guidance", "_target")):
                 v = getattr(self, f.name)
                 if not (math.isfinite(v) and v >= 0):
-                    raise ValueError(f"RewardConfig.{f.name} = {v!r}; must be a finite number >= 0")
+                    raise TTError(f"RewardConfig.{f.name} = {v!r}; must be a finite number >= 0")
 
     def __call__(self, inputs: RewardInputs, *, guidance: bool = False) -> torch.Tensor:
         """Episode reward of each world, (W,); see `reward`."""
@@ -179,9 +180,9 @@ _EMBODIMENT_ALPHA_GUIDANCE = 0.005
 def get_reward(name: str, space: str) -> RewardConfig:
     """The config of reward `name` on design space `space`; raises ValueError on unknown names."""
     if name not in REWARDS:
-        raise ValueError(f"unknown reward {name!r}; valid: {list(REWARDS)}")
+        raise TTError(f"unknown reward {name!r}; valid: {list(REWARDS)}")
     if space not in _SPACE_WEIGHTS:
-        raise ValueError(f"no reward weights for design space {space!r}; valid: {list(_SPACE_WEIGHTS)}")
+        raise TTError(f"no reward weights for design space {space!r}; valid: {list(_SPACE_WEIGHTS)}")
     w = _SPACE_WEIGHTS[space]
     cfg = RewardConfig(
         name=name, space=space, threshold=w.threshold, size_target=w.size_target, mass_target=w.mass_target
@@ -232,7 +233,7 @@ class RewardInputs:
 
     def __post_init__(self) -> None:
         if self.ee_pos.ndim != 4 or self.ee_pos.shape[-1] != 3:
-            raise ValueError(f"RewardInputs.ee_pos has shape {tuple(self.ee_pos.shape)}; expected (W, T, A, 3)")
+            raise TTError(f"RewardInputs.ee_pos has shape {tuple(self.ee_pos.shape)}; expected (W, T, A, 3)")
         W, T, A, _ = self.ee_pos.shape
         device = self.ee_pos.device
         expected = {
@@ -252,9 +253,9 @@ class RewardInputs:
             if x is None:
                 continue
             if not isinstance(x, torch.Tensor):
-                raise ValueError(f"RewardInputs.{name} is a {type(x).__name__}; expected a torch.Tensor")
+                raise TTError(f"RewardInputs.{name} is a {type(x).__name__}; expected a torch.Tensor")
             if x.device != device:
-                raise ValueError(f"RewardInputs.{name} is on {x.device}; ee_pos is on {device}, use one device")
+                raise TTError(f"RewardInputs.{name} is on {x.device}; ee_pos is on {device}, use one device")
             if name.startswith("target_"):
                 # numpy's rule, not torch.broadcast_shapes: the torch one imports sympy on its
                 # first call (about 1 s, in every CLI process that scores).
@@ -267,7 +268,7 @@ class RewardInputs:
             if not ok:
                 want = tuple("nu" if s is None else s for s in shape)
                 how = "broadcastable to " if name.startswith("target_") else ""
-                raise ValueError(f"RewardInputs.{name} has shape {tuple(x.shape)}; expected {how}{want}")
+                raise TTError(f"RewardInputs.{name} has shape {tuple(x.shape)}; expected {how}{want}")
 
     @property
     def worlds(self) -> int:
@@ -378,7 +379,7 @@ def evaluate(inputs: RewardInputs, cfg: RewardConfig, *, guidance: bool = False)
     """
     missing = [f for f in cfg.needs if getattr(inputs, f) is None]
     if missing:
-        raise ValueError(f"reward {cfg.name!r} reads RewardInputs.{', '.join(missing)}, which is None")
+        raise TTError(f"reward {cfg.name!r} reads RewardInputs.{', '.join(missing)}, which is None")
     pos_err = position_error(inputs.ee_pos, inputs.target_pos)  # (W, T, A)
     orn_err = orientation_error(inputs.ee_quat, inputs.target_quat)  # (W, T, A)
     eps_p = pos_err.sum(-1)  # (W, T)

@@ -34,6 +34,7 @@ import mujoco
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.sim.backends import get_backend
 from tt.sim.controller import IKConfig, check_fixed_base
 from tt.sim.designs import Design
@@ -104,10 +105,10 @@ def rollout(
 
         cpu_threads(threads)  # a bad count fails on every backend
     if action_noise != 0.0 and not impl.perturbs:
-        raise ValueError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
+        raise TTError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
                          "clean commands (use action_noise=0)")
     if isinstance(designs, DesignTrees) and backend != "warp":
-        raise ValueError(f"designs compiled to tree fields (DesignTrees) run on backend 'warp' only; "
+        raise TTError(f"designs compiled to tree fields (DesignTrees) run on backend 'warp' only; "
                          f"pass backend {backend!r} the Designs themselves")
     robots = designs if isinstance(designs, DesignTrees) else impl.resolve(designs)
     return impl.run(robots, motions, config=config, device=device, chunk=chunk, progress=progress,
@@ -156,7 +157,7 @@ def rollout_records(
     T = max(motion.steps for motion in motions)
     run_steps = T if steps is None else int(steps)
     if not 1 <= run_steps <= T:
-        raise ValueError(f"steps = {steps}; must be 1 .. {T}, the longest motion's")
+        raise TTError(f"steps = {steps}; must be 1 .. {T}, the longest motion's")
     A = len(sites)
     pos = np.zeros((M, T, A, 3))
     quat = np.zeros((M, T, A, 4))
@@ -217,7 +218,7 @@ def _tree_groups(models: "Sequence[mujoco.MjModel] | DesignTrees", sites: tuple[
 
     if isinstance(models, DesignTrees):
         if tuple(sites) != tuple(models.ee_sites):
-            raise ValueError(f"sites {list(sites)} differ from the designs' end effectors {list(models.ee_sites)}")
+            raise TTError(f"sites {list(sites)} differ from the designs' end effectors {list(models.ee_sites)}")
         return [(list(int(i) for i in members), fields) for members, fields in models.groups]
     for i, m in enumerate(models):
         check_fixed_base(m)

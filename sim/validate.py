@@ -48,6 +48,7 @@ import mujoco
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.sim.controller import (
     DiffIKController,
     IKConfig,
@@ -178,7 +179,7 @@ def oracle_rollout(
     floating bases from the step they fell (always False for arms).
     """
     if len(designs) == 0 or len(motions) == 0:
-        raise ValueError(f"need at least one design and one motion, got {len(designs)} and {len(motions)}")
+        raise TTError(f"need at least one design and one motion, got {len(designs)} and {len(motions)}")
     robots = designs if isinstance(designs, Robots) else resolve_designs(designs, who="the oracle", one_space=False)
     for m, motion in enumerate(motions):
         if not isinstance(motion, Motion):
@@ -192,7 +193,7 @@ def oracle_rollout(
     for m, motion in enumerate(motions):
         for kind, cfg in used.items():
             if abs(motion.dt - cfg.control_dt) > 1e-9:
-                raise ValueError(
+                raise TTError(
                     f"motions[{m}] ({motion.name!r}) has dt = {motion.dt} s; the oracle controls at "
                     f"{kind}.control_dt = {cfg.control_dt} s and needs motions sampled at that period"
                 )
@@ -207,7 +208,7 @@ def oracle_rollout(
         configs[-1].substeps(model)
         for m, motion in enumerate(motions):
             if motion.arms != len(sites):
-                raise ValueError(
+                raise TTError(
                     f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s) but designs[{d}] "
                     f"({model_name(model)!r}) has {len(sites)} end effector(s) {list(sites)}"
                 )

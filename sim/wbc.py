@@ -20,6 +20,7 @@ import mink
 import mujoco
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.sim.controller import IKConfig, actuated_qpos, ee_site_names, model_name
 
 #: Prefix of the foot site names (``foot_fl``, ...); a floating-base model needs at least one.
@@ -139,11 +140,11 @@ class WBCConfig(IKConfig):
         }
         for name, value in nonneg.items():
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"WBCConfig.{name} = {value!r}; must be a finite number >= 0")
+                raise TTError(f"WBCConfig.{name} = {value!r}; must be a finite number >= 0")
         if not 0.0 < self.fall_height_fraction < 1.0:
-            raise ValueError(f"WBCConfig.fall_height_fraction = {self.fall_height_fraction!r}; must be in (0, 1)")
+            raise TTError(f"WBCConfig.fall_height_fraction = {self.fall_height_fraction!r}; must be in (0, 1)")
         if not 0.0 < self.fall_tilt < math.pi:
-            raise ValueError(f"WBCConfig.fall_tilt = {self.fall_tilt!r} rad; must be in (0, pi)")
+            raise TTError(f"WBCConfig.fall_tilt = {self.fall_tilt!r} rad; must be in (0, pi)")
 
     def wbc_weights(self):
         """The task weights as the whole-body kernels' struct (`tt.kernels.wbc.WBCWeights`)."""
@@ -159,7 +160,7 @@ def free_joint(model: mujoco.MjModel) -> int | None:
     """Id of the model's free joint, or None for a fixed-base model; raises for several."""
     free = np.flatnonzero(model.jnt_type == int(mujoco.mjtJoint.mjJNT_FREE))
     if free.size > 1:
-        raise ValueError(f"model {model_name(model)!r} has {free.size} free joints; tt's robots have at most one")
+        raise TTError(f"model {model_name(model)!r} has {free.size} free joints; tt's robots have at most one")
     return int(free[0]) if free.size else None
 
 
@@ -168,7 +169,7 @@ def foot_site_names(model: mujoco.MjModel) -> tuple[str, ...]:
     sites = (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SITE, i) or "" for i in range(model.nsite))
     names = tuple(name for name in sites if name.startswith(FOOT_SITE_PREFIX))
     if not names:
-        raise ValueError(
+        raise TTError(
             f"model {model_name(model)!r} has a free joint but no foot sites '{FOOT_SITE_PREFIX}*': the "
             "whole-body controller holds a legged robot's feet at their stance points and cannot drive "
             "a floating base without them"
@@ -186,7 +187,7 @@ def standing_height(model: mujoco.MjModel) -> float:
     """Base height [m] in the ``home`` pose: the free joint's z there."""
     joint = free_joint(model)
     if joint is None:
-        raise ValueError(f"model {model_name(model)!r} has no free joint, so no base height")
+        raise TTError(f"model {model_name(model)!r} has no free joint, so no base height")
     return float(home_qpos(model)[model.jnt_qposadr[joint] + 2])
 
 
@@ -237,7 +238,7 @@ class SitePositionTask(mink.Task):
         super().__init__(cost=np.full(self.k, float(cost)))
         self.site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)
         if self.site_id < 0:
-            raise ValueError(f"model {model_name(model)!r} has no site {site!r}")
+            raise TTError(f"model {model_name(model)!r} has no site {site!r}")
         self.target = np.asarray(target, dtype=np.float64).reshape(3).copy()
 
     def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
@@ -307,13 +308,13 @@ class WholeBodyController:
     def __init__(self, model: mujoco.MjModel, config: WBCConfig = WBCConfig()):
         joint = free_joint(model)
         if joint is None:
-            raise ValueError(
+            raise TTError(
                 f"model {model_name(model)!r} has no free joint; fixed-base arms use "
                 "tt.sim.controller.DiffIKController"
             )
         if int(model.jnt_bodyid[joint]) != 1:
             # mink's ComTask reads the subtree of body 1, which must then be the whole robot.
-            raise ValueError(
+            raise TTError(
                 f"model {model_name(model)!r}: the free joint {model.joint(joint).name!r} is on body "
                 f"{model.body(model.jnt_bodyid[joint]).name!r}; the whole-body controller needs it on "
                 "the first body under the world (the robot's root)"
@@ -366,9 +367,9 @@ class WholeBodyController:
         targets_pos = np.asarray(targets_pos, dtype=np.float64).reshape(-1, 3)
         targets_quat = np.asarray(targets_quat, dtype=np.float64).reshape(-1, 4)
         if q.shape != (self.model.nq,):
-            raise ValueError(f"q has shape {q.shape}; model {model_name(self.model)!r} needs ({self.model.nq},)")
+            raise TTError(f"q has shape {q.shape}; model {model_name(self.model)!r} needs ({self.model.nq},)")
         if len(targets_pos) != len(self.sites) or len(targets_quat) != len(self.sites):
-            raise ValueError(
+            raise TTError(
                 f"got {len(targets_pos)} target positions and {len(targets_quat)} orientations; "
                 f"model {model_name(self.model)!r} has {len(self.sites)} end effectors {list(self.sites)}"
             )

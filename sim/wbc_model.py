@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 import warp as wp
 
+from tt.kernels.errors import TTError
 from tt.kernels.wbc import JOINT_FREE, JOINT_HINGE, JOINT_SLIDE, WBCModel
 from tt.sim.controller import ee_site_names, model_name
 from tt.sim.wbc import WBCConfig, foot_site_names, free_joint, home_qpos, posture_costs, stance_points
@@ -26,19 +27,19 @@ def _check_model(m: mujoco.MjModel, index: int) -> None:
     where = f"model {index} ({model_name(m)!r})"
     joint = free_joint(m)
     if joint is None:
-        raise ValueError(f"{where} has no free joint; the whole-body kernels drive floating bases (arms: tt.kernels.ik)")
+        raise TTError(f"{where} has no free joint; the whole-body kernels drive floating bases (arms: tt.kernels.ik)")
     if int(m.jnt_bodyid[joint]) != 1 or int(m.body_jntadr[1]) != joint:
-        raise ValueError(f"{where}: the free joint must be the first joint of body 1 (the robot's root), as the oracle needs")
+        raise TTError(f"{where}: the free joint must be the first joint of body 1 (the robot's root), as the oracle needs")
     kinds = set(int(t) for t in m.jnt_type)
     if not kinds <= {JOINT_FREE, JOINT_HINGE, JOINT_SLIDE}:
-        raise ValueError(f"{where}: jnt_type {sorted(kinds)}; the whole-body kernels support free, hinge and slide joints")
+        raise TTError(f"{where}: jnt_type {sorted(kinds)}; the whole-body kernels support free, hinge and slide joints")
     for e in range(m.neq):
         if int(m.eq_type[e]) != int(mujoco.mjtEq.mjEQ_CONNECT):
-            raise ValueError(
+            raise TTError(
                 f"{where}: equality {e} has eq_type {mujoco.mjtEq(m.eq_type[e]).name}; only connect equalities are supported"
             )
         if int(m.eq_objtype[e]) not in (int(mujoco.mjtObj.mjOBJ_SITE), int(mujoco.mjtObj.mjOBJ_BODY)):
-            raise ValueError(f"{where}: equality {e} connects objects of type {m.eq_objtype[e]}; expected sites or bodies")
+            raise TTError(f"{where}: equality {e} connects objects of type {m.eq_objtype[e]}; expected sites or bodies")
 
 
 def _connects(m: mujoco.MjModel) -> list[tuple[int, np.ndarray, int, np.ndarray]]:
@@ -87,7 +88,7 @@ def build_wbc_model(
 
     device = resolve_device(device)
     if len(models) == 0:
-        raise ValueError("models is empty; build_wbc_model needs at least one MuJoCo model")
+        raise TTError("models is empty; build_wbc_model needs at least one MuJoCo model")
     distinct: dict[int, dict] = {}
     for i, m in enumerate(models):
         if id(m) in distinct:
@@ -101,7 +102,7 @@ def build_wbc_model(
         )  # fmt: skip
     ne = {len(v["sites"]) for v in distinct.values()}
     if len(ne) > 1:
-        raise ValueError(f"the models have different end-effector counts {sorted(ne)}; one batch tracks one motion layout")
+        raise TTError(f"the models have different end-effector counts {sorted(ne)}; one batch tracks one motion layout")
     NE = ne.pop()
     NB = max(m.nbody for m in models)
     NJ = max(m.njnt for m in models)

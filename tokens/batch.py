@@ -17,6 +17,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, atomic_write, read_npz
 from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, check_version
 
@@ -47,18 +48,18 @@ class TokenBatch:
         schema_names = SCHEMA.names()
         for name, v in self.values.items():
             if name not in self.ids or name not in self.mask:
-                raise ValueError(f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, mask={name in self.mask}")
+                raise TTError(f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, mask={name in self.mask}")
             ids_shape, mask_shape = tuple(self.ids[name].shape), tuple(self.mask[name].shape)
             if name in schema_names:
                 t = SCHEMA[name]
                 if v.shape[-1] != t.width:
-                    raise ValueError(f"values[{name!r}] has width {v.shape[-1]}, schema v{SCHEMA_VERSION} says {t.width}")
+                    raise TTError(f"values[{name!r}] has width {v.shape[-1]}, schema v{SCHEMA_VERSION} says {t.width}")
                 if ids_shape != (*v.shape[:2], len(t.ids)):
-                    raise ValueError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], len(t.ids))}")
+                    raise TTError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], len(t.ids))}")
             elif len(ids_shape) != 3 or ids_shape[:2] != tuple(v.shape[:2]):
-                raise ValueError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], 'K')}")
+                raise TTError(f"ids[{name!r}] has shape {ids_shape}, expected {(*v.shape[:2], 'K')}")
             if mask_shape != tuple(v.shape[:2]):
-                raise ValueError(f"mask[{name!r}] has shape {mask_shape}, expected {tuple(v.shape[:2])}")
+                raise TTError(f"mask[{name!r}] has shape {mask_shape}, expected {tuple(v.shape[:2])}")
 
     @property
     def types(self) -> tuple[str, ...]:
@@ -76,7 +77,7 @@ class TokenBatch:
         """Device of the (torch) values; ``cpu`` for numpy arrays."""
         for v in self.values.values():
             return v.device if isinstance(v, torch.Tensor) else torch.device("cpu")
-        raise ValueError("an empty TokenBatch has no device")
+        raise TTError("an empty TokenBatch has no device")
 
     def _map(self, fv, fi, fm) -> "TokenBatch":
         return TokenBatch({n: fv(self.values[n]) for n in self.types}, {n: fi(self.ids[n]) for n in self.types},
@@ -108,10 +109,10 @@ class TokenBatch:
     def merge(self, other: "TokenBatch") -> "TokenBatch":
         """Token types of both batches (same N); a type present in both is an error."""
         if len(self) != len(other) and self.values and other.values:
-            raise ValueError(f"cannot merge batches of {len(self)} and {len(other)} samples")
+            raise TTError(f"cannot merge batches of {len(self)} and {len(other)} samples")
         both = set(self.types) & set(other.types)
         if both:
-            raise ValueError(f"both batches hold token types {sorted(both)}")
+            raise TTError(f"both batches hold token types {sorted(both)}")
         check_version(other.version, "merged batch")
         return TokenBatch({**self.values, **other.values}, {**self.ids, **other.ids}, {**self.mask, **other.mask}, self.version)
 
@@ -149,7 +150,7 @@ class TokenBatch:
             cur = self.values[name].shape[1] if name in self.values else 0
             want = lengths.get(name, cur)
             if cur > want:
-                raise ValueError(f"token type {name!r} has {cur} tokens, more than the requested length {want}")
+                raise TTError(f"token type {name!r} has {cur} tokens, more than the requested length {want}")
             if name in self.values:
                 v, i, m = _np(self.values[name]), _np(self.ids[name]), _np(self.mask[name])
             else:
@@ -166,14 +167,14 @@ class TokenBatch:
         them) stay torch tensors on their device; numpy batches are padded to the longest
         of each type."""
         if not batches:
-            raise ValueError("concatenate needs at least one TokenBatch")
+            raise TTError("concatenate needs at least one TokenBatch")
         for b in batches:
             check_version(b.version, "a concatenated batch")
         if all(isinstance(v, torch.Tensor) for b in batches for v in b.values.values()) and batches[0].values:
             names = batches[0].types
             for b in batches[1:]:
                 if b.types != names:
-                    raise ValueError(f"cannot concatenate torch batches of types {list(names)} and {list(b.types)}")
+                    raise TTError(f"cannot concatenate torch batches of types {list(names)} and {list(b.types)}")
             return TokenBatch({n: torch.cat([b.values[n] for b in batches]) for n in names},
                               {n: torch.cat([b.ids[n] for b in batches]) for n in names},
                               {n: torch.cat([b.mask[n] for b in batches]) for n in names}, batches[0].version)

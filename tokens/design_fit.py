@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, DesignSpace
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA, Encoding
@@ -164,7 +165,7 @@ def discrete_choices(space: DesignSpace, limit: int = 20000) -> list[tuple[int, 
         if len(prefix) == len(params):
             out.append(prefix)
             if len(out) > limit:
-                raise ValueError(f"space {space.name!r} has more than {limit} discrete combinations; raise `limit` to search them all")
+                raise TTError(f"space {space.name!r} has more than {limit} discrete combinations; raise `limit` to search them all")
             continue
         for o in reversed(range(len(params[len(prefix)].options))):
             stack.append(prefix + (o,))
@@ -425,9 +426,9 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
     from scipy.optimize import least_squares
 
     if max_distance is not None and max_distance < 0:
-        raise ValueError(f"max_distance must be >= 0 or None, got {max_distance}")
+        raise TTError(f"max_distance must be >= 0 or None, got {max_distance}")
     if fit not in FITS:
-        raise ValueError(f"fit = {fit!r}; valid: {list(FITS)}")
+        raise TTError(f"fit = {fit!r}; valid: {list(FITS)}")
     table = table if table is not None and table.space is space else CandidateTable(space)
     feat = _type_features(tokens, index)
     if len(table) == 0:

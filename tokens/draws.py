@@ -18,6 +18,7 @@ from typing import Mapping
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.tokens.schema import SCHEMA
 
 #: Data biasing methods of ``--bias``.
@@ -85,35 +86,35 @@ class GenerateConfig:
         for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"GenerateConfig.{name} = {v!r}; must be an integer >= 1")
+                raise TTError(f"GenerateConfig.{name} = {v!r}; must be an integer >= 1")
         if self.bias not in (None, *BIASES):
-            raise ValueError(f"GenerateConfig.bias = {self.bias!r}; valid: None or {list(BIASES)}")
+            raise TTError(f"GenerateConfig.bias = {self.bias!r}; valid: None or {list(BIASES)}")
         if self.backend not in BACKENDS:
-            raise ValueError(f"GenerateConfig.backend = {self.backend!r}; valid: {list(BACKENDS)}")
+            raise TTError(f"GenerateConfig.backend = {self.backend!r}; valid: {list(BACKENDS)}")
         if self.backend == "warp" and get_space(self.space).has_contacts:
-            raise ValueError(f"design space {self.space!r} has contacts; GenerateConfig.backend 'warp' simulates "
+            raise TTError(f"design space {self.space!r} has contacts; GenerateConfig.backend 'warp' simulates "
                              "contact-free trees only, use backend='mujoco'")
         if self.reward not in REWARDS:
-            raise ValueError(f"GenerateConfig.reward = {self.reward!r}; valid: {list(REWARDS)}")
+            raise TTError(f"GenerateConfig.reward = {self.reward!r}; valid: {list(REWARDS)}")
         if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
-            raise ValueError(f"GenerateConfig.max_motion_steps = {self.max_motion_steps} is below min_steps = "
+            raise TTError(f"GenerateConfig.max_motion_steps = {self.max_motion_steps} is below min_steps = "
                              f"{self.min_steps}: every episode would be dropped")
         if self.cmaes_popsize < 2 or self.cmaes_generations < 1:
-            raise ValueError(f"CMA-ES needs popsize >= 2 and generations >= 1, got {self.cmaes_popsize}, {self.cmaes_generations}")
+            raise TTError(f"CMA-ES needs popsize >= 2 and generations >= 1, got {self.cmaes_popsize}, {self.cmaes_generations}")
         if not (0 <= self.max_yaw <= math.pi and 0 <= self.max_shift):
-            raise ValueError(f"augmentation ranges must satisfy 0 <= max_yaw <= pi, max_shift >= 0; got {self.max_yaw}, {self.max_shift}")
+            raise TTError(f"augmentation ranges must satisfy 0 <= max_yaw <= pi, max_shift >= 0; got {self.max_yaw}, {self.max_shift}")
         if not 0 <= self.seed < 2**32:
-            raise ValueError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
+            raise TTError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
         if not (isinstance(self.action_noise, (int, float, np.integer, np.floating)) and math.isfinite(self.action_noise) and self.action_noise >= 0):
-            raise ValueError(f"GenerateConfig.action_noise = {self.action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+            raise TTError(f"GenerateConfig.action_noise = {self.action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
         if not (isinstance(self.select, (int, np.integer)) and self.select >= 1):
-            raise ValueError(f"--select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+            raise TTError(f"--select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
         if not 0.0 <= self.uniform_share <= 1.0:
-            raise ValueError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
+            raise TTError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
         if self.uniform_share > 0 and self.select == 1:
-            raise ValueError("--uniform-share applies only with --select above 1 (without selection every design is uniform)")
+            raise TTError("--uniform-share applies only with --select above 1 (without selection every design is uniform)")
         if self.action_noise > 0 and self.backend != "warp":
-            raise ValueError(f"GenerateConfig.action_noise = {self.action_noise} needs backend 'warp' (the backend that "
+            raise TTError(f"GenerateConfig.action_noise = {self.action_noise} needs backend 'warp' (the backend that "
                              f"perturbs commands); backend {self.backend!r} needs action_noise=0")
 
     @property
@@ -123,7 +124,7 @@ class GenerateConfig:
     def shard_designs(self, index: int) -> int:
         """Number of designs of shard `index`."""
         if not 0 <= index < self.shards:
-            raise ValueError(f"shard {index} does not exist; the dataset has shards 0..{self.shards - 1}")
+            raise TTError(f"shard {index} does not exist; the dataset has shards 0..{self.shards - 1}")
         return min(self.designs_per_shard, self.designs - index * self.designs_per_shard)
 
     def group_keep(self, group: int) -> int:
@@ -270,7 +271,7 @@ def select_episodes(reward: np.ndarray, motion: np.ndarray, eligible: np.ndarray
     motion = np.asarray(motion)
     eligible = np.asarray(eligible, bool)
     if not 0.0 <= uniform_share <= 1.0:
-        raise ValueError(f"uniform share {uniform_share} must lie in [0, 1]")
+        raise TTError(f"uniform share {uniform_share} must lie in [0, 1]")
     n_uniform = int(round(keep * uniform_share))
     out = np.zeros(len(reward), bool)
     for m in np.unique(motion):

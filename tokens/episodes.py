@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.sim.episode import Episode
 from tt.tokens.batch import TokenBatch
 from tt.tokens.tokenize import RobotIndex
@@ -36,9 +37,9 @@ def sample_steps(lengths: torch.Tensor, steps: int, mode: str = "random", genera
     shorter than `steps`).
     """
     if mode not in STEP_MODES:
-        raise ValueError(f"mode {mode!r} is not a step mode; valid: {list(STEP_MODES)}")
+        raise TTError(f"mode {mode!r} is not a step mode; valid: {list(STEP_MODES)}")
     if steps < 1:
-        raise ValueError(f"steps must be >= 1, got {steps}")
+        raise TTError(f"steps must be >= 1, got {steps}")
     device = lengths.device
     w = lengths.shape[0]
     t = int(horizon if horizon is not None else max(int(lengths.max()), 1) if w else 1)
@@ -164,7 +165,7 @@ def _columns(addr: np.ndarray, width: int, start: int, limit: int, zero: int, fi
     live = addr[used]
     if live.size and int(live.max()) + width > limit:
         bad = int(np.argmax((addr.max(1) + width > limit) & used))
-        raise ValueError(f"robots[{bad}].{field} reaches column {int(addr[bad].max()) + width - 1} of episode.{source}, "
+        raise TTError(f"robots[{bad}].{field} reaches column {int(addr[bad].max()) + width - 1} of episode.{source}, "
                          f"which has {limit} columns: the episode was not rolled out with this robot")
     return np.where(addr[..., None] >= 0, start + addr[..., None] + np.arange(width), zero)
 
@@ -193,20 +194,20 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
     W, T = episode.worlds, episode.steps
     design = episode.design_index.detach().cpu().numpy().astype(np.int64)
     if design.shape != (W,) or (W and (design.min() < 0 or design.max() >= len(robots))):
-        raise ValueError(f"episode.design_index must index the {len(robots)} robots given, one per world; got shape {design.shape}"
+        raise TTError(f"episode.design_index must index the {len(robots)} robots given, one per world; got shape {design.shape}"
                          + (f", values {design.min()}..{design.max()}" if W else ""))
     if step_index is None:
         st, valid = sample_steps(episode.lengths().to(dev), steps, mode, generator, horizon=T)
     else:
         st = step_index.to(dev).long()
         if st.ndim != 2 or st.shape[0] != W or (st.numel() and (int(st.min()) < 0 or int(st.max()) >= T)):
-            raise ValueError(f"step_index must be (W={W}, K) with values in 0..{T - 1}, got shape {tuple(st.shape)}")
+            raise TTError(f"step_index must be (W={W}, K) with values in 0..{T - 1}, got shape {tuple(st.shape)}")
         valid = torch.ones_like(st, dtype=torch.bool)
     K = st.shape[1]
     A = episode.ee_pos.shape[2]
     counts = {len(r.track_link) for r in robots}
     if counts != {A}:
-        raise ValueError(f"episode has {A} end effectors but the robots have {sorted(counts)} track links")
+        raise TTError(f"episode has {A} end effectors but the robots have {sorted(counts)} track links")
     tab = _robot_tables(robots)
     used = np.bincount(design, minlength=len(robots)) > 0
     # Every token reads rows (world, step) of the episode: copy those rows once per tensor.

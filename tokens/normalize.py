@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import PAD_VALUE, SCHEMA, SCHEMA_VERSION, Encoding, check_version
 
@@ -66,15 +67,15 @@ class Normalizer:
 
     def __init__(self, low: Mapping, high: Mapping, version: int = SCHEMA_VERSION):
         if set(low) != set(high):
-            raise ValueError(f"low and high name different types: {sorted(low)} vs {sorted(high)}")
+            raise TTError(f"low and high name different types: {sorted(low)} vs {sorted(high)}")
         self.low = {k: np.array(_np(v), dtype=np.float64) for k, v in low.items()}
         self.high = {k: np.array(_np(v), dtype=np.float64) for k, v in high.items()}
         self.version = int(version)
         for k in self.low:
             if self.low[k].ndim != 1 or self.low[k].shape != self.high[k].shape:
-                raise ValueError(f"type {k!r}: low {self.low[k].shape} and high {self.high[k].shape} must be equal (D,) shapes")
+                raise TTError(f"type {k!r}: low {self.low[k].shape} and high {self.high[k].shape} must be equal (D,) shapes")
             if (self.high[k] < self.low[k]).any():
-                raise ValueError(f"type {k!r}: high < low in value {int(np.flatnonzero(self.high[k] < self.low[k])[0])}")
+                raise TTError(f"type {k!r}: high < low in value {int(np.flatnonzero(self.high[k] < self.low[k])[0])}")
 
     def __repr__(self) -> str:
         widths = ", ".join(f"{k}: {len(v)}" for k, v in self.low.items())
@@ -92,7 +93,7 @@ class Normalizer:
         A type without real tokens gets no statistics.
         """
         if not 0.0 <= quantile < 0.5:
-            raise ValueError(f"quantile must be in [0, 0.5), got {quantile}")
+            raise TTError(f"quantile must be in [0, 0.5), got {quantile}")
         parts = [data] if isinstance(data, (Mapping, TokenBatch)) else data
         lo: dict[str, np.ndarray] = {}
         hi: dict[str, np.ndarray] = {}
@@ -106,7 +107,7 @@ class Normalizer:
             for name, values, mask in items:
                 v = _np(values).astype(np.float64)[_np(mask).astype(bool)]  # (n, D)
                 if name in SCHEMA.names() and v.shape[-1] != SCHEMA[name].width:
-                    raise ValueError(f"values of token type {name!r} are {v.shape[-1]} wide; schema v{SCHEMA_VERSION} says {SCHEMA[name].width}")
+                    raise TTError(f"values of token type {name!r} are {v.shape[-1]} wide; schema v{SCHEMA_VERSION} says {SCHEMA[name].width}")
                 if not len(v):
                     continue
                 if quantile > 0:
@@ -211,7 +212,7 @@ class Normalizer:
         out = {"schema_version": self.version, "types": {}}
         for name in self.low:
             if name not in SCHEMA.names():
-                raise ValueError(f"token type {name!r} is not in schema v{SCHEMA_VERSION} ({list(SCHEMA.names())}); "
+                raise TTError(f"token type {name!r} is not in schema v{SCHEMA_VERSION} ({list(SCHEMA.names())}); "
                                  "save its statistics with state_dict")
             t = SCHEMA[name]
             out["types"][name] = {a.name: {"low": self.low[name][t.slice(a.name)].tolist(), "high": self.high[name][t.slice(a.name)].tolist()}
@@ -227,7 +228,7 @@ class Normalizer:
             t = SCHEMA[name]
             missing = [a.name for a in t.attributes if a.name not in attrs]
             if missing:
-                raise ValueError(f"statistics of {name!r} lack attributes {missing}")
+                raise TTError(f"statistics of {name!r} lack attributes {missing}")
             low[name] = np.concatenate([np.asarray(attrs[a.name]["low"], dtype=np.float64) for a in t.attributes])
             high[name] = np.concatenate([np.asarray(attrs[a.name]["high"], dtype=np.float64) for a in t.attributes])
         return Normalizer(low, high, int(data["schema_version"]))

@@ -684,7 +684,7 @@ class TokenStore:
 
     def __init__(self, path: str | Path, *, verify: str = "size", require_complete: bool = False):
         if verify not in ("none", "size", "full"):
-            raise ValueError(f"verify must be 'none', 'size' or 'full', got {verify!r}")
+            raise TTError(f"verify must be 'none', 'size' or 'full', got {verify!r}")
         self.path = Path(path)
         self.attrs = read_root(self.path)
         if require_complete and not self.attrs.get("complete"):

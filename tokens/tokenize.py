@@ -438,7 +438,7 @@ class Tokenizer:
         """
         models = list(models)
         if not models:
-            raise ValueError("tokenize needs at least one model")
+            raise TTError("tokenize needs at least one model")
         groups: dict[bytes, list[int]] = {}
         for i, m in enumerate(models):
             if not isinstance(m, mujoco.MjModel):

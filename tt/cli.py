@@ -21,8 +21,8 @@ _PICKLE_WORDS = ("allow_pickle", "weights_only", "untrusted")
 def error_message(e: BaseException) -> str:
     """One line for the user from an exception a command raised.
 
-    tt's own errors (`tt.TTError`, and every ValueError) carry their message; file-system
-    errors name the file; anything else is a bug in tt, said so.
+    tt's errors about bad input (`tt.TTError`) carry their message; file-system errors
+    (OSError) name the file; anything else is a bug in tt, said so (`is_bug`).
     """
     if isinstance(e, FileNotFoundError) and e.filename is None and str(e):
         text = str(e)  # tt's own "X does not exist"
@@ -30,15 +30,27 @@ def error_message(e: BaseException) -> str:
         text = f"{e.strerror} while writing {e.filename or 'output'}; free space and run the command again"
     elif isinstance(e, OSError) and e.filename is not None:
         text = f"{e.strerror or type(e).__name__}: {e.filename}"
-    elif isinstance(e, (ValueError, OSError, FloatingPointError)) and str(e):
-        text = str(e)
     elif isinstance(e, MemoryError):
         text = "out of memory; use fewer designs, motions or a smaller batch"
+    elif not is_bug(e):
+        text = str(e)
     else:
-        text = f"internal error ({type(e).__name__}: {e}); this is a bug in tt: rerun with -v for the traceback and report it"
+        text = (f"internal error ({type(e).__name__}: {e}); this is a bug in tt: please report it with the command "
+                "and the traceback above")
     if any(w in text.lower() for w in _PICKLE_WORDS):
         text = "a file holds Python objects (pickled data), which tt never writes and does not load"
     return " ".join(line.strip() for line in text.splitlines() if line.strip())
+
+
+def is_bug(e: BaseException) -> bool:
+    """Whether an exception a command raised is a bug in tt rather than bad input: everything
+    but a `tt.TTError` with a message, an OSError (a file, a full disk) and running out of
+    memory. A bare ValueError is a bug too: tt raises TTError for every input it refuses."""
+    from tt.kernels.errors import TTError
+
+    if isinstance(e, MemoryError):
+        return False
+    return not (isinstance(e, (TTError, OSError)) and str(e))
 
 
 #: typer (0.29 on) ships its own copy of click and dispatches through it, so tt imports no
@@ -49,8 +61,9 @@ _TYPER_CLICK_ERROR = next(c for c in typer.BadParameter.__mro__ if c.__name__ ==
 
 
 class _Commands(TyperGroup):
-    """The one error handler of every command: ``error: ...`` on stderr, exit code 2, the
-    traceback only with ``tt -v``."""
+    """The one error handler of every command: ``error: ...`` on stderr, exit code 2. Bad input
+    (`tt.TTError`, a file's OSError) is that one line, its traceback only with ``tt -v``; any
+    other exception is a bug in tt, shown with its traceback and a request to report it."""
 
     def invoke(self, ctx: typer.Context):
         try:
@@ -58,7 +71,7 @@ class _Commands(TyperGroup):
         except (typer.Exit, typer.Abort, _TYPER_CLICK_ERROR, KeyboardInterrupt):
             raise  # usage errors (a flag out of its range, say) are click's to report
         except Exception as e:
-            if ctx.params.get("verbose"):
+            if ctx.params.get("verbose") or is_bug(e):
                 import traceback
 
                 traceback.print_exception(e)
@@ -687,14 +700,11 @@ def predict(
         _fail(f"designs from several spaces in one call: {spaces}")
     space = spaces[0]
     ms = _motions(motion, motion_file, space)
-    try:
-        from tt.api import predict as predict_designs, predict_checkpoint
+    from tt.api import predict as predict_designs, predict_checkpoint
 
-        ckpt = predict_checkpoint(space, checkpoint)
-        pred = predict_designs(designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed,
-                               device=device, via=via)
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
+    ckpt = predict_checkpoint(space, checkpoint)
+    pred = predict_designs(designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed,
+                           device=device, via=via)
 
     def clean(v: float) -> float | None:
         return float(v) if math.isfinite(v) else None
@@ -834,10 +844,7 @@ def train(
         from tt.selection import CheckpointSelector, SelectionConfig
         from tt.sim.rewards import REWARDS, get_reward
 
-        try:
-            trained_tasks = task_names(task)
-        except ValueError as e:
-            _fail(str(e))
+        trained_tasks = task_names(task)  # a TTError names --task
         if not {"robot", "dynamics"} & set(trained_tasks):
             _fail(f"--select-designs scores the model as a critic, which needs --task with robot or dynamics, got {task!r}")
         if select_reward not in REWARDS:
@@ -846,12 +853,9 @@ def train(
         if reads_actuators and "actuator_obs" in (drop_type or ()):
             _fail(f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
                   "actuator_obs leaves out")
-        try:
-            selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
-                                                               reward=select_reward, device=device),
-                                          fresh=not resume)
-        except ValueError as e:
-            _fail(str(e))
+        selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
+                                                           reward=select_reward, device=device),
+                                      fresh=not resume)
     online_config = None
     if online:
         from tt.dit.online import OnlineConfig

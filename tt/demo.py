@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tt.kernels.errors import TTError
 
 log = logging.getLogger(__name__)
 
@@ -68,13 +69,13 @@ class DemoConfig:
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in ALL_METHODS]
         if unknown:
-            raise ValueError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")
+            raise TTError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")
         if self.samples < 1:
-            raise ValueError(f"DemoConfig.samples = {self.samples}; must be >= 1")
+            raise TTError(f"DemoConfig.samples = {self.samples}; must be >= 1")
         from tt.dit.tasks import ROBOT
 
         if not 1 <= self.num_steps <= ROBOT.diffusion_steps:
-            raise ValueError(f"DemoConfig.num_steps = {self.num_steps}; must be in 1 .. {ROBOT.diffusion_steps}")
+            raise TTError(f"DemoConfig.num_steps = {self.num_steps}; must be in 1 .. {ROBOT.diffusion_steps}")
 
 
 @dataclass
@@ -133,7 +134,7 @@ def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None
         from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
         if learned is None:
-            raise ValueError(f"method {method!r} needs a DiT checkpoint")
+            raise TTError(f"method {method!r} needs a DiT checkpoint")
         if method in ("zeroth", "zeroth-sim"):
             zeroth = ZerothOrder(SamplerConfig(samples=config.samples, num_steps=config.num_steps),
                                  model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
@@ -186,7 +187,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
         start = time.perf_counter()
         try:
             result = make_optimizer(method, config, learned).optimize(problem)
-        except ValueError as e:
+        except TTError as e:
             if method not in LEARNED:
                 raise
             # A model whose candidates all fail to decode to the space's designs returns none;

@@ -59,6 +59,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import torch
 
+from tt.kernels.errors import TTError
 from tt.tokens.draws import (
     _STREAM_CMAES,
     _STREAM_DESIGNS,
@@ -463,10 +464,10 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
     from tt.kernels.rollout import cpu_threads
 
     if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
+        raise TTError(f"workers must be >= 1, got {workers}")
     threads = cpu_threads(threads) if threads is not None else max(1, cpu_threads() // workers)
     if verify not in ("size", "full"):
-        raise ValueError(f"verify must be 'size' or 'full', got {verify!r}")
+        raise TTError(f"verify must be 'size' or 'full', got {verify!r}")
     device = resolve_device(device)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

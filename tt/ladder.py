@@ -24,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
 
 
@@ -60,7 +61,7 @@ def validation_motions(space: str, count: int | None = None) -> list:
     val = motion_set("val", arms=get_space(space).ee_count)
     if count is not None:
         if count < 1:
-            raise ValueError(f"count must be >= 1, got {count}")
+            raise TTError(f"count must be >= 1, got {count}")
         stride = max(1, len(val) // count)
         val = val[::stride][:count]
     return for_space(val, space)

@@ -70,19 +70,20 @@ def get_optimizer(method: str, *, space: str | None = None, **options) -> Optimi
     Without it a learned method needs ``checkpoint=`` and ranks by that model's own dynamics
     unless ``critic_checkpoint=`` is given."""
     from tt.baselines import CMAES, CMAESConfig, RandomSearch
+    from tt.kernels.errors import TTError
 
     if space is not None:
         options = learned_defaults(method, space, options)
     if method == "random":
         if options:
-            raise ValueError(f"random search takes no options, got {sorted(options)}")
+            raise TTError(f"random search takes no options, got {sorted(options)}")
         return RandomSearch()
     if method == "cmaes":
         from dataclasses import fields
 
         unknown = sorted(set(options) - {f.name for f in fields(CMAESConfig)})
         if unknown:
-            raise ValueError(f"unknown cmaes options {unknown}; valid: {[f.name for f in fields(CMAESConfig)]}")
+            raise TTError(f"unknown cmaes options {unknown}; valid: {[f.name for f in fields(CMAESConfig)]}")
         return CMAES(CMAESConfig(**options))
     if method == "zeroth":
         from tt.guidance.zeroth import SamplerConfig, ZerothOrder  # lazy: torch models load only when asked for
@@ -107,7 +108,7 @@ def get_optimizer(method: str, *, space: str | None = None, **options) -> Optimi
         cma = {k: v for k, v in options.items() if k in cma_names}
         return ModelInitCMAES(ZerothOrder(SamplerConfig(**{k: v for k, v in options.items() if k not in cma_names})),
                               CMAESConfig(**cma))
-    raise ValueError(f"unknown method {method!r}; valid: {list(METHODS)}")
+    raise TTError(f"unknown method {method!r}; valid: {list(METHODS)}")
 
 
 def run_optimizer(problem: Problem, method: str = "cmaes", **options) -> Result:

@@ -91,10 +91,12 @@ def ratio_ci(a, b, *, samples: int = 10_000, seed: int = 0) -> tuple[float, floa
     (runs resampled with replacement, pairs kept): (ratio, low, high)."""
     import numpy as np
 
+    from tt.kernels.errors import TTError
+
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if a.shape != b.shape or a.ndim != 1 or a.size == 0:
-        raise ValueError(f"ratio_ci needs two equal-length 1-D samples, got shapes {a.shape} and {b.shape}")
+        raise TTError(f"ratio_ci needs two equal-length 1-D samples, got shapes {a.shape} and {b.shape}")
     idx = np.random.default_rng(seed).integers(0, a.size, size=(samples, a.size))
     boot = a[idx].mean(axis=1) / b[idx].mean(axis=1)
     low, high = np.percentile(boot, [2.5, 97.5])

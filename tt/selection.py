@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tt.kernels.errors import TTError
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
 from tt.kernels.files import CorruptFileError, atomic_write, read_json, reason, write_text
 
@@ -67,9 +68,9 @@ class SelectionConfig:
         for name in ("designs", "motions", "num_steps", "samples"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
-                raise ValueError(f"SelectionConfig.{name} = {value!r}; must be an integer >= 1")
+                raise TTError(f"SelectionConfig.{name} = {value!r}; must be an integer >= 1")
         if self.designs < 3:
-            raise ValueError(f"SelectionConfig.designs = {self.designs}; a correlation needs at least 3 designs")
+            raise TTError(f"SelectionConfig.designs = {self.designs}; a correlation needs at least 3 designs")
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,7 @@ class CheckpointSelector:
         before = {k: v for k, v in stored.items() if k != "device"}
         now = {k: v for k, v in json.loads(json.dumps(asdict(self.config))).items() if k != "device"}
         if before != now:
-            raise ValueError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
+            raise TTError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
                              "compare; give the same --select-* flags, or start the run over with --no-resume")
 
     @property
@@ -181,7 +182,7 @@ class CheckpointSelector:
         t0 = time.perf_counter()
         trained = load_model(checkpoint, device=self.config.device or default_device())
         if trained.space is None:
-            raise ValueError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
+            raise TTError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
         designs, motions = self._pairs_for(trained.space)
         cfg = self.config
         backend = cfg.backend

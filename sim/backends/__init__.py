@@ -20,6 +20,7 @@ from typing import Sequence
 
 import mujoco
 
+from tt.kernels.errors import TTError
 from tt.sim.backends.base import Robots, RolloutBackend, check_designs, check_motions, resolve_designs
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, get_space
@@ -120,7 +121,7 @@ BACKENDS: tuple[str, ...] = tuple(_REGISTRY)
 def get_backend(name: str) -> RolloutBackend:
     """The backend called `name`; raises ValueError listing the valid names."""
     if name not in _REGISTRY:
-        raise ValueError(f"unknown rollout backend {name!r}; valid: {list(BACKENDS)}")
+        raise TTError(f"unknown rollout backend {name!r}; valid: {list(BACKENDS)}")
     return _REGISTRY[name]
 
 

@@ -17,6 +17,7 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import mujoco
 
+from tt.kernels.errors import TTError
 from tt.sim.controller import IKConfig, ee_site_names, model_name
 from tt.sim.designs import Design, get_space
 from tt.sim.episode import Episode
@@ -47,7 +48,7 @@ class Robots:
         first = self.sites[0]
         for i, s in enumerate(self.sites):
             if s != first:
-                raise ValueError(f"designs[{i}] ({model_name(self.models[i])!r}) has end effectors {list(s)}, "
+                raise TTError(f"designs[{i}] ({model_name(self.models[i])!r}) has end effectors {list(s)}, "
                                  f"designs[0] has {list(first)}")
         return first
 
@@ -62,21 +63,21 @@ def check_designs(
 ) -> None:
     """The checks of `resolve_designs` that need no compiled model (arguments as there)."""
     if len(designs) == 0:
-        raise ValueError(f"designs is empty; {who} needs at least one design")
+        raise TTError(f"designs is empty; {who} needs at least one design")
     for i, d in enumerate(designs):
         if not isinstance(d, (Design, mujoco.MjModel)):
             raise TypeError(f"designs[{i}] is a {type(d).__name__}; expected a tt Design or a mujoco.MjModel")
     spaces = sorted({d.space for d in designs if isinstance(d, Design)})
     if one_space:
         if len(spaces) > 1:
-            raise ValueError(f"designs mix design spaces {spaces}; roll out one design space per call "
+            raise TTError(f"designs mix design spaces {spaces}; roll out one design space per call "
                              "(motions and rewards are per space)")
         if spaces and any(isinstance(d, mujoco.MjModel) for d in designs):
-            raise ValueError("designs mix tt Designs and raw MjModels; pass one kind per call")
+            raise TTError("designs mix tt Designs and raw MjModels; pass one kind per call")
     if not contacts:
         for name in spaces:
             if get_space(name).has_contacts:
-                raise ValueError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
+                raise TTError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
                                  f"contact-free trees only{'; ' + hint if hint else ''}")
 
 
@@ -109,7 +110,7 @@ def resolve_designs(
             s = space.ee_sites()
             for site in s:
                 if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) < 0:
-                    raise ValueError(f"designs[{i}] of space {d.space!r} has no site {site!r}")
+                    raise TTError(f"designs[{i}] of space {d.space!r} has no site {site!r}")
         else:
             model, s, xml = d, ee_site_names(d), None
         models.append(model)
@@ -122,21 +123,21 @@ def check_motions(motions: Sequence[Motion], control_dt: float, arms: int) -> No
     """Raise ValueError unless the M motions are tt Motions sampled at `control_dt` [s]
     with `arms` end effectors each (TypeError for another type)."""
     if len(motions) == 0:
-        raise ValueError("motions is empty; rollout needs at least one motion")
+        raise TTError("motions is empty; rollout needs at least one motion")
     for m, motion in enumerate(motions):
         if not isinstance(motion, Motion):
             raise TypeError(f"motions[{m}] is a {type(motion).__name__}; expected tt.sim.motions.base.Motion")
     dts = sorted({float(motion.dt) for motion in motions})
     if len(dts) > 1:
-        raise ValueError(f"motions have different dt {dts} s; resample them to one rate (tt uses 50 Hz)")
+        raise TTError(f"motions have different dt {dts} s; resample them to one rate (tt uses 50 Hz)")
     if abs(dts[0] - control_dt) > 1e-9:
-        raise ValueError(
+        raise TTError(
             f"motions have dt = {dts[0]} s but IKConfig.control_dt = {control_dt} s; "
             "resample the motions or set control_dt to match"
         )
     for m, motion in enumerate(motions):
         if motion.arms != arms:
-            raise ValueError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+            raise TTError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
 
 
 @runtime_checkable

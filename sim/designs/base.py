@@ -142,7 +142,7 @@ class DesignSpace(ABC):
     def sample(self, n: int, seed: int) -> list[Design]:
         """`n` designs, discrete choices uniform over options, continuous uniform in bounds."""
         if n < 0:
-            raise ValueError(f"n must be >= 0, got {n}")
+            raise DesignError(f"n must be >= 0, got {n}")
         rng = np.random.default_rng(seed)
         designs = []
         for _ in range(n):

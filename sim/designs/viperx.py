@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from tt.sim.designs.base import ContinuousParam, Design, DesignSpace, DiscreteParam, FixedStructureSpace
+from tt.sim.designs.base import ContinuousParam, Design, DesignError, DesignSpace, DiscreteParam, FixedStructureSpace
 from tt.sim.designs.servos import XM430_W350, XM540_W270, ServoJoint
 from tt.sim.designs.mjcf import (
     JointSpec,
@@ -232,7 +232,7 @@ class ViperXSpace(DesignSpace):
 
         designs = list(designs)
         if not designs:
-            raise ValueError("designs is empty; trees needs at least one design")
+            raise DesignError("designs is empty; trees needs at least one design")
         groups: dict[int, list[int]] = {}
         self.validate_many(designs)
         for i, d in enumerate(designs):

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from tt.sim.motions.base import MOTION_DT, quat_mul
+from tt.sim.motions.base import MOTION_DT, MotionError, quat_mul
 
 #: Degrees to radians (scripts give angles in degrees).
 DEG = np.pi / 180.0
@@ -102,7 +102,7 @@ class Script:
         offsets (n, A, 6) added on top, which must vanish with two derivatives at the ends.
         """
         if targets and len(targets) != self.arms:
-            raise ValueError(f"move needs {self.arms} targets, got {len(targets)}")
+            raise MotionError(f"move needs {self.arms} targets, got {len(targets)}")
         start = self._pose.copy()
         end = np.array([self._vector(tg, start[a]) for a, tg in enumerate(targets or [None] * self.arms)])
 
@@ -117,7 +117,7 @@ class Script:
         """Follow `fn(s) -> poses (n, A, 6)` for s = min_jerk(tau), starting at rest at the current pose."""
         first = fn(np.zeros(1))[0]
         if not np.allclose(first, self._pose, atol=1e-9):
-            raise ValueError(f"path starts at {first}, the script is at {self._pose}")
+            raise MotionError(f"path starts at {first}, the script is at {self._pose}")
         self._phases.append((float(duration), lambda t, tau: fn(min_jerk(tau))))
         self._pose = fn(np.ones(1))[0]
 

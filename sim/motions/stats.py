@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from tt.sim.motions.base import Motion
+from tt.sim.motions.base import Motion, MotionError
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ def motion_stats(motions: Sequence[Motion]) -> list[MotionStats]:
     out = []
     for m in motions:
         if m.steps < 3:
-            raise ValueError(f"motion {m.name!r} has {m.steps} samples; speed and acceleration need at least 3")
+            raise MotionError(f"motion {m.name!r} has {m.steps} samples; speed and acceleration need at least 3")
         vel = np.gradient(m.pos, m.dt, axis=0)  # (T, A, 3) [m/s]
         acc = np.gradient(vel, m.dt, axis=0)  # (T, A, 3) [m/s^2]
         speed = np.linalg.norm(vel, axis=-1)  # (T, A)
