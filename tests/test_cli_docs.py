@@ -26,3 +26,18 @@ def test_cli_page_holds_every_command():
     assert ("optimize",) in paths and ("dataset", "info") in paths, paths
     for p in paths:
         assert f"## `{' '.join(('tt',) + p)}`" in text, p
+
+
+def test_optimize_help_shows_the_common_path_in_80_lines():
+    """`tt optimize --help` at 100 columns fits 80 lines: the common options first, the model's,
+    the search's and the paper ablations' in their own panels, long explanations in docs/cli.md."""
+    from tt.cli_docs import WIDTH, details, render_help
+
+    assert WIDTH == 100
+    text = render_help(("optimize",))
+    lines = text.splitlines()
+    assert len(lines) <= 80, f"`tt optimize --help` is {len(lines)} lines at 100 columns:\n{text}"
+    panels = [line for line in lines if line.startswith("╭─")]
+    assert [p.split("─ ")[1].split(" ─")[0] for p in panels] == [
+        "Options", "Model (learned methods)", "Search and rollout", "Advanced / paper ablations"], panels
+    assert "--critic-at" in details(("optimize",)), "the options in full follow the help in docs/cli.md"

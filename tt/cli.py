@@ -87,6 +87,16 @@ app = typer.Typer(
 )
 
 
+#: Help panels of the long commands (`tt optimize`, `tt train`): the common path first, in
+#: typer's default "Options" panel, then these.
+_MODEL = "Model (learned methods)"
+_SEARCH = "Search and rollout"
+_ABLATIONS = "Advanced / paper ablations"
+_ONLINE = "Online data (--online)"
+_RECIPE = "Model and loss"
+_SELECTION = "Checkpoint selection"
+
+
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
@@ -488,38 +498,84 @@ def optimize(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
     reward: str = typer.Option(DEFAULT_REWARD, help="Reward name."),
-    method: str = typer.Option(DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim (the hybrids: the model proposes, the batched simulator verifies; cmaes --init model is the third)."),
-    init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts CMA-ES from the model's samples (screen and step sizes) instead of random designs."),
-    verify: Optional[int] = typer.Option(None, help="zeroth-sim/dgs-sim: candidates (best predicted first) the simulator checks (default: all --samples)."),
+    method: str = typer.Option(DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim."),
     budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion."),
     seed: int = typer.Option(DEFAULT_SEED, help="Random seed."),
-    popsize: int = typer.Option(5, help="CMA-ES population size."),
-    generations: int = typer.Option(3, help="CMA-ES generations per restart."),
-    sequential: bool = typer.Option(False, help="CMA-ES the paper's way: one rollout at a time on the oracle."),
-    backend: Optional[str] = typer.Option(None, help="Batched rollout backend for candidates: warp | mjwarp | newton | mujoco (default: warp, or mujoco for spaces with contacts: quadruped)."),
-    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="learned methods: DiT checkpoint file or run folder (default: the space's shipped one in checkpoints/)."),
-    samples: Optional[int] = typer.Option(None, help="learned methods: candidates to sample (default: --budget; cmaes --init model: its screen size)."),
-    num_steps: int = typer.Option(100, help="learned methods: DDIM steps."),
-    critic: Optional[str] = typer.Option(None, help="learned methods: how candidates are scored: 'joint' (the paper's: each candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its sampled design; default for models trained on that task)."),
-    critic_samples: int = typer.Option(1, help="learned methods, 'dynamics' critic: dynamics predictions averaged per candidate (a better ranking for k times the critic's cost)."),
-    critic_checkpoint: Optional[Path] = typer.Option(None, help="learned methods: another checkpoint of the same space whose dynamics task scores the candidates (e.g. one trained with --task dynamics alone); implies --critic dynamics. Default: the space's shipped dynamics specialist when the sampling checkpoint is the shipped one (unless --critic joint or --critic-on tokens)."),
-    critic_on: Optional[str] = typer.Option(None, help="learned methods, 'dynamics' critic: what it is asked about: 'tokens' (each candidate's sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every candidate is decoded first). Default: 'designs' for a critic trained with --dynamics-start, else 'tokens'."),
-    scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the design space's)."),
-    sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the differentiable-simulation gradient (0..1)."),
-    guide_by: str = typer.Option("model", help="dgs: what the guidance differentiates: 'model' (the sampling model's own predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each step's design, tt's scale unless --scale)."),
-    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: where the critic's gradient is taken: 'tokens' (each step's predicted clean tokens), 'design' (the design they decode to) or 'project' (the decoded design's, and each guided step continues from that design; --scale is then the RMS token step at full noise), or 'continuous' (as 'tokens', moving only the continuous attributes of the sampled structure's tokens), or 'start' (as 'tokens', plus the gradient through the decoded design's simulated start, which a critic told the start otherwise takes as a constant); measurements: docs/experiments.md."),
-    refine: int = typer.Option(0, help="zeroth/dgs: iterations of critic refinement of the returned design: its continuous choices climb the dynamics critic's predicted reward along central differences, each design's start re-simulated (tt.guidance.refine; 0: none); measurements: docs/results/codesign.md."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the design, time and metrics to this JSON file (-: stdout, the tables then go to stderr)."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
+    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write design, time and metrics as JSON (-: stdout, tables to stderr)."),
+    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint or run folder (default: the shipped one).", rich_help_panel=_MODEL),
+    samples: Optional[int] = typer.Option(None, help="Candidates to sample (default: --budget).", rich_help_panel=_MODEL),
+    num_steps: int = typer.Option(100, help="DDIM steps.", rich_help_panel=_MODEL),
+    critic: Optional[str] = typer.Option(None, help="How candidates are scored: joint (the paper's) | dynamics.", rich_help_panel=_MODEL),
+    critic_checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint whose dynamics task scores them (default: the shipped critic).", rich_help_panel=_MODEL),
+    refine: int = typer.Option(0, help="Critic-refinement iterations of the winner.", rich_help_panel=_MODEL),
+    scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the space's).", rich_help_panel=_MODEL),
+    verify: Optional[int] = typer.Option(None, help="zeroth-sim, dgs-sim: candidates simulated (default: all).", rich_help_panel=_MODEL),
+    init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts from the model's samples.", rich_help_panel=_MODEL),
+    popsize: int = typer.Option(5, help="CMA-ES population size.", rich_help_panel=_SEARCH),
+    generations: int = typer.Option(3, help="CMA-ES generations per restart.", rich_help_panel=_SEARCH),
+    sequential: bool = typer.Option(False, "--sequential", help="CMA-ES one rollout at a time on the oracle.", rich_help_panel=_SEARCH),
+    backend: Optional[str] = typer.Option(None, help="warp | mjwarp | newton | mujoco (default: per space).", rich_help_panel=_SEARCH),
+    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of warp rollouts (default: all).", rich_help_panel=_SEARCH),
+    critic_samples: int = typer.Option(1, help="Dynamics predictions averaged per candidate.", rich_help_panel=_ABLATIONS),
+    critic_on: Optional[str] = typer.Option(None, help="What the dynamics critic is asked: tokens | designs.", rich_help_panel=_ABLATIONS),
+    sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the simulator's gradient (0..1).", rich_help_panel=_ABLATIONS),
+    guide_by: str = typer.Option("model", help="dgs: model (the paper's) | critic.", rich_help_panel=_ABLATIONS),
+    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: tokens | design | project | continuous | start.", rich_help_panel=_ABLATIONS),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
     Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
-    diffusion model's Zeroth-Order search and Dynamics Self-Guidance; they use the space's
-    shipped checkpoint unless --checkpoint is given), and the hybrids, in which the model
-    proposes and the batched simulator verifies: zeroth-sim and dgs-sim (--verify K of the
-    model's best candidates) and cmaes --init model (CMA-ES started from the model's samples)."""
+    diffusion model's Zeroth-Order search and Dynamics Self-Guidance, on the space's shipped
+    checkpoint unless --checkpoint), and the hybrids, where the model proposes and the batched
+    simulator verifies: zeroth-sim, dgs-sim and cmaes --init model. Each option in full:
+    docs/cli.md.
+    \f
+    The options in detail:
+
+    - `--method`: the hybrids zeroth-sim and dgs-sim simulate `--verify` K of the model's best
+      candidates (best predicted first; default: all `--samples`); `--method cmaes --init model`
+      is the third hybrid: CMA-ES started from the model's samples (its screen and step sizes)
+      instead of random designs.
+    - `--backend`: the batched rollout of candidates: warp, mjwarp, newton or mujoco (default:
+      warp, or mujoco for spaces with contacts: quadruped).
+    - `--threads`: CPU threads of the warp backend's rollouts (default: every core); results
+      are the same for any count.
+    - `--sequential`: CMA-ES the paper's way, one rollout at a time on the oracle.
+    - `--json`: the design, time and metrics as JSON; `-` is stdout, and the tables then go to
+      stderr.
+    - `--checkpoint` (learned methods): a DiT checkpoint file or run folder; default: the
+      space's shipped one in checkpoints/.
+    - `--samples` (learned methods): candidates to sample; default: `--budget`, or with
+      `--init model` its screen size.
+    - `--critic` (learned methods): how candidates are scored: 'joint' (the paper's: each
+      candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its
+      sampled design; the default for models trained on that task).
+    - `--critic-checkpoint` (learned methods): another checkpoint of the same space whose
+      dynamics task scores the candidates (e.g. one trained with `--task dynamics` alone);
+      implies `--critic dynamics`. Default: the space's shipped dynamics specialist when the
+      sampling checkpoint is the shipped one (unless `--critic joint` or `--critic-on tokens`).
+    - `--refine` (zeroth, dgs): iterations of critic refinement of the returned design: its
+      continuous choices climb the dynamics critic's predicted reward along central
+      differences, each design's start re-simulated (tt.guidance.refine; 0: none);
+      measurements: docs/results/codesign.md.
+    - `--critic-samples` ('dynamics' critic): dynamics predictions averaged per candidate (a
+      better ranking for k times the critic's cost).
+    - `--critic-on` ('dynamics' critic): what it is asked about: 'tokens' (each candidate's
+      sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every
+      candidate is decoded first). Default: 'designs' for a critic trained with
+      `--dynamics-start`, else 'tokens'.
+    - `--guide-by` (dgs): what the guidance differentiates: 'model' (the sampling model's own
+      predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each
+      step's design, tt's scale unless `--scale`).
+    - `--critic-at` (dgs `--guide-by critic`): where the critic's gradient is taken: 'tokens'
+      (each step's predicted clean tokens), 'design' (the design they decode to), 'project'
+      (the decoded design's, and each guided step continues from that design; `--scale` is
+      then the RMS token step at full noise), 'continuous' (as 'tokens', moving only the
+      continuous attributes of the sampled structure's tokens) or 'start' (as 'tokens', plus
+      the gradient through the decoded design's simulated start, which a critic told the start
+      otherwise takes as a constant); measurements: docs/experiments.md.
+    """
     from rich.console import Console
 
     import numpy as np
@@ -736,7 +792,7 @@ def view(
     serve: bool = typer.Option(False, help="Start a live meshcat server and print its URL."),
     host: Optional[str] = typer.Option(None, help="--serve: the address the viewer listens on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)."),
     png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium (-: stdout)."),
-    time: Optional[float] = typer.Option(None, help="Animation time [s] the HTML opens paused at."),
+    time: Optional[float] = typer.Option(None, help="Animation time (s) the HTML opens paused at."),
 ) -> None:
     """Show designs or rollouts in meshcat, live or as standalone HTML."""
     from tt.viz.cli import view_cmd
@@ -755,19 +811,9 @@ def view(
 @app.command()
 def train(
     ctx: typer.Context,
-    data: Optional[Path] = typer.Option(None, help="Dataset folder written by `tt generate` (or an episode token file)."),
-    online: bool = typer.Option(False, help="Train on episodes the batched Warp sim generates as training goes (no --data)."),
-    space: str = typer.Option("viperx", help="--online: design space (contact-free)."),
-    online_designs: int = typer.Option(64, help="--online: new designs per refresh."),
-    online_motions: int = typer.Option(4, help="--online: augmented training motions per refresh (every design runs each)."),
-    refresh_every: int = typer.Option(50, help="--online: optimizer steps between refreshes."),
-    online_buffer: int = typer.Option(4, help="--online: refreshes whose episodes training draws from."),
-    online_absorbing: bool = typer.Option(False, help="--online: keep terminated episodes to the motion's end (the terminal state repeated), so the model sees designs fail."),
-    online_select: int = typer.Option(1, help="--online: designs screened per kept episode; each motion keeps its --online-designs best of --online-designs x K screened designs (tt.tokens.draws.select_episodes), so the generator learns which designs suit a motion. 1: uniform designs, unselected."),
-    uniform_share: float = typer.Option(0.0, help="--online-select: share of each motion's kept episodes drawn uniformly from the screen instead of the best (a critic then still sees failures)."),
-    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by."),
-    action_noise: Optional[float] = typer.Option(None, help="--online: control perturbation std [rad or m] (default: tt generate's, tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none)."),
-    task: str = typer.Option("robot", help="robot | dynamics | control, or several joined by '+' (robot+dynamics: a generator that is also a critic for tt predict); both = robot+control."),
+    data: Optional[Path] = typer.Option(None, help="Dataset folder from `tt generate` (or an episode token file)."),
+    online: bool = typer.Option(False, "--online", help="Train on episodes simulated as training goes (no --data)."),
+    task: str = typer.Option("robot", help="robot | dynamics | control, or several joined by '+'; both = robot+control."),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
     steps: int = typer.Option(10_000, help="Optimizer steps."),
@@ -777,28 +823,87 @@ def train(
     seed: int = typer.Option(0, help="Random seed."),
     checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
-    init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's EMA weights and normaliser (fine-tuning)."),
-    prediction: str = typer.Option("x0", help="What the network predicts: x0 | eps (the paper's) | v; x0 learns what designs do far faster (benchmarks/results/dit_recipe.md)."),
-    weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm."),
-    min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma."),
-    type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable), e.g. track_link_obs=4."),
-    bf16_cpu: bool = typer.Option(False, help="Autocast to bfloat16 on the CPU too (CUDA always autocasts)."),
-    robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the motion-to-robot task."),
-    control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task."),
-    warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps."),
-    anchor_track: bool = typer.Option(False, help="Predict track-link poses as residuals from their targets (needs --prediction x0)."),
-    anchor_control: str = typer.Option("", help="Delta actions: predict commands as residuals from the current joint positions (joints) or from the last command (command, needs --known-command); needs --prediction x0."),
-    known_command: bool = typer.Option(False, help="Control task: give the model the command that led to the current state (a servo's setpoint)."),
-    control_target_offset: int = typer.Option(0, help="Control task: the target poses beside each step's command are those this many steps later (the reference's conditioning; DiffIK's look-ahead is 2 steps at 50 Hz)."),
-    dynamics_start: bool = typer.Option(False, help="Dynamics task: every window holds the episode's first step, its state and command a clean condition; tt predict then simulates each design's first control step and tells the model where it starts (benchmarks/results/critic_failures.md)."),
-    future_states: bool = typer.Option(True, help="Control task: also diffuse the window's later states (--no-future-states: commands only)."),
-    time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned (a lookup table, as checkpoints before the choice)."),
-    drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out of the model's sequence (repeatable): dyna_joint_obs, actuator_obs, control; a lean critic (--task dynamics) trains on a shorter sequence, measured to learn far less (benchmarks/results/dit_ladder_r2f.md). Not with the control task."),
-    select_designs: int = typer.Option(0, help="Score every checkpoint on this many held-out designs x --select-motions validation motions (predicted vs simulated reward, as tt predict) and keep the best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs --task with robot or dynamics."),
-    select_motions: int = typer.Option(5, help="--select-designs: validation motions."),
-    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated."),
+    init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's weights (fine-tuning)."),
+    space: str = typer.Option("viperx", help="Design space (contact-free).", rich_help_panel=_ONLINE),
+    online_designs: int = typer.Option(64, help="New designs per refresh.", rich_help_panel=_ONLINE),
+    online_motions: int = typer.Option(4, help="Augmented training motions per refresh.", rich_help_panel=_ONLINE),
+    refresh_every: int = typer.Option(50, help="Optimizer steps between refreshes.", rich_help_panel=_ONLINE),
+    online_buffer: int = typer.Option(4, help="Refreshes whose episodes training draws from.", rich_help_panel=_ONLINE),
+    online_absorbing: bool = typer.Option(False, "--online-absorbing", help="Keep terminated episodes to the motion's end.", rich_help_panel=_ONLINE),
+    online_select: int = typer.Option(1, help="Designs screened per kept episode (1: unselected).", rich_help_panel=_ONLINE),
+    uniform_share: float = typer.Option(0.0, help="--online-select: share of kept episodes drawn uniformly.", rich_help_panel=_ONLINE),
+    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by.", rich_help_panel=_ONLINE),
+    action_noise: Optional[float] = typer.Option(None, help="Control perturbation std, rad or m (0: none).", rich_help_panel=_ONLINE),
+    select_designs: int = typer.Option(0, help="Held-out designs each checkpoint is scored on (0: off).", rich_help_panel=_SELECTION),
+    select_motions: int = typer.Option(5, help="--select-designs: validation motions.", rich_help_panel=_SELECTION),
+    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated.", rich_help_panel=_SELECTION),
+    prediction: str = typer.Option("x0", help="What the network predicts: x0 | eps (the paper's) | v.", rich_help_panel=_RECIPE),
+    weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm.", rich_help_panel=_RECIPE),
+    min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma.", rich_help_panel=_RECIPE),
+    type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable).", rich_help_panel=_RECIPE),
+    robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the robot task.", rich_help_panel=_RECIPE),
+    control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task.", rich_help_panel=_RECIPE),
+    warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps.", rich_help_panel=_RECIPE),
+    time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned.", rich_help_panel=_RECIPE),
+    bf16_cpu: bool = typer.Option(False, "--bf16-cpu", help="Autocast to bfloat16 on the CPU too.", rich_help_panel=_RECIPE),
+    future_states: bool = typer.Option(True, help="Control task: also diffuse later states.", rich_help_panel=_ABLATIONS),
+    anchor_track: bool = typer.Option(False, "--anchor-track", help="Track-link poses as residuals from targets.", rich_help_panel=_ABLATIONS),
+    anchor_control: str = typer.Option("", help="Commands as residuals: joints | command.", rich_help_panel=_ABLATIONS),
+    known_command: bool = typer.Option(False, "--known-command", help="Control task: give the last command.", rich_help_panel=_ABLATIONS),
+    control_target_offset: int = typer.Option(0, help="Control task: targets this many steps later.", rich_help_panel=_ABLATIONS),
+    dynamics_start: bool = typer.Option(False, "--dynamics-start", help="Dynamics task: condition on the first step.", rich_help_panel=_ABLATIONS),
+    drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out (repeatable).", rich_help_panel=_ABLATIONS),
 ) -> None:
-    """Train the diffusion transformer on RoboToken episodes."""
+    """Train the diffusion transformer on RoboToken episodes: a dataset (--data) or episodes
+    simulated as training goes (--online). Each option in full: docs/cli.md.
+    \f
+    The options in detail:
+
+    - `--task`: robot, dynamics or control, or several joined by '+' (robot+dynamics: a
+      generator that is also a critic for tt predict); both = robot+control.
+    - `--init`: start a new run from this checkpoint's EMA weights and normaliser
+      (fine-tuning).
+    - `--online`: train on episodes the batched Warp simulator generates as training goes,
+      instead of `--data`. The online options: `--space` is the (contact-free) design space;
+      each refresh rolls out `--online-designs` new designs on `--online-motions` augmented
+      training motions (every design runs each), every `--refresh-every` optimizer steps, and
+      training draws from the last `--online-buffer` refreshes. `--online-absorbing` keeps
+      terminated episodes to the motion's end (the terminal state repeated), so the model sees
+      designs fail. `--online-select K` screens K designs per kept episode: each motion keeps
+      its `--online-designs` best of `--online-designs` x K screened designs
+      (tt.tokens.draws.select_episodes), so the generator learns which designs suit a motion
+      (1: uniform designs, unselected); `--uniform-share` is the share of each motion's kept
+      episodes drawn uniformly from the screen instead of the best (a critic then still sees
+      failures), and `--select-by` the reward they are ranked by. `--action-noise`: the control
+      perturbation's standard deviation [rad or m] (default: tt generate's,
+      tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none).
+    - `--select-designs N`: score every checkpoint on N held-out designs x `--select-motions`
+      validation motions (predicted vs simulated `--select-reward`, as tt predict) and keep the
+      best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs `--task` with robot
+      or dynamics.
+    - `--prediction`: x0 learns what designs do far faster than the paper's eps
+      (benchmarks/results/dit_recipe.md).
+    - `--type-weight TYPE=W`: e.g. track_link_obs=4.
+    - `--time-ids learned`: a lookup table, as checkpoints before the choice.
+    - `--bf16-cpu`: CUDA always autocasts to bfloat16; this autocasts on the CPU too.
+    - `--no-future-states`: the control task diffuses commands only, not the window's later
+      states.
+    - `--anchor-track`: predict track-link poses as residuals from their targets (needs
+      `--prediction x0`).
+    - `--anchor-control`: delta actions: predict commands as residuals from the current joint
+      positions (joints) or from the last command (command, needs `--known-command`); needs
+      `--prediction x0`.
+    - `--known-command`: the control task gives the model the command that led to the current
+      state (a servo's setpoint).
+    - `--control-target-offset K`: the target poses beside each step's command are those K
+      steps later (the reference's conditioning; DiffIK's look-ahead is 2 steps at 50 Hz).
+    - `--dynamics-start`: every dynamics window holds the episode's first step, its state and
+      command a clean condition; tt predict then simulates each design's first control step and
+      tells the model where it starts (benchmarks/results/critic_failures.md).
+    - `--drop-type`: dyna_joint_obs, actuator_obs or control left out of the model's sequence;
+      a lean critic (`--task dynamics`) trains on a shorter sequence, measured to learn far less
+      (benchmarks/results/dit_ladder_r2f.md). Not with the control task.
+    """
     from tt.dit.cli import train_cmd
 
     if online == (data is not None):
@@ -894,7 +999,7 @@ def generate(
     workers: int = typer.Option(1, help="Shards generated at once: worker processes, or the CPUs of --ray local."),
     bias: Optional[str] = typer.Option(None, help="Data biasing: cmaes (CMA-ES, population 5, 3 generations per training motion)."),
     seed: int = typer.Option(0, help="Random seed; every shard derives its draws from (seed, shard index)."),
-    ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt[ray]')."),
+    ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt\\[ray]')."),
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
     action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),

@@ -1,4 +1,5 @@
-"""docs/cli.md: every command's ``--help``, rendered from the CLI itself.
+"""docs/cli.md: every command's ``--help``, rendered from the CLI itself, and after it the part
+of the command's docstring that ``--help`` leaves out (after ``\\f``: the options in full).
 
 The page is generated, never edited by hand: ``python -m tt.cli_docs`` rewrites it, and
 ``tests/test_cli_docs.py`` fails when the committed page differs from what the CLI prints
@@ -73,16 +74,34 @@ def page() -> str:
     out = [
         "# The `tt` command line",
         "",
-        f"Generated from the CLI by `{REGENERATE}` (each command's `--help` at {WIDTH} columns); do not edit",
-        "by hand. `tests/test_cli_docs.py` checks that this page matches the CLI. `tt -v COMMAND` adds",
-        "tracebacks to errors.",
+        f"Generated from the CLI by `{REGENERATE}` (each command's `--help` at {WIDTH} columns, then the options",
+        "that `--help` shortens, in full); do not edit by hand. `tests/test_cli_docs.py` checks that this page",
+        "matches the CLI. `tt -v COMMAND` adds tracebacks to errors.",
         "",
         "Commands: " + ", ".join(f"[`tt {' '.join(p)}`](#{_anchor(p)})" for p in paths if p) + ".",
         "",
     ]
     for p in paths:
         out += [f"## `{' '.join(('tt',) + p)}`", "", "```text", render_help(p), "```", ""]
+        more = details(p)
+        if more:
+            out += [more, ""]
     return "\n".join(out)
+
+
+def details(path: tuple[str, ...]) -> str:
+    """The part of a command's docstring after ``\\f``, which ``--help`` leaves out (click's
+    convention): the options explained in full, markdown."""
+    import inspect
+
+    import typer.main
+
+    from tt.cli import app
+
+    cmd = typer.main.get_command(app)
+    for name in path:
+        cmd = cmd.commands[name]
+    return inspect.cleandoc(inspect.cleandoc(cmd.help or "").partition("\f")[2])
 
 
 def _anchor(path: tuple[str, ...]) -> str:
