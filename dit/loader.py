@@ -353,7 +353,7 @@ def data_identity(path: str | Path) -> dict:
     manifests), or an episode token file's size and BLAKE2b digest. A resumed ``tt train``
     compares it with its run's (`describe_data_change`)."""
     path = Path(path)
-    if is_dataset(path):
+    if is_dataset(path) or path.is_dir():  # a folder is read as a dataset, which says what it lacks
         from tt.tokens.store import dataset_fingerprint
 
         return dataset_fingerprint(path)
@@ -387,8 +387,9 @@ def describe_data_change(before: dict, now: dict) -> str | None:
 
 def open_token_source(path: str | Path, **kwargs):
     """Training data at `path`: a `StoreTokenSource` for a dataset folder (``tt generate``),
-    else a `tt.dit.data.EpisodeTokens` file. Keyword arguments go to `StoreTokenSource`."""
-    if is_dataset(path):
+    else a `tt.dit.data.EpisodeTokens` file. Keyword arguments go to `StoreTokenSource`. A
+    folder is read as a dataset, whose reader says what it lacks (a damaged root, say)."""
+    if is_dataset(path) or Path(path).is_dir():
         return StoreTokenSource(path, **kwargs)
     from tt.dit.data import EpisodeTokens
 

@@ -41,6 +41,7 @@ CLASSES = {
     14: "flag that does not apply, ignored",
     15: "message naming internals",
     16: "a motion shorter than the model's window scored past its end",
+    17: "a dataset whose root zarr.json is damaged, its shards intact",
 }
 
 #: Words of Python internals (config classes and fields) no error line may carry: a message
@@ -219,6 +220,10 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
         chunk.write_bytes(bytes(raw))
         put("dataset", dataset)
         put("ds_flipped", flipped)
+        root_damaged = root / "ds_root"
+        shutil.copytree(dataset, root_damaged)
+        (root_damaged / "zarr.json").write_bytes((dataset / "zarr.json").read_bytes()[:50])  # a write cut short
+        put("ds_root", root_damaged)
     return f
 
 
@@ -312,6 +317,11 @@ CASES: list[Case] = [
     Case("dataset verify: a chunk with a flipped byte", 1, lambda f: ["dataset", "verify", f.ds_flipped], ("s000001", "CRC-32")),
     Case("dataset info: a folder that is no dataset", 1, lambda f: ["dataset", "info", f.foreign], ("foreign", "not a tt dataset")),
     Case("generate: --out over a folder of other files", 1, lambda f: ["generate", "--designs", "1", "--out", f.foreign], ("foreign", "not a tt dataset")),
+    Case("dataset info: a dataset whose zarr.json is damaged", 17, lambda f: ["dataset", "info", f.ds_root],
+         ("{ds_root}/zarr.json", "damaged", "tt generate")),
+    Case("train on a dataset whose zarr.json is damaged", 17,
+         lambda f: ["train", "--data", f.ds_root, "--size", "tiny", "--steps", "1", "--out", f.root + "/run17"],
+         ("{ds_root}/zarr.json", "damaged", "tt generate")),
     # -- 3: outputs created before the work, or refused up front
     Case("motions --out into missing folders", 3, lambda f: ["motions", "--name", "toss", "--out", f.missing + "/toss.npz"], ok=True,
          check=lambda f, out: None if Path(f.missing, "toss.npz").exists() else "toss.npz not written"),
@@ -914,6 +924,38 @@ def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
     return "ok", ""
 
 
+def _damaged_dataset_root(files, work: Path) -> tuple[str, str]:
+    """tt generate over an interrupted dataset whose zarr.json is damaged but whose shards are
+    intact: other arguments are refused, naming the file and the flag; the same command says
+    what it repaired, naming the file, rebuilds the root and resumes to the dataset an
+    uninterrupted run writes (episode digests, shard manifests and root alike)."""
+    from tt.tokens.store import TokenStore, shard_dirs
+
+    args = ["generate", "--designs", "2", "--designs-per-shard", "1", "--episodes-per-design", "1", "--min-steps", "10",
+            "--device", "cpu"]
+    whole, data = work / "whole", work / "ds"
+    code, out, err = _cli([*args, "--out", whole])
+    if code:
+        return "misleading", f"exit {code}: {(out + err)[-300:]}"
+    shutil.copytree(whole, data)
+    shutil.rmtree(shard_dirs(data)[1])
+    meta = data / "zarr.json"
+    meta.write_bytes(b'{"zarr_format": 3, "node_type": "gr')  # a write cut short
+    kind, why = _error(*_cli([*args, "--seed", "1", "--out", data]), str(meta), "damaged", "--seed")
+    if kind != "clear":
+        return kind, f"with another --seed: {why}"
+    code, out, err = _cli([*args, "--out", data])
+    if code:
+        return "misleading", f"the same command: exit {code}: {(out + err)[-300:]}"
+    if f"{meta}, the dataset's root, is damaged" not in out + err or "rebuilt" not in out + err:
+        return "misleading", f"the repair of {meta} is not reported: {(out + err)[-300:]}"
+    a, b = shard_dirs(whole), shard_dirs(data)
+    same = (TokenStore(whole, verify="full").episode_digests() == TokenStore(data, verify="full").episode_digests()
+            and sorted(a) == sorted(b) and all((a[i] / "manifest.json").read_bytes() == (b[i] / "manifest.json").read_bytes() for i in a)
+            and meta.read_bytes() == (whole / "zarr.json").read_bytes())
+    return ("ok", "") if same else ("silent", "the repaired dataset differs from the uninterrupted one")
+
+
 def killed_generate_leaves_no_workers(work: Path) -> tuple[str, str]:
     """SIGKILL of ``tt generate --workers 2`` once both workers are writing shards: every
     process it started stops, and no shard is written after. (tests/test_kills.py runs it.)"""
@@ -986,4 +1028,5 @@ SCENARIOS: list[Scenario] = [
     Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
     Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
     Scenario("predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted),
+    Scenario("generate over a dataset whose zarr.json is damaged, its shards intact", 17, _damaged_dataset_root),
 ]

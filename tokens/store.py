@@ -106,14 +106,49 @@ def is_dataset(path: str | Path) -> bool:
         return False
 
 
+#: Root attributes every dataset root holds (`create_root`'s caller writes the last ones).
+ROOT_KEYS = ("format", "schema_version", "space", "config", "maxima", "design_widths", "motions")
+
+
+def root_damage(path: str | Path) -> str | None:
+    """Why the root ``zarr.json`` of a folder holding a dataset's ``shards/`` is damaged (not
+    JSON, no attributes, or lacking the dataset's keys), or None: intact, absent, or another
+    format's (a foreign store is not a damaged one). `tt.generate` rebuilds a damaged root from
+    the arguments that generated the shards beside it."""
+    path = Path(path)
+    meta = path / "zarr.json"
+    if not meta.is_file() or not (path / "shards").is_dir():
+        return None
+    raw = meta.read_bytes()
+    if not raw.strip():
+        return "empty"
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        return "not text: it holds binary bytes"
+    except ValueError as e:
+        return f"not valid JSON: {e}"
+    attrs = data.get("attributes") if isinstance(data, dict) else None
+    if not isinstance(attrs, dict):
+        return "it holds no attributes"
+    if attrs.get("format", FORMAT) != FORMAT:
+        return None
+    missing = [k for k in ROOT_KEYS if k not in attrs]
+    return f"its attributes lack {missing}" if missing else None
+
+
 def read_root(path: str | Path) -> dict:
     """Root attributes of a dataset; raises `DatasetError` for a missing or foreign folder."""
     path = Path(path)
     if not (path / "zarr.json").is_file():
         raise DatasetError(f"{path} is not a tt dataset: it has no zarr.json (create one with `tt generate --out {path}`)")
+    damage = root_damage(path)
+    if damage is not None:
+        raise DatasetError(f"{path / 'zarr.json'}, the dataset's root, is damaged ({damage}); re-running the `tt generate` "
+                           "command that wrote the dataset rebuilds it from its intact shards")
     try:
         attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
-    except json.JSONDecodeError as e:
+    except (UnicodeDecodeError, ValueError, AttributeError) as e:
         raise DatasetError(f"{path}/zarr.json is not valid JSON ({e}); the dataset root is damaged") from None
     if attrs.get("format") != FORMAT:
         raise DatasetError(f"{path} has format {attrs.get('format')!r}, this code reads {FORMAT!r}")

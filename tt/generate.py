@@ -48,9 +48,12 @@ error +0.3 cm). ``action_noise=0`` generates unperturbed episodes (``Episode.act
 from __future__ import annotations
 
 import errno
+import json
 import logging
 import os
+import shutil
 import time
+import uuid
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -93,6 +96,7 @@ from tt.tokens.store import (
     normalizer_from_stats,
     read_manifest,
     read_root,
+    root_damage,
     shard_dirs,
     shard_name,
     update_root,
@@ -411,6 +415,8 @@ class GenerateReport:
             lines.append("this run: nothing to do, every shard was already complete")
         if r["regenerated"]:
             lines.append("regenerated damaged shards: " + "; ".join(f"{k}: {v}" for k, v in sorted(r["regenerated"].items())))
+        if r.get("repaired_root"):
+            lines.append(r["repaired_root"])
         return "\n".join(lines)
 
 
@@ -424,21 +430,127 @@ def _check_config(stored: Mapping, wanted: Mapping, path: Path) -> None:
         raise DatasetError(f"{path} has no stored value for {missing}; it was written by another tt version")
 
 
-def _open_or_create(config: GenerateConfig, out: Path) -> dict:
+def _open_or_create(config: GenerateConfig, out: Path, *, device: str = "cpu", threads: int | None = None) -> tuple[dict, str | None]:
+    """The root attributes of dataset `out` for `config`: read (the stored config must be
+    `config`), created, or rebuilt: a root ``zarr.json`` that is damaged (`root_damage`) or
+    missing beside shards is written anew from `config` when the intact shards agree with it
+    (`_adopt_shards`; else a `DatasetError`). Returns (attrs, what was repaired or None)."""
     wanted = config.to_dict()
-    if is_dataset(out):
+    meta = out / "zarr.json"
+    damage = root_damage(out)
+    if damage is None and is_dataset(out):
         attrs = read_root(out)
         _check_config(attrs.get("config", {}), wanted, out)
-        return attrs
-    others = [p.name for p in out.iterdir() if p.name not in (".lock", ".partial", "shards")]
+        return attrs, None
+    others = [p.name for p in out.iterdir()
+              if p.name not in (".lock", ".partial", "shards") and not (damage is not None and p.name == "zarr.json")]
     if others:
         raise DatasetError(f"{out} exists and is not a tt dataset (it holds {sorted(others)[:5]}); choose an empty or new folder")
     widths = space_token_maxima(config.space)
+    shards = shard_dirs(out)
+    repaired = None
+    if damage is not None or shards:
+        what = f"{meta}, the dataset's root, is damaged ({damage})" if damage is not None else f"{meta}, the dataset's root, is missing"
+        repaired = f"{what}; rebuilt it from these arguments" + _adopt_shards(config, out, shards, widths, what, device, threads)
+        logger.warning("%s", repaired)
     motions = [m.name for m in training_motions(config.space)]
-    create_root(out, {"space": config.space, "config": wanted, "maxima": widths["maxima"],
-                      "design_widths": {"discrete": widths["discrete"], "continuous": widths["continuous"]},
-                      "maxima_source": widths["source"], "motions": motions, "complete": False})
-    return read_root(out)
+    attrs = {"space": config.space, "config": wanted, "maxima": widths["maxima"],
+             "design_widths": {"discrete": widths["discrete"], "continuous": widths["continuous"]},
+             "maxima_source": widths["source"], "motions": motions, "complete": False}
+    if damage is None:
+        create_root(out, attrs)
+    else:  # written beside, then renamed over the damaged file: a crash leaves one or the other
+        scratch = out / ".partial" / f"root-{uuid.uuid4().hex[:8]}"
+        create_root(scratch, attrs)
+        os.replace(scratch / "zarr.json", meta)
+        shutil.rmtree(scratch, ignore_errors=True)
+    return read_root(out), repaired
+
+
+def _adopt_shards(config: GenerateConfig, out: Path, shards: Mapping[int, Path], widths: Mapping, what: str,
+                  device: str, threads: int | None) -> str:
+    """Check that the shards of `out`, whose root is lost, were generated with `config`
+    before a root of `config` is written over them: every intact shard's records
+    (`_shard_disagreement`), and, where this run's device is the kind the shards were
+    generated on (rollouts are deterministic per kind), the smallest intact shard regenerated
+    byte for byte (its manifest). Raises `DatasetError` naming the first disagreement;
+    returns the rest of the repair note (what was checked)."""
+    intact = {i: f for i, f in sorted(shards.items()) if verify_shard(f, full=False) is None}
+    for i, folder in intact.items():
+        why = _shard_disagreement(config, i, folder, widths)
+        if why is not None:
+            raise DatasetError(f"{what}, and its shard {folder.name} {why}, so it was not generated with these arguments "
+                               "and the root cannot be rebuilt from them; re-run the `tt generate` command that wrote "
+                               "the dataset (its arguments were in the lost root), or choose another --out")
+    if not intact:
+        return " (no intact shard to check them against)"
+    note = f" (the intact shards, {len(intact)}, agree with them: counts, designs and seeded draws"
+    index = min(intact, key=lambda i: (config.shard_designs(i), i))
+    folder = intact[index]
+    recorded = json.loads((folder / "zarr.json").read_text())["attributes"].get("device")
+    here = "cpu" if device == "cpu" else "cuda"
+    if recorded != here:
+        return note + f"; not re-simulated: they were generated on {recorded}, this run is on {here})"
+    scratch = out / ".partial" / f"check-{folder.name}-{uuid.uuid4().hex[:8]}"
+    scratch.mkdir(parents=True)
+    try:
+        generate_shard(config, index, scratch, device=device, widths=widths, threads=threads)
+        again = read_manifest(scratch / "shards" / folder.name)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    stored = read_manifest(folder)
+    if again != stored:
+        differ = sorted(k for k in set(again["files"]) | set(stored["files"]) if again["files"].get(k) != stored["files"].get(k))
+        raise DatasetError(f"{what}, and its shard {folder.name} regenerated with these arguments differs from the stored "
+                           f"one ({', '.join(differ[:3])}), so it was not generated with them (--action-noise, --bias, "
+                           "--min-steps, ...) and the root cannot be rebuilt from them; re-run the `tt generate` command "
+                           "that wrote the dataset (its arguments were in the lost root), or choose another --out")
+    return note + f"; shard {folder.name} regenerated byte for byte)"
+
+
+def _shard_disagreement(config: GenerateConfig, index: int, folder: Path, widths: Mapping) -> str | None:
+    """What intact shard `index` records that `config` would not have generated, or None:
+    its shard count, design and rolled-out episode counts, selection, design widths, its
+    designs where they are uniform draws, each kept episode's motion and augmentation seed
+    (the config's seeded draws) and lengths against the minimum. No simulation."""
+    from tt.tokens.store import ShardReader
+
+    if index >= config.shards:
+        return f"is shard {index}, but --designs {config.designs} in shards of --designs-per-shard {config.designs_per_shard} make {config.shards}"
+    r = ShardReader(folder)
+    a = r.attrs
+    n, K = config.shard_designs(index), config.episodes_per_design
+    if int(a["designs"]) != n:
+        return f"holds {a['designs']} designs, these arguments give it {n} (--designs, --designs-per-shard)"
+    if int(a["generated"]) != n * K:
+        return f"rolled out {a['generated']} episodes, these arguments {n * K} ({n} designs x --episodes-per-design {K})"
+    if ("unselected" in a.get("dropped", {})) != (config.select > 1):
+        return "was generated " + ("without --select" if config.select > 1 else "with --select above 1")
+    disc, cont = r._read("design/discrete"), r._read("design/continuous")
+    if disc.shape[1] != widths["discrete"] or cont.shape[1] != widths["continuous"]:
+        return f"holds designs of another design space than --space {config.space}"
+    if config.bias is None:
+        want = _design_arrays(shard_design_list(config, index), widths)
+        if not (np.array_equal(disc, want[0]) and np.array_equal(cont, want[1], equal_nan=True)):
+            return "holds other designs than these arguments draw (--seed, --bias, --space)"
+    if r.episodes:
+        local = r.field("episode_id").astype(np.int64) - index * config.designs_per_shard * K
+        if local.min() < 0 or local.max() >= n * K:
+            return "numbers its episodes as other --designs-per-shard or --episodes-per-design do"
+        row, slot = local // K, local % K
+        group = row // config.group_designs * config.group_designs
+        count = len(training_motions(config.space))
+        for g0 in np.unique(group):
+            rng = _rng(config.seed, index, _STREAM_EPISODES, int(g0))
+            motion_ids = rng.choice(count, size=K, replace=K > count)
+            aug_seeds = rng.integers(0, 2**31, size=K)
+            sel = group == g0
+            if not (np.array_equal(r.field("motion")[sel], motion_ids[slot[sel]])
+                    and np.array_equal(r.field("augment_seed")[sel], aug_seeds[slot[sel]])):
+                return "holds episodes on other motions than these arguments draw (--seed, --episodes-per-design)"
+        if int(r.field("length").min()) < config.min_steps:
+            return f"keeps episodes of {int(r.field('length').min())} control steps, below --min-steps {config.min_steps}"
+    return None
 
 
 def _widths(attrs: Mapping) -> dict:
@@ -473,7 +585,7 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
     out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     with DatasetLock(out):
-        attrs = _open_or_create(config, out)
+        attrs, repaired = _open_or_create(config, out, device=device, threads=threads)
         clear_partial(out)
         widths = _widths(attrs)
         done: dict[int, dict] = {}
@@ -527,7 +639,7 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
     run = {"shards": len(results), "episodes": episodes, "seconds": seconds,
            "cpu_seconds": sum(r["cpu_seconds"] for r in results),
            "episodes_per_second": episodes / seconds if seconds > 0 else 0.0, "stage_seconds": stage,
-           "regenerated": regenerated, "workers": workers, "ray": ray_address, "device": device}
+           "regenerated": regenerated, "workers": workers, "ray": ray_address, "device": device, "repaired_root": repaired}
     return GenerateReport(str(out), totals, run, results)
 
 
