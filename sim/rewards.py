@@ -70,6 +70,7 @@ METRIC_UNITS: dict[str, str] = {
     "survival": "1",
     "torque": "N m",
     "velocity": "rad/s",
+    "max_joint_speed": "rad/s",
     "size": "m",
     "mass": "kg",
     "reward": "1",
@@ -441,6 +442,13 @@ def _mean_over_counted(x: torch.Tensor, counted: torch.Tensor) -> torch.Tensor:
     return torch.where(n > 0, s / n.clamp(min=1), torch.full_like(s, float("nan")))
 
 
+def _max_over_counted(x: torch.Tensor, counted: torch.Tensor) -> torch.Tensor:
+    """Max of x (W, T) over counted steps, (W,); NaN for a world with no counted step."""
+    nan = torch.full((), float("nan"), dtype=x.dtype, device=x.device)
+    m = torch.where(counted, x, torch.full((), -float("inf"), dtype=x.dtype, device=x.device)).amax(1)
+    return torch.where(counted.any(1), m, nan)
+
+
 def metrics(inputs: RewardInputs, cfg: RewardConfig) -> dict[str, torch.Tensor]:
     """The paper's reward-specific metrics per world, each (W,); units in `METRIC_UNITS`.
 
@@ -452,6 +460,10 @@ def metrics(inputs: RewardInputs, cfg: RewardConfig) -> dict[str, torch.Tensor]:
         `WITHIN_CM` (a step after termination is not within, so early termination lowers it).
     survival: 1.0 if the world ran its whole motion without terminating, else 0.0.
     torque, velocity: mean |tau|_2 and |qdot|_2 over counted steps (when the inputs hold them).
+    max_joint_speed: the largest |qdot_i| of any one actuator i at any counted step [rad/s; m/s
+        for a prismatic actuator] (when the inputs hold act_vel; NaN for a world with no counted
+        step): the paper's "max joint speed". The steps are the mean's (`velocity`), the norm is
+        not: the max is per actuator, the mean of the norm over all of them.
     size, mass: the robot's size [m] and mass [kg] (when the inputs hold them).
     reward: the reported reward (full alphas). length: number of counted steps.
     """
@@ -472,6 +484,7 @@ def metrics(inputs: RewardInputs, cfg: RewardConfig) -> dict[str, torch.Tensor]:
             out["torque"] = _mean_over_counted(torch.linalg.vector_norm(inputs.act_force, dim=-1), c)
         if inputs.act_vel is not None:
             out["velocity"] = _mean_over_counted(torch.linalg.vector_norm(inputs.act_vel, dim=-1), c)
+            out["max_joint_speed"] = _max_over_counted(inputs.act_vel.abs().amax(-1), c)
         if inputs.size is not None:
             out["size"] = inputs.size.detach().clone()
         if inputs.mass is not None:

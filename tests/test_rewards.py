@@ -280,6 +280,8 @@ def test_metrics_by_hand():
     torch.testing.assert_close(m["orn_err"], torch.tensor([math.degrees(0.6 / 4), math.degrees(0.6 / 2)], dtype=DT))
     torch.testing.assert_close(m["torque"], torch.tensor([5.0, 5.5], dtype=DT))
     torch.testing.assert_close(m["velocity"], torch.tensor([0.5, 0.25], dtype=DT))
+    # The largest |qdot_i| at a counted step: world 1's 5.0 comes after its termination.
+    torch.testing.assert_close(m["max_joint_speed"], torch.tensor([0.5, 0.4], dtype=DT))
     assert m["survival"].tolist() == [1.0, 0.0]
     assert m["length"].tolist() == [4, 2]
     torch.testing.assert_close(m["reward"], reward(inputs, cfg))
@@ -287,6 +289,37 @@ def test_metrics_by_hand():
     s = summarize(m)
     assert s["survival_pct"] == pytest.approx(50.0)
     assert s["pos_err"] == pytest.approx(100 * 0.35 * 0.75 / 2)
+
+
+def test_max_joint_speed_matches_numpy_on_a_recorded_episode():
+    """The max joint speed of an oracle rollout (the nominal ALOHA and two sampled designs on a
+    fling's first 40 steps, the target thrown 0.6 m away from step 25 on in the second motion so
+    that the episodes terminate) is numpy's max of |act_vel| over actuators and the counted steps:
+    those the rollout ran, before the summed position error first passed the threshold."""
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, get_motion
+    from tt.sim.motions.base import Motion
+
+    sp = get_space("aloha")
+    fling = for_space([get_motion("bi_fling:100")], "aloha")[0]
+    short = Motion(fling.name, fling.pos[:40], fling.quat[:40], fling.dt)
+    thrown = short.pos.copy()
+    thrown[25:, :, 0] += 0.6
+    motions = [short, Motion("thrown", thrown, short.quat, short.dt)]
+    ev = evaluate_designs([sp.nominal(), *sp.sample(2, 0)], motions, "tracking_velocity", backend="mujoco")
+    ep = ev.episode
+    vel = ep.act_vel.double().numpy()  # (W, T, nu)
+    err = np.linalg.norm(ep.ee_pos.double().numpy() - ep.target_pos.double().numpy(), axis=-1).sum(-1)  # (W, T)
+    ok = (err <= get_reward("tracking_velocity", "aloha").threshold) & ep.alive.numpy() & ~ep.fallen.numpy()
+    counted = np.cumprod(ok, axis=1).astype(bool)
+    assert counted[:, -1].any() and not counted[:, -1].all(), "want episodes that survive and ones that terminate"
+    want = np.where(counted, np.abs(vel).max(-1), -np.inf).max(1)
+    got = ev.metrics["max_joint_speed"].reshape(-1)  # (D, M) design-major, as the episode's worlds
+    np.testing.assert_allclose(got, want, rtol=1e-6)
+    mean = (np.linalg.norm(vel, axis=-1) * counted).sum(1) / counted.sum(1)
+    np.testing.assert_allclose(ev.metrics["velocity"].reshape(-1), mean, rtol=1e-6)  # the mean's steps, too
+    assert ev.metrics["length"].reshape(-1).tolist() == counted.sum(1).tolist()
 
 
 def test_p95_and_within_2cm_by_hand():
