@@ -6,6 +6,16 @@ from tt.baselines.problem import BACKENDS, Optimizer, Problem, Result, default_b
 from tt.baselines.random_search import RandomSearch
 
 __all__ = [
-    "BACKENDS", "CMAES", "CMAESConfig", "CMAESPlan", "Evaluation", "Optimizer", "Problem",
-    "RandomSearch", "Result", "default_backend", "evaluate_designs", "warm_up",
+    "BACKENDS",
+    "CMAES",
+    "CMAESConfig",
+    "CMAESPlan",
+    "Evaluation",
+    "Optimizer",
+    "Problem",
+    "RandomSearch",
+    "Result",
+    "default_backend",
+    "evaluate_designs",
+    "warm_up",
 ]

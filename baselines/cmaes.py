@@ -25,9 +25,9 @@ from typing import NamedTuple, Sequence
 import cma
 import numpy as np
 
-from tt.kernels.errors import TTError
 from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, DesignSpace
 
 log = logging.getLogger(__name__)
@@ -96,7 +96,9 @@ def _strategy(x0: np.ndarray, sigma0: float, popsize: int, rng: np.random.Genera
     return cma.CMAEvolutionStrategy(list(x0), sigma0, opts)
 
 
-def _starts(designs: Sequence[Design], objective: np.ndarray, fallback: Sequence[Design], restarts: int) -> list[Design]:
+def _starts(
+    designs: Sequence[Design], objective: np.ndarray, fallback: Sequence[Design], restarts: int
+) -> list[Design]:
     """The best design of each discrete choice among `designs`, best first, `restarts` of them
     (topped up from `fallback` when the batch holds fewer discrete choices)."""
     order = np.argsort(-np.where(np.isfinite(objective), objective, -np.inf), kind="stable")
@@ -155,8 +157,14 @@ class CMAES(Optimizer):
         """Objective (mean reward over the problem's motions) of each design, (D,): one batched
         rollout, or in the sequential mode one oracle rollout after another."""
         if not self.config.sequential:
-            ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device,
-                                  threads=problem.threads)
+            ev = evaluate_designs(
+                designs,
+                problem.motions,
+                problem.reward,
+                backend=problem.backend,
+                device=problem.device,
+                threads=problem.threads,
+            )
             return ev.objective
         out = []
         for d in designs:
@@ -190,8 +198,13 @@ class CMAES(Optimizer):
                 raise TTError(f"CMA-ES proposals must be designs of space {space.name!r}")
             take = min(len(proposals), -(-plan.screen // 2))
             screened = (proposals[:take] + screened)[: plan.screen]
-        warmup_seconds = warm_up(list(screened) + list(fallback), problem.motions, reward=problem.reward, backend=backend,
-                                 device=problem.device)
+        warmup_seconds = warm_up(
+            list(screened) + list(fallback),
+            problem.motions,
+            reward=problem.reward,
+            backend=backend,
+            device=problem.device,
+        )
 
         start = time.perf_counter()
         all_designs: list[Design] = list(screened)
@@ -242,8 +255,14 @@ class CMAES(Optimizer):
             rollouts=len(all_designs) * len(problem.motions),
             history=history,
             info={
-                "restarts": plan.restarts, "generations": plan.generations, "popsize": c.popsize,
-                "screen": plan.screen, "sigma0": c.sigma0, "backend": backend, "warmup_seconds": warmup_seconds,
-                "sigmas": [float(v) for v in sigmas], "proposals": None if proposals is None else len(proposals),
+                "restarts": plan.restarts,
+                "generations": plan.generations,
+                "popsize": c.popsize,
+                "screen": plan.screen,
+                "sigma0": c.sigma0,
+                "backend": backend,
+                "warmup_seconds": warmup_seconds,
+                "sigmas": [float(v) for v in sigmas],
+                "proposals": None if proposals is None else len(proposals),
             },
         )

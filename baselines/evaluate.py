@@ -12,11 +12,11 @@ import numpy as np
 import torch
 
 from tt.kernels.errors import TTError
-from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
 from tt.sim.designs import Design, get_space
 from tt.sim.designs.trees import DesignTrees
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardInputs, get_reward, metrics, robot_mass, robot_size
 
 logger = logging.getLogger(__name__)
 
@@ -38,15 +38,28 @@ class Evaluation:
 
 
 def run_rollout(
-    designs: "Sequence[Design | mujoco.MjModel] | DesignTrees", motions: Sequence[Motion], *, backend: str, device: str | None,
-    progress: bool = False, threads: int | None = None, graph: bool | None = None,
+    designs: "Sequence[Design | mujoco.MjModel] | DesignTrees",
+    motions: Sequence[Motion],
+    *,
+    backend: str,
+    device: str | None,
+    progress: bool = False,
+    threads: int | None = None,
+    graph: bool | None = None,
 ) -> Episode:
     """Rollout of every design (or its built model) on every motion with `backend` (design-major
     worlds; threads: CPU threads of the "warp" backend, None for every core)."""
     from tt.sim.rollout import rollout
 
-    return rollout(designs if isinstance(designs, DesignTrees) else list(designs), list(motions), backend=backend, device=device, progress=progress, threads=threads,
-                   graph=graph)
+    return rollout(
+        designs if isinstance(designs, DesignTrees) else list(designs),
+        list(motions),
+        backend=backend,
+        device=device,
+        progress=progress,
+        threads=threads,
+        graph=graph,
+    )
 
 
 def score_episode(
@@ -69,7 +82,10 @@ def score_episode(
         models = [sp.model(d) for d in designs]
     device = ep.ee_pos.device
     if isinstance(models, DesignTrees):
-        size_d, mass_d = torch.as_tensor(models.size, dtype=torch.float32), torch.as_tensor(models.mass, dtype=torch.float32)
+        size_d, mass_d = (
+            torch.as_tensor(models.size, dtype=torch.float32),
+            torch.as_tensor(models.mass, dtype=torch.float32),
+        )
     else:
         size_d, mass_d = robot_size(models), robot_mass(models)
     size = size_d.to(device)[ep.design_index.to(device)]
@@ -82,7 +98,9 @@ def score_episode(
     return out["reward"], out
 
 
-def _models(sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None) -> list[mujoco.MjModel]:
+def _models(
+    sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None
+) -> list[mujoco.MjModel]:
     """`sp.models(designs)`, one worker process per rollout thread for large batches; on
     "warp", this process meanwhile loads the rollout kernels of the batch's structures.
 
@@ -153,8 +171,15 @@ def evaluate_designs(
     models = sp.trees(designs) if backend == "warp" else None
     if models is None:
         models = _models(sp, designs, backend=backend, device=device, threads=threads)
-    ep = run_rollout(models if backend == "warp" else designs, motions, backend=backend, device=device, progress=progress,
-                     threads=threads, graph=graph)
+    ep = run_rollout(
+        models if backend == "warp" else designs,
+        motions,
+        backend=backend,
+        device=device,
+        progress=progress,
+        threads=threads,
+        graph=graph,
+    )
     r, m = score_episode(ep, designs, motions, reward, models=models)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=m, episode=ep)
 
@@ -199,4 +224,3 @@ def warm_up(
 
 
 __all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up"]
-

@@ -18,9 +18,9 @@ from typing import Sequence
 import numpy as np
 
 from tt.kernels.errors import TTError
+from tt.sim.backends import BACKENDS as _ROLLOUT_BACKENDS
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
-from tt.sim.backends import BACKENDS as _ROLLOUT_BACKENDS
 
 #: Rollout backends an optimizer may evaluate candidates with (those `tt.sim.rollout` has).
 BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)
@@ -69,9 +69,7 @@ class Problem:
             if not isinstance(m, Motion):
                 raise TTError(f"Problem.motions holds a {type(m).__name__}; expected tt Motion objects")
             if m.arms != sp.ee_count:
-                raise TTError(
-                    f"motion {m.name!r} has {m.arms} end effector(s); space {self.space!r} has {sp.ee_count}"
-                )
+                raise TTError(f"motion {m.name!r} has {m.arms} end effector(s); space {self.space!r} has {sp.ee_count}")
         dts = {round(m.dt, 9) for m in self.motions}
         if len(dts) > 1:
             raise TTError(f"motions have different rates (dt {sorted(dts)} s); resample them to one rate")

@@ -15,10 +15,18 @@ class RandomSearch(Optimizer):
 
     def optimize(self, problem: Problem) -> Result:
         designs = problem.design_space.sample(problem.budget, seed=problem.seed)
-        warmup_seconds = warm_up(designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device)
+        warmup_seconds = warm_up(
+            designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device
+        )
         start = time.perf_counter()
-        ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device,
-                              threads=problem.threads)
+        ev = evaluate_designs(
+            designs,
+            problem.motions,
+            problem.reward,
+            backend=problem.backend,
+            device=problem.device,
+            threads=problem.threads,
+        )
         best, best_reward = best_of(designs, ev.objective)
         return Result(
             method=self.name,

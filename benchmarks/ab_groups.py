@@ -21,8 +21,11 @@ from tt.sim.motions import for_space, get_motion  # noqa: E402
 
 REPEATS, N = 5, 4096
 #: (label, threads, GROUPS_AT_ONCE)
-SETTINGS = (("1 thread", 1, True), ("2 threads, groups one after another", 2, False),
-            ("2 threads, groups at once", 2, True))
+SETTINGS = (
+    ("1 thread", 1, True),
+    ("2 threads, groups one after another", 2, False),
+    ("2 threads, groups at once", 2, True),
+)
 
 
 def main() -> None:
@@ -38,17 +41,25 @@ def main() -> None:
             sr.rollout(trees, motions, threads=threads)
             seconds.setdefault(label, []).append(time.perf_counter() - t)
             print(label, round(seconds[label][-1], 2), flush=True)
-    lines = ["# A/B: a threaded rollout's topology groups one after another or at once", "", machine_header(), "",
-             f"- command: `python benchmarks/ab_groups.py`; {N} random ViperX designs (seed 0, {len(trees.groups)} "
-             f"topology groups) x toss, `tt.sim.rollout.rollout` on tree fields (setup included), {REPEATS} "
-             "interleaved repeats", "",
-             "| setting | runs (s) | fastest (s) | median (s) | 1 -> 2 threads (fastest / median) |",
-             "|---|---|---:|---:|---:|"]
+    lines = [
+        "# A/B: a threaded rollout's topology groups one after another or at once",
+        "",
+        machine_header(),
+        "",
+        f"- command: `python benchmarks/ab_groups.py`; {N} random ViperX designs (seed 0, {len(trees.groups)} "
+        f"topology groups) x toss, `tt.sim.rollout.rollout` on tree fields (setup included), {REPEATS} "
+        "interleaved repeats",
+        "",
+        "| setting | runs (s) | fastest (s) | median (s) | 1 -> 2 threads (fastest / median) |",
+        "|---|---|---:|---:|---:|",
+    ]
     one = seconds[SETTINGS[0][0]]
     for label, _, _ in SETTINGS:
         ts = seconds[label]
         speedup = "" if ts is one else f"{min(one) / min(ts):.2f}x / {np.median(one) / np.median(ts):.2f}x"
-        lines.append(f"| {label} | {', '.join(f'{t:.2f}' for t in ts)} | {min(ts):.2f} | {np.median(ts):.2f} | {speedup} |")
+        lines.append(
+            f"| {label} | {', '.join(f'{t:.2f}' for t in ts)} | {min(ts):.2f} | {np.median(ts):.2f} | {speedup} |"
+        )
     out = Path(__file__).parent / "results" / "ab_groups.md"
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")

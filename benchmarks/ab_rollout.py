@@ -1,4 +1,5 @@
-"""A/B of the warp closed-loop rollout speed of whichever tt is installed: 512 random ViperX designs on the toss, one thread, CPU seconds.
+"""A/B of the warp closed-loop rollout speed of whichever tt is installed: 512 random ViperX
+designs on the toss, one thread, CPU seconds.
 
 Run it from outside the repository with each install to compare (benchmarks/results/layering_speed.md).
 """
@@ -12,6 +13,7 @@ import time
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.rollout import rollout
+
 sp = get_space("viperx")
 designs = sp.sample(512, seed=0)
 models = [sp.model(d) for d in designs]
@@ -22,7 +24,17 @@ times, cpu = [], []
 for _ in range(3):
     t, c = time.perf_counter(), time.process_time()
     ep = rollout(models, ms, backend="warp", device="cpu", **kw)
-    times.append(time.perf_counter() - t); cpu.append(time.process_time() - c)
+    times.append(time.perf_counter() - t)
+    cpu.append(time.process_time() - c)
 steps = ep.qpos.shape[1] * 10 * len(models)  # 10 physics steps per control step
-print(json.dumps({"tree": os.path.dirname(os.path.dirname(sys.modules["tt.kernels"].__file__)), "wall_s": times, "cpu_s": cpu,
-                  "world_steps_per_cpu_s": steps / min(cpu), "load": os.getloadavg()}))
+print(
+    json.dumps(
+        {
+            "tree": os.path.dirname(os.path.dirname(sys.modules["tt.kernels"].__file__)),
+            "wall_s": times,
+            "cpu_s": cpu,
+            "world_steps_per_cpu_s": steps / min(cpu),
+            "load": os.getloadavg(),
+        }
+    )
+)

@@ -36,21 +36,33 @@ def main() -> None:
                 rollout(trees, motions, threads=th)
                 seconds.setdefault((spt, th), []).append(time.perf_counter() - t)
                 print(spt, th, round(seconds[(spt, th)][-1], 2), flush=True)
-    lines = ["# A/B: slices of worlds per thread in a threaded rollout", "", machine_header(), "",
-             f"- command: `python benchmarks/ab_slices.py`; {N} random ViperX designs (seed 0) x toss, "
-             f"`tt.sim.rollout.rollout` on tree fields (setup included), {REPEATS} interleaved repeats", "",
-             "| slices per thread | threads | runs (s) | fastest (s) | median (s) |", "|---:|---:|---|---:|---:|"]
+    lines = [
+        "# A/B: slices of worlds per thread in a threaded rollout",
+        "",
+        machine_header(),
+        "",
+        f"- command: `python benchmarks/ab_slices.py`; {N} random ViperX designs (seed 0) x toss, "
+        f"`tt.sim.rollout.rollout` on tree fields (setup included), {REPEATS} interleaved repeats",
+        "",
+        "| slices per thread | threads | runs (s) | fastest (s) | median (s) |",
+        "|---:|---:|---|---:|---:|",
+    ]
     for (spt, th), ts in sorted(seconds.items()):
         lines.append(f"| {spt} | {th} | {', '.join(f'{t:.2f}' for t in ts)} | {min(ts):.2f} | {np.median(ts):.2f} |")
     # At 1 thread there is one slice whatever the setting: those rows are the same code.
     one = [t for spt in SLICES for t in seconds[(spt, 1)]]
-    lines += ["", f"At 1 thread there is one slice whatever the setting, so those {len(one)} runs time the same code "
-              f"({min(one):.2f}-{max(one):.2f} s: the box's spread); the 1 -> 2 thread figures below divide their "
-              "fastest and their median by each 2-thread setting's."]
+    lines += [
+        "",
+        f"At 1 thread there is one slice whatever the setting, so those {len(one)} runs time the same code "
+        f"({min(one):.2f}-{max(one):.2f} s: the box's spread); the 1 -> 2 thread figures below divide their "
+        "fastest and their median by each 2-thread setting's.",
+    ]
     for spt in SLICES:
         two = seconds[(spt, 2)]
-        lines.append(f"- {spt} slices per thread, 2 threads: fastest {min(two):.2f} s ({min(one) / min(two):.2f}x), "
-                     f"median {np.median(two):.2f} s ({np.median(one) / np.median(two):.2f}x)")
+        lines.append(
+            f"- {spt} slices per thread, 2 threads: fastest {min(two):.2f} s ({min(one) / min(two):.2f}x), "
+            f"median {np.median(two):.2f} s ({np.median(one) / np.median(two):.2f}x)"
+        )
     out = Path(__file__).parent / "results" / "ab_slices.md"
     out.write_text("\n".join(lines) + "\n")
     print(f"wrote {out}")

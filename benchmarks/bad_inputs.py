@@ -61,8 +61,21 @@ def _resume_fallback(files, work: Path):
     from tt.dit.checkpoint import list_checkpoints
 
     run = work / "run_fallback"
-    base = ["train", "--data", files.episodes, "--size", "tiny", "--batch-size", "4", "--device", "cpu", "--out", str(run),
-            "--checkpoint-every", "2"]
+    base = [
+        "train",
+        "--data",
+        files.episodes,
+        "--size",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--device",
+        "cpu",
+        "--out",
+        str(run),
+        "--checkpoint-every",
+        "2",
+    ]
     code, out = _invoke(base + ["--steps", "4"])
     if code:
         return "misleading", out
@@ -80,7 +93,19 @@ def _resume_fallback(files, work: Path):
 
 def _resume_other_lr(files, work: Path):
     run = work / "run_lr"
-    base = ["train", "--data", files.episodes, "--size", "tiny", "--batch-size", "4", "--device", "cpu", "--out", str(run)]
+    base = [
+        "train",
+        "--data",
+        files.episodes,
+        "--size",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--device",
+        "cpu",
+        "--out",
+        str(run),
+    ]
     code, out = _invoke(base + ["--steps", "1", "--lr", "0.001"])
     if code:
         return "misleading", out
@@ -91,8 +116,13 @@ def _resume_other_lr(files, work: Path):
 
 
 def _serve_sigterm(files, work: Path):
-    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "view", files.designs + "#0", "--serve"], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, cwd=work)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tt.cli", "view", files.designs + "#0", "--serve"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=work,
+    )
     try:
         while (line := proc.stdout.readline()) and "serving" not in line:
             pass
@@ -102,8 +132,11 @@ def _serve_sigterm(files, work: Path):
     finally:
         proc.kill()
     time.sleep(0.5)
-    alive = [p for p in children if Path(f"/proc/{p}/stat").exists()
-             and Path(f"/proc/{p}/stat").read_text().split(")")[-1].split()[0] != "Z"]
+    alive = [
+        p
+        for p in children
+        if Path(f"/proc/{p}/stat").exists() and Path(f"/proc/{p}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    ]
     for p in alive:  # the sweep's own leftover: stop it
         subprocess.run(["kill", p], check=False)
     return ("loss", f"meshcat server {alive} left running") if alive else ("ok", "")
@@ -127,22 +160,40 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         dataset = work / "ds"
-        generate(GenerateConfig(space="viperx", designs=4, episodes_per_design=1, designs_per_shard=2, min_steps=10,
-                                max_motion_steps=24), dataset, device="cpu", progress=False)
+        generate(
+            GenerateConfig(
+                space="viperx", designs=4, episodes_per_design=1, designs_per_shard=2, min_steps=10, max_motion_steps=24
+            ),
+            dataset,
+            device="cpu",
+            progress=False,
+        )
         files = make_files(work / "files", dataset)
         results = [outcome(c, files, _invoke) for c in CASES]
         for k, s in enumerate(SCENARIOS):
             folder = work / f"scenario_{k:02d}"
             folder.mkdir()
             results.append(_scenario(s.name, s.cls, lambda s=s, folder=folder: s.run(files, folder)))
-        for name, cls, run in (("train: resume when the latest checkpoint is truncated", 2, _resume_fallback),
-                               ("train: resume with another --lr", 4, _resume_other_lr),
-                               ("view --serve stopped by SIGTERM", 5, _serve_sigterm),
-                               ("detokenize: noisy quadruped tokens (sigma 0.3, 1, 3)", 7, _noisy_names)):
+        for name, cls, run in (
+            ("train: resume when the latest checkpoint is truncated", 2, _resume_fallback),
+            ("train: resume with another --lr", 4, _resume_other_lr),
+            ("view --serve stopped by SIGTERM", 5, _serve_sigterm),
+            ("detokenize: noisy quadruped tokens (sigma 0.3, 1, 3)", 7, _noisy_names),
+        ):
             results.append(_scenario(name, cls, lambda run=run: run(files, work)))
         for r in results:
-            print(json.dumps({"bench": "bad_inputs", "case": r.case.name, "class": r.case.cls, "outcome": r.kind,
-                              "exit": r.code, "why": r.why[:200]}))
+            print(
+                json.dumps(
+                    {
+                        "bench": "bad_inputs",
+                        "case": r.case.name,
+                        "class": r.case.cls,
+                        "outcome": r.kind,
+                        "exit": r.code,
+                        "why": r.why[:200],
+                    }
+                )
+            )
     seconds = time.perf_counter() - start
 
     counts = collections.Counter(r.kind for r in results)
@@ -150,17 +201,35 @@ def main() -> None:
     for r in results:
         by_class[r.case.cls].append(r)
     fixed = [c for c in CLASSES if by_class[c] and all(r.kind in ("clear", "ok") for r in by_class[c])]
-    lines = ["# Bad-input sweep (issues 22 and 50)", "", machine_header("cpu").rstrip(), f"- sweep time: {seconds:.0f} s", "",
-             f"{len(results)} cases across every command; `python benchmarks/bad_inputs.py` reruns it "
-             "(`tests/test_bad_inputs.py` asserts the same table).", "",
-             "| outcome | cases |", "|---|---:|"]
-    for kind, label in (("clear", "clear one-line error naming the file, flag or field"), ("ok", "odd but valid input, handled"),
-                        ("traceback", "traceback or internal error"), ("misleading", "misleading message"),
-                        ("silent", "success reported for a bad input or garbage output"),
-                        ("loss", "data lost or a process leaked")):
+    lines = [
+        "# Bad-input sweep (issues 22 and 50)",
+        "",
+        machine_header("cpu").rstrip(),
+        f"- sweep time: {seconds:.0f} s",
+        "",
+        f"{len(results)} cases across every command; `python benchmarks/bad_inputs.py` reruns it "
+        "(`tests/test_bad_inputs.py` asserts the same table).",
+        "",
+        "| outcome | cases |",
+        "|---|---:|",
+    ]
+    for kind, label in (
+        ("clear", "clear one-line error naming the file, flag or field"),
+        ("ok", "odd but valid input, handled"),
+        ("traceback", "traceback or internal error"),
+        ("misleading", "misleading message"),
+        ("silent", "success reported for a bad input or garbage output"),
+        ("loss", "data lost or a process leaked"),
+    ):
         lines.append(f"| {label} | {counts.get(kind, 0)} |")
-    lines += ["", f"Classes of failure of the issues fixed: {len(fixed)} of {len(CLASSES)} (every case of the class clear or handled).", "",
-              "| class | cases | clear or handled | fixed |", "|---|---:|---:|---|"]
+    lines += [
+        "",
+        f"Classes of failure of the issues fixed: {len(fixed)} of {len(CLASSES)} (every case of the class "
+        "clear or handled).",
+        "",
+        "| class | cases | clear or handled | fixed |",
+        "|---|---:|---:|---|",
+    ]
     for c, label in CLASSES.items():
         rs = by_class[c]
         good = sum(r.kind in ("clear", "ok") for r in rs)

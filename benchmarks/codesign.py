@@ -35,8 +35,8 @@ benchmarks/optimize.py), loading the checkpoint and building ViperX's decoding t
 
 Prints one JSON line per run, the script's own run time, and writes
 benchmarks/results/codesign.md (or ``--out``) with codesign.png, codesign_scaling.png and
-codesign_lambda.png (named after the report). ``--from-log LOG [LOG ...]`` rewrites the report from printed lines (later logs:
-runs that continue the first, e.g. with more rewards).
+codesign_lambda.png (named after the report). ``--from-log LOG [LOG ...]`` rewrites the
+report from printed lines (later logs: runs that continue the first, e.g. with more rewards).
 ``--max-minutes`` stops starting new runs after that much wall time; the report lists what
 was skipped.
 """
@@ -55,11 +55,11 @@ from pathlib import Path
 import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
-from tt.sim.rewards import REWARDS
 from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import REWARDS
 
 try:
     from machine import machine_header
@@ -82,10 +82,18 @@ PARTS = ("table", "scaling", "lambda", "hybrid", "guidance")
 
 #: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
 PAPER = {
-    SINGLE: [("Random", 19.4, 8.9, 72.2, None), ("CMA-ES", 5.0, 5.7, 98.3, 47.5), ("Zeroth", 4.1, 4.2, 96.1, 0.5),
-             ("DGS", 4.1, 3.9, 99.4, 2.8)],
-    MULTI: [("Random", 17.0, 9.4, 80.6, None), ("CMA-ES", 7.1, 6.1, 86.7, 663.8), ("Zeroth", 3.4, 3.9, 95.6, 1.2),
-            ("DGS", 2.4, 3.5, 98.9, 43.5)],
+    SINGLE: [
+        ("Random", 19.4, 8.9, 72.2, None),
+        ("CMA-ES", 5.0, 5.7, 98.3, 47.5),
+        ("Zeroth", 4.1, 4.2, 96.1, 0.5),
+        ("DGS", 4.1, 3.9, 99.4, 2.8),
+    ],
+    MULTI: [
+        ("Random", 17.0, 9.4, 80.6, None),
+        ("CMA-ES", 7.1, 6.1, 86.7, 663.8),
+        ("Zeroth", 3.4, 3.9, 95.6, 1.2),
+        ("DGS", 2.4, 3.5, 98.9, 43.5),
+    ],
 }
 
 
@@ -130,8 +138,12 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
     def zeroth() -> ZerothOrder:
-        return ZerothOrder(SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples), model=learned.trained,
-                           decoder=learned.decoder, critic_model=learned.critic)
+        return ZerothOrder(
+            SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples),
+            model=learned.trained,
+            decoder=learned.decoder,
+            critic_model=learned.critic,
+        )
 
     if method == ZEROTH:
         return zeroth()
@@ -146,20 +158,37 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         scale, eta, at, first, refine, form = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
             first = args.steps
-        config = DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, guide_by="critic", scale=scale,
-                           eta=eta, guide_start=first, refine=refine, refine_form=form, **CRITIC_PLACES[at])
-        return DynamicsSelfGuidance(config,
-                                    model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
+        config = DGSConfig(
+            num_steps=args.steps,
+            critic_samples=args.critic_samples,
+            guide_by="critic",
+            scale=scale,
+            eta=eta,
+            guide_start=first,
+            refine=refine,
+            refine_form=form,
+            **CRITIC_PLACES[at],
+        )
+        return DynamicsSelfGuidance(config, model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
-    return DynamicsSelfGuidance(DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, sim_grad_weight=lam,
-                                          sim_grad_start=start),
-                                model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
+    return DynamicsSelfGuidance(
+        DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, sim_grad_weight=lam, sim_grad_start=start),
+        model=learned.trained,
+        decoder=learned.decoder,
+        critic_model=learned.critic,
+    )
 
 
-def critic_label(scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0,
-                 form: str = "reward") -> str:
-    where = {"tokens": "", "design": ", at the design", "project": ", projected", "continuous": ", continuous only",
-             "start": ", through the start"}[at]
+def critic_label(
+    scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0, form: str = "reward"
+) -> str:
+    where = {
+        "tokens": "",
+        "design": ", at the design",
+        "project": ", projected",
+        "continuous": ", continuous only",
+        "start": ", through the start",
+    }[at]
     climbs = ", climbing the log form" if form == "log" else ""
     if scale == 0:
         return f"{DGS_CRITIC} (eta = {eta:g}, at the decoded design only, {refine} iterations{climbs})"
@@ -173,15 +202,30 @@ def guidance_variants(args) -> list[tuple[float, float, str, int, int, str]]:
     refinement climbs) of every critic-steered Self-Guidance of part "guidance"; scale 0
     guides only the decoded design (one variant per eta and refinement, whatever the place
     and first step)."""
-    out = [(s, e, a, f, r, args.guidance_refine_form) for r in _ints(args.guidance_refine) for f in _ints(args.guidance_starts)
-           for a in args.guidance_at.split(",") if a for e in _floats(args.guidance_etas) for s in _floats(args.guidance_scales)
-           if s != 0 or r > 0]  # scale 0 without refinement would be Zeroth-Order itself
+    out = [
+        (s, e, a, f, r, args.guidance_refine_form)
+        for r in _ints(args.guidance_refine)
+        for f in _ints(args.guidance_starts)
+        for a in args.guidance_at.split(",")
+        if a
+        for e in _floats(args.guidance_etas)
+        for s in _floats(args.guidance_scales)
+        if s != 0 or r > 0
+    ]  # scale 0 without refinement would be Zeroth-Order itself
     return list({critic_label(*v): v for v in out}.values())
 
 
 # ------------------------------------------------------------------------------ runs
-def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, entries: list[tuple[str, int, float]],
-              args, learned: Learned | None) -> list[dict]:
+def run_group(
+    part: str,
+    setting: str,
+    motions: tuple,
+    reward: str,
+    seed: int,
+    entries: list[tuple[str, int, float]],
+    args,
+    learned: Learned | None,
+) -> list[dict]:
     """Every (method, n, lambda) of `entries` on one problem, winners validated in one oracle call."""
     results = []
     for method, n, lam in entries:
@@ -195,18 +239,38 @@ def run_group(part: str, setting: str, motions: tuple, reward: str, seed: int, e
     ev = evaluate_designs([r[3].best for r in done], motions, reward, backend="mujoco") if done else None
     records, k = [], 0
     for method, n, lam, res, failure in results:
-        rec = {"bench": "codesign", "part": part, "setting": setting, "reward_name": reward, "seed": seed,
-               "motions": [m.name for m in motions], "method": method, "n": n, "lambda": lam}
+        rec = {
+            "bench": "codesign",
+            "part": part,
+            "setting": setting,
+            "reward_name": reward,
+            "seed": seed,
+            "motions": [m.name for m in motions],
+            "method": method,
+            "n": n,
+            "lambda": lam,
+        }
         if res is None:
             rec.update(ok=False, error=failure[0], seconds=failure[1])
         else:
             info = res.info
-            rec.update(ok=True, seconds=res.seconds, rollouts=res.rollouts, objective=res.best_reward,
-                       warmup_seconds=info.get("warmup_seconds", 0.0), decode_failures=info.get("decode_failures"),
-                       distance=info.get("distance_best"), projected=info.get("projected"), decoded=info.get("decoded"),
-                       sample_seconds=info.get("sample_seconds"), sim=info.get("sim"), critic_grad=info.get("critic_grad"),
-                       refine=info.get("refine"),
-                       **summary_row(ev.metrics, k), design=get_space(SPACE).to_dict(res.best))
+            rec.update(
+                ok=True,
+                seconds=res.seconds,
+                rollouts=res.rollouts,
+                objective=res.best_reward,
+                warmup_seconds=info.get("warmup_seconds", 0.0),
+                decode_failures=info.get("decode_failures"),
+                distance=info.get("distance_best"),
+                projected=info.get("projected"),
+                decoded=info.get("decoded"),
+                sample_seconds=info.get("sample_seconds"),
+                sim=info.get("sim"),
+                critic_grad=info.get("critic_grad"),
+                refine=info.get("refine"),
+                **summary_row(ev.metrics, k),
+                design=get_space(SPACE).to_dict(res.best),
+            )
             k += 1
         records.append(rec)
         print(json.dumps(rec), flush=True)
@@ -218,9 +282,16 @@ def run_hybrid(setting: str, motions: tuple, reward: str, seed: int, args, learn
     the budget that takes the slowest hybrid's wall time (scaled from their equal-rollout time)."""
     b = args.hybrid_budget
     top = [(ZEROTH_SIM_TOP, b, 0.0)] if args.hybrid_verify is not None else []
-    first = run_group("hybrid", setting, motions, reward, seed,
-                      [(ZEROTH_SIM, b, 0.0)] + top + [(CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)],
-                      args, learned)
+    first = run_group(
+        "hybrid",
+        setting,
+        motions,
+        reward,
+        seed,
+        [(ZEROTH_SIM, b, 0.0)] + top + [(CMAES_INIT, b, 0.0), (RANDOM, b, 0.0), (CMAES_B, b, 0.0)],
+        args,
+        learned,
+    )
     t_hybrid = max(r["seconds"] for r in first if r["method"] in HYBRIDS)
     again = []
     for base, timed in ((RANDOM, RANDOM_T), (CMAES_B, CMAES_T)):
@@ -266,8 +337,10 @@ def columns(reward: str, extra=()) -> list[tuple[str, str]]:
 
 def paired(records: list[dict], a: tuple, b: tuple, key: str) -> list[float]:
     """Per seed: record a's key minus record b's; a and b are (method, n) (n None: any)."""
+
     def pick(method, n):
         return {r["seed"]: r for r in _ok(records) if r["method"] == method and (n is None or r["n"] == n)}
+
     ra, rb = pick(*a), pick(*b)
     return [ra[s][key] - rb[s][key] for s in sorted(set(ra) & set(rb))]
 
@@ -328,7 +401,9 @@ def plot_lambda(records: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for ax, key, label in ((axes[0], "reward", "validated reward"), (axes[1], "seconds", "optimize time (s)")):
         ms = [mean_ci([r[key] for r in _ok(records) if r["lambda"] == lam]) for lam in lams]
-        ax.errorbar(lams, [m for m, _ in ms], yerr=[0 if not math.isfinite(h) else h for _, h in ms], fmt="o-", capsize=3)
+        ax.errorbar(
+            lams, [m for m, _ in ms], yerr=[0 if not math.isfinite(h) else h for _, h in ms], fmt="o-", capsize=3
+        )
         ax.set_xlabel("lambda (share of the simulator gradient)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
@@ -347,13 +422,15 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
     cols = min(2, len(groups))
     rows_ = math.ceil(len(groups) / cols)
     fig, axes = plt.subplots(rows_, cols, figsize=(6 * cols, 4.5 * rows_), squeeze=False)
-    for ax in axes.flat[len(groups):]:
+    for ax in axes.flat[len(groups) :]:
         ax.set_visible(False)
-    text = ["## Hybrids: the model proposes, the batched simulator verifies\n",
-            "Random / CMA-ES at the hybrids' rollout budget (equal rollouts), and again at the budget that takes the "
-            "hybrid's wall time (equal wall time: the equal-rollout run's time scaled to the slowest hybrid's, per seed). "
-            "Paired differences are the hybrid's validated reward minus the baseline's, seed by seed (95% CI).\n",
-            f"![hybrids]({plot.name})\n"]
+    text = [
+        "## Hybrids: the model proposes, the batched simulator verifies\n",
+        "Random / CMA-ES at the hybrids' rollout budget (equal rollouts), and again at the budget that takes the "
+        "hybrid's wall time (equal wall time: the equal-rollout run's time scaled to the slowest hybrid's, per seed). "
+        "Paired differences are the hybrid's validated reward minus the baseline's, seed by seed (95% CI).\n",
+        f"![hybrids]({plot.name})\n",
+    ]
     for ax, (setting, reward) in zip(axes.flat, groups):
         sub = [r for r in records if r["setting"] == setting and r["reward_name"] == reward]
         rows = []
@@ -362,13 +439,25 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
             if not mr:
                 continue
             budgets = sorted({r["n"] for r in mr})
-            rows.append(aggregate(mr, method, reward, {"n": ", ".join(map(str, budgets)) if len(budgets) < 4 else
-                                                       f"{budgets[0]}..{budgets[-1]}"}))
+            rows.append(
+                aggregate(
+                    mr,
+                    method,
+                    reward,
+                    {"n": ", ".join(map(str, budgets)) if len(budgets) < 4 else f"{budgets[0]}..{budgets[-1]}"},
+                )
+            )
             t = mean_ci([r["seconds"] for r in mr])
             v = mean_ci([r["reward"] for r in _ok(mr)])
-            ax.errorbar([t[0]], [v[0]], xerr=[[0 if not math.isfinite(t[1]) else t[1]]],
-                        yerr=[[0 if not math.isfinite(v[1]) else v[1]]], fmt="o" if method in HYBRIDS else "s",
-                        capsize=3, label=method)
+            ax.errorbar(
+                [t[0]],
+                [v[0]],
+                xerr=[[0 if not math.isfinite(t[1]) else t[1]]],
+                yerr=[[0 if not math.isfinite(v[1]) else v[1]]],
+                fmt="o" if method in HYBRIDS else "s",
+                capsize=3,
+                label=method,
+            )
         ax.set_xscale("log")
         ax.set_xlabel("optimize wall time (s), this CPU")
         ax.set_ylabel("validated reward (oracle)")
@@ -376,8 +465,11 @@ def hybrid_section(records: list[dict], plot: Path) -> str:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         seeds = sorted({r["seed"] for r in sub})
-        text.append(f"\n### {setting}, {reward} (seeds {', '.join(map(str, seeds))})\n\n"
-                    + markdown_table(rows, columns(reward, [("n", "budget / samples")]), first=("name", "method")) + "\n")
+        text.append(
+            f"\n### {setting}, {reward} (seeds {', '.join(map(str, seeds))})\n\n"
+            + markdown_table(rows, columns(reward, [("n", "budget / samples")]), first=("name", "method"))
+            + "\n"
+        )
         for hybrid_ in HYBRIDS:
             for base in (RANDOM_T, CMAES_T, RANDOM, CMAES_B):
                 d = paired(sub, (hybrid_, None), (base, None), "reward")
@@ -410,49 +502,63 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
         failed = sum(g.get("decode_failures", 0) for g in grads)
         rows.append(aggregate(mr, method, "tracking", {"grad": f"{steps} / {failed}" if grads and any(grads) else "-"}))
     seeds = sorted({r["seed"] for r in records})
-    lines = [f"## Self-Guidance steered by the dynamics critic (single trajectory, tracking; n = {n}; seeds "
-             f"{', '.join(map(str, seeds))})\n",
-             "Self-Guidance: the paper's, the sampling model's own dynamics differentiated, scale 50. Self-Guidance, "
-             "critic: the dynamics critic's prediction for each step's x0_hat differentiated instead (the log of the "
-             "tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. At the decoded design "
-             "(only, or after the guided steps): once sampling has ended, the returned design's continuous choices "
-             "climb the critic's predicted reward (no termination; where the label says so, its log form, "
-             "`tt.sim.rewards.log_reward`) along its central differences, each design's start "
-             "re-simulated, a step kept only when it also raises the prediction under a second noise draw "
-             "(`tt.guidance.refine`, `SamplerConfig.refine` iterations at most); with eta 0 and no guided token step "
-             "the design it starts from is Zeroth-Order's own. Paired differences are "
-             "the method's validated reward minus Zeroth-Order's, seed by seed (95% CI).\n",
-             markdown_table(rows, columns("tracking", [("grad", "critic-gradient candidate-steps / undecodable")]),
-                            first=("name", "method")) + "\n"]
+    lines = [
+        f"## Self-Guidance steered by the dynamics critic (single trajectory, tracking; n = {n}; seeds "
+        f"{', '.join(map(str, seeds))})\n",
+        "Self-Guidance: the paper's, the sampling model's own dynamics differentiated, scale 50. Self-Guidance, "
+        "critic: the dynamics critic's prediction for each step's x0_hat differentiated instead (the log of the "
+        "tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. At the decoded design "
+        "(only, or after the guided steps): once sampling has ended, the returned design's continuous choices "
+        "climb the critic's predicted reward (no termination; where the label says so, its log form, "
+        "`tt.sim.rewards.log_reward`) along its central differences, each design's start "
+        "re-simulated, a step kept only when it also raises the prediction under a second noise draw "
+        "(`tt.guidance.refine`, `SamplerConfig.refine` iterations at most); with eta 0 and no guided token step "
+        "the design it starts from is Zeroth-Order's own. Paired differences are "
+        "the method's validated reward minus Zeroth-Order's, seed by seed (95% CI).\n",
+        markdown_table(
+            rows,
+            columns("tracking", [("grad", "critic-gradient candidate-steps / undecodable")]),
+            first=("name", "method"),
+        )
+        + "\n",
+    ]
     for method in methods[1:]:
         d = paired(records, (method, n), (ZEROTH, n), "reward")
         if not d:
             continue
         m, h = mean_ci(d)
         wins = sum(x > 0 for x in d)
-        lines.append(f"- {method} minus Zeroth-Order: {_fmt(m, h)} over {len(d)} seeds (95% CI {_verdict(m, h)}; higher "
-                     f"in {wins} of {len(d)})")
+        lines.append(
+            f"- {method} minus Zeroth-Order: {_fmt(m, h)} over {len(d)} seeds (95% CI {_verdict(m, h)}; higher "
+            f"in {wins} of {len(d)})"
+        )
         if len(seeds) > 9:
             # The issue asks for 9 seeds: each block of 9 on its own, beside the pooled figure.
             for lo in range(0, len(seeds), 9):
-                block = seeds[lo: lo + 9]
+                block = seeds[lo : lo + 9]
                 db = paired([r for r in records if r["seed"] in block], (method, n), (ZEROTH, n), "reward")
                 if len(db) > 1:
                     mb, hb = mean_ci(db)
-                    lines.append(f"  - seeds {block[0]}-{block[-1]}: {_fmt(mb, hb)} (95% CI {_verdict(mb, hb)}; higher in "
-                                 f"{sum(x > 0 for x in db)} of {len(db)})")
+                    lines.append(
+                        f"  - seeds {block[0]}-{block[-1]}: {_fmt(mb, hb)} (95% CI {_verdict(mb, hb)}; higher in "
+                        f"{sum(x > 0 for x in db)} of {len(db)})"
+                    )
         if method.startswith(DGS_CRITIC):
             dr = paired(records, (method, n), (DGS, n), "reward")
             dp = [x for x in paired(records, (method, n), (DGS, n), "pos_err") if math.isfinite(x)]
             if dr:
-                lines.append(f"- {method} minus the paper's Self-Guidance: reward {_fmt(*mean_ci(dr))} (95% CI "
-                             f"{_verdict(*mean_ci(dr))}; higher in {sum(x > 0 for x in dr)} of {len(dr)}), position error "
-                             f"{_fmt(*mean_ci(dp))} cm over the {len(dp)} seeds where both have one")
+                lines.append(
+                    f"- {method} minus the paper's Self-Guidance: reward {_fmt(*mean_ci(dr))} (95% CI "
+                    f"{_verdict(*mean_ci(dr))}; higher in {sum(x > 0 for x in dr)} of {len(dr)}), position error "
+                    f"{_fmt(*mean_ci(dp))} cm over the {len(dp)} seeds where both have one"
+                )
         if n == 1:
             met = math.isfinite(h) and m - h > 0
-            goal.append(f"- {method} vs Zeroth-Order at n=1, single trajectory, tracking, {len(d)} paired runs (part "
-                        f"guidance): paired difference {_fmt(m, h)} (higher in {wins} of {len(d)}). Target (beats "
-                        f"Zeroth-Order, 95% CI): {'met' if met else 'NOT met'}.")
+            goal.append(
+                f"- {method} vs Zeroth-Order at n=1, single trajectory, tracking, {len(d)} paired runs (part "
+                f"guidance): paired difference {_fmt(m, h)} (higher in {wins} of {len(d)}). Target (beats "
+                f"Zeroth-Order, 95% CI): {'met' if met else 'NOT met'}."
+            )
     return "\n".join(lines) + "\n", goal
 
 
@@ -522,7 +628,8 @@ def notes(records: list[dict], info: dict) -> str:
         f"the nearest structure (edit distance over the token sequences, counted in binary attributes); continuous "
         f"choices are then fitted. Winners projected in this run: {projected}{spread}. {undecoded} of the "
         f"{candidates} candidates tried did not decode at all"
-        + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "") + "; a run where none decodes returns no "
+        + (f" ({100.0 * undecoded / candidates:.0f}%)" if candidates else "")
+        + "; a run where none decodes returns no "
         "design: its row counts it under 'runs with a design' and its errors and reward are left out (not zero). "
         "benchmarks/results/dit_eval.md measures the shipped model's samples (structure distances, predicted vs "
         "simulated reward) on their own.",
@@ -533,10 +640,12 @@ def notes(records: list[dict], info: dict) -> str:
         "candidate is a large share of the learned methods' time (about 0.1 s per candidate: a chord fit of the "
         "continuous choices through MuJoCo compiles, `tt.tokens.design_fit`); otherwise the DiT's forward pass over "
         "n x ~240 tokens dominates. "
-        "Either way they scale about linearly in n; the batched rollout of Random / CMA-ES costs about 10 ms per world.",
+        "Either way they scale about linearly in n; the batched rollout of Random / CMA-ES costs about 10 ms "
+        "per world.",
         "- Cuts, to fit a shared 2-core CPU (the paper's grid is 9 seeds x every reward x 2 settings on a GPU; "
         f"the tables above say which seeds and rewards ran): {info['steps']} DDIM steps instead of 100; the sample "
-        "counts listed above; the scaling part's Self-Guidance stops at n = the table's; the lambda part runs few samples and seeds "
+        "counts listed above; the scaling part's Self-Guidance stops at n = the table's; the lambda part "
+        "runs few samples and seeds "
         "and mixes the simulator gradient into the last guided steps only (each such step decodes, differentiates "
         "and simulates every candidate).",
         "- Other jobs shared the machine (see the load averages above); the methods of one run ran back to back, so "
@@ -551,9 +660,17 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     for r in records:
         if r["part"] == "table":
             tables.setdefault(r["setting"], []).append(r)
-    scaling = [r for r in records if r["part"] == "scaling" or (
-        r["part"] == "table" and r["setting"] == SINGLE and r["reward_name"] == "tracking"
-        and r["seed"] < info["scaling_seeds"])]
+    scaling = [
+        r
+        for r in records
+        if r["part"] == "scaling"
+        or (
+            r["part"] == "table"
+            and r["setting"] == SINGLE
+            and r["reward_name"] == "tracking"
+            and r["seed"] < info["scaling_seeds"]
+        )
+    ]
     lam = [r for r in records if r["part"] == "lambda"]
     sections = []
     for name, rs in tables.items():
@@ -562,8 +679,10 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             first = [r for r in rs if r["method"] == rs[0]["method"] and r["reward_name"] == rs[0]["reward_name"]]
             head += f"- run i (seed i) optimizes for motion i of: {', '.join(r['motions'][0] for r in first)}\n"
         else:
-            head += (f"- every run optimizes one design for the mean over {len(rs[0]['motions'])} validation motions: "
-                     f"{', '.join(rs[0]['motions'])}\n")
+            head += (
+                f"- every run optimizes one design for the mean over {len(rs[0]['motions'])} validation motions: "
+                f"{', '.join(rs[0]['motions'])}\n"
+            )
         for reward in dict.fromkeys(r["reward_name"] for r in rs):
             sub = [r for r in rs if r["reward_name"] == reward]
             rows = []
@@ -576,32 +695,64 @@ def report(records: list[dict], info: dict, out: Path) -> str:
                     if method in LEARNED:
                         extra["decode"] = f"{fails / len(mr):.3g}"
                     rows.append(aggregate(mr, method, reward, extra))
-            table = markdown_table(rows, columns(reward, [("n", "n / budget"), ("decode", "failed decodes per run")]),
-                                   first=("name", "method"))
+            table = markdown_table(
+                rows,
+                columns(reward, [("n", "n / budget"), ("decode", "failed decodes per run")]),
+                first=("name", "method"),
+            )
             seeds = sorted({r["seed"] for r in sub})
             head += f"\n### {reward} ({len(seeds)} runs: seeds {', '.join(map(str, seeds))})\n\n{table}\n"
         paper = PAPER.get(name)
         if paper and any(r["reward_name"] == "tracking" for r in rs):
-            prow = [{"name": p[0], "pos_err": p[1], "orn_err": p[2], "survival_pct": p[3], "seconds": p[4]} for p in paper]
-            head += ("\nThe paper's table (RTX 4090, 3.8M-episode dataset, 11.6M-parameter model, its own budgets; "
-                     "not comparable run for run):\n\n" + markdown_table(
-                         prow, [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)"),
-                                ("seconds", "optimize (s)")], first=("name", "method")) + "\n")
+            prow = [
+                {"name": p[0], "pos_err": p[1], "orn_err": p[2], "survival_pct": p[3], "seconds": p[4]} for p in paper
+            ]
+            head += (
+                "\nThe paper's table (RTX 4090, 3.8M-episode dataset, 11.6M-parameter model, its own budgets; "
+                "not comparable run for run):\n\n"
+                + markdown_table(
+                    prow,
+                    [
+                        ("pos_err", "pos err (cm)"),
+                        ("orn_err", "orn err (deg)"),
+                        ("survival_pct", "survival (%)"),
+                        ("seconds", "optimize (s)"),
+                    ],
+                    first=("name", "method"),
+                )
+                + "\n"
+            )
         sections.append(head)
     if scaling:
         rows = []
         for method, pts in scaling_series(scaling).items():
             for n, (rm, rh), (sm, sh) in pts:
                 rs = [r for r in scaling if r["method"] == method and r["n"] == n]
-                rows.append({"name": method, "n": str(n), "reward": _fmt(rm, rh), "seconds": _fmt(sm, sh),
-                             "pos_err": _fmt(*mean_ci([r.get("pos_err") for r in _ok(rs)])),
-                             "runs": f"{len(_ok(rs))}/{len(rs)}"})
+                rows.append(
+                    {
+                        "name": method,
+                        "n": str(n),
+                        "reward": _fmt(rm, rh),
+                        "seconds": _fmt(sm, sh),
+                        "pos_err": _fmt(*mean_ci([r.get("pos_err") for r in _ok(rs)])),
+                        "runs": f"{len(_ok(rs))}/{len(rs)}",
+                    }
+                )
         seeds = sorted({r["seed"] for r in scaling})
         sections.append(
             f"## Test-time scaling (single trajectory, tracking; seeds {', '.join(map(str, seeds))})\n\n"
             f"![scaling]({out.stem}_scaling.png)\n\n"
-            + markdown_table(rows, [("n", "n / budget"), ("reward", "validated reward"), ("pos_err", "pos err (cm)"),
-                                    ("seconds", "optimize (s)"), ("runs", "runs with a design")], first=("name", "method"))
+            + markdown_table(
+                rows,
+                [
+                    ("n", "n / budget"),
+                    ("reward", "validated reward"),
+                    ("pos_err", "pos err (cm)"),
+                    ("seconds", "optimize (s)"),
+                    ("runs", "runs with a design"),
+                ],
+                first=("name", "method"),
+            )
             + "\n"
         )
         plot_scaling(scaling, out.parent / f"{out.stem}_scaling.png")
@@ -614,11 +765,14 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             rows.append({**aggregate(rs, f"lambda = {value:g}", "tracking"), "sim": sim if sims and value > 0 else "-"})
         seeds = sorted({r["seed"] for r in lam})
         sections.append(
-            f"## Simulator-gradient mixing: Self-Guidance with `--sim-grad-weight` lambda (single trajectory, tracking; "
+            "## Simulator-gradient mixing: Self-Guidance with `--sim-grad-weight` lambda (single trajectory, "
+            "tracking; "
             f"n = {lam[0]['n']}, seeds {', '.join(map(str, seeds))}; simulator gradient from guided step "
             f"{info['lambda_start']} of {info['steps']})\n\n![lambda]({out.stem}_lambda.png)\n\n"
-            + markdown_table(rows, columns("tracking", [("sim", "simulated / undecodable candidate-steps")]),
-                             first=("name", "")) + "\n"
+            + markdown_table(
+                rows, columns("tracking", [("sim", "simulated / undecodable candidate-steps")]), first=("name", "")
+            )
+            + "\n"
         )
         plot_lambda(lam, out.parent / f"{out.stem}_lambda.png")
     hybrid = [r for r in records if r["part"] == "hybrid"]
@@ -638,17 +792,31 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         + info["machine"]
         + f"- load average (1, 5, 15 min) at start {info['load_start']}, at end {info.get('load_end', '-')}\n"
         f"- command: `{info['command']}`\n"
-        f"- run time {info.get('wall_seconds', float('nan')):.0f} s wall; before any timing: warm-up (kernel compile or "
+        f"- run time {info.get('wall_seconds', float('nan')):.0f} s wall; before any timing: warm-up (kernel "
+        "compile or "
         f"cache load, first calls) {info['warmup_seconds']:.0f} s, checkpoint load and decoding table "
         f"{info['learned_seconds']:.1f} s\n"
         f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
         f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
         f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
-        + (f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the samples of Zeroth-Order, Self-Guidance and the hybrids (asked about the decoded designs when it was trained told the start)\n"
-           if info.get("critic_checkpoint") else "")
-        + (f"- Zeroth + sim (top k): the simulator verifies the top {info['hybrid_verify']} of its samples as the "
-           f"critic ranks them\n" if info.get("hybrid_verify") else "")
-        + ("- hybrids at equal wall time: each baseline gets the slowest hybrid's time on that seed\n" if hybrid else "")
+        + (
+            f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the samples of Zeroth-Order, "
+            "Self-Guidance and the hybrids (asked about the decoded designs when it was trained told the "
+            "start)\n"
+            if info.get("critic_checkpoint")
+            else ""
+        )
+        + (
+            f"- Zeroth + sim (top k): the simulator verifies the top {info['hybrid_verify']} of its samples as the "
+            f"critic ranks them\n"
+            if info.get("hybrid_verify")
+            else ""
+        )
+        + (
+            "- hybrids at equal wall time: each baseline gets the slowest hybrid's time on that seed\n"
+            if hybrid
+            else ""
+        )
         + f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory {info['multi_n']} "
         f"and {info['multi_dgs_n']}); Random and CMA-ES budget {info['budget']} candidates per motion (multi "
         f"trajectory {info['multi_budget']}); CMA-ES population {info['popsize']}, {info['generations']} generations "
@@ -658,9 +826,13 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         "returns no design when none of its candidates decodes to a ViperX design (counted in 'runs with a "
         "design'; its time still counts)\n"
         + ("- skipped (over --max-minutes): " + "; ".join(skipped) + "\n" if skipped else "")
-        + "\n## The issue's targets\n\n" + ("\n".join(goal) if goal else "- not measured in this run") + "\n\n"
+        + "\n## The issue's targets\n\n"
+        + ("\n".join(goal) if goal else "- not measured in this run")
+        + "\n\n"
         + "\n".join(sections)
-        + (f"\n![tables]({out.with_suffix('.png').name})\n" if tables else "") + "\n" + notes(records, info)
+        + (f"\n![tables]({out.with_suffix('.png').name})\n" if tables else "")
+        + "\n"
+        + notes(records, info)
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
@@ -711,7 +883,9 @@ def main() -> None:
     ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
-    ap.add_argument("--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none")
+    ap.add_argument(
+        "--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none"
+    )
     ap.add_argument("--multi-motions", type=int, default=5, help="validation motions per multi-trajectory run")
     ap.add_argument("--n", type=int, default=128, help="Zeroth-Order samples (table, single trajectory)")
     ap.add_argument("--dgs-n", type=int, default=32, help="Self-Guidance samples (table, single trajectory)")
@@ -731,46 +905,90 @@ def main() -> None:
     ap.add_argument("--lambda-n", type=int, default=4)
     ap.add_argument("--lambda-start", type=int, default=15, help="first guided step with the simulator gradient")
     ap.add_argument("--hybrid-seeds", type=int, default=9, help="hybrid: runs per setting")
-    ap.add_argument("--hybrid-budget", type=int, default=64,
-                    help="hybrid: zeroth-sim samples (all verified) and cmaes-init-model / baseline rollout budget")
-    ap.add_argument("--hybrid-verify", type=int, default=None,
-                    help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic")
+    ap.add_argument(
+        "--hybrid-budget",
+        type=int,
+        default=64,
+        help="hybrid: zeroth-sim samples (all verified) and cmaes-init-model / baseline rollout budget",
+    )
+    ap.add_argument(
+        "--hybrid-verify",
+        type=int,
+        default=None,
+        help="hybrid: also run zeroth-sim verifying only the top K of its samples, ranked by the critic",
+    )
     ap.add_argument("--hybrid-settings", default="single,multi", help="hybrid: comma-separated: single, multi")
     ap.add_argument("--hybrid-rewards", default="tracking", help="hybrid: comma-separated rewards or 'all'")
     ap.add_argument("--guidance-seeds", type=int, default=9, help="guidance: runs (seed i: validation motion i)")
     ap.add_argument("--guidance-n", type=int, default=1, help="guidance: samples of every method")
-    ap.add_argument("--guidance-first-seed", type=int, default=0,
-                    help="guidance: first seed (seeds first .. first + --guidance-seeds - 1; e.g. fresh seeds for a scale chosen on others)")
+    ap.add_argument(
+        "--guidance-first-seed",
+        type=int,
+        default=0,
+        help="guidance: first seed (seeds first .. first + --guidance-seeds - 1; e.g. fresh seeds for a scale "
+        "chosen on others)",
+    )
     ap.add_argument("--guidance-scales", default="0.5,5", help="guidance: scales of critic-steered Self-Guidance")
-    ap.add_argument("--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)")
-    ap.add_argument("--guidance-at", default="tokens",
-                    help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
-                         "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
-                         "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
-                         "of its real tokens), start (x0_hat's, plus the term through the decoded design's simulated "
-                         "start)")
-    ap.add_argument("--guidance-starts", default="0",
-                    help="guidance: comma-separated first guided DDIM steps (0 = noisiest; the steps before sample "
-                         "unguided, `DGSConfig.guide_start`), each with every scale, eta and place")
-    ap.add_argument("--guidance-refine", default="0",
-                    help="guidance: comma-separated iterations of critic refinement of the returned design "
-                         "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
-                         "scale 0 in --guidance-scales guides no token step, only the decoded design")
-    ap.add_argument("--guidance-refine-form", choices=FORMS, default="reward",
-                    help="guidance: what refinement climbs (`SamplerConfig.refine_form`): the critic's predicted "
-                         "reward, or its smooth stand-in (log; `tt.sim.rewards.log_reward`)")
-    ap.add_argument("--critic-samples", type=int, default=1,
-                    help="every learned method: critic predictions averaged per candidate (ranking and refinement)")
-    ap.add_argument("--critic-checkpoint", type=Path, default=None,
-                    help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples (default: the model's own)")
+    ap.add_argument(
+        "--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)"
+    )
+    ap.add_argument(
+        "--guidance-at",
+        default="tokens",
+        help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
+        "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
+        "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
+        "of its real tokens), start (x0_hat's, plus the term through the decoded design's simulated "
+        "start)",
+    )
+    ap.add_argument(
+        "--guidance-starts",
+        default="0",
+        help="guidance: comma-separated first guided DDIM steps (0 = noisiest; the steps before sample "
+        "unguided, `DGSConfig.guide_start`), each with every scale, eta and place",
+    )
+    ap.add_argument(
+        "--guidance-refine",
+        default="0",
+        help="guidance: comma-separated iterations of critic refinement of the returned design "
+        "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
+        "scale 0 in --guidance-scales guides no token step, only the decoded design",
+    )
+    ap.add_argument(
+        "--guidance-refine-form",
+        choices=FORMS,
+        default="reward",
+        help="guidance: what refinement climbs (`SamplerConfig.refine_form`): the critic's predicted "
+        "reward, or its smooth stand-in (log; `tt.sim.rewards.log_reward`)",
+    )
+    ap.add_argument(
+        "--critic-samples",
+        type=int,
+        default=1,
+        help="every learned method: critic predictions averaged per candidate (ranking and refinement)",
+    )
+    ap.add_argument(
+        "--critic-checkpoint",
+        type=Path,
+        default=None,
+        help="Zeroth-Order, Self-Guidance and the hybrids: another checkpoint's dynamics task ranks the samples "
+        "(default: the model's own)",
+    )
     ap.add_argument("--max-minutes", type=float, default=None, help="start no new run after this much wall time")
     ap.add_argument("--out", type=Path, default=RESULTS / "codesign.md")
-    ap.add_argument("--from-log", type=Path, nargs="+", default=None,
-                    help="rewrite the report from a run's printed JSON lines (several logs: runs that continue the first)")
+    ap.add_argument(
+        "--from-log",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="rewrite the report from a run's printed JSON lines (several logs: runs that continue the first)",
+    )
     args = ap.parse_args()
     command = "python benchmarks/codesign.py " + " ".join(
-        f"--{k.replace('_', '-')} {v if v != '' else chr(39) * 2}" for k, v in vars(args).items()
-        if k not in ("out", "from_log") and v is not None)
+        f"--{k.replace('_', '-')} {v if v != '' else chr(39) * 2}"
+        for k, v in vars(args).items()
+        if k not in ("out", "from_log") and v is not None
+    )
     if args.from_log is not None:
         records, info = read_log(args.from_log)
         print(report(records, info, args.out))
@@ -815,25 +1033,45 @@ def main() -> None:
 
     val = for_space(motion_set("val", arms=1), SPACE)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
-    seeds_needed = max(args.seeds, args.scaling_seeds, args.lambda_seeds, args.hybrid_seeds,
-                       args.guidance_first_seed + args.guidance_seeds)
+    seeds_needed = max(
+        args.seeds,
+        args.scaling_seeds,
+        args.lambda_seeds,
+        args.hybrid_seeds,
+        args.guidance_first_seed + args.guidance_seeds,
+    )
     single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
     step = max(1, len(val) // args.multi_motions)
     multi_motions = tuple(val[::step][: args.multi_motions])
 
     info = {
-        "machine": machine_header("cpu"), "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
-        "command": command, "checkpoint": str(checkpoint), "hybrid_verify": args.hybrid_verify,
-        "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None, "steps": args.steps, "n": args.n, "dgs_n": args.dgs_n,
-        "multi_n": args.multi_n, "multi_dgs_n": args.multi_dgs_n, "budget": args.budget, "multi_budget": args.multi_budget,
-        "popsize": args.popsize, "generations": args.generations, "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
-        "lambda_start": args.lambda_start, "guidance_n": args.guidance_n,
+        "machine": machine_header("cpu"),
+        "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
+        "command": command,
+        "checkpoint": str(checkpoint),
+        "hybrid_verify": args.hybrid_verify,
+        "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None,
+        "steps": args.steps,
+        "n": args.n,
+        "dgs_n": args.dgs_n,
+        "multi_n": args.multi_n,
+        "multi_dgs_n": args.multi_dgs_n,
+        "budget": args.budget,
+        "multi_budget": args.multi_budget,
+        "popsize": args.popsize,
+        "generations": args.generations,
+        "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
+        "lambda_start": args.lambda_start,
+        "guidance_n": args.guidance_n,
     }
     # One-time costs, before any timing: the model and decoding table, every ViperX topology's
     # kernels (rollout, and the differentiable rollout for the lambda part), first calls.
     learned = load_learned(checkpoint, args.critic_checkpoint)
-    info.update(learned_seconds=learned.seconds, checkpoint_step=learned.trained.step,
-                parameters=sum(p.numel() for p in learned.trained.model.parameters()))
+    info.update(
+        learned_seconds=learned.seconds,
+        checkpoint_step=learned.trained.step,
+        parameters=sum(p.numel() for p in learned.trained.model.parameters()),
+    )
     t = time.perf_counter()
     space = get_space(SPACE)
     for reward in dict.fromkeys(rewards + multi_rewards + hybrid_rewards + ["tracking"]):
@@ -846,13 +1084,14 @@ def main() -> None:
     for method in first_calls:
         try:
             optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
-                Problem(SPACE, short, "tracking", 2, seed=0, device="cpu"))
+                Problem(SPACE, short, "tracking", 2, seed=0, device="cpu")
+            )
         except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
             pass
     if "lambda" in parts:
-        from tt.sim.rewards import get_reward
         from tt.guidance.simgrad import design_reward_gradient
         from tt.kernels.model import topology_key
+        from tt.sim.rewards import get_reward
 
         by_topology = {}
         for d in space.sample(200, seed=12345):
@@ -874,24 +1113,53 @@ def main() -> None:
             return
         records.extend(run_group(part, setting, motions, reward, seed, entries, args, learned))
 
-    single_entries = [(RANDOM, args.budget, 0.0), (CMAES_B, args.budget, 0.0), (ZEROTH, args.n, 0.0), (DGS, args.dgs_n, 0.0)]
-    multi_entries = [(RANDOM, args.multi_budget, 0.0), (CMAES_B, args.multi_budget, 0.0), (ZEROTH, args.multi_n, 0.0),
-                     (DGS, args.multi_dgs_n, 0.0)]
+    single_entries = [
+        (RANDOM, args.budget, 0.0),
+        (CMAES_B, args.budget, 0.0),
+        (ZEROTH, args.n, 0.0),
+        (DGS, args.dgs_n, 0.0),
+    ]
+    multi_entries = [
+        (RANDOM, args.multi_budget, 0.0),
+        (CMAES_B, args.multi_budget, 0.0),
+        (ZEROTH, args.multi_n, 0.0),
+        (DGS, args.multi_dgs_n, 0.0),
+    ]
     jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
     if "table" in parts:
         for reward in rewards:
             for i in range(args.seeds):
-                jobs.append((0 if reward == "tracking" else 3, ("table", SINGLE, (single_motions[i],), reward, i,
-                                                                single_entries, f"table {SINGLE} {reward} seed {i}")))
+                jobs.append(
+                    (
+                        0 if reward == "tracking" else 3,
+                        (
+                            "table",
+                            SINGLE,
+                            (single_motions[i],),
+                            reward,
+                            i,
+                            single_entries,
+                            f"table {SINGLE} {reward} seed {i}",
+                        ),
+                    )
+                )
         for reward in multi_rewards:
             for i in range(args.seeds):
-                jobs.append((2 if reward == "tracking" else 4, ("table", MULTI, multi_motions, reward, i, multi_entries,
-                                                                f"table {MULTI} {reward} seed {i}")))
+                jobs.append(
+                    (
+                        2 if reward == "tracking" else 4,
+                        ("table", MULTI, multi_motions, reward, i, multi_entries, f"table {MULTI} {reward} seed {i}"),
+                    )
+                )
     if "scaling" in parts:
         ns = _ints(args.scaling_n)
         budgets = [b for b in _ints(args.scaling_budgets) if b >= args.popsize]
         for i in range(args.scaling_seeds):
-            have = {(m, n) for m, n, _ in single_entries} if ("table" in parts and "tracking" in rewards and i < args.seeds) else set()
+            have = (
+                {(m, n) for m, n, _ in single_entries}
+                if ("table" in parts and "tracking" in rewards and i < args.seeds)
+                else set()
+            )
             entries = [(m, b, 0.0) for b in budgets for m in (RANDOM, CMAES_B)]
             entries += [(ZEROTH, n, 0.0) for n in ns] + [(DGS, n, 0.0) for n in ns if n <= args.scaling_dgs_max]
             entries = [e for e in entries if (e[0], e[1]) not in have]
@@ -911,8 +1179,12 @@ def main() -> None:
                 for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
                     if setting.split()[0] not in hybrid_settings:
                         continue
-                    jobs.append((1 if reward == "tracking" else 3, ("hybrid", setting, motions, reward, i, None,
-                                                                    f"hybrid {setting} {reward} seed {i}")))
+                    jobs.append(
+                        (
+                            1 if reward == "tracking" else 3,
+                            ("hybrid", setting, motions, reward, i, None, f"hybrid {setting} {reward} seed {i}"),
+                        )
+                    )
     for _, job in sorted(jobs, key=lambda j: j[0]):
         if job[0] == "hybrid":
             if over():
@@ -925,11 +1197,17 @@ def main() -> None:
     info["wall_seconds"] = time.perf_counter() - start
     info["skipped"] = skipped
     info["load_end"] = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    print(json.dumps({"bench": "codesign", "end": {k: info[k] for k in ("wall_seconds", "skipped", "load_end")}}), flush=True)
+    print(
+        json.dumps({"bench": "codesign", "end": {k: info[k] for k in ("wall_seconds", "skipped", "load_end")}}),
+        flush=True,
+    )
     text = report(records, info, args.out)
     print(text)
-    print(f"codesign benchmark: {time.perf_counter() - t0:.0f} s in all ({info['wall_seconds']:.0f} s of timed runs, "
-          f"{info['warmup_seconds']:.0f} s warm-up, {learned.seconds:.0f} s model and decoding table)", flush=True)
+    print(
+        f"codesign benchmark: {time.perf_counter() - t0:.0f} s in all ({info['wall_seconds']:.0f} s of timed runs, "
+        f"{info['warmup_seconds']:.0f} s warm-up, {learned.seconds:.0f} s model and decoding table)",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

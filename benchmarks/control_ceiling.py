@@ -94,8 +94,9 @@ class Variant:
         """``ANCHOR/LOSS[/film][/daggerK]``, e.g. ``joints/huber/film/dagger2``."""
         parts = text.strip().split("/")
         if len(parts) not in (2, 3, 4) or parts[0] not in ANCHORS or parts[1] not in LOSSES:
-            raise ValueError(f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK] with ANCHOR in {ANCHORS}, "
-                             f"LOSS in {LOSSES}")
+            raise ValueError(
+                f"variant {text!r}: expected ANCHOR/LOSS[/film][/daggerK] with ANCHOR in {ANCHORS}, LOSS in {LOSSES}"
+            )
         rest, model, rounds = parts[2:], "mlp", 0
         if rest and rest[0] == "film":  # the plain MLP is the default, never named
             model = rest.pop(0)
@@ -110,8 +111,11 @@ class Variant:
 
     @property
     def label(self) -> str:
-        return (f"{self.anchor}/{self.loss}" + (f"/{self.model}" if self.model != "mlp" else "")
-                + (f"/dagger{self.dagger}" if self.dagger else ""))
+        return (
+            f"{self.anchor}/{self.loss}"
+            + (f"/{self.model}" if self.model != "mlp" else "")
+            + (f"/dagger{self.dagger}" if self.dagger else "")
+        )
 
 
 def feature_blocks(layout, command: bool = True) -> list[tuple]:
@@ -155,7 +159,9 @@ def design_columns(layout, command: bool = True) -> torch.Tensor:
     """(F,) bool: which columns of `features(..., command)` are embodiment tokens (the design)."""
     from tt.tokens.schema import STEP_ROLES
 
-    return torch.cat([torch.full((width,), s.role not in STEP_ROLES) for s, _, width in feature_blocks(layout, command)])
+    return torch.cat(
+        [torch.full((width,), s.role not in STEP_ROLES) for s, _, width in feature_blocks(layout, command)]
+    )
 
 
 def commands(raw, layout) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -198,8 +204,14 @@ class Windows:
         if labels is not None:
             _, c1, real_next = commands(labels, layout)
             real = real & real_next
-        return cls(features(tokens, layout), c0, c1, real, window_joints(raw.values["dyna_joint_obs"], layout),
-                   command_free(layout))
+        return cls(
+            features(tokens, layout),
+            c0,
+            c1,
+            real,
+            window_joints(raw.values["dyna_joint_obs"], layout),
+            command_free(layout),
+        )
 
     @classmethod
     def cat(cls, parts: list["Windows"]) -> "Windows":
@@ -222,8 +234,16 @@ class Windows:
 class Regressor(torch.nn.Module):
     """MLP: features -> the next command's offset from its anchor, in units of `scale` (P,)."""
 
-    def __init__(self, width_in: int, joints: int, scale: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
-                 hidden: int = 512, depth: int = 3):
+    def __init__(
+        self,
+        width_in: int,
+        joints: int,
+        scale: torch.Tensor,
+        mean: torch.Tensor,
+        std: torch.Tensor,
+        hidden: int = 512,
+        depth: int = 3,
+    ):
         super().__init__()
         layers, w = [], width_in
         for _ in range(depth):
@@ -248,15 +268,25 @@ class FiLMRegressor(torch.nn.Module):
     of the tracking error; a plain MLP must build such products from sums, this one has them.
     The modulation starts at zero, so it starts as the plain MLP of the non-design columns."""
 
-    def __init__(self, design: torch.Tensor, joints: int, scale: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
-                 hidden: int = 512, depth: int = 3):
+    def __init__(
+        self,
+        design: torch.Tensor,
+        joints: int,
+        scale: torch.Tensor,
+        mean: torch.Tensor,
+        std: torch.Tensor,
+        hidden: int = 512,
+        depth: int = 3,
+    ):
         super().__init__()
         self.register_buffer("design", design.nonzero()[:, 0])
         self.register_buffer("state", (~design).nonzero()[:, 0])
         self.layers = torch.nn.ModuleList(
-            torch.nn.Linear(len(self.state) if k == 0 else hidden, hidden) for k in range(depth))
-        self.cond = torch.nn.Sequential(torch.nn.Linear(len(self.design), hidden), torch.nn.GELU(),
-                                        torch.nn.Linear(hidden, 2 * hidden * depth))
+            torch.nn.Linear(len(self.state) if k == 0 else hidden, hidden) for k in range(depth)
+        )
+        self.cond = torch.nn.Sequential(
+            torch.nn.Linear(len(self.design), hidden), torch.nn.GELU(), torch.nn.Linear(hidden, 2 * hidden * depth)
+        )
         torch.nn.init.zeros_(self.cond[-1].weight)
         torch.nn.init.zeros_(self.cond[-1].bias)
         self.out = torch.nn.Linear(hidden, joints)
@@ -293,20 +323,38 @@ def draw_windows(source, n: int, layout, norm, seed: int, chunk: int = 8192, ref
     order[torch.randperm(n, generator=gen)] = torch.arange(n)
     fields = ("X", "c0", "c1", "real", "q")
     first = draws[0]
-    out = Windows(*(torch.empty((n, *getattr(first, f).shape[1:]), dtype=getattr(first, f).dtype, device=getattr(first, f).device)
-                    for f in fields), first.free)
+    out = Windows(
+        *(
+            torch.empty(
+                (n, *getattr(first, f).shape[1:]), dtype=getattr(first, f).dtype, device=getattr(first, f).device
+            )
+            for f in fields
+        ),
+        first.free,
+    )
     at = 0
     while draws:
         part = draws.pop(0)
-        rows = order[at:at + len(part)]
+        rows = order[at : at + len(part)]
         for f in fields:
             getattr(out, f)[rows] = getattr(part, f)
         at += len(part)
     return out
 
 
-def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float, seed: int,
-        huber_delta: float = 0.1, layout=None, hidden: int = 512, depth: int = 3) -> tuple[torch.nn.Module, list[float]]:
+def fit(
+    data: Windows,
+    variant: Variant,
+    *,
+    epochs: float,
+    batch: int,
+    lr: float,
+    seed: int,
+    huber_delta: float = 0.1,
+    layout=None,
+    hidden: int = 512,
+    depth: int = 3,
+) -> tuple[torch.nn.Module, list[float]]:
     """The variant's loss on the offsets from its anchor, in units of each joint slot's RMS
     offset, masked to real slots; AdamW, one-cycle schedule. `layout` (the windows') tells a
     FiLM model its design columns."""
@@ -322,8 +370,15 @@ def fit(data: Windows, variant: Variant, *, epochs: float, batch: int, lr: float
     if variant.model == "film":
         if layout is None:
             raise ValueError("fit: a FiLM variant needs the windows' layout")
-        model = FiLMRegressor(design_columns(layout, command=variant.anchor == "command"), y.shape[1], scale, mean, std,
-                              hidden=hidden, depth=depth)
+        model = FiLMRegressor(
+            design_columns(layout, command=variant.anchor == "command"),
+            y.shape[1],
+            scale,
+            mean,
+            std,
+            hidden=hidden,
+            depth=depth,
+        )
     else:
         model = Regressor(len(mean), y.shape[1], scale, mean, std, hidden=hidden, depth=depth)
     steps = max(1, int(epochs * len(X) // batch))
@@ -358,9 +413,13 @@ def one_step(model: torch.nn.Module, data: Windows, variant: Variant) -> dict:
     rmse = lambda e: float(e[real].pow(2).mean().sqrt())  # noqa: E731
     y = c1 - data.c0
     typical = real & (y.abs() <= tail_quantile(y, real, 0.99))
-    return {"rmse": rmse(pred - c1), "hold": rmse(data.q - c1), "repeat": rmse(data.c0 - c1),
-            "r2": float(1 - (pred - c1)[real].pow(2).mean() / y[real].pow(2).mean()),
-            "r2_typical": float(1 - (pred - c1)[typical].pow(2).mean() / y[typical].pow(2).mean())}
+    return {
+        "rmse": rmse(pred - c1),
+        "hold": rmse(data.q - c1),
+        "repeat": rmse(data.c0 - c1),
+        "r2": float(1 - (pred - c1)[real].pow(2).mean() / y[real].pow(2).mean()),
+        "r2_typical": float(1 - (pred - c1)[typical].pow(2).mean() / y[typical].pow(2).mean()),
+    }
 
 
 def tail_quantile(y: torch.Tensor, real: torch.Tensor, q: float) -> torch.Tensor:
@@ -418,7 +477,9 @@ def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, spa
             if variant.anchor == "command":
                 anchor = c0
             else:
-                joint_obs = self.trained.normalizer.denormalize_values("dyna_joint_obs", tokens.values["dyna_joint_obs"].float())
+                joint_obs = self.trained.normalizer.denormalize_values(
+                    "dyna_joint_obs", tokens.values["dyna_joint_obs"].float()
+                )
                 anchor = window_joints(joint_obs, self.layout)
             with torch.no_grad():
                 target = anchor + model(features(tokens, self.layout, command=variant.anchor == "command"))
@@ -429,10 +490,14 @@ def regressor_policy(model: torch.nn.Module, layout, norm, variant: Variant, spa
             self.ik_moved += float((ik_slots - anchor)[real].abs().mean())
             return self.commands(worlds, state, target)
 
-    return RegressorPolicy(TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=space, tasks=("control",)))
+    return RegressorPolicy(
+        TrainedModel(model=model, normalizer=norm, layout=layout, step=0, space=space, tasks=("control",))
+    )
 
 
-def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant: Variant, n: int, seed: int) -> tuple[Windows, dict]:
+def dagger_windows(
+    source, k: int, model: torch.nn.Module, layout, norm, variant: Variant, n: int, seed: int
+) -> tuple[Windows, dict]:
     """DAgger: the regressor controls refresh `k`'s designs x motions of `source`; every state it
     visits is labelled with DiffIK's command from that state (the episode's ``action``, which
     the control tokens read). Returns n windows of those episodes and their statistics."""
@@ -452,7 +517,7 @@ def dagger_windows(source, k: int, model: torch.nn.Module, layout, norm, variant
     raws = []
     # Twice, the same windows: control tokens of what was executed (the last command, read by
     # the command anchor) and of DiffIK's labels (the next command).
-    for action in (ep.ctrl, policy.labels[:, :ep.steps].to(ep.ctrl.device)):
+    for action in (ep.ctrl, policy.labels[:, : ep.steps].to(ep.ctrl.device)):
         ep.action = action
         episodes = episode_token_batch(ep, embodiment, lengths, keep, source.config.max_time, source.maxima)
         raws.append(task_windows(episodes, layout, n, CONTROL, torch.Generator().manual_seed(seed)))
@@ -494,21 +559,40 @@ class NoisyIK:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", nargs="+", default=["16384x20", "65536x20", "262144x20", "98304x1"],
-                        help="one row per WINDOWSxEPOCHS: the first WINDOWS training windows, EPOCHS passes over them")
-    parser.add_argument("--variants", default="command/mse",
-                        help="comma-separated ANCHOR/LOSS[/film][/daggerK] (anchor: command, joints; loss: mse, huber; "
-                             "film: the design modulates every hidden layer); "
-                             "every variant runs every row")
+    parser.add_argument(
+        "--rows",
+        nargs="+",
+        default=["16384x20", "65536x20", "262144x20", "98304x1"],
+        help="one row per WINDOWSxEPOCHS: the first WINDOWS training windows, EPOCHS passes over them",
+    )
+    parser.add_argument(
+        "--variants",
+        default="command/mse",
+        help="comma-separated ANCHOR/LOSS[/film][/daggerK] (anchor: command, joints; loss: mse, huber; "
+        "film: the design modulates every hidden layer); "
+        "every variant runs every row",
+    )
     parser.add_argument("--huber-delta", type=float, default=0.1, help="huber loss: delta in units of the offset's RMS")
-    parser.add_argument("--trim", type=float, default=1.0,
-                        help="fit without the training windows whose offset exceeds, in any joint, that joint's TRIM "
-                             "quantile (e.g. 0.9; 1: keep all): the rare large jumps that dominate a squared loss")
-    parser.add_argument("--dagger-refreshes", type=int, default=2, help="DAgger: online refreshes of new designs per round")
+    parser.add_argument(
+        "--trim",
+        type=float,
+        default=1.0,
+        help="fit without the training windows whose offset exceeds, in any joint, that joint's TRIM "
+        "quantile (e.g. 0.9; 1: keep all): the rare large jumps that dominate a squared loss",
+    )
+    parser.add_argument(
+        "--dagger-refreshes", type=int, default=2, help="DAgger: online refreshes of new designs per round"
+    )
     parser.add_argument("--dagger-windows", type=int, default=32768, help="DAgger: windows added per round")
-    parser.add_argument("--ik-noise", default="", help="comma-separated stds [rad]: DiffIK with command noise in the same loop")
-    parser.add_argument("--refreshes", type=int, default=16, help="online refreshes (64 new designs x 4 motions each) "
-                        "the training windows are drawn from: the designs seen")
+    parser.add_argument(
+        "--ik-noise", default="", help="comma-separated stds [rad]: DiffIK with command noise in the same loop"
+    )
+    parser.add_argument(
+        "--refreshes",
+        type=int,
+        default=16,
+        help="online refreshes (64 new designs x 4 motions each) the training windows are drawn from: the designs seen",
+    )
     parser.add_argument("--batch", type=int, default=1024)
     parser.add_argument("--hidden", type=int, default=512, help="width of the regressor's hidden layers")
     parser.add_argument("--depth", type=int, default=3, help="hidden layers of the regressor")
@@ -516,19 +600,32 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="training data and MLP seed")
     parser.add_argument("--design-seed", type=int, default=20261122, help="held-out designs and one-step windows")
     parser.add_argument("--designs", type=int, default=25, help="designs of the closed loop")
-    parser.add_argument("--pool", type=int, default=None, metavar="N",
-                        help="train, test and run the closed loop on a pool of N designs (`space.sample(N, seed="
-                             "--pool-seed)`; the loop on the first --designs of them), on fresh motions each time: "
-                             "whether the windows carry what control needs when the designs are few and known")
+    parser.add_argument(
+        "--pool",
+        type=int,
+        default=None,
+        metavar="N",
+        help="train, test and run the closed loop on a pool of N designs (`space.sample(N, seed="
+        "--pool-seed)`; the loop on the first --designs of them), on fresh motions each time: "
+        "whether the windows carry what control needs when the designs are few and known",
+    )
     parser.add_argument("--pool-seed", type=int, default=3, help="--pool: seed of the pool's designs")
-    parser.add_argument("--loop-designs", choices=("held-out", "seen"), default="held-out",
-                        help="closed loop on held-out designs, or on designs of the last training refresh (what a "
-                             "regressor that learned those designs, not kinematics, can do)")
+    parser.add_argument(
+        "--loop-designs",
+        choices=("held-out", "seen"),
+        default="held-out",
+        help="closed loop on held-out designs, or on designs of the last training refresh (what a "
+        "regressor that learned those designs, not kinematics, can do)",
+    )
     parser.add_argument("--motions", type=int, default=5, help="validation motions of the closed loop")
     parser.add_argument("--test-windows", type=int, default=4096, help="one-step windows of held-out designs")
-    parser.add_argument("--space", choices=("viperx", "viperx-nominal"), default=SPACE,
-                        help="design space of every design: the full ViperX space, or one structure (the nominal "
-                             "discrete choices, continuous ones varied: the ladder's R1)")
+    parser.add_argument(
+        "--space",
+        choices=("viperx", "viperx-nominal"),
+        default=SPACE,
+        help="design space of every design: the full ViperX space, or one structure (the nominal "
+        "discrete choices, continuous ones varied: the ladder's R1)",
+    )
     parser.add_argument("--out", default=str(RESULTS / "control_ceiling.md"))
     args = parser.parse_args()
     try:
@@ -581,8 +678,12 @@ def main() -> None:
         test_src.space = DesignPool(test_src.space, pool)
     test = draw_windows(test_src, args.test_windows, layout, norm, args.seed + 1)
     y_test = test.c1 - test.c0
-    tails = {"top1": tail_share(y_test, test.real, 0.01), "top5": tail_share(y_test, test.real, 0.05),
-             "median": float(y_test[test.real].abs().median()), "rms": float(y_test[test.real].pow(2).mean().sqrt())}
+    tails = {
+        "top1": tail_share(y_test, test.real, 0.01),
+        "top5": tail_share(y_test, test.real, 0.05),
+        "median": float(y_test[test.real].abs().median()),
+        "rms": float(y_test[test.real].pow(2).mean().sqrt()),
+    }
     emit(**{f"tail_{k}": v for k, v in tails.items()})
 
     if pool is not None:
@@ -601,8 +702,12 @@ def main() -> None:
     emit(repeat_share=float(r_still.mean() / r_oracle.mean()))
     noisy = []
     for sigma in noise:
-        r, m = score_episode(closed_loop_rollout(designs, motions, NoisyIK(sigma, args.seed)), designs, motions, "tracking")
-        noisy.append(emit(ik_noise=sigma, share=float(r.mean() / r_oracle.mean()), survival=float(np.mean(m["survival"]))))
+        r, m = score_episode(
+            closed_loop_rollout(designs, motions, NoisyIK(sigma, args.seed)), designs, motions, "tracking"
+        )
+        noisy.append(
+            emit(ik_noise=sigma, share=float(r.mean() / r_oracle.mean()), survival=float(np.mean(m["survival"])))
+        )
 
     t = time.perf_counter()
     train = draw_windows(train_src, max(w for w, _ in plan), layout, norm, args.seed, refreshes=args.refreshes)
@@ -616,8 +721,18 @@ def main() -> None:
         t = time.perf_counter()
         windows = len(data)
         data = trimmed(data, variant, args.trim)
-        model, losses = fit(data, variant, epochs=epochs, batch=args.batch, lr=args.lr, seed=args.seed,
-                            huber_delta=args.huber_delta, layout=layout, hidden=args.hidden, depth=args.depth)
+        model, losses = fit(
+            data,
+            variant,
+            epochs=epochs,
+            batch=args.batch,
+            lr=args.lr,
+            seed=args.seed,
+            huber_delta=args.huber_delta,
+            layout=layout,
+            hidden=args.hidden,
+            depth=args.depth,
+        )
         fit_s = time.perf_counter() - t
         step = one_step(model, test, variant)
         step["r2_seen"] = one_step(model, seen, variant)["r2"]
@@ -626,11 +741,23 @@ def main() -> None:
         ep = closed_loop_rollout(designs, motions, policy)
         loop_s = time.perf_counter() - t
         r, m = score_episode(ep, designs, motions, "tracking")
-        row = emit(variant=variant.label, windows=windows, fitted=len(data), epochs=epochs, samples=len(losses) * args.batch, fit_seconds=fit_s,
-                   loss=float(np.mean(losses[-50:])), **step, share=float(r.mean() / r_oracle.mean()),
-                   pos_err_cm=float(np.nanmean(m["pos_err"])), survival=float(np.mean(m["survival"])),
-                   pearson=pearson(r_oracle.ravel(), r.ravel()), moved=policy.moved / max(policy.ik_moved, 1e-12),
-                   loop_seconds=loop_s, **extra)
+        row = emit(
+            variant=variant.label,
+            windows=windows,
+            fitted=len(data),
+            epochs=epochs,
+            samples=len(losses) * args.batch,
+            fit_seconds=fit_s,
+            loss=float(np.mean(losses[-50:])),
+            **step,
+            share=float(r.mean() / r_oracle.mean()),
+            pos_err_cm=float(np.nanmean(m["pos_err"])),
+            survival=float(np.mean(m["survival"])),
+            pearson=pearson(r_oracle.ravel(), r.ravel()),
+            moved=policy.moved / max(policy.ik_moved, 1e-12),
+            loop_seconds=loop_s,
+            **extra,
+        )
         return row, model
 
     rows = []
@@ -643,7 +770,9 @@ def main() -> None:
                 added = []
                 for j in range(args.dagger_refreshes):
                     k = args.refreshes + (rnd - 1) * args.dagger_refreshes + j  # designs no earlier draw saw
-                    share = args.dagger_windows // args.dagger_refreshes + (j < args.dagger_windows % args.dagger_refreshes)
+                    share = args.dagger_windows // args.dagger_refreshes + (
+                        j < args.dagger_windows % args.dagger_refreshes
+                    )
                     w, stats = dagger_windows(train_src, k, model, layout, norm, variant, share, args.seed + 1000 + k)
                     emit(dagger_round=rnd, refresh=k, **stats)
                     added.append(w)
@@ -651,8 +780,11 @@ def main() -> None:
                 row, model = measure(data, variant, epochs, dagger_round=rnd)
                 rows.append(row)
     load_after = os.getloadavg()
-    ik_noise = "; ".join(f"DiffIK with command noise of std {r['ik_noise']:g} rad: {100 * r['share']:.1f} %, survival "
-                         f"{100 * r['survival']:.0f} %" for r in noisy)
+    ik_noise = "; ".join(
+        f"DiffIK with command noise of std {r['ik_noise']:g} rad: {100 * r['share']:.1f} %, survival "
+        f"{100 * r['survival']:.0f} %"
+        for r in noisy
+    )
     lines = [
         f"# A supervised ceiling for the control task ({args.space})",
         "",
@@ -663,54 +795,89 @@ def main() -> None:
         f"- training windows: 8 consecutive steps of {train_src.stats['episodes']} episodes of "
         + (f"a pool of {args.pool} designs " if pool is not None else f"{args.refreshes * cfg.designs} designs ")
         + f"({args.refreshes} online refreshes of {cfg.designs} {'draws from it' if pool is not None else 'designs'} x "
-        f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to generate and "
-        "draw), an equal share from each refresh in a random order, the first N of that draw per row; features: the DiT control query's clean "
-        f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the joints anchor "
-        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP {args.depth} x {args.hidden} (GELU"
-        + (f"; film: the same over the columns other than the embodiment's, each hidden layer scaled and shifted by an MLP {args.hidden} "
-           "of the embodiment columns" if any(v.model == "film" for v in variants) else "") + f"), batch "
-        f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's anchor (the last "
+        f"{cfg.motions} motions, seed {args.seed}, control perturbation {cfg.action_noise}; {gen_s:.0f} s to "
+        "generate and "
+        "draw), an equal share from each refresh in a random order, the first N of that draw per row; "
+        "features: the DiT control query's clean "
+        f"conditions ({train.X.shape[1]} values: embodiment, step 0's state and command, 8 target poses; the "
+        "joints anchor "
+        f"leaves the command out: {len(train.free)}), normalised as the DiT reads them; MLP {args.depth} x "
+        f"{args.hidden} (GELU"
+        + (
+            "; film: the same over the columns other than the embodiment's, each hidden layer scaled and "
+            f"shifted by an MLP {args.hidden} "
+            "of the embodiment columns"
+            if any(v.model == "film" for v in variants)
+            else ""
+        )
+        + f"), batch "
+        f"{args.batch}, AdamW lr {args.lr:g} one-cycle; target: the next command's offset from the variant's "
+        "anchor (the last "
         "command, or the current joints), per joint in units of its RMS, squared (mse) or huber loss "
         f"(delta {args.huber_delta:g}) masked to real slots",
         f"- one step: {args.test_windows} windows of fresh episodes of "
         f"{'the same designs on other motions' if pool is not None else 'other designs'} (online refresh 0, seed "
-        f"{args.design_seed}, no perturbation), as `dit_control.md`'s. DiffIK's increments (next command minus the last) are "
-        f"heavy-tailed: median |increment| {tails['median']:.4f} rad, RMS {tails['rms']:.4f} rad; the largest 1 % of them "
-        f"carry {100 * tails['top1']:.0f} % of the summed squares (the largest 5 %: {100 * tails['top5']:.0f} %), so RMSE and "
+        f"{args.design_seed}, no perturbation), as `dit_control.md`'s. DiffIK's increments (next command "
+        "minus the last) are "
+        f"heavy-tailed: median |increment| {tails['median']:.4f} rad, RMS {tails['rms']:.4f} rad; the largest "
+        "1 % of them "
+        f"carry {100 * tails['top1']:.0f} % of the summed squares (the largest 5 %: {100 * tails['top5']:.0f} "
+        "%), so RMSE and "
         "R^2 over all windows mostly score those few; 'typical' R^2 leaves out each slot's largest 1 %",
-        "- closed loop: " + (f"{len(designs)} of the {args.pool} designs every window is of (`space.sample({args.pool}, "
-                             f"seed={args.pool_seed})`; training and one-step windows are those designs on fresh training "
-                             "motions)" if pool is not None else
-                             f"{len(designs)} held-out {args.space} designs (`space.sample({args.designs}, seed={args.design_seed})`)"
-                             if args.loop_designs == "held-out" else
-                             f"{len(designs)} designs the regressor trained on (the first of online refresh {args.refreshes - 1})")
+        "- closed loop: "
+        + (
+            f"{len(designs)} of the {args.pool} designs every window is of (`space.sample({args.pool}, "
+            f"seed={args.pool_seed})`; training and one-step windows are those designs on fresh training "
+            "motions)"
+            if pool is not None
+            else f"{len(designs)} held-out {args.space} designs (`space.sample({args.designs}, "
+            f"seed={args.design_seed})`)"
+            if args.loop_designs == "held-out"
+            else f"{len(designs)} designs the regressor trained on (the first of online refresh {args.refreshes - 1})"
+        )
         + " x "
-        f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}), Warp physics; oracle (MuJoCo C + mink) "
+        f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}), Warp physics; oracle "
+        "(MuJoCo C + mink) "
         f"mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, survival "
         f"{100 * np.mean(m_oracle['survival']):.0f} %; DiffIK in the same closed loop (the teacher): "
         f"{100 * r_ik.mean() / r_oracle.mean():.1f} % of the oracle, pos err {np.nanmean(m_ik['pos_err']):.1f} cm; "
-        f"repeating the start posture's command every step (a still arm): {100 * r_still.mean() / r_oracle.mean():.1f} %, "
+        "repeating the start posture's command every step (a still arm): "
+        f"{100 * r_still.mean() / r_oracle.mean():.1f} %, "
         f"pos err {np.nanmean(m_still['pos_err']):.1f} cm, survival {100 * np.mean(m_still['survival']):.0f} %"
         + (f"; {ik_noise}" if ik_noise else ""),
-        *([f"- trimmed: each fit leaves out the windows whose offset from the anchor exceeds, in any joint, that joint's "
-           f"{args.trim:g} quantile (the 'fitted' column counts the rest; epochs are passes over those)"] if args.trim < 1 else []),
-        "- moved: on the states the regressor visits in closed loop, the mean |offset from its anchor| of its commands over "
+        *(
+            [
+                "- trimmed: each fit leaves out the windows whose offset from the anchor exceeds, in any "
+                "joint, that joint's "
+                f"{args.trim:g} quantile (the 'fitted' column counts the rest; epochs are passes over those)"
+            ]
+            if args.trim < 1
+            else []
+        ),
+        "- moved: on the states the regressor visits in closed loop, the mean |offset from its anchor| of "
+        "its commands over "
         "DiffIK's from the same states (1: it moves the command as far as DiffIK would)",
         f"- DAgger rounds (variants .../daggerK): {args.dagger_refreshes} online refreshes of new designs per round, "
-        f"{args.dagger_windows:,} windows of the regressor's own closed-loop episodes labelled by DiffIK added per round, refit "
+        f"{args.dagger_windows:,} windows of the regressor's own closed-loop episodes labelled by DiffIK "
+        "added per round, refit "
         "on everything so far",
         "- targets (issue 17, for the DiT): >= 50 % of the oracle's reward; one-step RMSE <= half of holding's",
         "",
-        "| variant | DAgger round | training windows | fitted | epochs | samples seen | fit (s) | one-step RMSE (rad) | hold RMSE | repeat RMSE "
-        "| R^2 of the increment, held-out designs | typical R^2 | R^2, training designs' other windows | moved | share of oracle reward "
+        "| variant | DAgger round | training windows | fitted | epochs | samples seen | fit (s) | one-step "
+        "RMSE (rad) | hold RMSE | repeat RMSE "
+        "| R^2 of the increment, held-out designs | typical R^2 | R^2, training designs' other windows | "
+        "moved | share of oracle reward "
         "| pos err (cm) | survival (%) | r vs oracle |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['variant']} | {r.get('dagger_round', 0)} | {r['windows']:,} | {r['fitted']:,} | {r['epochs']:g} | {r['samples']:,} | "
-                     f"{r['fit_seconds']:.0f} | {r['rmse']:.4f} | {r['hold']:.4f} | {r['repeat']:.4f} | {r['r2']:.2f} | "
-                     f"{r['r2_typical']:.2f} | {r['r2_seen']:.2f} | {r['moved']:.2f} | {100 * r['share']:.1f} % | "
-                     f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} |")
+        lines.append(
+            f"| {r['variant']} | {r.get('dagger_round', 0)} | {r['windows']:,} | {r['fitted']:,} | "
+            f"{r['epochs']:g} | {r['samples']:,} | "
+            f"{r['fit_seconds']:.0f} | {r['rmse']:.4f} | {r['hold']:.4f} | {r['repeat']:.4f} | {r['r2']:.2f} | "
+            f"{r['r2_typical']:.2f} | {r['r2_seen']:.2f} | {r['moved']:.2f} | {100 * r['share']:.1f} % | "
+            f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} |"
+        )
     emit(written=str(write_report(args.out, lines)))
 
 

@@ -68,25 +68,39 @@ def main() -> None:
         "end-effector position error": [err],
         "all of the above, cos / sin q": [c[:, 0] - q, qvel, err, np.cos(q), np.sin(q)],
     }
-    targets = {"next command - current position (joints anchor)": c[:, 1] - q,
-               "next command - last command (command anchor)": c[:, 1] - c[:, 0]}
+    targets = {
+        "next command - current position (joints anchor)": c[:, 1] - q,
+        "next command - last command (command anchor)": c[:, 1] - c[:, 0],
+    }
     ok = real[:, 1] & real[:, 0]
-    lines = ["# What predicts DiffIK's next command (linear probes, ViperX)", "", machine_header("cpu").rstrip(),
-             f"- command: `python benchmarks/control_probe.py {' '.join(sys.argv[1:])}`",
-             f"- {n} windows of fresh episodes (`tt.dit.online` refresh 0, seed {args.seed}, no control perturbation, "
-             f"{len(src)} episodes); per joint slot, a least-squares fit on half the windows, R^2 on the other half "
-             "against predicting 0; look-ahead target: window step " + str(lead), ""]
+    lines = [
+        "# What predicts DiffIK's next command (linear probes, ViperX)",
+        "",
+        machine_header("cpu").rstrip(),
+        f"- command: `python benchmarks/control_probe.py {' '.join(sys.argv[1:])}`",
+        f"- {n} windows of fresh episodes (`tt.dit.online` refresh 0, seed {args.seed}, no control perturbation, "
+        f"{len(src)} episodes); per joint slot, a least-squares fit on half the windows, R^2 on the other half "
+        "against predicting 0; look-ahead target: window step " + str(lead),
+        "",
+    ]
     for tname, y in targets.items():
-        lines += [f"## {tname}", "",
-                  "| features | " + " | ".join(f"joint {i}" for i in range(P)) + " |", "|---|" + "---:|" * P]
+        lines += [
+            f"## {tname}",
+            "",
+            "| features | " + " | ".join(f"joint {i}" for i in range(P)) + " |",
+            "|---|" + "---:|" * P,
+        ]
         for fname, f in features.items():
             X = np.concatenate(f + [ones], 1)
             r2 = [probe(X[ok[:, i]], y[ok[:, i], i]) for i in range(P)]
             lines.append(f"| {fname} | " + " | ".join(f"{v:.2f}" for v in r2) + " |")
         rms = [np.sqrt(np.mean(y[ok[:, i], i] ** 2)) for i in range(P)]
         med = [np.median(np.abs(y[ok[:, i], i])) for i in range(P)]
-        lines += ["| RMS (rad) | " + " | ".join(f"{v:.4f}" for v in rms) + " |",
-                  "| median magnitude (rad) | " + " | ".join(f"{v:.4f}" for v in med) + " |", ""]
+        lines += [
+            "| RMS (rad) | " + " | ".join(f"{v:.4f}" for v in rms) + " |",
+            "| median magnitude (rad) | " + " | ".join(f"{v:.4f}" for v in med) + " |",
+            "",
+        ]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines))

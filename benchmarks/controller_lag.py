@@ -75,7 +75,10 @@ def lags(ep, steps: int) -> tuple[list[float], list[float], list[float]]:
     for w in range(ee.shape[0]):
         if int(alive[w, :steps].sum()) < steps:
             continue
-        errs = [float(np.linalg.norm(ee[w, lo + s:steps - hi + s] - target[w, lo:steps - hi], axis=-1).mean()) for s in SHIFTS]
+        errs = [
+            float(np.linalg.norm(ee[w, lo + s : steps - hi + s] - target[w, lo : steps - hi], axis=-1).mean())
+            for s in SHIFTS
+        ]
         k = int(np.argmin(errs))
         best.append(SHIFTS[k] * 1000.0 * ep.dt)
         err0.append(100.0 * errs[SHIFTS.index(0)])
@@ -104,16 +107,27 @@ def main() -> None:
             err_best += eb
             worlds += args.designs
         b = np.asarray(best)
-        rows.append({
-            "lookahead": f"{la * 1000:.0f}", "survive": f"{len(b)} / {worlds}", "median": f"{np.median(b):.0f}",
-            "p10_p90": f"{np.percentile(b, 10):.0f} .. {np.percentile(b, 90):.0f}",
-            "err": f"{np.mean(err0):.2f}", "median_err": f"{np.median(err0):.2f}", "err_best": f"{np.mean(err_best):.2f}",
-        })
+        rows.append(
+            {
+                "lookahead": f"{la * 1000:.0f}",
+                "survive": f"{len(b)} / {worlds}",
+                "median": f"{np.median(b):.0f}",
+                "p10_p90": f"{np.percentile(b, 10):.0f} .. {np.percentile(b, 90):.0f}",
+                "err": f"{np.mean(err0):.2f}",
+                "median_err": f"{np.median(err0):.2f}",
+                "err_best": f"{np.mean(err_best):.2f}",
+            }
+        )
         print(rows[-1], flush=True)
     wall = time.perf_counter() - start
-    cols = [("survive", "surviving episodes"), ("median", "median lag (ms)"), ("p10_p90", "lag p10 .. p90 (ms)"),
-            ("err", "mean pos err (cm)"), ("median_err", "median pos err (cm)"),
-            ("err_best", "mean pos err at each episode's best shift (cm)")]
+    cols = [
+        ("survive", "surviving episodes"),
+        ("median", "median lag (ms)"),
+        ("p10_p90", "lag p10 .. p90 (ms)"),
+        ("err", "mean pos err (cm)"),
+        ("median_err", "median pos err (cm)"),
+        ("err_best", "mean pos err at each episode's best shift (cm)"),
+    ]
     text = (
         "# Controller lag: the closed loop's time shift against its motion, per look-ahead\n\n"
         + machine_header("cpu")

@@ -91,8 +91,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("results", nargs="+", type=Path)
     p.add_argument("--configs", type=int, default=3000, help="random joint configurations per design")
     p.add_argument("--early", type=int, default=10, help="a motion's first targets the reach test looks at")
-    p.add_argument("--gate", type=float, nargs="+", default=[0.2, 0.3, 0.4],
-                   help="start-posture error [m] past which the gated critic predicts 0")
+    p.add_argument(
+        "--gate",
+        type=float,
+        nargs="+",
+        default=[0.2, 0.3, 0.4],
+        help="start-posture error [m] past which the gated critic predicts 0",
+    )
     p.add_argument("--out", type=Path, default=RESULTS / "critic_failures.md")
     args = p.parse_args(argv)
     results = [json.loads(path.read_text()) | {"file": path} for path in args.results]
@@ -117,22 +122,35 @@ def main(argv: list[str] | None = None) -> None:
         spread = max(spread, float(np.abs(sim - simulated).max()))
         fail = sim < FAILED_BELOW
         known = np.where(fail, 0.0, pred)
-        rows.append(f"| `{r['file'].parent.name}/{r['file'].name}` | {pearson(pred, sim):.2f} / "
-                    f"{np.nanmean(within_motion(pred, sim)):.2f} | {auc(pred[~fail], pred[fail]):.2f} | "
-                    f"{pearson(known, sim):.2f} / {np.nanmean(within_motion(known, sim)):.2f} | "
-                    + " | ".join(f"{pearson(g, sim):.2f} / {np.nanmean(within_motion(g, sim)):.2f}"
-                                 for g in (np.where(start > cut, 0.0, pred) for cut in args.gate)) + " |")
+        rows.append(
+            f"| `{r['file'].parent.name}/{r['file'].name}` | {pearson(pred, sim):.2f} / "
+            f"{np.nanmean(within_motion(pred, sim)):.2f} | {auc(pred[~fail], pred[fail]):.2f} | "
+            f"{pearson(known, sim):.2f} / {np.nanmean(within_motion(known, sim)):.2f} | "
+            + " | ".join(
+                f"{pearson(g, sim):.2f} / {np.nanmean(within_motion(g, sim)):.2f}"
+                for g in (np.where(start > cut, 0.0, pred) for cut in args.gate)
+            )
+            + " |"
+        )
     lines = [
-        "# R2: how much of the critic's r is telling failing pairs from tracking ones", "", machine_header(), "",
+        "# R2: how much of the critic's r is telling failing pairs from tracking ones",
+        "",
+        machine_header(),
+        "",
         f"- command: `python benchmarks/critic_failures.py {' '.join(str(p) for p in args.results)} "
         f"--configs {args.configs} --early {args.early} --gate {' '.join(f'{g:g}' for g in args.gate)}`",
         f"- pairs: {count} held-out `{space}` designs x {len(names)} validation motions ({', '.join(names)}); "
         f"failing: simulated tracking reward below {FAILED_BELOW:g}: {failed.mean():.0%} of pairs; "
-        f"{int(failed.all(axis=1).sum())} designs fail on every motion, {int((~failed).all(axis=1).sum())} on none", "",
-        "| result | critic: pooled / within-motion r | critic's AUC for failing pairs | critic with the failures known: "
+        f"{int(failed.all(axis=1).sum())} designs fail on every motion, {int((~failed).all(axis=1).sum())} on none",
+        "",
+        "| result | critic: pooled / within-motion r | critic's AUC for failing pairs | critic with the "
+        "failures known: "
         "pooled / within-motion r | "
-        + " | ".join(f"critic gated at {cut * 100:g} cm: pooled / within-motion r" for cut in args.gate) + " |",
-        "|---|---|---:|---|" + "---|" * len(args.gate), *rows, "",
+        + " | ".join(f"critic gated at {cut * 100:g} cm: pooled / within-motion r" for cut in args.gate)
+        + " |",
+        "|---|---|---:|---|" + "---|" * len(args.gate),
+        *rows,
+        "",
         "- gated: the critic's prediction set to 0 where the simulated start (the episode's first record) is more "
         "than the gate from the target. The gates were not chosen on other designs: they bracket the medians "
         "below, measured on these same pairs, so the gated columns say what a start-aware critic could reach, "
@@ -147,7 +165,8 @@ def main(argv: list[str] | None = None) -> None:
         f"tracking ones; pooled r of minus the distance with the reward {pearson(-reach, simulated):.2f}",
         f"- the start posture (the simulated episode's first record, after the start-posture IK and one control "
         f"step): AUC of minus its position error for failing pairs {auc(-start[~failed], -start[failed]):.2f}; "
-        f"median error {np.median(start[failed]) * 100:.0f} cm for failing pairs, {np.median(start[~failed]) * 100:.0f} "
+        f"median error {np.median(start[failed]) * 100:.0f} cm for failing pairs, "
+        f"{np.median(start[~failed]) * 100:.0f} "
         f"cm for tracking ones; {np.mean(start[failed] > 0.1):.0%} of failing pairs and "
         f"{np.mean(start[~failed] > 0.1):.0%} of tracking ones start more than 10 cm from the target",
         f"- the closest a failing pair's end effector comes to its target while the episode runs: median "

@@ -55,14 +55,21 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--critic", default=str(ROOT / "checkpoints" / "viperx-nominal_mini_dynamics.pt"),
-                        help="a dynamics critic of viperx-nominal trained told the start (--dynamics-start)")
+    parser.add_argument(
+        "--critic",
+        default=str(ROOT / "checkpoints" / "viperx-nominal_mini_dynamics.pt"),
+        help="a dynamics critic of viperx-nominal trained told the start (--dynamics-start)",
+    )
     parser.add_argument("--designs", type=int, default=16, help="unperturbed designs")
     parser.add_argument("--directions", type=int, default=4, help="random directions per design")
-    parser.add_argument("--step", type=float, default=0.05, help="half step of a central difference, as a share of each choice's range")
+    parser.add_argument(
+        "--step", type=float, default=0.05, help="half step of a central difference, as a share of each choice's range"
+    )
     parser.add_argument("--motions", type=int, default=5, help="validation motions")
     parser.add_argument("--seed", type=int, default=20261205, help="designs, directions and the critic's noise")
-    parser.add_argument("--clear", type=float, default=1.0, help="a simulated change counts as clear above this (reward units)")
+    parser.add_argument(
+        "--clear", type=float, default=1.0, help="a simulated change counts as clear above this (reward units)"
+    )
     parser.add_argument("--out", default=str(RESULTS / "critic_start.md"))
     args = parser.parse_args()
     if not 0 < args.step <= 0.1:
@@ -104,8 +111,8 @@ def main() -> None:
     every = base + [d for j in range(J) for d in plus[j] + minus[j]]
     sim = evaluate_designs(every, motions, "tracking").reward  # (K (1 + 2J), M)
     sim_s = time.perf_counter() - t
-    sim_p = np.stack([sim[K + 2 * j * K: K + (2 * j + 1) * K] for j in range(J)])  # (J, K, M)
-    sim_m = np.stack([sim[K + (2 * j + 1) * K: K + (2 * j + 2) * K] for j in range(J)])
+    sim_p = np.stack([sim[K + 2 * j * K : K + (2 * j + 1) * K] for j in range(J)])  # (J, K, M)
+    sim_m = np.stack([sim[K + (2 * j + 1) * K : K + (2 * j + 2) * K] for j in range(J)])
 
     def predict(designs, first=None) -> np.ndarray:
         """(K, M) predicted rewards; first: start tokens to give instead of the designs' own."""
@@ -132,24 +139,39 @@ def main() -> None:
     d_fix = (fix_p - fix_m).ravel()
     clear = np.abs(d_sim) > args.clear
     rows = []
-    for label, d in (("critic, start re-simulated (what `tt predict` sees)", d_own),
-                     ("critic, start fixed at the unperturbed design's (what the guidance gradient sees)", d_fix)):
-        rows.append(emit(label=label, pearson=float(np.corrcoef(d, d_sim)[0, 1]), spearman=spearman(d, d_sim),
-                         sign=float(np.mean(np.sign(d[clear]) == np.sign(d_sim[clear]))) if clear.any() else float("nan"),
-                         rms=float(np.sqrt(np.mean(d ** 2)))))
-    level = emit(base_pearson=float(np.corrcoef(crit_base.ravel(), sim[:K].ravel())[0, 1]),
-                 sim_rms=float(np.sqrt(np.mean(d_sim ** 2))), clear=int(clear.sum()), triples=int(d_sim.size),
-                 sim_seconds=sim_s, critic_seconds=critic_s)
+    for label, d in (
+        ("critic, start re-simulated (what `tt predict` sees)", d_own),
+        ("critic, start fixed at the unperturbed design's (what the guidance gradient sees)", d_fix),
+    ):
+        rows.append(
+            emit(
+                label=label,
+                pearson=float(np.corrcoef(d, d_sim)[0, 1]),
+                spearman=spearman(d, d_sim),
+                sign=float(np.mean(np.sign(d[clear]) == np.sign(d_sim[clear]))) if clear.any() else float("nan"),
+                rms=float(np.sqrt(np.mean(d**2))),
+            )
+        )
+    level = emit(
+        base_pearson=float(np.corrcoef(crit_base.ravel(), sim[:K].ravel())[0, 1]),
+        sim_rms=float(np.sqrt(np.mean(d_sim**2))),
+        clear=int(clear.sum()),
+        triples=int(d_sim.size),
+        sim_seconds=sim_s,
+        critic_seconds=critic_s,
+    )
     load_after = os.getloadavg()
     lines = [
         "# The critic's slope along the design, with and without the start held fixed (R1, viperx-nominal)",
         "",
         machine_header("cpu").rstrip(),
         f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after: {load_before[0]:.1f} / "
-        f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all (simulation {sim_s:.0f} s, critic {critic_s:.0f} s)",
+        f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all (simulation {sim_s:.0f} s, critic "
+        f"{critic_s:.0f} s)",
         f"- command: `python benchmarks/critic_start.py {' '.join(sys.argv[1:])}`",
         f"- critic: `{Path(args.critic).relative_to(ROOT) if Path(args.critic).is_relative_to(ROOT) else args.critic}` "
-        f"(step {critic.step}), told each episode's simulated start; {predicted.CRITIC_DDIM_STEPS} DDIM steps, one sample, "
+        f"(step {critic.step}), told each episode's simulated start; {predicted.CRITIC_DDIM_STEPS} DDIM "
+        "steps, one sample, "
         f"the same noise for the + and - design of every pair",
         f"- {K} {SPACE} designs (seed {args.seed}, each continuous choice drawn from the middle 80 % of its range) x "
         f"{J} random directions (each choice moving at most {args.step:g} of its range either way) x {len(motions)} "
@@ -163,7 +185,9 @@ def main() -> None:
         "|---|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['label']} | {r['pearson']:.2f} | {r['spearman']:.2f} | {100 * r['sign']:.0f} % | {r['rms']:.1f} |")
+        lines.append(
+            f"| {r['label']} | {r['pearson']:.2f} | {r['spearman']:.2f} | {100 * r['sign']:.0f} % | {r['rms']:.1f} |"
+        )
     emit(written=str(write_report(args.out, lines)))
 
 

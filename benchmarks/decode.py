@@ -39,7 +39,9 @@ def samples(checkpoint: Path, motion: str, n: int, steps: int, seed: int):
     from tt.sim.motions import get_motion
 
     z = ZerothOrder(SamplerConfig(checkpoint=checkpoint, samples=n, num_steps=steps, critic="joint"))
-    problem = Problem(space="viperx", motions=(get_motion(motion),), reward="tracking", budget=n, seed=seed, device="cpu")
+    problem = Problem(
+        space="viperx", motions=(get_motion(motion),), reward="tracking", budget=n, seed=seed, device="cpu"
+    )
     sampler, _, cfg, n = z._setup(problem)
     gen = sampler.run(problem.motions, cfg, n, seed=seed, num_steps=steps, critic="joint")
     return embodiment_batch(z._trained.layout, z._trained.normalizer, gen.tokens)
@@ -79,47 +81,70 @@ def main() -> None:
         for fit in ("least_squares", "chord"):
             builds["n"] = 0
             t = time.perf_counter()
-            fits = [design_from_tokens(batch, i, sp, table=table, max_distance=None, top_k=args.top_k, fit=fit)
-                    for i in range(args.n)]
+            fits = [
+                design_from_tokens(batch, i, sp, table=table, max_distance=None, top_k=args.top_k, fit=fit)
+                for i in range(args.n)
+            ]
             per[motion, fit] = (fits, time.perf_counter() - t, builds["n"])
         ls, ch = per[motion, "least_squares"][0], per[motion, "chord"][0]
         ratio = np.array([c.residual / max(a.residual, 1e-300) for a, c in zip(ls, ch)])
         same = [a.design.discrete == c.design.discrete for a, c in zip(ls, ch)]
         dx = [np.abs(np.array(a.design.continuous) - c.design.continuous).max() for a, c, s in zip(ls, ch, same) if s]
-        rows.append({
-            "motion": motion, "ls_s": per[motion, "least_squares"][1], "ch_s": per[motion, "chord"][1],
-            "ls_builds": per[motion, "least_squares"][2], "ch_builds": per[motion, "chord"][2],
-            "ls_res": float(np.median([a.residual for a in ls])), "ch_res": float(np.median([c.residual for c in ch])),
-            "ratio_median": float(np.median(ratio)), "ratio_max": float(ratio.max()),
-            "within5": int((ratio <= 1.05).sum()), "below": int((ratio < 1.0).sum()), "same": int(sum(same)),
-            "dx_median": float(np.median(dx)) if dx else float("nan"), "exact": sum(a.distance == 0 for a in ls),
-        })
+        rows.append(
+            {
+                "motion": motion,
+                "ls_s": per[motion, "least_squares"][1],
+                "ch_s": per[motion, "chord"][1],
+                "ls_builds": per[motion, "least_squares"][2],
+                "ch_builds": per[motion, "chord"][2],
+                "ls_res": float(np.median([a.residual for a in ls])),
+                "ch_res": float(np.median([c.residual for c in ch])),
+                "ratio_median": float(np.median(ratio)),
+                "ratio_max": float(ratio.max()),
+                "within5": int((ratio <= 1.05).sum()),
+                "below": int((ratio < 1.0).sum()),
+                "same": int(sum(same)),
+                "dx_median": float(np.median(dx)) if dx else float("nan"),
+                "exact": sum(a.distance == 0 for a in ls),
+            }
+        )
         print(rows[-1], flush=True)
     load1 = os.getloadavg()
     n = args.n
-    lines = ["# Decoding a model's samples: the chord fit against least squares", "", machine_header("cpu"),
-             f"- command: `python benchmarks/decode.py {' '.join(sys.argv[1:])}`",
-             f"- load average (1 min) before / after: {load0[0]:.1f} / {load1[0]:.1f}; candidate table (every ViperX "
-             f"discrete choice) built once in {table_s:.1f} s, outside the timings",
-             f"- samples: `{args.checkpoint}`, {n} per motion, {args.steps} DDIM steps, seed {args.seed}, as "
-             "Zeroth-Order draws them; each decoded with `design_from_tokens(max_distance=None, "
-             f"top_k={args.top_k})` twice, `fit=\"least_squares\"` (the reference) then `fit=\"chord\"` (the "
-             "default; its linearizations are computed on first use within the timing)",
-             "- residual: RMS of the aligned continuous token values at the fit (`DesignFit.residual`)", "",
-             "| motion | exact structures | least squares (s) | chord (s) | speed-up | model builds (least squares / chord) "
-             "| median residual (least squares / chord) | chord / least squares residual: median, max | chord within 5 % "
-             "| chord lower | same discrete choices | median max abs difference of the continuous choices |",
-             "|---|---:|---:|---:|---:|---|---|---|---:|---:|---:|---:|"]
+    lines = [
+        "# Decoding a model's samples: the chord fit against least squares",
+        "",
+        machine_header("cpu"),
+        f"- command: `python benchmarks/decode.py {' '.join(sys.argv[1:])}`",
+        f"- load average (1 min) before / after: {load0[0]:.1f} / {load1[0]:.1f}; candidate table (every ViperX "
+        f"discrete choice) built once in {table_s:.1f} s, outside the timings",
+        f"- samples: `{args.checkpoint}`, {n} per motion, {args.steps} DDIM steps, seed {args.seed}, as "
+        "Zeroth-Order draws them; each decoded with `design_from_tokens(max_distance=None, "
+        f'top_k={args.top_k})` twice, `fit="least_squares"` (the reference) then `fit="chord"` (the '
+        "default; its linearizations are computed on first use within the timing)",
+        "- residual: RMS of the aligned continuous token values at the fit (`DesignFit.residual`)",
+        "",
+        "| motion | exact structures | least squares (s) | chord (s) | speed-up | model builds (least squares / chord) "
+        "| median residual (least squares / chord) | chord / least squares residual: median, max | chord within 5 % "
+        "| chord lower | same discrete choices | median max abs difference of the continuous choices |",
+        "|---|---:|---:|---:|---:|---|---|---|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        lines.append(f"| {r['motion']} | {r['exact']} / {n} | {r['ls_s']:.1f} | {r['ch_s']:.1f} | "
-                     f"{r['ls_s'] / r['ch_s']:.1f}x | {r['ls_builds']:,} / {r['ch_builds']:,} | "
-                     f"{r['ls_res']:.4f} / {r['ch_res']:.4f} | {r['ratio_median']:.5f}, {r['ratio_max']:.3f} | "
-                     f"{r['within5']} / {n} | {r['below']} / {n} | {r['same']} / {n} | {r['dx_median']:.3f} |")
-    lines += ["", "The samples' residuals are far above any design's own (a design's tokens fit to ~1e-7): the model's "
-              "token values are not those of one design, so the fit is a projection, and directions the tokens "
-              "barely constrain are left where each solver stops (the last column). Both fits pick the same discrete "
-              "choices; the chord's model builds are mostly the candidates' first linearizations (p + 1 each), "
-              "reused by later samples of the same discrete choice.", ""]
+        lines.append(
+            f"| {r['motion']} | {r['exact']} / {n} | {r['ls_s']:.1f} | {r['ch_s']:.1f} | "
+            f"{r['ls_s'] / r['ch_s']:.1f}x | {r['ls_builds']:,} / {r['ch_builds']:,} | "
+            f"{r['ls_res']:.4f} / {r['ch_res']:.4f} | {r['ratio_median']:.5f}, {r['ratio_max']:.3f} | "
+            f"{r['within5']} / {n} | {r['below']} / {n} | {r['same']} / {n} | {r['dx_median']:.3f} |"
+        )
+    lines += [
+        "",
+        "The samples' residuals are far above any design's own (a design's tokens fit to ~1e-7): the model's "
+        "token values are not those of one design, so the fit is a projection, and directions the tokens "
+        "barely constrain are left where each solver stops (the last column). Both fits pick the same discrete "
+        "choices; the chord's model builds are mostly the candidates' first linearizations (p + 1 each), "
+        "reused by later samples of the same discrete choice.",
+        "",
+    ]
     args.out.write_text("\n".join(lines))
     print(f"wrote {args.out}")
 

@@ -57,7 +57,9 @@ def viperx_counts(designs: int = 200, seed: int = 0) -> dict[str, int]:
     joints = max(r.counts["dyna_joint"] for r in emb.index)
     actuators = max(r.counts["actuator"] for r in emb.index)
     tracks = max(r.counts["track_link"] for r in emb.index)
-    counts.update(track_link_obs=tracks, target_pose=tracks, dyna_joint_obs=joints, actuator_obs=actuators, control=actuators)
+    counts.update(
+        track_link_obs=tracks, target_pose=tracks, dyna_joint_obs=joints, actuator_obs=actuators, control=actuators
+    )
     return {k: v for k, v in counts.items() if v > 0}
 
 
@@ -73,8 +75,13 @@ def cpu_name() -> str:
 
 def git_commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent, check=True).stdout.strip()
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            cwd=Path(__file__).parent,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
@@ -87,16 +94,31 @@ def emit(**fields) -> dict:
 def bench_train(episodes, steps: int, size: str) -> dict:
     stamps = []
     with tempfile.TemporaryDirectory() as out:
-        config = TrainConfig(out=out, task="robot", size=size, steps=steps, batch_size=64, device="cpu",
-                             checkpoint_every=10**9, resume=False)
+        config = TrainConfig(
+            out=out,
+            task="robot",
+            size=size,
+            steps=steps,
+            batch_size=64,
+            device="cpu",
+            checkpoint_every=10**9,
+            resume=False,
+        )
         result = train(config, episodes=episodes, on_step=lambda s, loss: stamps.append(time.perf_counter()))
     # stamps[i] is taken after step i+1; steps 2 .. steps-1 are timed (no warm-up, no checkpoint).
     timed = np.diff(stamps[:-1])
     if len(timed) == 0:
         raise ValueError("--train-steps must be >= 3 (one warm-up step, one timed step, one checkpointing step)")
-    return emit(metric="train_step", size=size, batch=64, task="robot", timed_steps=int(len(timed)),
-                seconds_per_step=float(timed.mean()), steps_per_s=float(1.0 / timed.mean()),
-                parameters=result.parameters)
+    return emit(
+        metric="train_step",
+        size=size,
+        batch=64,
+        task="robot",
+        timed_steps=int(len(timed)),
+        seconds_per_step=float(timed.mean()),
+        steps_per_s=float(1.0 / timed.mean()),
+        parameters=result.parameters,
+    )
 
 
 def bench_sample(model, normalizer, episodes, candidates: int, measure: int, size: str) -> dict:
@@ -106,8 +128,14 @@ def bench_sample(model, normalizer, episodes, candidates: int, measure: int, siz
     t0 = time.perf_counter()
     sample(model, tokens, ROBOT, scheduler=sched, num_steps=measure, generator=torch.Generator().manual_seed(1))
     per_step = (time.perf_counter() - t0) / measure
-    return emit(metric="sample", size=size, candidates=candidates, timed_steps=measure, seconds_per_step=per_step,
-                seconds_per_100_steps=100 * per_step)
+    return emit(
+        metric="sample",
+        size=size,
+        candidates=candidates,
+        timed_steps=measure,
+        seconds_per_step=per_step,
+        seconds_per_100_steps=100 * per_step,
+    )
 
 
 def bench_control(model, normalizer, episodes, worlds: int, size: str) -> dict:
@@ -125,13 +153,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--train-steps", type=int, default=3, help="training steps to run (first and last untimed)")
     parser.add_argument("--sizes", type=str, default="small,mini", help="model sizes to measure, comma-separated")
-    parser.add_argument("--sample-steps", type=str, default="1:10,16:3,128:1",
-                        help="candidates:timed-steps pairs for sampling")
+    parser.add_argument(
+        "--sample-steps", type=str, default="1:10,16:3,128:1", help="candidates:timed-steps pairs for sampling"
+    )
     parser.add_argument("--control-worlds", type=str, default="1,16,128", help="batches for the control-step timing")
     parser.add_argument("--out", type=str, default=str(RESULTS), help="results markdown file")
-    parser.add_argument("--threads", type=int, default=0,
-                        help="torch CPU threads (0: torch's default); on a shared machine 1 avoids "
-                             "OpenMP threads waiting on each other")
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=0,
+        help="torch CPU threads (0: torch's default); on a shared machine 1 avoids "
+        "OpenMP threads waiting on each other",
+    )
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -153,24 +186,36 @@ def main() -> None:
         for pair in args.sample_steps.split(","):
             b, k = (int(x) for x in pair.split(":"))
             rows_sample.append(bench_sample(model, normalizer, episodes, b, k, size))
-        rows_control = [bench_control(model, normalizer, episodes, int(w), size) for w in args.control_worlds.split(",") if w]
+        rows_control = [
+            bench_control(model, normalizer, episodes, int(w), size) for w in args.control_worlds.split(",") if w
+        ]
         results[size] = (rows_train, rows_sample, rows_control)
     load_after = os.getloadavg()
     total = time.perf_counter() - started
 
     def describe(size: str) -> str:
         c = get_config(size)
-        return f"{size} ({c.hidden} hidden, {c.depth} layers, {c.heads} heads; {results[size][0]['parameters'] / 1e6:.2f} M parameters)"
+        return (
+            f"{size} ({c.hidden} hidden, {c.depth} layers, {c.heads} heads; "
+            f"{results[size][0]['parameters'] / 1e6:.2f} M parameters)"
+        )
 
     table = []
     for size, (rows_train, rows_sample, rows_control) in results.items():
         table += [
             f"| {size} | training (motion-to-robot, AdamW + EMA) | 64 | {rows_train['timed_steps']} | "
             f"{rows_train['seconds_per_step']:.2f} | {rows_train['steps_per_s']:.3f} steps/s |",
-            *[f"| {size} | sampling, 100 DDIM steps | {r['candidates']} | {r['timed_steps']} | {r['seconds_per_step']:.3f} "
-              f"| {r['seconds_per_100_steps']:.1f} s |" for r in rows_sample],
-            *[f"| {size} | control step (5 DDIM steps, control task) | {r['worlds']} | 5 | {r['seconds'] / 5:.3f} "
-              f"| {r['seconds']:.2f} s |" for r in rows_control],
+            *[
+                f"| {size} | sampling, 100 DDIM steps | {r['candidates']} | {r['timed_steps']} | "
+                f"{r['seconds_per_step']:.3f} "
+                f"| {r['seconds_per_100_steps']:.1f} s |"
+                for r in rows_sample
+            ],
+            *[
+                f"| {size} | control step (5 DDIM steps, control task) | {r['worlds']} | 5 | {r['seconds'] / 5:.3f} "
+                f"| {r['seconds']:.2f} s |"
+                for r in rows_control
+            ],
         ]
     lines = [
         "# DiT throughput (CPU)",
@@ -179,7 +224,8 @@ def main() -> None:
         f"- machine: {cpu_name()}, {os.cpu_count()} logical CPUs, torch threads {torch.get_num_threads()}",
         f"- load average (1 min) before / after: {load_before[0]:.1f} / {load_after[0]:.1f} "
         "(other jobs on the machine slow every number below)",
-        f"- versions: python {platform.python_version()}, torch {torch.__version__}, numpy {np.__version__}, tt {git_commit()}",
+        f"- versions: python {platform.python_version()}, torch {torch.__version__}, numpy {np.__version__}, "
+        f"tt {git_commit()}",
         f"- models: {'; '.join(describe(s) for s in results)}; float32, eager",
         f"- benchmark wall time: {total:.0f} s",
         "",
@@ -187,7 +233,10 @@ def main() -> None:
         "",
         "| type | tokens |",
         "|---|---:|",
-        *[f"| {s.name} | {s.length}" + (f" ({s.per_step} per step)" if s.per_step else "") + " |" for s in layout.specs],
+        *[
+            f"| {s.name} | {s.length}" + (f" ({s.per_step} per step)" if s.per_step else "") + " |"
+            for s in layout.specs
+        ],
         f"| **total** | **{layout.seq_len}** |",
         "",
         "| size | measurement | batch | timed steps | s / step | result |",

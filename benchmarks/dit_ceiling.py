@@ -44,7 +44,7 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
     from tt.guidance.predicted import query_steps
     from tt.kernels.rotations import quat_to_mat
     from tt.tokens.draws import space_token_maxima
-    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+    from tt.tokens.tokenize import Tokenizer, TokenizeWarning
 
     layout = layout_from_schema({k: v for k, v in space_token_maxima(space.name)["maxima"].items() if v > 0})
     static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
@@ -52,9 +52,16 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
         warnings.simplefilter("ignore", TokenizeWarning)
         emb = Tokenizer()([space.model(d) for d in designs])
     padded = emb.tokens.pad_to({s.name: s.length for s in static})
-    robot = np.concatenate([np.where(np.asarray(padded.mask[s.name])[..., None], np.asarray(padded.values[s.name]), 0.0)
-                            .reshape(len(designs), -1) for s in static] +
-                           [np.asarray(padded.mask[s.name], np.float64) for s in static], axis=1)
+    robot = np.concatenate(
+        [
+            np.where(np.asarray(padded.mask[s.name])[..., None], np.asarray(padded.values[s.name]), 0.0).reshape(
+                len(designs), -1
+            )
+            for s in static
+        ]
+        + [np.asarray(padded.mask[s.name], np.float64) for s in static],
+        axis=1,
+    )
     per_motion = []
     for m in motions:
         st = query_steps(m.steps, steps, 1)[0].numpy()
@@ -72,8 +79,17 @@ def simulate(designs, motions, reward: str) -> np.ndarray:
     return evaluate_designs(designs, motions, reward, backend="warp", device="cpu").reward  # (D, M)
 
 
-def fit_mlp(x: np.ndarray, y: np.ndarray, groups: np.ndarray, *, hidden: int, epochs: int, lr: float,
-            weight_decay: float, seed: int):
+def fit_mlp(
+    x: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    *,
+    hidden: int,
+    epochs: int,
+    lr: float,
+    weight_decay: float,
+    seed: int,
+):
     """MLP on standardised x -> y; the epoch with the lowest MSE on 10 % of the groups (designs) is kept."""
     rng = np.random.default_rng(seed)
     ids = np.unique(groups)
@@ -84,8 +100,13 @@ def fit_mlp(x: np.ndarray, y: np.ndarray, groups: np.ndarray, *, hidden: int, ep
     xt = torch.as_tensor((x - mu) / sd, dtype=torch.float32)
     yt = torch.as_tensor((y - ym) / ys, dtype=torch.float32)
     torch.manual_seed(seed)
-    net = torch.nn.Sequential(torch.nn.Linear(x.shape[1], hidden), torch.nn.SiLU(), torch.nn.Linear(hidden, hidden),
-                              torch.nn.SiLU(), torch.nn.Linear(hidden, 1))
+    net = torch.nn.Sequential(
+        torch.nn.Linear(x.shape[1], hidden),
+        torch.nn.SiLU(),
+        torch.nn.Linear(hidden, hidden),
+        torch.nn.SiLU(),
+        torch.nn.Linear(hidden, 1),
+    )
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
     tr, va = torch.as_tensor(~val), torch.as_tensor(val)
     best, state, best_epoch = float("inf"), None, 0
@@ -93,7 +114,7 @@ def fit_mlp(x: np.ndarray, y: np.ndarray, groups: np.ndarray, *, hidden: int, ep
         perm = torch.randperm(int(tr.sum()))
         xs, ysub = xt[tr][perm], yt[tr][perm]
         for i in range(0, len(xs), 256):
-            loss = torch.nn.functional.mse_loss(net(xs[i:i + 256])[:, 0], ysub[i:i + 256])
+            loss = torch.nn.functional.mse_loss(net(xs[i : i + 256])[:, 0], ysub[i : i + 256])
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -136,8 +157,9 @@ def main() -> None:
 
     space = get_space(args.space)
     t0 = time.perf_counter()
-    src = OnlineTokenSource(OnlineConfig(space=args.space, designs=args.designs, motions=args.motions, seed=args.seed),
-                            device="cpu")
+    src = OnlineTokenSource(
+        OnlineConfig(space=args.space, designs=args.designs, motions=args.motions, seed=args.seed), device="cpu"
+    )
     xs, ys, groups = [], [], []
     for k in range(args.refreshes):
         designs, motions = src.draw(k)
@@ -147,36 +169,50 @@ def main() -> None:
         groups.append(np.repeat(np.arange(len(designs)) + k * len(designs), len(motions)))
     x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
     t1 = time.perf_counter()
-    predict, info = fit_mlp(x, y, g, hidden=args.hidden, epochs=args.epochs, lr=args.lr, weight_decay=args.weight_decay,
-                            seed=args.seed)
+    predict, info = fit_mlp(
+        x, y, g, hidden=args.hidden, epochs=args.epochs, lr=args.lr, weight_decay=args.weight_decay, seed=args.seed
+    )
     t2 = time.perf_counter()
     designs, motions = heldout_designs(args.space, args.heldout), validation_motions(args.space, args.val_motions)
     sim = simulate(designs, motions, args.reward)
     steps = np.array([m.steps for m in motions])[None, :]
     pred = predict(features(space, designs, motions)).reshape(len(designs), len(motions)) * steps
     within = within_motion(pred, sim)
-    result = {"bench": "dit_ceiling", "space": args.space, "train_pairs": int(len(y)), "heldout_pairs": int(sim.size),
-              "pooled_r": pearson(pred, sim), "within_r": within,
-              "within_r_mean": float(np.nanmean(within)) if np.isfinite(within).any() else float("nan"),
-              "train_pooled_r": pearson(predict(x) * 1.0, y), **info,
-              "seconds": {"simulate_train": t1 - t0, "fit": t2 - t1}}
+    result = {
+        "bench": "dit_ceiling",
+        "space": args.space,
+        "train_pairs": int(len(y)),
+        "heldout_pairs": int(sim.size),
+        "pooled_r": pearson(pred, sim),
+        "within_r": within,
+        "within_r_mean": float(np.nanmean(within)) if np.isfinite(within).any() else float("nan"),
+        "train_pooled_r": pearson(predict(x) * 1.0, y),
+        **info,
+        "seconds": {"simulate_train": t1 - t0, "fit": t2 - t1},
+    }
     print(json.dumps(result), flush=True)
     out = Path(args.out) if args.out else RESULTS / f"dit_ceiling_{args.space}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join([
-        f"# Supervised ceiling: an MLP from embodiment tokens + target poses to the simulated {args.reward} reward",
-        "",
-        machine_header("cpu"),
-        f"Training: {len(y)} episodes, refreshes 0..{args.refreshes - 1} of `tt train --online --space {args.space} "
-        f"--online-designs {args.designs} --online-motions {args.motions} --seed {args.seed}`. Held out: "
-        f"{len(designs)} designs (`tt.ladder.heldout_designs`) x {len(motions)} validation motions. MLP "
-        f"{args.hidden}x2, {args.epochs} epochs (kept: {info['best_epoch']}).",
-        "",
-        f"- pooled Pearson r: **{result['pooled_r']:.2f}**",
-        f"- mean within-motion r: **{result['within_r_mean']:.2f}** "
-        f"({', '.join(f'{m.name} {r:.2f}' for m, r in zip(motions, within))})",
-        "",
-    ]))
+    out.write_text(
+        "\n".join(
+            [
+                "# Supervised ceiling: an MLP from embodiment tokens + target poses to the simulated "
+                f"{args.reward} reward",
+                "",
+                machine_header("cpu"),
+                f"Training: {len(y)} episodes, refreshes 0..{args.refreshes - 1} of `tt train --online "
+                f"--space {args.space} "
+                f"--online-designs {args.designs} --online-motions {args.motions} --seed {args.seed}`. Held out: "
+                f"{len(designs)} designs (`tt.ladder.heldout_designs`) x {len(motions)} validation motions. MLP "
+                f"{args.hidden}x2, {args.epochs} epochs (kept: {info['best_epoch']}).",
+                "",
+                f"- pooled Pearson r: **{result['pooled_r']:.2f}**",
+                f"- mean within-motion r: **{result['within_r_mean']:.2f}** "
+                f"({', '.join(f'{m.name} {r:.2f}' for m, r in zip(motions, within))})",
+                "",
+            ]
+        )
+    )
     print(f"wrote {out}", file=sys.stderr)
 
 

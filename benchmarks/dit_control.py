@@ -54,32 +54,57 @@ def describe(label: str, ckpt: Path, state: dict) -> dict:
     """What a checkpoint is: its training recipe, step, windows seen and final loss (mean of the last 100 steps)."""
     cfg = state.get("train_config") or {}
     losses = state.get("losses")
-    return {"label": label, "checkpoint": str(ckpt), "step": int(state["step"]), "task": cfg.get("task"),
-            "size": cfg.get("size"), "batch": cfg.get("batch_size"), "anchor_control": _base(cfg.get("anchor_control")),
-            "known_command": bool(cfg.get("known_command")), "target_offset": int(cfg.get("control_target_offset") or 0),
-            "future_states": cfg.get("future_states"), "prediction": cfg.get("prediction"),
-            "windows_seen": int(state["step"]) * int(cfg.get("batch_size") or 0),
-            "loss": float(losses[-100:].mean()) if losses is not None and len(losses) else float("nan")}
+    return {
+        "label": label,
+        "checkpoint": str(ckpt),
+        "step": int(state["step"]),
+        "task": cfg.get("task"),
+        "size": cfg.get("size"),
+        "batch": cfg.get("batch_size"),
+        "anchor_control": _base(cfg.get("anchor_control")),
+        "known_command": bool(cfg.get("known_command")),
+        "target_offset": int(cfg.get("control_target_offset") or 0),
+        "future_states": cfg.get("future_states"),
+        "prediction": cfg.get("prediction"),
+        "windows_seen": int(state["step"]) * int(cfg.get("batch_size") or 0),
+        "loss": float(losses[-100:].mean()) if losses is not None and len(losses) else float("nan"),
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoints", nargs="+", help="LABEL=PATH: a checkpoint file or run folder (its latest checkpoint)")
+    parser.add_argument(
+        "checkpoints", nargs="+", help="LABEL=PATH: a checkpoint file or run folder (its latest checkpoint)"
+    )
     parser.add_argument("--designs", type=int, default=25, help="held-out designs")
-    parser.add_argument("--design-seed", type=int, default=20261122, help="seed of the held-out designs and fresh episodes")
+    parser.add_argument(
+        "--design-seed", type=int, default=20261122, help="seed of the held-out designs and fresh episodes"
+    )
     parser.add_argument("--motions", type=int, default=5, help="validation motions")
     parser.add_argument("--control-steps", type=int, default=0, help="control steps per motion (0: whole motions)")
     default = ControllerConfig()
-    parser.add_argument("--num-steps", type=int, default=default.num_steps,
-                        help="DDIM steps per control step (the paper's: 5)")
-    parser.add_argument("--spacing", choices=SPACINGS, default=default.spacing,
-                        help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)")
-    parser.add_argument("--ensemble", default="7",
-                        help="comma-separated: queries whose chunks each executed command averages (temporal "
-                             "ensembling, `ControllerConfig.ensemble`; 1: the current query's alone, the paper's); "
-                             "one closed loop per value and checkpoint")
-    parser.add_argument("--ensemble-decay", type=float, default=0.0,
-                        help="weight exp(-decay * age in control steps) of an older query's prediction")
+    parser.add_argument(
+        "--num-steps", type=int, default=default.num_steps, help="DDIM steps per control step (the paper's: 5)"
+    )
+    parser.add_argument(
+        "--spacing",
+        choices=SPACINGS,
+        default=default.spacing,
+        help="spacing of the DDIM steps (trailing with --num-steps 1: the model's mean command)",
+    )
+    parser.add_argument(
+        "--ensemble",
+        default="7",
+        help="comma-separated: queries whose chunks each executed command averages (temporal "
+        "ensembling, `ControllerConfig.ensemble`; 1: the current query's alone, the paper's); "
+        "one closed loop per value and checkpoint",
+    )
+    parser.add_argument(
+        "--ensemble-decay",
+        type=float,
+        default=0.0,
+        help="weight exp(-decay * age in control steps) of an older query's prediction",
+    )
     parser.add_argument("--teacher-windows", type=int, default=256, help="windows of the one-step check")
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--device", default="cpu", help="torch / Warp device")
@@ -108,18 +133,34 @@ def main() -> None:
         if ckpt is None:
             parser.error(f"run folder {path} has no checkpoints")
         state = load_checkpoint(ckpt)
-        ckpts.append((ckpt, describe(label, ckpt, state), control_task_of(state.get("train_config"), f"checkpoint {ckpt}"),
-                      state.get("space") or SPACE))
+        ckpts.append(
+            (
+                ckpt,
+                describe(label, ckpt, state),
+                control_task_of(state.get("train_config"), f"checkpoint {ckpt}"),
+                state.get("space") or SPACE,
+            )
+        )
         del state
     spaces = sorted({s for *_, s in ckpts})
     if len(spaces) > 1:  # one oracle run and one set of held-out designs for all rows
-        parser.error("the checkpoints were trained on different design spaces: "
-                     + ", ".join(f"{info['label']} on {s}" for _, info, _, s in ckpts))
+        parser.error(
+            "the checkpoints were trained on different design spaces: "
+            + ", ".join(f"{info['label']} on {s}" for _, info, _, s in ckpts)
+        )
     space = get_space(spaces[0])
     try:
         ensembles = [int(x) for x in args.ensemble.split(",") if x]
-        configs = [ControllerConfig(num_steps=args.num_steps, seed=args.seed, spacing=args.spacing, ensemble=m,
-                                    ensemble_decay=args.ensemble_decay) for m in ensembles]
+        configs = [
+            ControllerConfig(
+                num_steps=args.num_steps,
+                seed=args.seed,
+                spacing=args.spacing,
+                ensemble=m,
+                ensemble_decay=args.ensemble_decay,
+            )
+            for m in ensembles
+        ]
     except ValueError as e:
         parser.error(f"--ensemble {args.ensemble!r} / --ensemble-decay {args.ensemble_decay}: {e}")
     if not configs:
@@ -144,10 +185,23 @@ def main() -> None:
             model_s = time.perf_counter() - t
             r_model, m_model = score_episode(ep, designs, motions, "tracking")
             label = info["label"] if len(configs) == 1 else f"{info['label']}, ensemble {config.ensemble}"
-            rows.append(emit(**{**info, "label": label}, run=info["label"], ensemble=config.ensemble, share=float(r_model.mean() / r_oracle.mean()),
-                             reward=float(r_model.mean()), pos_err_cm=float(np.nanmean(m_model["pos_err"])),
-                             survival=float(np.mean(m_model["survival"])), pearson=pearson(r_oracle.ravel(), r_model.ravel()),
-                             model_seconds=model_s, rmse=slot[1], hold_rmse=slot[2], repeat_rmse=slot[4], slots=tf["slots"]))
+            rows.append(
+                emit(
+                    **{**info, "label": label},
+                    run=info["label"],
+                    ensemble=config.ensemble,
+                    share=float(r_model.mean() / r_oracle.mean()),
+                    reward=float(r_model.mean()),
+                    pos_err_cm=float(np.nanmean(m_model["pos_err"])),
+                    survival=float(np.mean(m_model["survival"])),
+                    pearson=pearson(r_oracle.ravel(), r_model.ravel()),
+                    model_seconds=model_s,
+                    rmse=slot[1],
+                    hold_rmse=slot[2],
+                    repeat_rmse=slot[4],
+                    slots=tf["slots"],
+                )
+            )
     load_after = os.getloadavg()
     steps = sorted({m.steps for m in motions})
     lines = [
@@ -158,41 +212,65 @@ def main() -> None:
         f"{load_after[0]:.1f}; {time.perf_counter() - started:.0f} s in all",
         f"- command: `python benchmarks/dit_control.py {' '.join(sys.argv[1:])}`",
         f"- {len(designs)} held-out {space.name} designs (`space.sample({args.designs}, seed={args.design_seed})`) x "
-        f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}; {steps[0]}..{steps[-1]} control steps), "
-        f"{args.num_steps} DDIM steps per control step ({args.spacing} spacing), Warp physics; oracle: MuJoCo C + mink on the same designs and "
+        f"{len(motions)} validation motions ({', '.join(m.name for m in motions)}; {steps[0]}..{steps[-1]} "
+        "control steps), "
+        f"{args.num_steps} DDIM steps per control step ({args.spacing} spacing), Warp physics; oracle: MuJoCo "
+        "C + mink on the same designs and "
         f"motions, mean tracking reward {r_oracle.mean():.1f}, pos err {np.nanmean(m_oracle['pos_err']):.1f} cm, "
         f"survival {100 * np.mean(m_oracle['survival']):.0f} % ({oracle_s:.0f} s)",
-        f"- one step (teacher-forced): {args.teacher_windows} windows of fresh episodes (`tt.dit.online` refresh 0, seed "
+        f"- one step (teacher-forced): {args.teacher_windows} windows of fresh episodes (`tt.dit.online` "
+        "refresh 0, seed "
         f"{args.design_seed}, no control perturbation); RMSE of the executed command (window slot {EXECUTED_SLOT}) "
         "against DiffIK's, beside holding the current joint positions and repeating the last command",
         "- targets (issue 17): share of the oracle's reward >= 50 %; one-step RMSE <= half of holding's",
-        *([f"- temporal ensembling (`ControllerConfig.ensemble`): each executed command is the mean of what the last m "
-           f"queries predicted for that step, the prediction made a steps ago weighted exp(-{args.ensemble_decay:g} a); "
-           "the one-step check is of one query, so it is the same for every m"] if ensembles != [1] else
-          ["- one query per executed command (the paper's; `--ensemble 1`)"]),
+        *(
+            [
+                "- temporal ensembling (`ControllerConfig.ensemble`): each executed command is the mean of "
+                "what the last m "
+                "queries predicted for that step, the prediction made a steps ago weighted "
+                f"exp(-{args.ensemble_decay:g} a); "
+                "the one-step check is of one query, so it is the same for every m"
+            ]
+            if ensembles != [1]
+            else ["- one query per executed command (the paper's; `--ensemble 1`)"]
+        ),
         "",
         "| run | commands | step | windows seen | share of oracle reward | pos err (cm) | survival (%) | r vs oracle "
         "| one-step RMSE (rad) | hold RMSE (rad) | repeat RMSE (rad) | RMSE / hold | closed loop (s) |",
         "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        kind = {"joints": "delta from the current joints", "command": "delta from the last command"}.get(
-            r["anchor_control"], "absolute") + (", last command given" if r["known_command"] else "") + (
-            f", targets {r['target_offset']} steps ahead" if r.get("target_offset") else "") + (
-            f", the last {r['ensemble']} queries' predictions averaged" if r["ensemble"] > 1 else "")
-        lines.append(f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
-                     f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
-                     f"{r['hold_rmse']:.4f} | {r['repeat_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | {r['model_seconds']:.0f} |")
-    per_checkpoint = rows[::len(configs)]  # rows come in one group of len(configs) per checkpoint
+        kind = (
+            {"joints": "delta from the current joints", "command": "delta from the last command"}.get(
+                r["anchor_control"], "absolute"
+            )
+            + (", last command given" if r["known_command"] else "")
+            + (f", targets {r['target_offset']} steps ahead" if r.get("target_offset") else "")
+            + (f", the last {r['ensemble']} queries' predictions averaged" if r["ensemble"] > 1 else "")
+        )
+        lines.append(
+            f"| {r['label']} | {kind} | {r['step']} | {r['windows_seen']:,} | {100 * r['share']:.1f} % | "
+            f"{r['pos_err_cm']:.1f} | {100 * r['survival']:.0f} | {r['pearson']:.2f} | {r['rmse']:.4f} | "
+            f"{r['hold_rmse']:.4f} | {r['repeat_rmse']:.4f} | {r['rmse'] / r['hold_rmse']:.2f} | "
+            f"{r['model_seconds']:.0f} |"
+        )
+    per_checkpoint = rows[:: len(configs)]  # rows come in one group of len(configs) per checkpoint
     lines += ["", "Checkpoints and recipes:", ""]
     for r in per_checkpoint:
-        lines.append(f"- {r['run']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
-                     f"prediction {r['prediction']}, future states {r['future_states']}, anchor_control {r['anchor_control'] or 'none'}, "
-                     f"known_command {r['known_command']}, target offset {r['target_offset']}, "
-                     f"training loss {r['loss']:.4f} (mean of the last 100 steps)")
-    lines += ["", "One-step RMSE per window slot (rad; slot 1 is executed):", "",
-              "| run | " + " | ".join(f"slot {k}" for k, *_ in rows[0]["slots"]) + " |",
-              "|---|" + "---:|" * len(rows[0]["slots"])]
+        lines.append(
+            f"- {r['run']}: `{r['checkpoint']}`: task {r['task']}, size {r['size']}, batch {r['batch']}, "
+            f"prediction {r['prediction']}, future states {r['future_states']}, anchor_control "
+            f"{r['anchor_control'] or 'none'}, "
+            f"known_command {r['known_command']}, target offset {r['target_offset']}, "
+            f"training loss {r['loss']:.4f} (mean of the last 100 steps)"
+        )
+    lines += [
+        "",
+        "One-step RMSE per window slot (rad; slot 1 is executed):",
+        "",
+        "| run | " + " | ".join(f"slot {k}" for k, *_ in rows[0]["slots"]) + " |",
+        "|---|" + "---:|" * len(rows[0]["slots"]),
+    ]
     for r in per_checkpoint:
         lines.append(f"| {r['run']} | " + " | ".join(f"{s[1]:.4f}" for s in r["slots"]) + " |")
     lines.append("| hold the current joints | " + " | ".join(f"{s[2]:.4f}" for s in rows[0]["slots"]) + " |")

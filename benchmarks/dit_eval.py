@@ -33,7 +33,8 @@
 Every part's sizes are options (the CPU is shared; defaults take a few minutes each on a
 free 2-core CPU). Each run rewrites the header and the sections of the parts it ran in
 ``benchmarks/results/dit_eval.md`` (other parts' sections are kept) and writes
-``benchmarks/results/dit_eval_reward.png`` for (a) and ``dit_eval_heldout.png`` for (d) (beside ``--out``). Prints one JSON line per result.
+``benchmarks/results/dit_eval_reward.png`` for (a) and ``dit_eval_heldout.png`` for (d)
+(beside ``--out``). Prints one JSON line per result.
 
 Usage: ``python benchmarks/dit_eval.py CHECKPOINT [--parts abcd] [--threads 2]``.
 """
@@ -79,8 +80,10 @@ def cut(motions, steps: int | None):
 
     if not steps:
         return list(motions)
-    return [Motion(m.name, m.pos[:steps], m.quat[:steps], m.dt, meta=dict(m.meta, cut=steps)) if m.steps > steps else m
-            for m in motions]
+    return [
+        Motion(m.name, m.pos[:steps], m.quat[:steps], m.dt, meta=dict(m.meta, cut=steps)) if m.steps > steps else m
+        for m in motions
+    ]
 
 
 def pearson(x: np.ndarray, y: np.ndarray) -> float:
@@ -178,16 +181,24 @@ def generate(trained, args, decoder, device) -> dict:
     from tt.dit.sampling import sample
     from tt.dit.tasks import ROBOT
     from tt.guidance.predicted import build_query
-    from tt.sim.rewards import get_reward
     from tt.guidance.zeroth import CandidateSampler, embodiment_batch
+    from tt.sim.rewards import get_reward
 
     cfg = get_reward("tracking", SPACE)
     motions = validation_motions(args.motions)
     sampler = CandidateSampler(trained, device)
     # designs: candidates decoded to ViperX designs (warp rollout); mjcf: the detokenized
     # robots themselves (the oracle, which runs any fixed-base arm with an ee_0 site).
-    cond = {"models": [], "designs": [], "distances": [], "failures": {}, "sets": {"design": {"motion": [], "predicted": [], "simulated": []},
-                                                  "mjcf": {"motion": [], "predicted": [], "simulated": []}}}
+    cond = {
+        "models": [],
+        "designs": [],
+        "distances": [],
+        "failures": {},
+        "sets": {
+            "design": {"motion": [], "predicted": [], "simulated": []},
+            "mjcf": {"motion": [], "predicted": [], "simulated": []},
+        },
+    }
     sample_s = decode_s = sim_s = 0.0
     for j, m in enumerate(motions):
         t = time.perf_counter()
@@ -216,8 +227,16 @@ def generate(trained, args, decoder, device) -> dict:
                 sets["predicted"].append(float(gen.reward[i, 0]))
                 sets["simulated"].append(r)
         sim_s += time.perf_counter() - t
-        emit(part="a", motion=m.name, steps=m.steps, samples=args.samples, decoded=len(ok), loaded=len(loaded),
-             simulated_mjcf=sum(r is not None for r in scored), predicted_mean=float(np.mean(gen.reward[:, 0])))
+        emit(
+            part="a",
+            motion=m.name,
+            steps=m.steps,
+            samples=args.samples,
+            decoded=len(ok),
+            loaded=len(loaded),
+            simulated_mjcf=sum(r is not None for r in scored),
+            predicted_mean=float(np.mean(gen.reward[:, 0])),
+        )
     cond["seconds"] = {"sample": sample_s, "decode": decode_s, "simulate": sim_s}
 
     uncond = {"models": [], "designs": [], "distances": [], "seconds": {}}
@@ -226,8 +245,9 @@ def generate(trained, args, decoder, device) -> dict:
         model = NoMotion(trained.model).to(device).eval()
         q = build_query(trained.layout, trained.normalizer, motions[0], args.unconditional, device=device)
         gen = torch.Generator(device=device).manual_seed(args.seed + 1000)
-        res = sample(model, q.tokens, ROBOT, scheduler=CosineDDIM(ROBOT.diffusion_steps), num_steps=args.num_steps,
-                     generator=gen)
+        res = sample(
+            model, q.tokens, ROBOT, scheduler=CosineDDIM(ROBOT.diffusion_steps), num_steps=args.num_steps, generator=gen
+        )
         uncond["seconds"]["sample"] = time.perf_counter() - t
         t = time.perf_counter()
         dec = decoder(embodiment_batch(trained.layout, trained.normalizer, res.tokens))
@@ -280,41 +300,56 @@ def section_a(out: dict, args) -> str:
         for name in out["motions"]:
             sel = np.array([m == name for m in c["motion"]], dtype=bool)
             if sel.any():
-                rows.append(f"| {labels[key]} | {name} | {int(sel.sum())} | {p[sel].mean():.1f} | {s[sel].mean():.1f} | "
-                            f"{pearson(p[sel], s[sel]):.2f} |")
+                rows.append(
+                    f"| {labels[key]} | {name} | {int(sel.sum())} | {p[sel].mean():.1f} | {s[sel].mean():.1f} | "
+                    f"{pearson(p[sel], s[sel]):.2f} |"
+                )
     png = Path(args.out).with_name(Path(args.out).stem + "_reward.png")
     if any(st[2] for st in stats.values()):
         scatter_plot(sets, titles, png)
     secs = out["cond"]["seconds"]
     total = len(out["cond"]["designs"])
-    return "\n".join([
-        "## (a) Predicted vs simulated tracking reward",
-        "",
-        f"What is compared (the paper's \"Predicted Reward Accuracy\" figure): for {len(out['motions'])} validation "
-        f"motions (held out from training), the model generates {args.samples} robots per motion ({total} in all; "
-        f"motion-to-robot, {args.num_steps} DDIM steps, eta 0) and predicts each one's tracking reward from its own "
-        "predicted track-link tokens (8 evenly placed steps, scaled by T / 8: `tt.guidance.predicted`, what "
-        "Zeroth-Order ranks by). Each generated robot is then simulated on its motion with the DiffIK controller and "
-        "scored by `tt.sim.rewards`, two ways: decoded to the nearest ViperX design (what `tt optimize` returns: "
-        "a candidate whose token structure matches no discrete choice exactly is projected onto the nearest one, "
-        "`tt.tokens.design_from_tokens(max_distance=None)`), and as the detokenizer's MJCF "
-        "robot itself (run by the MuJoCo + mink oracle; robots it cannot drive are left out).",
-        "",
-        *[f"- {labels[k]}: **Pearson r = {st[0]:.2f}** (Spearman {st[1]:.2f}) over {st[2]} of {total} robots" for k, st in stats.items()],
-        "",
-        f"The target for the shipped model is r >= 0.7. Scatter: `{png.name}`."
-        + ("" if not out["cond"]["failures"] else " Detokenized robots the oracle could not run: "
-           + "; ".join(f"{n} x {why}" for why, n in sorted(out["cond"]["failures"].items(), key=lambda x: -x[1])) + "."),
-        "",
-        "| robots | motion | scored | predicted mean | simulated mean | Pearson r |",
-        "|---|---|---:|---:|---:|---:|",
-        *rows,
-        "",
-        f"Time: sampling {secs['sample']:.0f} s, decoding {secs['decode']:.0f} s, simulation {secs['simulate']:.0f} s.",
-        "",
-        f"![predicted vs simulated]({png.name})",
-        "",
-    ])
+    return "\n".join(
+        [
+            "## (a) Predicted vs simulated tracking reward",
+            "",
+            f'What is compared (the paper\'s "Predicted Reward Accuracy" figure): for {len(out["motions"])} validation '
+            f"motions (held out from training), the model generates {args.samples} robots per motion ({total} in all; "
+            f"motion-to-robot, {args.num_steps} DDIM steps, eta 0) and predicts each one's tracking reward "
+            "from its own "
+            "predicted track-link tokens (8 evenly placed steps, scaled by T / 8: `tt.guidance.predicted`, what "
+            "Zeroth-Order ranks by). Each generated robot is then simulated on its motion with the DiffIK "
+            "controller and "
+            "scored by `tt.sim.rewards`, two ways: decoded to the nearest ViperX design (what `tt optimize` returns: "
+            "a candidate whose token structure matches no discrete choice exactly is projected onto the nearest one, "
+            "`tt.tokens.design_from_tokens(max_distance=None)`), and as the detokenizer's MJCF "
+            "robot itself (run by the MuJoCo + mink oracle; robots it cannot drive are left out).",
+            "",
+            *[
+                f"- {labels[k]}: **Pearson r = {st[0]:.2f}** (Spearman {st[1]:.2f}) over {st[2]} of {total} robots"
+                for k, st in stats.items()
+            ],
+            "",
+            f"The target for the shipped model is r >= 0.7. Scatter: `{png.name}`."
+            + (
+                ""
+                if not out["cond"]["failures"]
+                else " Detokenized robots the oracle could not run: "
+                + "; ".join(f"{n} x {why}" for why, n in sorted(out["cond"]["failures"].items(), key=lambda x: -x[1]))
+                + "."
+            ),
+            "",
+            "| robots | motion | scored | predicted mean | simulated mean | Pearson r |",
+            "|---|---|---:|---:|---:|---:|",
+            *rows,
+            "",
+            f"Time: sampling {secs['sample']:.0f} s, decoding {secs['decode']:.0f} s, simulation "
+            f"{secs['simulate']:.0f} s.",
+            "",
+            f"![predicted vs simulated]({png.name})",
+            "",
+        ]
+    )
 
 
 def section_d(trained, args, space) -> str:
@@ -329,14 +364,24 @@ def section_d(trained, args, space) -> str:
     cfg = get_reward("tracking", SPACE)
     designs = space.sample(args.heldout_designs, seed=args.design_seed + 1)
     models = [space.model(d) for d in designs]
-    sets = {"model": {"motion": [], "predicted": [], "simulated": []}, "estimator": {"motion": [], "predicted": [], "simulated": []}}
+    sets = {
+        "model": {"motion": [], "predicted": [], "simulated": []},
+        "estimator": {"motion": [], "predicted": [], "simulated": []},
+    }
     sample_s = sim_s = 0.0
     gen = torch.Generator(device=args.device)
     for j, m in enumerate(validation_motions(args.motions)):
         t = time.perf_counter()
         query, known = design_query(trained.layout, trained.normalizer, m, models, device=args.device)
-        res = sample(trained.model, query.tokens, ROBOT, scheduler=CosineDDIM(ROBOT.diffusion_steps), num_steps=args.num_steps,
-                     known=known, generator=gen.manual_seed(args.seed + 500 + j))
+        res = sample(
+            trained.model,
+            query.tokens,
+            ROBOT,
+            scheduler=CosineDDIM(ROBOT.diffusion_steps),
+            num_steps=args.num_steps,
+            known=known,
+            generator=gen.manual_seed(args.seed + 500 + j),
+        )
         with torch.no_grad():
             predicted = PredictedReward(trained.layout, trained.normalizer, cfg, query)(res.tokens.values).cpu().numpy()
         sample_s += time.perf_counter() - t
@@ -344,17 +389,28 @@ def section_d(trained, args, space) -> str:
         ev = evaluate_designs(designs, [m], "tracking", backend=args.backend, device=args.device)
         ep = ev.episode
         st = query.steps[0].to(ep.ee_pos.device)
-        inputs = RewardInputs(ep.ee_pos[:, st].double(), ep.ee_quat[:, st].double(), ep.target_pos[:, st].double(),
-                              ep.target_quat[:, st].double())
+        inputs = RewardInputs(
+            ep.ee_pos[:, st].double(),
+            ep.ee_quat[:, st].double(),
+            ep.target_pos[:, st].double(),
+            ep.target_quat[:, st].double(),
+        )
         estimate = (m.steps / trained.layout.steps) * evaluate(inputs, cfg).reward.cpu().numpy()
         sim_s += time.perf_counter() - t
         for key, pred in (("model", predicted), ("estimator", estimate)):
             sets[key]["motion"] += [m.name] * len(designs)
             sets[key]["predicted"] += [float(x) for x in pred]
             sets[key]["simulated"] += [float(x) for x in ev.reward[:, 0]]
-        emit(part="d", motion=m.name, pearson=pearson(predicted, ev.reward[:, 0]), estimator=pearson(estimate, ev.reward[:, 0]))
-    labels = {"model": "the model's predicted dynamics (inpainted)",
-              "estimator": "the same estimator on the simulated poses (its ceiling)"}
+        emit(
+            part="d",
+            motion=m.name,
+            pearson=pearson(predicted, ev.reward[:, 0]),
+            estimator=pearson(estimate, ev.reward[:, 0]),
+        )
+    labels = {
+        "model": "the model's predicted dynamics (inpainted)",
+        "estimator": "the same estimator on the simulated poses (its ceiling)",
+    }
     rows, titles, lines = [], {}, []
     for key, c in sets.items():
         p, s_ = np.asarray(c["predicted"]), np.asarray(c["simulated"])
@@ -364,33 +420,42 @@ def section_d(trained, args, space) -> str:
         emit(part="d", reward_from=key, pearson=r, spearman=rho, points=int(len(p)))
         for name in dict.fromkeys(c["motion"]):
             sel = np.array([x == name for x in c["motion"]])
-            rows.append(f"| {labels[key]} | {name} | {int(sel.sum())} | {p[sel].mean():.1f} | {s_[sel].mean():.1f} | "
-                        f"{pearson(p[sel], s_[sel]):.2f} |")
+            rows.append(
+                f"| {labels[key]} | {name} | {int(sel.sum())} | {p[sel].mean():.1f} | {s_[sel].mean():.1f} | "
+                f"{pearson(p[sel], s_[sel]):.2f} |"
+            )
     png = Path(args.out).with_name(Path(args.out).stem + "_heldout.png")
     scatter_plot(sets, titles, png)
-    return "\n".join([
-        "## (d) Predicted vs simulated tracking reward on held-out episodes",
-        "",
-        f"{len(designs)} held-out ViperX designs (`space.sample({len(designs)}, seed={args.design_seed + 1})`) x the "
-        f"{args.motions} validation motions of (a), simulated with DiffIK (`{args.backend}`). The model is given each "
-        "design: its embodiment tokens fill the motion-to-robot query and are inpainted (noised to each DDIM step's "
-        f"level, `tt.guidance.predicted.design_query`), the model predicts the dynamics ({args.num_steps} DDIM steps, "
-        "eta 0), and the reward is computed from its predicted track-link tokens at 8 evenly placed steps, scaled by T / 8.",
-        "",
-        *lines,
-        "",
-        "The target for the shipped model is r >= 0.7. The estimator's ceiling shows that 8 steps suffice to rank "
-        f"episodes; what is missing is the model's knowledge of how a design moves. Scatter: `{png.name}`.",
-        "",
-        "| reward from | motion | episodes | predicted mean | simulated mean | Pearson r |",
-        "|---|---|---:|---:|---:|---:|",
-        *rows,
-        "",
-        f"Time: sampling {sample_s:.0f} s, simulation and scoring {sim_s:.0f} s.",
-        "",
-        f"![held-out predicted vs simulated]({png.name})",
-        "",
-    ])
+    return "\n".join(
+        [
+            "## (d) Predicted vs simulated tracking reward on held-out episodes",
+            "",
+            f"{len(designs)} held-out ViperX designs (`space.sample({len(designs)}, "
+            f"seed={args.design_seed + 1})`) x the "
+            f"{args.motions} validation motions of (a), simulated with DiffIK (`{args.backend}`). The model "
+            "is given each "
+            "design: its embodiment tokens fill the motion-to-robot query and are inpainted (noised to each "
+            "DDIM step's "
+            f"level, `tt.guidance.predicted.design_query`), the model predicts the dynamics ({args.num_steps} "
+            "DDIM steps, "
+            "eta 0), and the reward is computed from its predicted track-link tokens at 8 evenly placed "
+            "steps, scaled by T / 8.",
+            "",
+            *lines,
+            "",
+            "The target for the shipped model is r >= 0.7. The estimator's ceiling shows that 8 steps suffice to rank "
+            f"episodes; what is missing is the model's knowledge of how a design moves. Scatter: `{png.name}`.",
+            "",
+            "| reward from | motion | episodes | predicted mean | simulated mean | Pearson r |",
+            "|---|---|---:|---:|---:|---:|",
+            *rows,
+            "",
+            f"Time: sampling {sample_s:.0f} s, simulation and scoring {sim_s:.0f} s.",
+            "",
+            f"![held-out predicted vs simulated]({png.name})",
+            "",
+        ]
+    )
 
 
 def training_choices(data: str, space) -> tuple[dict[str, dict[str, float]], int] | None:
@@ -449,14 +514,15 @@ def section_b(out: dict, args, space) -> str:
         "",
         "Motion-conditioned: the candidates of (a). Unconditional: the same query with the target-pose "
         "tokens masked out of attention, so the model sees no motion. The model was not trained with "
-        "conditioning dropout, so this input is outside its training distribution. \"Loads\": the generic "
+        'conditioning dropout, so this input is outside its training distribution. "Loads": the generic '
         "detokenizer's MJCF compiles in MuJoCo. \"ViperX structure\": the tokens' structure is exactly "
-        "that of a discrete choice of the space (token counts and every binary attribute). \"Nearest ViperX "
-        "design\": projected onto the nearest structure and fitted, the design compiles (what the optimizers "
+        'that of a discrete choice of the space (token counts and every binary attribute). "Nearest ViperX '
+        'design": projected onto the nearest structure and fitted, the design compiles (what the optimizers '
         "return); distance: binary token attributes changed by the projection (a missing or extra token counts "
         "as its attributes + 1).",
         "",
-        "| samples | count | loads in MuJoCo | ViperX structure | nearest ViperX design | distance (median, 90th pct) |",
+        "| samples | count | loads in MuJoCo | ViperX structure | nearest ViperX design | distance (median, "
+        "90th pct) |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for name, s in sets.items():
@@ -467,8 +533,15 @@ def section_b(out: dict, args, space) -> str:
         dist = np.array([k for d, k in zip(s["designs"], s["distances"]) if d is not None], dtype=float)
         med = f"{np.median(dist):.0f}, {np.percentile(dist, 90):.0f}" if len(dist) else "–"
         lines.append(f"| {name} | {n} | {loads:.1f} % | {exact:.1f} % | {dec:.1f} % | {med} |")
-        emit(part="b", samples=name, count=n, loads_pct=loads, exact_pct=exact, decoded_pct=dec,
-             distances=[int(k) for k in s["distances"]])
+        emit(
+            part="b",
+            samples=name,
+            count=n,
+            loads_pct=loads,
+            exact_pct=exact,
+            decoded_pct=dec,
+            distances=[int(k) for k in s["distances"]],
+        )
     # Choices two ways: of the decoded ViperX designs, and read off the loadable MJCF robots.
     columns = {}
     for name, s in sets.items():
@@ -477,8 +550,8 @@ def section_b(out: dict, args, space) -> str:
     accuracy = mjcf_classifier_accuracy(space)
     lines += [
         "",
-        "Distribution of the samples' choices: share of the nearest ViperX designs (\"designs\") and of the "
-        "loadable MJCF robots (\"MJCF\": DoF = joint count, mount from the first joint's world axis; on "
+        'Distribution of the samples\' choices: share of the nearest ViperX designs ("designs") and of the '
+        'loadable MJCF robots ("MJCF": DoF = joint count, mount from the first joint\'s world axis; on '
         f"200 random ViperX designs this reading gives the true DoF and mount for {100 * accuracy:.0f} %); "
         "training: share of the training episodes.",
         "",
@@ -489,8 +562,10 @@ def section_b(out: dict, args, space) -> str:
     for key in ("dof", "mount"):
         options = list(next(p.options for p in space.discrete_params(space.nominal().discrete) if p.name == key))
         extra = sorted({c[key] for v in columns.values() for c in v} - set(options))
-        shares = {k: {o: (sum(c[key] == o for c in v) / len(v)) if v else float("nan") for o in options + extra}
-                  for k, v in columns.items()}
+        shares = {
+            k: {o: (sum(c[key] == o for c in v) / len(v)) if v else float("nan") for o in options + extra}
+            for k, v in columns.items()
+        }
         for o in options + extra:
             tr = train[0][key].get(o, 0.0) if train else float("nan")
             cells = "".join(" – |" if np.isnan(shares[k][o]) else f" {100 * shares[k][o]:.1f} % |" for k in columns)
@@ -500,8 +575,11 @@ def section_b(out: dict, args, space) -> str:
                 tv[(key, k)] = 0.5 * sum(abs(shares[k][o] - train[0][key].get(o, 0.0)) for o in options + extra)
     lines.append("")
     if train:
-        lines.append(f"Training data: {train[1]} episodes of `{args.data}`. Total variation distance to it: " + "; ".join(
-            f"{k} ({n}) {v:.2f}" for (k, n), v in tv.items()) + ".")
+        lines.append(
+            f"Training data: {train[1]} episodes of `{args.data}`. Total variation distance to it: "
+            + "; ".join(f"{k} ({n}) {v:.2f}" for (k, n), v in tv.items())
+            + "."
+        )
         emit(part="b", total_variation={f"{k}/{n}": v for (k, n), v in tv.items()})
     else:
         lines.append(f"Training data `{args.data}` not found: no training column.")
@@ -534,9 +612,15 @@ def teacher_forced(trained, task, args, space: str = SPACE, config=None) -> dict
     source = OnlineTokenSource(OnlineConfig(space=space, seed=args.design_seed, action_noise=0.0), device=args.device)
     layout, norm, S = trained.layout, trained.normalizer, trained.layout.steps
     raw = task_windows(source, layout, args.teacher_windows, task, torch.Generator().manual_seed(args.seed))
-    res = sample(trained.model, norm.normalize(raw).to(args.device), task, scheduler=CosineDDIM(task.diffusion_steps),
-                 num_steps=config.num_steps, spacing=config.spacing,
-                 generator=torch.Generator(device=args.device).manual_seed(args.seed))
+    res = sample(
+        trained.model,
+        norm.normalize(raw).to(args.device),
+        task,
+        scheduler=CosineDDIM(task.diffusion_steps),
+        num_steps=config.num_steps,
+        spacing=config.spacing,
+        generator=torch.Generator(device=args.device).manual_seed(args.seed),
+    )
     n, P = raw.values["control"].shape[0], layout["control"].per_step
     pred = norm.denormalize_values("control", res.tokens.values["control"].cpu()).reshape(n, S, P)
     true = raw.values["control"].reshape(n, S, P)
@@ -546,8 +630,15 @@ def teacher_forced(trained, task, args, space: str = SPACE, config=None) -> dict
     out = {"windows": n, "episodes": len(source), "slots": []}
     for k in range(S):
         m = real[:, k]
-        out["slots"].append((k, rmse((pred[:, k] - true[:, k])[m]), rmse((qpos - true[:, k])[m]), float(true[:, k][m].std()),
-                             rmse((true[:, 0] - true[:, k])[m & real[:, 0]])))
+        out["slots"].append(
+            (
+                k,
+                rmse((pred[:, k] - true[:, k])[m]),
+                rmse((qpos - true[:, k])[m]),
+                float(true[:, k][m].std()),
+                rmse((true[:, 0] - true[:, k])[m & real[:, 0]]),
+            )
+        )
     emit(part="c", teacher_forced=out)
     return out
 
@@ -561,8 +652,15 @@ def section_c(trained, task, args, space) -> str:
     designs = space.sample(args.designs, seed=args.design_seed)
     motions = cut(validation_motions(args.control_motions), args.control_steps)
     t = time.perf_counter()
-    ep_model = model_rollout(designs, motions, trained, task=task, config=ControllerConfig(seed=args.seed),
-                             device=args.device, progress=args.progress)
+    ep_model = model_rollout(
+        designs,
+        motions,
+        trained,
+        task=task,
+        config=ControllerConfig(seed=args.seed),
+        device=args.device,
+        progress=args.progress,
+    )
     model_s = time.perf_counter() - t
     t = time.perf_counter()
     ep_oracle = oracle_rollout(designs, motions)
@@ -576,59 +674,85 @@ def section_c(trained, task, args, space) -> str:
     still_share, ik_share = float(r_still.mean() / r_oracle.mean()), float(r_ik.mean() / r_oracle.mean())
     r = pearson(r_oracle.ravel(), r_model.ravel())
     tf = teacher_forced(trained, task, args)
-    emit(part="c", designs=len(designs), motions=len(motions), steps=[m.steps for m in motions],
-         model_reward=float(r_model.mean()), oracle_reward=float(r_oracle.mean()), share=share, pearson=r,
-         still_share=still_share, ik_share=ik_share,
-         model_seconds=model_s, oracle_seconds=oracle_s)
+    emit(
+        part="c",
+        designs=len(designs),
+        motions=len(motions),
+        steps=[m.steps for m in motions],
+        model_reward=float(r_model.mean()),
+        oracle_reward=float(r_oracle.mean()),
+        share=share,
+        pearson=r,
+        still_share=still_share,
+        ik_share=ik_share,
+        model_seconds=model_s,
+        oracle_seconds=oracle_s,
+    )
 
     def row(name, m):
-        return (f"| {name} | {np.nanmean(m['pos_err']):.1f} | {np.nanmean(m['orn_err']):.1f} | "
-                f"{100 * np.mean(m['survival']):.1f} | {np.mean(m['reward']):.1f} | "
-                f"{100 * np.mean(m['reward']) / r_oracle.mean():.1f} % |")
+        return (
+            f"| {name} | {np.nanmean(m['pos_err']):.1f} | {np.nanmean(m['orn_err']):.1f} | "
+            f"{100 * np.mean(m['survival']):.1f} | {np.mean(m['reward']):.1f} | "
+            f"{100 * np.mean(m['reward']) / r_oracle.mean():.1f} % |"
+        )
 
     steps = sorted({m.steps for m in motions})
     length = f"cut to their first {args.control_steps} control steps" if args.control_steps else "whole"
-    return "\n".join([
-        "## (c) The model as controller",
-        "",
-        f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`; the "
-        f"training shards draw from other seeds) x {len(motions)} validation motions ({', '.join(m.name for m in motions)}; "
-        f"{length}: {steps[0]}..{steps[-1]} steps). Model: `tt.dit.policies.ModelPolicy`, "
-        f"{ControllerConfig().num_steps} DDIM step(s) per control step ({ControllerConfig().spacing} spacing), each command "
-        "the mean of the recent queries' predictions for it (`ControllerConfig`'s defaults), batched over the running "
-        "worlds, Warp physics. "
-        "Oracle: MuJoCo C + mink DiffIK (`tt.sim.validate`). Both start at the oracle's start posture.",
-        "",
-        f"**Model / oracle mean tracking reward: {100 * share:.1f} %** (the paper's small model: 83 %, on the "
-        "bimanual space). Pearson r of per-episode rewards, model vs oracle: "
-        f"{r:.2f} over {r_model.size} episodes. A still arm (every step repeats the start posture's command, "
-        f"`tt.dit.policies.HoldPolicy`) scores {100 * still_share:.1f} % in the same closed loop, DiffIK (the teacher, "
-        f"`IKPolicy`) {100 * ik_share:.1f} %.",
-        "",
-        "| controller | pos err (cm) | orn err (deg) | survival (%) | tracking reward | share of the oracle's |",
-        "|---|---:|---:|---:|---:|---:|",
-        row("DiT (this checkpoint)", m_model),
-        row("a still arm (the start posture's command repeated)", m_still),
-        row("DiffIK in the same closed loop (the teacher)", m_ik),
-        row("MuJoCo + mink (oracle)", m_oracle),
-        "",
-        f"Time: model controller {model_s:.0f} s ({ep_model.worlds} worlds x {ep_model.steps} steps), oracle {oracle_s:.0f} s.",
-        "",
-        f"One step at a time (teacher-forced): {tf['windows']} windows of 8 consecutive steps from {tf['episodes']} fresh "
-        f"episodes (`tt.dit.online` refresh 0 with seed {args.design_seed}: designs and augmented motions no training "
-        "shard drew; no control perturbation), the control query built from the recorded current state and targets, "
-        f"{ControllerConfig().num_steps} DDIM step(s) ({ControllerConfig().spacing} spacing); RMSE of the "
-        "predicted joint-position commands against the recorded DiffIK commands, beside the RMSE of simply holding "
-        "the current joint positions. Where the model's error is not below holding's, the control head has not "
-        "learned DiffIK's increments. " + ("Commands are predicted as residuals from the current joint positions "
-        "(delta actions, `--anchor-control`)." if "control" in trained.model.anchors else
-        "Commands are absolute joint targets, normalised over their whole range."),
-        "",
-        "| window step | model RMSE (rad) | hold current position RMSE (rad) | spread of the commands (rad) |",
-        "|---:|---:|---:|---:|",
-        *[f"| {k} | {a:.3f} | {b:.3f} | {c:.2f} |" for k, a, b, c, _ in tf["slots"]],
-        "",
-    ])
+    return "\n".join(
+        [
+            "## (c) The model as controller",
+            "",
+            f"{len(designs)} held-out ViperX designs (`space.sample({args.designs}, seed={args.design_seed})`; the "
+            f"training shards draw from other seeds) x {len(motions)} validation motions "
+            f"({', '.join(m.name for m in motions)}; "
+            f"{length}: {steps[0]}..{steps[-1]} steps). Model: `tt.dit.policies.ModelPolicy`, "
+            f"{ControllerConfig().num_steps} DDIM step(s) per control step ({ControllerConfig().spacing} "
+            "spacing), each command "
+            "the mean of the recent queries' predictions for it (`ControllerConfig`'s defaults), batched "
+            "over the running "
+            "worlds, Warp physics. "
+            "Oracle: MuJoCo C + mink DiffIK (`tt.sim.validate`). Both start at the oracle's start posture.",
+            "",
+            f"**Model / oracle mean tracking reward: {100 * share:.1f} %** (the paper's small model: 83 %, on the "
+            "bimanual space). Pearson r of per-episode rewards, model vs oracle: "
+            f"{r:.2f} over {r_model.size} episodes. A still arm (every step repeats the start posture's command, "
+            f"`tt.dit.policies.HoldPolicy`) scores {100 * still_share:.1f} % in the same closed loop, DiffIK "
+            "(the teacher, "
+            f"`IKPolicy`) {100 * ik_share:.1f} %.",
+            "",
+            "| controller | pos err (cm) | orn err (deg) | survival (%) | tracking reward | share of the oracle's |",
+            "|---|---:|---:|---:|---:|---:|",
+            row("DiT (this checkpoint)", m_model),
+            row("a still arm (the start posture's command repeated)", m_still),
+            row("DiffIK in the same closed loop (the teacher)", m_ik),
+            row("MuJoCo + mink (oracle)", m_oracle),
+            "",
+            f"Time: model controller {model_s:.0f} s ({ep_model.worlds} worlds x {ep_model.steps} steps), "
+            f"oracle {oracle_s:.0f} s.",
+            "",
+            f"One step at a time (teacher-forced): {tf['windows']} windows of 8 consecutive steps from "
+            f"{tf['episodes']} fresh "
+            f"episodes (`tt.dit.online` refresh 0 with seed {args.design_seed}: designs and augmented motions "
+            "no training "
+            "shard drew; no control perturbation), the control query built from the recorded current state "
+            "and targets, "
+            f"{ControllerConfig().num_steps} DDIM step(s) ({ControllerConfig().spacing} spacing); RMSE of the "
+            "predicted joint-position commands against the recorded DiffIK commands, beside the RMSE of simply holding "
+            "the current joint positions. Where the model's error is not below holding's, the control head has not "
+            "learned DiffIK's increments. "
+            + (
+                "Commands are predicted as residuals from the current joint positions "
+                "(delta actions, `--anchor-control`)."
+                if "control" in trained.model.anchors
+                else "Commands are absolute joint targets, normalised over their whole range."
+            ),
+            "",
+            "| window step | model RMSE (rad) | hold current position RMSE (rad) | spread of the commands (rad) |",
+            "|---:|---:|---:|---:|",
+            *[f"| {k} | {a:.3f} | {b:.3f} | {c:.2f} |" for k, a, b, c, _ in tf["slots"]],
+            "",
+        ]
+    )
 
 
 # ------------------------------------------------------------------------------ file
@@ -644,20 +768,33 @@ def write_sections(path: Path, header: str, sections: dict[str, str]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", help="checkpoint file or run folder (its latest checkpoint)")
-    parser.add_argument("--parts", default="abcd", help="which parts to run: any of a, b, c, d (a and b share their samples)")
+    parser.add_argument(
+        "--parts", default="abcd", help="which parts to run: any of a, b, c, d (a and b share their samples)"
+    )
     parser.add_argument("--motions", type=int, default=4, help="(a, b) validation motions")
     parser.add_argument("--samples", type=int, default=16, help="(a, b) candidates per motion")
     parser.add_argument("--num-steps", type=int, default=100, help="(a, b) DDIM steps of the motion-to-robot process")
     parser.add_argument("--unconditional", type=int, default=64, help="(b) unconditional samples (0: none)")
-    parser.add_argument("--fit-top-k", type=int, default=2, help="(a, b) discrete choices whose continuous choices are fitted per candidate")
+    parser.add_argument(
+        "--fit-top-k",
+        type=int,
+        default=2,
+        help="(a, b) discrete choices whose continuous choices are fitted per candidate",
+    )
     parser.add_argument("--backend", default="warp", help="(a) rollout backend of the simulated reward: warp | mujoco")
-    parser.add_argument("--data", default=None, help="(b) training dataset (default: the checkpoint's train_config data)")
+    parser.add_argument(
+        "--data", default=None, help="(b) training dataset (default: the checkpoint's train_config data)"
+    )
     parser.add_argument("--designs", type=int, default=25, help="(c) held-out designs")
     parser.add_argument("--heldout-designs", type=int, default=32, help="(d) held-out designs per motion")
     parser.add_argument("--design-seed", type=int, default=20261122, help="(c) seed of the held-out designs")
     parser.add_argument("--control-motions", type=int, default=5, help="(c) validation motions")
-    parser.add_argument("--control-steps", type=int, default=100, help="(c) control steps per motion (0: whole motions)")
-    parser.add_argument("--teacher-windows", type=int, default=256, help="(c) windows of the one-step (teacher-forced) check")
+    parser.add_argument(
+        "--control-steps", type=int, default=100, help="(c) control steps per motion (0: whole motions)"
+    )
+    parser.add_argument(
+        "--teacher-windows", type=int, default=256, help="(c) windows of the one-step (teacher-forced) check"
+    )
     parser.add_argument("--seed", type=int, default=0, help="sampling seed")
     parser.add_argument("--device", default="cpu", help="torch / Warp device")
     parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
@@ -709,19 +846,24 @@ def main() -> None:
     load_after = os.getloadavg()
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     sections = {k: f"_Run {stamp}, checkpoint step {trained.step}._\n\n{v}" for k, v in sections.items()}
-    header = "\n".join([
-        "# DiT evaluation (ViperX)",
-        "",
-        machine_header(args.device).rstrip(),
-        f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after the latest run: "
-        f"{load_before[0]:.1f} / {load_after[0]:.1f}; latest run: parts {args.parts}, {time.perf_counter() - started:.0f} s "
-        "(each section names the run and checkpoint it comes from)",
-        f"- latest checkpoint: `{ckpt}` (step {trained.step}; {trained.model.parameter_count() / 1e6:.2f} M parameters, "
-        f"size {train_cfg.get('size', '?')}, task {train_cfg.get('task', '?')}, batch {train_cfg.get('batch_size', '?')}, "
-        f"data `{train_cfg.get('data', '?')}`)",
-        f"- command: `python benchmarks/dit_eval.py {' '.join(sys.argv[1:])}`",
-        "",
-    ])
+    header = "\n".join(
+        [
+            "# DiT evaluation (ViperX)",
+            "",
+            machine_header(args.device).rstrip(),
+            f"- torch threads {torch.get_num_threads()}; load average (1 min) before / after the latest run: "
+            f"{load_before[0]:.1f} / {load_after[0]:.1f}; latest run: parts {args.parts}, "
+            f"{time.perf_counter() - started:.0f} s "
+            "(each section names the run and checkpoint it comes from)",
+            f"- latest checkpoint: `{ckpt}` (step {trained.step}; {trained.model.parameter_count() / 1e6:.2f} "
+            "M parameters, "
+            f"size {train_cfg.get('size', '?')}, task {train_cfg.get('task', '?')}, batch "
+            f"{train_cfg.get('batch_size', '?')}, "
+            f"data `{train_cfg.get('data', '?')}`)",
+            f"- command: `python benchmarks/dit_eval.py {' '.join(sys.argv[1:])}`",
+            "",
+        ]
+    )
     out_path = Path(args.out)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     write_sections(out_path, header, sections)

@@ -59,29 +59,44 @@ def summary(folder: Path, note: str) -> Path:
     """DIR.md: one row per result JSON in `folder`, by step then samples and DDIM steps."""
     results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
     results.sort(key=lambda r: (r.get("pairs", "held-out") != "held-out", r["step"], r["samples"], r["num_steps"]))
-    lines = [f"# Ladder over a run: {folder.name}", "", note, "",
-             f"Failing pairs: simulated reward below {FAILED_BELOW:g} (less than one perfectly tracked step). AUC: the "
-             "chance that the model predicts a tracking pair above a failing one (0.5: chance). r tracking: Pearson r "
-             "among the pairs that do not fail. Error at the query steps: the median over failing and over tracking pairs "
-             "of the mean end-effector position error at the 8 query steps, counted or not, predicted / simulated [cm] "
-             "(results written since 2026-12-03 evening).", "",
-             "| step | pairs | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per motion | failing (%) "
-             "| AUC failing | r tracking | error failing (cm) | error tracking (cm) | predict (s) | file |",
-             "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|"]
+    lines = [
+        f"# Ladder over a run: {folder.name}",
+        "",
+        note,
+        "",
+        f"Failing pairs: simulated reward below {FAILED_BELOW:g} (less than one perfectly tracked step). AUC: the "
+        "chance that the model predicts a tracking pair above a failing one (0.5: chance). r tracking: Pearson r "
+        "among the pairs that do not fail. Error at the query steps: the median over failing and over tracking pairs "
+        "of the mean end-effector position error at the 8 query steps, counted or not, predicted / simulated [cm] "
+        "(results written since 2026-12-03 evening).",
+        "",
+        "| step | pairs | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per "
+        "motion | failing (%) "
+        "| AUC failing | r tracking | error failing (cm) | error tracking (cm) | predict (s) | file |",
+        "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
         # The cut is the tracking reward's (rewards without a "reward" field were tracking).
         tracking = r.get("reward", "tracking") == "tracking"
-        f = failure_split(r["predicted"], r["simulated"]) if tracking and "predicted" in r and "simulated" in r else None
-        split = (f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -")
+        f = (
+            failure_split(r["predicted"], r["simulated"])
+            if tracking and "predicted" in r and "simulated" in r
+            else None
+        )
+        split = f"{100 * f['failed_share']:.0f} | {f['auc']:.2f} | {f['r_tracking']:.2f}" if f else "- | - | -"
         errors = "- | -"
         if f and "predicted_error_cm" in r:
             failed = np.asarray(r["simulated"], float) < FAILED_BELOW
             pe, se = np.asarray(r["predicted_error_cm"], float), np.asarray(r["simulated_error_cm"], float)
-            errors = " | ".join(f"{np.median(pe[m]):.0f} / {np.median(se[m]):.0f}" if m.any() else "-"
-                                for m in (failed, ~failed))
-        lines.append(f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
-                     f"{per} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |")
+            errors = " | ".join(
+                f"{np.median(pe[m]):.0f} / {np.median(se[m]):.0f}" if m.any() else "-" for m in (failed, ~failed)
+            )
+        lines.append(
+            f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | "
+            f"{r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
+            f"{per} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |"
+        )
     out = folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
     return out
@@ -108,11 +123,20 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--backend", default="warp")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--via", default=None, choices=["dynamics", "inpaint"],
-                   help="how the design is given (default: dynamics when the checkpoint was trained on it)")
-    p.add_argument("--online-refresh", type=int, default=None, metavar="K",
-                   help="score the designs x training motions of refresh K of the checkpoint's own online run (its "
-                        "training data: in its buffer, long past, or not yet drawn) instead of held-out designs")
+    p.add_argument(
+        "--via",
+        default=None,
+        choices=["dynamics", "inpaint"],
+        help="how the design is given (default: dynamics when the checkpoint was trained on it)",
+    )
+    p.add_argument(
+        "--online-refresh",
+        type=int,
+        default=None,
+        metavar="K",
+        help="score the designs x training motions of refresh K of the checkpoint's own online run (its "
+        "training data: in its buffer, long past, or not yet drawn) instead of held-out designs",
+    )
     p.add_argument("--out", default=None)
     args = p.parse_args()
     torch.set_num_threads(args.threads)
@@ -135,45 +159,86 @@ def main() -> None:
 
         online = (load_checkpoint(trained.path).get("train_config") or {}).get("online")
         if not online:
-            p.error(f"--online-refresh: {trained.path} records no online run (a resumable checkpoint of `tt train --online`)")
+            p.error(
+                f"--online-refresh: {trained.path} records no online run (a resumable checkpoint of `tt train "
+                "--online`)"
+            )
         designs, motions = OnlineTokenSource(OnlineConfig(**online), device="cpu").draw(args.online_refresh)
         designs = designs[: args.designs]
         pairs = f"online refresh {args.online_refresh}"
-    sc = score_designs(trained, designs, motions, args.reward, samples=args.samples, num_steps=args.num_steps,
-                       chunk=args.chunk, backend=args.backend, device=args.device, via=args.via)
+    sc = score_designs(
+        trained,
+        designs,
+        motions,
+        args.reward,
+        samples=args.samples,
+        num_steps=args.num_steps,
+        chunk=args.chunk,
+        backend=args.backend,
+        device=args.device,
+        via=args.via,
+    )
     via = args.via or default_via(trained)
-    result = {"bench": "dit_ladder", "checkpoint": str(trained.path), "step": trained.step, "space": space,
-              "designs": len(designs), "pairs": pairs, "reward": args.reward, "motions": sc.motions, "via": via, "samples": args.samples, "num_steps": args.num_steps,
-              "pooled_r": sc.pooled, "within_r_mean": sc.within_mean, "within_r": sc.within,
-              "estimator_pooled_r": sc.estimator_pooled, "seconds": sc.seconds}
+    result = {
+        "bench": "dit_ladder",
+        "checkpoint": str(trained.path),
+        "step": trained.step,
+        "space": space,
+        "designs": len(designs),
+        "pairs": pairs,
+        "reward": args.reward,
+        "motions": sc.motions,
+        "via": via,
+        "samples": args.samples,
+        "num_steps": args.num_steps,
+        "pooled_r": sc.pooled,
+        "within_r_mean": sc.within_mean,
+        "within_r": sc.within,
+        "estimator_pooled_r": sc.estimator_pooled,
+        "seconds": sc.seconds,
+    }
     print(json.dumps(result), flush=True)
     suffix = "" if args.online_refresh is None else f"_online{args.online_refresh}"
     out = Path(args.out) if args.out else RESULTS / f"dit_ladder_{space}{suffix}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
-    rows = [f"| {m} | {sc.predicted[:, j].mean():.1f} | {sc.simulated[:, j].mean():.1f} | {sc.within[j]:.2f} | "
-            f"{sc.estimator_within[j]:.2f} |" for j, m in enumerate(sc.motions)]
-    out.write_text("\n".join([
-        f"# Ladder: predicted vs simulated {args.reward} reward, {space}",
-        "",
-        machine_header(args.device),
-        f"Checkpoint `{trained.path}` (step {trained.step}); "
-        + (f"{len(designs)} held-out designs (`tt.ladder.heldout_designs({space!r}, {args.designs}, {args.design_seed})`) "
-           f"x {len(motions)} validation motions" if args.online_refresh is None else
-           f"the first {len(designs)} designs x {len(motions)} training motions of its run's online refresh "
-           f"{args.online_refresh} (training data)")
-        + f"; `tt predict` code path (design given via {via}), {args.samples} sample(s), {args.num_steps} DDIM steps; simulator "
-        f"`{args.backend}`.",
-        "",
-        f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: {sc.estimator_pooled:.2f})",
-        f"- mean within-motion r: **{sc.within_mean:.2f}**",
-        "",
-        "| motion | predicted mean | simulated mean | within-motion r | estimator r |",
-        "|---|---:|---:|---:|---:|",
-        *rows,
-        "",
-        f"Time: predict {sc.seconds['predict']:.0f} s, simulate {sc.seconds['simulate']:.0f} s.",
-        "",
-    ]))
+    rows = [
+        f"| {m} | {sc.predicted[:, j].mean():.1f} | {sc.simulated[:, j].mean():.1f} | {sc.within[j]:.2f} | "
+        f"{sc.estimator_within[j]:.2f} |"
+        for j, m in enumerate(sc.motions)
+    ]
+    out.write_text(
+        "\n".join(
+            [
+                f"# Ladder: predicted vs simulated {args.reward} reward, {space}",
+                "",
+                machine_header(args.device),
+                f"Checkpoint `{trained.path}` (step {trained.step}); "
+                + (
+                    f"{len(designs)} held-out designs (`tt.ladder.heldout_designs({space!r}, {args.designs}, "
+                    f"{args.design_seed})`) "
+                    f"x {len(motions)} validation motions"
+                    if args.online_refresh is None
+                    else f"the first {len(designs)} designs x {len(motions)} training motions of its run's online "
+                    "refresh "
+                    f"{args.online_refresh} (training data)"
+                )
+                + f"; `tt predict` code path (design given via {via}), {args.samples} sample(s), "
+                f"{args.num_steps} DDIM steps; simulator "
+                f"`{args.backend}`.",
+                "",
+                f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: "
+                f"{sc.estimator_pooled:.2f})",
+                f"- mean within-motion r: **{sc.within_mean:.2f}**",
+                "",
+                "| motion | predicted mean | simulated mean | within-motion r | estimator r |",
+                "|---|---:|---:|---:|---:|",
+                *rows,
+                "",
+                f"Time: predict {sc.seconds['predict']:.0f} s, simulate {sc.seconds['simulate']:.0f} s.",
+                "",
+            ]
+        )
+    )
     out.with_suffix(".json").write_text(json.dumps({**result, **sc.to_dict()}, indent=1))
     print(f"wrote {out}", file=sys.stderr)
 

@@ -42,18 +42,33 @@ _ANCHOR = dict(task="dynamics", prediction="x0", anchor_track=True)
 #: name -> (what changes, TrainConfig fields over `tt.ladder.R0_TRAINING`, how `tt predict`
 #: gives the design).
 RECIPES: dict[str, tuple[str, dict, str]] = {
-    "paper": ("the paper's: robot task, design inpainted, eps, learned time IDs",
-              dict(task="robot", prediction="eps", time_ids="learned"), "inpaint"),
-    "dynamics": ("+ dynamics task (design a clean condition)",
-                 dict(task="dynamics", prediction="eps", time_ids="learned"), "dynamics"),
+    "paper": (
+        "the paper's: robot task, design inpainted, eps, learned time IDs",
+        dict(task="robot", prediction="eps", time_ids="learned"),
+        "inpaint",
+    ),
+    "dynamics": (
+        "+ dynamics task (design a clean condition)",
+        dict(task="dynamics", prediction="eps", time_ids="learned"),
+        "dynamics",
+    ),
     "sinusoidal": ("+ sinusoidal time IDs", dict(task="dynamics", prediction="eps"), "dynamics"),
     "x0": ("+ x0 prediction (R0's recipe, `tests/test_ladder.py`)", dict(task="dynamics", prediction="x0"), "dynamics"),
-    "anchor": ("x0, and the track-link pose anchored on its target",
-               dict(task="dynamics", prediction="x0", anchor_track=True), "dynamics"),
-    "robot_x0": ("the robot task with the design inpainted, with sinusoidal time IDs and x0 prediction",
-                 dict(task="robot", prediction="x0"), "inpaint"),
-    "robot+dynamics": ("robot and dynamics tasks, half the batch each, x0 + anchor (a generator that is also a critic)",
-                       dict(task="robot+dynamics", prediction="x0", anchor_track=True), "dynamics"),
+    "anchor": (
+        "x0, and the track-link pose anchored on its target",
+        dict(task="dynamics", prediction="x0", anchor_track=True),
+        "dynamics",
+    ),
+    "robot_x0": (
+        "the robot task with the design inpainted, with sinusoidal time IDs and x0 prediction",
+        dict(task="robot", prediction="x0"),
+        "inpaint",
+    ),
+    "robot+dynamics": (
+        "robot and dynamics tasks, half the batch each, x0 + anchor (a generator that is also a critic)",
+        dict(task="robot+dynamics", prediction="x0", anchor_track=True),
+        "dynamics",
+    ),
     # One change each from `anchor` (v: from `x0`, as the anchor needs x0 prediction).
     "v": ("v prediction (compare with `x0`: the anchor needs x0)", dict(task="dynamics", prediction="v"), "dynamics"),
     "min_snr": ("`anchor` + min-SNR-5 loss weighting", dict(_ANCHOR, weighting="min_snr"), "dynamics"),
@@ -68,45 +83,57 @@ RECIPES: dict[str, tuple[str, dict, str]] = {
 
 
 #: What the rows decided (kept beside the table, which `report` rewrites).
-KEPT = ("Kept: x0 prediction and sinusoidal time-step IDs are now `tt train`'s defaults. The dynamics task is what "
-        "`tt predict` needs from a checkpoint (`--task dynamics`, or `robot+dynamics` for a model that also "
-        "generates): with x0 it is the difference between 0.30 (robot task, design inpainted) and 0.97. The anchor "
-        "(`--anchor-track`) stays an option: it learns a little faster early (0.40 against 0.26 at step 250) and ends "
-        "level. Sharing the batch with the robot task halves the critic's windows and costs most of the gain at this "
-        "budget. Not measured here: noise-level weightings, learning rate and batch, model sizes, DDIM training "
-        "steps, bf16 on the CPU, and data choices (issue 17 lists them).")
+KEPT = (
+    "Kept: x0 prediction and sinusoidal time-step IDs are now `tt train`'s defaults. The dynamics task is what "
+    "`tt predict` needs from a checkpoint (`--task dynamics`, or `robot+dynamics` for a model that also "
+    "generates): with x0 it is the difference between 0.30 (robot task, design inpainted) and 0.97. The anchor "
+    "(`--anchor-track`) stays an option: it learns a little faster early (0.40 against 0.26 at step 250) and ends "
+    "level. Sharing the batch with the robot task halves the critic's windows and costs most of the gain at this "
+    "budget. Not measured here: noise-level weightings, learning rate and batch, model sizes, DDIM training "
+    "steps, bf16 on the CPU, and data choices (issue 17 lists them)."
+)
 
 
 #: What today's rows decided (written once they are measured).
-CURRENT_NOTE = ("On today's data R0 is harder (more designs survive, their rewards lie closer), so the rows "
-                "separate more. `anchor`, the shipped recipe, reaches 0.98 at 1,000 steps; EDM weighting learns a "
-                "little slower early (0.27 against 0.36 at step 250) and ends level (0.97); min-SNR-5 is clearly worse "
-                "(0.81 at 1,000). Half the learning rate (2.5e-3) starts slower (0.10 at 250) and ends at 0.93; twice "
-                "(1e-2) ends lower (0.94). v prediction ends at 0.82 (the anchor needs x0, so it is one change from "
-                "plain x0). 50 DDIM training steps instead of 100: 0.88. Batch 64 is ahead per step (0.87 at 500, 0.99 "
-                "at 1,000) but runs at half the steps per second: at the same windows seen it is behind (0.87 at its "
-                "step 500 against `anchor`'s 0.98 at 1,000). The `mini` model reaches 0.99 at 1,000 steps (0.98 at "
-                "750) at a fifth of `tiny`'s steps per second (0.93 against 4.5 on one core), so at equal time `tiny` "
-                "is ahead on R0; R1 and R2, with thousands of designs rather than 16, use `mini`. Kept: no loss "
-                "weighting, x0 prediction, R0's learning rate, batch 32 and 100 DDIM steps, as `tt train` does now. "
-                "bf16 autocast on this CPU (AVX-512 BF16 and AMX): 0.97 at 1,000 steps (0.37 / 0.66 / 0.93 at 250 to "
-                "750 against 0.36 / 0.72 / 0.94) at 3.2 steps/s against `anchor`'s 4.4, the two run side by side (`anchor` "
-                "rerun with it: the same r curve, 4.36 steps/s): slower and no better on this model size, so fp32 "
-                "stays on the CPU.")
+CURRENT_NOTE = (
+    "On today's data R0 is harder (more designs survive, their rewards lie closer), so the rows "
+    "separate more. `anchor`, the shipped recipe, reaches 0.98 at 1,000 steps; EDM weighting learns a "
+    "little slower early (0.27 against 0.36 at step 250) and ends level (0.97); min-SNR-5 is clearly worse "
+    "(0.81 at 1,000). Half the learning rate (2.5e-3) starts slower (0.10 at 250) and ends at 0.93; twice "
+    "(1e-2) ends lower (0.94). v prediction ends at 0.82 (the anchor needs x0, so it is one change from "
+    "plain x0). 50 DDIM training steps instead of 100: 0.88. Batch 64 is ahead per step (0.87 at 500, 0.99 "
+    "at 1,000) but runs at half the steps per second: at the same windows seen it is behind (0.87 at its "
+    "step 500 against `anchor`'s 0.98 at 1,000). The `mini` model reaches 0.99 at 1,000 steps (0.98 at "
+    "750) at a fifth of `tiny`'s steps per second (0.93 against 4.5 on one core), so at equal time `tiny` "
+    "is ahead on R0; R1 and R2, with thousands of designs rather than 16, use `mini`. Kept: no loss "
+    "weighting, x0 prediction, R0's learning rate, batch 32 and 100 DDIM steps, as `tt train` does now. "
+    "bf16 autocast on this CPU (AVX-512 BF16 and AMX): 0.97 at 1,000 steps (0.37 / 0.66 / 0.93 at 250 to "
+    "750 against 0.36 / 0.72 / 0.94) at 3.2 steps/s against `anchor`'s 4.4, the two run side by side (`anchor` "
+    "rerun with it: the same r curve, 4.36 steps/s): slower and no better on this model size, so fp32 "
+    "stays on the CPU."
+)
 
 
 def run_row(name: str, steps: int, out: Path) -> dict:
     from tt.dit.checkpoint import list_checkpoints, load_model
     from tt.dit.online import OnlineTokenSource
     from tt.dit.train import TrainConfig, train
-    from tt.sim.controller import IKConfig
     from tt.ladder import R0_TRAINING, r0_online, score_designs
+    from tt.sim.controller import IKConfig
 
     what, fields, via = RECIPES[name]
     online = r0_online()
     shared = {**R0_TRAINING, **fields}
-    config = TrainConfig(out=str(out / name), device="cpu", steps=steps, checkpoint_every=max(1, steps // 4),
-                         keep_checkpoints=4, online=online, resume=False, **shared)
+    config = TrainConfig(
+        out=str(out / name),
+        device="cpu",
+        steps=steps,
+        checkpoint_every=max(1, steps // 4),
+        keep_checkpoints=4,
+        online=online,
+        resume=False,
+        **shared,
+    )
     t0 = time.perf_counter()
     result = train(config)
     seconds = time.perf_counter() - t0
@@ -115,26 +142,49 @@ def run_row(name: str, steps: int, out: Path) -> dict:
     for path in list_checkpoints(out / name):
         trained = load_model(path)
         sc = score_designs(trained, designs, motions, num_steps=20, via=via)
-        curve.append({"step": trained.step, "pooled_r": sc.pooled, "within_r": sc.within,
-                      "within_r_mean": sc.within_mean, "estimator_pooled_r": sc.estimator_pooled})
+        curve.append(
+            {
+                "step": trained.step,
+                "pooled_r": sc.pooled,
+                "within_r": sc.within,
+                "within_r_mean": sc.within_mean,
+                "estimator_pooled_r": sc.estimator_pooled,
+            }
+        )
     losses = result.losses.numpy()
-    return {"row": name, "what": what, "fields": fields, "via": via, "steps": steps, "batch_size": shared["batch_size"],
-            "samples_seen": steps * shared["batch_size"], "init_damping": IKConfig().init_damping,
-            "measured": machine_header("cpu").strip().splitlines()[:2], "train_seconds": seconds, "steps_per_s": steps / seconds,
-            "parameters": result.parameters, "final_loss_mean_last_50": float(losses[-50:].mean()), "curve": curve,
-            "command": f"python benchmarks/dit_recipe.py --rows {name} --steps {steps}"}
+    return {
+        "row": name,
+        "what": what,
+        "fields": fields,
+        "via": via,
+        "steps": steps,
+        "batch_size": shared["batch_size"],
+        "samples_seen": steps * shared["batch_size"],
+        "init_damping": IKConfig().init_damping,
+        "measured": machine_header("cpu").strip().splitlines()[:2],
+        "train_seconds": seconds,
+        "steps_per_s": steps / seconds,
+        "parameters": result.parameters,
+        "final_loss_mean_last_50": float(losses[-50:].mean()),
+        "curve": curve,
+        "command": f"python benchmarks/dit_recipe.py --rows {name} --steps {steps}",
+    }
 
 
 def _table(rows: list[dict]) -> list[str]:
     order = list(RECIPES)
     rows = sorted(rows, key=lambda r: order.index(r["row"]) if r["row"] in order else len(order))
-    lines = ["| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",
-             "|---|---|---|---|---|---:|---:|"]
+    lines = [
+        "| row | change | design given | pooled r (per checkpoint) | within-motion r (last) | steps/s | windows seen |",
+        "|---|---|---|---|---|---:|---:|",
+    ]
     for r in rows:
         curve = ", ".join(f"{c['pooled_r']:.2f}@{c['step']}" for c in r["curve"])
         within = " / ".join(f"{v:.2f}" for v in r["curve"][-1]["within_r"]) if r["curve"] else "-"
-        lines.append(f"| `{r['row']}` | {r['what']} | {r['via']} | {curve} | {within} | {r['steps_per_s']:.2f} | "
-                     f"{r['samples_seen']:,} |")
+        lines.append(
+            f"| `{r['row']}` | {r['what']} | {r['via']} | {curve} | {within} | {r['steps_per_s']:.2f} | "
+            f"{r['samples_seen']:,} |"
+        )
     return lines
 
 
@@ -159,15 +209,32 @@ def report() -> Path:
     if current:
         dates = sorted(r["measured"][0].removeprefix("- date: ") for r in current if r.get("measured"))
         machines = sorted({r["measured"][1].removeprefix("- machine: ") for r in current if r.get("measured")})
-        lines += ["## Today's data (start posture with its own IK damping, 2026-12-03)", "",
-                  f"Rows finished {dates[0]} to {dates[-1]} on {'; '.join(machines)}." if dates else "", "",
-                  CURRENT_NOTE, "",
-                  *_table(current), "", "Commands: " + "; ".join(f"`{r['command']}`" for r in current), ""]
-    lines += ["## Before the damped start posture (2026-12-02)", "",
-              "Measured 2026-12-02 01:05 UTC on the 2-core AMD EPYC. "
-              "The reward was then close to noise in the design (`reward_reliability_*.md`); R0's designs "
-              "failed more often, so their rewards lay further apart and 1,000 steps were enough.", "",
-              *_table(older), "", KEPT, "", "Commands: " + "; ".join(f"`{r['command']}`" for r in older), ""]
+        lines += [
+            "## Today's data (start posture with its own IK damping, 2026-12-03)",
+            "",
+            f"Rows finished {dates[0]} to {dates[-1]} on {'; '.join(machines)}." if dates else "",
+            "",
+            CURRENT_NOTE,
+            "",
+            *_table(current),
+            "",
+            "Commands: " + "; ".join(f"`{r['command']}`" for r in current),
+            "",
+        ]
+    lines += [
+        "## Before the damped start posture (2026-12-02)",
+        "",
+        "Measured 2026-12-02 01:05 UTC on the 2-core AMD EPYC. "
+        "The reward was then close to noise in the design (`reward_reliability_*.md`); R0's designs "
+        "failed more often, so their rewards lay further apart and 1,000 steps were enough.",
+        "",
+        *_table(older),
+        "",
+        KEPT,
+        "",
+        "Commands: " + "; ".join(f"`{r['command']}`" for r in older),
+        "",
+    ]
     out = RESULTS / "dit_recipe.md"
     out.write_text("\n".join(lines))
     return out
@@ -178,7 +245,9 @@ def main() -> None:
     p.add_argument("--rows", nargs="*", default=[], choices=list(RECIPES), help="rows to run (default: none)")
     p.add_argument("--steps", type=int, default=1000)
     p.add_argument("--runs", default="runs/dit_recipe", help="folder of the rows' training runs")
-    p.add_argument("--report", action="store_true", help="render benchmarks/results/dit_recipe.md from every row written")
+    p.add_argument(
+        "--report", action="store_true", help="render benchmarks/results/dit_recipe.md from every row written"
+    )
     args = p.parse_args()
     torch.set_num_threads(1)
     CURRENT_DIR.mkdir(parents=True, exist_ok=True)
@@ -186,8 +255,17 @@ def main() -> None:
         row = run_row(name, args.steps, Path(args.runs))
         (CURRENT_DIR / f"{name}.json").write_text(json.dumps(row, indent=1))
         last = row["curve"][-1] if row["curve"] else {}
-        print(json.dumps({"row": name, "pooled_r": last.get("pooled_r"), "within_r": last.get("within_r"),
-                          "steps_per_s": row["steps_per_s"]}), flush=True)
+        print(
+            json.dumps(
+                {
+                    "row": name,
+                    "pooled_r": last.get("pooled_r"),
+                    "within_r": last.get("within_r"),
+                    "steps_per_s": row["steps_per_s"],
+                }
+            ),
+            flush=True,
+        )
     if args.report or not args.rows:
         print(f"wrote {report()}", file=sys.stderr)
 

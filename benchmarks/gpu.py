@@ -63,15 +63,37 @@ class Plan:
     test_args: tuple[str, ...] = field(default=("-m", "gpu", "-q", "-p", "no:cacheprovider"))
 
 
-FULL = Plan(budget={"tests": 150, "rollout": 110, "training": 120, "sampling": 40, "online": 50},
-            worlds=(1024, 4096, 16384, 32768, 65536), rollout_steps=50, train_sizes=("mini", "small"),
-            train_batches=(256, 512, 1024), train_steps=12, compile_modes=(False, True), candidates=(1, 16, 128),
-            ddim_steps=(20, 100), online_steps=60, online_batch=256, online_size="mini", online_designs=256)
-QUICK = Plan(budget={"tests": 60, "rollout": 40, "training": 40, "sampling": 30, "online": 40},
-             worlds=(16, 64), rollout_steps=4, train_sizes=("tiny",), train_batches=(8,), train_steps=3,
-             compile_modes=(False,), candidates=(1, 2), ddim_steps=(2,), online_steps=2, online_batch=4,
-             online_size="tiny", online_designs=2,
-             test_args=("-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_rewards.py", "-k", "device"))
+FULL = Plan(
+    budget={"tests": 150, "rollout": 110, "training": 120, "sampling": 40, "online": 50},
+    worlds=(1024, 4096, 16384, 32768, 65536),
+    rollout_steps=50,
+    train_sizes=("mini", "small"),
+    train_batches=(256, 512, 1024),
+    train_steps=12,
+    compile_modes=(False, True),
+    candidates=(1, 16, 128),
+    ddim_steps=(20, 100),
+    online_steps=60,
+    online_batch=256,
+    online_size="mini",
+    online_designs=256,
+)
+QUICK = Plan(
+    budget={"tests": 60, "rollout": 40, "training": 40, "sampling": 30, "online": 40},
+    worlds=(16, 64),
+    rollout_steps=4,
+    train_sizes=("tiny",),
+    train_batches=(8,),
+    train_steps=3,
+    compile_modes=(False,),
+    candidates=(1, 2),
+    ddim_steps=(2,),
+    online_steps=2,
+    online_batch=4,
+    online_size="tiny",
+    online_designs=2,
+    test_args=("-m", "gpu", "-q", "-p", "no:cacheprovider", "tests/test_rewards.py", "-k", "device"),
+)
 
 
 def _sync(device: str) -> None:
@@ -118,8 +140,16 @@ def run_tests(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
         summary, code = (tail[-1] if tail else ""), res.returncode
     except subprocess.TimeoutExpired:
         summary, code = f"stopped at the section's budget ({plan.budget['tests']:.0f} s)", -1
-    _emit(rows, {"section": "tests", "command": " ".join(cmd[1:]), "exit": code, "summary": summary,
-                 "seconds": time.perf_counter() - t0})
+    _emit(
+        rows,
+        {
+            "section": "tests",
+            "command": " ".join(cmd[1:]),
+            "exit": code,
+            "summary": summary,
+            "seconds": time.perf_counter() - t0,
+        },
+    )
     return f"`{' '.join(['python', *cmd[1:]])}`: exit {code}; {summary}\n"
 
 
@@ -149,8 +179,10 @@ def run_rollout(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
         # n worlds of one structure: the design on n copies of the motion.
         mjwarp_rollout([model], [motion] * n, config=config, device=device, graph=graph)
 
-    lines = ["| backend | graph | " + " | ".join(f"N = {n:,}" for n in plan.worlds) + " |",
-             "|---|---|" + "---:|" * len(plan.worlds)]
+    lines = [
+        "| backend | graph | " + " | ".join(f"N = {n:,}" for n in plan.worlds) + " |",
+        "|---|---|" + "---:|" * len(plan.worlds),
+    ]
     skipped = []
     for name, fn in (("warp (tt's fused kernels)", warp), ("mjwarp", mjwarp)):
         for graph in (True, False):
@@ -168,16 +200,28 @@ def run_rollout(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
                 seconds = time.perf_counter() - t0
                 rate = n * T * substeps / seconds
                 cells.append(f"{rate / 1e6:.3g} M")
-                _emit(rows, {"section": "rollout", "backend": name.split()[0], "graph": graph, "worlds": n,
-                             "control_steps": T, "world_steps_per_s": rate, "seconds": seconds})
+                _emit(
+                    rows,
+                    {
+                        "section": "rollout",
+                        "backend": name.split()[0],
+                        "graph": graph,
+                        "worlds": n,
+                        "control_steps": T,
+                        "world_steps_per_s": rate,
+                        "seconds": seconds,
+                    },
+                )
             lines.append(f"| {name} | {'on' if graph else 'off'} | " + " | ".join(cells) + " |")
-    note = (f"\nViperX nominal design on `{motion.name}` cut to {T} control steps ({substeps} physics steps each), "
-            "closed loop (DiffIK + physics), one batch per N; world-steps/s = N x physics steps / wall time, "
-            "compile excluded, model building and start posture included. warp: `rollout_tree` with one model entry "
-            "that every world reads; graph on = the whole rollout replayed as one captured graph. mjwarp: "
-            "`mjwarp_rollout` as tt runs it (MuJoCo-Warp physics, tt's batched IK kernel, whose tree model is built "
-            "per world in Python: a visible share at large N); graph on = each control step's physics replayed "
-            "as one captured graph.\n")
+    note = (
+        f"\nViperX nominal design on `{motion.name}` cut to {T} control steps ({substeps} physics steps each), "
+        "closed loop (DiffIK + physics), one batch per N; world-steps/s = N x physics steps / wall time, "
+        "compile excluded, model building and start posture included. warp: `rollout_tree` with one model entry "
+        "that every world reads; graph on = the whole rollout replayed as one captured graph. mjwarp: "
+        "`mjwarp_rollout` as tt runs it (MuJoCo-Warp physics, tt's batched IK kernel, whose tree model is built "
+        "per world in Python: a visible share at large N); graph on = each control step's physics replayed "
+        "as one captured graph.\n"
+    )
     if skipped:
         note += f"\nNot run (section budget): {', '.join(skipped)}.\n"
     return "\n".join(lines) + "\n" + note
@@ -188,8 +232,9 @@ def _viperx_episodes(device: str, designs: int, seed: int = 0):
     `device` (one refresh of the online source)."""
     from tt.dit.online import OnlineConfig, OnlineTokenSource
 
-    src = OnlineTokenSource(OnlineConfig(designs=designs, motions=4, refresh_every=10**9, buffer=1, seed=seed),
-                            device=device)
+    src = OnlineTokenSource(
+        OnlineConfig(designs=designs, motions=4, refresh_every=10**9, buffer=1, seed=seed), device=device
+    )
     src.start_step(0)
     return src
 
@@ -210,21 +255,47 @@ def run_training(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str
                     continue
                 stamps = []
                 with tempfile.TemporaryDirectory() as out:
-                    cfg = TrainConfig(out=out, task="both", size=size, steps=plan.train_steps, batch_size=batch,
-                                      device=device, checkpoint_every=10**9, resume=False, warmup_steps=2,
-                                      bf16=True, compile=compiled)
-                    train(cfg, episodes=source, on_step=lambda step, loss: (_sync(device), stamps.append(time.perf_counter())))
+                    cfg = TrainConfig(
+                        out=out,
+                        task="both",
+                        size=size,
+                        steps=plan.train_steps,
+                        batch_size=batch,
+                        device=device,
+                        checkpoint_every=10**9,
+                        resume=False,
+                        warmup_steps=2,
+                        bf16=True,
+                        compile=compiled,
+                    )
+                    train(
+                        cfg,
+                        episodes=source,
+                        on_step=lambda step, loss: (_sync(device), stamps.append(time.perf_counter())),
+                    )
                 # The first third of the steps warms up (cuDNN / inductor compiles, allocator).
                 first = max(1, len(stamps) // 3)
                 seconds = (stamps[-1] - stamps[first - 1]) / (len(stamps) - first)
                 rate = batch / seconds
                 lines.append(f"| {size} | {batch} | {'on' if compiled else 'off'} | {rate:,.0f} | {seconds:.3f} |")
-                _emit(rows, {"section": "training", "size": size, "batch": batch, "compile": compiled, "bf16": True,
-                             "samples_per_s": rate, "seconds_per_step": seconds})
+                _emit(
+                    rows,
+                    {
+                        "section": "training",
+                        "size": size,
+                        "batch": batch,
+                        "compile": compiled,
+                        "bf16": True,
+                        "samples_per_s": rate,
+                        "seconds_per_step": seconds,
+                    },
+                )
                 if device.startswith("cuda"):
                     torch.cuda.empty_cache()
-    note = ("\nOne training step = one optimizer step over `batch` windows of 8 steps (half robot, half control), "
-            f"bf16 autocast on CUDA; timed over the last two thirds of {plan.train_steps} steps.\n")
+    note = (
+        "\nOne training step = one optimizer step over `batch` windows of 8 steps (half robot, half control), "
+        f"bf16 autocast on CUDA; timed over the last two thirds of {plan.train_steps} steps.\n"
+    )
     if skipped:
         note += f"\nNot run (section budget): {', '.join(skipped)}.\n"
     return "\n".join(lines) + "\n" + note
@@ -255,7 +326,10 @@ def run_sampling(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str
             seconds = time.perf_counter() - t0
             lines.append(f"| {n} | {steps} | {seconds:.3f} |")
             _emit(rows, {"section": "sampling", "candidates": n, "ddim_steps": steps, "seconds": seconds})
-    note = f"\nShipped checkpoint `{default_checkpoint('viperx').name}`, the toss motion, sampling and predicted-reward scoring.\n"
+    note = (
+        f"\nShipped checkpoint `{default_checkpoint('viperx').name}`, the toss motion, sampling and "
+        "predicted-reward scoring.\n"
+    )
     if skipped:
         note += f"\nNot run (section budget): {', '.join(skipped)}.\n"
     return "\n".join(lines) + "\n" + note
@@ -269,26 +343,53 @@ def run_online(plan: Plan, device: str, clock: Clock, rows: list[dict]) -> str:
     source = OnlineTokenSource(cfg, device=device)
     stamps = []
     with tempfile.TemporaryDirectory() as out:
-        tcfg = TrainConfig(out=out, task="both", size=plan.online_size, steps=plan.online_steps,
-                           batch_size=plan.online_batch, device=device, checkpoint_every=10**9, resume=False,
-                           warmup_steps=2, online=cfg)
+        tcfg = TrainConfig(
+            out=out,
+            task="both",
+            size=plan.online_size,
+            steps=plan.online_steps,
+            batch_size=plan.online_batch,
+            device=device,
+            checkpoint_every=10**9,
+            resume=False,
+            warmup_steps=2,
+            online=cfg,
+        )
         t0 = time.perf_counter()
         train(tcfg, episodes=source, on_step=lambda step, loss: stamps.append(time.perf_counter()))
         _sync(device)
         seconds = time.perf_counter() - t0
     rate = plan.online_steps / seconds
     share = source.stats["seconds"] / seconds
-    _emit(rows, {"section": "online", "size": plan.online_size, "batch": plan.online_batch, "steps": plan.online_steps,
-                 "steps_per_s": rate, "samples_per_s": rate * plan.online_batch, "generation_share": share,
-                 "refreshes": source.stats["refreshes"], "world_steps": source.stats["world_steps"]})
-    return (f"`tt train --online` ({plan.online_size}, both tasks, batch {plan.online_batch}, {plan.online_designs} "
-            f"designs x 4 motions every {cfg.refresh_every} steps): {rate:.3g} steps/s = {rate * plan.online_batch:.3g} "
-            f"samples/s over {plan.online_steps} steps ({source.stats['refreshes']} refreshes, generation "
-            f"{100 * share:.0f} % of the wall time, first-step compile included).\n")
+    _emit(
+        rows,
+        {
+            "section": "online",
+            "size": plan.online_size,
+            "batch": plan.online_batch,
+            "steps": plan.online_steps,
+            "steps_per_s": rate,
+            "samples_per_s": rate * plan.online_batch,
+            "generation_share": share,
+            "refreshes": source.stats["refreshes"],
+            "world_steps": source.stats["world_steps"],
+        },
+    )
+    return (
+        f"`tt train --online` ({plan.online_size}, both tasks, batch {plan.online_batch}, {plan.online_designs} "
+        f"designs x 4 motions every {cfg.refresh_every} steps): {rate:.3g} steps/s = {rate * plan.online_batch:.3g} "
+        f"samples/s over {plan.online_steps} steps ({source.stats['refreshes']} refreshes, generation "
+        f"{100 * share:.0f} % of the wall time, first-step compile included).\n"
+    )
 
 
-RUNNERS = {"tests": run_tests, "rollout": run_rollout, "training": run_training, "sampling": run_sampling,
-           "online": run_online}
+RUNNERS = {
+    "tests": run_tests,
+    "rollout": run_rollout,
+    "training": run_training,
+    "sampling": run_sampling,
+    "online": run_online,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -325,10 +426,14 @@ def main(argv: list[str] | None = None) -> int:
         import torch
 
         gpu = f"- GPU: {torch.cuda.get_device_name(device)}, torch CUDA {torch.version.cuda}\n"
-    header = (f"# GPU benchmark ({'quick, ' if args.quick else ''}device {device})\n\n" + machine_header(device) + gpu
-              + f"- load average at start: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}\n"
-              + f"- command: `python benchmarks/gpu.py {' '.join(argv if argv is not None else sys.argv[1:])}`\n"
-              + f"- total: {total:.0f} s\n\n")
+    header = (
+        f"# GPU benchmark ({'quick, ' if args.quick else ''}device {device})\n\n"
+        + machine_header(device)
+        + gpu
+        + f"- load average at start: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}\n"
+        + f"- command: `python benchmarks/gpu.py {' '.join(argv if argv is not None else sys.argv[1:])}`\n"
+        + f"- total: {total:.0f} s\n\n"
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(header + "\n".join(body) + "\n<!-- rows\n" + json.dumps(rows, indent=1) + "\n-->\n")
     print(f"wrote {args.out} in {total:.0f} s", flush=True)

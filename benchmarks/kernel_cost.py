@@ -175,7 +175,9 @@ def main(argv: list[str] | None = None) -> None:
     physics_steps = steps * SUBSTEPS
 
     def fused():
-        return rollout_tree(tree, marrays, W, steps, **rollout_args, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu")
+        return rollout_tree(
+            tree, marrays, W, steps, **rollout_args, threads=1, chunk=None, initial_qpos=q0.numpy(), device="cpu"
+        )
 
     def fk():
         wp.launch(fk_only, dim=W, inputs=[tree.arrays, q0, physics_steps, out], device="cpu")
@@ -222,13 +224,14 @@ def main(argv: list[str] | None = None) -> None:
     text = (
         "# Per-core cost of the fused rollout kernel\n\n"
         + machine_header("cpu")
-        + f"- command: `python benchmarks/kernel_cost.py {' '.join(argv if argv is not None else [])}`".rstrip() + "\n"
-        f"- load average (1, 5, 15 min): {load_before[0]:.1f}, {load_before[1]:.1f}, {load_before[2]:.1f} at the start, "
+        + f"- command: `python benchmarks/kernel_cost.py {' '.join(argv if argv is not None else [])}`".rstrip()
+        + "\n"
+        f"- load average (1, 5, 15 min): {load_before[0]:.1f}, {load_before[1]:.1f}, {load_before[2]:.1f} at "
+        "the start, "
         f"{la[0]:.1f}, {la[1]:.1f}, {la[2]:.1f} at the end; 1-min load {min(loads):.1f}-{max(loads):.1f} during the "
         f"{args.repeats} interleaved rounds (best of each kernel kept)\n"
         f"- {W} ViperX designs of one topology ({topo.dof_count} DoF, {topo.body_count - 1} bodies), the toss's first "
-        f"{steps} control steps, one CPU thread; the part kernels compiled in {compile_s:.0f} s\n\n"
-        + table + "\n\n"
+        f"{steps} control steps, one CPU thread; the part kernels compiled in {compile_s:.0f} s\n\n" + table + "\n\n"
         f"One executed world-step of the fused kernel costs {ns['fused'] / fk_ns:.1f} FKs of the same robot "
         f"({100 * executed / world_steps:.0f} % of the fused rollout's world-steps were executed). The physics kernel "
         "holds the start posture as its command, so its joint-limit work can differ from the rollout's.\n"

@@ -32,8 +32,17 @@ RESULTS = Path(__file__).parent / "results" / "online.md"
 
 def run(source, args, label: str) -> dict:
     with tempfile.TemporaryDirectory() as out:
-        cfg = TrainConfig(out=out, task="both", size=args.size, steps=args.steps, batch_size=args.batch_size,
-                          device="cpu", checkpoint_every=10**9, resume=False, warmup_steps=10)
+        cfg = TrainConfig(
+            out=out,
+            task="both",
+            size=args.size,
+            steps=args.steps,
+            batch_size=args.batch_size,
+            device="cpu",
+            checkpoint_every=10**9,
+            resume=False,
+            warmup_steps=10,
+        )
         t0 = time.perf_counter()
         result = train(cfg, episodes=source)
         wall = time.perf_counter() - t0
@@ -58,7 +67,9 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     stored = run(open_token_source(args.data), args, "dataset")
-    online_cfg = OnlineConfig(space="viperx", designs=args.designs, motions=args.motions, refresh_every=args.refresh_every)
+    online_cfg = OnlineConfig(
+        space="viperx", designs=args.designs, motions=args.motions, refresh_every=args.refresh_every
+    )
     source = OnlineTokenSource(online_cfg, device="cpu")
     source.fit_normalizer()  # refresh 0 (and the Warp kernel compile) before timing
     gen0 = source.stats["seconds"]
@@ -67,23 +78,31 @@ def main() -> None:
     refreshes = source.stats["refreshes"] - 1
     total = time.perf_counter() - t0
     lines = [
-        "# Online training vs a dataset (CPU)", "",
+        "# Online training vs a dataset (CPU)",
+        "",
         machine_header("cpu").rstrip(),
-        f"- torch threads {args.threads}; load average (1 min) before / after: {load0:.1f} / {os.getloadavg()[0]:.1f}; wall {total:.0f} s",
-        f"- command: `python benchmarks/online.py --data {args.data} --steps {args.steps} --batch-size {args.batch_size} "
-        f"--refresh-every {args.refresh_every} --designs {args.designs} --motions {args.motions}`", "",
+        f"- torch threads {args.threads}; load average (1 min) before / after: {load0:.1f} / "
+        f"{os.getloadavg()[0]:.1f}; wall {total:.0f} s",
+        f"- command: `python benchmarks/online.py --data {args.data} --steps {args.steps} --batch-size "
+        f"{args.batch_size} "
+        f"--refresh-every {args.refresh_every} --designs {args.designs} --motions {args.motions}`",
+        "",
         f"Model {args.size}, task both, batch {args.batch_size}, {args.steps} steps each, one process. Online: "
         f"{args.designs} ViperX designs x {args.motions} augmented training motions per refresh, a refresh every "
         f"{args.refresh_every} steps (refresh 0, with the Warp kernel compile, made before timing), the last "
-        f"{online_cfg.buffer} refreshes buffered.", "",
+        f"{online_cfg.buffer} refreshes buffered.",
+        "",
         "| source | wall (s) | s / step | steps / s | generation (s) | share generating |",
         "|---|---:|---:|---:|---:|---:|",
-        f"| dataset `{Path(args.data).name}` | {stored['wall']:.1f} | {stored['per_step']:.3f} | {1 / stored['per_step']:.2f} | - | - |",
-        f"| online ({refreshes} refreshes) | {online['wall']:.1f} | {online['per_step']:.3f} | {1 / online['per_step']:.2f} | "
+        f"| dataset `{Path(args.data).name}` | {stored['wall']:.1f} | {stored['per_step']:.3f} | "
+        f"{1 / stored['per_step']:.2f} | - | - |",
+        f"| online ({refreshes} refreshes) | {online['wall']:.1f} | {online['per_step']:.3f} | "
+        f"{1 / online['per_step']:.2f} | "
         f"{gen:.1f} | {100 * gen / online['wall']:.0f} % |",
         "",
         f"Online / dataset time per step: {online['per_step'] / stored['per_step']:.2f}x. Per refresh: "
-        f"{gen / max(refreshes, 1):.1f} s for {source.stats['world_steps'] / source.stats['refreshes']:.0f} world-steps "
+        f"{gen / max(refreshes, 1):.1f} s for {source.stats['world_steps'] / source.stats['refreshes']:.0f} "
+        "world-steps "
         f"simulated and tokenized on average ({source.stats['dropped']} of "
         f"{source.stats['episodes'] + source.stats['dropped']} episodes dropped as shorter than "
         f"{online_cfg.min_steps} steps, as `tt generate` drops them). The losses are not comparable (different data).",

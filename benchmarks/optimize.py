@@ -31,12 +31,11 @@ import math
 import time
 from pathlib import Path
 
-
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
-from tt.sim.rewards import REWARDS
 from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, ratio_ci, summary_row
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion, motion_set
+from tt.sim.rewards import REWARDS
 
 try:
     from machine import machine_header
@@ -63,8 +62,9 @@ def methods(cfg: CMAESConfig, problem: Problem, sequential: bool = True) -> dict
     return out
 
 
-def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig, sequential: bool = True,
-                random_designs: int = 0) -> list[dict]:
+def run_setting(
+    name: str, problems: list[Problem], cfg: CMAESConfig, sequential: bool = True, random_designs: int = 0
+) -> list[dict]:
     """Every method on every problem; one record per (problem, method) with validated metrics.
 
     Beside the optimizers' winners the oracle also runs the nominal design and, with
@@ -75,21 +75,50 @@ def run_setting(name: str, problems: list[Problem], cfg: CMAESConfig, sequential
     for i, problem in enumerate(problems):
         results = {label: opt.optimize(problem) for label, opt in methods(cfg, problem, sequential).items()}
         extra = [space.nominal()] + space.sample(random_designs, seed=10_000 + problem.seed)
-        ev = evaluate_designs([r.best for r in results.values()] + extra, problem.motions, problem.reward,
-                              backend="mujoco")
-        common = {"bench": "optimize", "setting": name, "reward_name": problem.reward, "seed": problem.seed,
-                  "motions": [m.name for m in problem.motions]}
+        ev = evaluate_designs(
+            [r.best for r in results.values()] + extra, problem.motions, problem.reward, backend="mujoco"
+        )
+        common = {
+            "bench": "optimize",
+            "setting": name,
+            "reward_name": problem.reward,
+            "seed": problem.seed,
+            "motions": [m.name for m in problem.motions],
+        }
         unsearched = {**common, "seconds": None, "rollouts": 0, "warmup_seconds": 0.0}
         k0 = len(results)
-        run = [{**unsearched, "method": NOMINAL, "objective": float(ev.objective[k0]), **summary_row(ev.metrics, k0),
-                "design": space.to_dict(extra[0])}]
+        run = [
+            {
+                **unsearched,
+                "method": NOMINAL,
+                "objective": float(ev.objective[k0]),
+                **summary_row(ev.metrics, k0),
+                "design": space.to_dict(extra[0]),
+            }
+        ]
         if random_designs:
-            run.append({**unsearched, "method": RANDOM_DESIGN, "objective": float(ev.objective[k0 + 1:].mean()),
-                        **summary_row(ev.metrics, slice(k0 + 1, None)), "designs": random_designs})
-        run += [{**common, "method": label, "seconds": r.seconds, "rollouts": r.rollouts, "objective": r.best_reward,
-                 "warmup_seconds": r.info.get("warmup_seconds", 0.0), **summary_row(ev.metrics, k),
-                 "design": space.to_dict(r.best)}
-                for k, (label, r) in enumerate(results.items())]
+            run.append(
+                {
+                    **unsearched,
+                    "method": RANDOM_DESIGN,
+                    "objective": float(ev.objective[k0 + 1 :].mean()),
+                    **summary_row(ev.metrics, slice(k0 + 1, None)),
+                    "designs": random_designs,
+                }
+            )
+        run += [
+            {
+                **common,
+                "method": label,
+                "seconds": r.seconds,
+                "rollouts": r.rollouts,
+                "objective": r.best_reward,
+                "warmup_seconds": r.info.get("warmup_seconds", 0.0),
+                **summary_row(ev.metrics, k),
+                "design": space.to_dict(r.best),
+            }
+            for k, (label, r) in enumerate(results.items())
+        ]
         for rec in run:
             records.append(rec)
             print(json.dumps(rec), flush=True)
@@ -107,8 +136,12 @@ def table(records: list[dict], reward: str) -> tuple[str, dict]:
     """The paper's table for one setting and reward, and the numbers behind it."""
     labels = list(dict.fromkeys(r["method"] for r in records))
     metric = REWARD_METRIC.get(reward)
-    cols = [("pos_err", "pos err (cm)"), ("pos_err_p95", "p95 pos err (cm)"), ("orn_err", "orn err (deg)"),
-            ("survival_pct", "survival (%)")]
+    cols = [
+        ("pos_err", "pos err (cm)"),
+        ("pos_err_p95", "p95 pos err (cm)"),
+        ("orn_err", "orn err (deg)"),
+        ("survival_pct", "survival (%)"),
+    ]
     if metric:
         cols.append(metric)
     cols += [("reward", "reward"), ("seconds", "optimize (s)")]
@@ -141,8 +174,12 @@ def design_matters(records: list[dict]) -> tuple[str, dict]:
         d1 = mean_ci([a - b for a, b in zip(col[RANDOM_DESIGN], col["Random"])])
         d2 = mean_ci([a - b for a, b in zip(col["Random"], col[BATCHED])])
         met = {"design": lo >= 2.0, "random_vs_pick": d1[0] - d1[1] > 0, "pick_vs_cmaes": d2[0] - d2[1] > 0}
-        verdict[key] = {"nominal_over_cmaes": [ratio, lo, hi], "random_design_minus_pick": list(d1),
-                        "pick_minus_cmaes": list(d2), "met": met}
+        verdict[key] = {
+            "nominal_over_cmaes": [ratio, lo, hi],
+            "random_design_minus_pick": list(d1),
+            "pick_minus_cmaes": list(d2),
+            "met": met,
+        }
         out += [
             f"- {label} position error, nominal / CMA-ES batched: {ratio:.2f}x (95% bootstrap CI {lo:.2f}-{hi:.2f}; "
             f"target >= 2x with the CI: {'met' if met['design'] else 'NOT met'})",
@@ -158,8 +195,11 @@ def design_matters(records: list[dict]) -> tuple[str, dict]:
 def speedups(records: list[dict]) -> list[float]:
     """Sequential / batched optimize time of each run."""
     seq = {(r["reward_name"], r["seed"]): r["seconds"] for r in records if r["method"] == SEQUENTIAL}
-    return [seq[(r["reward_name"], r["seed"])] / r["seconds"] for r in records
-            if r["method"] == BATCHED and (r["reward_name"], r["seed"]) in seq]
+    return [
+        seq[(r["reward_name"], r["seed"])] / r["seconds"]
+        for r in records
+        if r["method"] == BATCHED and (r["reward_name"], r["seed"]) in seq
+    ]
 
 
 def paired(records: list[dict], a: str, b: str, key: str = "reward") -> list[float]:
@@ -218,15 +258,20 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
         budget = info["budget"] if name == "single trajectory" else info["multi_budget"]
         cfg = CMAESConfig(popsize=info["popsize"], generations=info["generations"])
         plan = CMAES(cfg).plan(Problem(SPACE, (get_motion("toss"),), "tracking", budget))
-        head = (f"## ViperX, {name}\n\n"
-                f"- budget {budget} candidates per run (CMA-ES: {plan.screen} screened, then {plan.restarts} "
-                f"restart(s) x {plan.generations} generations x population {cfg.popsize})\n")
+        head = (
+            f"## ViperX, {name}\n\n"
+            f"- budget {budget} candidates per run (CMA-ES: {plan.screen} screened, then {plan.restarts} "
+            f"restart(s) x {plan.generations} generations x population {cfg.popsize})\n"
+        )
         if name == "single trajectory":
             first = [r for r in records if r["method"] == "Random" and r["reward_name"] == records[0]["reward_name"]]
             head += f"- run i (seed i) optimizes for motion i of: {', '.join(r['motions'][0] for r in first)}\n"
         else:
             motions = records[0]["motions"]
-            head += f"- every run optimizes one design for the mean over {len(motions)} validation motions: {', '.join(motions)}\n"
+            head += (
+                f"- every run optimizes one design for the mean over {len(motions)} validation motions: "
+                f"{', '.join(motions)}\n"
+            )
         parts = [head]
         for reward in dict.fromkeys(r["reward_name"] for r in records):
             rs = [r for r in records if r["reward_name"] == reward]
@@ -239,8 +284,17 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
             dr_m, dr_h = mean_ci(d_rnd)
             # Without the sequential row there is nothing to reach: the verdict says so (None).
             reaches = ds_m + (ds_h if math.isfinite(ds_h) else 0.0) >= 0.0 if sp else None
-            verdicts.append({"setting": name, "reward": reward, "reaches": None if reaches is None else bool(reaches), "speedup_min": min(sp, default=None),
-                             "speedup_mean": sp_m, "batched_minus_sequential": ds_m, "batched_minus_random": dr_m})
+            verdicts.append(
+                {
+                    "setting": name,
+                    "reward": reward,
+                    "reaches": None if reaches is None else bool(reaches),
+                    "speedup_min": min(sp, default=None),
+                    "speedup_mean": sp_m,
+                    "batched_minus_sequential": ds_m,
+                    "batched_minus_random": dr_m,
+                }
+            )
             wins = sum(d > 0 for d in d_rnd)
             ties = sum(d == 0 for d in d_rnd)
             seq = {r["seed"]: r["design"] for r in rs if r["method"] == SEQUENTIAL}
@@ -251,10 +305,13 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
                     f"- sequential / batched optimize time per run: mean {_fmt(sp_m, sp_h)}x, min {min(sp):.1f}x, "
                     f"max {max(sp):.1f}x (at least 10x in {sum(x >= 10 for x in sp)} of {len(sp)} runs)",
                     f"- validated reward, batched minus sequential, paired per run: {_fmt(ds_m, ds_h)} "
-                    f"({'batched reaches the sequential reward' if reaches else 'batched is below the sequential reward'}; "
-                    f"same winning design in {same} of {len(sp)} runs)"]
-            lines.append(f"- validated reward, CMA-ES batched minus Random, paired per run: {_fmt(dr_m, dr_h)} "
-                         f"(CMA-ES higher in {wins}, equal in {ties}, lower in {len(d_rnd) - wins - ties} of {len(d_rnd)} runs)")
+                    f"({'batched reaches' if reaches else 'batched is below'} the sequential reward; "
+                    f"same winning design in {same} of {len(sp)} runs)",
+                ]
+            lines.append(
+                f"- validated reward, CMA-ES batched minus Random, paired per run: {_fmt(dr_m, dr_h)} "
+                f"(CMA-ES higher in {wins}, equal in {ties}, lower in {len(d_rnd) - wins - ties} of {len(d_rnd)} runs)"
+            )
             matters, verdict = design_matters(rs)
             if matters:
                 lines.append("\n" + matters)
@@ -272,7 +329,9 @@ def report(settings: dict[str, list[dict]], info: dict, out: Path) -> tuple[str,
         f"- one row: {info['seeds']} runs (seed i); mean ± 95% CI (Student t) over the runs. Errors, survival, "
         "the reward's metric and the reward are the oracle's (MuJoCo C + mink) re-run of each winner on its run's "
         "motions; optimize time is the optimizer's wall time, candidate evaluation included, validation excluded\n\n"
-        + "\n".join(sections) + "\n" + NOTES
+        + "\n".join(sections)
+        + "\n"
+        + NOTES
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
@@ -307,8 +366,12 @@ def main() -> None:
     ap.add_argument("--multi-motions", type=int, default=5, help="validation motions per multi-trajectory run")
     ap.add_argument("--multi-budget", type=int, default=30)
     ap.add_argument("--multi-rewards", default="tracking", help="comma-separated, 'all', or '' for none")
-    ap.add_argument("--random-designs", type=int, default=32,
-                    help="single trajectory: random designs per run whose mean is the paper's 'Random' row (0: none)")
+    ap.add_argument(
+        "--random-designs",
+        type=int,
+        default=32,
+        help="single trajectory: random designs per run whose mean is the paper's 'Random' row (0: none)",
+    )
     ap.add_argument("--no-sequential", action="store_true", help="skip CMA-ES sequential on the oracle")
     ap.add_argument("--popsize", type=int, default=5)
     ap.add_argument("--generations", type=int, default=3)
@@ -317,10 +380,17 @@ def main() -> None:
     args = ap.parse_args()
     command = "python benchmarks/optimize.py " + " ".join(
         f"--{k.replace('_', '-')}" + ("" if isinstance(v, bool) else f" {v if v != '' else chr(39) * 2}")
-        for k, v in vars(args).items() if k not in ("out", "from_log") and v is not False)
+        for k, v in vars(args).items()
+        if k not in ("out", "from_log") and v is not False
+    )
     info = {
-        "seeds": args.seeds, "budget": args.budget, "multi_budget": args.multi_budget, "popsize": args.popsize,
-        "generations": args.generations, "machine": machine_header("cpu"), "command": command,
+        "seeds": args.seeds,
+        "budget": args.budget,
+        "multi_budget": args.multi_budget,
+        "popsize": args.popsize,
+        "generations": args.generations,
+        "machine": machine_header("cpu"),
+        "command": command,
     }
     if args.from_log is not None:
         # A log without a config line (an older run) takes the settings from the command line.
@@ -352,8 +422,9 @@ def main() -> None:
     settings: dict[str, list[dict]] = {"single trajectory": [], "multi trajectory": []}
     for reward in rewards:
         problems = [Problem(SPACE, (m,), reward, args.budget, seed=i) for i, m in enumerate(single_motions)]
-        settings["single trajectory"] += run_setting("single trajectory", problems, cfg, not args.no_sequential,
-                                                     args.random_designs)
+        settings["single trajectory"] += run_setting(
+            "single trajectory", problems, cfg, not args.no_sequential, args.random_designs
+        )
     for reward in multi_rewards:
         problems = [Problem(SPACE, multi_motions, reward, args.multi_budget, seed=i) for i in range(args.seeds)]
         settings["multi trajectory"] += run_setting("multi trajectory", problems, cfg, not args.no_sequential)

@@ -24,7 +24,12 @@ try:
 except ImportError:  # run as a module from the repository root
     from benchmarks.machine import machine_header
 
-PAPER_RANDOM = {"name": "paper: Random (ViperX, single trajectory)", "pos_err": 19.4, "orn_err": 8.9, "survival_pct": 72.2}
+PAPER_RANDOM = {
+    "name": "paper: Random (ViperX, single trajectory)",
+    "pos_err": 19.4,
+    "orn_err": 8.9,
+    "survival_pct": 72.2,
+}
 
 
 def _evaluate_chunk(args):
@@ -57,13 +62,20 @@ def main() -> None:
 
     nominal = evaluate_designs([space.nominal()], motions, "tracking", backend="mujoco").metrics
     rows = [
-        {"name": f"tt oracle: {args.designs} random ViperX designs", **summary_row(metrics),
-         "sec_per_episode": cpu_seconds / episodes},
+        {
+            "name": f"tt oracle: {args.designs} random ViperX designs",
+            **summary_row(metrics),
+            "sec_per_episode": cpu_seconds / episodes,
+        },
         {"name": "tt oracle: nominal ViperX", **summary_row(nominal)},
         PAPER_RANDOM,
     ]
-    cols = [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)"),
-            ("sec_per_episode", "s / episode (1 core)")]
+    cols = [
+        ("pos_err", "pos err (cm)"),
+        ("orn_err", "orn err (deg)"),
+        ("survival_pct", "survival (%)"),
+        ("sec_per_episode", "s / episode (1 core)"),
+    ]
     table = markdown_table(rows, cols, first=("name", "run"))
     steps = float(np.mean([m.steps for m in motions]))
     text = (

@@ -52,7 +52,12 @@ except ImportError:  # run as a module from the repository root
 
 SPACE = "quadruped"
 #: The paper's Random row, quadruped, single trajectory (appendix, tracking-only table).
-PAPER_RANDOM = {"name": "paper: Random (quadruped, single trajectory)", "pos_err": 3.4, "orn_err": 8.4, "survival_pct": 96.1}
+PAPER_RANDOM = {
+    "name": "paper: Random (quadruped, single trajectory)",
+    "pos_err": 3.4,
+    "orn_err": 8.4,
+    "survival_pct": 96.1,
+}
 METRICS = ("pos_err", "orn_err", "survival", "torque", "reward", "length")
 
 
@@ -98,9 +103,16 @@ def _assignments(designs: int, motions: int, per_design: int) -> list[list[int]]
     return [[(d * per_design + j) % motions for j in range(per_design)] for d in range(designs)]
 
 
-def run_quality(designs, assignments, workers: int, budget_s: float | None = None, *,
-                motion_names: list[str] | None = None, overrides: dict | None = None,
-                skip: set[int] = frozenset()) -> list[dict]:
+def run_quality(
+    designs,
+    assignments,
+    workers: int,
+    budget_s: float | None = None,
+    *,
+    motion_names: list[str] | None = None,
+    overrides: dict | None = None,
+    skip: set[int] = frozenset(),
+) -> list[dict]:
     """Episodes of the designs, in design order; logs one JSON line per finished design.
 
     assignments: indices into the motions (`_val_motions(motion_names)`) per design.
@@ -108,8 +120,13 @@ def run_quality(designs, assignments, workers: int, budget_s: float | None = Non
     by then finish, so the result is the first k designs not skipped.
     overrides: `WBCConfig` fields that differ from the defaults.
     skip: design indices already measured (a resumed run); they are not run or returned."""
-    jobs = iter([(i, d, a, motion_names, overrides or {}) for i, (d, a) in enumerate(zip(designs, assignments))
-                 if i not in skip])
+    jobs = iter(
+        [
+            (i, d, a, motion_names, overrides or {})
+            for i, (d, a) in enumerate(zip(designs, assignments))
+            if i not in skip
+        ]
+    )
     todo = len(designs) - len(skip)
     results: dict[int, dict] = {}
     start = time.perf_counter()
@@ -123,11 +140,20 @@ def run_quality(designs, assignments, workers: int, budget_s: float | None = Non
                 r = fut.result()
                 results[r["index"]] = r
                 elapsed = time.perf_counter() - start
-                _log({"part": "quality", "design": r["index"], "done": len(results), "of": todo,
-                      "pos_err_cm": float(np.nanmean(r["pos_err"])), "survived": int(np.sum(r["survival"])),
-                      "episodes": len(r["motions"]), "seconds": round(r["seconds"], 1),
-                      "elapsed_s": round(elapsed, 1),
-                      "eta_s": round(elapsed / len(results) * (todo - len(results)), 1)})
+                _log(
+                    {
+                        "part": "quality",
+                        "design": r["index"],
+                        "done": len(results),
+                        "of": todo,
+                        "pos_err_cm": float(np.nanmean(r["pos_err"])),
+                        "survived": int(np.sum(r["survival"])),
+                        "episodes": len(r["motions"]),
+                        "seconds": round(r["seconds"], 1),
+                        "elapsed_s": round(elapsed, 1),
+                        "eta_s": round(elapsed / len(results) * (todo - len(results)), 1),
+                    }
+                )
                 if budget_s is None or elapsed < budget_s:
                     running |= {pool.submit(_evaluate_design, job) for job in islice(jobs, 1)}
     return [results[i] for i in sorted(results)]
@@ -208,8 +234,10 @@ def _timed(designs, motion, repeats: int) -> dict:
     for name in runs:
         ep = episodes[name]
         out[name] = {
-            "s": min(wall[name]), "cpu_s": min(cpu[name]),
-            "wsps": world_steps / min(wall[name]), "wsps_cpu": world_steps / min(cpu[name]),
+            "s": min(wall[name]),
+            "cpu_s": min(cpu[name]),
+            "wsps": world_steps / min(wall[name]),
+            "wsps_cpu": world_steps / min(cpu[name]),
             "alive": int(ep.alive.cpu().sum()),
             "max_ee_diff_mm": 1000.0 * (ep.ee_pos.cpu() - ref.ee_pos).abs().max().item(),
         }
@@ -231,8 +259,11 @@ def run_speed(space, sample, sizes: list[int], mixed: int, steps: int, repeats: 
         rows.append(r)
     if mixed > 0:
         designs = sample[:mixed]
-        r = {"case": f"{mixed} random designs ({len({d.discrete for d in designs})} structures)", "motion": motion.name,
-             **_timed(designs, motion, repeats)}
+        r = {
+            "case": f"{mixed} random designs ({len({d.discrete for d in designs})} structures)",
+            "motion": motion.name,
+            **_timed(designs, motion, repeats),
+        }
         _log({"part": "speed", **r})
         rows.append(r)
     return rows
@@ -241,14 +272,15 @@ def run_speed(space, sample, sizes: list[int], mixed: int, steps: int, repeats: 
 def _comparison(random_row: dict, failed: list) -> str:
     """What the random designs' row says next to the paper's Random row."""
     p = PAPER_RANDOM
-    ended = ("none fell or left the target by more than 0.8 m" if not failed else
-             f"{len(failed)} episodes ended early")
-    return (f"tt's random designs track at {random_row['pos_err']:.2f} cm / {random_row['orn_err']:.1f} deg against "
-            f"the paper's Random {p['pos_err']} cm / {p['orn_err']} deg, and {ended} (survival "
-            f"{random_row['survival_pct']:.1f} % against {p['survival_pct']} %). Two differences that plausibly make "
-            "tt's task easier, not measured here: tt's oracle holds the feet on their stance points and moves only "
-            "the base and the arm, where the paper runs learned (RL) whole-body controllers, and the motions "
-            "are placed into the quadruped's workspace by the space's motion_offset.\n")
+    ended = "none fell or left the target by more than 0.8 m" if not failed else f"{len(failed)} episodes ended early"
+    return (
+        f"tt's random designs track at {random_row['pos_err']:.2f} cm / {random_row['orn_err']:.1f} deg against "
+        f"the paper's Random {p['pos_err']} cm / {p['orn_err']} deg, and {ended} (survival "
+        f"{random_row['survival_pct']:.1f} % against {p['survival_pct']} %). Two differences that plausibly make "
+        "tt's task easier, not measured here: tt's oracle holds the feet on their stance points and moves only "
+        "the base and the arm, where the paper runs learned (RL) whole-body controllers, and the motions "
+        "are placed into the quadruped's workspace by the space's motion_offset.\n"
+    )
 
 
 def _speed_summary(speed: list[dict]) -> str:
@@ -257,13 +289,17 @@ def _speed_summary(speed: list[dict]) -> str:
     oracle = [r["oracle"]["wsps_cpu"] for r in speed]
     ratio = {r["case"]: r["mjwarp"]["wsps_cpu"] / r["oracle"]["wsps_cpu"] for r in speed}
     best = max(ratio, key=ratio.get)
-    text = (f"Per CPU second the oracle runs {_si(min(oracle))} to {_si(max(oracle))} world-steps whatever the batch "
-            f"(one world after another); mjwarp's best is {ratio[best]:.2f}x the oracle, at {best}")
+    text = (
+        f"Per CPU second the oracle runs {_si(min(oracle))} to {_si(max(oracle))} world-steps whatever the batch "
+        f"(one world after another); mjwarp's best is {ratio[best]:.2f}x the oracle, at {best}"
+    )
     mixed = [r for r in speed if "random" in r["case"]]
     if mixed:
-        text += (f", and {ratio[mixed[0]['case']]:.2f}x for {mixed[0]['case']}: random quadruped designs rarely "
-                 "share a structure (7 binary choices, 128 structures), and every structure group is a batch of "
-                 "its own")
+        text += (
+            f", and {ratio[mixed[0]['case']]:.2f}x for {mixed[0]['case']}: random quadruped designs rarely "
+            "share a structure (7 binary choices, 128 structures), and every structure group is a batch of "
+            "its own"
+        )
     faster = "mjwarp" if ratio[best] > 1.0 else "the oracle"
     return text + f". On this CPU {faster} is the faster way to roll out the quadruped at these batch sizes.\n"
 
@@ -277,13 +313,16 @@ def _part_line(name: str, meta: dict) -> str:
     """Header line of one part: when, the command, wall time and the machine's load."""
     cores = os.cpu_count() or 1
     busy = max(meta["load_start"][0], meta["load_end"][0]) > cores
-    load = (f"load average (1, 5, 15 min) {', '.join(f'{x:.1f}' for x in meta['load_start'])} at the start, "
-            f"{', '.join(f'{x:.1f}' for x in meta['load_end'])} at the end on {cores} cores")
-    commands = " and ".join(f"`python benchmarks/quadruped.py {' '.join(argv)}`" for argv in meta.get("commands", [meta.get("argv")]))
-    return (f"- {name}: {meta['date']}, {commands}, "
-            f"{meta['wall'] / 60:.0f} min wall; {load}"
-            + (": other jobs shared the machine, so times are upper bounds and wall-clock rates lower bounds"
-               if busy else ""))
+    load = (
+        f"load average (1, 5, 15 min) {', '.join(f'{x:.1f}' for x in meta['load_start'])} at the start, "
+        f"{', '.join(f'{x:.1f}' for x in meta['load_end'])} at the end on {cores} cores"
+    )
+    commands = " and ".join(
+        f"`python benchmarks/quadruped.py {' '.join(argv)}`" for argv in meta.get("commands", [meta.get("argv")])
+    )
+    return f"- {name}: {meta['date']}, {commands}, {meta['wall'] / 60:.0f} min wall; {load}" + (
+        ": other jobs shared the machine, so times are upper bounds and wall-clock rates lower bounds" if busy else ""
+    )
 
 
 def _quality_lines(args, space, motions, results, nominal_results) -> list[str]:
@@ -291,41 +330,67 @@ def _quality_lines(args, space, motions, results, nominal_results) -> list[str]:
     from tt.report import markdown_table
 
     episodes = sum(len(r["motions"]) for r in results)
-    all_motions = len({m for r in results for m in r["motions"]}) == len(motions) and episodes == len(results) * len(motions)
+    all_motions = len({m for r in results for m in r["motions"]}) == len(motions) and episodes == len(results) * len(
+        motions
+    )
     runs = [sum(m == j for r in results for m in r["motions"]) for j in range(len(motions))]
     runs_text = str(min(runs)) if min(runs) == max(runs) else f"{min(runs)} to {max(runs)}"
     which = "validation motions" if not args.motions else "motions " + ", ".join(args.motions)
-    coverage = (f"x all {len(motions)} {which}" if all_motions else
-                f"x {args.motions_per_design} of the {len(motions)} {which} each (each motion run by {runs_text} designs)")
+    coverage = (
+        f"x all {len(motions)} {which}"
+        if all_motions
+        else f"x {args.motions_per_design} of the {len(motions)} {which} each (each motion run by {runs_text} designs)"
+    )
     budget_note = ""
     if len(results) < args.designs:
-        budget_note = (f" These are the first {len(results)} of the {args.designs} designs asked for (seed {args.seed}): "
-                       f"the quality part's time budget (`--budget-min {args.budget_min:g}`) on the shared 2 cores "
-                       "ended the sampling there.")
-    rows = [_summary(results, f"tt oracle: {len(results)} random designs"),
-            _summary(nominal_results, "tt oracle: nominal design"), PAPER_RANDOM]
-    cols = [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)"),
-            ("fallen_pct", "fell (%)"), ("torque", "torque (N m)"), ("reward", "reward"),
-            ("episodes", "episodes"), ("sec_per_episode", "s / episode (wall, 1 worker)")]
+        budget_note = (
+            f" These are the first {len(results)} of the {args.designs} designs asked for (seed {args.seed}): "
+            f"the quality part's time budget (`--budget-min {args.budget_min:g}`) on the shared 2 cores "
+            "ended the sampling there."
+        )
+    rows = [
+        _summary(results, f"tt oracle: {len(results)} random designs"),
+        _summary(nominal_results, "tt oracle: nominal design"),
+        PAPER_RANDOM,
+    ]
+    cols = [
+        ("pos_err", "pos err (cm)"),
+        ("orn_err", "orn err (deg)"),
+        ("survival_pct", "survival (%)"),
+        ("fallen_pct", "fell (%)"),
+        ("torque", "torque (N m)"),
+        ("reward", "reward"),
+        ("episodes", "episodes"),
+        ("sec_per_episode", "s / episode (wall, 1 worker)"),
+    ]
     table = markdown_table(rows, cols, first=("name", "run"))
 
     per_design = np.array([np.nanmean(r["pos_err"]) for r in results])
     survived = np.array([np.mean(r["survival"]) for r in results])
     pct = np.percentile(per_design, [10, 50, 90])
     worst = np.argsort(-per_design)[:5]
-    failed = [(r["index"], motions[m].name, bool(f))
-              for r in results for m, s, f in zip(r["motions"], r["survival"], r["fell"]) if s < 1]
+    failed = [
+        (r["index"], motions[m].name, bool(f))
+        for r in results
+        for m, s, f in zip(r["motions"], r["survival"], r["fell"])
+        if s < 1
+    ]
 
     # Mean per-design error by each binary choice: which choices random sampling pays for.
-    by_choice = ["| choice | value 0 | pos err (cm) | survival (%) | value 1 | pos err (cm) | survival (%) |",
-                 "|---|---|---|---|---|---|---|"]
+    by_choice = [
+        "| choice | value 0 | pos err (cm) | survival (%) | value 1 | pos err (cm) | survival (%) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     params = space.discrete_params(space.nominal().discrete)
     for k, p in enumerate(params):
         cells = []
         for v in (0, 1):
             sel = [i for i, r in enumerate(results) if args.sample[r["index"]].discrete[k] == v]
-            cells += [f"{p.options[v]} ({len(sel)})", _fmt(float(np.mean(per_design[sel])) if sel else float("nan"), 2),
-                      _fmt(100.0 * float(np.mean(survived[sel])) if sel else float("nan"))]
+            cells += [
+                f"{p.options[v]} ({len(sel)})",
+                _fmt(float(np.mean(per_design[sel])) if sel else float("nan"), 2),
+                _fmt(100.0 * float(np.mean(survived[sel])) if sel else float("nan")),
+            ]
         by_choice.append(f"| {p.name} | " + " | ".join(cells) + " |")
 
     per_motion = ["| motion | steps | pos err (cm) | orn err (deg) | survival (%) |", "|---|---|---|---|---|"]
@@ -335,8 +400,10 @@ def _quality_lines(args, space, motions, results, nominal_results) -> list[str]:
         sv = [r["survival"][i] for r in results for i, mm in enumerate(r["motions"]) if mm == j]
         if not sv:
             continue
-        per_motion.append(f"| {m.name} | {m.steps} | {_fmt(float(np.nanmean(pe)), 2)} | {_fmt(float(np.nanmean(oe)))} | "
-                          f"{_fmt(100.0 * float(np.mean(sv)))} |")
+        per_motion.append(
+            f"| {m.name} | {m.steps} | {_fmt(float(np.nanmean(pe)), 2)} | {_fmt(float(np.nanmean(oe)))} | "
+            f"{_fmt(100.0 * float(np.mean(sv)))} |"
+        )
 
     return [
         "## Tracking of random designs (oracle: MuJoCo C + mink whole-body controller)\n",
@@ -344,7 +411,8 @@ def _quality_lines(args, space, motions, results, nominal_results) -> list[str]:
         f"space's motion_offset {tuple(space.motion_offset)}; reward `tracking`; {args.workers} worker processes; "
         f"WBCConfig: {'defaults' if not args.overrides else 'defaults except ' + repr(args.overrides)}."
         f"{budget_note}\n",
-        table, "",
+        table,
+        "",
         "Errors, torque (|tau|_2 over the actuators [N m]) and reward average over each episode's counted steps, "
         "then over episodes; survival is the share of episodes that track their whole motion; fell the share "
         "that ended in a fall. An episode ends at the first step whose position error exceeds 0.8 m or where "
@@ -357,28 +425,52 @@ def _quality_lines(args, space, motions, results, nominal_results) -> list[str]:
         f"Per-design mean position error [cm]: 10th / 50th / 90th percentile {pct[0]:.2f} / {pct[1]:.2f} / "
         f"{pct[2]:.2f}; worst designs: " + ", ".join(f"#{i} {per_design[i]:.1f}" for i in worst) + ".",
         f"Episodes that did not survive: {len(failed)}"
-        + ("" if not failed else " (" + "; ".join(
-            f"design #{d} on {m}: {'fell' if f else 'error > 0.8 m'}" for d, m, f in failed[:12])
-           + ("; ..." if len(failed) > 12 else "") + ")") + ".\n",
+        + (
+            ""
+            if not failed
+            else " ("
+            + "; ".join(f"design #{d} on {m}: {'fell' if f else 'error > 0.8 m'}" for d, m, f in failed[:12])
+            + ("; ..." if len(failed) > 12 else "")
+            + ")"
+        )
+        + ".\n",
         "### By discrete choice (number of designs in brackets; per-design means)\n",
-        "\n".join(by_choice), "",
+        "\n".join(by_choice),
+        "",
         "### By motion (all designs that ran it)\n",
-        "\n".join(per_motion), "",
+        "\n".join(per_motion),
+        "",
     ]
 
 
 def _speed_lines(speed: list[dict]) -> list[str]:
     """The report's section on closed-loop speed."""
     labels = [SPEED_LABELS[k] for k in SPEED_RUNS]
-    cpu_rows = ["| case | worlds | " + " | ".join(labels) + " | mjwarp / oracle |", "|---|---|" + "---|" * (len(labels) + 1)]
-    wall_rows = ["| case | worlds | " + " | ".join(f"{x} (s)" for x in labels) + " | "
-                 + " | ".join(f"{x} (world-steps/s)" for x in labels) + " |",
-                 "|---|---|" + "---|" * (2 * len(labels))]
+    cpu_rows = [
+        "| case | worlds | " + " | ".join(labels) + " | mjwarp / oracle |",
+        "|---|---|" + "---|" * (len(labels) + 1),
+    ]
+    wall_rows = [
+        "| case | worlds | "
+        + " | ".join(f"{x} (s)" for x in labels)
+        + " | "
+        + " | ".join(f"{x} (world-steps/s)" for x in labels)
+        + " |",
+        "|---|---|" + "---|" * (2 * len(labels)),
+    ]
     for r in speed:
-        cpu_rows.append(f"| {r['case']} | {r['worlds']} | " + " | ".join(_si(r[k]['wsps_cpu']) for k in SPEED_RUNS)
-                        + f" | {r['mjwarp']['wsps_cpu'] / r['oracle']['wsps_cpu']:.2f}x |")
-        wall_rows.append(f"| {r['case']} | {r['worlds']} | " + " | ".join(f"{r[k]['s']:.2f}" for k in SPEED_RUNS)
-                         + " | " + " | ".join(_si(r[k]["wsps"]) for k in SPEED_RUNS) + " |")
+        cpu_rows.append(
+            f"| {r['case']} | {r['worlds']} | "
+            + " | ".join(_si(r[k]["wsps_cpu"]) for k in SPEED_RUNS)
+            + f" | {r['mjwarp']['wsps_cpu'] / r['oracle']['wsps_cpu']:.2f}x |"
+        )
+        wall_rows.append(
+            f"| {r['case']} | {r['worlds']} | "
+            + " | ".join(f"{r[k]['s']:.2f}" for k in SPEED_RUNS)
+            + " | "
+            + " | ".join(_si(r[k]["wsps"]) for k in SPEED_RUNS)
+            + " |"
+        )
     diff = max(r[k]["max_ee_diff_mm"] for r in speed for k in SPEED_RUNS)
     same_alive = all(r[k]["alive"] == r["oracle"]["alive"] for r in speed for k in SPEED_RUNS)
     steps = speed[0]["control_steps"]
@@ -392,7 +484,7 @@ def _speed_lines(speed: list[dict]) -> list[str]:
         f"each on the same designs, so Warp's modules are compiled or loaded); the best of {repeats}, "
         "the runs alternating. A world-step is one physics step "
         "of one world, the whole-body controller at 50 Hz included; each timed call includes its setup "
-            "(models, controllers, start postures), as a caller pays it. mjwarp runs MuJoCo-Warp's physics with "
+        "(models, controllers, start postures), as a caller pays it. mjwarp runs MuJoCo-Warp's physics with "
         "tt's batched whole-body controller kernel (`tt.kernels.wbc`, the backend's default) or, as a "
         "reference, with the oracle's mink controller on the host world by world. 'one structure': designs "
         "that share the nominal discrete choice (one `mjw.Model` with per-world numbers), continuous values "
@@ -400,9 +492,11 @@ def _speed_lines(speed: list[dict]) -> list[str]:
         "(one batch after another).\n",
         "World-steps per CPU second of the process (every path runs on one thread here: MuJoCo C, mink "
         "and Warp's CPU kernels), the measure least disturbed by other jobs:\n",
-        "\n".join(cpu_rows), "",
+        "\n".join(cpu_rows),
+        "",
         "Wall-clock seconds and world-steps per second:\n",
-        "\n".join(wall_rows), "",
+        "\n".join(wall_rows),
+        "",
         _speed_summary(speed),
         f"Every run kept every world alive for the whole motion: {'yes' if same_alive else 'no'}; the largest "
         f"end-effector difference from the oracle's episodes was {diff:.4f} mm (MuJoCo-Warp's float32 "
@@ -413,13 +507,17 @@ def _speed_lines(speed: list[dict]) -> list[str]:
 def _merged_meta(a: dict, b: dict) -> dict:
     """One header entry for a part measured in two runs: both dates and commands, the summed
     wall time, the higher loads."""
+
     def commands(m: dict) -> list:
         return m["commands"] if "commands" in m else [m["argv"]]
 
-    return {"date": f"{a['date']} and {b['date']}", "commands": commands(a) + commands(b),
-            "wall": a["wall"] + b["wall"],
-            "load_start": [max(x, y) for x, y in zip(a["load_start"], b["load_start"])],
-            "load_end": [max(x, y) for x, y in zip(a["load_end"], b["load_end"])]}
+    return {
+        "date": f"{a['date']} and {b['date']}",
+        "commands": commands(a) + commands(b),
+        "wall": a["wall"] + b["wall"],
+        "load_start": [max(x, y) for x, y in zip(a["load_start"], b["load_start"])],
+        "load_end": [max(x, y) for x, y in zip(a["load_end"], b["load_end"])],
+    }
 
 
 def _report(args, space, motions, results, nominal_results, speed, meta: dict) -> str:
@@ -443,8 +541,10 @@ def _resumed(args) -> tuple[list[dict], list[dict], dict]:
     raw = json.loads(args.resume.read_text())
     for name in ("seed", "motions", "motions_per_design", "overrides"):
         if raw["args"].get(name) != getattr(args, name):
-            raise SystemExit(f"--resume {args.resume}: it ran with {name}={raw['args'].get(name)!r}, "
-                             f"this run has {name}={getattr(args, name)!r}")
+            raise SystemExit(
+                f"--resume {args.resume}: it ran with {name}={raw['args'].get(name)!r}, "
+                f"this run has {name}={getattr(args, name)!r}"
+            )
     results = [r for r in raw["results"] if r["index"] < args.designs]
     return results, raw["nominal"], raw["meta"]["quality"]
 
@@ -456,26 +556,50 @@ def main() -> None:
     ap.add_argument("--designs", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--motions", nargs="+", default=None, metavar="NAME",
-                    help="library motions (NAME:SEED) instead of the 30 validation motions")
+    ap.add_argument(
+        "--motions",
+        nargs="+",
+        default=None,
+        metavar="NAME",
+        help="library motions (NAME:SEED) instead of the 30 validation motions",
+    )
     ap.add_argument("--motions-per-design", type=int, default=0, help="0: every motion")
-    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
-                    help="WBCConfig overrides for the quality part, e.g. com_cost=1.0 (tuning the controller)")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="WBCConfig overrides for the quality part, e.g. com_cost=1.0 (tuning the controller)",
+    )
     ap.add_argument("--speed-sizes", type=int, nargs="*", default=[1, 16, 64, 256])
     ap.add_argument("--speed-mixed", type=int, default=4, help="random designs of mixed structures in the speed part")
     ap.add_argument("--speed-steps", type=int, default=50, help="control steps of the speed part's motion")
     ap.add_argument("--speed-repeats", type=int, default=2, help="timed runs per backend and case (best kept)")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-quality", action="store_true")
-    ap.add_argument("--budget-min", type=float, default=None,
-                    help="start no new design after this many minutes of the quality part; report the designs done")
+    ap.add_argument(
+        "--budget-min",
+        type=float,
+        default=None,
+        help="start no new design after this many minutes of the quality part; report the designs done",
+    )
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "quadruped.md")
     ap.add_argument("--raw", type=Path, default=None, help="also save the measurements as JSON here")
-    ap.add_argument("--resume", type=Path, default=None, metavar="RAW.json",
-                    help="a --raw file of an earlier run with the same seed, designs and motions: keep its quality "
-                         "results (and nominal runs) and run only the designs it lacks")
-    ap.add_argument("--from-raw", type=Path, nargs="+", default=None,
-                    help="write the report from --raw files (each file's parts replace earlier ones); run nothing")
+    ap.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RAW.json",
+        help="a --raw file of an earlier run with the same seed, designs and motions: keep its quality "
+        "results (and nominal runs) and run only the designs it lacks",
+    )
+    ap.add_argument(
+        "--from-raw",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="write the report from --raw files (each file's parts replace earlier ones); run nothing",
+    )
     args = ap.parse_args()
     args.argv = sys.argv[1:]
 
@@ -490,8 +614,18 @@ def main() -> None:
         if not hasattr(defaults, key):
             ap.error(f"--set {item}: WBCConfig has no field {key!r}")
         args.overrides[key] = type(getattr(defaults, key))(value)
-    kept = ("seed", "designs", "workers", "motions", "motions_per_design", "overrides", "speed_sizes",
-            "speed_mixed", "speed_steps", "budget_min")
+    kept = (
+        "seed",
+        "designs",
+        "workers",
+        "motions",
+        "motions_per_design",
+        "overrides",
+        "speed_sizes",
+        "speed_mixed",
+        "speed_steps",
+        "budget_min",
+    )
     if args.from_raw:
         # Parts from several runs: a file's quality part replaces an earlier one, its speed cases
         # join the earlier ones (replacing a case of the same name); the quality part's arguments
@@ -520,29 +654,62 @@ def main() -> None:
         def part(name: str, run):
             start, load = time.perf_counter(), os.getloadavg()
             out = run()
-            meta[name] = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "argv": args.argv,
-                          "wall": time.perf_counter() - start, "load_start": load, "load_end": os.getloadavg()}
+            meta[name] = {
+                "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                "argv": args.argv,
+                "wall": time.perf_counter() - start,
+                "load_start": load,
+                "load_end": os.getloadavg(),
+            }
             return out
 
         if not args.skip_speed:
-            speed = part("speed", lambda: run_speed(space, args.sample, args.speed_sizes, args.speed_mixed,
-                                                    args.speed_steps, args.speed_repeats))
+            speed = part(
+                "speed",
+                lambda: run_speed(
+                    space, args.sample, args.speed_sizes, args.speed_mixed, args.speed_steps, args.speed_repeats
+                ),
+            )
         if not args.skip_quality:
             designs = args.sample[: args.designs]
             earlier, nominal_earlier, meta_earlier = _resumed(args) if args.resume else ([], [], None)
-            results, nominal = part("quality", lambda: (
-                run_quality(designs, _assignments(len(designs), len(motions), args.motions_per_design), args.workers,
-                            None if args.budget_min is None else 60.0 * args.budget_min,
-                            motion_names=args.motions, overrides=args.overrides,
-                            skip={r["index"] for r in earlier}),
-                nominal_earlier or run_quality([space.nominal()], _assignments(1, len(motions), 0), args.workers,
-                                               motion_names=args.motions, overrides=args.overrides)))
+            results, nominal = part(
+                "quality",
+                lambda: (
+                    run_quality(
+                        designs,
+                        _assignments(len(designs), len(motions), args.motions_per_design),
+                        args.workers,
+                        None if args.budget_min is None else 60.0 * args.budget_min,
+                        motion_names=args.motions,
+                        overrides=args.overrides,
+                        skip={r["index"] for r in earlier},
+                    ),
+                    nominal_earlier
+                    or run_quality(
+                        [space.nominal()],
+                        _assignments(1, len(motions), 0),
+                        args.workers,
+                        motion_names=args.motions,
+                        overrides=args.overrides,
+                    ),
+                ),
+            )
             if args.resume:
                 results = sorted(earlier + results, key=lambda r: r["index"])
                 meta["quality"] = _merged_meta(meta_earlier, meta["quality"])
         if args.raw is not None:
-            args.raw.write_text(json.dumps({"args": {k: getattr(args, k) for k in kept}, "meta": meta,
-                                            "speed": speed, "results": results, "nominal": nominal}))
+            args.raw.write_text(
+                json.dumps(
+                    {
+                        "args": {k: getattr(args, k) for k in kept},
+                        "meta": meta,
+                        "speed": speed,
+                        "results": results,
+                        "nominal": nominal,
+                    }
+                )
+            )
     text = _report(args, space, motions, results, nominal, speed, meta)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)

@@ -41,8 +41,22 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _episode_arrays(ep) -> dict[str, np.ndarray]:
     out = {}
-    for name in ("qpos", "qvel", "ctrl", "action", "act_force", "act_vel", "ee_pos", "ee_quat", "target_pos",
-                 "target_quat", "alive", "fallen", "design_index", "motion_index"):
+    for name in (
+        "qpos",
+        "qvel",
+        "ctrl",
+        "action",
+        "act_force",
+        "act_vel",
+        "ee_pos",
+        "ee_quat",
+        "target_pos",
+        "target_quat",
+        "alive",
+        "fallen",
+        "design_index",
+        "motion_index",
+    ):
         out[name] = getattr(ep, name).detach().cpu().numpy()
     return out
 
@@ -96,9 +110,13 @@ def _cases():
             ms = [models[i] for i in members]
             tree = build_tree_model(ms, sites, device="cpu")
             nv, nu = ms[0].nv, ms[0].nu
-            q0 = np.stack([m.qpos0 for m in ms]).astype(np.float32) + 0.1 * rng.standard_normal((len(ms), nv)).astype(np.float32)
+            q0 = np.stack([m.qpos0 for m in ms]).astype(np.float32) + 0.1 * rng.standard_normal((len(ms), nv)).astype(
+                np.float32
+            )
             ctrl = (0.3 * rng.standard_normal((len(ms), 200, nu))).astype(np.float32)
-            res = simulate(tree, wp.array(q0, dtype=float), wp.zeros(q0.shape, dtype=float), wp.array(ctrl, dtype=float))
+            res = simulate(
+                tree, wp.array(q0, dtype=float), wp.zeros(q0.shape, dtype=float), wp.array(ctrl, dtype=float)
+            )
             for k in ("qpos", "qvel", "act_force", "limit_count"):
                 out[f"{g}/sim_{k}"] = getattr(res, k).numpy()
             fk = forward_kinematics(tree, wp.array(q0, dtype=float))
@@ -114,7 +132,9 @@ def _cases():
         from tt.guidance.simgrad import design_reward_gradient
 
         cfg = get_reward("tracking", "viperx")
-        res = design_reward_gradient(viperx, [viperx.nominal()], _short(motions[:1], 12), cfg, guidance=False, device="cpu")
+        res = design_reward_gradient(
+            viperx, [viperx.nominal()], _short(motions[:1], 12), cfg, guidance=False, device="cpu"
+        )
         return {"reward": np.asarray(res.reward), "grad": np.asarray(res.grad[0])}
 
     def dit_ik():
@@ -189,7 +209,11 @@ def compare(before: Path, after: Path) -> int:
             print(f"DIFFER {f.stem}: array names {sorted(set(a.files) ^ set(b.files))}")
             bad += 1
             continue
-        diff = [k for k in a.files if a[k].shape != b[k].shape or not np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f")]
+        diff = [
+            k
+            for k in a.files
+            if a[k].shape != b[k].shape or not np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f")
+        ]
         if diff:
             k = diff[0]
             d = np.abs(a[k].astype(np.float64) - b[k].astype(np.float64)).max() if a[k].shape == b[k].shape else "shape"

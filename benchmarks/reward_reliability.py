@@ -64,10 +64,20 @@ def main() -> None:
     p.add_argument("--designs", type=int, default=64, help="held-out designs (tt.ladder.heldout_designs)")
     p.add_argument("--motions", type=int, default=5, help="validation motions (tt.ladder.validation_motions)")
     p.add_argument("--neighbours", type=int, default=4, help="neighbours per design and eps")
-    p.add_argument("--eps", type=float, nargs="+", default=[0.003, 0.01, 0.03, 0.1],
-                   help="half-widths of the moves, as fractions of each parameter's range")
-    p.add_argument("--init-damping", type=float, nargs="+", default=None,
-                   help="start-posture IK dampings to compare (IKConfig.init_damping; default: the default config's)")
+    p.add_argument(
+        "--eps",
+        type=float,
+        nargs="+",
+        default=[0.003, 0.01, 0.03, 0.1],
+        help="half-widths of the moves, as fractions of each parameter's range",
+    )
+    p.add_argument(
+        "--init-damping",
+        type=float,
+        nargs="+",
+        default=None,
+        help="start-posture IK dampings to compare (IKConfig.init_damping; default: the default config's)",
+    )
     p.add_argument("--reward", default="tracking")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None)
@@ -93,7 +103,9 @@ def main() -> None:
         end effector to its target at the first record, of `group` under `config`."""
         trees = space.trees(group)
         ep = rollout(trees, motions, device="cpu", config=config)
-        r = np.asarray(score_episode(ep, group, motions, args.reward, models=trees)[0]).reshape(len(group), len(motions))
+        r = np.asarray(score_episode(ep, group, motions, args.reward, models=trees)[0]).reshape(
+            len(group), len(motions)
+        )
         reach = (ep.ee_pos[:, 0, 0] - ep.target_pos[:, 0, 0]).norm(dim=-1).cpu().numpy()
         return r, ep.qpos[:, 0].cpu().numpy().reshape(len(group), len(motions), -1), reach
 
@@ -112,12 +124,20 @@ def main() -> None:
             within = [pearson(ref[..., j], r_near[..., j]) for j in range(len(motions))]
             spread = np.abs(r_near - ref)
             flips = (ref < 50) != (r_near < 50)
-            row = {"bench": "reward_reliability", "space": args.space, "damping": damping, "eps": eps,
-                   "pooled_r": pearson(ref, r_near), "within_r": within, "within_r_mean": float(np.nanmean(within)),
-                   "median_abs_change": float(np.median(spread)), "p90_abs_change": float(np.percentile(spread, 90)),
-                   "failure_flips": float(np.mean(flips)),
-                   "start_jumps": float(np.mean(jump > 0.05)),
-                   "flips_with_jump": float(np.mean(jump[flips] > 0.05)) if flips.any() else float("nan")}
+            row = {
+                "bench": "reward_reliability",
+                "space": args.space,
+                "damping": damping,
+                "eps": eps,
+                "pooled_r": pearson(ref, r_near),
+                "within_r": within,
+                "within_r_mean": float(np.nanmean(within)),
+                "median_abs_change": float(np.median(spread)),
+                "p90_abs_change": float(np.percentile(spread, 90)),
+                "failure_flips": float(np.mean(flips)),
+                "start_jumps": float(np.mean(jump > 0.05)),
+                "flips_with_jump": float(np.mean(jump[flips] > 0.05)) if flips.any() else float("nan"),
+            }
             print(json.dumps(row), flush=True)
             rows.append(row)
     seconds = time.perf_counter() - t0
@@ -137,20 +157,26 @@ def main() -> None:
         f"(continuous parameters moved by a uniform +- eps x range, discrete choices kept), warp backend, the "
         f"oracle's controller with the start posture's IK damping of each row (`IKConfig.init_damping`; the "
         f"control loop's stays {IKConfig().damping:g}). Designs' own rewards: "
-        + "; ".join(f"damping {d:g}: mean {m:.1f}, {100 * f:.0f} % of pairs below 50 (mostly terminated episodes), "
-                    f"median distance of the end effector from its target at the first record {100 * reach:.2f} cm"
-                    for d, (f, m, reach) in fails.items()) + ".",
+        + "; ".join(
+            f"damping {d:g}: mean {m:.1f}, {100 * f:.0f} % of pairs below 50 (mostly terminated episodes), "
+            f"median distance of the end effector from its target at the first record {100 * reach:.2f} cm"
+            for d, (f, m, reach) in fails.items()
+        )
+        + ".",
         "",
-        "| start-posture IK damping | eps (of each range) | pooled r (sqrt) | mean within-motion r (sqrt) | within-motion r per motion | "
+        "| start-posture IK damping | eps (of each range) | pooled r (sqrt) | mean within-motion r (sqrt) | "
+        "within-motion r per motion | "
         "median / p90 abs. change | pairs whose side of 50 flips | start postures > 0.05 rad apart | "
         "of the flips |",
         "|---:|---:|---|---|---|---|---:|---:|---:|",
     ]
     for row in rows:
-        lines.append(f"| {row['damping']:g} | {row['eps']:g} | {fmt(row['pooled_r'])} | {fmt(row['within_r_mean'])} | "
-                     f"{' / '.join(f'{r:.2f}' for r in row['within_r'])} | "
-                     f"{row['median_abs_change']:.1f} / {row['p90_abs_change']:.1f} | {100 * row['failure_flips']:.1f} % | "
-                     f"{100 * row['start_jumps']:.0f} % | {100 * row['flips_with_jump']:.0f} % |")
+        lines.append(
+            f"| {row['damping']:g} | {row['eps']:g} | {fmt(row['pooled_r'])} | {fmt(row['within_r_mean'])} | "
+            f"{' / '.join(f'{r:.2f}' for r in row['within_r'])} | "
+            f"{row['median_abs_change']:.1f} / {row['p90_abs_change']:.1f} | {100 * row['failure_flips']:.1f} % | "
+            f"{100 * row['start_jumps']:.0f} % | {100 * row['flips_with_jump']:.0f} % |"
+        )
     lines += [
         "",
         "r is the correlation of a design's reward with its neighbours'. With noise independent between "
@@ -160,7 +186,8 @@ def main() -> None:
         "share and rough bounds on the critic. The second-to-last column is the share of neighbour pairs whose start "
         "postures (fifty IK steps from qpos0 toward the first pose) differ by more than 0.05 rad in some joint. "
         "At eps 0.003 (mount yaw moved by at most 0.01 rad, lengths by at most 0.75 mm) a posture that follows "
-        "the design moves far less than that, so such pairs started in another IK branch (last column: the same share among the pairs that flipped); at eps 0.03 and more "
+        "the design moves far less than that, so such pairs started in another IK branch (last column: the "
+        "same share among the pairs that flipped); at eps 0.03 and more "
         "the design's own change exceeds 0.05 rad and the column no longer separates the two.",
         "",
     ]

@@ -68,7 +68,9 @@ def main() -> None:
     p.add_argument("checkpoints", nargs="+", help="generators to compare (checkpoint files)")
     p.add_argument("--seeds", type=int, default=9)
     p.add_argument("--motions", type=int, default=9, help="validation motions per seed (one per skill first)")
-    p.add_argument("--paired", action="store_true", help="seed i runs motion i only (codesign.py's single-trajectory runs)")
+    p.add_argument(
+        "--paired", action="store_true", help="seed i runs motion i only (codesign.py's single-trajectory runs)"
+    )
     p.add_argument("--n", type=int, default=64, help="designs per source, seed and motion")
     p.add_argument("--ns", type=int, nargs="+", default=[1, 4, 16, 64], help="budgets of the best-of-n comparisons")
     p.add_argument("--steps", type=int, default=20, help="DDIM steps of each sample")
@@ -117,10 +119,14 @@ def main() -> None:
             t = time.perf_counter()
             sim = evaluate_designs(designs, (motion,), args.reward, backend="warp", threads=1)
             sim_s = time.perf_counter() - t
-            row = {"reward": oracle.reward[:, 0].tolist(), "sim_reward": sim.reward[:, 0].tolist(),
-                   "pos_err": np.asarray(oracle.metrics["pos_err"])[:, 0].tolist(),
-                   "survival": np.asarray(oracle.metrics["survival"])[:, 0].tolist(),
-                   "draw_seconds": draw_s[name], "sim_seconds": sim_s}
+            row = {
+                "reward": oracle.reward[:, 0].tolist(),
+                "sim_reward": sim.reward[:, 0].tolist(),
+                "pos_err": np.asarray(oracle.metrics["pos_err"])[:, 0].tolist(),
+                "survival": np.asarray(oracle.metrics["survival"])[:, 0].tolist(),
+                "draw_seconds": draw_s[name],
+                "sim_seconds": sim_s,
+            }
             if name != "uniform":
                 t = time.perf_counter()
                 pred = predict_designs(critic, designs, (motion,), reward_cfg, num_steps=args.steps, seed=seed)
@@ -129,8 +135,17 @@ def main() -> None:
             rec[name] = row
         records.append(rec)
         summary = {k: round(float(np.median(v["reward"])), 1) for k, v in rec.items() if isinstance(v, dict)}
-        print(json.dumps({"seed": seed, "motion": motion.name, "median_reward": summary,
-                          "seconds": round(time.perf_counter() - t0, 1)}), flush=True)
+        print(
+            json.dumps(
+                {
+                    "seed": seed,
+                    "motion": motion.name,
+                    "median_reward": summary,
+                    "seconds": round(time.perf_counter() - t0, 1),
+                }
+            ),
+            flush=True,
+        )
     minutes = (time.perf_counter() - start) / 60
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -145,19 +160,28 @@ def _pick(row: dict, key: str, n: int) -> float:
     return float(row["reward"][int(np.argmax(score))])
 
 
-def report(records: list, names: list[str], args, motions, critic_path, minutes: float, load_start: str, mean_ci) -> list[str]:
+def report(
+    records: list, names: list[str], args, motions, critic_path, minutes: float, load_start: str, mean_ci
+) -> list[str]:
     sources = ["uniform", *names]
-    lines = ["# Sample quality: generator samples against uniform designs (issue 51)", "",
-             machine_header("cpu").rstrip(), f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_line()}",
-             f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(m.name for m in motions)})"
-             f"{' (seed i on motion i only)' if args.paired else ''}, "
-             f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
-             f"validated on the oracle (MuJoCo C + mink); {minutes:.1f} min in all",
-             f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
-             f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns {' '.join(map(str, args.ns))} --steps {args.steps}`", "",
-             "## Validated reward of the draws, pooled over every seed and motion", "",
-             "| source | designs | reward p25 | median | p75 | tracks the whole motion | median position error [cm] |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "# Sample quality: generator samples against uniform designs (issue 51)",
+        "",
+        machine_header("cpu").rstrip(),
+        f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_line()}",
+        f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(m.name for m in motions)})"
+        f"{' (seed i on motion i only)' if args.paired else ''}, "
+        f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
+        f"validated on the oracle (MuJoCo C + mink); {minutes:.1f} min in all",
+        f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
+        f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns "
+        f"{' '.join(map(str, args.ns))} --steps {args.steps}`",
+        "",
+        "## Validated reward of the draws, pooled over every seed and motion",
+        "",
+        "| source | designs | reward p25 | median | p75 | tracks the whole motion | median position error [cm] |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     pooled = {}
     for s in sources:
         r = np.concatenate([rec[s]["reward"] for rec in records])
@@ -165,19 +189,32 @@ def report(records: list, names: list[str], args, motions, critic_path, minutes:
         pe = np.concatenate([rec[s]["pos_err"] for rec in records])
         pooled[s] = (r, surv)
         q = np.percentile(r, [25, 50, 75])
-        lines.append(f"| {s} | {len(r)} | {q[0]:.1f} | {q[1]:.1f} | {q[2]:.1f} | {100 * np.mean(surv >= 1.0):.1f} % | "
-                     f"{np.nanmedian(pe):.2f} |")
+        lines.append(
+            f"| {s} | {len(r)} | {q[0]:.1f} | {q[1]:.1f} | {q[2]:.1f} | {100 * np.mean(surv >= 1.0):.1f} % | "
+            f"{np.nanmedian(pe):.2f} |"
+        )
     u75 = np.percentile(pooled["uniform"][0], 75)
     u_share = 100 * np.mean(pooled["uniform"][1] >= 1.0)
-    lines += ["", f"Targets: median at or above uniform's 75th percentile ({u75:.1f}); tracking share at least "
-              f"{u_share + 20:.1f} % (uniform's + 20 points).", ""]
+    lines += [
+        "",
+        f"Targets: median at or above uniform's 75th percentile ({u75:.1f}); tracking share at least "
+        f"{u_share + 20:.1f} % (uniform's + 20 points).",
+        "",
+    ]
     for s in names:
         med = np.median(pooled[s][0])
         share = 100 * np.mean(pooled[s][1] >= 1.0)
-        lines.append(f"- `{s}`: median {med:.1f} ({'meets' if med >= u75 else 'misses'} the first), tracking "
-                     f"{share:.1f} % ({'meets' if share >= u_share + 20 else 'misses'} the second)")
-    lines += ["", "## Per motion: median validated reward (share tracking the whole motion)", "",
-              "| motion | " + " | ".join(sources) + " |", "|---|" + "---:|" * len(sources)]
+        lines.append(
+            f"- `{s}`: median {med:.1f} ({'meets' if med >= u75 else 'misses'} the first), tracking "
+            f"{share:.1f} % ({'meets' if share >= u_share + 20 else 'misses'} the second)"
+        )
+    lines += [
+        "",
+        "## Per motion: median validated reward (share tracking the whole motion)",
+        "",
+        "| motion | " + " | ".join(sources) + " |",
+        "|---|" + "---:|" * len(sources),
+    ]
     for m in dict.fromkeys(rec["motion"] for rec in records):
         recs = [rec for rec in records if rec["motion"] == m]
         cells = []
@@ -186,11 +223,17 @@ def report(records: list, names: list[str], args, motions, critic_path, minutes:
             surv = np.concatenate([rec[s]["survival"] for rec in recs])
             cells.append(f"{np.median(r):.1f} ({100 * np.mean(surv >= 1):.0f} %)")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
-    lines += ["", "## Best of n at equal rollouts, validated on the oracle", "",
-              "Random(n) and zeroth-sim(n) pick the simulator's best of the first n draws of their pool; Zeroth-Order(n) "
-              f"picks by the critic `{Path(critic_path).name}` without a rollout. Mean validated reward over "
-              f"{len(records)} (seed, motion) pairs; the paired difference against Random(n) with its 95 % CI.", "",
-              "| n | method | validated reward | minus Random(n) | higher / lower |", "|---:|---|---:|---:|---:|"]
+    lines += [
+        "",
+        "## Best of n at equal rollouts, validated on the oracle",
+        "",
+        "Random(n) and zeroth-sim(n) pick the simulator's best of the first n draws of their pool; Zeroth-Order(n) "
+        f"picks by the critic `{Path(critic_path).name}` without a rollout. Mean validated reward over "
+        f"{len(records)} (seed, motion) pairs; the paired difference against Random(n) with its 95 % CI.",
+        "",
+        "| n | method | validated reward | minus Random(n) | higher / lower |",
+        "|---:|---|---:|---:|---:|",
+    ]
     for n in args.ns:
         base = np.array([_pick(rec["uniform"], "sim_reward", n) for rec in records])
         m, h = mean_ci(base)
@@ -200,14 +243,22 @@ def report(records: list, names: list[str], args, motions, critic_path, minutes:
                 v = np.array([_pick(rec[s], key, n) for rec in records])
                 m, h = mean_ci(v)
                 dm, dh = mean_ci(v - base)
-                lines.append(f"| {n} | {label} `{s}` | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} | "
-                             f"{int(np.sum(v > base))} / {int(np.sum(v < base))} |")
-    lines += ["", "## Wall time of one (seed, motion) at n = " + f"{args.n}", "",
-              "Mean seconds on this machine (one thread for the rollout, torch on every core): drawing the pool "
-              "(uniform: sampling the space; a checkpoint: DDIM sampling and decoding every sample), its batched "
-              "simulation (what Random and zeroth-sim add), and the critic's predictions (what Zeroth-Order adds). "
-              "At equal wall time Random screens far more designs than a learned method samples.", "",
-              "| source | draw (s) | simulate (s) | critic (s) |", "|---|---:|---:|---:|"]
+                lines.append(
+                    f"| {n} | {label} `{s}` | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} | "
+                    f"{int(np.sum(v > base))} / {int(np.sum(v < base))} |"
+                )
+    lines += [
+        "",
+        "## Wall time of one (seed, motion) at n = " + f"{args.n}",
+        "",
+        "Mean seconds on this machine (one thread for the rollout, torch on every core): drawing the pool "
+        "(uniform: sampling the space; a checkpoint: DDIM sampling and decoding every sample), its batched "
+        "simulation (what Random and zeroth-sim add), and the critic's predictions (what Zeroth-Order adds). "
+        "At equal wall time Random screens far more designs than a learned method samples.",
+        "",
+        "| source | draw (s) | simulate (s) | critic (s) |",
+        "|---|---:|---:|---:|",
+    ]
     for s in sources:
         draw = np.mean([rec[s]["draw_seconds"] for rec in records])
         sim = np.mean([rec[s]["sim_seconds"] for rec in records])

@@ -172,8 +172,8 @@ def _warp(built, marrays, steps: int, threads: int, repeats: int) -> dict:
         for tree, n, _build in built:
             marks: list[float] = []
             start = time.perf_counter()
-            out = rollout_tree(tree, marrays, n, steps, **IKConfig().rollout_args(), chunk=CHUNK, threads=threads, device="cpu",
-                               progress=lambda k: marks.append(time.perf_counter()))  # fmt: skip
+            out = rollout_tree(tree, marrays, n, steps, **IKConfig().rollout_args(), chunk=CHUNK, threads=threads,
+                               device="cpu", progress=lambda k: marks.append(time.perf_counter()))  # fmt: skip
             calls += time.perf_counter() - start
             if len(marks) < 2:
                 raise ValueError(f"the warp rate needs at least two launch chunks: give >= {CHUNK + 1} control steps")
@@ -219,11 +219,28 @@ def _closed_loop_rate(backend: str, designs, full_steps: int, budget: float) -> 
     gap = long - short
     if gap <= 0.05 * long:
         # The extra steps took no measurable time next to setup: no rate can be read off.
-        return _log({"backend": backend, "worlds": n, "rate": None, "control_steps": long_steps,
-                     "truncated": long_steps < full_steps, "setup_s": short, "unmeasurable": True})
+        return _log(
+            {
+                "backend": backend,
+                "worlds": n,
+                "rate": None,
+                "control_steps": long_steps,
+                "truncated": long_steps < full_steps,
+                "setup_s": short,
+                "unmeasurable": True,
+            }
+        )
     rate = n * SUBSTEPS * (long_steps - SHORT_STEPS) / gap
-    return _log({"backend": backend, "worlds": n, "rate": rate, "control_steps": long_steps,
-                 "truncated": long_steps < full_steps, "setup_s": max(short - n * SUBSTEPS * SHORT_STEPS / rate, 0.0)})
+    return _log(
+        {
+            "backend": backend,
+            "worlds": n,
+            "rate": rate,
+            "control_steps": long_steps,
+            "truncated": long_steps < full_steps,
+            "setup_s": max(short - n * SUBSTEPS * SHORT_STEPS / rate, 0.0),
+        }
+    )
 
 
 _CLI_RATE = re.compile(r"(\d+) worlds, ([\d,]+) world-steps in ([\d.]+) s: ([\d,]+) world-steps/s")
@@ -250,15 +267,21 @@ for _, fields in trees.groups:
 out[f"Warp module hash + cache load ({len(trees.groups)} topologies)"] = time.perf_counter() - t
 t = time.perf_counter(); ep = rollout(trees, motions, device="cpu", threads=threads)
 out["rollout: TreeModel upload, start posture, stepping"] = time.perf_counter() - t
-t = time.perf_counter(); score_episode(ep, designs, motions, "tracking", models=trees); out["scoring"] = time.perf_counter() - t
+t = time.perf_counter()
+score_episode(ep, designs, motions, "tracking", models=trees)
+out["scoring"] = time.perf_counter() - t
 print(json.dumps(out))
 """
 
 
 def _cli_breakdown(designs_json: Path, threads: int, motion_file: Path | None) -> dict:
     """Seconds of each step of a warp `tt rollout` call, in a fresh process (`_BREAKDOWN`)."""
-    proc = subprocess.run([sys.executable, "-c", _BREAKDOWN, str(designs_json), str(threads), str(motion_file or "")],
-                          capture_output=True, text=True, check=False)
+    proc = subprocess.run(
+        [sys.executable, "-c", _BREAKDOWN, str(designs_json), str(threads), str(motion_file or "")],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if proc.returncode != 0:
         raise RuntimeError(f"the CLI breakdown failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
     return _log({"cli_breakdown_threads": threads, **json.loads(proc.stdout.strip().splitlines()[-1])})
@@ -277,7 +300,9 @@ def _cli(designs_json: Path, backend: str, threads: int | None, motion_file: Pat
     wall = time.perf_counter() - start
     match = _CLI_RATE.search(proc.stdout)
     if proc.returncode != 0 or match is None:
-        raise RuntimeError(f"`tt rollout` failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+        raise RuntimeError(
+            f"`tt rollout` failed (exit {proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+        )
     worlds, steps, seconds, rate = match.groups()
     return _log({"cli": backend, "threads": threads, "worlds": int(worlds), "world_steps": int(steps.replace(",", "")),
                  "seconds": float(seconds), "rate": float(rate.replace(",", "")), "process_wall_s": wall})  # fmt: skip
@@ -343,15 +368,21 @@ def _report(args, r: dict) -> str:
     for n in sizes:
         rec = r["mujoco"][n]
         if rec["physics_steps"] < r["full_steps"] * SUBSTEPS:
-            notes.append(f"- mujoco.rollout, N = {n}: {rec['physics_steps']} of the toss's {r['full_steps'] * SUBSTEPS} physics steps.")
+            notes.append(
+                f"- mujoco.rollout, N = {n}: {rec['physics_steps']} of the toss's "
+                f"{r['full_steps'] * SUBSTEPS} physics steps."
+            )
     rates = "\n".join(lines)
 
     ratio = [_row(["ratio"] + [f"N = {n}" for n in sizes]), "|" + "---|" * (len(sizes) + 1)]
     ratio.append(_row([f"warp ({top} threads) / mujoco.rollout ({cores} threads)"]
                       + [f"{r['warp'][n][top]['rate'] / r['mujoco'][n]['rate']:.2f}x" for n in sizes]))  # fmt: skip
-    ratio.append(_row([f"warp ({top} threads) / oracle"] + [f"{r['warp'][n][top]['rate'] / oracle:.1f}x" for n in sizes]))
+    ratio.append(
+        _row([f"warp ({top} threads) / oracle"] + [f"{r['warp'][n][top]['rate'] / oracle:.1f}x" for n in sizes])
+    )
     ratio.append(_row(["the same on executed world-steps only: warp / mujoco.rollout"]
-                      + [f"{r['warp'][n][top]['rate_executed'] / r['mujoco'][n]['rate']:.2f}x" for n in sizes]))  # fmt: skip
+                      + [f"{r['warp'][n][top]['rate_executed'] / r['mujoco'][n]['rate']:.2f}x"
+                         for n in sizes]))  # fmt: skip
     ratio.append(_row(["the same on executed world-steps only: warp / oracle"]
                       + [f"{r['warp'][n][top]['rate_executed'] / oracle:.1f}x" for n in sizes]))  # fmt: skip
     for k in threads[1:]:
@@ -373,7 +404,10 @@ def _report(args, r: dict) -> str:
     n_ref = 4096 if 4096 in sizes else max(sizes)
     one, many = r["warp"][n_ref][1]["rate"], r["warp"][n_ref][top]["rate"]
     efficiency = many / (top * one) if top > 1 else 1.0
-    scaling = [_row(["threads", f"warp world-steps/s at N = {n_ref}", "per thread", "parallel efficiency"]), "|---|---|---|---|"]
+    scaling = [
+        _row(["threads", f"warp world-steps/s at N = {n_ref}", "per thread", "parallel efficiency"]),
+        "|---|---|---|---|",
+    ]
     for k in threads:
         rate = r["warp"][n_ref][k]["rate"]
         scaling.append(_row([k, _fmt_rate(rate), _fmt_rate(rate / k), f"{rate / (k * one):.2f}"]))
@@ -385,21 +419,29 @@ def _report(args, r: dict) -> str:
     if 4096 in sizes:
         w, m = r["warp"][4096], r["mujoco"][4096]["rate"]
         targets += [
-            f"- warp ({top} threads) / mujoco.rollout ({cores} threads): {_check(w[top]['rate'] / m, TARGETS['vs_mujoco_rollout'])}",
+            f"- warp ({top} threads) / mujoco.rollout ({cores} threads): "
+            f"{_check(w[top]['rate'] / m, TARGETS['vs_mujoco_rollout'])}",
             f"- warp ({top} threads) / oracle: {_check(w[top]['rate'] / oracle, TARGETS['vs_oracle'])}",
             f"- on executed world-steps only: warp / mujoco.rollout "
             f"{_check(w[top]['rate_executed'] / m, TARGETS['vs_mujoco_rollout'])}, warp / oracle "
             f"{_check(w[top]['rate_executed'] / oracle, TARGETS['vs_oracle'])}",
-            f"- warp 1 -> {top} threads: {_check(w[top]['rate'] / w[1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
+            f"- warp 1 -> {top} threads: "
+            f"{_check(w[top]['rate'] / w[1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
         ]
     cli_t = ""
     if r.get("cli"):
         c = r["cli"]
-        rows = [_row(["command", "worlds", "world-steps/s (as printed, setup included)", "process wall [s]"]), "|---|---|---|---|"]
+        rows = [
+            _row(["command", "worlds", "world-steps/s (as printed, setup included)", "process wall [s]"]),
+            "|---|---|---|---|",
+        ]
         for rec in c["warp"].values():
             spread = rec.get("rates", [rec["rate"]])
-            rate = _fmt_rate(rec["rate"]) + (f" (median of {len(spread)}: {_fmt_rate(spread[0])} - {_fmt_rate(spread[-1])})"
-                                             if len(spread) > 1 else "")
+            rate = _fmt_rate(rec["rate"]) + (
+                f" (median of {len(spread)}: {_fmt_rate(spread[0])} - {_fmt_rate(spread[-1])})"
+                if len(spread) > 1
+                else ""
+            )
             rows.append(_row([f"`tt rollout --design designs.json --threads {rec['threads']}`", rec["worlds"], rate,
                               f"{rec['process_wall_s']:.1f}"]))  # fmt: skip
         o = c["mujoco"]
@@ -412,51 +454,71 @@ def _report(args, r: dict) -> str:
             f"- CLI warp ({top} threads) / CLI oracle: {_check(best / o['rate'], TARGETS['vs_oracle'])}",
             f"- CLI warp ({top} threads) / mujoco.rollout ({cores} threads, N = {n_cli}, stepping only): "
             + _check(best / mref if mref else None, TARGETS["vs_mujoco_rollout"]),
-            f"- CLI warp 1 -> {top} threads: {_check(best / c['warp'][1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
+            f"- CLI warp 1 -> {top} threads: "
+            f"{_check(best / c['warp'][1]['rate'] if top > 1 else None, TARGETS['thread_speedup'])}",
         ]
         if mref:
             # mujoco.rollout cannot run without the MuJoCo models it steps; with their build
             # (in worker processes, as measured above) on its clock too:
             steps_n = n_cli * SUBSTEPS * r["full_steps"]
             with_build = steps_n / (n_cli * r["build_s_per_design"] + steps_n / mref)
-            cli_checks.append(f"- for reference, not the target: CLI warp / mujoco.rollout with its model building "
-                              f"({_fmt_rate(with_build)} world-steps/s): {best / with_build:.2f}x")
+            cli_checks.append(
+                f"- for reference, not the target: CLI warp / mujoco.rollout with its model building "
+                f"({_fmt_rate(with_build)} world-steps/s): {best / with_build:.2f}x"
+            )
         parts = c.get("breakdown")
         if parts:
-            cli_checks += ["", f"Where a {top}-thread call's evaluation time goes (a fresh process running the same "
-                           "steps as the CLI, timed one after another):", "",
-                           _row(["step", "seconds"]), "|---|---|"]
-            cli_checks += [_row([k, f"{v:.2f}"]) for k, v in parts.items() if k not in ("load1", "cli_breakdown_threads")]
+            cli_checks += [
+                "",
+                f"Where a {top}-thread call's evaluation time goes (a fresh process running the same "
+                "steps as the CLI, timed one after another):",
+                "",
+                _row(["step", "seconds"]),
+                "|---|---|",
+            ]
+            cli_checks += [
+                _row([k, f"{v:.2f}"]) for k, v in parts.items() if k not in ("load1", "cli_breakdown_threads")
+            ]
         cli_t = (
             f"## Through the CLI, setup included (N = {n_cli})\n\n"
             "Each command runs in a fresh process; the rate is what `tt rollout` prints: world-steps over the "
             "time of the evaluation (loading designs.json excluded; model building (tree fields for warp), Warp "
-            "module hash and cache load, rollout and scoring included).\n\n" + "\n".join(rows) + "\n\n" + "\n".join(cli_checks) + "\n\n"
+            "module hash and cache load, rollout and scoring included).\n\n"
+            + "\n".join(rows)
+            + "\n\n"
+            + "\n".join(cli_checks)
+            + "\n\n"
         )
     lb, la = r["load_before"], r["load_after"]
     loads = [rec["load1"] for rec in r["records"] if "load1" in rec]
     text = (
-        "# Rollout speed: world-steps per second\n\n"
-        + machine_header("cpu")
-        + f"- command: `{r['command']}`\n"
+        "# Rollout speed: world-steps per second\n\n" + machine_header("cpu") + f"- command: `{r['command']}`\n"
         f"- load average (1, 5, 15 min): {lb[0]:.1f}, {lb[1]:.1f}, {lb[2]:.1f} at the start, {la[0]:.1f}, {la[1]:.1f}, "
         f"{la[2]:.1f} at the end, 1-min load {min(loads):.1f}-{max(loads):.1f} during the measurements "
         f"(on {cores} cores; above ~0 other jobs competed and every rate is a lower bound); "
         f"{r['wall'] / 60:.1f} min wall\n"
-        f"- workload: N random ViperX designs (seed 0, nested) x {r['motion']} ({r['full_steps']} control steps at 50 Hz, "
+        f"- workload: N random ViperX designs (seed 0, nested) x {r['motion']} ({r['full_steps']} control "
+        "steps at 50 Hz, "
         f"{SUBSTEPS} physics steps of 0.002 s each); a world-step is one physics step of one world; all backends run "
         "the same compiled MjModels in this one process\n\n"
-        "## World-steps per second\n\n" + rates + "\n\n" + ("\n".join(notes) + "\n\n" if notes else "")
+        "## World-steps per second\n\n"
+        + rates
+        + "\n\n"
+        + ("\n".join(notes) + "\n\n" if notes else "")
         + "The oracle's rate holds at every N (it runs one world after another) and counts the steps it executed "
         "(it stops a world at termination). mujoco.rollout is physics only (no controller, no records) and steps "
         "every world. warp, mjwarp and newton run the oracle's controller at 50 Hz and record Episodes; their rates "
         "count every world's every step, as `tt rollout` does, although a world past termination only repeats its "
         "last record: the warp rows on executed world-steps are the like-for-like comparison with the oracle. "
         "warp's rate excludes setup (next tables).\n\n"
-        "## Ratios\n\n" + ratios + "\n\n"
+        "## Ratios\n\n"
+        + ratios
+        + "\n\n"
         + ("## Targets at N = 4,096\n\n" + "\n".join(targets) + "\n\n" if targets else "")
         + cli_t
-        + f"## Thread scaling at N = {n_ref}\n\n" + scaling_t + "\n\n"
+        + f"## Thread scaling at N = {n_ref}\n\n"
+        + scaling_t
+        + "\n\n"
         "The 32-core row is a projection, not a measurement: the 1-thread rate times 32 times the measured "
         f"{top}-thread parallel efficiency (it assumes the per-core rate and that efficiency hold on 32 cores).\n\n"
         "## Setup\n\n"
@@ -486,24 +548,49 @@ def _thread_counts(cores: int) -> list[int]:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
-    ap.add_argument("--threads", type=int, nargs="+", default=None, help="warp thread counts (default 1, 2, 4, ..., all)")
+    ap.add_argument(
+        "--threads", type=int, nargs="+", default=None, help="warp thread counts (default 1, 2, 4, ..., all)"
+    )
     ap.add_argument("--oracle-worlds", type=int, default=32)
-    ap.add_argument("--mujoco-world-steps", type=float, default=8e6, help="world-steps per mujoco.rollout size (at least 1,000 physics steps)")
-    ap.add_argument("--backends", nargs="*", default=None,
-                    help="besides oracle, mujoco.rollout and warp: any of mjwarp, newton (default both; --quick: none)")
+    ap.add_argument(
+        "--mujoco-world-steps",
+        type=float,
+        default=8e6,
+        help="world-steps per mujoco.rollout size (at least 1,000 physics steps)",
+    )
+    ap.add_argument(
+        "--backends",
+        nargs="*",
+        default=None,
+        help="besides oracle, mujoco.rollout and warp: any of mjwarp, newton (default both; --quick: none)",
+    )
     ap.add_argument("--others-max-n", type=int, default=1024, help="largest N for mjwarp and newton")
     ap.add_argument("--budget", type=float, default=20.0, help="seconds per mjwarp / newton combination")
     ap.add_argument("--deadline", type=float, default=480.0, help="mjwarp / newton are skipped past this many seconds")
-    ap.add_argument("--cli-n", type=int, default=None, help="designs of the CLI figure (default 4096, --quick: 8; 0: none)")
-    ap.add_argument("--cli-repeats", type=int, default=None,
-                    help="fresh `tt rollout` processes per warp thread count, interleaved; the median counts (the lower "
-                         "middle one for an even count); default 3, --quick: 1")
-    ap.add_argument("--warp-repeats", type=int, default=None,
-                    help="in-process warp runs per N and thread count, the fastest counts (default: 3 below 2M "
-                         "world-steps, else 1)")
+    ap.add_argument(
+        "--cli-n", type=int, default=None, help="designs of the CLI figure (default 4096, --quick: 8; 0: none)"
+    )
+    ap.add_argument(
+        "--cli-repeats",
+        type=int,
+        default=None,
+        help="fresh `tt rollout` processes per warp thread count, interleaved; the median counts (the lower "
+        "middle one for an even count); default 3, --quick: 1",
+    )
+    ap.add_argument(
+        "--warp-repeats",
+        type=int,
+        default=None,
+        help="in-process warp runs per N and thread count, the fastest counts (default: 3 below 2M "
+        "world-steps, else 1)",
+    )
     ap.add_argument("--steps", type=int, default=None, help="control steps of the toss (default: all 223)")
-    ap.add_argument("--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8")
-    ap.add_argument("--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)")
+    ap.add_argument(
+        "--quick", action="store_true", help="smoke test: N = 1, 8; 60 control steps; 2 oracle worlds; CLI on 8"
+    )
+    ap.add_argument(
+        "--out", type=Path, default=None, help="report file (default benchmarks/results/sim.md; --quick: a temp file)"
+    )
     args = ap.parse_args(argv)
     if args.quick:
         args.sizes, args.oracle_worlds = [1, 8], 2
@@ -523,7 +610,11 @@ def main(argv: list[str] | None = None) -> None:
         if b not in OTHERS:
             ap.error(f"--backends {b!r}: choose from {list(OTHERS)}")
     if args.out is None:
-        args.out = Path(tempfile.mkdtemp(prefix="tt_sim_quick_")) / "sim.md" if args.quick else Path(__file__).parent / "results" / "sim.md"
+        args.out = (
+            Path(tempfile.mkdtemp(prefix="tt_sim_quick_")) / "sim.md"
+            if args.quick
+            else Path(__file__).parent / "results" / "sim.md"
+        )
 
     import warp as wp
 
@@ -547,8 +638,9 @@ def main(argv: list[str] | None = None) -> None:
         start = time.perf_counter()
         space.trees(designs[:n])
         trees_s[n] = time.perf_counter() - start
-    records: list[dict] = [_log({"model_building_s_per_design": build_per_design, "designs": len(models),
-                                 "processes": cores})]
+    records: list[dict] = [
+        _log({"model_building_s_per_design": build_per_design, "designs": len(models), "processes": cores})
+    ]
 
     # Load every warp module once (from the cache), so that no timing below compiles.
     from tt.sim.rollout import rollout
@@ -557,7 +649,8 @@ def main(argv: list[str] | None = None) -> None:
 
     results: dict = {"cores": cores, "full_steps": full, "motion": motion.name, "build_s_per_design": build_per_design,
                      "trees_s": trees_s,
-                     "load_before": load_before, "records": records, "mujoco": {}, "warp": {}, "others": {}}  # fmt: skip
+                     "load_before": load_before, "records": records,
+                     "mujoco": {}, "warp": {}, "others": {}}  # fmt: skip
     results["oracle"] = _oracle(models[: args.oracle_worlds], motion)
     records.append(results["oracle"])
     for n in args.sizes:

@@ -71,17 +71,45 @@ def _synthetic_episode(index, worlds: int, steps: int, seed: int) -> Episode:
     a = len(index[0].track_link)
     r = lambda *s: torch.rand(*s, generator=g)  # noqa: E731
     quat = torch.nn.functional.normalize(torch.randn(worlds, steps, a, 4, generator=g), dim=-1)
-    return Episode(qpos=r(worlds, steps, nq), qvel=r(worlds, steps, nq), ctrl=r(worlds, steps, nu), action=r(worlds, steps, nu),
-                   act_force=r(worlds, steps, nu), act_vel=r(worlds, steps, nu), ee_pos=r(worlds, steps, a, 3), ee_quat=quat,
-                   target_pos=r(worlds, steps, a, 3), target_quat=quat.clone(), alive=torch.ones(worlds, steps, dtype=torch.bool),
-                   fallen=torch.zeros(worlds, steps, dtype=torch.bool),
-                   design_index=torch.randint(len(index), (worlds,), generator=g), motion_index=torch.zeros(worlds, dtype=torch.long), dt=0.02)
+    return Episode(
+        qpos=r(worlds, steps, nq),
+        qvel=r(worlds, steps, nq),
+        ctrl=r(worlds, steps, nu),
+        action=r(worlds, steps, nu),
+        act_force=r(worlds, steps, nu),
+        act_vel=r(worlds, steps, nu),
+        ee_pos=r(worlds, steps, a, 3),
+        ee_quat=quat,
+        target_pos=r(worlds, steps, a, 3),
+        target_quat=quat.clone(),
+        alive=torch.ones(worlds, steps, dtype=torch.bool),
+        fallen=torch.zeros(worlds, steps, dtype=torch.bool),
+        design_index=torch.randint(len(index), (worlds,), generator=g),
+        motion_index=torch.zeros(worlds, dtype=torch.long),
+        dt=0.02,
+    )
 
 
 def _one_world(ep: Episode, w: int) -> Episode:
     """World `w` of `ep` as an Episode of its own (views), running design 0."""
-    f = {k: getattr(ep, k)[w:w + 1] for k in ("qpos", "qvel", "ctrl", "action", "act_force", "act_vel", "ee_pos", "ee_quat",
-                                              "target_pos", "target_quat", "alive", "fallen", "motion_index")}
+    f = {
+        k: getattr(ep, k)[w : w + 1]
+        for k in (
+            "qpos",
+            "qvel",
+            "ctrl",
+            "action",
+            "act_force",
+            "act_vel",
+            "ee_pos",
+            "ee_quat",
+            "target_pos",
+            "target_quat",
+            "alive",
+            "fallen",
+            "motion_index",
+        )
+    }
     return Episode(**f, design_index=torch.zeros(1, dtype=torch.long), dt=ep.dt)
 
 
@@ -99,19 +127,27 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
         warm = Tokenizer()
         warm(models)
         wall_w, cpu_w = _best(lambda: warm(models), repeats)
-        one = models[:min(single, robots)]
+        one = models[: min(single, robots)]
         wall_1, cpu_1 = _best(lambda: [warm([m]) for m in one], 1)
     topologies = len({r.topology for r in emb.index})
     counts = emb.tokens.counts()
     total = emb.tokens.total()
     chars = np.array([len(t) for t in texts])
     out = {
-        "space": name, "robots": robots, "topologies": topologies,
-        "tokenize_robots_per_s_wall": robots / wall, "tokenize_robots_per_s_cpu": robots / cpu,
-        "tokenize_warm_robots_per_s_wall": robots / wall_w, "tokenize_warm_robots_per_s_cpu": robots / cpu_w,
-        "tokenize_single_robots_per_s_wall": len(one) / wall_1, "tokenize_single_robots_per_s_cpu": len(one) / cpu_1,
-        "tokens_mean": float(total.mean()), "tokens_min": int(total.min()), "tokens_max": int(total.max()),
-        "mjcf_chars_mean": float(chars.mean()), "chars_per_token": float((chars / total).mean()),
+        "space": name,
+        "robots": robots,
+        "topologies": topologies,
+        "tokenize_robots_per_s_wall": robots / wall,
+        "tokenize_robots_per_s_cpu": robots / cpu,
+        "tokenize_warm_robots_per_s_wall": robots / wall_w,
+        "tokenize_warm_robots_per_s_cpu": robots / cpu_w,
+        "tokenize_single_robots_per_s_wall": len(one) / wall_1,
+        "tokenize_single_robots_per_s_cpu": len(one) / cpu_1,
+        "tokens_mean": float(total.mean()),
+        "tokens_min": int(total.min()),
+        "tokens_max": int(total.max()),
+        "mjcf_chars_mean": float(chars.mean()),
+        "chars_per_token": float((chars / total).mean()),
         "per_type_max": {t: int(counts[t].max()) for t in EMBODIMENT_TYPES if t in counts},
     }
     ep = _synthetic_episode(emb.index, worlds, steps, seed=1)
@@ -132,39 +168,63 @@ def bench_space(name: str, robots: int, worlds: int, steps: int, detok: int, rep
 
 
 def write_markdown(rows: list[dict], args) -> str:
-    lines = ["# RoboToken benchmarks", "", machine_header("cpu").rstrip(), f"- RoboToken schema v{SCHEMA_VERSION}",
-             f"- load average (1 min) at start, after each space, at end: {args.load_start:.1f}, "
-             f"{', '.join(format(r['load_1min'], '.1f') for r in rows)}, {os.getloadavg()[0]:.1f} "
-             f"on {os.cpu_count()} cores (other jobs share this machine: wall numbers shrink with load, CPU numbers less so)",
-             f"- torch threads: {args.threads}",
-             f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps {args.steps} --single {args.single} --detok {args.detok} --repeats {args.repeats} --threads {args.threads}`", "",
-             "## Throughput", "",
-             f"Tokenize: {args.robots} compiled designs per space in one call (MJCF compile not timed); reference: "
-             f"one call per robot, {args.single} robots, warm. "
-             f"Episodes: {args.worlds} worlds x {args.steps} steps, 8 random steps per world, worlds spread over the "
-             f"tokenized designs, in one call; reference: one world per call, {args.single} worlds. "
-             f"Detokenize: MJCF text + MuJoCo compile, {args.detok} robots. Best of {args.repeats} "
-             "runs; wall clock and process CPU time (the machine may be shared).", "",
-             "| space | topologies | tokenize robots/s cold (wall / CPU) | warm (wall / CPU) | one robot per call (wall / CPU) "
-             "| episode-samples/s (wall / CPU) | one world per call (wall / CPU) | detokenize robots/s (wall / CPU) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        "# RoboToken benchmarks",
+        "",
+        machine_header("cpu").rstrip(),
+        f"- RoboToken schema v{SCHEMA_VERSION}",
+        f"- load average (1 min) at start, after each space, at end: {args.load_start:.1f}, "
+        f"{', '.join(format(r['load_1min'], '.1f') for r in rows)}, {os.getloadavg()[0]:.1f} "
+        f"on {os.cpu_count()} cores (other jobs share this machine: wall numbers shrink with load, CPU "
+        "numbers less so)",
+        f"- torch threads: {args.threads}",
+        f"- command: `python benchmarks/tokens.py --robots {args.robots} --worlds {args.worlds} --steps "
+        f"{args.steps} --single {args.single} --detok {args.detok} --repeats {args.repeats} --threads "
+        f"{args.threads}`",
+        "",
+        "## Throughput",
+        "",
+        f"Tokenize: {args.robots} compiled designs per space in one call (MJCF compile not timed); reference: "
+        f"one call per robot, {args.single} robots, warm. "
+        f"Episodes: {args.worlds} worlds x {args.steps} steps, 8 random steps per world, worlds spread over the "
+        f"tokenized designs, in one call; reference: one world per call, {args.single} worlds. "
+        f"Detokenize: MJCF text + MuJoCo compile, {args.detok} robots. Best of {args.repeats} "
+        "runs; wall clock and process CPU time (the machine may be shared).",
+        "",
+        "| space | topologies | tokenize robots/s cold (wall / CPU) | warm (wall / CPU) | one robot per call "
+        "(wall / CPU) "
+        "| episode-samples/s (wall / CPU) | one world per call (wall / CPU) | detokenize robots/s (wall / CPU) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        lines.append(f"| {r['space']} | {r['topologies']} | {r['tokenize_robots_per_s_wall']:,.0f} / {r['tokenize_robots_per_s_cpu']:,.0f} | "
-                     f"{r['tokenize_warm_robots_per_s_wall']:,.0f} / {r['tokenize_warm_robots_per_s_cpu']:,.0f} | "
-                     f"{r['tokenize_single_robots_per_s_wall']:,.0f} / {r['tokenize_single_robots_per_s_cpu']:,.0f} | "
-                     f"{r['episode_samples_per_s_wall']:,.0f} / {r['episode_samples_per_s_cpu']:,.0f} | "
-                     f"{r['episode_single_samples_per_s_wall']:,.0f} / {r['episode_single_samples_per_s_cpu']:,.0f} | "
-                     f"{r['detokenize_robots_per_s_wall']:,.0f} / {r['detokenize_robots_per_s_cpu']:,.0f} |")
-    lines += ["", "Targets (issue): >= 2,000 robots/s and >= 20,000 episode-samples/s.", "",
-              "## Token counts and MJCF size", "",
-              "Embodiment RoboTokens per robot (joints count two tokens each, one per link they join) next to the "
-              "design space's MJCF text in characters.", "",
-              "| space | RoboTokens mean (min-max) | MJCF characters (mean) | characters per token | most tokens per type |",
-              "|---|---:|---:|---:|---|"]
+        lines.append(
+            f"| {r['space']} | {r['topologies']} | {r['tokenize_robots_per_s_wall']:,.0f} / "
+            f"{r['tokenize_robots_per_s_cpu']:,.0f} | "
+            f"{r['tokenize_warm_robots_per_s_wall']:,.0f} / {r['tokenize_warm_robots_per_s_cpu']:,.0f} | "
+            f"{r['tokenize_single_robots_per_s_wall']:,.0f} / {r['tokenize_single_robots_per_s_cpu']:,.0f} | "
+            f"{r['episode_samples_per_s_wall']:,.0f} / {r['episode_samples_per_s_cpu']:,.0f} | "
+            f"{r['episode_single_samples_per_s_wall']:,.0f} / {r['episode_single_samples_per_s_cpu']:,.0f} | "
+            f"{r['detokenize_robots_per_s_wall']:,.0f} / {r['detokenize_robots_per_s_cpu']:,.0f} |"
+        )
+    lines += [
+        "",
+        "Targets (issue): >= 2,000 robots/s and >= 20,000 episode-samples/s.",
+        "",
+        "## Token counts and MJCF size",
+        "",
+        "Embodiment RoboTokens per robot (joints count two tokens each, one per link they join) next to the "
+        "design space's MJCF text in characters.",
+        "",
+        "| space | RoboTokens mean (min-max) | MJCF characters (mean) | characters per token | most tokens per type |",
+        "|---|---:|---:|---:|---|",
+    ]
     for r in rows:
         per = ", ".join(f"{k} {v}" for k, v in r["per_type_max"].items())
-        lines.append(f"| {r['space']} | {r['tokens_mean']:.1f} ({r['tokens_min']}-{r['tokens_max']}) | {r['mjcf_chars_mean']:,.0f} | "
-                     f"{r['chars_per_token']:.0f} | {per} |")
+        lines.append(
+            f"| {r['space']} | {r['tokens_mean']:.1f} ({r['tokens_min']}-{r['tokens_max']}) | "
+            f"{r['mjcf_chars_mean']:,.0f} | "
+            f"{r['chars_per_token']:.0f} | {per} |"
+        )
     return "\n".join(lines) + "\n"
 
 

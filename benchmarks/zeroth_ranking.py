@@ -30,7 +30,8 @@ predictions averaged), so its rows rank exactly the same validated designs at no
 simulation.
 
 Usage: ``python benchmarks/zeroth_ranking.py CHECKPOINT [--seeds 9] [--n 128] [--steps 20]
-[--critic joint dynamics] [--critic-samples 1 4] [--critic-checkpoint C] [--rescore C ...] [--rescore-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
+[--critic joint dynamics] [--critic-samples 1 4] [--critic-checkpoint C] [--rescore C ...]
+[--rescore-samples 1 4] [--baselines]``. Writes ``benchmarks/results/zeroth_ranking.md``.
 """
 
 from __future__ import annotations
@@ -68,8 +69,10 @@ class CachedDecoder:
         self.cache: dict[bytes, object] = {}
 
     def __call__(self, tokens, index: int):
-        key = b"".join(np.ascontiguousarray(v[index]).tobytes() + np.ascontiguousarray(tokens.mask[n][index]).tobytes()
-                       for n, v in sorted(tokens.values.items()))
+        key = b"".join(
+            np.ascontiguousarray(v[index]).tobytes() + np.ascontiguousarray(tokens.mask[n][index]).tobytes()
+            for n, v in sorted(tokens.values.items())
+        )
         if key not in self.cache:
             self.cache[key] = self.decoder(tokens, index)
         return self.cache[key]
@@ -88,18 +91,45 @@ def main() -> None:
     p.add_argument("--seeds", type=int, default=9)
     p.add_argument("--n", type=int, default=128, help="Zeroth-Order samples (and the baselines' budget)")
     p.add_argument("--steps", type=int, default=20, help="DDIM steps")
-    p.add_argument("--critic", nargs="+", default=None, choices=["joint", "dynamics"],
-                   help="critics to compare (default: the model's default critic)")
-    p.add_argument("--critic-samples", type=int, nargs="+", default=[1],
-                   help="dynamics predictions averaged per candidate by the 'dynamics' critic (one row per value)")
-    p.add_argument("--critic-checkpoint", default=None,
-                   help="another checkpoint whose dynamics task scores the samples (one more critic row per --critic-samples)")
-    p.add_argument("--own-critic", action=argparse.BooleanOptionalAction, default=True,
-                   help="also rank with the sampling model's own critic (--no-own-critic: only --critic-checkpoint's)")
-    p.add_argument("--rescore", nargs="+", default=[], metavar="CHECKPOINT",
-                   help="other checkpoints that score the validated designs as critics (trained on the same space)")
-    p.add_argument("--rescore-samples", type=int, nargs="+", default=[1],
-                   help="predictions averaged per design by each --rescore critic (one row per value)")
+    p.add_argument(
+        "--critic",
+        nargs="+",
+        default=None,
+        choices=["joint", "dynamics"],
+        help="critics to compare (default: the model's default critic)",
+    )
+    p.add_argument(
+        "--critic-samples",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="dynamics predictions averaged per candidate by the 'dynamics' critic (one row per value)",
+    )
+    p.add_argument(
+        "--critic-checkpoint",
+        default=None,
+        help="another checkpoint whose dynamics task scores the samples (one more critic row per --critic-samples)",
+    )
+    p.add_argument(
+        "--own-critic",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also rank with the sampling model's own critic (--no-own-critic: only --critic-checkpoint's)",
+    )
+    p.add_argument(
+        "--rescore",
+        nargs="+",
+        default=[],
+        metavar="CHECKPOINT",
+        help="other checkpoints that score the validated designs as critics (trained on the same space)",
+    )
+    p.add_argument(
+        "--rescore-samples",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="predictions averaged per design by each --rescore critic (one row per value)",
+    )
     p.add_argument("--baselines", action="store_true", help="also run Random and CMA-ES at budget n")
     p.add_argument("--space", default=None, help="design space (default: the one the checkpoint records)")
     p.add_argument("--reward", default="tracking")
@@ -148,51 +178,84 @@ def main() -> None:
         problem = Problem(space, (motion,), args.reward, args.n, seed=seed, backend="warp", device="cpu")
         checked: dict[str, tuple[float, float]] = {}  # design -> validated (reward, position error)
         for critic, k, model in critics:
-            zo = ZerothOrder(SamplerConfig(num_steps=args.steps, decode="all", critic=critic, critic_samples=k),
-                             model=trained, decoder=decoder, critic_model=model)
+            zo = ZerothOrder(
+                SamplerConfig(num_steps=args.steps, decode="all", critic=critic, critic_samples=k),
+                model=trained,
+                decoder=decoder,
+                critic_model=model,
+            )
             res = zo.optimize(problem)
             keys = [json.dumps(sp.to_dict(d), sort_keys=True) for d in res.designs]
             todo = [key for key in dict.fromkeys(keys) if key not in checked]
             if todo:
-                ev = evaluate_designs([res.designs[keys.index(key)] for key in todo], (motion,), args.reward,
-                                      backend="mujoco")
+                ev = evaluate_designs(
+                    [res.designs[keys.index(key)] for key in todo], (motion,), args.reward, backend="mujoco"
+                )
                 for j, key in enumerate(todo):
                     checked[key] = (float(ev.reward[j, 0]), float(np.asarray(ev.metrics["pos_err"])[j, 0]))
             validated = np.array([checked[key][0] for key in keys])
             pos_err = np.array([checked[key][1] for key in keys])
-            label = res.info["critic"] + (f" of `{args.critic_checkpoint}`" if model is not None else "") + \
-                (" on the decoded designs" if res.info.get("critic_on") == "designs" else "") + \
-                (f" (mean of {k} predictions)" if k > 1 else "")
-            row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": label,
-                   "decoded": len(res.designs), "pick_reward": float(validated[0]),
-                   "median_reward": float(np.median(validated)), "best_reward": float(validated.max()),
-                   "pick_beats_median": bool(validated[0] > np.median(validated)),
-                   "spearman": spearman(np.asarray(res.rewards), validated),
-                   "pick_pos_err": float(pos_err[0]), "seconds": res.seconds}
+            label = (
+                res.info["critic"]
+                + (f" of `{args.critic_checkpoint}`" if model is not None else "")
+                + (" on the decoded designs" if res.info.get("critic_on") == "designs" else "")
+                + (f" (mean of {k} predictions)" if k > 1 else "")
+            )
+            row = {
+                "bench": "zeroth_ranking",
+                "seed": seed,
+                "motion": motion.name,
+                "critic": label,
+                "decoded": len(res.designs),
+                "pick_reward": float(validated[0]),
+                "median_reward": float(np.median(validated)),
+                "best_reward": float(validated.max()),
+                "pick_beats_median": bool(validated[0] > np.median(validated)),
+                "spearman": spearman(np.asarray(res.rewards), validated),
+                "pick_pos_err": float(pos_err[0]),
+                "seconds": res.seconds,
+            }
             print(json.dumps(row), flush=True)
             rows.append(row)
             if rescorers and (critic, k, model) == critics[0]:
                 for path, other in rescorers:
                     for ks in args.rescore_samples:
-                        pred = predict_designs(other, res.designs, (motion,), get_reward(args.reward, space), samples=ks,
-                                               num_steps=args.steps, seed=seed)
+                        pred = predict_designs(
+                            other,
+                            res.designs,
+                            (motion,),
+                            get_reward(args.reward, space),
+                            samples=ks,
+                            num_steps=args.steps,
+                            seed=seed,
+                        )
                         score = pred.reward[:, 0]
                         pick = int(np.nanargmax(np.where(np.isfinite(score), score, -np.inf)))
                         label = f"`{path}` rescoring" + (f" (mean of {ks} predictions)" if ks > 1 else "")
-                        extra = {**row, "critic": label, "pick_reward": float(validated[pick]),
-                                 "pick_beats_median": bool(validated[pick] > np.median(validated)),
-                                 "spearman": spearman(score, validated),
-                                 "pick_pos_err": float(pos_err[pick]),
-                                 "seconds": pred.seconds}
+                        extra = {
+                            **row,
+                            "critic": label,
+                            "pick_reward": float(validated[pick]),
+                            "pick_beats_median": bool(validated[pick] > np.median(validated)),
+                            "spearman": spearman(score, validated),
+                            "pick_pos_err": float(pos_err[pick]),
+                            "seconds": pred.seconds,
+                        }
                         print(json.dumps(extra), flush=True)
                         rows.append(extra)
         if args.baselines:
             for name, opt in (("Random", RandomSearch()), ("CMA-ES", CMAES(CMAESConfig()))):
                 res = opt.optimize(problem)
                 ev = evaluate_designs([res.best], (motion,), args.reward, backend="mujoco")
-                row = {"bench": "zeroth_ranking", "seed": seed, "motion": motion.name, "critic": name,
-                       "pick_reward": float(ev.reward[0, 0]), "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[0, 0]),
-                       "seconds": res.seconds}
+                row = {
+                    "bench": "zeroth_ranking",
+                    "seed": seed,
+                    "motion": motion.name,
+                    "critic": name,
+                    "pick_reward": float(ev.reward[0, 0]),
+                    "pick_pos_err": float(np.asarray(ev.metrics["pos_err"])[0, 0]),
+                    "seconds": res.seconds,
+                }
                 print(json.dumps(row), flush=True)
                 rows.append(row)
     minutes = (time.perf_counter() - start) / 60
@@ -203,11 +266,13 @@ def main() -> None:
         machine_header("cpu"),
         f"- command: `python benchmarks/zeroth_ranking.py {' '.join(sys.argv[1:])}`",
         f"- checkpoint: `{args.checkpoint}` (space {space}, tasks {list(trained.tasks)}, step {trained.step})",
-        *([f"- critic checkpoint: `{args.critic_checkpoint}` (tasks {list(judge.tasks)}, step {judge.step})"]
-          if judge is not None else []),
+        *(
+            [f"- critic checkpoint: `{args.critic_checkpoint}` (tasks {list(judge.tasks)}, step {judge.step})"]
+            if judge is not None
+            else []
+        ),
         *[f"- rescoring critic: `{path}` (tasks {list(other.tasks)}, step {other.step})" for path, other in rescorers],
-        f"- load: {load_start} at the start, {load_line()} at the end; "
-        f"{minutes:.1f} min wall",
+        f"- load: {load_start} at the start, {load_line()} at the end; {minutes:.1f} min wall",
         "",
         f"{args.seeds} seeds, each one validation motion, Zeroth-Order with n = {args.n} ({args.steps} DDIM steps), "
         "every decoded candidate validated on the oracle. Target (issue 17): the pick beats the median of its "
@@ -227,16 +292,26 @@ def main() -> None:
         err = fmt([r["pick_pos_err"] for r in sel])  # the metric is in cm
         if "median_reward" in sel[0]:
             wins = sum(r["pick_beats_median"] for r in sel)
-            lines.append(f"| Zeroth-Order, {critic} critic | {wins} of {len(sel)} | {fmt([r['pick_reward'] for r in sel])} / "
-                         f"{fmt([r['median_reward'] for r in sel])} / {fmt([r['best_reward'] for r in sel])} | "
-                         f"{fmt([r['spearman'] for r in sel])} | {err} |")
+            lines.append(
+                f"| Zeroth-Order, {critic} critic | {wins} of {len(sel)} | {fmt([r['pick_reward'] for r in sel])} / "
+                f"{fmt([r['median_reward'] for r in sel])} / {fmt([r['best_reward'] for r in sel])} | "
+                f"{fmt([r['spearman'] for r in sel])} | {err} |"
+            )
         else:
             lines.append(f"| {critic} (budget {args.n}) | | {fmt([r['pick_reward'] for r in sel])} | | {err} |")
-    lines += ["", "Per seed:", "", "| seed | motion | critic | pick | median | best | Spearman |", "|---:|---|---|---:|---:|---:|---:|"]
+    lines += [
+        "",
+        "Per seed:",
+        "",
+        "| seed | motion | critic | pick | median | best | Spearman |",
+        "|---:|---|---|---:|---:|---:|---:|",
+    ]
     for r in rows:
         if "median_reward" in r:
-            lines.append(f"| {r['seed']} | {r['motion']} | {r['critic']} | {r['pick_reward']:.1f} | {r['median_reward']:.1f} | "
-                         f"{r['best_reward']:.1f} | {r['spearman']:.2f} |")
+            lines.append(
+                f"| {r['seed']} | {r['motion']} | {r['critic']} | {r['pick_reward']:.1f} | {r['median_reward']:.1f} | "
+                f"{r['best_reward']:.1f} | {r['spearman']:.2f} |"
+            )
     Path(args.out).write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out}", file=sys.stderr)
 

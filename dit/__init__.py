@@ -6,10 +6,10 @@ from tt.dit.ddim import CosineDDIM
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout, LayoutError, TokenSpec, layout_from_schema
 from tt.dit.model import DIT_CONFIGS, DiTConfig, RoboDiT, get_config
-from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, SampleResult, sample
 from tt.dit.tasks import CONTROL, ROBOT, TaskMasks, TaskSpec, get_task, task_masks
 from tt.dit.train import TrainConfig, TrainResult, train
+from tt.tokens.normalize import Normalizer
 
 __all__ = [
     "CONTROL",

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.layout import Layout, LayoutError
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
 
@@ -69,17 +69,23 @@ class Anchor:
     def check(self, layout: Layout, name: str) -> None:
         """Raise LayoutError unless `name` and `on` are types of `layout` whose slots fit the anchor."""
         if name not in layout or self.on not in layout:
-            raise LayoutError(f"anchor {name!r} on {self.on!r}: the layout lacks {[n for n in (name, self.on) if n not in layout]}")
+            raise LayoutError(
+                f"anchor {name!r} on {self.on!r}: the layout lacks {[n for n in (name, self.on) if n not in layout]}"
+            )
         a, b = layout[name], layout[self.on]
         if self.value is None:
             if (a.length, a.dim, a.per_step, a.ids) != (b.length, b.dim, b.per_step, b.ids):
                 raise LayoutError(f"anchor {name!r} on {self.on!r}: their slots differ ({a} vs {b})")
         elif not (a.per_step and b.per_step and a.per_step <= b.per_step and 0 <= self.value < b.dim and a.dim == 1):
-            raise LayoutError(f"anchor {name!r} on value {self.value} of {self.on!r}: needs two per-step types, one "
-                              f"value wide and with at most as many slots per step as {self.on!r} ({a} vs {b})")
+            raise LayoutError(
+                f"anchor {name!r} on value {self.value} of {self.on!r}: needs two per-step types, one "
+                f"value wide and with at most as many slots per step as {self.on!r} ({a} vs {b})"
+            )
         if len(self.scale) != a.dim or len(self.offset) != a.dim or (self.gain is not None and len(self.gain) != a.dim):
-            raise LayoutError(f"anchor {name!r} on {self.on!r}: {len(self.scale)} scales and {len(self.offset)} offsets "
-                              f"for {a.dim} values")
+            raise LayoutError(
+                f"anchor {name!r} on {self.on!r}: {len(self.scale)} scales and {len(self.offset)} offsets "
+                f"for {a.dim} values"
+            )
         if self.gain is not None and not all(g > 0 for g in self.gain):
             raise LayoutError(f"anchor {name!r}: gains must be > 0, got {self.gain}")
 
@@ -104,11 +110,18 @@ class Anchor:
     @staticmethod
     def from_dict(d: dict) -> "Anchor":
         value, gain = d.get("value"), d.get("gain")
-        return Anchor(str(d["on"]), tuple(float(v) for v in d["scale"]), tuple(float(v) for v in d["offset"]),
-                      None if value is None else int(value), None if gain is None else tuple(float(g) for g in gain))
+        return Anchor(
+            str(d["on"]),
+            tuple(float(v) for v in d["scale"]),
+            tuple(float(v) for v in d["offset"]),
+            None if value is None else int(value),
+            None if gain is None else tuple(float(g) for g in gain),
+        )
 
 
-def _affine(normalizer: Normalizer, name: str, on: str, dim: int, value: int | None) -> tuple[torch.Tensor, torch.Tensor]:
+def _affine(
+    normalizer: Normalizer, name: str, on: str, dim: int, value: int | None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """scale, offset (D,) of the map from `on`'s normalised values (value `value`, or all)
     to `name`'s: `on`'s denormalisation then `name`'s normalisation, both affine per value,
     so it is read off at -1 and +1."""
@@ -116,7 +129,7 @@ def _affine(normalizer: Normalizer, name: str, on: str, dim: int, value: int | N
     ends = torch.tensor([[-1.0], [1.0]], dtype=torch.float64).expand(2, width)[:, None]  # (2, 1, W)
     raw = normalizer.denormalize_values(on, ends)
     if value is not None:
-        raw = raw[..., value:value + 1]
+        raw = raw[..., value : value + 1]
     mapped = normalizer.normalize_values(name, raw)[:, 0]  # (2, D)
     return (mapped[1] - mapped[0]) / 2, (mapped[1] + mapped[0]) / 2
 
@@ -135,12 +148,15 @@ def pose_anchors(layout: Layout, normalizer: Normalizer) -> dict[str, Anchor]:
         out[name] = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()))
         out[name].check(layout, name)
     if not out:
-        raise LayoutError(f"no anchor fits the layout: anchors need {POSE_ANCHORS}, the layout has {list(layout.names)}")
+        raise LayoutError(
+            f"no anchor fits the layout: anchors need {POSE_ANCHORS}, the layout has {list(layout.names)}"
+        )
     return out
 
 
-def control_anchors(layout: Layout, normalizer: Normalizer, windows: TokenBatch | None = None,
-                    base: str = "joints") -> dict[str, Anchor]:
+def control_anchors(
+    layout: Layout, normalizer: Normalizer, windows: TokenBatch | None = None, base: str = "joints"
+) -> dict[str, Anchor]:
     """Commands anchored on the window's first step (`CONTROL_BASES`): the current positions
     of the joints they drive ("joints"), or the last command ("command").
 
@@ -152,7 +168,9 @@ def control_anchors(layout: Layout, normalizer: Normalizer, windows: TokenBatch 
     out = {}
     for name, (on, value) in {"control": CONTROL_BASES[base]}.items():
         if name not in layout or on not in layout:
-            raise LayoutError(f"the control anchor needs types {name!r} and {on!r}; the layout has {list(layout.names)}")
+            raise LayoutError(
+                f"the control anchor needs types {name!r} and {on!r}; the layout has {list(layout.names)}"
+            )
         scale, offset = _affine(normalizer, name, on, layout[name].dim, value)
         anchor = Anchor(on, tuple(scale.tolist()), tuple(offset.tolist()), value)
         anchor.check(layout, name)
@@ -175,8 +193,10 @@ def check_joint_actuators(robots, models) -> None:
     for d, (r, m) in enumerate(zip(robots, models)):
         driven = [int(m.actuator_trnid[a, 0]) for a in r.actuator_mj]
         if len(driven) > len(r.dyna_jnt) or any(j != int(r.dyna_jnt[i]) for i, j in enumerate(driven)):
-            raise LayoutError(f"design {d}: its actuators drive MuJoCo joints {driven}, not its dynamic joints "
-                              f"{[int(j) for j in r.dyna_jnt]} in order; the control anchor needs actuator i on joint i")
+            raise LayoutError(
+                f"design {d}: its actuators drive MuJoCo joints {driven}, not its dynamic joints "
+                f"{[int(j) for j in r.dyna_jnt]} in order; the control anchor needs actuator i on joint i"
+            )
 
 
 __all__ = ["Anchor", "CONTROL_BASES", "POSE_ANCHORS", "check_joint_actuators", "control_anchors", "pose_anchors"]

@@ -35,11 +35,11 @@ from pathlib import Path
 
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.ema import EMA
 from tt.dit.layout import Layout
 from tt.dit.model import RoboDiT
 from tt.dit.tasks import ROBOT, TASK_NAMES, task_names
+from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, atomic_write, check_readable, reason
 from tt.tokens.normalize import Normalizer
 
@@ -126,9 +126,11 @@ def default_checkpoint(space: str, folder: str | Path | None = None, *, task: st
         return p
     have = ", ".join(f"{s} ({', '.join(p.name for p in ps)})" for s, ps in shipped.items()) or "none"
     if files:
-        raise NoCheckpointError(f"design space {space!r} ships only checkpoints of other tasks in {folder} "
-                                f"({', '.join(p.name for p in files)}), none {'for task ' + repr(task) if task else 'for every task'} "
-                                f"(expected {space}_<size>.pt); pass --checkpoint RUN")
+        raise NoCheckpointError(
+            f"design space {space!r} ships only checkpoints of other tasks in {folder} "
+            f"({', '.join(p.name for p in files)}), none {'for task ' + repr(task) if task else 'for every task'} "
+            f"(expected {space}_<size>.pt); pass --checkpoint RUN"
+        )
     raise NoCheckpointError(
         f"no shipped DiT checkpoint for design space {space!r} in {folder} (expected {space}.pt or "
         f"{space}_<size>.pt; spaces with one: {have}); train one with `tt train` and pass --checkpoint RUN"
@@ -142,7 +144,10 @@ def shipped_critic(space: str, checkpoint: str | Path, folder: str | Path | None
     dynamics task; a user's own checkpoint is not paired with a shipped critic it was not
     trained beside)."""
     try:
-        shipped = {default_checkpoint(space, folder).resolve(), default_checkpoint(space, folder, task="robot").resolve()}
+        shipped = {
+            default_checkpoint(space, folder).resolve(),
+            default_checkpoint(space, folder, task="robot").resolve(),
+        }
         critic = default_checkpoint(space, folder, task="dynamics")
     except NoCheckpointError:
         return None
@@ -237,8 +242,9 @@ def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device
         raise CorruptFileError(f"checkpoint {path}: its network does not load ({reason(e)})") from None
     model.to(device).eval()
     tasks, robot_steps, start = _trained_tasks(state.get("train_config"))
-    return TrainedModel(model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps,
-                        start)
+    return TrainedModel(
+        model, normalizer, model.layout, int(state["step"]), state.get("space"), path, tasks, robot_steps, start
+    )
 
 
 def _trained_tasks(config) -> tuple[tuple[str, ...], int, bool]:
@@ -250,4 +256,8 @@ def _trained_tasks(config) -> tuple[tuple[str, ...], int, bool]:
         names = tuple(task_names(str(config.get("task", "robot"))))
     except ValueError:
         names = ("robot",)
-    return names, int(config.get("robot_diffusion_steps", ROBOT.diffusion_steps)), bool(config.get("dynamics_start", False))
+    return (
+        names,
+        int(config.get("robot_diffusion_steps", ROBOT.diffusion_steps)),
+        bool(config.get("dynamics_start", False)),
+    )

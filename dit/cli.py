@@ -8,11 +8,26 @@ from tt.dit.online import OnlineConfig
 from tt.dit.train import DataParallel, TrainConfig, TrainResult, train
 
 
-def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "small", out: str | Path = "runs/dit",
-              steps: int = 10_000, batch_size: int = 64, lr: float | None = None, device: str | None = None,
-              seed: int = 0, checkpoint_every: int = 1000, resume: bool = True, init: str | Path | None = None,
-              online: OnlineConfig | None = None, progress: bool = True, on_checkpoint=None, on_start_over=None,
-              **recipe) -> TrainResult:
+def train_cmd(
+    data: str | Path | None,
+    *,
+    task: str = "robot",
+    size: str = "small",
+    out: str | Path = "runs/dit",
+    steps: int = 10_000,
+    batch_size: int = 64,
+    lr: float | None = None,
+    device: str | None = None,
+    seed: int = 0,
+    checkpoint_every: int = 1000,
+    resume: bool = True,
+    init: str | Path | None = None,
+    online: OnlineConfig | None = None,
+    progress: bool = True,
+    on_checkpoint=None,
+    on_start_over=None,
+    **recipe,
+) -> TrainResult:
     """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
 
     data: episode token file (`tt.dit.data.EpisodeTokens.save`); task: robot | control |
@@ -33,9 +48,22 @@ def train_cmd(data: str | Path | None, *, task: str = "robot", size: str = "smal
     dp = DataParallel.from_env()
     progress = progress and (dp is None or dp.rank == 0)  # one bar for a data-parallel run
 
-    config = TrainConfig(data=str(data) if data is not None else "", out=str(out), task=task, size=size, steps=steps, batch_size=batch_size,
-                         lr=lr, device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume,
-                         init=str(init) if init else "", online=online, **recipe)
+    config = TrainConfig(
+        data=str(data) if data is not None else "",
+        out=str(out),
+        task=task,
+        size=size,
+        steps=steps,
+        batch_size=batch_size,
+        lr=lr,
+        device=device,
+        seed=seed,
+        checkpoint_every=checkpoint_every,
+        resume=resume,
+        init=str(init) if init else "",
+        online=online,
+        **recipe,
+    )
     bar = tqdm(total=steps, desc=f"train {size} {task}", unit="step", disable=not progress, dynamic_ncols=True)
     state = {"first": True}
 

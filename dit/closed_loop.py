@@ -111,8 +111,15 @@ class ArmWorlds:
     world by one control period and updates `state` to the new record.
     """
 
-    def __init__(self, models: Sequence[mujoco.MjModel], sites: Sequence[str], motions: Sequence[Motion], *,
-                 config: IKConfig = IKConfig(), device: str | None = None):
+    def __init__(
+        self,
+        models: Sequence[mujoco.MjModel],
+        sites: Sequence[str],
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig = IKConfig(),
+        device: str | None = None,
+    ):
         import warp as wp
 
         from tt.kernels.device import resolve_device
@@ -132,7 +139,9 @@ class ArmWorlds:
             check_supported(m, i)
         subs = {config.substeps(m) for m in self.models}
         if len(subs) != 1:
-            raise TTError(f"designs need different physics steps per control step {sorted(subs)}; give designs of one timestep")
+            raise TTError(
+                f"designs need different physics steps per control step {sorted(subs)}; give designs of one timestep"
+            )
         self.substeps = subs.pop()
         self.world_count = D * M
         self.nq = max(m.nq for m in self.models)
@@ -195,7 +204,9 @@ class ArmWorlds:
         marrays = motion_arrays(first_pos, first_quat, [1] * M, device=self.device)
         hold = torch.zeros(self.world_count, self.nu, device=self.torch_device)
         for g in self.groups:
-            start = start_postures(g.tree, marrays, self.config.init_ik_weights(), self.config.init_iterations, device=self.device)
+            start = start_postures(
+                g.tree, marrays, self.config.init_ik_weights(), self.config.init_iterations, device=self.device
+            )
             g.views["qpos"].copy_(wp.to_torch(start))
             g.views["qvel"].zero_()
             act = torch.as_tensor(g.tree.topology.actuator_dof, dtype=torch.long, device=self.torch_device)
@@ -239,8 +250,16 @@ def _models(designs) -> tuple[list[mujoco.MjModel], tuple[str, ...]]:
     return list(robots.models), robots.ee_sites
 
 
-def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, config: IKConfig = IKConfig(),
-                        device: str | None = None, steps: int | None = None, progress: bool = False) -> Episode:
+def closed_loop_rollout(
+    designs,
+    motions: Sequence[Motion],
+    policy: Policy,
+    *,
+    config: IKConfig = IKConfig(),
+    device: str | None = None,
+    steps: int | None = None,
+    progress: bool = False,
+) -> Episode:
     """Run every design on every motion with `policy` choosing the commands; see the module docstring.
 
     designs: D tt Designs of one contact-free space, or MjModels with sites ee_0, ...;
@@ -259,10 +278,17 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
         if abs(m.dt - config.control_dt) > 1e-9:
             raise TTError(f"motions[{j}] ({m.name!r}) has dt = {m.dt} s; the controller runs at {config.control_dt} s")
         if m.arms != len(sites):
-            raise TTError(f"motions[{j}] ({m.name!r}) has {m.arms} arm(s); the designs have {len(sites)} end effector(s)")
+            raise TTError(
+                f"motions[{j}] ({m.name!r}) has {m.arms} arm(s); the designs have {len(sites)} end effector(s)"
+            )
     sim = ArmWorlds(models, sites, motions, config=config, device=device)
-    log.debug("closed loop: %d designs x %d motions in %d topology group(s), policy %s",
-              len(models), len(motions), len(sim.groups), type(policy).__name__)
+    log.debug(
+        "closed loop: %d designs x %d motions in %d topology group(s), policy %s",
+        len(models),
+        len(motions),
+        len(sim.groups),
+        type(policy).__name__,
+    )
     dev = sim.torch_device
     W, A = sim.world_count, len(sites)
     T = max(m.steps for m in motions) if steps is None else int(steps)
@@ -277,7 +303,9 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
         pos[j], quat[j] = m.pos[idx], m.quat[idx]
     target_pos = torch.as_tensor(pos, device=dev)[sim.motion_index]  # (W, horizon, A, 3)
     target_quat = torch.as_tensor(quat, device=dev)[sim.motion_index]
-    ctx = LoopContext(models, motions, sim.design_index, sim.motion_index, target_pos, target_quat, lengths, config, sim)
+    ctx = LoopContext(
+        models, motions, sim.design_index, sim.motion_index, target_pos, target_quat, lengths, config, sim
+    )
 
     rec = {
         "qpos": torch.zeros(W, T, sim.nq, device=dev), "qvel": torch.zeros(W, T, sim.nq, device=dev),
@@ -301,12 +329,22 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
         if len(worlds):
             cmd = policy(k, worlds, state)
             if tuple(cmd.shape[:1]) != (len(worlds),) or cmd.ndim != 2 or cmd.shape[1] < sim.nu:
-                raise TTError(f"policy returned commands of shape {tuple(cmd.shape)} at step {k}; expected ({len(worlds)}, {sim.nu})")
+                raise TTError(
+                    f"policy returned commands of shape {tuple(cmd.shape)} at step {k}; expected "
+                    f"({len(worlds)}, {sim.nu})"
+                )
             ctrl[worlds] = cmd[:, : sim.nu].to(dev, torch.float32)
         # Stopped worlds keep their last command; their physics runs on unrecorded.
         state = sim.step(ctrl)
-        fresh = {"qpos": state.qpos, "qvel": state.qvel, "ctrl": state.ctrl, "act_force": state.act_force,
-                 "act_vel": state.act_vel, "ee_pos": state.ee_pos, "ee_quat": state.ee_quat}
+        fresh = {
+            "qpos": state.qpos,
+            "qvel": state.qvel,
+            "ctrl": state.ctrl,
+            "act_force": state.act_force,
+            "act_vel": state.act_vel,
+            "ee_pos": state.ee_pos,
+            "ee_quat": state.ee_quat,
+        }
         for name, x in rec.items():
             x[:, k] = torch.where(running.view(-1, *[1] * (x.ndim - 2)), fresh[name], x[:, k - 1] if k else fresh[name])
         err = torch.linalg.vector_norm(state.ee_pos - target_pos[:, k], dim=-1).sum(-1)  # (W,)
@@ -321,7 +359,8 @@ def closed_loop_rollout(designs, motions: Sequence[Motion], policy: Policy, *, c
     return Episode(
         qpos=rec["qpos"], qvel=rec["qvel"], ctrl=rec["ctrl"], action=rec["ctrl"], act_force=rec["act_force"],
         act_vel=rec["act_vel"], ee_pos=rec["ee_pos"], ee_quat=rec["ee_quat"], target_pos=target_pos[:, :T].contiguous(),
-        target_quat=target_quat[:, :T].contiguous(), alive=alive, fallen=torch.zeros(W, T, dtype=torch.bool, device=dev),
+        target_quat=target_quat[:, :T].contiguous(), alive=alive,
+        fallen=torch.zeros(W, T, dtype=torch.bool, device=dev),
         design_index=sim.design_index.clone(), motion_index=sim.motion_index.clone(), dt=config.control_dt,
     )  # fmt: skip
 

@@ -20,15 +20,16 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Protocol
+
 import numpy as np
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.layout import Layout, LayoutError, TokenSpec
+from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, atomic_write, read_npz, reason
 from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import STEP_ROLES, Role
 from tt.tokens.normalize import Normalizer
+from tt.tokens.schema import STEP_ROLES, Role
 
 #: Format tag of `EpisodeTokens` files.
 FILE_FORMAT = "tt.dit.episodes/1"
@@ -43,8 +44,14 @@ class TokenSource(Protocol):
     def fit_normalizer(self) -> Normalizer:
         """Normalisation statistics over the whole dataset."""
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenBatch:
+    def sample(
+        self,
+        n: int,
+        steps: int,
+        kind: str,
+        generator: torch.Generator | None = None,
+        part: tuple[int, int] | None = None,
+    ) -> TokenBatch:
         """n raw (unnormalised) windows, drawn with `generator` (CPU); kind: "random" | "start" | "consecutive".
         part: (a, b): read only windows a .. b - 1 of the n drawn (a data-parallel rank's
         share); the generator advances as for all n."""
@@ -97,21 +104,27 @@ class EpisodeTokens:
                 if "time" not in ids:
                     raise LayoutError(f"per-step type {name!r} has no 'time' ID; ids: {ids}")
                 if tuple(i.shape) != (e, v.shape[2], len(ids)) or tuple(m.shape) != (e, v.shape[2]):
-                    raise LayoutError(f"step_ids/step_mask of {name!r} have shapes {tuple(i.shape)}/{tuple(m.shape)}, "
-                                      f"expected {(e, v.shape[2], len(ids))}/{(e, v.shape[2])}")
+                    raise LayoutError(
+                        f"step_ids/step_mask of {name!r} have shapes {tuple(i.shape)}/{tuple(m.shape)}, "
+                        f"expected {(e, v.shape[2], len(ids))}/{(e, v.shape[2])}"
+                    )
             else:
                 v, i, m = self.static_values[name], self.static_ids[name], self.static_mask[name]
                 if v.ndim != 3 or v.shape[0] != e:
                     raise LayoutError(f"static_values[{name!r}] has shape {tuple(v.shape)}, expected ({e}, L, D)")
                 if tuple(i.shape) != (e, v.shape[1], len(ids)) or tuple(m.shape) != (e, v.shape[1]):
-                    raise LayoutError(f"static_ids/static_mask of {name!r} have shapes {tuple(i.shape)}/{tuple(m.shape)}, "
-                                      f"expected {(e, v.shape[1], len(ids))}/{(e, v.shape[1])}")
+                    raise LayoutError(
+                        f"static_ids/static_mask of {name!r} have shapes {tuple(i.shape)}/{tuple(m.shape)}, "
+                        f"expected {(e, v.shape[1], len(ids))}/{(e, v.shape[1])}"
+                    )
         if s_max is None:
             raise LayoutError("episodes need at least one per-step token type")
         if e == 0:
             raise LayoutError("no episodes")
         if int(self.lengths.min()) < 1 or int(self.lengths.max()) > s_max:
-            raise LayoutError(f"episode lengths span {int(self.lengths.min())}..{int(self.lengths.max())}, valid 1..{s_max}")
+            raise LayoutError(
+                f"episode lengths span {int(self.lengths.min())}..{int(self.lengths.max())}, valid 1..{s_max}"
+            )
 
     def __len__(self) -> int:
         return int(self.lengths.shape[0])
@@ -129,8 +142,8 @@ class EpisodeTokens:
                 p, d = self.step_values[name].shape[2:]
                 specs.append(TokenSpec(name, int(d), ids, role, steps * int(p), int(p)))
             else:
-                l, d = self.static_values[name].shape[1:]
-                specs.append(TokenSpec(name, int(d), ids, role, int(l)))
+                count, d = self.static_values[name].shape[1:]
+                specs.append(TokenSpec(name, int(d), ids, role, int(count)))
         layout = Layout(tuple(specs), dict(self.id_sizes), steps, self.schema_version)
         longest = int(self.lengths.max())
         if "time" in layout.id_sizes and longest > layout.id_sizes["time"]:
@@ -157,11 +170,17 @@ class EpisodeTokens:
         from tt.tokens.batch import TokenBatch
 
         ids = {k: np.zeros((*v.shape[:2], len(self.id_names[k])), np.int64) for k, (v, _) in data.items()}
-        batch = TokenBatch({k: v.numpy() for k, (v, _) in data.items()}, ids, {k: m.numpy() for k, (_, m) in data.items()},
-                           self.schema_version)
+        batch = TokenBatch(
+            {k: v.numpy() for k, (v, _) in data.items()},
+            ids,
+            {k: m.numpy() for k, (_, m) in data.items()},
+            self.schema_version,
+        )
         return Normalizer.fit(batch)
 
-    def window_steps(self, episodes: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None) -> torch.Tensor:
+    def window_steps(
+        self, episodes: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         """Step indices (n, steps), ascending, of windows of the given episodes."""
         lengths = self.lengths[episodes]
         short = (lengths < steps).nonzero()
@@ -171,7 +190,9 @@ class EpisodeTokens:
         n = episodes.shape[0]
         if kind in ("random", "start"):
             scores = torch.rand(n, self.max_steps, generator=generator)
-            scores = torch.where(torch.arange(self.max_steps)[None, :] < lengths[:, None], scores, torch.full_like(scores, 2.0))
+            scores = torch.where(
+                torch.arange(self.max_steps)[None, :] < lengths[:, None], scores, torch.full_like(scores, 2.0)
+            )
             if kind == "start":
                 scores[:, 0] = -1.0  # step 0 always, then steps - 1 distinct others
             idx = scores.topk(steps, dim=1, largest=False).indices
@@ -201,8 +222,14 @@ class EpisodeTokens:
                 mask[name] = self.static_mask[name][episodes]
         return TokenBatch(values, ids, mask)
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenBatch:
+    def sample(
+        self,
+        n: int,
+        steps: int,
+        kind: str,
+        generator: torch.Generator | None = None,
+        part: tuple[int, int] | None = None,
+    ) -> TokenBatch:
         """n windows of uniformly drawn episodes (raw, unnormalised tokens); part: (a, b) reads
         windows a .. b - 1 of them only (the draws are those of all n)."""
         episodes = torch.randint(0, len(self), (n,), generator=generator)
@@ -211,8 +238,9 @@ class EpisodeTokens:
         return self.window(episodes[rows], step_index[rows])
 
     @staticmethod
-    def from_token_batches(embodiment, dynamics, lengths: torch.Tensor, *, design_index: torch.Tensor | None = None,
-                           max_time: int = 1024) -> "EpisodeTokens":
+    def from_token_batches(
+        embodiment, dynamics, lengths: torch.Tensor, *, design_index: torch.Tensor | None = None, max_time: int = 1024
+    ) -> "EpisodeTokens":
         """Episodes from `tt.tokens` output.
 
         embodiment: `TokenBatch` of the robots (`tokenize_models(...).tokens`), N robots;
@@ -232,7 +260,11 @@ class EpisodeTokens:
         for name in emb.types:
             if roles[name] is not Role.EMBODIMENT:
                 raise LayoutError(f"embodiment batch holds per-step type {name!r}")
-            static_values[name], static_ids[name], static_mask[name] = emb.values[name][design], emb.ids[name][design], emb.mask[name][design]
+            static_values[name], static_ids[name], static_mask[name] = (
+                emb.values[name][design],
+                emb.ids[name][design],
+                emb.mask[name][design],
+            )
         step_values, step_ids, step_mask = {}, {}, {}
         for name in dyn.types:
             if roles[name] is Role.EMBODIMENT:
@@ -243,31 +275,56 @@ class EpisodeTokens:
             t = i[..., list(_schema_ids(name)).index("time")]  # (E, S*P)
             steps = int(t[0].max()) + 1 if t.numel() else 0
             if steps == 0 or v.shape[1] % steps:
-                raise LayoutError(f"dynamics[{name!r}] has {v.shape[1]} tokens, not a whole number per step over {steps} steps")
+                raise LayoutError(
+                    f"dynamics[{name!r}] has {v.shape[1]} tokens, not a whole number per step over {steps} steps"
+                )
             p = v.shape[1] // steps
             if not torch.equal(t.reshape(e, steps, p), torch.arange(steps)[None, :, None].expand(e, steps, p)):
-                raise LayoutError(f"dynamics[{name!r}] must hold every step 0..{steps - 1} of every episode, time-major "
-                                  "(episode_tokens with step_index = all steps)")
+                raise LayoutError(
+                    f"dynamics[{name!r}] must hold every step 0..{steps - 1} of every episode, time-major "
+                    "(episode_tokens with step_index = all steps)"
+                )
             step_values[name] = v.reshape(e, steps, p, -1)
             step_ids[name] = i.reshape(e, steps, p, -1)[:, 0].clone()
             step_mask[name] = m.reshape(e, steps, p)[:, 0].clone()
         counts = {k: v.shape[1] for k, v in static_values.items()} | {k: v.shape[2] for k, v in step_values.items()}
         id_sizes = dict(layout_from_schema(counts, steps=1, max_time=max_time).id_sizes)
         order = tuple(n for n in roles if n in counts)
-        return EpisodeTokens({n: roles[n] for n in order}, {n: _schema_ids(n) for n in order}, id_sizes, static_values,
-                             static_ids, static_mask, step_values, step_ids, step_mask, lengths.long().cpu(),
-                             embodiment.version, order)
+        return EpisodeTokens(
+            {n: roles[n] for n in order},
+            {n: _schema_ids(n) for n in order},
+            id_sizes,
+            static_values,
+            static_ids,
+            static_mask,
+            step_values,
+            step_ids,
+            step_mask,
+            lengths.long().cpu(),
+            embodiment.version,
+            order,
+        )
 
     def subset(self, episodes: torch.Tensor) -> "EpisodeTokens":
         """The episodes at indices `episodes` (n,) long, in that order (copies)."""
-        groups = {g: {n: x[episodes] for n, x in getattr(self, g).items()}
-                  for g in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask")}
-        return EpisodeTokens(dict(self.roles), dict(self.id_names), dict(self.id_sizes), lengths=self.lengths[episodes],
-                             schema_version=self.schema_version, order=self.order, **groups)
+        groups = {
+            g: {n: x[episodes] for n, x in getattr(self, g).items()}
+            for g in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask")
+        }
+        return EpisodeTokens(
+            dict(self.roles),
+            dict(self.id_names),
+            dict(self.id_sizes),
+            lengths=self.lengths[episodes],
+            schema_version=self.schema_version,
+            order=self.order,
+            **groups,
+        )
 
     def pad_to(self, counts: Mapping[str, int]) -> "EpisodeTokens":
         """Every type padded (never truncated) to ``counts[type]`` tokens per robot
         (embodiment types) or per step (per-step types); types not named keep their length."""
+
         def grow(x: torch.Tensor, axis: int, size: int, name: str) -> torch.Tensor:
             if x.shape[axis] > size:
                 raise LayoutError(f"type {name!r} has {x.shape[axis]} tokens, more than the {size} asked for")
@@ -276,11 +333,26 @@ class EpisodeTokens:
             return torch.cat([x, torch.zeros(shape, dtype=x.dtype)], dim=axis)
 
         groups = {}
-        for group, axis in (("static_values", 1), ("static_ids", 1), ("static_mask", 1), ("step_values", 2),
-                            ("step_ids", 1), ("step_mask", 1)):
-            groups[group] = {n: grow(x, axis, counts[n], n) if n in counts else x for n, x in getattr(self, group).items()}
-        return EpisodeTokens(dict(self.roles), dict(self.id_names), dict(self.id_sizes), lengths=self.lengths,
-                             schema_version=self.schema_version, order=self.order, **groups)
+        for group, axis in (
+            ("static_values", 1),
+            ("static_ids", 1),
+            ("static_mask", 1),
+            ("step_values", 2),
+            ("step_ids", 1),
+            ("step_mask", 1),
+        ):
+            groups[group] = {
+                n: grow(x, axis, counts[n], n) if n in counts else x for n, x in getattr(self, group).items()
+            }
+        return EpisodeTokens(
+            dict(self.roles),
+            dict(self.id_names),
+            dict(self.id_sizes),
+            lengths=self.lengths,
+            schema_version=self.schema_version,
+            order=self.order,
+            **groups,
+        )
 
     @staticmethod
     def concatenate(parts: list["EpisodeTokens"]) -> "EpisodeTokens":
@@ -310,14 +382,26 @@ class EpisodeTokens:
                     shape = (s_max, *shape[1:])
                 merged[name] = torch.cat([pad(x, shape) for x in xs])
             groups[group] = merged
-        return EpisodeTokens(dict(first.roles), dict(first.id_names), sizes, lengths=torch.cat([p.lengths for p in parts]),
-                             schema_version=first.schema_version, order=first.order, **groups)
+        return EpisodeTokens(
+            dict(first.roles),
+            dict(first.id_names),
+            sizes,
+            lengths=torch.cat([p.lengths for p in parts]),
+            schema_version=first.schema_version,
+            order=first.order,
+            **groups,
+        )
 
     # ------------------------------------------------------------ files
     def save(self, path: str | Path) -> None:
-        header = {"format": FILE_FORMAT, "order": list(self.order), "roles": {k: v.value for k, v in self.roles.items()},
-                  "id_names": {k: list(v) for k, v in self.id_names.items()}, "id_sizes": self.id_sizes,
-                  "schema_version": self.schema_version}
+        header = {
+            "format": FILE_FORMAT,
+            "order": list(self.order),
+            "roles": {k: v.value for k, v in self.roles.items()},
+            "id_names": {k: list(v) for k, v in self.id_names.items()},
+            "id_sizes": self.id_sizes,
+            "schema_version": self.schema_version,
+        }
         arrays = {"header": np.array(json.dumps(header)), "lengths": self.lengths.numpy()}
         for group in ("static_values", "static_ids", "static_mask", "step_values", "step_ids", "step_mask"):
             for k, v in getattr(self, group).items():
@@ -362,10 +446,14 @@ class EpisodeTokens:
                 roles={k: Role(v) for k, v in header["roles"].items()},
                 id_names={k: tuple(v) for k, v in header["id_names"].items()},
                 id_sizes={k: int(v) for k, v in header["id_sizes"].items()},
-                static_values=groups.get("static_values", {}), static_ids=groups.get("static_ids", {}),
-                static_mask=groups.get("static_mask", {}), step_values=groups.get("step_values", {}),
-                step_ids=groups.get("step_ids", {}), step_mask=groups.get("step_mask", {}),
-                lengths=torch.from_numpy(f["lengths"]), schema_version=header["schema_version"],
+                static_values=groups.get("static_values", {}),
+                static_ids=groups.get("static_ids", {}),
+                static_mask=groups.get("static_mask", {}),
+                step_values=groups.get("step_values", {}),
+                step_ids=groups.get("step_ids", {}),
+                step_mask=groups.get("step_mask", {}),
+                lengths=torch.from_numpy(f["lengths"]),
+                schema_version=header["schema_version"],
                 order=tuple(header["order"]),
             )
         except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as e:

@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 
 import torch
+
 from tt.kernels.errors import TTError
 
 #: Offset s of the cosine schedule.
@@ -137,7 +138,9 @@ class CosineDDIM:
         ab = self.alpha_bar(t)
         return self._coef(ab.sqrt(), x0) * x0 + self._coef((1 - ab).sqrt(), x0) * eps
 
-    def predict_x0(self, x_t: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, *, clip: bool = True) -> torch.Tensor:
+    def predict_x0(
+        self, x_t: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, *, clip: bool = True
+    ) -> torch.Tensor:
         """x0_hat = (x_t - sqrt(1 - alpha_bar_t) eps) / sqrt(alpha_bar_t), clipped to +-clip_x0 when `clip`."""
         ab = self.alpha_bar(t)
         x0 = (x_t - self._coef((1 - ab).sqrt(), x_t) * eps) / self._coef(ab.sqrt(), x_t)
@@ -155,7 +158,9 @@ class CosineDDIM:
         ab = self.alpha_bar(t)
         return ab / (1 - ab)
 
-    def training_target(self, x0: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, prediction: str) -> torch.Tensor:
+    def training_target(
+        self, x0: torch.Tensor, eps: torch.Tensor, t: torch.Tensor | int, prediction: str
+    ) -> torch.Tensor:
         """What a network predicting `prediction` regresses onto for x_t = add_noise(x0, eps, t)."""
         _check_prediction(prediction)
         if prediction == "eps":
@@ -165,7 +170,9 @@ class CosineDDIM:
         ab = self.alpha_bar(t)
         return self._coef(ab.sqrt(), x0) * eps - self._coef((1 - ab).sqrt(), x0) * x0
 
-    def eps_from_output(self, out: torch.Tensor, x_t: torch.Tensor, t: torch.Tensor | int, prediction: str) -> torch.Tensor:
+    def eps_from_output(
+        self, out: torch.Tensor, x_t: torch.Tensor, t: torch.Tensor | int, prediction: str
+    ) -> torch.Tensor:
         """The eps a network output `out` of kind `prediction` stands for at x_t (see the module docstring)."""
         _check_prediction(prediction)
         if prediction == "eps":
@@ -175,8 +182,15 @@ class CosineDDIM:
         ab = self.alpha_bar(t)
         return self._coef(ab.sqrt(), x_t) * out + self._coef((1 - ab).sqrt(), x_t) * x_t
 
-    def loss_weight(self, t: torch.Tensor | int, weighting: str, prediction: str, *, gamma: float = MIN_SNR_GAMMA,
-                    sigma_data: float = EDM_SIGMA_DATA) -> torch.Tensor:
+    def loss_weight(
+        self,
+        t: torch.Tensor | int,
+        weighting: str,
+        prediction: str,
+        *,
+        gamma: float = MIN_SNR_GAMMA,
+        sigma_data: float = EDM_SIGMA_DATA,
+    ) -> torch.Tensor:
         """Per-sample loss weight (shape of t, float64) of `weighting` for a network predicting
         `prediction` (see the module docstring)."""
         _check_prediction(prediction)
@@ -204,8 +218,17 @@ class CosineDDIM:
         """eps_hat = eps - sqrt(1 - alpha_bar_t) scale grad, the eps that ascends a reward with gradient `grad`."""
         return eps - math.sqrt(1.0 - float(self.alpha_bar(t))) * scale * grad
 
-    def step(self, x_t: torch.Tensor, eps: torch.Tensor, t: int, t_prev: int, *, eta: float = 0.0,
-             noise: torch.Tensor | None = None, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def step(
+        self,
+        x_t: torch.Tensor,
+        eps: torch.Tensor,
+        t: int,
+        t_prev: int,
+        *,
+        eta: float = 0.0,
+        noise: torch.Tensor | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """One reverse step t -> t_prev; returns (x_prev, x0_hat). `noise` (shape of x_t) or a
         `generator` supplies z when eta > 0."""
         if not -1 <= t_prev < t:

@@ -19,17 +19,27 @@ from typing import Iterator
 
 import torch
 import torch.nn as nn
+
 from tt.kernels.errors import TTError
 
 
 class EMA:
     """Shadow copy of a model's parameters (float32, same device) and the update count."""
 
-    def __init__(self, model: nn.Module, *, power: float = 0.75, inv_gamma: float = 1.0,
-                 min_decay: float = 0.0, max_decay: float = 0.9999):
+    def __init__(
+        self,
+        model: nn.Module,
+        *,
+        power: float = 0.75,
+        inv_gamma: float = 1.0,
+        min_decay: float = 0.0,
+        max_decay: float = 0.9999,
+    ):
         if power <= 0 or inv_gamma <= 0 or not 0 <= min_decay <= max_decay < 1:
-            raise TTError(f"need power > 0, inv_gamma > 0, 0 <= min_decay <= max_decay < 1; got power={power}, "
-                             f"inv_gamma={inv_gamma}, min_decay={min_decay}, max_decay={max_decay}")
+            raise TTError(
+                f"need power > 0, inv_gamma > 0, 0 <= min_decay <= max_decay < 1; got power={power}, "
+                f"inv_gamma={inv_gamma}, min_decay={min_decay}, max_decay={max_decay}"
+            )
         self.power, self.inv_gamma, self.min_decay, self.max_decay = power, inv_gamma, min_decay, max_decay
         self.shadow = [p.detach().clone().float() for p in model.parameters()]
         self.updates = 0
@@ -70,8 +80,14 @@ class EMA:
                     p.copy_(s)
 
     def state_dict(self) -> dict:
-        return {"shadow": [a.clone() for a in self.shadow], "updates": self.updates, "power": self.power,
-                "inv_gamma": self.inv_gamma, "min_decay": self.min_decay, "max_decay": self.max_decay}
+        return {
+            "shadow": [a.clone() for a in self.shadow],
+            "updates": self.updates,
+            "power": self.power,
+            "inv_gamma": self.inv_gamma,
+            "min_decay": self.min_decay,
+            "max_decay": self.max_decay,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         if len(state["shadow"]) != len(self.shadow):

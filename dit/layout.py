@@ -24,9 +24,9 @@ from typing import Mapping
 
 import torch
 
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES, Role
-from tt.kernels.errors import TTError
 
 
 class LayoutError(TTError):
@@ -59,9 +59,14 @@ class TokenSpec:
             object.__setattr__(self, "role", Role(self.role))
         if self.role in STEP_ROLES:
             if "time" not in self.ids:
-                raise LayoutError(f"token type {self.name!r} has role {self.role.value} but no 'time' ID; ids: {self.ids}")
+                raise LayoutError(
+                    f"token type {self.name!r} has role {self.role.value} but no 'time' ID; ids: {self.ids}"
+                )
             if self.per_step < 1 or self.length % self.per_step:
-                raise LayoutError(f"token type {self.name!r}: length {self.length} must be a positive multiple of per_step {self.per_step}")
+                raise LayoutError(
+                    f"token type {self.name!r}: length {self.length} must be a positive multiple of per_step "
+                    f"{self.per_step}"
+                )
         elif self.per_step:
             raise LayoutError(f"token type {self.name!r}: embodiment types have per_step 0, got {self.per_step}")
 
@@ -71,12 +76,20 @@ class TokenSpec:
         return self.ids.index("time")
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "dim": self.dim, "ids": list(self.ids), "role": self.role.value,
-                "length": self.length, "per_step": self.per_step}
+        return {
+            "name": self.name,
+            "dim": self.dim,
+            "ids": list(self.ids),
+            "role": self.role.value,
+            "length": self.length,
+            "per_step": self.per_step,
+        }
 
     @staticmethod
     def from_dict(d: Mapping) -> "TokenSpec":
-        return TokenSpec(d["name"], int(d["dim"]), tuple(d["ids"]), Role(d["role"]), int(d["length"]), int(d["per_step"]))
+        return TokenSpec(
+            d["name"], int(d["dim"]), tuple(d["ids"]), Role(d["role"]), int(d["length"]), int(d["per_step"])
+        )
 
 
 @dataclass(frozen=True)
@@ -104,9 +117,13 @@ class Layout:
             self._by_name[s.name] = s
             for k in s.ids:
                 if k not in self.id_sizes or self.id_sizes[k] < 1:
-                    raise LayoutError(f"token type {s.name!r} uses ID kind {k!r}, which has no size; id_sizes: {dict(self.id_sizes)}")
+                    raise LayoutError(
+                        f"token type {s.name!r} uses ID kind {k!r}, which has no size; id_sizes: {dict(self.id_sizes)}"
+                    )
             if s.per_step and s.length != self.steps * s.per_step:
-                raise LayoutError(f"token type {s.name!r}: length {s.length} != steps {self.steps} x per_step {s.per_step}")
+                raise LayoutError(
+                    f"token type {s.name!r}: length {s.length} != steps {self.steps} x per_step {s.per_step}"
+                )
         if self.steps > self.id_sizes.get("time", self.steps):
             raise LayoutError(f"steps {self.steps} exceed the time ID size {self.id_sizes['time']}")
 
@@ -138,20 +155,29 @@ class Layout:
             return self
         specs = tuple(s for s in self.specs if s.name not in names)
         used = {k for s in specs for k in s.ids}
-        return Layout(specs, {k: v for k, v in self.id_sizes.items() if k in used or k == "time"}, self.steps,
-                      self.schema_version)
+        return Layout(
+            specs, {k: v for k, v in self.id_sizes.items() if k in used or k == "time"}, self.steps, self.schema_version
+        )
 
     def names_with(self, *roles: Role) -> tuple[str, ...]:
         return tuple(s.name for s in self.specs if s.role in roles)
 
     def to_dict(self) -> dict:
-        return {"specs": [s.to_dict() for s in self.specs], "id_sizes": dict(self.id_sizes), "steps": self.steps,
-                "schema_version": self.schema_version}
+        return {
+            "specs": [s.to_dict() for s in self.specs],
+            "id_sizes": dict(self.id_sizes),
+            "steps": self.steps,
+            "schema_version": self.schema_version,
+        }
 
     @staticmethod
     def from_dict(d: Mapping) -> "Layout":
-        return Layout(tuple(TokenSpec.from_dict(s) for s in d["specs"]), {k: int(v) for k, v in d["id_sizes"].items()},
-                      int(d["steps"]), None if d["schema_version"] is None else int(d["schema_version"]))
+        return Layout(
+            tuple(TokenSpec.from_dict(s) for s in d["specs"]),
+            {k: int(v) for k, v in d["id_sizes"].items()},
+            int(d["steps"]),
+            None if d["schema_version"] is None else int(d["schema_version"]),
+        )
 
     def check(self, tokens: TokenBatch, *, check_ids: bool = True) -> None:
         """Raise `LayoutError` naming the first type of `tokens` (torch) whose shapes, dtypes or IDs
@@ -167,11 +193,19 @@ class Layout:
         for s in self.specs:
             v, i, m = tokens.values[s.name], tokens.ids[s.name], tokens.mask[s.name]
             if tuple(v.shape) != (b, s.length, s.dim):
-                raise LayoutError(f"values[{s.name!r}] has shape {tuple(v.shape)}, the layout needs {(b, s.length, s.dim)}")
+                raise LayoutError(
+                    f"values[{s.name!r}] has shape {tuple(v.shape)}, the layout needs {(b, s.length, s.dim)}"
+                )
             if tuple(i.shape) != (b, s.length, len(s.ids)):
-                raise LayoutError(f"ids[{s.name!r}] has shape {tuple(i.shape)}, the layout needs {(b, s.length, len(s.ids))} (ids {s.ids})")
+                raise LayoutError(
+                    f"ids[{s.name!r}] has shape {tuple(i.shape)}, the layout needs "
+                    f"{(b, s.length, len(s.ids))} (ids {s.ids})"
+                )
             if tuple(m.shape) != (b, s.length) or m.dtype != torch.bool:
-                raise LayoutError(f"mask[{s.name!r}] has shape {tuple(m.shape)} and dtype {m.dtype}, the layout needs {(b, s.length)} bool")
+                raise LayoutError(
+                    f"mask[{s.name!r}] has shape {tuple(m.shape)} and dtype {m.dtype}, the layout needs "
+                    f"{(b, s.length)} bool"
+                )
             if i.dtype != torch.int64:
                 raise LayoutError(f"ids[{s.name!r}] has dtype {i.dtype}, expected torch.int64")
             if check_ids and i.numel():
@@ -179,7 +213,9 @@ class Layout:
                 hi = i.amax(dim=(0, 1)).tolist()
                 for k, kind in enumerate(s.ids):
                     if lo[k] < 0 or hi[k] >= self.id_sizes[kind]:
-                        raise LayoutError(f"ids[{s.name!r}] kind {kind!r} spans {lo[k]}..{hi[k]}; valid 0..{self.id_sizes[kind] - 1}")
+                        raise LayoutError(
+                            f"ids[{s.name!r}] kind {kind!r} spans {lo[k]}..{hi[k]}; valid 0..{self.id_sizes[kind] - 1}"
+                        )
 
     def check_normalizer(self, normalizer) -> None:
         """Raise `LayoutError` unless `normalizer` (a `tt.tokens.normalize.Normalizer`) has
@@ -188,7 +224,11 @@ class Layout:
             if s.name not in normalizer.low:
                 raise LayoutError(f"normalisation statistics lack token type {s.name!r}")
             if normalizer.low[s.name].shape != (s.dim,):
-                raise LayoutError(f"normalisation statistics of {s.name!r} have width {normalizer.low[s.name].shape}, layout dim {s.dim}")
+                raise LayoutError(
+                    f"normalisation statistics of {s.name!r} have width {normalizer.low[s.name].shape}, "
+                    f"layout dim {s.dim}"
+                )
+
 
 def slot_ids(spec: TokenSpec, slots: int, id_sizes: Mapping[str, int]) -> torch.Tensor:
     """Positional IDs (slots, K) of `slots` consecutive tokens of `spec` (of one control step
@@ -239,7 +279,7 @@ def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.dev
     """
     import warnings
 
-    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+    from tt.tokens.tokenize import Tokenizer, TokenizeWarning
 
     static = [s for s in layout.specs if s.role is Role.EMBODIMENT]
     with warnings.catch_warnings():
@@ -249,8 +289,12 @@ def robot_embodiment(layout: Layout, normalizer, models, device: str | torch.dev
         padded = emb.tokens.pad_to({s.name: s.length for s in static}).to_torch(str(device))
     except ValueError as e:
         raise LayoutError(f"a robot does not fit the model's layout: {e}") from None
-    values = {s.name: normalizer.normalize_values(s.name, padded.values[s.name].float(), padded.mask[s.name]) for s in static}
-    tokens = TokenBatch(values, {s.name: padded.ids[s.name] for s in static}, {s.name: padded.mask[s.name] for s in static})
+    values = {
+        s.name: normalizer.normalize_values(s.name, padded.values[s.name].float(), padded.mask[s.name]) for s in static
+    }
+    tokens = TokenBatch(
+        values, {s.name: padded.ids[s.name] for s in static}, {s.name: padded.mask[s.name] for s in static}
+    )
     return with_slot_ids(layout, tokens), emb.index
 
 
@@ -268,7 +312,9 @@ def layout_from_schema(counts: Mapping[str, int], *, steps: int = 8, max_time: i
 
     unknown = [n for n in counts if n not in S.SCHEMA.names()]
     if unknown:
-        raise LayoutError(f"counts name unknown token types {unknown}; schema v{S.SCHEMA_VERSION} has {list(S.SCHEMA.names())}")
+        raise LayoutError(
+            f"counts name unknown token types {unknown}; schema v{S.SCHEMA_VERSION} has {list(S.SCHEMA.names())}"
+        )
     roles = schema_roles()
     specs = []
     for t in S.SCHEMA.types:

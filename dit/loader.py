@@ -57,7 +57,9 @@ class SE2Augment:
 
     def __post_init__(self) -> None:
         if not (0 <= self.max_yaw <= math.pi and self.max_shift >= 0):
-            raise TTError(f"SE2Augment needs 0 <= max_yaw <= pi and max_shift >= 0, got {self.max_yaw}, {self.max_shift}")
+            raise TTError(
+                f"SE2Augment needs 0 <= max_yaw <= pi and max_shift >= 0, got {self.max_yaw}, {self.max_shift}"
+            )
 
     def draw(self, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """yaw, dx, dy of n windows, each (n,) float64."""
@@ -65,8 +67,13 @@ class SE2Augment:
         return u[:, 0] * self.max_yaw, u[:, 1] * self.max_shift, u[:, 2] * self.max_shift
 
 
-def augment_se2_tokens(values: dict[str, torch.Tensor], mask: dict[str, torch.Tensor], yaw: torch.Tensor,
-                       dx: torch.Tensor, dy: torch.Tensor) -> dict[str, torch.Tensor]:
+def augment_se2_tokens(
+    values: dict[str, torch.Tensor],
+    mask: dict[str, torch.Tensor],
+    yaw: torch.Tensor,
+    dx: torch.Tensor,
+    dy: torch.Tensor,
+) -> dict[str, torch.Tensor]:
     """Raw tokens of B windows under the planar transforms g = (yaw, dx, dy), each (B,).
 
     values[type]: (B, L, width) raw (encoded, unnormalised) tokens; mask[type]: (B, L).
@@ -105,7 +112,9 @@ def augment_se2_tokens(values: dict[str, torch.Tensor], mask: dict[str, torch.Te
     return out
 
 
-def window_steps(lengths: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None) -> torch.Tensor:
+def window_steps(
+    lengths: torch.Tensor, steps: int, kind: str, generator: torch.Generator | None = None
+) -> torch.Tensor:
     """Step indices (n, steps), ascending, of windows of episodes with `lengths` (n,).
 
     "random": `steps` distinct steps uniform among the episode's, sorted; "start": step 0 and
@@ -134,8 +143,11 @@ def _tensors(parts: list[dict]):
 
     names = list(parts[0]["values"])
     cat = lambda key, name, dt: torch.from_numpy(np.concatenate([p[key][name] for p in parts])).to(dt)  # noqa: E731
-    return TokenBatch({n: cat("values", n, torch.float32) for n in names}, {n: cat("ids", n, torch.int64) for n in names},
-                        {n: cat("mask", n, torch.bool) for n in names})
+    return TokenBatch(
+        {n: cat("values", n, torch.float32) for n in names},
+        {n: cat("ids", n, torch.int64) for n in names},
+        {n: cat("mask", n, torch.bool) for n in names},
+    )
 
 
 class _BlockCache:
@@ -176,20 +188,33 @@ class StoreTokenSource:
     cache_bytes: memory for recently read blocks; max_time: time-ID rows of the layout.
     """
 
-    def __init__(self, path: str | Path, *, augment: SE2Augment | None = SE2Augment(), windows_per_block: int = 16,
-                 block_episodes: int = BLOCK_EPISODES, cache_bytes: int = 1 << 30, max_time: int = 1024, verify: str = "size"):
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        augment: SE2Augment | None = SE2Augment(),
+        windows_per_block: int = 16,
+        block_episodes: int = BLOCK_EPISODES,
+        cache_bytes: int = 1 << 30,
+        max_time: int = 1024,
+        verify: str = "size",
+    ):
         self.store = TokenStore(path, verify=verify)
         if self.store.episodes == 0 and self.store.damaged:
-            raise DatasetError(f"dataset {path}: every shard with episodes fails verification "
-                               f"({'; '.join(f'shard {i}: {w}' for i, w in sorted(self.store.damaged.items())[:3])}); "
-                               "re-run the `tt generate` command that wrote it to regenerate them")
+            raise DatasetError(
+                f"dataset {path}: every shard with episodes fails verification "
+                f"({'; '.join(f'shard {i}: {w}' for i, w in sorted(self.store.damaged.items())[:3])}); "
+                "re-run the `tt generate` command that wrote it to regenerate them"
+            )
         if self.store.episodes == 0 and self.store.attrs.get("complete"):
             totals = self.store.attrs.get("totals") or {}
             dropped = ", ".join(f"{v:,} {k}" for k, v in sorted((totals.get("dropped") or {}).items()) if v)
             min_steps = (self.store.attrs.get("config") or {}).get("min_steps")
-            raise DatasetError(f"dataset {path} is complete but holds no episodes: all {totals.get('generated', '?')} "
-                               f"generated episodes were dropped ({dropped or 'every one'}; it was generated with "
-                               f"--min-steps {min_steps}); generate it again into another --out with a lower --min-steps")
+            raise DatasetError(
+                f"dataset {path} is complete but holds no episodes: all {totals.get('generated', '?')} "
+                f"generated episodes were dropped ({dropped or 'every one'}; it was generated with "
+                f"--min-steps {min_steps}); generate it again into another --out with a lower --min-steps"
+            )
         if self.store.episodes == 0:
             raise TTError(f"dataset {path} holds no episodes yet; run its `tt generate` command to generate them")
         if not self.store.attrs.get("complete"):
@@ -226,13 +251,21 @@ class StoreTokenSource:
         """`tt.tokens.normalize.Normalizer` from the dataset's stored statistics."""
         return self.store.normalizer()
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None):
+    def sample(
+        self,
+        n: int,
+        steps: int,
+        kind: str,
+        generator: torch.Generator | None = None,
+        part: tuple[int, int] | None = None,
+    ):
         """n raw windows (`tt.tokens.batch.TokenBatch`), drawn with `generator` (CPU).
         part: (a, b): only windows a .. b - 1 of the n (a data-parallel rank's share): the
         random numbers drawn are those of all n, and only those windows are built."""
         if steps > self.shortest:
-            raise TTError(f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}")
+            raise TTError(
+                f"windows of {steps} steps need episodes of >= {steps} steps; the shortest has {self.shortest}"
+            )
         lo, hi = (0, n) if part is None else part
         g = max(1, -(-n // self.windows_per_block))
         chosen = torch.multinomial(self.block_sizes, g, replacement=True, generator=generator)
@@ -269,10 +302,21 @@ class EpisodeWindows(torch.utils.data.IterableDataset):
     epochs: None streams forever. drop_last: drop each worker's last, smaller batch.
     """
 
-    def __init__(self, path: str | Path, *, batch_size: int = 64, steps: int = 8, kind: str = "random",
-                 augment: SE2Augment | None = SE2Augment(), seed: int = 0, epochs: int | None = 1,
-                 windows_per_episode: int = 1, shuffle_blocks: int = 8, block_episodes: int = BLOCK_EPISODES,
-                 drop_last: bool = False):
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        batch_size: int = 64,
+        steps: int = 8,
+        kind: str = "random",
+        augment: SE2Augment | None = SE2Augment(),
+        seed: int = 0,
+        epochs: int | None = 1,
+        windows_per_episode: int = 1,
+        shuffle_blocks: int = 8,
+        block_episodes: int = BLOCK_EPISODES,
+        drop_last: bool = False,
+    ):
         super().__init__()
         if kind not in WINDOW_KINDS:
             raise TTError(f"window kind {kind!r} does not exist; kinds: {list(WINDOW_KINDS)}")
@@ -303,16 +347,23 @@ class EpisodeWindows(torch.utils.data.IterableDataset):
         epoch = 0
         while self.epochs is None or epoch < self.epochs:
             order = np.random.default_rng([self.seed, epoch]).permutation(len(blocks))[wid::workers]
-            gen = torch.Generator().manual_seed(int(np.random.SeedSequence([self.seed, epoch, wid]).generate_state(1)[0]))
+            gen = torch.Generator().manual_seed(
+                int(np.random.SeedSequence([self.seed, epoch, wid]).generate_state(1)[0])
+            )
             carry: list[tuple[EpisodeBlock, int]] = []
             for g0 in range(0, len(order), self.shuffle_blocks):
-                loaded = [self.store.readers[blocks[i][0]].read_block(*blocks[i][1:]) for i in order[g0:g0 + self.shuffle_blocks]]
-                items = carry + [(blk, e) for blk in loaded for e in range(len(blk)) for _ in range(self.windows_per_episode)]
+                loaded = [
+                    self.store.readers[blocks[i][0]].read_block(*blocks[i][1:])
+                    for i in order[g0 : g0 + self.shuffle_blocks]
+                ]
+                items = carry + [
+                    (blk, e) for blk in loaded for e in range(len(blk)) for _ in range(self.windows_per_episode)
+                ]
                 perm = torch.randperm(len(items), generator=gen).tolist()
                 items = [items[i] for i in perm]
                 full = len(items) - len(items) % self.batch_size
                 for b0 in range(0, full, self.batch_size):
-                    yield self._batch(items[b0:b0 + self.batch_size], gen)
+                    yield self._batch(items[b0 : b0 + self.batch_size], gen)
                 carry = items[full:]
             if carry and not self.drop_last:
                 yield self._batch(carry, gen)
@@ -338,13 +389,30 @@ def _identity(batch):
     return batch
 
 
-def make_loader(path: str | Path, *, batch_size: int = 64, steps: int = 8, kind: str = "random", workers: int = 0,
-                seed: int = 0, epochs: int | None = 1, augment: SE2Augment | None = SE2Augment(), **kwargs) -> torch.utils.data.DataLoader:
+def make_loader(
+    path: str | Path,
+    *,
+    batch_size: int = 64,
+    steps: int = 8,
+    kind: str = "random",
+    workers: int = 0,
+    seed: int = 0,
+    epochs: int | None = 1,
+    augment: SE2Augment | None = SE2Augment(),
+    **kwargs,
+) -> torch.utils.data.DataLoader:
     """A DataLoader of `EpisodeWindows` batches (`tt.tokens.batch.TokenBatch`); `workers`
     processes read in parallel. Extra keyword arguments go to `EpisodeWindows`."""
-    ds = EpisodeWindows(path, batch_size=batch_size, steps=steps, kind=kind, augment=augment, seed=seed, epochs=epochs, **kwargs)
-    return torch.utils.data.DataLoader(ds, batch_size=None, num_workers=workers, collate_fn=_identity,
-                                       persistent_workers=workers > 0 and epochs is None)
+    ds = EpisodeWindows(
+        path, batch_size=batch_size, steps=steps, kind=kind, augment=augment, seed=seed, epochs=epochs, **kwargs
+    )
+    return torch.utils.data.DataLoader(
+        ds,
+        batch_size=None,
+        num_workers=workers,
+        collate_fn=_identity,
+        persistent_workers=workers > 0 and epochs is None,
+    )
 
 
 def data_identity(path: str | Path) -> dict:
@@ -376,7 +444,8 @@ def describe_data_change(before: dict, now: dict) -> str | None:
         changed = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
         if changed:
             return "it was regenerated with other arguments: " + ", ".join(
-                f"--{k.replace('_', '-')} {a.get(k)} then, {b.get(k)} now" for k in changed[:4])
+                f"--{k.replace('_', '-')} {a.get(k)} then, {b.get(k)} now" for k in changed[:4]
+            )
         if before.get("shards") != now.get("shards"):
             return f"its shards changed: {before.get('shards')} then, {now.get('shards')} now"
         return "its shards' content changed since (regenerated or replaced)"
@@ -396,5 +465,15 @@ def open_token_source(path: str | Path, **kwargs):
     return EpisodeTokens.load(path)
 
 
-__all__ = ["EpisodeWindows", "SE2Augment", "StoreTokenSource", "WINDOW_KINDS", "augment_se2_tokens", "data_identity",
-           "describe_data_change", "make_loader", "open_token_source", "window_steps"]
+__all__ = [
+    "EpisodeWindows",
+    "SE2Augment",
+    "StoreTokenSource",
+    "WINDOW_KINDS",
+    "augment_se2_tokens",
+    "data_identity",
+    "describe_data_change",
+    "make_loader",
+    "open_token_source",
+    "window_steps",
+]

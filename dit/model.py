@@ -26,11 +26,10 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from tt.kernels.errors import TTError
-from tt.tokens.schema import Role
 from tt.dit.anchors import Anchor
 from tt.dit.layout import Layout, LayoutError
-
+from tt.kernels.errors import TTError
+from tt.tokens.schema import Role
 
 #: Ways to embed time-step IDs (`DiTConfig.time_ids`).
 TIME_ID_EMBEDDINGS = ("sinusoidal", "learned")
@@ -56,7 +55,9 @@ class DiTConfig:
         if self.hidden % self.heads:
             raise TTError(f"hidden {self.hidden} must be a multiple of heads {self.heads}")
         if self.depth < 1 or self.freq_dim < 2 or self.freq_dim % 2:
-            raise TTError(f"depth must be >= 1 and freq_dim even >= 2, got depth={self.depth}, freq_dim={self.freq_dim}")
+            raise TTError(
+                f"depth must be >= 1 and freq_dim even >= 2, got depth={self.depth}, freq_dim={self.freq_dim}"
+            )
 
 
 #: Size variants: the paper's small (256 hidden, 8 layers, 4 heads) and large (512, 12, 8)
@@ -112,8 +113,9 @@ class TimeIdEmbedder(nn.Module):
     def __init__(self, hidden: int):
         super().__init__()
         half = hidden // 2
-        self.register_buffer("freqs", torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / half),
-                             persistent=False)
+        self.register_buffer(
+            "freqs", torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / half), persistent=False
+        )
         self.proj = nn.Linear(2 * half, hidden)
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
@@ -132,7 +134,9 @@ class Attention(nn.Module):
 
     def forward(self, x: torch.Tensor, key_mask: torch.Tensor | None) -> torch.Tensor:
         b, n, h = x.shape
-        q, k, v = self.qkv(x).reshape(b, n, 3, self.heads, h // self.heads).permute(2, 0, 3, 1, 4)  # 3 x (B, heads, N, h/heads)
+        q, k, v = (
+            self.qkv(x).reshape(b, n, 3, self.heads, h // self.heads).permute(2, 0, 3, 1, 4)
+        )  # 3 x (B, heads, N, h/heads)
         mask = None if key_mask is None else key_mask[:, None, None, :]  # (B, 1, 1, N)
         y = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)  # (B, heads, N, h/heads)
         return self.proj(y.transpose(1, 2).reshape(b, n, h))  # (B, N, H)
@@ -180,8 +184,9 @@ class RoboDiT(nn.Module):
     x0 prediction is the head's output plus the anchor (needs prediction "x0").
     """
 
-    def __init__(self, layout: Layout, config: DiTConfig, *, prediction: str = "eps",
-                 anchors: Mapping[str, Anchor] | None = None):
+    def __init__(
+        self, layout: Layout, config: DiTConfig, *, prediction: str = "eps", anchors: Mapping[str, Anchor] | None = None
+    ):
         super().__init__()
         from tt.dit.ddim import PREDICTIONS
 
@@ -194,16 +199,24 @@ class RoboDiT(nn.Module):
             anchor.check(layout, name)
             base_roles = (Role.CONDITION,) if anchor.value is None else (Role.CONDITION, Role.DYNAMICS, Role.ACTION)
             if layout[name].role is Role.CONDITION or layout[anchor.on].role not in base_roles:
-                raise LayoutError(f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition "
-                                  "(or, by a state anchor, on the current state)")
+                raise LayoutError(
+                    f"anchor {name!r} on {anchor.on!r}: a diffused type must be anchored on a condition "
+                    "(or, by a state anchor, on the current state)"
+                )
         self.layout = layout
         self.config = config
         self.prediction = prediction
         h = config.hidden
         self.in_proj = nn.ModuleDict({s.name: nn.Linear(s.dim, h) for s in layout.specs})
         kinds = sorted({k for s in layout.specs for k in s.ids})
-        self.id_embed = nn.ModuleDict({k: TimeIdEmbedder(h) if k == "time" and config.time_ids == "sinusoidal"
-                                       else nn.Embedding(layout.id_sizes[k], h) for k in kinds})
+        self.id_embed = nn.ModuleDict(
+            {
+                k: TimeIdEmbedder(h)
+                if k == "time" and config.time_ids == "sinusoidal"
+                else nn.Embedding(layout.id_sizes[k], h)
+                for k in kinds
+            }
+        )
         self.type_embed = nn.Embedding(len(layout.specs), h)
         self.noised_embed = nn.Embedding(2, h)
         self.time_embed = TimestepEmbedder(h, config.freq_dim)
@@ -211,8 +224,11 @@ class RoboDiT(nn.Module):
         self.heads = nn.ModuleDict({s.name: OutputHead(h, s.dim) for s in layout.specs if s.role is not Role.CONDITION})
         for name, anchor in self.anchors.items():
             gain = anchor.gain if anchor.gain is not None else (1.0,) * len(anchor.scale)
-            self.register_buffer(f"_anchor_{name}", torch.tensor([anchor.scale, anchor.offset, gain], dtype=torch.float32),
-                                 persistent=False)
+            self.register_buffer(
+                f"_anchor_{name}",
+                torch.tensor([anchor.scale, anchor.offset, gain], dtype=torch.float32),
+                persistent=False,
+            )
         self.register_buffer(
             "_type_index",
             torch.cat([torch.full((s.length,), i, dtype=torch.long) for i, s in enumerate(layout.specs)]),
@@ -252,8 +268,9 @@ class RoboDiT(nn.Module):
     def parameter_count(self) -> int:
         return sum(p.numel() for p in self.parameters())
 
-    def embed(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
-              noised: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    def embed(
+        self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor], noised: Mapping[str, torch.Tensor]
+    ) -> torch.Tensor:
         """Token inputs (B, N, H) of the concatenated sequence."""
         parts = []
         for s in self.layout.specs:
@@ -263,9 +280,15 @@ class RoboDiT(nn.Module):
             parts.append(x + self.noised_embed(noised[s.name].long()))  # (B, L, H)
         return torch.cat(parts, dim=1) + self.type_embed(self._type_index)  # (B, N, H)
 
-    def forward(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
-                noised: Mapping[str, torch.Tensor], time: torch.Tensor, attend: torch.Tensor | None = None,
-                outputs: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        values: Mapping[str, torch.Tensor],
+        ids: Mapping[str, torch.Tensor],
+        noised: Mapping[str, torch.Tensor],
+        time: torch.Tensor,
+        attend: torch.Tensor | None = None,
+        outputs: Iterable[str] | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Predicted noise (or x0, or v: `prediction`) per type.
 
         values: type -> (B, L, D) normalised values, noised where `noised` is True;
@@ -283,7 +306,7 @@ class RoboDiT(nn.Module):
         wanted = set(self.heads.keys() if outputs is None else outputs)
         for s in self.layout.specs:
             if s.name in wanted:
-                out[s.name] = self.heads[s.name](x[:, start:start + s.length], c)  # (B, L, D)
+                out[s.name] = self.heads[s.name](x[:, start : start + s.length], c)  # (B, L, D)
                 if s.name in self.anchors:
                     scale, offset, gain = getattr(self, f"_anchor_{s.name}")  # 3 x (D,)
                     anchor = self.anchors[s.name]
@@ -294,8 +317,12 @@ class RoboDiT(nn.Module):
 
     def describe(self) -> dict:
         """Layout and config, enough to rebuild the module (`from_description`)."""
-        return {"layout": self.layout.to_dict(), "config": asdict(self.config), "prediction": self.prediction,
-                "anchors": {n: a.to_dict() for n, a in self.anchors.items()}}
+        return {
+            "layout": self.layout.to_dict(),
+            "config": asdict(self.config),
+            "prediction": self.prediction,
+            "anchors": {n: a.to_dict() for n, a in self.anchors.items()},
+        }
 
     @staticmethod
     def from_description(d: Mapping) -> "RoboDiT":

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.data import EpisodeTokens
 from tt.dit.layout import Layout, LayoutError
+from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig
 from tt.tokens.normalize import Normalizer
@@ -90,25 +90,41 @@ class OnlineConfig:
         from tt.sim.rewards import REWARDS
 
         if self.refresh_every < 1 or self.buffer < 1:
-            raise TTError(f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}")
+            raise TTError(
+                f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}"
+            )
         if not (isinstance(self.select, int) and self.select >= 1):
-            raise TTError(f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+            raise TTError(
+                f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}"
+            )
         if not 0.0 <= self.uniform_share <= 1.0:
             raise TTError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
         if self.uniform_share > 0 and self.select == 1:
-            raise TTError("--uniform-share applies only with --online-select above 1 (without selection every design is uniform)")
+            raise TTError(
+                "--uniform-share applies only with --online-select above 1 (without selection every design is uniform)"
+            )
         if self.reward not in REWARDS:
             raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}")
         if get_space(self.space).has_contacts:
-            raise TTError(f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
-                             "kernels (contact-free trees): generate a dataset with `tt generate` instead")
+            raise TTError(
+                f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
+                "kernels (contact-free trees): generate a dataset with `tt generate` instead"
+            )
         self.generate_config()  # validates the shared fields
 
     def generate_config(self) -> GenerateConfig:
         """The `tt generate` config whose draws (augmentation, noise, filtering) a refresh uses."""
-        return GenerateConfig(space=self.space, designs=self.designs, episodes_per_design=self.motions, seed=self.seed,
-                              designs_per_shard=self.designs, group_designs=self.designs, min_steps=self.min_steps,
-                              max_motion_steps=self.max_motion_steps, action_noise=self.action_noise)
+        return GenerateConfig(
+            space=self.space,
+            designs=self.designs,
+            episodes_per_design=self.motions,
+            seed=self.seed,
+            designs_per_shard=self.designs,
+            group_designs=self.designs,
+            min_steps=self.min_steps,
+            max_motion_steps=self.max_motion_steps,
+            action_noise=self.action_noise,
+        )
 
 
 class OnlineTokenSource:
@@ -167,8 +183,14 @@ class OnlineTokenSource:
         self._data = EpisodeTokens.concatenate(parts)
         self._current = k
 
-    def sample(self, n: int, steps: int, kind: str, generator: torch.Generator | None = None,
-               part: tuple[int, int] | None = None) -> TokenBatch:
+    def sample(
+        self,
+        n: int,
+        steps: int,
+        kind: str,
+        generator: torch.Generator | None = None,
+        part: tuple[int, int] | None = None,
+    ) -> TokenBatch:
         """n raw windows from the buffer (refresh 0's if no step was started); part: see
         `tt.dit.data.EpisodeTokens.sample`. Every data-parallel rank generates the same
         refreshes (on its own device) and reads its part of the windows."""
@@ -187,7 +209,10 @@ class OnlineTokenSource:
         rng = _rng(cfg.seed, k, _STREAM_MOTIONS)
         base = training_motions(cfg.space)
         motion_ids = rng.choice(len(base), size=cfg.motions, replace=cfg.motions > len(base))
-        motions = [episode_motion(self._generate, base[m], s) for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))]
+        motions = [
+            episode_motion(self._generate, base[m], s)
+            for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))
+        ]
         return designs, motions
 
     def _refresh(self, k: int) -> EpisodeTokens:
@@ -201,22 +226,38 @@ class OnlineTokenSource:
         designs, motions = self.draw(k)
         too_long = max(m.steps for m in motions)
         if too_long > cfg.max_time:
-            raise LayoutError(f"a training motion has {too_long} steps, the layout's time IDs {cfg.max_time} rows; "
-                              "set max_motion_steps")
+            raise LayoutError(
+                f"a training motion has {too_long} steps, the layout's time IDs {cfg.max_time} rows; "
+                "set max_motion_steps"
+            )
         models = [self.space.model(d) for d in designs]
         # The tokenizer reads the models; the rollout simulates the tree fields the space
         # builds directly where it can, as every warp rollout of Designs does.
         trees = self.space.trees(designs)
-        records = rollout_records(models if trees is None else trees, self.space.ee_sites(), motions, device=self.device,
-                                  action_noise=cfg.action_noise, noise_seed=_seed_int(cfg.seed, k, _STREAM_NOISE))
+        records = rollout_records(
+            models if trees is None else trees,
+            self.space.ee_sites(),
+            motions,
+            device=self.device,
+            action_noise=cfg.action_noise,
+            noise_seed=_seed_int(cfg.seed, k, _STREAM_NOISE),
+        )
         parts, dropped, world_steps, groups = [], 0, 0, []
         for members, arrays in records:
-            ep = group_episode(members, arrays, len(motions), models[members[0]].nu, perturbed=cfg.action_noise > 0,
-                               dt=IKConfig().control_dt)
+            ep = group_episode(
+                members,
+                arrays,
+                len(motions),
+                models[members[0]].nu,
+                perturbed=cfg.action_noise > 0,
+                dt=IKConfig().control_dt,
+            )
             lengths = ep.lengths()
             world_steps += int(lengths.sum())
             if cfg.absorbing:
-                lengths = torch.tensor([m.steps for m in motions], device=lengths.device)[ep.motion_index.to(lengths.device)]
+                lengths = torch.tensor([m.steps for m in motions], device=lengths.device)[
+                    ep.motion_index.to(lengths.device)
+                ]
             keep = torch.as_tensor(finite_worlds(ep), device=lengths.device) & (lengths >= cfg.min_steps)
             dropped += int((~keep).sum())
             groups.append((members, ep, lengths, keep))
@@ -239,8 +280,10 @@ class OnlineTokenSource:
                 ep = dataclasses.replace(ep, design_index=local.to(ep.design_index.device))
             parts.append(episode_token_batch(ep, embodiment, lengths, keep.nonzero()[:, 0], cfg.max_time, self.maxima))
         if not parts:
-            raise RuntimeError(f"online refresh {k}: all {dropped} episodes were dropped (non-finite or shorter than "
-                               f"{cfg.min_steps} steps)")
+            raise RuntimeError(
+                f"online refresh {k}: all {dropped} episodes were dropped (non-finite or shorter than "
+                f"{cfg.min_steps} steps)"
+            )
         out = EpisodeTokens.concatenate(parts)
         seconds = time.perf_counter() - t0
         self.stats["refreshes"] += 1
@@ -248,11 +291,16 @@ class OnlineTokenSource:
         self.stats["dropped"] += dropped
         self.stats["world_steps"] += world_steps
         self.stats["seconds"] += seconds
-        log.info("online refresh %d: %d episodes (%d dropped), %d world-steps in %.1f s", k, len(out), dropped,
-                 world_steps, seconds)
+        log.info(
+            "online refresh %d: %d episodes (%d dropped), %d world-steps in %.1f s",
+            k,
+            len(out),
+            dropped,
+            world_steps,
+            seconds,
+        )
         self._refreshes[k] = out
         return out
-
 
     def _select(self, k: int, groups: list, motions: list) -> list:
         """The groups' keep masks narrowed to the episodes `select_episodes` picks per motion."""
@@ -266,26 +314,44 @@ class OnlineTokenSource:
             dev = ep.ee_pos.device
             steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
             # float64 sums: the ranking does not depend on the rollout's thread count.
-            inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
-                                  act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive,
-                                  fallen=ep.fallen, motion_steps=steps)
+            inputs = RewardInputs(
+                ep.ee_pos.double(),
+                ep.ee_quat.double(),
+                ep.target_pos.double(),
+                ep.target_quat.double(),
+                act_force=ep.act_force.double(),
+                act_vel=ep.act_vel.double(),
+                alive=ep.alive,
+                fallen=ep.fallen,
+                motion_steps=steps,
+            )
             rewards.append(metrics(inputs, reward_cfg)["reward"].cpu().numpy())
             motion_of.append(ep.motion_index.cpu().numpy())
             eligible.append(keep.cpu().numpy())
-        chosen = select_episodes(np.concatenate(rewards), np.concatenate(motion_of), np.concatenate(eligible),
-                                 cfg.designs, cfg.uniform_share, _rng(cfg.seed, k, _STREAM_SELECT))
+        chosen = select_episodes(
+            np.concatenate(rewards),
+            np.concatenate(motion_of),
+            np.concatenate(eligible),
+            cfg.designs,
+            cfg.uniform_share,
+            _rng(cfg.seed, k, _STREAM_SELECT),
+        )
         out, start = [], 0
         for members, ep, lengths, keep in groups:
-            mask = torch.as_tensor(chosen[start:start + ep.worlds], device=keep.device)
+            mask = torch.as_tensor(chosen[start : start + ep.worlds], device=keep.device)
             start += ep.worlds
             out.append((members, ep, lengths, keep & mask))
         self.stats["screened"] = self.stats.get("screened", 0) + start
         design_of = np.concatenate([ep.design_index.cpu().numpy() for _, ep, _, _ in groups])
-        self.selected[k] = [(int(design_of[w]), int(m)) for w, m in zip(np.nonzero(chosen)[0], np.concatenate(motion_of)[chosen])]
+        self.selected[k] = [
+            (int(design_of[w]), int(m)) for w, m in zip(np.nonzero(chosen)[0], np.concatenate(motion_of)[chosen])
+        ]
         return out
 
 
-def episode_token_batch(ep, embodiment, lengths: torch.Tensor, keep: torch.Tensor, max_time: int, maxima) -> EpisodeTokens:
+def episode_token_batch(
+    ep, embodiment, lengths: torch.Tensor, keep: torch.Tensor, max_time: int, maxima
+) -> EpisodeTokens:
     """The token episodes of worlds `keep` (k,) of a rollout's episode batch `ep` (W worlds x T
     steps), each `lengths` (W,) steps long, with the designs' embodiment tokens (`Tokenizer`
     output), time IDs up to `max_time`, padded to `maxima`."""
@@ -295,8 +361,9 @@ def episode_token_batch(ep, embodiment, lengths: torch.Tensor, keep: torch.Tenso
     dynamics = episode_tokens(ep, embodiment.index, step_index=torch.arange(T, device=lengths.device).expand(W, T))
     # Worlds left out (some end at step 0) are cut out right after; clamped so they pass
     # EpisodeTokens' length check until then.
-    tokens = EpisodeTokens.from_token_batches(embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(),
-                                              design_index=ep.design_index.cpu(), max_time=max_time)
+    tokens = EpisodeTokens.from_token_batches(
+        embodiment.tokens, dynamics, lengths.clamp_min(1).cpu(), design_index=ep.design_index.cpu(), max_time=max_time
+    )
     return tokens.subset(keep.cpu()).pad_to(maxima)
 
 

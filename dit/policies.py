@@ -34,12 +34,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel, load_checkpoint, load_model
 from tt.dit.closed_loop import LoopContext, StepState, closed_loop_rollout
 from tt.dit.layout import Layout, LayoutError
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, TaskSpec
+from tt.kernels.errors import TTError
 from tt.sim.controller import IKConfig
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -58,7 +58,9 @@ class IKPolicy:
     def reset(self, ctx: LoopContext) -> None:
         self.ctx = ctx
         dev = ctx.target_pos.device
-        self._act = [torch.as_tensor(g.tree.topology.actuator_dof, dtype=torch.long, device=dev) for g in ctx.worlds.groups]
+        self._act = [
+            torch.as_tensor(g.tree.topology.actuator_dof, dtype=torch.long, device=dev) for g in ctx.worlds.groups
+        ]
 
     def __call__(self, step: int, worlds: torch.Tensor, state: StepState) -> torch.Tensor:
         import warp as wp
@@ -153,9 +155,14 @@ def control_task_of(config: dict | None, where: str = "the checkpoint") -> TaskS
     cfg = config or {}
     if cfg.get("task", "control") == "robot":
         raise TTError(f"{where} was trained on the robot task only; the controller needs task control or both")
-    return TaskSpec("control", int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)), "consecutive",
-                    bool(cfg.get("future_states", CONTROL.future_states)), bool(cfg.get("known_command", False)),
-                    int(cfg.get("control_target_offset", 0)))
+    return TaskSpec(
+        "control",
+        int(cfg.get("control_diffusion_steps", CONTROL.diffusion_steps)),
+        "consecutive",
+        bool(cfg.get("future_states", CONTROL.future_states)),
+        bool(cfg.get("known_command", False)),
+        int(cfg.get("control_target_offset", 0)),
+    )
 
 
 class ModelPolicy:
@@ -165,16 +172,22 @@ class ModelPolicy:
     was trained on (`control_task`); config: `ControllerConfig`.
     """
 
-    def __init__(self, trained: TrainedModel, *, task: TaskSpec = CONTROL, config: ControllerConfig = ControllerConfig()):
+    def __init__(
+        self, trained: TrainedModel, *, task: TaskSpec = CONTROL, config: ControllerConfig = ControllerConfig()
+    ):
         if task.name != "control":
             raise TTError(f"ModelPolicy runs the control task, got task {task.name!r}")
         if config.num_steps > task.diffusion_steps:
-            raise TTError(f"ControllerConfig.num_steps = {config.num_steps}; the control process has {task.diffusion_steps} steps")
+            raise TTError(
+                f"ControllerConfig.num_steps = {config.num_steps}; the control process has {task.diffusion_steps} steps"
+            )
         layout = trained.layout
         need = {"control", "target_pose"}
         missing = sorted(need - set(layout.names))
         if missing:
-            raise LayoutError(f"the model's layout lacks {missing}; the controller needs control and target_pose tokens")
+            raise LayoutError(
+                f"the model's layout lacks {missing}; the controller needs control and target_pose tokens"
+            )
         self.trained = trained
         self.task = task
         self.config = config
@@ -182,8 +195,10 @@ class ModelPolicy:
         # A query at step k' (window start k' - 1) predicts steps up to k' + S - 2.
         self.ensemble = layout.steps - 1 if config.ensemble is None else config.ensemble
         if self.ensemble > layout.steps - 1:
-            raise TTError(f"ControllerConfig.ensemble = {config.ensemble}; the model's {layout.steps}-step window "
-                             f"predicts a step at most {layout.steps - 1} queries ahead")
+            raise TTError(
+                f"ControllerConfig.ensemble = {config.ensemble}; the model's {layout.steps}-step window "
+                f"predicts a step at most {layout.steps - 1} queries ahead"
+            )
         self.model = trained.model.eval()
         self.device = next(self.model.parameters()).device
 
@@ -203,7 +218,9 @@ class ModelPolicy:
             if s.role in STEP_ROLES:
                 widest = max(_step_count(s.name, r) for r in self.robots)
                 if widest > s.per_step:
-                    raise LayoutError(f"a design has {widest} {s.name} tokens per step; the model's layout holds {s.per_step}")
+                    raise LayoutError(
+                        f"a design has {widest} {s.name} tokens per step; the model's layout holds {s.per_step}"
+                    )
         P = layout["control"].per_step
         act = torch.full((len(self.robots), P), -1, dtype=torch.long)
         for d, r in enumerate(self.robots):
@@ -224,13 +241,16 @@ class ModelPolicy:
         n = len(worlds)
         horizon = ctx.target_pos.shape[1]
         idx = torch.clamp(torch.arange(start, start + S, device=worlds.device), max=horizon - 1)
-        aim = torch.clamp(idx + self.task.target_offset, max=horizon - 1)  # the targets given (`tt.dit.tasks.look_ahead`)
+        aim = torch.clamp(
+            idx + self.task.target_offset, max=horizon - 1
+        )  # the targets given (`tt.dit.tasks.look_ahead`)
         # An S-step episode whose every record is the current state: the tokens of its first
         # step are the window's clean state; the later ones are diffused (their values unused).
         rep = lambda x: x[worlds][:, None].expand(n, S, *x.shape[1:]).contiguous()  # noqa: E731
         ep = Episode(
             qpos=rep(state.qpos), qvel=rep(state.qvel), ctrl=rep(state.ctrl), action=rep(state.ctrl),
-            act_force=rep(state.act_force), act_vel=rep(state.act_vel), ee_pos=rep(state.ee_pos), ee_quat=rep(state.ee_quat),
+            act_force=rep(state.act_force), act_vel=rep(state.act_vel),
+            ee_pos=rep(state.ee_pos), ee_quat=rep(state.ee_quat),
             target_pos=ctx.target_pos[worlds][:, aim], target_quat=ctx.target_quat[worlds][:, aim],
             alive=torch.ones(n, S, dtype=torch.bool, device=worlds.device),
             fallen=torch.zeros(n, S, dtype=torch.bool, device=worlds.device),
@@ -273,8 +293,16 @@ class ModelPolicy:
         tokens, slot = self.query(step, worlds, state)
         c = self.config
         with torch.no_grad():
-            res = sample(self.model, tokens, self.task, scheduler=CosineDDIM(self.task.diffusion_steps),
-                         num_steps=c.num_steps, eta=c.eta, generator=self.generator, spacing=c.spacing)
+            res = sample(
+                self.model,
+                tokens,
+                self.task,
+                scheduler=CosineDDIM(self.task.diffusion_steps),
+                num_steps=c.num_steps,
+                eta=c.eta,
+                generator=self.generator,
+                spacing=c.spacing,
+            )
         if self.ensemble == 1:
             return self.commands(worlds, state, self.control_slot(res.tokens, slot))
         return self.commands(worlds, state, self._ensembled(step, worlds, self.control_chunk(res.tokens)))
@@ -325,16 +353,30 @@ class ModelPolicy:
 def _step_count(name: str, robot) -> int:
     """Tokens per control step of per-step type `name` for one tokenized robot."""
     counts = robot.counts
-    key = {"free_link_obs": "free_link", "track_link_obs": "track_link", "dyna_joint_obs": "dyna_joint",
-           "ball_joint_obs": "ball_joint", "actuator_obs": "actuator", "control": "actuator",
-           "target_pose": "track_link"}.get(name)
+    key = {
+        "free_link_obs": "free_link",
+        "track_link_obs": "track_link",
+        "dyna_joint_obs": "dyna_joint",
+        "ball_joint_obs": "ball_joint",
+        "actuator_obs": "actuator",
+        "control": "actuator",
+        "target_pose": "track_link",
+    }.get(name)
     return counts[key] if key is not None else 0
 
 
-def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str | Path, *,
-                  config: ControllerConfig = ControllerConfig(), task: TaskSpec | None = None,
-                  ik_config: IKConfig = IKConfig(), device: str | None = None, steps: int | None = None,
-                  progress: bool = False) -> Episode:
+def model_rollout(
+    designs,
+    motions: Sequence[Motion],
+    model: TrainedModel | str | Path,
+    *,
+    config: ControllerConfig = ControllerConfig(),
+    task: TaskSpec | None = None,
+    ik_config: IKConfig = IKConfig(),
+    device: str | None = None,
+    steps: int | None = None,
+    progress: bool = False,
+) -> Episode:
     """`closed_loop_rollout` with the DiT as the controller.
 
     model: a loaded model, or a checkpoint file / run folder (loaded with EMA weights on
@@ -349,7 +391,18 @@ def model_rollout(designs, motions: Sequence[Motion], model: TrainedModel | str 
         task = control_task(model) if task is None else task
         model = load_model(model, device=str(wp.device_to_torch(resolve_device(device))))
     policy = ModelPolicy(model, task=task or CONTROL, config=config)
-    return closed_loop_rollout(designs, motions, policy, config=ik_config, device=device, steps=steps, progress=progress)
+    return closed_loop_rollout(
+        designs, motions, policy, config=ik_config, device=device, steps=steps, progress=progress
+    )
 
 
-__all__ = ["CONTROLLERS", "ControllerConfig", "HoldPolicy", "IKPolicy", "ModelPolicy", "control_task", "control_task_of", "model_rollout"]
+__all__ = [
+    "CONTROLLERS",
+    "ControllerConfig",
+    "HoldPolicy",
+    "IKPolicy",
+    "ModelPolicy",
+    "control_task",
+    "control_task_of",
+    "model_rollout",
+]

@@ -31,10 +31,10 @@ Differentiable sampling (``differentiable=True``, no guide; under ``torch.no_gra
 samples as usual): autograd stays on through every step, the denoised tokens are not
 detached between steps, and the result's tokens carry the graph back to the given
 conditioning values, the clean slots of diffused types included (the given values of the
-diffused slots only decide where the noise goes). A conditioning value that requires grad then gets the gradient of anything
-computed from the sample, e.g. a dynamics critic's predicted reward with respect to the
-design it is given (`tt.guidance.critic_grad`). The noise comes from `generator` as without
-it, so both modes draw the same sample.
+diffused slots only decide where the noise goes). A conditioning value that requires grad
+then gets the gradient of anything computed from the sample, e.g. a dynamics critic's
+predicted reward with respect to the design it is given (`tt.guidance.critic_grad`). The
+noise comes from `generator` as without it, so both modes draw the same sample.
 """
 
 from __future__ import annotations
@@ -44,14 +44,16 @@ from typing import Callable, Iterable, Mapping
 
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.ddim import CosineDDIM
-from tt.tokens.batch import TokenBatch
 from tt.dit.model import RoboDiT
 from tt.dit.tasks import TaskSpec, output_types, task_masks
+from tt.kernels.errors import TTError
+from tt.tokens.batch import TokenBatch
 
 #: guide(step, x_t, eps, x0_hat) -> eps' (dicts type -> (B, L, D)).
-GuideFn = Callable[[int, dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor]], Mapping[str, torch.Tensor]]
+GuideFn = Callable[
+    [int, dict[str, torch.Tensor], dict[str, torch.Tensor], dict[str, torch.Tensor]], Mapping[str, torch.Tensor]
+]
 
 
 @dataclass
@@ -80,12 +82,25 @@ def _guided_masks(guided, updated: dict[str, torch.Tensor]) -> dict[str, torch.T
     return {k: updated[k] for k in names}
 
 
-def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: CosineDDIM | None = None,
-           num_steps: int | None = None, eta: float = 0.0, generator: torch.Generator | None = None,
-           guide: GuideFn | None = None, guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
-           guide_grad: bool = True, keep_x0: bool = False, bf16: bool = False,
-           known: Mapping[str, torch.Tensor] | None = None, differentiable: bool = False,
-           spacing: str = "leading", init_noise: Mapping[str, torch.Tensor] | None = None) -> SampleResult:
+def sample(
+    model: RoboDiT,
+    tokens: TokenBatch,
+    task: TaskSpec,
+    *,
+    scheduler: CosineDDIM | None = None,
+    num_steps: int | None = None,
+    eta: float = 0.0,
+    generator: torch.Generator | None = None,
+    guide: GuideFn | None = None,
+    guided: Iterable[str] | Mapping[str, torch.Tensor] | None = None,
+    guide_grad: bool = True,
+    keep_x0: bool = False,
+    bf16: bool = False,
+    known: Mapping[str, torch.Tensor] | None = None,
+    differentiable: bool = False,
+    spacing: str = "leading",
+    init_noise: Mapping[str, torch.Tensor] | None = None,
+) -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
     model: the network (use EMA weights); tokens: normalised tokens of B sequences whose
@@ -105,12 +120,16 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
     layout.check(tokens)
     scheduler = CosineDDIM(task.diffusion_steps) if scheduler is None else scheduler
     if scheduler.train_steps != task.diffusion_steps:
-        raise TTError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+        raise TTError(
+            f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}"
+        )
     if eta < 0:
         raise TTError(f"eta must be >= 0, got {eta}")
     if differentiable and guide is not None:
-        raise TTError("differentiable sampling keeps one graph through every step; a guide differentiates each step "
-                         "on its own (give one or the other)")
+        raise TTError(
+            "differentiable sampling keeps one graph through every step; a guide differentiates each step "
+            "on its own (give one or the other)"
+        )
     differentiable = differentiable and torch.is_grad_enabled()
     keep = (lambda v: v) if differentiable else torch.Tensor.detach  # what crosses a step keeps its graph or not
     device = tokens.device
@@ -136,7 +155,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
             if init_noise is not None and s.name in init_noise:
                 noise = init_noise[s.name].to(device=device, dtype=torch.float32)
                 if noise.shape != v.shape:
-                    raise TTError(f"init_noise[{s.name!r}] has shape {tuple(noise.shape)}; the tokens' is {tuple(v.shape)}")
+                    raise TTError(
+                        f"init_noise[{s.name!r}] has shape {tuple(noise.shape)}; the tokens' is {tuple(v.shape)}"
+                    )
             else:
                 noise = torch.randn(v.shape, generator=generator, device=device, dtype=torch.float32)
             # Clean slots of a diffused type (a window's given first step) are conditions too.
@@ -169,7 +190,9 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
                     if n not in guided_masks:
                         continue
                     if e.shape != eps[n].shape:
-                        raise TTError(f"guide returned eps of shape {tuple(e.shape)} for {n!r}, expected {tuple(eps[n].shape)}")
+                        raise TTError(
+                            f"guide returned eps of shape {tuple(e.shape)} for {n!r}, expected {tuple(eps[n].shape)}"
+                        )
                     eps[n] = torch.where(guided_masks[n].unsqueeze(-1), e, eps[n])
         if history is not None:
             history.append({n: v.detach() for n, v in x0.items()})
@@ -179,5 +202,7 @@ def sample(model: RoboDiT, tokens: TokenBatch, task: TaskSpec, *, scheduler: Cos
                 x[n] = torch.where(updated[n].unsqueeze(-1), x_prev, keep(x[n]))
     for n, (m, x0_given) in given.items():
         x[n] = torch.where(m.unsqueeze(-1), x0_given, x[n])
-    out = TokenBatch({n: keep(x[n]).to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask))
+    out = TokenBatch(
+        {n: keep(x[n]).to(tokens.values[n].dtype) for n in layout.names}, dict(tokens.ids), dict(tokens.mask)
+    )
     return SampleResult(out, updated, history)

@@ -56,13 +56,12 @@ from typing import Mapping, Sequence
 import torch
 import torch.nn.functional as F
 
-from tt.kernels.errors import TTError
 from tt.dit.ddim import CosineDDIM
-from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import Role
 from tt.dit.layout import Layout, LayoutError
 from tt.dit.model import RoboDiT
-
+from tt.kernels.errors import TTError
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import Role
 
 #: Every task's name.
 TASK_NAMES = ("robot", "dynamics", "control")
@@ -95,8 +94,10 @@ class TaskSpec:
         if self.diffusion_steps < 1:
             raise TTError(f"task {self.name!r}: diffusion_steps must be >= 1, got {self.diffusion_steps}")
         if self.target_offset < 0 or (self.target_offset and self.name != "control"):
-            raise TTError(f"task {self.name!r}: target_offset {self.target_offset} must be >= 0, and 0 for tasks other "
-                             "than control")
+            raise TTError(
+                f"task {self.name!r}: target_offset {self.target_offset} must be >= 0, and 0 for tasks other "
+                "than control"
+            )
 
 
 #: The paper's tasks: 100 DDIM steps for motion-to-robot, 5 for control; design-to-dynamics
@@ -112,8 +113,10 @@ def task_names(task: str) -> list[str]:
     ("robot+dynamics"); "both" is "robot+control". Raises ValueError for anything else."""
     names = ["robot", "control"] if task == "both" else str(task).split("+")
     if any(n not in TASK_NAMES for n in names) or len(set(names)) != len(names):
-        raise TTError(f"task {task!r} is not one task or distinct tasks joined by '+'; tasks: "
-                         f"{', '.join(TASK_NAMES)} (and 'both' = robot+control)")
+        raise TTError(
+            f"task {task!r} is not one task or distinct tasks joined by '+'; tasks: "
+            f"{', '.join(TASK_NAMES)} (and 'both' = robot+control)"
+        )
     return names
 
 
@@ -164,7 +167,9 @@ def look_ahead(layout: Layout, tokens: TokenBatch, offset: int) -> TokenBatch:
         n, L = mask[s.name].shape
         e = s.per_step
         if L != (S + offset) * e:
-            raise LayoutError(f"{s.name}: {L} tokens are not {S + offset} steps of {e} (a window of {S} + {offset} steps)")
+            raise LayoutError(
+                f"{s.name}: {L} tokens are not {S + offset} steps of {e} (a window of {S} + {offset} steps)"
+            )
         keep = slice(offset, offset + S) if s.role is Role.CONDITION else slice(0, S)
         step = lambda x, sl: x.reshape(n, S + offset, e, *x.shape[2:])[:, sl].reshape(n, S * e, *x.shape[2:])  # noqa: E731
         values[s.name], mask[s.name] = step(values[s.name], keep), step(mask[s.name], keep)
@@ -176,8 +181,14 @@ def look_ahead(layout: Layout, tokens: TokenBatch, offset: int) -> TokenBatch:
     return dataclasses.replace(tokens, values=values, ids=ids, mask=mask)
 
 
-def task_windows(source, layout: Layout, n: int, task: TaskSpec, generator: torch.Generator | None = None,
-                 part: tuple[int, int] | None = None) -> TokenBatch:
+def task_windows(
+    source,
+    layout: Layout,
+    n: int,
+    task: TaskSpec,
+    generator: torch.Generator | None = None,
+    part: tuple[int, int] | None = None,
+) -> TokenBatch:
     """n raw (unnormalised) windows of `task` from a token source (`tt.dit.data.TokenSource`):
     drawn as the task's window kind, cut to the task's target offset (`look_ahead`), every
     embodiment padding token carrying its slot's ID (`tt.dit.layout.with_slot_ids`). part: a
@@ -262,9 +273,18 @@ class NoisedInputs:
     step: torch.Tensor | None = None  # (B,) long, the diffusion step drawn
 
 
-def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: TokenBatch,
-                 generator: torch.Generator | None = None, *, prediction: str = "eps", weighting: str = "none",
-                 gamma: float = 5.0, part: tuple[int, int] | None = None) -> NoisedInputs:
+def noise_tokens(
+    task: TaskSpec,
+    scheduler: CosineDDIM,
+    layout: Layout,
+    tokens: TokenBatch,
+    generator: torch.Generator | None = None,
+    *,
+    prediction: str = "eps",
+    weighting: str = "none",
+    gamma: float = 5.0,
+    part: tuple[int, int] | None = None,
+) -> NoisedInputs:
     """Draw a diffusion step per sample and noise the tokens `task` diffuses.
 
     tokens: normalised values (padding at PAD_VALUE); generator: on the tokens' device;
@@ -276,7 +296,9 @@ def noise_tokens(task: TaskSpec, scheduler: CosineDDIM, layout: Layout, tokens: 
         as one process does. None: the tokens are the whole batch.
     """
     if scheduler.train_steps != task.diffusion_steps:
-        raise TTError(f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}")
+        raise TTError(
+            f"task {task.name!r} diffuses over {task.diffusion_steps} steps, the scheduler over {scheduler.train_steps}"
+        )
     b, device = len(tokens), tokens.device
     first, batch = (0, b) if part is None else part
     rows = slice(first, first + b)
@@ -303,9 +325,15 @@ def _elementwise(kind: str, pred: torch.Tensor, target: torch.Tensor) -> torch.T
     raise TTError(f"loss {kind!r} does not exist; losses: huber, mse")
 
 
-def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]], *, loss: str = "huber",
-                   type_weights: Mapping[str, float] | None = None, forward=None,
-                   global_count=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def diffusion_loss(
+    model: RoboDiT,
+    parts: Sequence[tuple[TaskSpec, NoisedInputs]],
+    *,
+    loss: str = "huber",
+    type_weights: Mapping[str, float] | None = None,
+    forward=None,
+    global_count=None,
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Loss over one forward pass of all `parts` (one per task) stacked along the batch.
 
     type_weights: type name -> factor on its term (absent types: 1).
@@ -333,8 +361,9 @@ def diffusion_loss(model: RoboDiT, parts: Sequence[tuple[TaskSpec, NoisedInputs]
     pred = (model if forward is None else forward)(values, ids, noised, time, attend, outputs=wanted)
     total = torch.zeros((), device=time.device)
     per_type = {}
-    weight = torch.cat([p.weight if p.weight is not None else torch.ones(len(p.time), device=p.time.device)
-                        for _, p in parts])  # (B,)
+    weight = torch.cat(
+        [p.weight if p.weight is not None else torch.ones(len(p.time), device=p.time.device) for _, p in parts]
+    )  # (B,)
     for n in wanted:
         target = torch.cat([(p.target if p.target is not None else p.eps)[n] for _, p in parts])
         lmask = torch.cat([p.masks.loss_mask(n) for _, p in parts])  # (B, L)

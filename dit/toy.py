@@ -17,8 +17,8 @@ from typing import Mapping
 import torch
 
 from tt.dit.data import EpisodeTokens
-from tt.tokens.schema import STEP_ROLES, Role
 from tt.dit.layout import layout_from_schema
+from tt.tokens.schema import STEP_ROLES, Role
 
 #: A small generic type set: name -> (dim, ids, role, tokens per robot or per step).
 TOY_TYPES: dict[str, tuple[int, tuple[str, ...], Role, int]] = {
@@ -46,8 +46,14 @@ def _ids(ids: tuple[str, ...], length: int, sizes: Mapping[str, int]) -> torch.T
     return torch.stack(cols, dim=-1)  # (length, K)
 
 
-def toy_episodes(*, episodes: int = 32, steps: int = 32, seed: int = 0,
-                 schema_counts: Mapping[str, int] | None = None, max_time: int = 1024) -> EpisodeTokens:
+def toy_episodes(
+    *,
+    episodes: int = 32,
+    steps: int = 32,
+    seed: int = 0,
+    schema_counts: Mapping[str, int] | None = None,
+    max_time: int = 1024,
+) -> EpisodeTokens:
     """E synthetic episodes of `steps` control steps (all full length).
 
     schema_counts: build RoboToken-schema types with these largest counts (see
@@ -99,5 +105,17 @@ def toy_episodes(*, episodes: int = 32, steps: int = 32, seed: int = 0,
             step_values[name] = v * real[:, None, :, None]
             step_mask[name] = real
             step_ids[name] = _ids(ids, count, sizes).expand(episodes, count, len(ids)).clone()
-    return EpisodeTokens(roles, id_names, sizes, static_values, static_ids, static_mask, step_values, step_ids,
-                         step_mask, torch.full((episodes,), steps, dtype=torch.long), version, tuple(types))
+    return EpisodeTokens(
+        roles,
+        id_names,
+        sizes,
+        static_values,
+        static_ids,
+        static_mask,
+        step_values,
+        step_ids,
+        step_mask,
+        torch.full((episodes,), steps, dtype=torch.long),
+        version,
+        tuple(types),
+    )

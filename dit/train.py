@@ -35,7 +35,7 @@ from typing import Callable
 
 import torch
 
-from tt.kernels.errors import TTError
+from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
 from tt.dit.checkpoint import (
     RESUME_KEYS,
     checkpoint_path,
@@ -51,10 +51,10 @@ from tt.dit.ema import EMA
 from tt.dit.layout import LayoutError
 from tt.dit.model import DIT_CONFIGS, RoboDiT, get_config
 from tt.dit.online import OnlineConfig, OnlineTokenSource
-from tt.tokens.normalize import Normalizer
-from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
 from tt.dit.tasks import TaskSpec, diffusion_loss, noise_tokens, task_names, task_windows
+from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, atomic_write, write_text
+from tt.tokens.normalize import Normalizer
 
 log = logging.getLogger(__name__)
 
@@ -62,27 +62,57 @@ log = logging.getLogger(__name__)
 class DivergedError(TTError, FloatingPointError):
     """The training loss became NaN or infinite: the run's settings diverge (not a bug in tt)."""
 
+
 #: Per-step token types a run may leave out of its model's sequence (`TrainConfig.drop_types`):
 #: the states and commands no reward reads (`tt.guidance.predicted.PredictedReward` reads the
 #: track-link poses, and the actuator observations for the effort rewards).
 DROPPABLE = ("dyna_joint_obs", "actuator_obs", "control")
 
 #: `tt train`'s flag of each `TrainConfig` field that has one, for messages.
-FLAGS = {"data": "--data", "out": "--out", "task": "--task", "size": "--size", "steps": "--steps",
-         "batch_size": "--batch-size", "lr": "--lr", "warmup_steps": "--warmup-steps", "seed": "--seed",
-         "checkpoint_every": "--checkpoint-every", "robot_diffusion_steps": "--robot-diffusion-steps",
-         "control_diffusion_steps": "--control-diffusion-steps", "future_states": "--no-future-states",
-         "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-         "type_weights": "--type-weight", "bf16_cpu": "--bf16-cpu", "anchor_track": "--anchor-track",
-         "anchor_control": "--anchor-control", "known_command": "--known-command",
-         "control_target_offset": "--control-target-offset", "dynamics_start": "--dynamics-start",
-         "time_ids": "--time-ids", "drop_types": "--drop-type", "init": "--init", "online": "--online"}
+FLAGS = {
+    "data": "--data",
+    "out": "--out",
+    "task": "--task",
+    "size": "--size",
+    "steps": "--steps",
+    "batch_size": "--batch-size",
+    "lr": "--lr",
+    "warmup_steps": "--warmup-steps",
+    "seed": "--seed",
+    "checkpoint_every": "--checkpoint-every",
+    "robot_diffusion_steps": "--robot-diffusion-steps",
+    "control_diffusion_steps": "--control-diffusion-steps",
+    "future_states": "--no-future-states",
+    "prediction": "--prediction",
+    "weighting": "--weighting",
+    "min_snr_gamma": "--min-snr-gamma",
+    "type_weights": "--type-weight",
+    "bf16_cpu": "--bf16-cpu",
+    "anchor_track": "--anchor-track",
+    "anchor_control": "--anchor-control",
+    "known_command": "--known-command",
+    "control_target_offset": "--control-target-offset",
+    "dynamics_start": "--dynamics-start",
+    "time_ids": "--time-ids",
+    "drop_types": "--drop-type",
+    "init": "--init",
+    "online": "--online",
+}
 
 #: `tt train`'s flag of each `OnlineConfig` field that has one, for messages.
-ONLINE_FLAGS = {"space": "--space", "designs": "--online-designs", "motions": "--online-motions",
-                "refresh_every": "--refresh-every", "buffer": "--online-buffer", "seed": "--seed",
-                "action_noise": "--action-noise", "absorbing": "--online-absorbing", "select": "--online-select",
-                "uniform_share": "--uniform-share", "reward": "--select-by"}
+ONLINE_FLAGS = {
+    "space": "--space",
+    "designs": "--online-designs",
+    "motions": "--online-motions",
+    "refresh_every": "--refresh-every",
+    "buffer": "--online-buffer",
+    "seed": "--seed",
+    "action_noise": "--action-noise",
+    "absorbing": "--online-absorbing",
+    "select": "--online-select",
+    "uniform_share": "--uniform-share",
+    "reward": "--select-by",
+}
 
 #: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
 DEFAULT_LR = {"tiny": 5e-3, "mini": 1e-3, "small": 5e-3, "large": 1e-4}
@@ -94,13 +124,14 @@ class TrainConfig:
 
     data: episode token file (`EpisodeTokens.save`); out: run folder; task: the tasks
     trained, "robot", "dynamics", "control" or several joined by "+" (a unified model; each
-    batch splits evenly between them, e.g. "robot+dynamics"); "both" is "robot+control"; size: "tiny", "mini", "small" or "large"; steps: total optimizer steps; lr: None
-    for `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of
-    each task's DDIM process; future_states: the control task also diffuses the states
-    after the current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA;
-    device: None for `tt.kernels.device.default_device()`; keep_checkpoints: how many of the
-    newest checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights
-    and normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
+    batch splits evenly between them, e.g. "robot+dynamics"); "both" is "robot+control";
+    size: "tiny", "mini", "small" or "large"; steps: total optimizer steps; lr: None for
+    `DEFAULT_LR`; window: control steps per training window; *_diffusion_steps: T of each
+    task's DDIM process; future_states: the control task also diffuses the states after the
+    current step; loss: "huber" or "mse"; bf16: autocast to bfloat16 on CUDA; device: None
+    for `tt.kernels.device.default_device()`; keep_checkpoints: how many of the newest
+    checkpoints to keep; init: a checkpoint to start a new run from (its EMA weights and
+    normaliser; a fresh optimizer, learning-rate schedule and EMA from step 0), e.g. to
     fine-tune after a change of the training data; ignored when the run resumes; compile:
     run the forward pass through `torch.compile` (the first steps pay the compile); online:
     train on episodes the batched sim generates as training goes (`tt.dit.online`) instead
@@ -122,12 +153,13 @@ class TrainConfig:
     poses at window slot i are those of step i + offset (`tt.dit.tasks.look_ahead`: the
     reference's conditioning, each command beside the target DiffIK aimed it at with the
     offset `IKConfig.lookahead_steps`); dynamics_start: the dynamics task's windows hold
-    step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids: "sinusoidal" or "learned" time-step
-    ID embeddings (`tt.dit.model.DiTConfig.time_ids`); drop_types: per-step token types left
-    out of the model's sequence (`DROPPABLE`): a lean critic of the dynamics task; without all
-    three, which the tracking reward does not read, the ViperX sequence is 71 tokens instead of
-    239 (not with the control task, which reads and writes them). Measured as an ablation: on
-    R2 it learns far less than the full sequence (`benchmarks/results/dit_ladder_r2f.md`).
+    step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids:
+    "sinusoidal" or "learned" time-step ID embeddings (`tt.dit.model.DiTConfig.time_ids`);
+    drop_types: per-step token types left out of the model's sequence (`DROPPABLE`): a lean
+    critic of the dynamics task; without all three, which the tracking reward does not read,
+    the ViperX sequence is 71 tokens instead of 239 (not with the control task, which reads and
+    writes them). Measured as an ablation: on R2 it learns far less than the full sequence
+    (`benchmarks/results/dit_ladder_r2f.md`).
     """
 
     data: str = ""
@@ -182,13 +214,17 @@ class TrainConfig:
             if on and self.prediction != "x0":
                 raise TTError(f"{flag} needs --prediction x0, got {self.prediction!r}")
         if self.anchor_control not in ("", *CONTROL_BASES):
-            raise TTError(f"--anchor-control {self.anchor_control!r} does not exist; use one of "
-                             f"{', '.join(CONTROL_BASES)} (or leave it out)")
+            raise TTError(
+                f"--anchor-control {self.anchor_control!r} does not exist; use one of "
+                f"{', '.join(CONTROL_BASES)} (or leave it out)"
+            )
         if self.anchor_control == "command" and not self.known_command:
             raise TTError("--anchor-control command needs --known-command: the last command must be given to be a base")
         if self.control_target_offset < 0 or (self.control_target_offset and "control" not in task_names(self.task)):
-            raise TTError(f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
-                             f"task; the run trains --task {self.task}")
+            raise TTError(
+                f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
+                f"task; the run trains --task {self.task}"
+            )
         if self.dynamics_start and "dynamics" not in task_names(self.task):
             raise TTError(f"--dynamics-start needs the dynamics task; the run trains --task {self.task}")
         if not self.min_snr_gamma > 0:
@@ -196,33 +232,45 @@ class TrainConfig:
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
         bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
         if bad:
-            raise TTError(f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}")
+            raise TTError(
+                f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}"
+            )
         if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
-            raise TTError(f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
-                             f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}")
+            raise TTError(
+                f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
+                f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}"
+            )
         if self.online is not None and self.data:
             raise TTError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
         bad = [str(n) for n in self.drop_types if n not in DROPPABLE]
         if bad:
-            raise TTError(f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
-                             "embodiment, the targets and the track-link poses the rewards read stay)")
+            raise TTError(
+                f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
+                "embodiment, the targets and the track-link poses the rewards read stay)"
+            )
         self.drop_types = tuple(n for n in DROPPABLE if n in self.drop_types)  # one order, whatever the flags
         if self.drop_types and "control" in self.task_names():
-            raise TTError(f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
-                             "writes every per-step type; drop types for the robot and dynamics tasks only")
+            raise TTError(
+                f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
+                "writes every per-step type; drop types for the robot and dynamics tasks only"
+            )
         if self.loss not in ("huber", "mse"):
             raise TTError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise TTError(f"{FLAGS.get(name, name)} must be >= 1, got {getattr(self, name)}")
         if self.batch_size < len(self.task_names()):
-            raise TTError(f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
-                             f"{len(self.task_names())}, got {self.batch_size}")
+            raise TTError(
+                f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
+                f"{len(self.task_names())}, got {self.batch_size}"
+            )
         if self.warmup_steps < 0 or self.grad_clip <= 0 or self.weight_decay < 0:
-            raise TTError(f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
-                             f"{self.grad_clip}, {self.weight_decay}")
+            raise TTError(
+                f"need warmup_steps >= 0, grad_clip > 0, weight_decay >= 0; got {self.warmup_steps}, "
+                f"{self.grad_clip}, {self.weight_decay}"
+            )
 
     def model_config(self):
         """The network's `tt.dit.model.DiTConfig`: the size's, with `time_ids`."""
@@ -241,10 +289,18 @@ class TrainConfig:
     def tasks(self) -> list[tuple[TaskSpec, int]]:
         """(task, windows per batch) of each task trained: batch_size // k each, the last
         task the remainder."""
-        spec = {"robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
-                "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "start" if self.dynamics_start else "random"),
-                "control": TaskSpec("control", self.control_diffusion_steps, "consecutive", self.future_states,
-                                    self.known_command, self.control_target_offset)}
+        spec = {
+            "robot": TaskSpec("robot", self.robot_diffusion_steps, "random"),
+            "dynamics": TaskSpec("dynamics", self.robot_diffusion_steps, "start" if self.dynamics_start else "random"),
+            "control": TaskSpec(
+                "control",
+                self.control_diffusion_steps,
+                "consecutive",
+                self.future_states,
+                self.known_command,
+                self.control_target_offset,
+            ),
+        }
         names = self.task_names()
         each = self.batch_size // len(names)
         counts = [each] * (len(names) - 1) + [self.batch_size - each * (len(names) - 1)]
@@ -331,8 +387,10 @@ class DataParallel:
     def share(self, n: int, what: str) -> tuple[int, int]:
         """(first, last + 1) of this rank's windows among a task's n."""
         if n % self.world_size:
-            raise TTError(f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
-                             f"choose a batch_size divisible by {self.world_size} (by k x {self.world_size} for k tasks)")
+            raise TTError(
+                f"{what} of {n} windows does not split over {self.world_size} data-parallel processes; "
+                f"choose a batch_size divisible by {self.world_size} (by k x {self.world_size} for k tasks)"
+            )
         k = n // self.world_size
         return self.rank * k, (self.rank + 1) * k
 
@@ -356,14 +414,36 @@ def _resolve_device(device: str | None) -> torch.device:
 
 #: TrainConfig fields a resumed run must share with the run it continues, and their flags.
 #: (steps may grow, checkpoints and devices may change: none of these change a step's result.)
-RUN_FIELDS = {"data": "--data", "task": "--task", "size": "--size", "batch_size": "--batch-size", "lr": "--lr",
-              "seed": "--seed", "online": "--online ...", "window": "window", "warmup_steps": "warmup_steps",
-              "weight_decay": "weight_decay", "grad_clip": "grad_clip", "ema_power": "ema_power",
-              "ema_max_decay": "ema_max_decay", "robot_diffusion_steps": "robot_diffusion_steps",
-              "control_diffusion_steps": "control_diffusion_steps", "future_states": "--no-future-states", "loss": "loss",
-              "prediction": "--prediction", "weighting": "--weighting", "min_snr_gamma": "--min-snr-gamma",
-              "type_weights": "--type-weight", "anchor_track": "--anchor-track", "anchor_control": "--anchor-control", "known_command": "--known-command", "control_target_offset": "--control-target-offset", "dynamics_start": "--dynamics-start",
-              "time_ids": "--time-ids", "drop_types": "--drop-type"}
+RUN_FIELDS = {
+    "data": "--data",
+    "task": "--task",
+    "size": "--size",
+    "batch_size": "--batch-size",
+    "lr": "--lr",
+    "seed": "--seed",
+    "online": "--online ...",
+    "window": "window",
+    "warmup_steps": "warmup_steps",
+    "weight_decay": "weight_decay",
+    "grad_clip": "grad_clip",
+    "ema_power": "ema_power",
+    "ema_max_decay": "ema_max_decay",
+    "robot_diffusion_steps": "robot_diffusion_steps",
+    "control_diffusion_steps": "control_diffusion_steps",
+    "future_states": "--no-future-states",
+    "loss": "loss",
+    "prediction": "--prediction",
+    "weighting": "--weighting",
+    "min_snr_gamma": "--min-snr-gamma",
+    "type_weights": "--type-weight",
+    "anchor_track": "--anchor-track",
+    "anchor_control": "--anchor-control",
+    "known_command": "--known-command",
+    "control_target_offset": "--control-target-offset",
+    "dynamics_start": "--dynamics-start",
+    "time_ids": "--time-ids",
+    "drop_types": "--drop-type",
+}
 
 
 def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
@@ -381,10 +461,14 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
         elif name == "data":
             before, now = (str(Path(v).resolve()) if v else "" for v in (before, now))
             if bool(before) != bool(now):  # one run on a dataset, the other online
+
                 def source(path):
                     return f"--data {path}" if path else "--online"
-                raise TTError(f"run {out} was trained with {source(before)}, this run asks for {source(now)}; resume "
-                                 "it with its own arguments, or give another --out (or --no-resume to start it over)")
+
+                raise TTError(
+                    f"run {out} was trained with {source(before)}, this run asks for {source(now)}; resume "
+                    "it with its own arguments, or give another --out (or --no-resume to start it over)"
+                )
         elif name == "online":
             if before is None or now is None:
                 continue  # one of them trains on --data: said above
@@ -392,15 +476,26 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
             changed = [k for k in a if a[k] != b.get(k)]
             if changed:
                 named = ", ".join(f"{ONLINE_FLAGS.get(k, k)} {a[k]} (now {b.get(k)})" for k in changed)
-                raise TTError(f"run {out} was trained online with {named}; resume it with its own arguments, or "
-                                 "give another --out (or --no-resume to start it over)")
+                raise TTError(
+                    f"run {out} was trained online with {named}; resume it with its own arguments, or "
+                    "give another --out (or --no-resume to start it over)"
+                )
             continue
         if before != now:
+
             def shown(v):
-                return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else \
-                    ", ".join(f"{k}={w}" for k, w in v.items()) if isinstance(v, dict) else v
-            raise TTError(f"run {out} was trained with {flag} {shown(before)!r}, this run asks for {shown(now)!r}; "
-                             "resume it with its own arguments, or give another --out (or --no-resume to start it over)")
+                return (
+                    " ".join(map(str, v))
+                    if isinstance(v, (list, tuple))
+                    else ", ".join(f"{k}={w}" for k, w in v.items())
+                    if isinstance(v, dict)
+                    else v
+                )
+
+            raise TTError(
+                f"run {out} was trained with {flag} {shown(before)!r}, this run asks for {shown(now)!r}; "
+                "resume it with its own arguments, or give another --out (or --no-resume to start it over)"
+            )
 
 
 def layout_difference(a, b) -> str:
@@ -420,8 +515,11 @@ def layout_difference(a, b) -> str:
     if a.steps != b.steps:
         parts.append(f"window steps {a.steps} vs {b.steps}")
     if dict(a.id_sizes) != dict(b.id_sizes):
-        ids = [f"{k} {a.id_sizes.get(k)} vs {b.id_sizes.get(k)}" for k in sorted(set(a.id_sizes) | set(b.id_sizes))
-               if a.id_sizes.get(k) != b.id_sizes.get(k)]
+        ids = [
+            f"{k} {a.id_sizes.get(k)} vs {b.id_sizes.get(k)}"
+            for k in sorted(set(a.id_sizes) | set(b.id_sizes))
+            if a.id_sizes.get(k) != b.id_sizes.get(k)
+        ]
         parts.append(f"ID ranges (model vs data): {', '.join(ids[:4])}")
     return "; ".join(parts) or "another token order or schema version"
 
@@ -431,18 +529,31 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
     `config` on data of `layout` when the network is not the one `config` would build:
     LayoutError for another layout, ValueError naming the differing choice otherwise."""
     if model.layout != layout:
-        raise LayoutError(f"{where} was trained on other tokens than the data's ({layout_difference(model.layout, layout)}): "
-                          "a model trained on another design space, or with other --drop-type")
+        raise LayoutError(
+            f"{where} was trained on other tokens than the data's ({layout_difference(model.layout, layout)}): "
+            "a model trained on another design space, or with other --drop-type"
+        )
     if model.config != config.model_config():
         import dataclasses
 
-        sizes = [s for s, c in DIT_CONFIGS.items() if dataclasses.replace(c, time_ids=model.config.time_ids) == model.config]
-        size = f"--size {sizes[0]}" if sizes else f"a network of {model.config.depth} blocks of width {model.config.hidden}"
-        raise TTError(f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
-                         f"--size {config.size} with --time-ids {config.time_ids}")
+        sizes = [
+            s for s, c in DIT_CONFIGS.items() if dataclasses.replace(c, time_ids=model.config.time_ids) == model.config
+        ]
+        size = (
+            f"--size {sizes[0]}"
+            if sizes
+            else f"a network of {model.config.depth} blocks of width {model.config.hidden}"
+        )
+        raise TTError(
+            f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
+            f"--size {config.size} with --time-ids {config.time_ids}"
+        )
     if model.prediction != config.prediction:
         raise TTError(f"{where} predicts {model.prediction!r}, this run asks for --prediction {config.prediction}")
-    for flag, name, on in (("--anchor-track", "track_link_obs", config.anchor_track), ("--anchor-control", "control", bool(config.anchor_control))):
+    for flag, name, on in (
+        ("--anchor-track", "track_link_obs", config.anchor_track),
+        ("--anchor-control", "control", bool(config.anchor_control)),
+    ):
         if (name in model.anchors) != on:
             was = "with" if name in model.anchors else "without"
             now = "gives" if on else "does not give"
@@ -469,8 +580,10 @@ def newest_intact_checkpoint(out: Path) -> tuple[Path | None, dict | None]:
             os.replace(path, keep)
             log.warning("%s; moved it to %s and resuming from the checkpoint before it", e, keep.name)
     if damaged:
-        raise CorruptFileError(f"run {out}: every checkpoint is damaged ({', '.join(p.name for p in damaged)}, now "
-                               "*.pt.damaged); start it over with --no-resume or give another --out")
+        raise CorruptFileError(
+            f"run {out}: every checkpoint is damaged ({', '.join(p.name for p in damaged)}, now "
+            "*.pt.damaged); start it over with --no-resume or give another --out"
+        )
     return None, None
 
 
@@ -497,10 +610,15 @@ def start_over(out: Path) -> list[str]:
     return removed
 
 
-def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: str | None = None,
-          on_step: Callable[[int, float], None] | None = None,
-          on_checkpoint: Callable[[int, Path], None] | None = None,
-          on_start_over: Callable[[], None] | None = None) -> TrainResult:
+def train(
+    config: TrainConfig,
+    *,
+    episodes: EpisodeTokens | None = None,
+    space: str | None = None,
+    on_step: Callable[[int, float], None] | None = None,
+    on_checkpoint: Callable[[int, Path], None] | None = None,
+    on_start_over: Callable[[], None] | None = None,
+) -> TrainResult:
     """Train (or resume) a DiT; see the module docstring.
 
     episodes: training data in memory (else loaded from ``config.data``); space: the design
@@ -535,15 +653,28 @@ def train(config: TrainConfig, *, episodes: EpisodeTokens | None = None, space: 
         if writer and not config.resume:
             removed = start_over(out)
             if removed:
-                log.warning("--no-resume: removed %d file(s) of the earlier run from %s (%s)", len(removed), out,
-                            ", ".join(removed[:3]) + (" ..." if len(removed) > 3 else ""))
+                log.warning(
+                    "--no-resume: removed %d file(s) of the earlier run from %s (%s)",
+                    len(removed),
+                    out,
+                    ", ".join(removed[:3]) + (" ..." if len(removed) > 3 else ""),
+                )
             if on_start_over is not None:
                 on_start_over()
         return _train(config, out, dp, device, writer, episodes, space, on_step, on_checkpoint)
 
 
-def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torch.device, writer: bool,
-           episodes, space: str | None, on_step, on_checkpoint) -> TrainResult:
+def _train(
+    config: TrainConfig,
+    out: Path,
+    dp: DataParallel | None,
+    device: torch.device,
+    writer: bool,
+    episodes,
+    space: str | None,
+    on_step,
+    on_checkpoint,
+) -> TrainResult:
     """`train`'s work, with the run folder locked."""
     identity = None
     if episodes is None and config.online is not None:
@@ -563,16 +694,20 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         stored = state.get("train_config") or {}
         check_same_run(stored, config, out)
         if config.init and config.init != stored.get("init"):
-            raise TTError(f"--init {config.init} starts a new run, but run {out} has checkpoints to resume (step "
-                             f"{int(state['step'])}{', started from --init ' + stored['init'] if stored.get('init') else ''}); "
-                             "give --no-resume to start it over from --init, or another --out")
+            raise TTError(
+                f"--init {config.init} starts a new run, but run {out} has checkpoints to resume (step "
+                f"{int(state['step'])}{', started from --init ' + stored['init'] if stored.get('init') else ''}); "
+                "give --no-resume to start it over from --init, or another --out"
+            )
         if identity is not None and state.get("data_identity") is not None:
             from tt.dit.loader import describe_data_change
 
             why = describe_data_change(state["data_identity"], identity)
             if why is not None:
-                raise TTError(f"run {out} was trained on --data {config.data}, but {why}; resume it on the data it "
-                                 "was trained on, or start it over with --no-resume (or give another --out)")
+                raise TTError(
+                    f"run {out} was trained on --data {config.data}, but {why}; resume it on the data it "
+                    "was trained on, or start it over with --no-resume (or give another --out)"
+                )
         model = RoboDiT.from_description(state["model"])
         check_network(model, layout, config, f"run {out}")
         model.load_state_dict(state["state_dict"])
@@ -620,8 +755,9 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         from torch.nn.parallel import DistributedDataParallel
 
         # A task trains only some heads, so some parameters get no gradient in a step.
-        forward = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None,
-                                          find_unused_parameters=True)
+        forward = DistributedDataParallel(
+            model, device_ids=[device.index] if device.type == "cuda" else None, find_unused_parameters=True
+        )
 
         def global_count(count: torch.Tensor) -> torch.Tensor:
             # DDP averages gradients over ranks; scaling by K makes that average the sum of
@@ -629,13 +765,24 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
             total = count.detach().clone()
             dist.all_reduce(total)
             return total / dp.world_size
+
     if config.compile:
         forward = torch.compile(forward)
     schedulers = {t.name: CosineDDIM(t.diffusion_steps) for t, _ in tasks}
-    autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16,
-                              enabled=config.bf16 and (device.type == "cuda" or config.bf16_cpu))
-    log.info("training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
-             config.size, model.parameter_count(), device, config.task, step, config.steps)
+    autocast = torch.autocast(
+        device_type=device.type,
+        dtype=torch.bfloat16,
+        enabled=config.bf16 and (device.type == "cuda" or config.bf16_cpu),
+    )
+    log.info(
+        "training %s DiT (%d parameters) on %s, task %s, from step %d to %d",
+        config.size,
+        model.parameter_count(),
+        device,
+        config.task,
+        step,
+        config.steps,
+    )
     last = latest_checkpoint(out)
     start_step = getattr(episodes, "start_step", None)  # sources whose data changes with the step (online)
     while step < config.steps:
@@ -648,14 +795,29 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
             raw = task_windows(episodes, layout, n, task, data_gen, part=part)
             layout.check(raw)
             tokens = normalizer.normalize(raw).to(device)
-            noised = noise_tokens(task, schedulers[task.name], layout, tokens, noise_gen, prediction=config.prediction,
-                                  weighting=config.weighting, gamma=config.min_snr_gamma, part=(first, n))
+            noised = noise_tokens(
+                task,
+                schedulers[task.name],
+                layout,
+                tokens,
+                noise_gen,
+                prediction=config.prediction,
+                weighting=config.weighting,
+                gamma=config.min_snr_gamma,
+                part=(first, n),
+            )
             parts.append((task, noised))
         for g in optimizer.param_groups:
             g["lr"] = config.learning_rate * lr_factor(step, config.warmup_steps, config.steps)
         with autocast:
-            loss, per_type = diffusion_loss(model, parts, loss=config.loss, type_weights=config.type_weights,
-                                            forward=forward, global_count=global_count)
+            loss, per_type = diffusion_loss(
+                model,
+                parts,
+                loss=config.loss,
+                type_weights=config.type_weights,
+                forward=forward,
+                global_count=global_count,
+            )
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.grad_clip)
@@ -674,21 +836,24 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         if step % config.checkpoint_every == 0 or step == config.steps:
             last = checkpoint_path(out, step)
             if writer:
-                save_checkpoint(last, {
-                    "schema_version": layout.schema_version,
-                    "space": space,
-                    "model": model.describe(),
-                    "state_dict": model.state_dict(),
-                    "ema": ema.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "normalizer": normalizer.state_dict(),
-                    "train_config": config.to_dict(),
-                    "step": step,
-                    "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
-                    "losses": torch.tensor(losses, dtype=torch.float32),
-                    "data_identity": identity,
-                })
-                for old in list_checkpoints(out)[:-config.keep_checkpoints]:
+                save_checkpoint(
+                    last,
+                    {
+                        "schema_version": layout.schema_version,
+                        "space": space,
+                        "model": model.describe(),
+                        "state_dict": model.state_dict(),
+                        "ema": ema.state_dict(),
+                        "optimizer": optimizer.state_dict(),
+                        "normalizer": normalizer.state_dict(),
+                        "train_config": config.to_dict(),
+                        "step": step,
+                        "rng": {"data": data_gen.get_state(), "noise": noise_gen.get_state()},
+                        "losses": torch.tensor(losses, dtype=torch.float32),
+                        "data_identity": identity,
+                    },
+                )
+                for old in list_checkpoints(out)[: -config.keep_checkpoints]:
                     old.unlink()
                 write_loss_curve(torch.tensor(losses), out)
                 if on_checkpoint is not None:
@@ -698,6 +863,8 @@ def _train(config: TrainConfig, out: Path, dp: DataParallel | None, device: torc
         if on_step is not None:
             on_step(step, value)
     if last is None:
-        raise TTError(f"run {out} has nothing to do: it is at step {step} and --steps is {config.steps}; give a "
-                         "larger --steps to train on, or --no-resume to start it over")
+        raise TTError(
+            f"run {out} has nothing to do: it is at step {step} and --steps is {config.steps}; give a "
+            "larger --steps to train on, or --no-resume to start it over"
+        )
     return TrainResult(step, torch.tensor(losses, dtype=torch.float32), last, model.parameter_count())

@@ -25,10 +25,10 @@ from typing import Iterable, Mapping, Sequence
 import torch
 import torch.nn as nn
 
+from tt.dit.layout import Layout, LayoutError, TokenSpec
 from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import STEP_ROLES
-from tt.dit.layout import Layout, LayoutError, TokenSpec
 
 #: Separator between a type name and its motion index in composed layouts.
 SEPARATOR = "@"
@@ -50,7 +50,9 @@ def composed_layout(layout: Layout, motions: int) -> Layout:
     specs = []
     for s in layout.specs:
         if s.role in STEP_ROLES:
-            specs += [TokenSpec(copy_name(s.name, m), s.dim, s.ids, s.role, s.length, s.per_step) for m in range(motions)]
+            specs += [
+                TokenSpec(copy_name(s.name, m), s.dim, s.ids, s.role, s.length, s.per_step) for m in range(motions)
+            ]
         else:
             specs.append(s)
     return Layout(tuple(specs), dict(layout.id_sizes), layout.steps, layout.schema_version)
@@ -129,19 +131,32 @@ class ComposedModel(nn.Module):
             rows.append(torch.cat(cols, dim=1))
         return torch.cat(rows)
 
-    def forward(self, values: Mapping[str, torch.Tensor], ids: Mapping[str, torch.Tensor],
-                noised: Mapping[str, torch.Tensor], time: torch.Tensor, attend: torch.Tensor | None = None,
-                outputs: Iterable[str] | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        values: Mapping[str, torch.Tensor],
+        ids: Mapping[str, torch.Tensor],
+        noised: Mapping[str, torch.Tensor],
+        time: torch.Tensor,
+        attend: torch.Tensor | None = None,
+        outputs: Iterable[str] | None = None,
+    ) -> dict[str, torch.Tensor]:
         """Predicted noise per composed type (the network's arguments, composed)."""
         M = self.motions
         n = time.shape[0]
         wanted_composed = set(outputs) if outputs is not None else None
         base_wanted = None
         if wanted_composed is not None:
-            base_wanted = [s.name for s in self.base_layout.specs
-                           if any(k.split(SEPARATOR)[0] == s.name for k in wanted_composed)]
-        eps = self.model(self._batch(values), self._batch(ids), self._batch(noised), time.repeat(M),
-                         None if attend is None else self._attend(attend), outputs=base_wanted)
+            base_wanted = [
+                s.name for s in self.base_layout.specs if any(k.split(SEPARATOR)[0] == s.name for k in wanted_composed)
+            ]
+        eps = self.model(
+            self._batch(values),
+            self._batch(ids),
+            self._batch(noised),
+            time.repeat(M),
+            None if attend is None else self._attend(attend),
+            outputs=base_wanted,
+        )
         out = {}
         for s in self.base_layout.specs:
             if s.name not in eps:
@@ -157,4 +172,12 @@ class ComposedModel(nn.Module):
         return out
 
 
-__all__ = ["SEPARATOR", "ComposedModel", "compose_tokens", "composed_layout", "copy_name", "split_tokens", "split_values"]
+__all__ = [
+    "SEPARATOR",
+    "ComposedModel",
+    "compose_tokens",
+    "composed_layout",
+    "copy_name",
+    "split_tokens",
+    "split_values",
+]

@@ -58,16 +58,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.layout import robot_embodiment
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, PredictedReward, build_query, start_tokens, with_start
+from tt.kernels.errors import TTError
 from tt.sim.designs import get_space
 from tt.sim.rewards import RewardConfig
 from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
 from tt.tokens.schema import STEP_ROLES
-
 
 #: The termination threshold of the gradient's reward [m of summed position error]: never
 #: reached, so every query step counts. With the reward's own (0.5 m for ViperX) most of the
@@ -124,15 +123,31 @@ class CriticGradient:
     start-aware critic, at="tokens"); start_rel_step: its central-difference step.
     """
 
-    def __init__(self, critic: TrainedModel, cfg: RewardConfig, *, normalizer: Normalizer | None = None, decoder=None,
-                 num_steps: int = CRITIC_DDIM_STEPS, seed: int = 0, terminate: bool = False, form: str = "log",
-                 at: str = "tokens", through_start: bool = False, start_rel_step: float = START_REL_STEP):
+    def __init__(
+        self,
+        critic: TrainedModel,
+        cfg: RewardConfig,
+        *,
+        normalizer: Normalizer | None = None,
+        decoder=None,
+        num_steps: int = CRITIC_DDIM_STEPS,
+        seed: int = 0,
+        terminate: bool = False,
+        form: str = "log",
+        at: str = "tokens",
+        through_start: bool = False,
+        start_rel_step: float = START_REL_STEP,
+    ):
         if not critic.trained_on("dynamics"):
-            raise TTError(f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
-                             "not the dynamics task its gradient needs (give a critic checkpoint trained on it)")
+            raise TTError(
+                f"guidance by a critic needs a dynamics critic: the critic was trained on {list(critic.tasks)}, "
+                "not the dynamics task its gradient needs (give a critic checkpoint trained on it)"
+            )
         if critic.dynamics_start and decoder is None:
-            raise TTError("a critic trained told the episode's start needs a decoder: its start is simulated for the "
-                             "design each candidate decodes to")
+            raise TTError(
+                "a critic trained told the episode's start needs a decoder: its start is simulated for the "
+                "design each candidate decodes to"
+            )
         if num_steps < 1:
             raise TTError(f"num_steps = {num_steps}; must be >= 1")
         if form not in FORMS:
@@ -142,8 +157,10 @@ class CriticGradient:
         if at == "design" and decoder is None:
             raise TTError("the critic's gradient at the decoded design needs a decoder")
         if through_start and not critic.dynamics_start:
-            raise TTError("through_start differentiates the critic's start: it needs a critic trained told the start "
-                             "(--dynamics-start)")
+            raise TTError(
+                "through_start differentiates the critic's start: it needs a critic trained told the start "
+                "(--dynamics-start)"
+            )
         if through_start and at != "tokens":
             raise TTError(f"through_start adds to the gradient at x0_hat's tokens, not at={at!r}")
         if not 0 < start_rel_step < 0.5:
@@ -163,16 +180,23 @@ class CriticGradient:
 
     def summary(self) -> dict:
         s = self.stats
-        return {"steps": s.steps, "candidates": s.candidates, "decode_failures": s.decode_failures,
-                "nonfinite_grad_entries": s.nonfinite_entries, "objective_trace": list(s.objective_trace),
-                "start_terms": s.start_terms, "start_projected": s.start_projected}
+        return {
+            "steps": s.steps,
+            "candidates": s.candidates,
+            "decode_failures": s.decode_failures,
+            "nonfinite_grad_entries": s.nonfinite_entries,
+            "objective_trace": list(s.objective_trace),
+            "start_terms": s.start_terms,
+            "start_projected": s.start_projected,
+        }
 
     def reset(self) -> None:
         """Start a new sampling call's trace."""
         self.stats.objective_trace = []
 
-    def objective(self, ctx, embodiment: dict[str, torch.Tensor],
-                  first: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+    def objective(
+        self, ctx, embodiment: dict[str, torch.Tensor], first: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
         """R_critic of k candidates, (k,): the mean over ctx's motions of the form's objective
         (guidance alphas) of the dynamics the critic predicts for `embodiment` on each motion.
         embodiment: type -> (k, L, D) in `normalizer`'s units (differentiable); first: the
@@ -196,15 +220,30 @@ class CriticGradient:
         scheduler = CosineDDIM(task.diffusion_steps)
         total = torch.zeros(k, device=device)
         for j, motion in enumerate(ctx.motions):
-            q = build_query(layout, norm, motion, k, placement=placement, generator=torch.Generator().manual_seed(self.seed),
-                            device=device)
+            q = build_query(
+                layout,
+                norm,
+                motion,
+                k,
+                placement=placement,
+                generator=torch.Generator().manual_seed(self.seed),
+                device=device,
+            )
             tokens = TokenBatch({**q.tokens.values, **embodiment}, q.tokens.ids, q.tokens.mask)
             if first is not None:
                 tokens = with_start(tokens, {name: v[j] for name, v in first.items()})
-            res = sample(model, tokens, task, scheduler=scheduler, num_steps=self.num_steps,
-                         generator=torch.Generator(device=device).manual_seed(self.seed), differentiable=True)
-            total = total + PredictedReward(layout, norm, self.cfg, q)(res.tokens.values, guidance=True,
-                                                                        log=self.form == "log")
+            res = sample(
+                model,
+                tokens,
+                task,
+                scheduler=scheduler,
+                num_steps=self.num_steps,
+                generator=torch.Generator(device=device).manual_seed(self.seed),
+                differentiable=True,
+            )
+            total = total + PredictedReward(layout, norm, self.cfg, q)(
+                res.tokens.values, guidance=True, log=self.form == "log"
+            )
         return total / len(ctx.motions)
 
     def token_gradient(self, ctx, x0: dict[str, torch.Tensor], step: int) -> dict[str, torch.Tensor]:
@@ -247,9 +286,11 @@ class CriticGradient:
         starts = {k: v.clone().requires_grad_(True) for k, v in first.items()} if self.through_start else {}
         with torch.enable_grad():
             value = self.objective(ctx, leaf, starts or first)
-            grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names] + list(starts.values()), allow_unused=True)
-        start_grads = dict(zip(starts, grads[len(names):]))
-        grads = grads[:len(names)]
+            grads = torch.autograd.grad(
+                value.sum(), [leaf[k] for k in names] + list(starts.values()), allow_unused=True
+            )
+        start_grads = dict(zip(starts, grads[len(names) :]))
+        grads = grads[: len(names)]
         self.stats.objective_trace.append(float(value.detach().mean()))
         for k, g in zip(names, grads):
             if g is None:
@@ -264,12 +305,25 @@ class CriticGradient:
             self._add_start_term(ctx, out, x0, ok, decoded, models, start_grads)
         return out
 
-    def _add_start_term(self, ctx, out: dict[str, torch.Tensor], x0: dict[str, torch.Tensor], ok: list[int], decoded,
-                        models, start_grads: dict[str, torch.Tensor | None]) -> None:
+    def _add_start_term(
+        self,
+        ctx,
+        out: dict[str, torch.Tensor],
+        x0: dict[str, torch.Tensor],
+        ok: list[int],
+        decoded,
+        models,
+        start_grads: dict[str, torch.Tensor | None],
+    ) -> None:
         """Add (dR/dstart)(dstart/dc), carried to tokens, to `out` for the candidates of `ok`
         (all decoded; models: their designs' compiled models). start_grads: type -> (M,
         len(ok), P, D), dR/d(step-0 tokens)."""
-        from tt.guidance.simgrad import design_stencil, place_token_gradient, token_jacobian, tokens_from_choice_gradient
+        from tt.guidance.simgrad import (
+            design_stencil,
+            place_token_gradient,
+            token_jacobian,
+            tokens_from_choice_gradient,
+        )
 
         pairs = list(enumerate(ok))
         designs = [decoded[i].design for _, i in pairs]
@@ -281,8 +335,13 @@ class CriticGradient:
         own, _ = robot_embodiment(self.critic.layout, self.normalizer, models, device)
         self.stats.start_projected += sum(decoded[i].distance > 0 for i in ok)
         stencils = [design_stencil(space, d, self.start_rel_step) for d in designs]
-        moved = start_tokens(self.critic.layout, self.critic.normalizer, [d for st, _ in stencils for d in st], ctx.motions,
-                             device=device)  # type -> (M, sum of 2 p, P, D)
+        moved = start_tokens(
+            self.critic.layout,
+            self.critic.normalizer,
+            [d for st, _ in stencils for d in st],
+            ctx.motions,
+            device=device,
+        )  # type -> (M, sum of 2 p, P, D)
         at = 0
         for (r, i), design, (_, span) in zip(pairs, designs, stencils):
             real = {n: own.mask[n][r].bool() for n in own.mask if n in out}
@@ -291,12 +350,18 @@ class CriticGradient:
             for name, g in start_grads.items():
                 if g is None:
                     continue
-                s = moved[name][:, at: at + 2 * p].double()
+                s = moved[name][:, at : at + 2 * p].double()
                 ds_dc = (s[:, 0::2] - s[:, 1::2]) / torch.as_tensor(span, dtype=torch.float64)[None, :, None, None]
                 grad_c += torch.einsum("mjpd,mpd->j", ds_dc, g[:, r].double()).cpu().numpy()
             at += 2 * p
-            place_token_gradient(out, i, tokens_from_choice_gradient(token_jacobian(space, design), grad_c),
-                                 self.normalizer, real, add=True)
+            place_token_gradient(
+                out,
+                i,
+                tokens_from_choice_gradient(token_jacobian(space, design), grad_c),
+                self.normalizer,
+                real,
+                add=True,
+            )
         self.stats.start_terms += len(pairs)
 
 

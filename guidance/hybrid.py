@@ -27,11 +27,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tt.kernels.errors import TTError
 from tt.baselines.cmaes import CMAES, CMAESConfig
 from tt.baselines.evaluate import evaluate_designs, warm_up
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 from tt.guidance.zeroth import ZerothOrder, learned_result
+from tt.kernels.errors import TTError
 
 
 @dataclass(frozen=True)
@@ -72,8 +72,9 @@ class SimVerified(Optimizer):
         sample_seconds = time.perf_counter() - start
         # Compiling the verified designs' kernels is a one-off cost of the process, as for
         # CMA-ES and Random; it is reported, not counted in the optimize time.
-        compile_seconds = warm_up(designs, problem.motions, reward=problem.reward, backend=problem.backend,
-                                  device=problem.device)
+        compile_seconds = warm_up(
+            designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device
+        )
         verify_start = time.perf_counter()
         ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
         seconds = sample_seconds + time.perf_counter() - verify_start
@@ -83,19 +84,33 @@ class SimVerified(Optimizer):
         p_, s_ = predicted[finite], ev.objective[finite]
         # Pearson r needs two spreads; a model that predicts one value for all has none.
         r = float(np.corrcoef(p_, s_)[0, 1]) if p_.size > 2 and p_.std() > 0 and s_.std() > 0 else float("nan")
-        result = learned_result(self.name, problem, gen, ranking, seconds, rollouts=len(designs) * len(problem.motions),
-                                info=info)
-        result.info.update({
-            "verified": len(designs), "verified_candidates": order,
-            "verified_predicted": [float(v) for v in predicted],
-            "verified_simulated": [float(v) for v in ev.objective],
-            "predicted_vs_simulated_r": r, "verify_seconds": seconds - sample_seconds, "compile_seconds": compile_seconds,
-            # Where the simulator's pick stood in the model's ranking (0: the model's own pick).
-            "best_predicted_rank": int(np.argmax(np.where(np.isfinite(ev.objective), ev.objective, -np.inf))),
-        })
-        return Result(method=self.name, best=best, best_reward=best_reward, designs=designs,
-                      rewards=np.asarray(ev.objective, dtype=np.float64), seconds=seconds, rollouts=result.rollouts,
-                      history=[float(ev.objective[0]), best_reward], info=result.info)
+        result = learned_result(
+            self.name, problem, gen, ranking, seconds, rollouts=len(designs) * len(problem.motions), info=info
+        )
+        result.info.update(
+            {
+                "verified": len(designs),
+                "verified_candidates": order,
+                "verified_predicted": [float(v) for v in predicted],
+                "verified_simulated": [float(v) for v in ev.objective],
+                "predicted_vs_simulated_r": r,
+                "verify_seconds": seconds - sample_seconds,
+                "compile_seconds": compile_seconds,
+                # Where the simulator's pick stood in the model's ranking (0: the model's own pick).
+                "best_predicted_rank": int(np.argmax(np.where(np.isfinite(ev.objective), ev.objective, -np.inf))),
+            }
+        )
+        return Result(
+            method=self.name,
+            best=best,
+            best_reward=best_reward,
+            designs=designs,
+            rewards=np.asarray(ev.objective, dtype=np.float64),
+            seconds=seconds,
+            rollouts=result.rollouts,
+            history=[float(ev.objective[0]), best_reward],
+            info=result.info,
+        )
 
 
 class ModelInitCMAES(Optimizer):
@@ -112,7 +127,9 @@ class ModelInitCMAES(Optimizer):
         if cmaes.sequential:
             raise TTError("cmaes --init model runs the batched CMA-ES; drop --sequential")
         if cmaes.screen <= 0:
-            raise TTError("cmaes --init model needs a screening share (CMAESConfig.screen > 0) to verify the model's samples")
+            raise TTError(
+                "cmaes --init model needs a screening share (CMAESConfig.screen > 0) to verify the model's samples"
+            )
         self.sampler = sampler
         self.cmaes = CMAES(cmaes)
 
@@ -123,15 +140,24 @@ class ModelInitCMAES(Optimizer):
         # The sampler reads its sample count from the problem's budget when it has none.
         gen, decoder, info = self.sampler.generate(replace(problem, budget=n))
         ranking = self.sampler.rank(gen, decoder, limit=n)
-        proposals = [ranking.decoded[i].design for i in ranking.order
-                     if i in ranking.decoded and ranking.decoded[i].design is not None]
+        proposals = [
+            ranking.decoded[i].design
+            for i in ranking.order
+            if i in ranking.decoded and ranking.decoded[i].design is not None
+        ]
         sample_seconds = time.perf_counter() - start
         result = self.cmaes.optimize(problem, proposals=proposals)
         result.method = self.name
         result.seconds += sample_seconds
-        result.info.update({"model_samples": n, "model_decoded": len(proposals), "sample_seconds": sample_seconds,
-                            "model_structures": len({d.discrete for d in proposals}),
-                            **{f"sampler_{k}": v for k, v in info.items()}})
+        result.info.update(
+            {
+                "model_samples": n,
+                "model_decoded": len(proposals),
+                "sample_seconds": sample_seconds,
+                "model_structures": len({d.discrete for d in proposals}),
+                **{f"sampler_{k}": v for k, v in info.items()},
+            }
+        )
         return result
 
 

@@ -46,17 +46,18 @@ ends the count). Falls are not predicted (no token says the robot fell).
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
 import torch
 
 from tt.dit.layout import Layout, LayoutError, slot_ids
 from tt.kernels.errors import TTError
 from tt.kernels.rotations import quat_to_mat
-from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, log_reward
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, log_reward
+from tt.tokens.batch import TokenBatch
 from tt.tokens.encodings import decode_binary, decode_log
 from tt.tokens.normalize import Normalizer, is_padding
-from tt.tokens.batch import TokenBatch
 from tt.tokens.schema import GEOM_TYPES, SCHEMA, STEP_ROLES, Role
 
 #: Ways to choose a query's control steps (see the module docstring; "start": step 0, then
@@ -69,8 +70,9 @@ _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = (
 
 
 # ------------------------------------------------------------------------------ steps
-def query_steps(motion_steps: int, window: int, count: int, *, placement: str = "even",
-                generator: torch.Generator | None = None) -> torch.Tensor:
+def query_steps(
+    motion_steps: int, window: int, count: int, *, placement: str = "even", generator: torch.Generator | None = None
+) -> torch.Tensor:
     """Control steps of `count` sequences of one motion, (count, window) long, ascending.
 
     motion_steps: T of the motion; window: S steps per sequence; placement: "even" or
@@ -93,8 +95,9 @@ def query_steps(motion_steps: int, window: int, count: int, *, placement: str = 
         return steps[None].expand(count, window).clone()
     from tt.tokens.episodes import sample_steps
 
-    steps, _ = sample_steps(torch.full((count,), motion_steps, dtype=torch.long), window, "random", generator,
-                            horizon=motion_steps)
+    steps, _ = sample_steps(
+        torch.full((count,), motion_steps, dtype=torch.long), window, "random", generator, horizon=motion_steps
+    )
     return steps
 
 
@@ -132,8 +135,16 @@ class RobotQuery:
         return scored_steps(self.motion_steps, self.steps.shape[1])
 
 
-def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: int, *, placement: str = "even",
-                generator: torch.Generator | None = None, device: str | torch.device = "cpu") -> RobotQuery:
+def build_query(
+    layout: Layout,
+    normalizer: Normalizer,
+    motion: Motion,
+    count: int,
+    *,
+    placement: str = "even",
+    generator: torch.Generator | None = None,
+    device: str | torch.device = "cpu",
+) -> RobotQuery:
     """`count` motion-to-robot sequences conditioned on `motion` (see the module docstring).
 
     layout: the model's layout (RoboToken schema types, with ``target_pose``); normalizer:
@@ -148,11 +159,14 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
     target_spec = layout["target_pose"]
     arms = motion.arms
     if target_spec.per_step < arms:
-        raise LayoutError(f"motion {motion.name!r} has {arms} end effectors, the model's layout "
-                          f"{target_spec.per_step} track slots")
+        raise LayoutError(
+            f"motion {motion.name!r} has {arms} end effectors, the model's layout {target_spec.per_step} track slots"
+        )
     time_rows = layout.id_sizes.get("time", 0)
     if motion.steps > time_rows:
-        raise LayoutError(f"motion {motion.name!r} has {motion.steps} steps, the model's time IDs only {time_rows} rows")
+        raise LayoutError(
+            f"motion {motion.name!r} has {motion.steps} steps, the model's time IDs only {time_rows} rows"
+        )
     S = layout.steps
     steps = query_steps(motion.steps, S, count, placement=placement, generator=generator)  # (B, S)
     pos = torch.as_tensor(motion.pos, dtype=torch.float64)[steps]  # (B, S, A, 3)
@@ -169,7 +183,9 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
             ids[spec.name] = slot[None].expand(count, per, len(spec.ids)).clone()
         if spec.role is Role.CONDITION:
             if spec.name != "target_pose":
-                raise LayoutError(f"conditioning type {spec.name!r} is not a target pose; this query fills target_pose only")
+                raise LayoutError(
+                    f"conditioning type {spec.name!r} is not a target pose; this query fills target_pose only"
+                )
             raw = np.zeros((count, S, per, spec.dim))
             t = SCHEMA["target_pose"]
             raw[:, :, :arms, t.slice("pos")] = pos.numpy()
@@ -187,9 +203,16 @@ def build_query(layout: Layout, normalizer: Normalizer, motion: Motion, count: i
     return RobotQuery(tokens, steps.to(device), int(motion.steps), pos.float().to(device), quat.float().to(device))
 
 
-def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models, *, placement: str = "even",
-                 generator: torch.Generator | None = None,
-                 device: str | torch.device = "cpu") -> tuple[RobotQuery, dict[str, torch.Tensor]]:
+def design_query(
+    layout: Layout,
+    normalizer: Normalizer,
+    motion: Motion,
+    models,
+    *,
+    placement: str = "even",
+    generator: torch.Generator | None = None,
+    device: str | torch.device = "cpu",
+) -> tuple[RobotQuery, dict[str, torch.Tensor]]:
     """A motion-to-robot query for given robots: `build_query` with one sequence per model
     whose embodiment slots hold that robot's tokens (normalised; padding at PAD_VALUE with
     its slot ID, as in training). Returns (query, known): known marks those slots (type ->
@@ -201,7 +224,9 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     """
     from tt.dit.layout import robot_embodiment
 
-    query = build_query(layout, normalizer, motion, len(models), placement=placement, generator=generator, device=device)
+    query = build_query(
+        layout, normalizer, motion, len(models), placement=placement, generator=generator, device=device
+    )
     emb, _ = robot_embodiment(layout, normalizer, models, device)
     # The query's masks stay all-True: in the robot task every slot is visible, padding included.
     query.tokens = TokenBatch({**query.tokens.values, **emb.values}, {**query.tokens.ids, **emb.ids}, query.tokens.mask)
@@ -210,8 +235,9 @@ def design_query(layout: Layout, normalizer: Normalizer, motion: Motion, models,
     return query, known
 
 
-def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, models=None,
-                 device: str | torch.device = "cpu") -> dict[str, torch.Tensor]:
+def start_tokens(
+    layout: Layout, normalizer: Normalizer, designs, motions, *, models=None, device: str | torch.device = "cpu"
+) -> dict[str, torch.Tensor]:
     """Each design's first control step on each motion, simulated, as a model takes it: the
     normalised per-step tokens of step 0, type -> (M, D, P, dim) for every per-step type the
     model predicts (P: the layout's slots per step; padding at PAD_VALUE).
@@ -234,7 +260,7 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, mo
     from tt.sim.designs import get_space
     from tt.sim.rollout import group_episode, rollout_records
     from tt.tokens.episodes import episode_tokens
-    from tt.tokens.tokenize import TokenizeWarning, Tokenizer
+    from tt.tokens.tokenize import Tokenizer, TokenizeWarning
 
     device = torch.device(device)
     space = get_space(designs[0].space)
@@ -242,8 +268,9 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, mo
     trees = space.trees(designs)
     D, M = len(designs), len(motions)
     wp.init()  # mapping the torch device needs Warp's runtime, which this may be the first to use
-    records = rollout_records(models if trees is None else trees, space.ee_sites(), motions,
-                              device=str(wp.device_from_torch(device)), steps=1)
+    records = rollout_records(
+        models if trees is None else trees, space.ee_sites(), motions, device=str(wp.device_from_torch(device)), steps=1
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TokenizeWarning)
         emb = Tokenizer()(models)
@@ -253,17 +280,24 @@ def start_tokens(layout: Layout, normalizer: Normalizer, designs, motions, *, mo
         ep = group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
         first = torch.zeros((ep.worlds, 1), dtype=torch.long, device=ep.qpos.device)
         dynamics = episode_tokens(ep, emb.index, step_index=first)
-        tokens = EpisodeTokens.from_token_batches(emb.tokens, dynamics, torch.ones(ep.worlds, dtype=torch.long),
-                                                  design_index=ep.design_index.cpu(),
-                                                  max_time=layout.id_sizes.get("time", 1024))
+        tokens = EpisodeTokens.from_token_batches(
+            emb.tokens,
+            dynamics,
+            torch.ones(ep.worlds, dtype=torch.long),
+            design_index=ep.design_index.cpu(),
+            max_time=layout.id_sizes.get("time", 1024),
+        )
         parts.append(tokens.pad_to(counts))
         worlds += [d * M + j for d in members for j in range(M)]  # the group's worlds, design-major
     data = EpisodeTokens.concatenate(parts)
     rows = torch.as_tensor(np.argsort(worlds), dtype=torch.long)  # world d * M + j: design d on motion j
     raw = data.window(rows, torch.zeros((D * M, layout.steps), dtype=torch.long))
     tokens = normalizer.normalize(with_slot_ids(layout, raw))
-    return {s.name: tokens.values[s.name][:, :s.per_step].reshape(D, M, s.per_step, -1).transpose(0, 1).to(device)
-            for s in layout.specs if s.role in STEP_ROLES and s.role is not Role.CONDITION}
+    return {
+        s.name: tokens.values[s.name][:, : s.per_step].reshape(D, M, s.per_step, -1).transpose(0, 1).to(device)
+        for s in layout.specs
+        if s.role in STEP_ROLES and s.role is not Role.CONDITION
+    }
 
 
 def with_start(tokens: TokenBatch, first: dict[str, torch.Tensor]) -> TokenBatch:
@@ -287,8 +321,10 @@ def check_space(trained, space: str) -> None:
     its layout still has to hold the robots)."""
     if trained.space is not None and trained.space != space:
         where = f"checkpoint {trained.path}" if trained.path is not None else "the model"
-        raise CheckpointSpaceError(f"{where} was trained on design space {trained.space!r}, the designs are of space "
-                                   f"{space!r}; give a checkpoint trained on {space!r} (--checkpoint)")
+        raise CheckpointSpaceError(
+            f"{where} was trained on design space {trained.space!r}, the designs are of space "
+            f"{space!r}; give a checkpoint trained on {space!r} (--checkpoint)"
+        )
 
 
 @dataclass
@@ -327,11 +363,22 @@ def default_via(trained) -> str:
     return "dynamics" if trained.trained_on("dynamics") else "inpaint"
 
 
-def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: int = 1,
-                    num_steps: int | None = CRITIC_DDIM_STEPS,
-                    seed: int = 0, placement: str = "even", chunk: int | None = None,
-                    device: str | torch.device | None = None, via: str | None = None,
-                    common_noise: bool = False, log: bool = False) -> DesignPrediction:
+def predict_designs(
+    trained,
+    designs,
+    motions,
+    cfg: RewardConfig,
+    *,
+    samples: int = 1,
+    num_steps: int | None = CRITIC_DDIM_STEPS,
+    seed: int = 0,
+    placement: str = "even",
+    chunk: int | None = None,
+    device: str | torch.device | None = None,
+    via: str | None = None,
+    common_noise: bool = False,
+    log: bool = False,
+) -> DesignPrediction:
     """The model as a critic: predicted dynamics and reward of each design on each motion.
 
     Each design's embodiment tokens are given to the model (`design_query`), the model
@@ -370,8 +417,10 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     if via not in VIAS:
         raise TTError(f"via {via!r} is not one of {list(VIAS)}")
     if via == "dynamics" and not trained.trained_on("dynamics"):
-        raise TTError(f"the model was trained on the tasks {list(trained.tasks)}, not 'dynamics', so it cannot take a "
-                      "design as a condition; train with --task robot+dynamics, or predict with via='inpaint'")
+        raise TTError(
+            f"the model was trained on the tasks {list(trained.tasks)}, not 'dynamics', so it cannot take a "
+            "design as a condition; train with --task robot+dynamics, or predict with via='inpaint'"
+        )
     if not designs or not motions:
         raise TTError(f"predict needs at least one design and one motion, got {len(designs)} and {len(motions)}")
     if samples < 1:
@@ -398,8 +447,15 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     first = start_tokens(layout, norm, designs, motions, models=models, device=device) if from_start else None
     queries, tokens, known = [], [], []
     for j, m in enumerate(motions):
-        q, kn = design_query(layout, norm, m, repeated, placement="start" if from_start else placement,
-                             generator=torch.Generator().manual_seed(int(seed)), device=device)
+        q, kn = design_query(
+            layout,
+            norm,
+            m,
+            repeated,
+            placement="start" if from_start else placement,
+            generator=torch.Generator().manual_seed(int(seed)),
+            device=device,
+        )
         if first is not None:
             q.tokens = with_start(q.tokens, {name: v[j].repeat_interleave(K, dim=0) for name, v in first.items()})
         queries.append(q)
@@ -410,8 +466,9 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
     total = len(tokens)
     chunk = total if chunk is None else min(int(chunk), total)
     generator = torch.Generator(device=device).manual_seed(int(seed))
-    task = TaskSpec("dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps,
-                    "start" if from_start else "random")
+    task = TaskSpec(
+        "dynamics" if via == "dynamics" else "robot", trained.robot_diffusion_steps, "start" if from_start else "random"
+    )
     shared = None
     if common_noise:
         from tt.dit.tasks import output_types
@@ -419,17 +476,28 @@ def predict_designs(trained, designs, motions, cfg: RewardConfig, *, samples: in
         # Rows are motion-major, then design, then sample: one draw per (motion, sample). Every
         # type is drawn, in the tokens' order, so the stream (and the recorded results) stay
         # those of the first version; only the types the task diffuses are used.
-        shared = {n: torch.randn((M, 1, K, *v.shape[1:]), generator=generator, device=device).expand(M, D, K, *v.shape[1:])
-                  .reshape(total, *v.shape[1:]) for n, v in tokens.values.items()}
+        shared = {
+            n: torch.randn((M, 1, K, *v.shape[1:]), generator=generator, device=device)
+            .expand(M, D, K, *v.shape[1:])
+            .reshape(total, *v.shape[1:])
+            for n, v in tokens.values.items()
+        }
         shared = {n: v for n, v in shared.items() if n in output_types(task, layout)}
     scheduler = CosineDDIM(task.diffusion_steps)
     values = []
     for c0 in range(0, total, chunk):
         rows = slice(c0, min(c0 + chunk, total))
         part = tokens.select(rows)
-        res = sample(model, part, task, scheduler=scheduler, num_steps=num_steps, generator=generator,
-                     known=None if via == "dynamics" else {n: k[rows] for n, k in known.items()},
-                     init_noise=None if shared is None else {n: v[rows] for n, v in shared.items()})
+        res = sample(
+            model,
+            part,
+            task,
+            scheduler=scheduler,
+            num_steps=num_steps,
+            generator=generator,
+            known=None if via == "dynamics" else {n: k[rows] for n, k in known.items()},
+            init_noise=None if shared is None else {n: v[rows] for n, v in shared.items()},
+        )
         values.append(res.tokens.values)
     values = {n: torch.cat([v[n] for v in values]) for n in values[0]}
     reward = np.zeros((D, M))
@@ -480,12 +548,15 @@ def matrix_to_quat(r: torch.Tensor) -> torch.Tensor:
     r00, r01, r02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
     r10, r11, r12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
     r20, r21, r22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
-    cand = torch.stack([
-        torch.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
-        torch.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
-        torch.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
-        torch.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
-    ], -2)  # (..., 4 formulas, 4)
+    cand = torch.stack(
+        [
+            torch.stack([1 + r00 + r11 + r22, r21 - r12, r02 - r20, r10 - r01], -1),
+            torch.stack([r21 - r12, 1 + r00 - r11 - r22, r01 + r10, r02 + r20], -1),
+            torch.stack([r02 - r20, r01 + r10, 1 - r00 + r11 - r22, r12 + r21], -1),
+            torch.stack([r10 - r01, r02 + r20, r12 + r21, 1 - r00 - r11 + r22], -1),
+        ],
+        -2,
+    )  # (..., 4 formulas, 4)
     pick = torch.diagonal(cand, dim1=-2, dim2=-1).argmax(-1)  # (...)
     q = torch.gather(cand, -2, pick[..., None, None].expand(*pick.shape, 1, 4)).squeeze(-2)
     return q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-12)
@@ -541,11 +612,15 @@ class PredictedReward:
             need.append("link")
         missing = [n for n in need if n not in layout]
         if missing:
-            raise LayoutError(f"reward {cfg.name!r} reads predicted {missing}, which the model's layout lacks; "
-                              f"types: {list(layout.names)}")
+            raise LayoutError(
+                f"reward {cfg.name!r} reads predicted {missing}, which the model's layout lacks; "
+                f"types: {list(layout.names)}"
+            )
         if layout["track_link_obs"].per_step < query.track_count:
-            raise LayoutError(f"the layout has {layout['track_link_obs'].per_step} track-link slots per step, "
-                              f"the motion {query.track_count} end effectors")
+            raise LayoutError(
+                f"the layout has {layout['track_link_obs'].per_step} track-link slots per step, "
+                f"the motion {query.track_count} end effectors"
+            )
 
     @property
     def scale(self) -> float:
@@ -561,12 +636,16 @@ class PredictedReward:
     def inputs(self, x0: dict[str, torch.Tensor]) -> RewardInputs:
         """`RewardInputs` of S steps from predicted tokens (all fields the layout allows)."""
         norm, A = self.normalizer, self.query.track_count
-        track = self._step_view("track_link_obs", norm.denormalize_values("track_link_obs", x0["track_link_obs"]))[:, :, :A]
+        track = self._step_view("track_link_obs", norm.denormalize_values("track_link_obs", x0["track_link_obs"]))[
+            :, :, :A
+        ]
         ee_pos = _attr("track_link_obs", track, "pos")  # (B, S, A, 3)
         ee_quat = matrix_to_quat(orthonormalize(_attr("track_link_obs", track, "rot")))  # (B, S, A, 4)
         fields = {}
         if "actuator_obs" in self.layout:
-            obs = self._step_view("actuator_obs", norm.denormalize_values("actuator_obs", x0["actuator_obs"]))  # (B, S, P, 2)
+            obs = self._step_view(
+                "actuator_obs", norm.denormalize_values("actuator_obs", x0["actuator_obs"])
+            )  # (B, S, P, 2)
             p = obs.shape[2]
             with torch.no_grad():
                 if "actuator" in self.layout and self.layout["actuator"].length >= p:
@@ -588,16 +667,24 @@ class PredictedReward:
         dtype = ee_pos.dtype
         # The window's slots past a short motion's last step are no steps of it: not scored.
         scored = torch.full((ee_pos.shape[0],), q.scored, dtype=torch.long, device=ee_pos.device)
-        return RewardInputs(ee_pos=ee_pos, ee_quat=ee_quat, target_pos=q.target_pos.to(dtype),
-                            target_quat=q.target_quat.to(dtype), motion_steps=scored,
-                            **{k: v.to(dtype) for k, v in fields.items()})
+        return RewardInputs(
+            ee_pos=ee_pos,
+            ee_quat=ee_quat,
+            target_pos=q.target_pos.to(dtype),
+            target_quat=q.target_quat.to(dtype),
+            motion_steps=scored,
+            **{k: v.to(dtype) for k, v in fields.items()},
+        )
 
     def __call__(self, x0: dict[str, torch.Tensor], *, guidance: bool = False, log: bool = False) -> torch.Tensor:
         """Episode reward estimate (T / S) x R_S, (B,); guidance: the guidance alphas; log: the
         smooth stand-in `tt.sim.rewards.log_reward` instead of the reward, scaled the same way."""
         inputs = self.inputs(x0)
-        return self.scale * (log_reward(inputs, self.cfg, guidance=guidance) if log else
-                             evaluate(inputs, self.cfg, guidance=guidance).reward)
+        return self.scale * (
+            log_reward(inputs, self.cfg, guidance=guidance)
+            if log
+            else evaluate(inputs, self.cfg, guidance=guidance).reward
+        )
 
 
 def predicted_metrics(reward: PredictedReward, x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

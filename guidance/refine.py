@@ -41,11 +41,11 @@ from typing import Sequence
 
 import numpy as np
 
-from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.critic_grad import FORMS, NO_TERMINATION
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
 from tt.guidance.stencil import central_points, choice_bounds
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import Motion
 from tt.sim.rewards import RewardConfig
@@ -79,8 +79,10 @@ class RefineConfig:
         if self.form not in FORMS:
             raise TTError(f"form = {self.form!r}; must be one of {list(FORMS)}")
         if self.form == "log" and self.terminate:
-            raise TTError("form 'log' with terminate: the log form's steps are negative, so the climb would "
-                             "favour designs predicted to stop early; climb it without termination")
+            raise TTError(
+                "form 'log' with terminate: the log form's steps are negative, so the climb would "
+                "favour designs predicted to stop early; climb it without termination"
+            )
         if self.iterations < 1:
             raise TTError(f"iterations = {self.iterations}; must be >= 1")
         if not 0 < self.rel_step < 0.5:
@@ -112,8 +114,14 @@ class Refined:
     seconds: float = 0.0
 
     def summary(self) -> dict:
-        return {"before": self.before.tolist(), "after": self.after.tolist(), "steps": self.steps.tolist(),
-                "trace": self.trace, "predictions": self.predictions, "seconds": self.seconds}
+        return {
+            "before": self.before.tolist(),
+            "after": self.after.tolist(),
+            "steps": self.steps.tolist(),
+            "trace": self.trace,
+            "predictions": self.predictions,
+            "seconds": self.seconds,
+        }
 
 
 def _unit(space, design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,8 +132,16 @@ def _unit(space, design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.clip(u, 0.0, 1.0), low, span
 
 
-def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Sequence[Motion], cfg: RewardConfig,
-                   config: RefineConfig = RefineConfig(), *, seed: int = 0, device=None) -> Refined:
+def refine_designs(
+    critic: TrainedModel,
+    designs: Sequence[Design],
+    motions: Sequence[Motion],
+    cfg: RewardConfig,
+    config: RefineConfig = RefineConfig(),
+    *,
+    seed: int = 0,
+    device=None,
+) -> Refined:
     """Refine N designs of one space along the critic's central-difference gradient (module docstring).
 
     critic: a model trained on the dynamics task of the designs' space (`predict_designs`
@@ -155,9 +171,19 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
     def judge(batch: list[Design], draw: int = seed) -> np.ndarray:
         nonlocal asked
         asked += len(batch) * len(motions)
-        pred = predict_designs(critic, batch, motions, cfg, samples=config.samples, num_steps=config.num_steps,
-                               seed=draw, device=device, via="dynamics", common_noise=True,
-                               log=config.form == "log")
+        pred = predict_designs(
+            critic,
+            batch,
+            motions,
+            cfg,
+            samples=config.samples,
+            num_steps=config.num_steps,
+            seed=draw,
+            device=device,
+            via="dynamics",
+            common_noise=True,
+            log=config.form == "log",
+        )
         value = (pred.log_reward if config.form == "log" else pred.reward).mean(axis=1)
         return np.where(np.isfinite(value), value, -np.inf)
 
@@ -181,7 +207,7 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         directions, at = {}, 0
         for i, width in zip(active, pairs):
             p = len(u[i])
-            centre, plus, minus = values[at], values[at + 1: at + 1 + 2 * p: 2], values[at + 2: at + 1 + 2 * p: 2]
+            centre, plus, minus = values[at], values[at + 1 : at + 1 + 2 * p : 2], values[at + 2 : at + 1 + 2 * p : 2]
             at += 1 + 2 * p
             if np.isnan(before[i]):
                 before[i] = centre
@@ -200,12 +226,12 @@ def refine_designs(critic: TrainedModel, designs: Sequence[Design], motions: Seq
         k = len(config.step_sizes)
         picks = {}
         for r, i in enumerate(moving):
-            best = int(np.argmax(values[r * k:(r + 1) * k]))
+            best = int(np.argmax(values[r * k : (r + 1) * k]))
             if values[r * k + best] > current[i]:
                 picks[i] = r * k + best
         if config.check and picks:
             # The same comparison under another draw of the noise (seeds 2^31 apart do not meet).
-            again = judge([make(i, x) for i, t in picks.items() for x in (u[i], trial[t])], draw=seed + 2 ** 31)
+            again = judge([make(i, x) for i, t in picks.items() for x in (u[i], trial[t])], draw=seed + 2**31)
             picks = {i: t for r, (i, t) in enumerate(picks.items()) if again[2 * r + 1] > again[2 * r]}
         for i, t in picks.items():
             u[i] = trial[t]

@@ -49,12 +49,11 @@ from typing import Mapping
 
 import torch
 
-from tt.kernels.errors import TTError
 from tt.baselines.problem import Problem
 from tt.dit.sampling import GuideFn
 from tt.dit.tasks import ROBOT
 from tt.guidance.zeroth import Decoder, Generation, GuideContext, SamplerConfig, ZerothOrder
-
+from tt.kernels.errors import TTError
 
 #: What the guidance gradient differentiates (`DGSConfig.guide_by`).
 GUIDES = ("model", "critic")
@@ -120,14 +119,18 @@ class GuidanceScales:
     def scale(self, space: str, motions: int, guide_by: str = "model") -> float:
         if guide_by == "critic":
             if space not in self.critic:
-                raise TTError(f"no critic guidance scale for design space {space!r}; spaces with one: "
-                                 f"{sorted(self.critic)} (give DGSConfig.scale)")
+                raise TTError(
+                    f"no critic guidance scale for design space {space!r}; spaces with one: "
+                    f"{sorted(self.critic)} (give DGSConfig.scale)"
+                )
             return float(self.critic[space])
         if motions > 1 and space in self.multi:
             return float(self.multi[space])
         if space not in self.single:
-            raise TTError(f"no guidance scale for design space {space!r}; spaces with one: {sorted(self.single)} "
-                             "(give DGSConfig.scale)")
+            raise TTError(
+                f"no guidance scale for design space {space!r}; spaces with one: {sorted(self.single)} "
+                "(give DGSConfig.scale)"
+            )
         return float(self.single[space])
 
 
@@ -150,9 +153,13 @@ class GuidanceStats:
     objective_trace: list[float] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"guided_steps": self.steps, "nonfinite_grad_entries": self.nonfinite_entries,
-                "nonfinite_grad_candidate_steps": self.nonfinite_candidates,
-                "nonfinite_sim_grad_entries": self.nonfinite_sim_entries, "objective_trace": list(self.objective_trace)}
+        return {
+            "guided_steps": self.steps,
+            "nonfinite_grad_entries": self.nonfinite_entries,
+            "nonfinite_grad_candidate_steps": self.nonfinite_candidates,
+            "nonfinite_sim_grad_entries": self.nonfinite_sim_entries,
+            "objective_trace": list(self.objective_trace),
+        }
 
 
 class SelfGuidance:
@@ -183,15 +190,26 @@ class SelfGuidance:
     sample decodes to: benchmarks/results/codesign_guidance_eta0.md).
     """
 
-    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None, start_step: int = 0,
-                 project: bool = False, continuous_only: bool = False):
+    def __init__(
+        self,
+        scale: float,
+        *,
+        sim=None,
+        sim_weight: float = 0.0,
+        critic=None,
+        start_step: int = 0,
+        project: bool = False,
+        continuous_only: bool = False,
+    ):
         if not 0.0 <= sim_weight <= 1.0:
             raise TTError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
             raise TTError("sim_weight > 0 needs a simulator gradient (sim=SimGradient(...))")
         if project and (critic is None or getattr(critic, "at", None) != "design" or sim_weight > 0):
-            raise TTError("project needs a critic whose gradient is taken at the decoded design (at='design') "
-                             "and no simulator gradient")
+            raise TTError(
+                "project needs a critic whose gradient is taken at the decoded design (at='design') "
+                "and no simulator gradient"
+            )
         self.scale = float(scale)
         self.sim = sim
         self.sim_weight = float(sim_weight)
@@ -233,8 +251,9 @@ class SelfGuidance:
                 out[n] = g
             return out
 
-        def guide(step: int, x_t: dict[str, torch.Tensor], eps: dict[str, torch.Tensor],
-                  x0: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        def guide(
+            step: int, x_t: dict[str, torch.Tensor], eps: dict[str, torch.Tensor], x0: dict[str, torch.Tensor]
+        ) -> dict[str, torch.Tensor]:
             t = ctx.timesteps[step]
             names = [n for n in ctx.embodiment if n in x_t and x_t[n].requires_grad]
             if step < self.start_step:
@@ -353,8 +372,10 @@ class DGSConfig(SamplerConfig):
             raise TTError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
         if self.project and self.scale is None:
             # Its scale is a token step, not a gradient multiplier: the spaces' defaults do not apply.
-            raise TTError("project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
-                             "on ViperX, benchmarks/results/codesign_guidance_project.md)")
+            raise TTError(
+                "project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
+                "on ViperX, benchmarks/results/codesign_guidance_project.md)"
+            )
         if self.project and self.continuous_only:
             raise TTError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
         if self.through_start and (self.guide_by != "critic" or self.critic_at != "tokens"):
@@ -376,8 +397,9 @@ class DynamicsSelfGuidance(ZerothOrder):
 
     name = "dgs"
 
-    def __init__(self, config: DGSConfig = DGSConfig(), *, model=None, decoder: Decoder | None = None,
-                 critic_model=None):
+    def __init__(
+        self, config: DGSConfig = DGSConfig(), *, model=None, decoder: Decoder | None = None, critic_model=None
+    ):
         super().__init__(config, model=model, decoder=decoder, critic_model=critic_model)
 
     def generate(self, problem: Problem) -> tuple[Generation, Decoder, dict]:
@@ -392,8 +414,9 @@ class DynamicsSelfGuidance(ZerothOrder):
 
             # The simulator gradient lands on the candidate's own tokens: exact structures only.
             exact = decoder.exact() if hasattr(decoder, "exact") else decoder
-            sim = SimGradient(problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start,
-                              device=problem.device)
+            sim = SimGradient(
+                problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start, device=problem.device
+            )
         guide_critic = None
         if c.guide_by == "critic":
             from tt.guidance.critic_grad import CriticGradient
@@ -402,20 +425,55 @@ class DynamicsSelfGuidance(ZerothOrder):
             judge = self._critic or self._trained
             if judge is not self._trained:
                 check_critic(self._trained, judge)
-            guide_critic = CriticGradient(judge, cfg, normalizer=self._trained.normalizer, decoder=decoder,
-                                          seed=problem.seed, at=c.critic_at, through_start=c.through_start)
-        guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic,
-                                start_step=c.guide_start, project=c.project, continuous_only=c.continuous_only)
+            guide_critic = CriticGradient(
+                judge,
+                cfg,
+                normalizer=self._trained.normalizer,
+                decoder=decoder,
+                seed=problem.seed,
+                at=c.critic_at,
+                through_start=c.through_start,
+            )
+        guidance = SelfGuidance(
+            scale,
+            sim=sim,
+            sim_weight=c.sim_grad_weight,
+            critic=guide_critic,
+            start_step=c.guide_start,
+            project=c.project,
+            continuous_only=c.continuous_only,
+        )
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
         rollouts = int(summary.get("sim", {}).get("rollouts", 0))
-        info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input(), "scale": scale,
-                "sim_grad_weight": c.sim_grad_weight, "guide_by": c.guide_by, "guide_start": c.guide_start,
-                "critic_at": c.critic_at, "project": c.project, "continuous_only": c.continuous_only, **summary,
-                "rollouts": rollouts}
+        info = {
+            "num_steps": c.num_steps or ROBOT.diffusion_steps,
+            "eta": c.eta,
+            "placement": c.placement,
+            "critic": critic,
+            "critic_samples": c.critic_samples,
+            "critic_on": self.critic_input(),
+            "scale": scale,
+            "sim_grad_weight": c.sim_grad_weight,
+            "guide_by": c.guide_by,
+            "guide_start": c.guide_start,
+            "critic_at": c.critic_at,
+            "project": c.project,
+            "continuous_only": c.continuous_only,
+            **summary,
+            "rollouts": rollouts,
+        }
         return gen, decoder, info
 
 
-__all__ = ["CRITIC_PLACES", "GUIDES", "continuous_columns", "DGSConfig", "DynamicsSelfGuidance", "GuidanceScales", "GuidanceStats", "SelfGuidance"]
+__all__ = [
+    "CRITIC_PLACES",
+    "GUIDES",
+    "continuous_columns",
+    "DGSConfig",
+    "DynamicsSelfGuidance",
+    "GuidanceScales",
+    "GuidanceStats",
+    "SelfGuidance",
+]

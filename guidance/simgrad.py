@@ -27,11 +27,12 @@ The simulator's gradient of a candidate's reward, in three links:
 
 `SimGradient.token_gradient` does all three for every candidate of a guided step (each
 decoded with `tt.guidance.zeroth.DesignDecoder` to a design of exactly its token structure,
-no projection; a candidate that does not decode gets a zero gradient and is counted) and `tt.guidance.selfguide` mixes it into the guidance
-gradient. Cost: per guided step, one least-squares decode per candidate (CPU, seconds),
-2 p compiles for the Jacobians, and one differentiable rollout of candidates x motions,
-whose memory grows with steps x substeps; `DGSConfig.sim_grad_start` limits it to the
-late steps. Contact-free spaces only (tt's Warp rollout has no contacts).
+no projection; a candidate that does not decode gets a zero gradient and is counted) and
+`tt.guidance.selfguide` mixes it into the guidance gradient. Cost: per guided step, one
+least-squares decode per candidate (CPU, seconds), 2 p compiles for the Jacobians, and one
+differentiable rollout of candidates x motions, whose memory grows with steps x substeps;
+`DGSConfig.sim_grad_start` limits it to the late steps. Contact-free spaces only (tt's Warp
+rollout has no contacts).
 """
 
 from __future__ import annotations
@@ -46,14 +47,14 @@ import numpy as np
 import torch
 import warp as wp
 
-from tt.kernels.errors import TTError
 from tt.dit.checkpoint import TrainedModel
 from tt.guidance.stencil import central_points, choice_bounds
+from tt.kernels.errors import TTError
 from tt.kernels.model import ENTITY_FIELDS, KINEMATICS64_FIELDS
-from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 
 log = logging.getLogger(__name__)
 
@@ -160,8 +161,15 @@ def _host_fields(tree, models) -> dict:
     return out
 
 
-def field_jacobian(space: DesignSpace, design: Design, sites: Sequence[str], *, rel_step: float = REL_STEP,
-                   device: str = "cpu", derivatives: bool = True) -> FieldJacobian:
+def field_jacobian(
+    space: DesignSpace,
+    design: Design,
+    sites: Sequence[str],
+    *,
+    rel_step: float = REL_STEP,
+    device: str = "cpu",
+    derivatives: bool = True,
+) -> FieldJacobian:
     """`FieldJacobian` of `design` by central differences of the MJCF compile (module
     docstring); derivatives=False: the fields only, with zero derivatives (no extra compiles)."""
     from tt.kernels.model import build_tree_model
@@ -193,7 +201,9 @@ class _Rollout(WarpProgram):
 
     def __init__(self, tree, motions, steps: int, config: IKConfig, device: str):
         self.tree, self.motions, self.steps, self.config, self.device = tree, motions, steps, config, device
-        self.dtypes = [getattr(tree.arrays, n).dtype for n in FIELDS] + [getattr(tree.kinematics64, n).dtype for n in FIELDS64]
+        self.dtypes = [getattr(tree.arrays, n).dtype for n in FIELDS] + [
+            getattr(tree.kinematics64, n).dtype for n in FIELDS64
+        ]
 
     def record(self, arrays: list[wp.array]) -> list[wp.array]:
         from tt.kernels.rollout import rollout_tree
@@ -202,8 +212,15 @@ class _Rollout(WarpProgram):
         # The arrays come from `WarpFunction` with requires_grad set, so the new structs
         # carry their gradients.
         model = self.tree.with_fields(dict(zip(FIELDS, arrays[:k])), dict(zip(FIELDS64, arrays[k:])))
-        out = rollout_tree(model, self.motions, self.tree.world_count, self.steps, **self.config.rollout_args(),
-                           differentiable=True, device=self.device)
+        out = rollout_tree(
+            model,
+            self.motions,
+            self.tree.world_count,
+            self.steps,
+            **self.config.rollout_args(),
+            differentiable=True,
+            device=self.device,
+        )
         return [out.ee_pos, out.ee_quat, out.act_force, out.act_vel, out.alive, out.target_pos, out.target_quat]
 
 
@@ -227,10 +244,19 @@ def _motion_host(motions: Sequence[Motion]) -> tuple[np.ndarray, np.ndarray, lis
     return pos, quat, [m.steps for m in motions]
 
 
-def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], motions: Sequence[Motion],
-                           cfg: RewardConfig, *, guidance: bool = True, gradient: bool = True,
-                           jacobians: Sequence[FieldJacobian] | None = None, config: IKConfig = IKConfig(),
-                           rel_step: float = REL_STEP, device: str | None = None) -> DesignGradient:
+def design_reward_gradient(
+    space: DesignSpace | str,
+    designs: Sequence[Design],
+    motions: Sequence[Motion],
+    cfg: RewardConfig,
+    *,
+    guidance: bool = True,
+    gradient: bool = True,
+    jacobians: Sequence[FieldJacobian] | None = None,
+    config: IKConfig = IKConfig(),
+    rel_step: float = REL_STEP,
+    device: str | None = None,
+) -> DesignGradient:
     """Reward `cfg` of each design on `motions` from a differentiable Warp rollout and, with
     `gradient`, dR/dc (see the module docstring). guidance: use the guidance alphas;
     jacobians: precomputed `field_jacobian`s of the designs (else computed here)."""
@@ -240,8 +266,10 @@ def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], 
 
     space = get_space(space) if isinstance(space, str) else space
     if space.has_contacts:
-        raise TTError(f"design space {space.name!r} has contacts; the differentiable Warp rollout simulates "
-                         "contact-free trees only")
+        raise TTError(
+            f"design space {space.name!r} has contacts; the differentiable Warp rollout simulates "
+            "contact-free trees only"
+        )
     device = resolve_device(device)
     tdev = wp.device_to_torch(device)
     sites = space.ee_sites()
@@ -251,7 +279,9 @@ def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], 
     T = pos.shape[1]
     models = [space.model(d) for d in designs]
     if jacobians is None:
-        jacobians = [field_jacobian(space, d, sites, rel_step=rel_step, device=device, derivatives=gradient) for d in designs]
+        jacobians = [
+            field_jacobian(space, d, sites, rel_step=rel_step, device=device, derivatives=gradient) for d in designs
+        ]
     jacs = list(jacobians)
     groups: dict[tuple, list[int]] = {}
     for i, m in enumerate(models):
@@ -278,10 +308,18 @@ def design_reward_gradient(space: DesignSpace | str, designs: Sequence[Design], 
             program = _Rollout(tree, marrays, T, config, device)
             ee_pos, ee_quat, force, vel, alive, tpos, tquat = WarpFunction.apply(program, *inputs)
             nu = models[members[0]].nu
-            inp = RewardInputs(ee_pos=ee_pos.double(), ee_quat=ee_quat.double(), target_pos=tpos.double(),
-                               target_quat=tquat.double(), act_force=force[..., :nu].double(), act_vel=vel[..., :nu].double(),
-                               size=flat["size"], mass=flat["mass"], alive=alive,
-                               motion_steps=motion_steps.repeat(len(members)))
+            inp = RewardInputs(
+                ee_pos=ee_pos.double(),
+                ee_quat=ee_quat.double(),
+                target_pos=tpos.double(),
+                target_quat=tquat.double(),
+                act_force=force[..., :nu].double(),
+                act_vel=vel[..., :nu].double(),
+                size=flat["size"],
+                mass=flat["mass"],
+                alive=alive,
+                motion_steps=motion_steps.repeat(len(members)),
+            )
             per_world = evaluate(inp, cfg, guidance=guidance).reward.reshape(len(members), M).mean(1)  # (D_group,)
             if gradient:
                 g = torch.autograd.grad(per_world.sum(), cs, allow_unused=True)
@@ -325,7 +363,7 @@ def tokens_from_choice_gradient(jacobian: dict[str, np.ndarray], grad_c: np.ndar
     out, start = {}, 0
     for n in names:
         size = int(np.prod(jacobian[n].shape[1:]))
-        out[n] = flat[start:start + size].reshape(jacobian[n].shape[1:])
+        out[n] = flat[start : start + size].reshape(jacobian[n].shape[1:])
         start += size
     return out
 
@@ -352,9 +390,18 @@ class SimGradient:
     gradient; device: Warp device for the rollouts.
     """
 
-    def __init__(self, space: DesignSpace | str, cfg: RewardConfig, trained: TrainedModel, *,
-                 decoder: Callable | None = None, start_step: int = 0, device: str | None = None,
-                 config: IKConfig = IKConfig(), rel_step: float = REL_STEP):
+    def __init__(
+        self,
+        space: DesignSpace | str,
+        cfg: RewardConfig,
+        trained: TrainedModel,
+        *,
+        decoder: Callable | None = None,
+        start_step: int = 0,
+        device: str | None = None,
+        config: IKConfig = IKConfig(),
+        rel_step: float = REL_STEP,
+    ):
         from tt.guidance.zeroth import DesignDecoder
 
         self.space = get_space(space) if isinstance(space, str) else space
@@ -369,7 +416,12 @@ class SimGradient:
 
     def summary(self) -> dict:
         s = self.stats
-        return {"steps": s.steps, "candidates": s.candidates, "decode_failures": s.decode_failures, "rollouts": s.rollouts}
+        return {
+            "steps": s.steps,
+            "candidates": s.candidates,
+            "decode_failures": s.decode_failures,
+            "rollouts": s.rollouts,
+        }
 
     def token_gradient(self, ctx, x0: dict[str, torch.Tensor], step: int) -> dict[str, torch.Tensor]:
         """dR_sim/dx0 for the embodiment types of `x0` (normalised, (n, L, D) each); zero for
@@ -388,12 +440,22 @@ class SimGradient:
         if not ok:
             return out
         designs = [decoded[i].design for i in ok]
-        result = design_reward_gradient(self.space, designs, ctx.motions, self.cfg, guidance=True, config=self.config,
-                                        rel_step=self.rel_step, device=self.device)
+        result = design_reward_gradient(
+            self.space,
+            designs,
+            ctx.motions,
+            self.cfg,
+            guidance=True,
+            config=self.config,
+            rel_step=self.rel_step,
+            device=self.device,
+        )
         self.stats.candidates += len(ok)
         self.stats.rollouts += result.rollouts
         for k, i in enumerate(ok):
-            grad_e = tokens_from_choice_gradient(token_jacobian(self.space, designs[k], rel_step=self.rel_step), result.grad[k])
+            grad_e = tokens_from_choice_gradient(
+                token_jacobian(self.space, designs[k], rel_step=self.rel_step), result.grad[k]
+            )
             place_token_gradient(out, i, grad_e, norm, real_slots(x0, i))
         return out
 
@@ -405,8 +467,15 @@ def real_slots(x0: dict[str, torch.Tensor], i: int) -> dict[str, torch.Tensor]:
     return {name: ~is_padding(v[i]) for name, v in x0.items()}
 
 
-def place_token_gradient(out: dict[str, torch.Tensor], i: int, grad_e: dict[str, np.ndarray], normalizer,
-                         real: dict[str, torch.Tensor], *, add: bool = False) -> None:
+def place_token_gradient(
+    out: dict[str, torch.Tensor],
+    i: int,
+    grad_e: dict[str, np.ndarray],
+    normalizer,
+    real: dict[str, torch.Tensor],
+    *,
+    add: bool = False,
+) -> None:
     """Write candidate i's gradient in encoded token space (`tokens_from_choice_gradient`:
     type -> (n_real, width)) into `out` (normalised units, type -> (n, L, width)) at the
     slots `real` marks (type -> (L,) bool; `real_slots` of the candidate itself, or of the

@@ -48,23 +48,23 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 import torch
 
-from tt.kernels.errors import TTError
 from tt.baselines.problem import Optimizer, Problem, Result
 from tt.dit.checkpoint import TrainedModel, load_model
 from tt.dit.ddim import CosineDDIM
-from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import STEP_ROLES
 from tt.dit.layout import Layout, LayoutError
-from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import DYNAMICS, ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
-from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
 from tt.guidance.critic_grad import FORMS
+from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
 from tt.guidance.refine import RefineConfig, refine_designs
-from tt.sim.rewards import RewardConfig, get_reward
+from tt.kernels.errors import TTError
 from tt.sim.designs import Design, DesignSpace, get_space
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardConfig, get_reward
+from tt.tokens.batch import TokenBatch
+from tt.tokens.normalize import Normalizer
+from tt.tokens.schema import STEP_ROLES
 
 log = logging.getLogger(__name__)
 
@@ -142,13 +142,17 @@ class SamplerConfig:
         if self.critic_samples < 1:
             raise TTError(f"critic_samples = {self.critic_samples}; must be >= 1")
         if self.critic == "joint" and self.critic_samples > 1:
-            raise TTError(f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
-                             "scores the one draw sampled with the design")
+            raise TTError(
+                f"critic_samples = {self.critic_samples} needs the 'dynamics' critic: the joint critic "
+                "scores the one draw sampled with the design"
+            )
         if self.critic_on is not None and self.critic_on not in CRITIC_INPUTS:
             raise TTError(f"critic_on = {self.critic_on!r}; valid: {list(CRITIC_INPUTS)} or None")
         if self.critic == "joint" and self.critic_on == "designs":
-            raise TTError("critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
-                             "with critic = 'joint'")
+            raise TTError(
+                "critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
+                "with critic = 'joint'"
+            )
         if self.critic == "joint" and self.critic_checkpoint is not None:
             raise TTError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
 
@@ -209,21 +213,29 @@ def check_critic(trained: TrainedModel, critic: TrainedModel) -> None:
 
     where = f"critic checkpoint {critic.path}" if critic.path is not None else "the critic model"
     if not critic.trained_on("dynamics"):
-        raise TTError(f"{where} was trained on {list(critic.tasks)}, not the dynamics task a critic needs "
-                         "(train it with --task dynamics)")
+        raise TTError(
+            f"{where} was trained on {list(critic.tasks)}, not the dynamics task a critic needs "
+            "(train it with --task dynamics)"
+        )
     if trained.space is not None and critic.space is not None and trained.space != critic.space:
-        raise CheckpointSpaceError(f"{where} was trained on design space {critic.space!r}, the sampling model on "
-                                   f"{trained.space!r}; give a critic trained on {trained.space!r}")
+        raise CheckpointSpaceError(
+            f"{where} was trained on design space {critic.space!r}, the sampling model on "
+            f"{trained.space!r}; give a critic trained on {trained.space!r}"
+        )
     if critic.layout != trained.layout:
-        raise LayoutError(f"{where} has another token layout than the sampling model (types "
-                          f"{list(critic.layout.names)} against {list(trained.layout.names)}, or other lengths); "
-                          "its dynamics cannot be asked about these samples")
+        raise LayoutError(
+            f"{where} has another token layout than the sampling model (types "
+            f"{list(critic.layout.names)} against {list(trained.layout.names)}, or other lengths); "
+            "its dynamics cannot be asked about these samples"
+        )
 
 
 def _same_normalizer(a: Normalizer, b: Normalizer) -> bool:
     return a.low.keys() == b.low.keys() and all(
-        np.array_equal(np.asarray(a.low[k]), np.asarray(b.low[k])) and np.array_equal(np.asarray(a.high[k]), np.asarray(b.high[k]))
-        for k in a.low)
+        np.array_equal(np.asarray(a.low[k]), np.asarray(b.low[k]))
+        and np.array_equal(np.asarray(a.high[k]), np.asarray(b.high[k]))
+        for k in a.low
+    )
 
 
 def renormalize(values: dict[str, torch.Tensor], src: Normalizer, dst: Normalizer) -> dict[str, torch.Tensor]:
@@ -248,8 +260,9 @@ class CandidateSampler:
     None: `trained`'s own).
     """
 
-    def __init__(self, trained: TrainedModel, device: str | torch.device | None = None,
-                 critic_model: TrainedModel | None = None):
+    def __init__(
+        self, trained: TrainedModel, device: str | torch.device | None = None, critic_model: TrainedModel | None = None
+    ):
         self.trained = trained
         if device is None:
             held = next(iter([*trained.model.parameters(), *trained.model.buffers()]), None)
@@ -263,15 +276,30 @@ class CandidateSampler:
             critic_model.layout.check_normalizer(critic_model.normalizer)
             critic_model.model.to(self.device).eval()
 
-    def _objective(self, rewards: list[PredictedReward], split) -> Callable[[dict[str, torch.Tensor], bool], torch.Tensor]:
+    def _objective(
+        self, rewards: list[PredictedReward], split
+    ) -> Callable[[dict[str, torch.Tensor], bool], torch.Tensor]:
         def objective(x0: dict[str, torch.Tensor], guidance: bool = False) -> torch.Tensor:
             parts = split(x0)
             return torch.stack([r(p, guidance=guidance) for r, p in zip(rewards, parts)], dim=1)  # (n, M)
+
         return objective
 
-    def run(self, motions: Sequence[Motion], cfg: RewardConfig, samples: int, *, seed: int = 0,
-            num_steps: int | None = None, eta: float = 0.0, placement: str = "even", chunk: int | None = None,
-            guidance: Guidance | None = None, critic: str = "joint", critic_samples: int = 1) -> Generation:
+    def run(
+        self,
+        motions: Sequence[Motion],
+        cfg: RewardConfig,
+        samples: int,
+        *,
+        seed: int = 0,
+        num_steps: int | None = None,
+        eta: float = 0.0,
+        placement: str = "even",
+        chunk: int | None = None,
+        guidance: Guidance | None = None,
+        critic: str = "joint",
+        critic_samples: int = 1,
+    ) -> Generation:
         """n = `samples` candidates for `motions`, scored by reward `cfg`; `guidance` steers
         the embodiment tokens (None: plain sampling, Zeroth-Order); `critic`: "joint" scores
         the dynamics sampled with each candidate, "dynamics" re-predicts them with the
@@ -285,12 +313,15 @@ class CandidateSampler:
         if critic not in CRITICS:
             raise TTError(f"critic {critic!r} is not one of {list(CRITICS)}")
         if critic == "joint" and self.critic_model is not None:
-            raise TTError("this sampler has a critic model, whose dynamics task is the critic; critic 'joint' would "
-                             "ignore it")
+            raise TTError(
+                "this sampler has a critic model, whose dynamics task is the critic; critic 'joint' would ignore it"
+            )
         judge = self.critic_model or self.trained
         if critic == "dynamics" and not judge.trained_on("dynamics"):
-            raise TTError(f"critic 'dynamics' needs a model trained on the dynamics task; this one was trained on "
-                             f"{list(self.trained.tasks)} (train with --task robot+dynamics, or use critic 'joint')")
+            raise TTError(
+                f"critic 'dynamics' needs a model trained on the dynamics task; this one was trained on "
+                f"{list(self.trained.tasks)} (train with --task robot+dynamics, or use critic 'joint')"
+            )
         if critic_samples < 1 or (critic == "joint" and critic_samples > 1):
             raise TTError(f"critic_samples = {critic_samples}: must be >= 1, and 1 for the joint critic")
         layout, norm = self.trained.layout, self.trained.normalizer
@@ -312,27 +343,52 @@ class CandidateSampler:
         outs, rewards, metrics = [], [], []
         for c0 in range(0, samples, chunk):
             c = min(chunk, samples - c0)
-            queries = [build_query(layout, norm, m, c, placement=placement, generator=placement_gen, device=self.device)
-                       for m in motions]
+            queries = [
+                build_query(layout, norm, m, c, placement=placement, generator=placement_gen, device=self.device)
+                for m in motions
+            ]
             tokens = compose_tokens(layout, [q.tokens for q in queries])
             scorers = [PredictedReward(layout, norm, cfg, q) for q in queries]
             judges = [PredictedReward(layout, judge.normalizer, cfg, q) for q in queries] if moved else scorers
             hook = None
             if guidance is not None:
-                ctx = GuideContext(self._objective(scorers, split), scheduler, timesteps, embodiment, composed.layout,
-                                   motions, queries, split)
+                ctx = GuideContext(
+                    self._objective(scorers, split),
+                    scheduler,
+                    timesteps,
+                    embodiment,
+                    composed.layout,
+                    motions,
+                    queries,
+                    split,
+                )
                 hook = guidance.hook(ctx)
-            res = sample(composed, tokens, ROBOT, scheduler=scheduler, num_steps=num_steps, eta=eta, generator=generator,
-                         guide=hook, guided=embodiment if hook is not None else None)
+            res = sample(
+                composed,
+                tokens,
+                ROBOT,
+                scheduler=scheduler,
+                num_steps=num_steps,
+                eta=eta,
+                generator=generator,
+                guide=hook,
+                guided=embodiment if hook is not None else None,
+            )
             draws, scoring = [res.tokens], scorers
             if critic == "dynamics":
                 given = res.tokens
                 if moved:
-                    given = TokenBatch(renormalize(given.values, norm, judge.normalizer), given.ids, given.mask, given.version)
+                    given = TokenBatch(
+                        renormalize(given.values, norm, judge.normalizer), given.ids, given.mask, given.version
+                    )
                     scoring = judges
                 with torch.no_grad():
-                    draws = [sample(judged, given, DYNAMICS, scheduler=scheduler, num_steps=num_steps,
-                                    generator=generator).tokens for _ in range(critic_samples)]
+                    draws = [
+                        sample(
+                            judged, given, DYNAMICS, scheduler=scheduler, num_steps=num_steps, generator=generator
+                        ).tokens
+                        for _ in range(critic_samples)
+                    ]
             reward_k, metrics_k = [], []
             with torch.no_grad():
                 for drawn in draws:
@@ -411,13 +467,17 @@ class DesignDecoder:
         from tt.tokens.design_fit import design_from_tokens
 
         try:
-            fit = design_from_tokens(tokens, index, self.space, table=self.table, max_distance=self.max_distance,
-                                     top_k=self.top_k)
+            fit = design_from_tokens(
+                tokens, index, self.space, table=self.table, max_distance=self.max_distance, top_k=self.top_k
+            )
         except Exception as e:  # a candidate's tokens may break the fit in any way; report, do not crash
             return Decoded(None, f"decoding failed: {type(e).__name__}: {e}")
         if fit.design is None:
-            return Decoded(None, f"no discrete choice of space {self.space.name!r} is within {self.max_distance} binary "
-                                 f"attributes of this token structure (nearest: {fit.distance})")
+            return Decoded(
+                None,
+                f"no discrete choice of space {self.space.name!r} is within {self.max_distance} binary "
+                f"attributes of this token structure (nearest: {fit.distance})",
+            )
         return Decoded(fit.design, None, fit.residual, fit.distance)
 
 
@@ -428,15 +488,22 @@ def embodiment_batch(layout: Layout, normalizer: Normalizer, tokens: TokenBatch)
     from tt.tokens.batch import TokenBatch
 
     if layout.schema_version is None:
-        raise LayoutError("the model's layout is not a RoboToken schema layout; candidates cannot be decoded to designs")
+        raise LayoutError(
+            "the model's layout is not a RoboToken schema layout; candidates cannot be decoded to designs"
+        )
     names = [s.name for s in layout.specs if s.role not in STEP_ROLES]
-    batch = TokenBatch({n: tokens.values[n].detach().float().cpu() for n in names},
-                       {n: tokens.ids[n].cpu() for n in names}, {n: tokens.mask[n].cpu() for n in names}, layout.schema_version)
+    batch = TokenBatch(
+        {n: tokens.values[n].detach().float().cpu() for n in names},
+        {n: tokens.ids[n].cpu() for n in names},
+        {n: tokens.mask[n].cpu() for n in names},
+        layout.schema_version,
+    )
     return normalizer.denormalize(batch, detect_padding=True, clip=True).to_numpy()
 
 
-def decode_x0(layout: Layout, normalizer: Normalizer, x0: dict[str, torch.Tensor], like: TokenBatch,
-              decoder: Decoder) -> list[Decoded]:
+def decode_x0(
+    layout: Layout, normalizer: Normalizer, x0: dict[str, torch.Tensor], like: TokenBatch, decoder: Decoder
+) -> list[Decoded]:
     """Each candidate of predicted clean tokens decoded: x0, type -> (n, L, D) normalised
     (only the embodiment types are read); like: tokens whose IDs and masks they have (the
     sampling query's)."""
@@ -469,8 +536,9 @@ class Ranking:
         return None
 
 
-def rank_candidates(objective: np.ndarray, batch, decoder: Decoder, *, decode: str = "best",
-                    limit: int | None = None) -> Ranking:
+def rank_candidates(
+    objective: np.ndarray, batch, decoder: Decoder, *, decode: str = "best", limit: int | None = None
+) -> Ranking:
     """Rank by predicted objective (NaN last), decode, move failed decodes last (see module).
 
     limit: with decode="all", stop once this many candidates decoded (None: all of them);
@@ -496,21 +564,34 @@ def resolve_model(trained: TrainedModel | None, checkpoint, device: str | None) 
     if trained is not None:
         return trained
     if checkpoint is None:
-        raise TTError("a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model")
+        raise TTError(
+            "a learned optimizer needs a checkpoint (SamplerConfig.checkpoint / --checkpoint) or a loaded model"
+        )
     from tt.kernels.device import default_device
 
     return load_model(checkpoint, device=device or default_device())
 
 
-def learned_result(method: str, problem: Problem, gen: Generation, ranking: Ranking, seconds: float, *,
-                   rollouts: int = 0, history: list[float] | None = None, info: dict | None = None) -> Result:
+def learned_result(
+    method: str,
+    problem: Problem,
+    gen: Generation,
+    ranking: Ranking,
+    seconds: float,
+    *,
+    rollouts: int = 0,
+    history: list[float] | None = None,
+    info: dict | None = None,
+) -> Result:
     """A `Result` of a learned optimizer: designs / rewards are the decoded candidates in rank
     order with their predicted objectives; info holds the whole ranking."""
     best = ranking.best
     if best is None:
         reasons = sorted({d.error for d in ranking.decoded.values() if d.error})
-        raise TTError(f"none of the {len(gen.objective)} candidates decoded to a design of space {problem.space!r}: "
-                         f"{'; '.join(reasons)}")
+        raise TTError(
+            f"none of the {len(gen.objective)} candidates decoded to a design of space {problem.space!r}: "
+            f"{'; '.join(reasons)}"
+        )
     done = [i for i in ranking.order if i in ranking.decoded and ranking.decoded[i].design is not None]
     designs = [ranking.decoded[i].design for i in done]
     rewards = gen.objective[done]
@@ -530,9 +611,17 @@ def learned_result(method: str, problem: Problem, gen: Generation, ranking: Rank
         "sample_seconds": gen.seconds,
     }
     full.update(info or {})
-    return Result(method=method, best=ranking.decoded[best].design, best_reward=float(gen.objective[best]),
-                  designs=designs, rewards=np.asarray(rewards, dtype=np.float64), seconds=seconds, rollouts=rollouts,
-                  history=history if history is not None else [float(gen.objective[best])], info=full)
+    return Result(
+        method=method,
+        best=ranking.decoded[best].design,
+        best_reward=float(gen.objective[best]),
+        designs=designs,
+        rewards=np.asarray(rewards, dtype=np.float64),
+        seconds=seconds,
+        rollouts=rollouts,
+        history=history if history is not None else [float(gen.objective[best])],
+        info=full,
+    )
 
 
 class ZerothOrder(Optimizer):
@@ -546,8 +635,14 @@ class ZerothOrder(Optimizer):
 
     name = "zeroth"
 
-    def __init__(self, config: SamplerConfig = SamplerConfig(), *, model: TrainedModel | None = None,
-                 decoder: Decoder | None = None, critic_model: TrainedModel | None = None):
+    def __init__(
+        self,
+        config: SamplerConfig = SamplerConfig(),
+        *,
+        model: TrainedModel | None = None,
+        decoder: Decoder | None = None,
+        critic_model: TrainedModel | None = None,
+    ):
         self.config = config
         self._trained = model
         self._critic = critic_model
@@ -560,8 +655,9 @@ class ZerothOrder(Optimizer):
         if self._critic is None and c.critic_checkpoint is not None:
             self._critic = resolve_model(None, c.critic_checkpoint, problem.device)
         # On designs, `judge_designs` asks the critic model itself; the sampler only samples.
-        sampler = CandidateSampler(self._trained, problem.device,
-                                   critic_model=self._critic if self.critic_input() == "tokens" else None)
+        sampler = CandidateSampler(
+            self._trained, problem.device, critic_model=self._critic if self.critic_input() == "tokens" else None
+        )
         if c.refine:
             self._refine_critic()  # before any sampling, not after it
         if self._decoder is not None:
@@ -585,29 +681,52 @@ class ZerothOrder(Optimizer):
         sampler, decoder, cfg, n = self._setup(problem)
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n)
-        info = {"num_steps": c.num_steps or ROBOT.diffusion_steps, "eta": c.eta, "placement": c.placement,
-                "critic": critic, "critic_samples": c.critic_samples, "critic_on": self.critic_input()}
+        info = {
+            "num_steps": c.num_steps or ROBOT.diffusion_steps,
+            "eta": c.eta,
+            "placement": c.placement,
+            "critic": critic,
+            "critic_samples": c.critic_samples,
+            "critic_on": self.critic_input(),
+        }
         if self._critic is not None:
             info["critic_checkpoint"] = str(self._critic.path) if self._critic.path is not None else "(given model)"
         return gen, decoder, info
 
-    def sample_scored(self, sampler: CandidateSampler, decoder: Decoder, problem: Problem, cfg: RewardConfig, n: int,
-                      guidance: Guidance | None = None) -> tuple[Generation, Decoder]:
+    def sample_scored(
+        self,
+        sampler: CandidateSampler,
+        decoder: Decoder,
+        problem: Problem,
+        cfg: RewardConfig,
+        n: int,
+        guidance: Guidance | None = None,
+    ) -> tuple[Generation, Decoder]:
         """n candidates sampled (with `guidance`, if any) and scored by the config's critic:
         on their tokens inside the sampling call, or on their decoded designs afterwards
         (`judge_designs`, which also returns a decoder answering from its decodes)."""
         c = self.config
         on_designs = self.critic_input() == "designs"
-        gen = sampler.run(problem.motions, cfg, n, seed=problem.seed, num_steps=c.num_steps, eta=c.eta,
-                          placement=c.placement, chunk=c.chunk, guidance=guidance,
-                          critic="joint" if on_designs else self.critic(),
-                          critic_samples=1 if on_designs else c.critic_samples)
+        gen = sampler.run(
+            problem.motions,
+            cfg,
+            n,
+            seed=problem.seed,
+            num_steps=c.num_steps,
+            eta=c.eta,
+            placement=c.placement,
+            chunk=c.chunk,
+            guidance=guidance,
+            critic="joint" if on_designs else self.critic(),
+            critic_samples=1 if on_designs else c.critic_samples,
+        )
         if on_designs:
             return self.judge_designs(problem, gen, decoder, cfg)
         return gen, decoder
 
-    def judge_designs(self, problem: Problem, gen: Generation, decoder: Decoder,
-                      cfg: RewardConfig) -> tuple[Generation, Decoder]:
+    def judge_designs(
+        self, problem: Problem, gen: Generation, decoder: Decoder, cfg: RewardConfig
+    ) -> tuple[Generation, Decoder]:
         """`gen` scored on its decoded designs (``critic_on="designs"``): every candidate is
         decoded, the dynamics critic (the critic model, else the sampling model's own task)
         predicts each design's reward (`predict_designs`, ``critic_samples`` averaged, the
@@ -625,15 +744,26 @@ class ZerothOrder(Optimizer):
         metrics = {k: np.full_like(v, np.nan) for k, v in gen.metrics.items()}
         seconds = gen.seconds
         if ok:
-            pred = predict_designs(self._critic or self._trained, [decoded[i].design for i in ok], problem.motions, cfg,
-                                   samples=c.critic_samples, num_steps=c.num_steps, seed=problem.seed,
-                                   placement=c.placement, chunk=c.chunk, device=problem.device)
+            pred = predict_designs(
+                self._critic or self._trained,
+                [decoded[i].design for i in ok],
+                problem.motions,
+                cfg,
+                samples=c.critic_samples,
+                num_steps=c.num_steps,
+                seed=problem.seed,
+                placement=c.placement,
+                chunk=c.chunk,
+                device=problem.device,
+            )
             reward[ok] = pred.reward
             metrics = {k: np.full((len(decoded),) + v.shape[1:], np.nan) for k, v in pred.metrics.items()}
             for k, v in pred.metrics.items():
                 metrics[k][ok] = v
             seconds += pred.seconds
-        scored = dataclasses.replace(gen, reward=reward, objective=reward.mean(axis=1), metrics=metrics, seconds=seconds)
+        scored = dataclasses.replace(
+            gen, reward=reward, objective=reward.mean(axis=1), metrics=metrics, seconds=seconds
+        )
         return scored, lambda tokens, index: decoded[index]
 
     def critic(self) -> str:
@@ -657,17 +787,26 @@ class ZerothOrder(Optimizer):
         if self.config.critic_on is None:
             return "designs" if start_aware else "tokens"
         if self.config.critic_on == "tokens" and start_aware:
-            raise TTError("the dynamics critic was trained told the episode's start (dynamics_start); ask it about "
-                             "the decoded designs (critic_on='designs', the default for it), whose first step can be "
-                             "simulated, not about sampled tokens")
+            raise TTError(
+                "the dynamics critic was trained told the episode's start (dynamics_start); ask it about "
+                "the decoded designs (critic_on='designs', the default for it), whose first step can be "
+                "simulated, not about sampled tokens"
+            )
         return self.config.critic_on
 
     def optimize(self, problem: Problem) -> Result:
         start = time.perf_counter()
         gen, decoder, info = self.generate(problem)
         ranking = self.rank(gen, decoder)
-        result = learned_result(self.name, problem, gen, ranking, time.perf_counter() - start,
-                                rollouts=int(info.pop("rollouts", 0)), info=info)
+        result = learned_result(
+            self.name,
+            problem,
+            gen,
+            ranking,
+            time.perf_counter() - start,
+            rollouts=int(info.pop("rollouts", 0)),
+            info=info,
+        )
         if self.config.refine:
             result = self.refined(problem, result)
             result.seconds = time.perf_counter() - start
@@ -687,28 +826,57 @@ class ZerothOrder(Optimizer):
         c = self.config
         judge = self._refine_critic()
         cfg = get_reward(problem.reward, problem.space)
-        out = refine_designs(judge, [result.best], problem.motions, cfg,
-                             RefineConfig(iterations=c.refine, samples=c.critic_samples, form=c.refine_form),
-                             seed=problem.seed, device=problem.device)
-        record = {**out.summary(), "iterations": c.refine, "form": c.refine_form, "ranked_objective": result.best_reward}
+        out = refine_designs(
+            judge,
+            [result.best],
+            problem.motions,
+            cfg,
+            RefineConfig(iterations=c.refine, samples=c.critic_samples, form=c.refine_form),
+            seed=problem.seed,
+            device=problem.device,
+        )
+        record = {
+            **out.summary(),
+            "iterations": c.refine,
+            "form": c.refine_form,
+            "ranked_objective": result.best_reward,
+        }
         if out.steps[0] == 0:
             return dataclasses.replace(result, info={**result.info, "refine": record})
         best = out.designs[0]
-        before, objective = predict_designs(judge, [result.best, best], problem.motions, cfg, samples=c.critic_samples,
-                                            num_steps=c.num_steps, seed=problem.seed, placement=c.placement,
-                                            chunk=c.chunk, device=problem.device, common_noise=True).reward.mean(axis=1)
+        before, objective = predict_designs(
+            judge,
+            [result.best, best],
+            problem.motions,
+            cfg,
+            samples=c.critic_samples,
+            num_steps=c.num_steps,
+            seed=problem.seed,
+            placement=c.placement,
+            chunk=c.chunk,
+            device=problem.device,
+            common_noise=True,
+        ).reward.mean(axis=1)
         record["objective_before"] = float(before)
-        return dataclasses.replace(result, best=best, best_reward=float(objective), designs=[best] + result.designs,
-                                   rewards=np.concatenate([[objective], result.rewards]),
-                                   history=result.history + [float(objective)], info={**result.info, "refine": record})
+        return dataclasses.replace(
+            result,
+            best=best,
+            best_reward=float(objective),
+            designs=[best] + result.designs,
+            rewards=np.concatenate([[objective], result.rewards]),
+            history=result.history + [float(objective)],
+            info={**result.info, "refine": record},
+        )
 
     def _refine_critic(self) -> TrainedModel:
         """The model refinement climbs (the critic, else the sampling model); ValueError when
         it was not trained on the dynamics task."""
         judge = self._critic or self._trained
         if not judge.trained_on("dynamics"):
-            raise TTError(f"refine climbs the dynamics critic's prediction: the model was trained on "
-                             f"{list(judge.tasks)}; give a critic checkpoint trained on the dynamics task")
+            raise TTError(
+                f"refine climbs the dynamics critic's prediction: the model was trained on "
+                f"{list(judge.tasks)}; give a critic checkpoint trained on the dynamics task"
+            )
         return judge
 
 

@@ -71,17 +71,34 @@ def _live_joint_command(
     ctrl_out[worldid, u] = wp.clamp(q_cmd_in[worldid, actuator_qpos[u]], r[0], r[1])
 
 
-def joint_command(q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.array, ctrl: wp.array, *, device: str) -> None:
+def joint_command(
+    q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.array, ctrl: wp.array, *, device: str
+) -> None:
     """ctrl (Wg, NU) = clip(q_cmd[:, actuator_qpos], ctrl_range): the position command of each
     actuator from the IK's joint command q_cmd (Wg, NQ); actuator_qpos (NU,) int is the qpos
     address each actuator drives (`tt.sim.controller.actuated_qpos`), ctrl_range (1 or Wg, NU)
     vec2 its clamp (`tt.sim.mjwarp_backend.ctrl_ranges`)."""
     if ctrl.shape[1] and actuator_qpos.shape[0]:
-        wp.launch(_joint_command, dim=(q_cmd.shape[0], actuator_qpos.shape[0]), inputs=[actuator_qpos, ctrl_range, q_cmd], outputs=[ctrl], device=device)
+        wp.launch(
+            _joint_command,
+            dim=(q_cmd.shape[0], actuator_qpos.shape[0]),
+            inputs=[actuator_qpos, ctrl_range, q_cmd],
+            outputs=[ctrl],
+            device=device,
+        )
 
 
-def live_joint_command(q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.array, t: int, world_row: wp.array,
-                       alive: wp.array, ctrl: wp.array, *, device: str) -> None:
+def live_joint_command(
+    q_cmd: wp.array,
+    actuator_qpos: wp.array,
+    ctrl_range: wp.array,
+    t: int,
+    world_row: wp.array,
+    alive: wp.array,
+    ctrl: wp.array,
+    *,
+    device: str,
+) -> None:
     """`joint_command` for the worlds alive at control step t - 1 only: alive (W, T) bool are
     the records' alive flags (`tt.kernels.records.RecordArrays.alive`), world_row (Wg,) int
     each world's row in them; the others keep their ctrl."""
@@ -91,7 +108,9 @@ def live_joint_command(q_cmd: wp.array, actuator_qpos: wp.array, ctrl_range: wp.
     )  # fmt: skip
 
 
-def lookahead_targets(t: int, lookahead: int, world_motion: wp.array, motions, target_pos: wp.array, target_quat: wp.array, *, device: str) -> None:
+def lookahead_targets(
+    t: int, lookahead: int, world_motion: wp.array, motions, target_pos: wp.array, target_quat: wp.array, *, device: str
+) -> None:
     """IK targets of control step t: motion pose min(t + lookahead, T_m - 1) of each world's
     motion, into target_pos (Wg, NE) vec3 and target_quat (Wg, NE) vec4."""
     wp.launch(

@@ -1,6 +1,7 @@
 """Device selection: CUDA when present, else the CPU; always an explicit parameter."""
 
 from __future__ import annotations
+
 from tt.kernels.errors import TTError
 
 

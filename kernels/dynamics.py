@@ -48,7 +48,6 @@ from tt.kernels.model import (
     topology_constants,
 )
 
-
 #: Gauss-Seidel sweeps of the joint-limit solve in differentiable kernels (exact for one
 #: active row; two or three rows, what a robot's limits produce, converge in a few).
 LIMIT_SWEEPS_DIFFERENTIABLE = 8

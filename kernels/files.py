@@ -65,10 +65,16 @@ def reason(error: BaseException, path: str | Path | None = None) -> str:
                     head = f.read(4).hex(" ")
             except OSError:
                 head = "?"
-            return (f"it is no file tt wrote: neither a zip archive (torch.save's format) nor pickled data (its first "
-                    f"bytes are {head})")
+            return (
+                f"it is no file tt wrote: neither a zip archive (torch.save's format) nor pickled data (its first "
+                f"bytes are {head})"
+            )
         return "it holds Python objects (pickled data), which tt never writes and does not load"
-    if isinstance(error, (zipfile.BadZipFile, EOFError)) or "zip" in text.lower() or "central directory" in text.lower():
+    if (
+        isinstance(error, (zipfile.BadZipFile, EOFError))
+        or "zip" in text.lower()
+        or "central directory" in text.lower()
+    ):
         return "it is truncated or damaged (not a complete zip archive)"
     return f"{type(error).__name__}: {text}"[:300] if text else type(error).__name__
 
@@ -320,8 +326,13 @@ def write_json(path: str | Path, obj: dict, *, indent: int | None = 1, flag: str
     the file's ``"null_values"`` entry says which and why. Returns the paths written as null."""
     clean, nulls = strict_json(obj)
     if nulls:
-        clean = dict(clean, null_values={"why": "NaN or infinite values, written as null (JSON has no NaN)",
-                                         "fields": nulls[:50] + ([f"... {len(nulls) - 50} more"] if len(nulls) > 50 else [])})
+        clean = dict(
+            clean,
+            null_values={
+                "why": "NaN or infinite values, written as null (JSON has no NaN)",
+                "fields": nulls[:50] + ([f"... {len(nulls) - 50} more"] if len(nulls) > 50 else []),
+            },
+        )
     text = json.dumps(clean, indent=indent, allow_nan=False)
     write_text(path, text + "\n" if is_stdout(path) else text, flag=flag)
     return nulls
@@ -359,6 +370,21 @@ def prepare_output(path: str | Path, flag: str, *, folder: bool = False) -> Path
     return path
 
 
-__all__ = ["CorruptFileError", "STDOUT", "atomic_write", "check_readable", "fsync_folder", "is_stdout", "output_target",
-           "prepare_output", "read_json", "read_npz", "reason", "scalar", "strict_json", "write_bytes", "write_json",
-           "write_text"]
+__all__ = [
+    "CorruptFileError",
+    "STDOUT",
+    "atomic_write",
+    "check_readable",
+    "fsync_folder",
+    "is_stdout",
+    "output_target",
+    "prepare_output",
+    "read_json",
+    "read_npz",
+    "reason",
+    "scalar",
+    "strict_json",
+    "write_bytes",
+    "write_json",
+    "write_text",
+]

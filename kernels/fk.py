@@ -12,7 +12,6 @@ dynamics, IK and rollout kernels; the kernels here expose them for testing and f
 who need poses without simulating.
 """
 
-
 import functools
 from types import SimpleNamespace
 
@@ -211,7 +210,9 @@ def forward_kinematics(
     return out
 
 
-def kinematics_outputs(model: TreeModel, world_count: int, *, fill: float = 0.0, device: str | None = None) -> SimpleNamespace:
+def kinematics_outputs(
+    model: TreeModel, world_count: int, *, fill: float = 0.0, device: str | None = None
+) -> SimpleNamespace:
     """Output arrays of `forward_kinematics` for `world_count` worlds, every entry `fill`."""
     topo = model.topology
     device = device or model.device

@@ -84,7 +84,9 @@ def _actuator_record(
     velocity = gear * qvel_in[i, a]
     b = act_bias[i, u]
     r = act_forcerange[i, u]
-    act_force_out[i, u] = wp.clamp(act_gain[i, u] * ctrl_in[i, u] + b[0] + b[1] * gear * qpos_in[i, a] + b[2] * velocity, r[0], r[1])
+    act_force_out[i, u] = wp.clamp(
+        act_gain[i, u] * ctrl_in[i, u] + b[0] + b[1] * gear * qpos_in[i, a] + b[2] * velocity, r[0], r[1]
+    )
     act_vel_out[i, u] = velocity
 
 
@@ -106,9 +108,21 @@ def _site_poses(
     ee_quat_out[i, e] = mat2quat(wp.quat_to_matrix(wp.transform_get_rotation(x)))
 
 
-def apply_actuators(q_start: wp.array, qd_start: wp.array, act_qpos: wp.array, act_gain: wp.array, act_bias: wp.array,
-                    act_gear: wp.array, act_forcerange: wp.array, ctrl: wp.array, joint_q: wp.array, joint_qd: wp.array,
-                    joint_f: wp.array, *, device: str) -> None:
+def apply_actuators(
+    q_start: wp.array,
+    qd_start: wp.array,
+    act_qpos: wp.array,
+    act_gain: wp.array,
+    act_bias: wp.array,
+    act_gear: wp.array,
+    act_forcerange: wp.array,
+    ctrl: wp.array,
+    joint_q: wp.array,
+    joint_qd: wp.array,
+    joint_f: wp.array,
+    *,
+    device: str,
+) -> None:
     """MuJoCo's servo forces of Wg worlds into the flat ``joint_f``: act_qpos (NU,) int (the
     coordinate each actuator drives, within a world), act_gain / act_gear (Wg, NU) float,
     act_bias (Wg, NU) vec3, act_forcerange (Wg, NU) vec2 [N m or N], ctrl (Wg, NU)."""
@@ -119,15 +133,40 @@ def apply_actuators(q_start: wp.array, qd_start: wp.array, act_qpos: wp.array, a
     )  # fmt: skip
 
 
-def gather_state(q_start: wp.array, qd_start: wp.array, joint_q: wp.array, joint_qd: wp.array, qpos: wp.array,
-                 qvel: wp.array, *, device: str) -> None:
+def gather_state(
+    q_start: wp.array,
+    qd_start: wp.array,
+    joint_q: wp.array,
+    joint_qd: wp.array,
+    qpos: wp.array,
+    qvel: wp.array,
+    *,
+    device: str,
+) -> None:
     """qpos (Wg, nq) and qvel (Wg, nq) of Wg worlds from the flat joint vectors."""
-    wp.launch(_gather_state, dim=qpos.shape, inputs=[q_start, qd_start, joint_q, joint_qd], outputs=[qpos, qvel], device=device)
+    wp.launch(
+        _gather_state,
+        dim=qpos.shape,
+        inputs=[q_start, qd_start, joint_q, joint_qd],
+        outputs=[qpos, qvel],
+        device=device,
+    )
 
 
-def actuator_record(act_qpos: wp.array, act_gain: wp.array, act_bias: wp.array, act_gear: wp.array,
-                    act_forcerange: wp.array, ctrl: wp.array, qpos: wp.array, qvel: wp.array, act_force: wp.array,
-                    act_vel: wp.array, *, device: str) -> None:
+def actuator_record(
+    act_qpos: wp.array,
+    act_gain: wp.array,
+    act_bias: wp.array,
+    act_gear: wp.array,
+    act_forcerange: wp.array,
+    ctrl: wp.array,
+    qpos: wp.array,
+    qvel: wp.array,
+    act_force: wp.array,
+    act_vel: wp.array,
+    *,
+    device: str,
+) -> None:
     """Actuator forces [N m or N] and velocities (Wg, NU) at the state qpos, qvel (Wg, nq)
     under ctrl (parameters as `apply_actuators`)."""
     wp.launch(
@@ -137,12 +176,15 @@ def actuator_record(act_qpos: wp.array, act_gain: wp.array, act_bias: wp.array, 
     )  # fmt: skip
 
 
-def body_site_poses(ee_body: wp.array, ee_offset: wp.array, body_q: wp.array, ee_pos: wp.array, ee_quat: wp.array, *,
-                    device: str) -> None:
+def body_site_poses(
+    ee_body: wp.array, ee_offset: wp.array, body_q: wp.array, ee_pos: wp.array, ee_quat: wp.array, *, device: str
+) -> None:
     """End-effector poses ee_pos (Wg, NE) vec3 [m], ee_quat (Wg, NE) vec4 (w, x, y, z) from
     body transforms body_q (flat, Newton's ``State.body_q``), the body of each end effector
     ee_body (Wg, NE) int and the site frame in it, ee_offset (Wg, NE) transform."""
-    wp.launch(_site_poses, dim=ee_body.shape, inputs=[ee_body, ee_offset, body_q], outputs=[ee_pos, ee_quat], device=device)
+    wp.launch(
+        _site_poses, dim=ee_body.shape, inputs=[ee_body, ee_offset, body_q], outputs=[ee_pos, ee_quat], device=device
+    )
 
 
 __all__ = ["actuator_record", "apply_actuators", "body_site_poses", "gather_state"]

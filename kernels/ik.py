@@ -44,8 +44,9 @@ class IKWeights:
     damping: wp.float64  # unitless
 
 
-def ik_weights(*, position_cost: float, orientation_cost: float, posture_cost: float, lm_damping: float,
-               damping: float) -> IKWeights:
+def ik_weights(
+    *, position_cost: float, orientation_cost: float, posture_cost: float, lm_damping: float, damping: float
+) -> IKWeights:
     """An `IKWeights` from its numbers (units as in the struct)."""
     w = IKWeights()
     w.position_cost = float(position_cost)

@@ -154,18 +154,26 @@ def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
     where = f"model {index}"
     types = set(int(t) for t in model.jnt_type)
     if not types <= {JOINT_HINGE, JOINT_SLIDE}:
-        raise TTError(f"{where}: jnt_type {sorted(types)}; the warp tree kernels support hinge (3) and slide (2) joints only")
+        raise TTError(
+            f"{where}: jnt_type {sorted(types)}; the warp tree kernels support hinge (3) and slide (2) joints only"
+        )
     if model.nq != model.nv or model.nv != model.njnt:
         raise TTError(f"{where}: nq={model.nq}, nv={model.nv}, njnt={model.njnt} must be equal for a hinge/slide tree")
     contact_disabled = bool(model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
     collides = np.any((model.geom_contype[:, None] & model.geom_conaffinity[None, :]) != 0) or model.npair > 0
     if collides and not contact_disabled:
-        raise TTError(f"{where} has contacts (geom contype/conaffinity or contact pairs); the warp backend is contact-free")
+        raise TTError(
+            f"{where} has contacts (geom contype/conaffinity or contact pairs); the warp backend is contact-free"
+        )
     if int(model.opt.integrator) != int(mujoco.mjtIntegrator.mjINT_EULER):
-        raise TTError(f"{where}: integrator {mujoco.mjtIntegrator(model.opt.integrator).name}; only Euler is replicated")
+        raise TTError(
+            f"{where}: integrator {mujoco.mjtIntegrator(model.opt.integrator).name}; only Euler is replicated"
+        )
     for name, count in (("neq", model.neq), ("ntendon", model.ntendon), ("na", model.na)):
         if count:
-            raise TTError(f"{where}: {name} = {count}; equality constraints, tendons and actuator activations are not supported")
+            raise TTError(
+                f"{where}: {name} = {count}; equality constraints, tendons and actuator activations are not supported"
+            )
     if np.any(model.dof_frictionloss != 0):
         raise TTError(f"{where}: dof_frictionloss is nonzero; friction loss is a constraint the tree kernels lack")
     if np.any(model.jnt_actfrclimited):
@@ -176,12 +184,15 @@ def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
         raise TTError(f"{where}: body_gravcomp is nonzero; gravity compensation is not supported")
     for i in range(model.nu):
         if int(model.actuator_trntype[i]) != int(mujoco.mjtTrn.mjTRN_JOINT):
-            raise TTError(f"{where}: actuator {i} transmission {model.actuator_trntype[i]}; only joint transmissions are supported")
+            raise TTError(
+                f"{where}: actuator {i} transmission {model.actuator_trntype[i]}; only joint transmissions "
+                "are supported"
+            )
         if int(model.actuator_dyntype[i]) != int(mujoco.mjtDyn.mjDYN_NONE):
             raise TTError(f"{where}: actuator {i} has activation dynamics; only stateless actuators are supported")
-        if int(model.actuator_gaintype[i]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(model.actuator_biastype[i]) not in (
-            int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
-        ):
+        if int(model.actuator_gaintype[i]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(
+            model.actuator_biastype[i]
+        ) not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)):
             raise TTError(f"{where}: actuator {i} gain/bias type; only fixed gain with affine or no bias is supported")
 
 
@@ -563,7 +574,9 @@ def tree_model(
     k64 = kinematics64(**{name: arr64(name, Kinematics64.vars[name].type.dtype) for name in KINEMATICS64_FIELDS})
     # The arrays get requires_grad at allocation, before they enter the struct.
     members = {name: arr(name, TreeArrays.vars[name].type.dtype) for name in FIELD_NAMES if name != "limit_enabled"}
-    members["limit_enabled"] = wp.array(np.asarray(v["limit_enabled"], dtype=np.int32)[entry], dtype=wp.int32, device=device)
+    members["limit_enabled"] = wp.array(
+        np.asarray(v["limit_enabled"], dtype=np.int32)[entry], dtype=wp.int32, device=device
+    )
     members["limit_sweeps"] = wp.array([limit_sweeps], dtype=wp.int32, device=device)
     return TreeModel(
         topology=fields.topology,
@@ -607,8 +620,9 @@ def build_tree_model(
     except ValueError as e:
         # tree_fields names models by their index among the distinct ones; name them by `models`.
         raise TTError(_renumber(str(e), position)) from None
-    return tree_model(fields, world_entry=world_entry, device=device, requires_grad=requires_grad,
-                      limit_sweeps=limit_sweeps)
+    return tree_model(
+        fields, world_entry=world_entry, device=device, requires_grad=requires_grad, limit_sweeps=limit_sweeps
+    )
 
 
 def _renumber(message: str, position: list[int]) -> str:

@@ -223,23 +223,54 @@ def record_step(
         _record_step,
         dim=Wg,
         inputs=[
-            t, float(threshold), int(base_qpos), fall_height, float(math.cos(fall_tilt)), world_row, world_motion,
-            motions.steps, motions.pos, motions.quat, qpos, qvel, ctrl, act_force, act_vel, ee_pos, ee_quat,
+            t,
+            float(threshold),
+            int(base_qpos),
+            fall_height,
+            float(math.cos(fall_tilt)),
+            world_row,
+            world_motion,
+            motions.steps,
+            motions.pos,
+            motions.quat,
+            qpos,
+            qvel,
+            ctrl,
+            act_force,
+            act_vel,
+            ee_pos,
+            ee_quat,
         ],  # fmt: skip
         outputs=[
-            records.qpos, records.qvel, records.ctrl, records.act_force, records.act_vel, records.ee_pos,
-            records.ee_quat, records.target_pos, records.target_quat, records.alive, records.fallen,
+            records.qpos,
+            records.qvel,
+            records.ctrl,
+            records.act_force,
+            records.act_vel,
+            records.ee_pos,
+            records.ee_quat,
+            records.target_pos,
+            records.target_quat,
+            records.alive,
+            records.fallen,
         ],  # fmt: skip
         device=device,
     )
 
 
-def site_poses(site_ids: wp.array, site_xpos: wp.array, site_xmat: wp.array, ee_pos: wp.array, ee_quat: wp.array, *,
-               device: str) -> None:
+def site_poses(
+    site_ids: wp.array, site_xpos: wp.array, site_xmat: wp.array, ee_pos: wp.array, ee_quat: wp.array, *, device: str
+) -> None:
     """End-effector poses of Wg worlds from site frames: ee_pos (Wg, NE) vec3 [m] and ee_quat
     (Wg, NE) vec4 (w, x, y, z) of sites `site_ids` (NE,) int, from site_xpos (Wg, nsite) vec3
     and site_xmat (Wg, nsite) mat33 (MuJoCo-Warp's ``Data`` fields)."""
-    wp.launch(_site_frames, dim=ee_pos.shape, inputs=[site_ids, site_xpos, site_xmat], outputs=[ee_pos, ee_quat], device=device)
+    wp.launch(
+        _site_frames,
+        dim=ee_pos.shape,
+        inputs=[site_ids, site_xpos, site_xmat],
+        outputs=[ee_pos, ee_quat],
+        device=device,
+    )
 
 
 __all__ = ["RecordArrays", "mat2quat", "record_step", "site_poses"]

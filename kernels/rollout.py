@@ -61,8 +61,8 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 import warp as wp
 
-from tt.kernels.errors import TTError
 from tt.kernels.dynamics import dynamics_funcs
+from tt.kernels.errors import TTError
 from tt.kernels.fk import kinematics_funcs
 from tt.kernels.ik import IKWeights, ik_funcs
 from tt.kernels.lie import wxyz
@@ -364,8 +364,9 @@ def start_posture_kernel(topology: Topology):
     return make_initial_posture_kernel(topology, module)
 
 
-def start_postures(model: TreeModel, motions: "MotionArrays", weights: IKWeights, iterations: int, *,
-                   device: str | None = None) -> wp.array:
+def start_postures(
+    model: TreeModel, motions: "MotionArrays", weights: IKWeights, iterations: int, *, device: str | None = None
+) -> wp.array:
     """Start postures (W, NV) float32 of the worlds of `model` (world i runs model entry i
     and motion i % M): `iterations` float64 IK steps from qpos0 toward each world's first
     motion pose (``motions.first_pos``, ``first_quat``), as
@@ -403,7 +404,13 @@ def action_noise_draws(
     _check_noise(0.0, noise_seed)
     ids = wp.array(np.asarray(world_ids, dtype=np.int32), dtype=wp.int32, device=device)
     out = wp.zeros((ids.shape[0], steps, actuator_count), dtype=float, device=device)
-    wp.launch(_noise_draws, dim=(ids.shape[0], steps), inputs=[int(noise_seed), ids, int(t_begin)], outputs=[out], device=device)
+    wp.launch(
+        _noise_draws,
+        dim=(ids.shape[0], steps),
+        inputs=[int(noise_seed), ids, int(t_begin)],
+        outputs=[out],
+        device=device,
+    )
     return out.numpy()
 
 
@@ -460,7 +467,9 @@ class MotionArrays:
         return self.pos.shape[0]
 
 
-def motion_arrays(pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requires_grad: bool = False) -> MotionArrays:
+def motion_arrays(
+    pos: np.ndarray, quat: np.ndarray, steps, *, device: str, requires_grad: bool = False
+) -> MotionArrays:
     """`MotionArrays` from padded host arrays pos (M, T, NE, 3), quat (M, T, NE, 4) and the
     motions' lengths `steps` (M,)."""
     pos = np.asarray(pos, dtype=np.float64)
@@ -539,8 +548,9 @@ class _SlicedLaunch:
     the stepping threads need.
     """
 
-    def __init__(self, kernel, *, dim: int, inputs: list, outputs: list, device, slices,
-                 pool: ThreadPoolExecutor | None = None):
+    def __init__(
+        self, kernel, *, dim: int, inputs: list, outputs: list, device, slices, pool: ThreadPoolExecutor | None = None
+    ):
         if len(slices) > 1 and pool is None:
             raise ValueError(f"{len(slices)} slices of worlds need a thread pool to launch them from")
         self.kernel, self.dim, self.device, self.pool = kernel, dim, device, pool
@@ -685,7 +695,9 @@ def rollout_tree(
     use_graph = wp.get_device(device).is_cuda if graph is None else bool(graph)
     if use_graph and differentiable:
         if graph:
-            raise TTError("graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None")
+            raise TTError(
+                "graph=True with differentiable=True: a wp.Tape records plain launches; pass graph=False or None"
+            )
         use_graph = False
     threads = cpu_threads(threads)
     if differentiable or use_graph or wp.get_device(device).is_cuda:
@@ -726,16 +738,38 @@ def rollout_tree(
         kernels.rollout,
         dim=W,
         inputs=[
-            model.arrays, weights, int(lookahead_steps), substeps, float(termination_pos_error),
-            0, 0, motions.pos, motions.quat, motions.steps,
-            float(action_noise), int(noise_seed), noise_world,
-            out.qpos_state, out.qvel_state,
+            model.arrays,
+            weights,
+            int(lookahead_steps),
+            substeps,
+            float(termination_pos_error),
+            0,
+            0,
+            motions.pos,
+            motions.quat,
+            motions.steps,
+            float(action_noise),
+            int(noise_seed),
+            noise_world,
+            out.qpos_state,
+            out.qvel_state,
         ],  # fmt: skip
         outputs=[
-            out.qpos, out.qvel, out.ctrl, out.act_force, out.act_vel,
-            out.ee_pos, out.ee_quat, out.target_pos, out.target_quat, out.alive, out.action,
+            out.qpos,
+            out.qvel,
+            out.ctrl,
+            out.act_force,
+            out.act_vel,
+            out.ee_pos,
+            out.ee_quat,
+            out.target_pos,
+            out.target_quat,
+            out.alive,
+            out.action,
         ],  # fmt: skip
-        device=device, slices=slices, pool=pool,
+        device=device,
+        slices=slices,
+        pool=pool,
     )
 
     def launch(t0: int, t1: int) -> None:

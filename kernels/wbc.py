@@ -82,7 +82,8 @@ _LIE = lie_funcs(wp.float64)
 #: with centimetres of position error and an orientation already on target (a target taken
 #: from the site's own pose) the oracle's Jacobian differs from the exact one by about
 #: ``|v| / 2`` on rotational DoFs; the kernel follows the oracle.
-# mink's threshold (`tt.kernels.lie.MINK_JLOG_EPS`) as a float64 constant: a float literal inside a kernel is float32 in Warp.
+# mink's threshold (`tt.kernels.lie.MINK_JLOG_EPS`) as a float64 constant: a float literal
+# inside a kernel is float32 in Warp.
 _MINK_JLOG_EPS64 = wp.constant(wp.float64(MINK_JLOG_EPS))
 
 JOINT_FREE = int(mujoco.mjtJoint.mjJNT_FREE)
@@ -104,8 +105,16 @@ class WBCWeights:
     equality_cost: wp.float64  # [1/m]
 
 
-def wbc_weights(*, position_cost: float, orientation_cost: float, lm_damping: float, damping: float, foot_cost: float,
-                com_cost: float, equality_cost: float) -> WBCWeights:
+def wbc_weights(
+    *,
+    position_cost: float,
+    orientation_cost: float,
+    lm_damping: float,
+    damping: float,
+    foot_cost: float,
+    com_cost: float,
+    equality_cost: float,
+) -> WBCWeights:
     """A `WBCWeights` from its numbers (units as in the struct)."""
     w = WBCWeights()
     w.position_cost = float(position_cost)
@@ -388,7 +397,9 @@ def _kinematics(
                 # MuJoCo: the free joint sets the body frame from qpos (normalised quaternion);
                 # it translates along the world axes and rotates about the body's own axes.
                 pos = wp.vec3d(q_in[worldid, qa], q_in[worldid, qa + 1], q_in[worldid, qa + 2])
-                rot = wp.normalize(wp.quatd(q_in[worldid, qa + 4], q_in[worldid, qa + 5], q_in[worldid, qa + 6], q_in[worldid, qa + 3]))
+                rot = wp.normalize(
+                    wp.quatd(q_in[worldid, qa + 4], q_in[worldid, qa + 5], q_in[worldid, qa + 6], q_in[worldid, qa + 3])
+                )
                 for i in range(3):
                     e = wp.vec3d()
                     e[i] = one
@@ -661,7 +672,9 @@ def _solve_integrate(
         if jnt_type[mid, j] == wp.static(JOINT_FREE):
             for k in range(3):
                 q_cmd_out[worldid, qa + k] = q_in[worldid, qa + k] + grad[worldid, da + k]
-            quat = wp.normalize(wp.quatd(q_in[worldid, qa + 4], q_in[worldid, qa + 5], q_in[worldid, qa + 6], q_in[worldid, qa + 3]))
+            quat = wp.normalize(
+                wp.quatd(q_in[worldid, qa + 4], q_in[worldid, qa + 5], q_in[worldid, qa + 6], q_in[worldid, qa + 3])
+            )
             w = wp.vec3d(grad[worldid, da + 3], grad[worldid, da + 4], grad[worldid, da + 5])
             angle = wp.length(w)
             if angle > wp.float64(0.0):
@@ -687,7 +700,8 @@ def _check_inputs(model: WBCModel, qpos: wp.array | None, target_pos: wp.array, 
         W = qpos.shape[0]
         if qpos.ndim != 2 or qpos.shape[1] != model.nq or qpos.dtype not in _QPOS_DTYPES:
             raise TTError(
-                f"qpos has shape {qpos.shape} and dtype {qpos.dtype.__name__}; expected (W, {model.nq}) float32 or float64"
+                f"qpos has shape {qpos.shape} and dtype {qpos.dtype.__name__}; expected (W, {model.nq}) "
+                "float32 or float64"
             )
     kinds = [(p, r) for p, r in _TARGET_DTYPES if wp.types.types_equal(target_pos.dtype, p)]
     for name, arr, index in (("target_pos", target_pos, 0), ("target_quat", target_quat, 1)):

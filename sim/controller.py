@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 import mink
 import mujoco
 import numpy as np
+
 from tt.kernels.errors import TTError
 
 
@@ -150,8 +151,11 @@ class IKConfig:
         from tt.kernels.ik import ik_weights
 
         return ik_weights(
-            position_cost=self.position_cost, orientation_cost=self.orientation_cost, posture_cost=self.posture_cost,
-            lm_damping=self.lm_damping, damping=self.damping,
+            position_cost=self.position_cost,
+            orientation_cost=self.orientation_cost,
+            posture_cost=self.posture_cost,
+            lm_damping=self.lm_damping,
+            damping=self.damping,
         )
 
     def init_ik_weights(self):
@@ -162,9 +166,12 @@ class IKConfig:
         """The controller's numbers as keyword arguments of `tt.kernels.rollout.rollout_tree`:
         weights, init_weights, control_dt, lookahead_steps, termination_pos_error, init_iterations."""
         return dict(
-            weights=self.ik_weights(), init_weights=self.init_ik_weights(), control_dt=float(self.control_dt),
+            weights=self.ik_weights(),
+            init_weights=self.init_ik_weights(),
+            control_dt=float(self.control_dt),
             lookahead_steps=self.lookahead_steps,
-            termination_pos_error=float(self.termination_pos_error), init_iterations=int(self.init_iterations),
+            termination_pos_error=float(self.termination_pos_error),
+            init_iterations=int(self.init_iterations),
         )
 
     def substeps(self, model: mujoco.MjModel) -> int:
@@ -260,8 +267,9 @@ class DiffIKController:
         self._limited_qpos = model.jnt_qposadr[limited & hinge_or_slide]
         self._limited_range = model.jnt_range[limited & hinge_or_slide]
 
-    def step(self, q: np.ndarray, targets_pos: np.ndarray, targets_quat: np.ndarray, *,
-             damping: float | None = None) -> np.ndarray:
+    def step(
+        self, q: np.ndarray, targets_pos: np.ndarray, targets_quat: np.ndarray, *, damping: float | None = None
+    ) -> np.ndarray:
         """One control step.
 
         q: measured joint positions, (nq,). targets_pos: site targets [m], (A, 3);
@@ -293,7 +301,6 @@ class DiffIKController:
             q_cmd[self._limited_qpos], self._limited_range[:, 0], self._limited_range[:, 1]
         )
         return q_cmd
-
 
     def initial_q(self, targets_pos: np.ndarray, targets_quat: np.ndarray) -> np.ndarray:
         """Start posture: `IKConfig.init_iterations` IK steps (damping ``init_damping``) from

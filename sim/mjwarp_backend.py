@@ -178,7 +178,10 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
             source0 = models[0].opt if owner == "opt" else models[0]
             if not hasattr(source0, name):
                 continue  # derived by put_model from options (impratio_invsqrt), which the key fixes
-            host = {k: np.asarray(getattr(m.opt if owner == "opt" else m, name), dtype=np.float64) for k, m in distinct.items()}
+            host = {
+                k: np.asarray(getattr(m.opt if owner == "opt" else m, name), dtype=np.float64)
+                for k, m in distinct.items()
+            }
             first = host[order[0]]
             if all(np.array_equal(v, first) for v in host.values()):
                 continue
@@ -189,7 +192,9 @@ def batch_model(models: Sequence[mujoco.MjModel], *, device: str | None = None, 
                     "store it as MuJoCo does, so it cannot be set per world"
                 )
             stacked = np.stack([host[k].reshape(shared.shape[1:]) for k in order])
-            setattr(target, name, wp.array(stacked.astype(shared.dtype), dtype=array.dtype, shape=(n,) + array.shape[1:]))
+            setattr(
+                target, name, wp.array(stacked.astype(shared.dtype), dtype=array.dtype, shape=(n,) + array.shape[1:])
+            )
     return batched
 
 
@@ -233,7 +238,9 @@ def padded_motions(motions: Sequence[Motion], arms: int, control_dt: float, *, d
                 f"control_dt = {control_dt} s and needs motions sampled at that period"
             )
         if motion.arms != arms:
-            raise TTError(f"motions[{j}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+            raise TTError(
+                f"motions[{j}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)"
+            )
     T = max(motion.steps for motion in motions)
     pos = np.zeros((len(motions), T, arms, 3))
     quat = np.zeros((len(motions), T, arms, 4))
@@ -434,7 +441,9 @@ def _run_group(
             wbc_data = make_wbc_data(wbc, Wg, device=device)
             first_pos = wp.array(motions.first_pos.numpy()[world_motions], dtype=wp.vec3d, device=device)
             first_quat = wp.array(motions.first_quat.numpy()[world_motions], dtype=wp.vec4d, device=device)
-            qpos0 = wbc_initial_q(wbc, first_pos, first_quat, config.init_iterations, data=wbc_data, device=device).numpy()
+            qpos0 = wbc_initial_q(
+                wbc, first_pos, first_quat, config.init_iterations, data=wbc_data, device=device
+            ).numpy()
             ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
             act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
             q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)
@@ -443,7 +452,9 @@ def _run_group(
         kinematic = {id(m): _ik_model(m) for m in group_models}
         tree = build_tree_model([kinematic[id(m)] for m in group_models], sites, device=device)
         weights = config.ik_weights()
-        wp.copy(data.qpos, start_postures(tree, motions, config.init_ik_weights(), config.init_iterations, device=device))
+        wp.copy(
+            data.qpos, start_postures(tree, motions, config.init_ik_weights(), config.init_iterations, device=device)
+        )
         ranges_w = wp.array(ctrl_ranges(group_models), dtype=wp.vec2, device=device)
         act_qpos_w = wp.array(act_qpos.astype(np.int32), dtype=int, device=device)
         q_cmd = wp.zeros((Wg, m0.nq), dtype=float, device=device)

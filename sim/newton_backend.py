@@ -52,8 +52,8 @@ import warp as wp
 
 from tt.kernels.errors import TTError
 from tt.kernels.flat_joints import actuator_record, apply_actuators, body_site_poses, gather_state
-from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
 from tt.sim.backends import Robots, get_backend
+from tt.sim.controller import IKConfig, actuated_qpos, check_fixed_base, model_name
 from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -103,13 +103,19 @@ def _check_newton_model(m: mujoco.MjModel, index: int) -> None:
     if not contact_off and (np.any((m.geom_contype[:, None] & m.geom_conaffinity[None, :]) != 0) or m.npair):
         raise TTError(f"{where} has contacts; the newton backend runs contact-free arms (use backend='mjwarp')")
     if m.neq or m.ntendon:
-        raise TTError(f"{where}: neq = {m.neq}, ntendon = {m.ntendon}; Featherstone has no equality constraints or tendons")
+        raise TTError(
+            f"{where}: neq = {m.neq}, ntendon = {m.ntendon}; Featherstone has no equality constraints or tendons"
+        )
     if int(m.opt.integrator) != int(mujoco.mjtIntegrator.mjINT_EULER):
-        raise TTError(f"{where}: integrator {mujoco.mjtIntegrator(m.opt.integrator).name}; the newton backend matches Euler")
+        raise TTError(
+            f"{where}: integrator {mujoco.mjtIntegrator(m.opt.integrator).name}; the newton backend matches Euler"
+        )
     for u in range(m.nu):
-        if int(m.actuator_gaintype[u]) != int(mujoco.mjtGain.mjGAIN_FIXED) or int(m.actuator_biastype[u]) not in (
-            int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)
-        ) or int(m.actuator_dyntype[u]) != int(mujoco.mjtDyn.mjDYN_NONE):
+        if (
+            int(m.actuator_gaintype[u]) != int(mujoco.mjtGain.mjGAIN_FIXED)
+            or int(m.actuator_biastype[u]) not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE))
+            or int(m.actuator_dyntype[u]) != int(mujoco.mjtDyn.mjDYN_NONE)
+        ):
             raise TTError(f"{where}: actuator {u} is not a stateless fixed-gain affine actuator (position servo)")
     if len(set(m.actuator_trnid[:, 0].tolist())) != m.nu:
         raise TTError(f"{where}: several actuators drive one joint; the newton backend applies one force per joint")
@@ -176,7 +182,9 @@ def build_worlds(
     W = len(xmls) * repeats
     design_of_world = np.repeat(np.arange(len(xmls)), repeats)
     if model.articulation_count != W:
-        raise ValueError(f"Newton built {model.articulation_count} articulations for {W} worlds; expected one per world")
+        raise ValueError(
+            f"Newton built {model.articulation_count} articulations for {W} worlds; expected one per world"
+        )
 
     labels = model.joint_label
     art = model.articulation_start.numpy()
@@ -278,7 +286,9 @@ class _IKGroup:
     ee_quat: wp.array
 
     @classmethod
-    def build(cls, worlds: NewtonWorlds, rows: np.ndarray, models, sites, motion_count: int, *, device: str) -> "_IKGroup":
+    def build(
+        cls, worlds: NewtonWorlds, rows: np.ndarray, models, sites, motion_count: int, *, device: str
+    ) -> "_IKGroup":
         from tt.kernels.model import build_tree_model
         from tt.sim.mjwarp_backend import ctrl_ranges
 
@@ -402,7 +412,9 @@ def newton_rollout(
     for t in range(T):
         for g in groups:
             g.gather(state, device)
-            lookahead_targets(t, config.lookahead_steps, g.world_motion, marrays, g.target_pos, g.target_quat, device=device)
+            lookahead_targets(
+                t, config.lookahead_steps, g.world_motion, marrays, g.target_pos, g.target_quat, device=device
+            )
             ik_step(g.tree, g.qpos, g.target_pos, g.target_quat, weights, g.q_cmd, device=device)
             joint_command(g.q_cmd, g.act.act_qpos, g.ranges, g.ctrl, device=device)
         for _ in range(substeps):
@@ -518,7 +530,8 @@ def newton_simulate(
             q_start=wp.array(worlds.q_start[rows].astype(np.int32), dtype=int, device=device),
             qd_start=wp.array(worlds.qd_start[rows].astype(np.int32), dtype=int, device=device),
             act=_actuators([models[w] for w in rows], device=device),
-            ctrl_all=wp.array(ctrl[rows][:, :, :n].astype(np.float32), dtype=float, device=device, requires_grad=requires_grad),
+            ctrl_all=wp.array(ctrl[rows][:, :, :n].astype(np.float32), dtype=float, device=device,
+                              requires_grad=requires_grad),
         ))  # fmt: skip
 
     q0 = model.joint_q.numpy()

@@ -105,14 +105,28 @@ def rollout(
 
         cpu_threads(threads)  # a bad count fails on every backend
     if action_noise != 0.0 and not impl.perturbs:
-        raise TTError(f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
-                         "clean commands (use action_noise=0)")
+        raise TTError(
+            f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
+            "clean commands (use action_noise=0)"
+        )
     if isinstance(designs, DesignTrees) and backend != "warp":
-        raise TTError(f"designs compiled to tree fields (DesignTrees) run on backend 'warp' only; "
-                         f"pass backend {backend!r} the Designs themselves")
+        raise TTError(
+            f"designs compiled to tree fields (DesignTrees) run on backend 'warp' only; "
+            f"pass backend {backend!r} the Designs themselves"
+        )
     robots = designs if isinstance(designs, DesignTrees) else impl.resolve(designs)
-    return impl.run(robots, motions, config=config, device=device, chunk=chunk, progress=progress,
-                    action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
+    return impl.run(
+        robots,
+        motions,
+        config=config,
+        device=device,
+        chunk=chunk,
+        progress=progress,
+        action_noise=action_noise,
+        noise_seed=noise_seed,
+        threads=threads,
+        graph=graph,
+    )
 
 
 #: Episode fields the Warp rollout kernel records in every rollout.
@@ -197,8 +211,10 @@ def rollout_records(
         # Each group starts as soon as its kernels are built and loaded (here, one thread:
         # Warp's code generation and module loading are not for concurrent callers), so the
         # next groups' code generation overlaps the first groups' stepping.
-        with ThreadPoolExecutor(workers, thread_name_prefix="tt-rollout") as pool, \
-                ThreadPoolExecutor(len(groups), thread_name_prefix="tt-group") as drivers:
+        with (
+            ThreadPoolExecutor(workers, thread_name_prefix="tt-rollout") as pool,
+            ThreadPoolExecutor(len(groups), thread_name_prefix="tt-group") as drivers,
+        ):
             started = []
             for group in groups:
                 wp.load_module(rollout_kernels(group[1].topology).module, device=device)
@@ -285,15 +301,26 @@ def _rollout_warp(
 
     D, M = len(models), len(motions)
     T = max(motion.steps for motion in motions)
-    results = rollout_records(models, sites, motions, config=config, device=device, chunk=chunk, progress=progress,
-                              action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
+    results = rollout_records(
+        models,
+        sites,
+        motions,
+        config=config,
+        device=device,
+        chunk=chunk,
+        progress=progress,
+        action_noise=action_noise,
+        noise_seed=noise_seed,
+        threads=threads,
+        graph=graph,
+    )
     perturbed = action_noise > 0.0
     if isinstance(models, DesignTrees):
         nq, nu = models.max_dofs(), models.max_actuators()
     else:
         nq, nu = max(m.nq for m in models), max(m.nu for m in models)
     if len(results) == 1:
-        (members, arrays), = results
+        ((members, arrays),) = results
         return group_episode(members, arrays, M, nu, perturbed=perturbed, dt=config.control_dt)
     # Several topologies: copy each group's records into one zero-padded Episode.
     names = _recorded(perturbed)

@@ -49,6 +49,7 @@ import numpy as np
 import torch
 
 from tt.kernels.errors import TTError
+from tt.sim.backends.base import Robots, resolve_designs
 from tt.sim.controller import (
     DiffIKController,
     IKConfig,
@@ -57,7 +58,6 @@ from tt.sim.controller import (
     ik_step,
     model_name,
 )
-from tt.sim.backends.base import Robots, resolve_designs
 from tt.sim.designs import Design
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -241,7 +241,9 @@ def oracle_rollout(
             out[name][w] = rec[name]
         alive[w] = rec["alive"]
         fell[w] = rec["fallen"]
-        logger.debug("oracle world %d (design %d, motion %r): %d/%d steps alive", w, d, motions[m].name, alive[w].sum(), T)
+        logger.debug(
+            "oracle world %d (design %d, motion %r): %d/%d steps alive", w, d, motions[m].name, alive[w].sum(), T
+        )
 
     f32 = {name: torch.from_numpy(value).to(torch.float32) for name, value in out.items()}
     return Episode(

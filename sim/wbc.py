@@ -151,8 +151,13 @@ class WBCConfig(IKConfig):
         from tt.kernels.wbc import wbc_weights
 
         return wbc_weights(
-            position_cost=self.position_cost, orientation_cost=self.orientation_cost, lm_damping=self.lm_damping,
-            damping=self.damping, foot_cost=self.foot_cost, com_cost=self.com_cost, equality_cost=self.equality_cost,
+            position_cost=self.position_cost,
+            orientation_cost=self.orientation_cost,
+            lm_damping=self.lm_damping,
+            damping=self.damping,
+            foot_cost=self.foot_cost,
+            com_cost=self.com_cost,
+            equality_cost=self.equality_cost,
         )
 
 
@@ -309,8 +314,7 @@ class WholeBodyController:
         joint = free_joint(model)
         if joint is None:
             raise TTError(
-                f"model {model_name(model)!r} has no free joint; fixed-base arms use "
-                "tt.sim.controller.DiffIKController"
+                f"model {model_name(model)!r} has no free joint; fixed-base arms use tt.sim.controller.DiffIKController"
             )
         if int(model.jnt_bodyid[joint]) != 1:
             # mink's ComTask reads the subtree of body 1, which must then be the whole robot.
@@ -328,8 +332,13 @@ class WholeBodyController:
         self.stance = stance_points(model, self.feet)
 
         self.frame_tasks = [
-            mink.FrameTask(site, "site", position_cost=config.position_cost,
-                           orientation_cost=config.orientation_cost, lm_damping=config.lm_damping)
+            mink.FrameTask(
+                site,
+                "site",
+                position_cost=config.position_cost,
+                orientation_cost=config.orientation_cost,
+                lm_damping=config.lm_damping,
+            )
             for site in self.sites
         ]
         self.foot_tasks = [
@@ -342,9 +351,7 @@ class WholeBodyController:
         self.actuated_dofs, self.arm_dofs, posture_cost = _posture_dofs(model, config)
         self.posture_task = mink.PostureTask(model, cost=posture_cost)
         self.posture_task.set_target(self.q_home)
-        self.equality_tasks = (
-            [mink.EqualityConstraintTask(model, cost=config.equality_cost)] if model.neq > 0 else []
-        )
+        self.equality_tasks = [mink.EqualityConstraintTask(model, cost=config.equality_cost)] if model.neq > 0 else []
         limited = model.jnt_limited.astype(bool) & np.isin(model.jnt_type, _HINGE_OR_SLIDE)
         self._limited_qpos = model.jnt_qposadr[limited]
         self._limited_range = model.jnt_range[limited]
@@ -379,7 +386,9 @@ class WholeBodyController:
         dt = self.config.control_dt
         # limits=[]: the step stays an unconstrained least squares (see WBCConfig); joint
         # ranges are applied by clipping, and the free joint has none.
-        v = mink.solve_ik(self.configuration, self.tasks, dt, self.config.solver, damping=self.config.damping, limits=[])
+        v = mink.solve_ik(
+            self.configuration, self.tasks, dt, self.config.solver, damping=self.config.damping, limits=[]
+        )
         q_cmd = self.configuration.integrate(v, dt)
         q_cmd[self._limited_qpos] = np.clip(
             q_cmd[self._limited_qpos], self._limited_range[:, 0], self._limited_range[:, 1]

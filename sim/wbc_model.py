@@ -29,14 +29,17 @@ def _check_model(m: mujoco.MjModel, index: int) -> None:
     if joint is None:
         raise TTError(f"{where} has no free joint; the whole-body kernels drive floating bases (arms: tt.kernels.ik)")
     if int(m.jnt_bodyid[joint]) != 1 or int(m.body_jntadr[1]) != joint:
-        raise TTError(f"{where}: the free joint must be the first joint of body 1 (the robot's root), as the oracle needs")
+        raise TTError(
+            f"{where}: the free joint must be the first joint of body 1 (the robot's root), as the oracle needs"
+        )
     kinds = set(int(t) for t in m.jnt_type)
     if not kinds <= {JOINT_FREE, JOINT_HINGE, JOINT_SLIDE}:
         raise TTError(f"{where}: jnt_type {sorted(kinds)}; the whole-body kernels support free, hinge and slide joints")
     for e in range(m.neq):
         if int(m.eq_type[e]) != int(mujoco.mjtEq.mjEQ_CONNECT):
             raise TTError(
-                f"{where}: equality {e} has eq_type {mujoco.mjtEq(m.eq_type[e]).name}; only connect equalities are supported"
+                f"{where}: equality {e} has eq_type {mujoco.mjtEq(m.eq_type[e]).name}; only connect "
+                "equalities are supported"
             )
         if int(m.eq_objtype[e]) not in (int(mujoco.mjtObj.mjOBJ_SITE), int(mujoco.mjtObj.mjOBJ_BODY)):
             raise TTError(f"{where}: equality {e} connects objects of type {m.eq_objtype[e]}; expected sites or bodies")

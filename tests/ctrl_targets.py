@@ -14,5 +14,5 @@ def some_at_the_ends(targets, lo, hi, rng, share=0.3):
     chosen = rng.uniform(size=targets.shape[1]) < share
     end = np.where(rng.uniform(size=targets.shape[1]) < 0.5, lo, hi)
     out = targets.copy()
-    out[targets.shape[0] // 3:, chosen] = end[chosen]
+    out[targets.shape[0] // 3 :, chosen] = end[chosen]
     return out

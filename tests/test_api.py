@@ -14,8 +14,10 @@ from tt.cli import app
 
 
 def test_import_tt_loads_nothing_heavy():
-    code = ("import sys, tt; heavy = [m for m in ('torch', 'warp', 'mujoco', 'numpy', 'tt.kernels', 'tt.api') "
-            "if m in sys.modules]; print(heavy)")
+    code = (
+        "import sys, tt; heavy = [m for m in ('torch', 'warp', 'mujoco', 'numpy', 'tt.kernels', 'tt.api') "
+        "if m in sys.modules]; print(heavy)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]", f"`import tt` imported {out}"
 
@@ -35,13 +37,17 @@ def _cli_defaults(command: str) -> dict:
     return {p.name: p.default for p in cmd.params}
 
 
-@pytest.mark.parametrize("command, function", [("optimize", api.optimize), ("validate", api.validate),
-                                               ("predict", api.predict)])
+@pytest.mark.parametrize(
+    "command, function", [("optimize", api.optimize), ("validate", api.validate), ("predict", api.predict)]
+)
 def test_cli_and_api_share_their_defaults(command, function):
     """Every option the CLI command and its API function both have defaults to the same value."""
     cli = _cli_defaults(command)
-    lib = {k: p.default for k, p in inspect.signature(function).parameters.items()
-           if p.default is not inspect.Parameter.empty}
+    lib = {
+        k: p.default
+        for k, p in inspect.signature(function).parameters.items()
+        if p.default is not inspect.Parameter.empty
+    }
     shared = sorted(set(cli) & set(lib))
     assert "reward" in shared, shared
     assert {k: cli[k] for k in shared} == {k: lib[k] for k in shared}

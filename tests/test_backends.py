@@ -23,16 +23,16 @@ import numpy as np
 import pytest
 import torch
 import warp as wp
+from ctrl_targets import some_at_the_ends
 
-from tt.sim.designs import get_space
 from tt.kernels.records import mat2quat
+from tt.sim.designs import get_space
 from tt.sim.mjwarp_backend import batch_model, mjwarp_simulate, structure_key
 from tt.sim.motions import for_space, get_motion
 from tt.sim.motions.base import Motion
 from tt.sim.newton_backend import newton_simulate
 from tt.sim.rollout import rollout
 from tt.sim.validate import oracle_rollout
-from ctrl_targets import some_at_the_ends
 
 HORIZON_STEPS = 1000  # 2 s at 0.002 s
 HORIZON_TOL = 1e-3  # [rad]
@@ -100,12 +100,22 @@ def test_batch_model_holds_one_entry_per_world_where_designs_differ():
     models = [space.model(d) for d in designs]
     m = batch_model(models, device="cpu")
     assert m.body_pos.shape == (3, models[0].nbody) and m.body_mass.shape == (3, models[0].nbody)
-    for name in ("body_pos", "body_quat", "body_mass", "body_inertia", "geom_size", "dof_invweight0", "actuator_gainprm"):
+    for name in (
+        "body_pos",
+        "body_quat",
+        "body_mass",
+        "body_inertia",
+        "geom_size",
+        "dof_invweight0",
+        "actuator_gainprm",
+    ):
         value = getattr(m, name).numpy()
         for i, mm in enumerate(models):
             # One entry per world where the designs differ, one shared entry where they agree.
             entry = value[i % value.shape[0]]
-            np.testing.assert_allclose(entry, getattr(mm, name).reshape(entry.shape), rtol=1e-5, atol=1e-7, err_msg=name)
+            np.testing.assert_allclose(
+                entry, getattr(mm, name).reshape(entry.shape), rtol=1e-5, atol=1e-7, err_msg=name
+            )
     assert m.actuator_gainprm.shape[0] == 1  # the gains of these designs are equal
     assert m.opt.timestep.shape == (1,) and m.opt.gravity.shape == (1,)
     other = next(d for d in space.sample(40, seed=12) if structure_key(space.model(d)) != structure_key(models[0]))
@@ -134,7 +144,13 @@ def test_mat2quat_follows_mujoco_sign_convention():
         q[i] = mat2quat(m[i])
 
     out = wp.zeros(len(quats), dtype=wp.vec4, device="cpu")
-    wp.launch(_convert, dim=len(quats), inputs=[wp.array(mats.reshape(-1, 3, 3).astype(np.float32), dtype=wp.mat33, device="cpu")], outputs=[out], device="cpu")
+    wp.launch(
+        _convert,
+        dim=len(quats),
+        inputs=[wp.array(mats.reshape(-1, 3, 3).astype(np.float32), dtype=wp.mat33, device="cpu")],
+        outputs=[out],
+        device="cpu",
+    )
     np.testing.assert_allclose(out.numpy(), ref, atol=2e-6)
 
 
@@ -186,7 +202,9 @@ def _mean_error(ep):
     # A world terminated at its first step (a random design that cannot reach the placed
     # motion) has no steps to average; both backends must agree that it terminated.
     err = (ep.ee_pos - ep.target_pos).norm(dim=-1).sum(-1)  # (W, T) [m]
-    return torch.stack([err[w][ep.alive[w]].mean() if ep.alive[w].any() else err.new_zeros(()) for w in range(ep.worlds)])
+    return torch.stack(
+        [err[w][ep.alive[w]].mean() if ep.alive[w].any() else err.new_zeros(()) for w in range(ep.worlds)]
+    )
 
 
 def _check_episode_against_oracle(ep, ref, tol):

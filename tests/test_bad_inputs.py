@@ -30,8 +30,9 @@ from bad_input_cases import CASES, CLASSES, SCENARIOS, make_files, noisy_detoken
 from tt.generate import GenerateConfig, generate  # noqa: E402
 
 #: 2 shards of 2 designs x 1 episode on motions cut to 24 steps: the smallest real dataset.
-DATASET = GenerateConfig(space="viperx", designs=4, episodes_per_design=1, designs_per_shard=2, min_steps=10,
-                         max_motion_steps=24)
+DATASET = GenerateConfig(
+    space="viperx", designs=4, episodes_per_design=1, designs_per_shard=2, min_steps=10, max_motion_steps=24
+)
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def test_the_table_covers_every_class_and_command():
     from tt.cli import app, dataset_app
 
     assert {c.cls for c in CASES} | {s.cls for s in SCENARIOS} >= set(CLASSES) - {2, 7}  # 2 and 7 are tests below
-    used = {" ".join(c.args(_AnyFile())[:2 if c.args(_AnyFile())[0] == "dataset" else 1]) for c in CASES}
+    used = {" ".join(c.args(_AnyFile())[: 2 if c.args(_AnyFile())[0] == "dataset" else 1]) for c in CASES}
     commands = {c.name or c.callback.__name__ for c in app.registered_commands}
     commands |= {f"dataset {c.name}" for c in dataset_app.registered_commands}
     assert commands <= used, sorted(commands - used)
@@ -63,7 +64,9 @@ def test_bad_input(case, files, tt_cli):
     assert result.kind in ("clear", "ok"), f"{result.kind}: {result.why}\n{result.output}"
 
 
-@pytest.mark.parametrize("scenario", [s for s in SCENARIOS if s.cls != 13], ids=[s.name for s in SCENARIOS if s.cls != 13])
+@pytest.mark.parametrize(
+    "scenario", [s for s in SCENARIOS if s.cls != 13], ids=[s.name for s in SCENARIOS if s.cls != 13]
+)
 def test_bad_input_scenario(scenario, files, tmp_path, single_thread):
     kind, why = scenario.run(files, tmp_path)  # class 13 (a killed tt generate) is tests/test_kills.py's
     assert kind in ("clear", "ok"), f"{kind}: {why}"
@@ -120,8 +123,22 @@ def test_traceback_only_with_verbose(files, tt_cli):
 
 # ------------------------------------------------------------------ 2: resume
 def _train(tt_cli, data, out, *extra) -> str:
-    code, text = tt_cli(["train", "--data", str(data), "--size", "tiny", "--batch-size", "4", "--device", "cpu",
-                         "--out", str(out), *extra])
+    code, text = tt_cli(
+        [
+            "train",
+            "--data",
+            str(data),
+            "--size",
+            "tiny",
+            "--batch-size",
+            "4",
+            "--device",
+            "cpu",
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
     assert code == 0, text
     return text
 
@@ -152,13 +169,47 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(files, tt_cli, tmp_pa
 def test_resume_with_other_data_or_learning_rate_is_refused(files, tt_cli, tmp_path, single_thread):
     run = tmp_path / "run"
     _train(tt_cli, files.episodes, run, "--steps", "1", "--lr", "0.001")
-    code, text = tt_cli(["train", "--data", files.episodes, "--size", "tiny", "--batch-size", "4", "--device", "cpu",
-                         "--steps", "2", "--lr", "0.002", "--out", str(run)])
+    code, text = tt_cli(
+        [
+            "train",
+            "--data",
+            files.episodes,
+            "--size",
+            "tiny",
+            "--batch-size",
+            "4",
+            "--device",
+            "cpu",
+            "--steps",
+            "2",
+            "--lr",
+            "0.002",
+            "--out",
+            str(run),
+        ]
+    )
     assert code == 2 and "--lr" in text and "0.001" in text and "0.002" in text, text
     other = Path(files.root) / "episodes_other.npz"
     other.write_bytes(Path(files.episodes).read_bytes())
-    code, text = tt_cli(["train", "--data", str(other), "--size", "tiny", "--batch-size", "4", "--device", "cpu",
-                         "--steps", "2", "--lr", "0.001", "--out", str(run)])
+    code, text = tt_cli(
+        [
+            "train",
+            "--data",
+            str(other),
+            "--size",
+            "tiny",
+            "--batch-size",
+            "4",
+            "--device",
+            "cpu",
+            "--steps",
+            "2",
+            "--lr",
+            "0.001",
+            "--out",
+            str(run),
+        ]
+    )
     assert code == 2 and "--data" in text and "episodes_other.npz" in text, text
 
 
@@ -170,7 +221,9 @@ def test_checkpoints_are_fsynced_before_the_rename(tmp_path, monkeypatch):
 
     events = []
     real_fsync, real_replace = os.fsync, os.replace
-    monkeypatch.setattr(files_mod.os, "fsync", lambda fd: (events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}"))), real_fsync(fd)))
+    monkeypatch.setattr(
+        files_mod.os, "fsync", lambda fd: (events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}"))), real_fsync(fd))
+    )
     monkeypatch.setattr(files_mod.os, "replace", lambda a, b: (events.append(("replace", str(b))), real_replace(a, b)))
     path = save_checkpoint(tmp_path / "checkpoints" / "step_0000001.pt", {"step": 1, "x": torch.zeros(3)})
     kinds = [k for k, _ in events]
@@ -181,7 +234,9 @@ def test_checkpoints_are_fsynced_before_the_rename(tmp_path, monkeypatch):
 # ------------------------------------------------------------------ 4: strict JSON
 def test_json_writes_null_for_nan_and_says_why(files, tt_cli, tmp_path):
     out = tmp_path / "v.json"
-    code, text = tt_cli(["validate", "--design", files.designs + "#0", "--motion-file", files.motion_far, "--json", str(out)])
+    code, text = tt_cli(
+        ["validate", "--design", files.designs + "#0", "--motion-file", files.motion_far, "--json", str(out)]
+    )
     assert code == 0, text
     data = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"bare {c} in {out}"))
     assert data["metrics"][0]["pos_err"] is None  # the robot ended at its first step: no error to average
@@ -230,7 +285,9 @@ def test_full_disk_during_generation_says_how_to_resume(tt_cli, tmp_path, monkey
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(Path(out) / ".partial" / f"s{index:06d}"))
 
     monkeypatch.setattr(gen, "generate_shard", full)
-    code, text = tt_cli(["generate", "--designs", "2", "--designs-per-shard", "1", "--out", str(tmp_path / "ds"), "--device", "cpu"])
+    code, text = tt_cli(
+        ["generate", "--designs", "2", "--designs-per-shard", "1", "--out", str(tmp_path / "ds"), "--device", "cpu"]
+    )
     assert code == 2 and "Traceback" not in text, text
     assert "No space left on device" in text and "0 of 2 shards" in text and "re-run the same command to resume" in text
 
@@ -239,8 +296,13 @@ def test_view_serve_stops_its_meshcat_server_on_sigterm(tmp_path):
     from tt.sim.designs import get_space, save_designs
 
     save_designs(get_space("viperx").sample(1, 0), tmp_path / "designs.json")
-    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "view", str(tmp_path / "designs.json"), "--serve"], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tt.cli", "view", str(tmp_path / "designs.json"), "--serve"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+    )
     try:
         lines = []
         deadline = time.monotonic() + 120
@@ -259,7 +321,9 @@ def test_view_serve_stops_its_meshcat_server_on_sigterm(tmp_path):
     assert "stopped the meshcat server" in rest, (proc.returncode, "".join(lines), rest)
     for pid in children:
         stat = Path(f"/proc/{pid}/stat")
-        assert not stat.exists() or stat.read_text().split(")")[-1].split()[0] == "Z", f"meshcat server {pid} still runs"
+        assert not stat.exists() or stat.read_text().split(")")[-1].split()[0] == "Z", (
+            f"meshcat server {pid} still runs"
+        )
 
 
 # ------------------------------------------------------------------ 7: detokenizer names

@@ -241,8 +241,21 @@ def test_optimize_cli_writes_design_time_and_validated_metrics(tmp_path, tt_cli)
     motion_file = tmp_path / "screw_short.npz"
     save_npz(_motion("screw", steps=75), motion_file)
     out = tmp_path / "opt.json"
-    code, text = tt_cli(["optimize", "--motion-file", str(motion_file), "--reward", "tracking_weight",
-                          "--budget", "10", "--seed", "1", "--json", str(out)])
+    code, text = tt_cli(
+        [
+            "optimize",
+            "--motion-file",
+            str(motion_file),
+            "--reward",
+            "tracking_weight",
+            "--budget",
+            "10",
+            "--seed",
+            "1",
+            "--json",
+            str(out),
+        ]
+    )
     assert code == 0, text
     data = json.loads(out.read_text())
     space = get_space("viperx")

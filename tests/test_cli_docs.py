@@ -39,5 +39,9 @@ def test_optimize_help_shows_the_common_path_in_80_lines():
     assert len(lines) <= 80, f"`tt optimize --help` is {len(lines)} lines at 100 columns:\n{text}"
     panels = [line for line in lines if line.startswith("╭─")]
     assert [p.split("─ ")[1].split(" ─")[0] for p in panels] == [
-        "Options", "Model (learned methods)", "Search and rollout", "Advanced / paper ablations"], panels
+        "Options",
+        "Model (learned methods)",
+        "Search and rollout",
+        "Advanced / paper ablations",
+    ], panels
     assert "--critic-at" in details(("optimize",)), "the options in full follow the help in docs/cli.md"

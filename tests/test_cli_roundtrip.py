@@ -29,8 +29,24 @@ def optimized(tmp_path_factory, motion_file):
     from tt.cli import app
 
     path = tmp_path_factory.mktemp("opt") / "best.json"
-    res = CliRunner().invoke(app, ["optimize", "--space", "viperx", "--motion-file", str(motion_file), "--method", "random",
-                                   "--budget", "4", "--seed", "3", "--json", str(path)])
+    res = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--space",
+            "viperx",
+            "--motion-file",
+            str(motion_file),
+            "--method",
+            "random",
+            "--budget",
+            "4",
+            "--seed",
+            "3",
+            "--json",
+            str(path),
+        ],
+    )
     assert res.exit_code == 0, res.output
     return path
 
@@ -76,7 +92,11 @@ def test_every_design_file_tt_writes_is_read_back(optimized, motion_file, tmp_pa
     # tt demo's demo.json holds its winners by method, in its table's order
     other = sp.sample(1, 5)[0]
     demo = tmp_path / "demo.json"
-    demo.write_text(json.dumps({"space": "viperx", "rows": [], "designs": {"Random": sp.to_dict(other), "CMA-ES": sp.to_dict(nominal)}}))
+    demo.write_text(
+        json.dumps(
+            {"space": "viperx", "rows": [], "designs": {"Random": sp.to_dict(other), "CMA-ES": sp.to_dict(nominal)}}
+        )
+    )
     assert load_designs(demo) == [other, nominal] and load_designs(f"{demo}#1") == [nominal]
     code, text = tt_cli(["tokenize", f"{demo}#1", "--json"])  # tokenize reads one design of a file too
     assert code == 0, text
@@ -101,14 +121,17 @@ def test_nominal_round_trips_through_validate(motion_file, tmp_path, tt_cli):
     assert (folder / "viperx_0000.xml").read_text() == sp.to_mjcf(sp.nominal())
 
     out = tmp_path / "v.json"
-    code, text = tt_cli(["validate", "--design", f"{folder / 'designs.json'}#0", "--motion-file", str(motion_file),
-                         "--json", str(out)])
+    code, text = tt_cli(
+        ["validate", "--design", f"{folder / 'designs.json'}#0", "--motion-file", str(motion_file), "--json", str(out)]
+    )
     assert code == 0, text
     got = json.loads(out.read_text())["per_motion"]
     want = evaluate_designs([sp.nominal()], [load_motion_file(motion_file)], "tracking", backend="mujoco").metrics
     assert set(want) <= set(got)
     for key, value in want.items():
-        np.testing.assert_allclose(np.asarray(got[key], dtype=float), np.asarray(value, dtype=float), rtol=1e-9, err_msg=key)
+        np.testing.assert_allclose(
+            np.asarray(got[key], dtype=float), np.asarray(value, dtype=float), rtol=1e-9, err_msg=key
+        )
 
 
 @pytest.mark.parametrize("space", ["aloha", "bimanual", "quadruped", "viperx-nominal"])

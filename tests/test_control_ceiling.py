@@ -30,8 +30,18 @@ def test_variants_parse_and_bad_ones_are_refused(bench):
     v = bench.Variant.parse("command/mse/film/dagger1")
     assert (v.model, v.dagger, v.label) == ("film", 1, "command/mse/film/dagger1")
     assert bench.Variant.parse("joints/mse/film") == bench.Variant("joints", "mse", 0, "film")
-    for bad in ("joint/mse", "command/l1", "command", "command/mse/dagger0", "command/mse/rounds2", "a/b/c/d",
-                "command/mse/dagger1/film", "command/mse/film/film", "command/mse/cnn", "command/mse/mlp"):
+    for bad in (
+        "joint/mse",
+        "command/l1",
+        "command",
+        "command/mse/dagger0",
+        "command/mse/rounds2",
+        "a/b/c/d",
+        "command/mse/dagger1/film",
+        "command/mse/film/film",
+        "command/mse/cnn",
+        "command/mse/mlp",
+    ):
         with pytest.raises(ValueError, match="variant"):
             bench.Variant.parse(bad)
 
@@ -40,8 +50,9 @@ def test_labelled_windows_take_the_next_command_from_the_labels(bench):
     from tt.dit.online import OnlineConfig, OnlineTokenSource
     from tt.dit.tasks import CONTROL, task_windows
 
-    source = OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8),
-                               device="cpu")
+    source = OnlineTokenSource(
+        OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8), device="cpu"
+    )
     layout, norm = source.layout(bench.STEPS), source.fit_normalizer()
     raw = task_windows(source, layout, 16, CONTROL, torch.Generator().manual_seed(0))
     labels = raw.clone()
@@ -98,12 +109,14 @@ def test_film_reads_the_design_columns_and_starts_as_the_plain_state_mlp(bench):
     from tt.dit.online import OnlineConfig, OnlineTokenSource
     from tt.dit.tasks import CONTROL, task_windows
 
-    source = OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8),
-                               device="cpu")
+    source = OnlineTokenSource(
+        OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=100, buffer=1, min_steps=8), device="cpu"
+    )
     layout, norm = source.layout(bench.STEPS), source.fit_normalizer()
     tokens = norm.normalize(task_windows(source, layout, 8, CONTROL, torch.Generator().manual_seed(0)))
-    embodiment = torch.cat([tokens.values[s.name].float().reshape(8, -1) for s in layout.specs
-                            if s.role.value == "embodiment"], 1)
+    embodiment = torch.cat(
+        [tokens.values[s.name].float().reshape(8, -1) for s in layout.specs if s.role.value == "embodiment"], 1
+    )
     for command in (True, False):
         X, design = bench.features(tokens, layout, command=command), bench.design_columns(layout, command=command)
         assert design.shape == X.shape[1:]
@@ -130,8 +143,9 @@ def test_drawn_windows_are_the_concatenated_draws_in_one_random_order(bench):
     from tt.dit.tasks import CONTROL, task_windows
 
     def source():
-        return OnlineTokenSource(OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=1, buffer=1, min_steps=8),
-                                 device="cpu")
+        return OnlineTokenSource(
+            OnlineConfig(space=bench.SPACE, designs=2, motions=1, refresh_every=1, buffer=1, min_steps=8), device="cpu"
+        )
 
     src = source()
     layout, norm = src.layout(bench.STEPS), src.fit_normalizer()
@@ -142,7 +156,9 @@ def test_drawn_windows_are_the_concatenated_draws_in_one_random_order(bench):
     for k, share in enumerate((6, 5)):
         ref_src.start_step(k)
         for a in range(0, share, chunk):
-            parts.append(bench.Windows.of(task_windows(ref_src, layout, min(chunk, share - a), CONTROL, gen), layout, norm))
+            parts.append(
+                bench.Windows.of(task_windows(ref_src, layout, min(chunk, share - a), CONTROL, gen), layout, norm)
+            )
     ref = bench.Windows.cat(parts).take(torch.randperm(n, generator=gen))
     assert len(drawn) == n
     for field in ("X", "c0", "c1", "real", "q"):

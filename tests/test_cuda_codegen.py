@@ -66,8 +66,11 @@ def _static_modules() -> dict[str, str]:
     import tt.kernels.wbc as wbc
     from tt.kernels.pose import _tracking_reward_kernel
 
-    modules = {"whole-body control": wbc._MODULE, "perturbation noise": rollout._noise_draws.module.name,
-               "tracking reward": _tracking_reward_kernel(1).module.name}
+    modules = {
+        "whole-body control": wbc._MODULE,
+        "perturbation noise": rollout._noise_draws.module.name,
+        "tracking reward": _tracking_reward_kernel(1).module.name,
+    }
     # The mjwarp backend's controller and record kernels, the newton backend's joint kernels.
     for source in (control, records, flat_joints):
         for name, value in sorted(vars(source).items()):
@@ -163,9 +166,18 @@ def test_a_cuda_only_codegen_error_fails_the_check(tmp_path):
 
 def test_every_kernel_source_is_covered():
     """Every source file that defines Warp kernels is one the check above compiles from."""
-    covered = {"kernels/rollout.py", "kernels/wbc.py", "kernels/pose.py", "kernels/fk.py", "kernels/ik.py",
-               "kernels/dynamics.py", "kernels/control_step.py", "kernels/control.py", "kernels/records.py",
-               "kernels/flat_joints.py"}
+    covered = {
+        "kernels/rollout.py",
+        "kernels/wbc.py",
+        "kernels/pose.py",
+        "kernels/fk.py",
+        "kernels/ik.py",
+        "kernels/dynamics.py",
+        "kernels/control_step.py",
+        "kernels/control.py",
+        "kernels/records.py",
+        "kernels/flat_joints.py",
+    }
     # fk and dynamics: their kernels' functions are the rollout's (`kinematics_funcs`,
     # `dynamics_funcs`), which the rollout module compiles.
     found = set()

@@ -22,8 +22,17 @@ from tt.dit.train import TrainConfig, train
 from tt.guidance import zeroth
 from tt.guidance.zeroth import Decoded
 
-COUNTS = dict(link=6, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
-              control=3, target_pose=1)
+COUNTS = dict(
+    link=6,
+    dyna_joint=6,
+    fixed_joint=4,
+    actuator=3,
+    track_link_obs=1,
+    dyna_joint_obs=3,
+    actuator_obs=3,
+    control=3,
+    target_pose=1,
+)
 
 
 def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_path):
@@ -42,7 +51,9 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
     assert ckpt.default_checkpoint("viperx", tmp_path) == tmp_path / "viperx_small.pt"
     assert ckpt.default_checkpoint("viperx", tmp_path, task="robot") == tmp_path / "viperx_small.pt"
     (tmp_path / "aloha_mini_control.pt").write_bytes(b"")
-    with pytest.raises(ckpt.NoCheckpointError, match="'aloha' ships only checkpoints of other tasks.*aloha_mini_control.pt"):
+    with pytest.raises(
+        ckpt.NoCheckpointError, match="'aloha' ships only checkpoints of other tasks.*aloha_mini_control.pt"
+    ):
         ckpt.default_checkpoint("aloha", tmp_path)
     with pytest.raises(ValueError, match="task 'walk' does not exist"):
         ckpt.default_checkpoint("viperx", tmp_path, task="walk")
@@ -58,10 +69,16 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
     (tmp_path / "viperx_mini_robot.pt").write_bytes(b"")
     assert ckpt.default_checkpoint("viperx", tmp_path, task="robot") == tmp_path / "viperx_mini_robot.pt"
     assert ckpt.default_checkpoint("viperx", tmp_path) == tmp_path / "viperx_small.pt"
-    assert ckpt.shipped_critic("viperx", tmp_path / "viperx_mini_robot.pt", tmp_path) == tmp_path / "viperx_mini_dynamics.pt"
+    assert (
+        ckpt.shipped_critic("viperx", tmp_path / "viperx_mini_robot.pt", tmp_path)
+        == tmp_path / "viperx_mini_dynamics.pt"
+    )
     assert ckpt.shipped_critic("viperx", tmp_path / "viperx_small.pt", tmp_path) == tmp_path / "viperx_mini_dynamics.pt"
     # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
-    assert ckpt.shipped_folder().name == "checkpoints" and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
+    assert (
+        ckpt.shipped_folder().name == "checkpoints"
+        and ckpt.shipped_folder().parent == ckpt.Path(ckpt.__file__).resolve().parents[1]
+    )
 
 
 def test_optimize_without_checkpoint_fails_clearly_when_none_is_shipped(tmp_path, monkeypatch):
@@ -80,8 +97,19 @@ def tiny_checkpoint(tmp_path_factory):
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("run")
     episodes = toy_episodes(episodes=8, steps=16, seed=0, schema_counts=COUNTS)
-    train(TrainConfig(out=str(out), task="robot", size="tiny", steps=2, batch_size=4, checkpoint_every=2, device="cpu",
-                      warmup_steps=1), episodes=episodes)
+    train(
+        TrainConfig(
+            out=str(out),
+            task="robot",
+            size="tiny",
+            steps=2,
+            batch_size=4,
+            checkpoint_every=2,
+            device="cpu",
+            warmup_steps=1,
+        ),
+        episodes=episodes,
+    )
     torch.set_num_threads(threads)
     return ckpt.latest_checkpoint(out)
 
@@ -119,12 +147,17 @@ def test_demo_runs_the_learned_methods_and_validates_their_winners(tmp_path, mon
     from tt.sim.designs import get_space
     from tt.sim.motions import for_space, get_motion
 
-    rows, lines, saved = _demo(tmp_path, monkeypatch, NominalDecoder, tiny_checkpoint,
-                               ("random", "zeroth", "dgs", "zeroth-sim"))
+    rows, lines, saved = _demo(
+        tmp_path, monkeypatch, NominalDecoder, tiny_checkpoint, ("random", "zeroth", "dgs", "zeroth-sim")
+    )
     assert [r["name"] for r in rows] == ["Random", "Zeroth", "DGS", "Zeroth + sim"]
     assert any(line.startswith(f"checkpoint {tiny_checkpoint}") for line in lines)
-    want = summary_row(evaluate_designs([get_space("viperx").nominal()], for_space([get_motion("toss")], "viperx"),
-                                        "tracking", backend="mujoco").metrics, 0)
+    want = summary_row(
+        evaluate_designs(
+            [get_space("viperx").nominal()], for_space([get_motion("toss")], "viperx"), "tracking", backend="mujoco"
+        ).metrics,
+        0,
+    )
     for row in rows[1:]:
         # The model-only methods run no rollout; the hybrid checks its 2 samples on the motion.
         assert row["rollouts"] == (2 if row["name"] == "Zeroth + sim" else 0) and row["seconds"] > 0
@@ -150,7 +183,12 @@ def test_demo_without_a_shipped_checkpoint_says_so_and_runs_the_baselines(tmp_pa
     lines: list[str] = []
     rows = run_demo(DemoConfig(budget=4, methods=("random", "zeroth", "dgs"), out=tmp_path / "demo"), echo=lines.append)
     assert [r["name"] for r in rows] == ["Random"]
-    assert any(line.startswith("the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped: no shipped DiT checkpoint") for line in lines)
+    assert any(
+        line.startswith(
+            "the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped: no shipped DiT checkpoint"
+        )
+        for line in lines
+    )
 
 
 def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, tiny_checkpoint):
@@ -160,8 +198,22 @@ def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, 
     monkeypatch.setattr(ckpt, "shipped_folder", lambda: tmp_path)
     monkeypatch.setattr(zeroth, "DesignDecoder", NominalDecoder)
     out = tmp_path / "result.json"
-    result = CliRunner().invoke(app, ["optimize", "--method", "zeroth", "--motion", "toss", "--samples", "2",
-                                      "--num-steps", "2", "--json", str(out)])
+    result = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--method",
+            "zeroth",
+            "--motion",
+            "toss",
+            "--samples",
+            "2",
+            "--num-steps",
+            "2",
+            "--json",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     saved = json.loads(out.read_text())
     assert saved["method"] == "zeroth" and saved["info"]["samples"] == 2 and saved["info"]["num_steps"] == 2

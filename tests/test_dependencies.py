@@ -28,7 +28,10 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Each must sit in a ``try: import ... except ImportError`` whose handler raises an error
 #: naming the extra (test_optional_imports_are_guarded), and the guard is run below.
 OPTIONAL = {
-    "ray": ("ray", "`tt generate --ray` distributes shards over a Ray cluster; the base install runs them as processes"),
+    "ray": (
+        "ray",
+        "`tt generate --ray` distributes shards over a Ray cluster; the base install runs them as processes",
+    ),
 }
 
 

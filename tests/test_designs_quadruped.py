@@ -12,13 +12,20 @@ import mujoco
 import numpy as np
 import pytest
 
-from tt.sim.rewards import robot_mass, robot_size
 from tt.sim.designs import Design, DesignError, get_space, load_designs, save_designs
 from tt.sim.designs import quadruped as q
+from tt.sim.rewards import robot_mass, robot_size
 
 LEGS = ("fl", "fr", "rl", "rr")
-PRIMITIVES = {int(t) for t in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER,
-                               mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE)}
+PRIMITIVES = {
+    int(t)
+    for t in (
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        mujoco.mjtGeom.mjGEOM_BOX,
+        mujoco.mjtGeom.mjGEOM_SPHERE,
+    )
+}
 
 
 @pytest.fixture(scope="module")
@@ -70,9 +77,12 @@ def test_space_has_the_papers_seven_binary_choices(space):
     params = space.discrete_params(nominal.discrete)
     assert [(p.name, p.options) for p in params] == [
         ("arm_mount", ("fixed", "rail")),
-        ("leg_fl", ("serial", "linkage")), ("leg_fr", ("serial", "linkage")),
-        ("leg_rl", ("serial", "linkage")), ("leg_rr", ("serial", "linkage")),
-        ("knee_front", ("forward", "backward")), ("knee_back", ("forward", "backward")),
+        ("leg_fl", ("serial", "linkage")),
+        ("leg_fr", ("serial", "linkage")),
+        ("leg_rl", ("serial", "linkage")),
+        ("leg_rr", ("serial", "linkage")),
+        ("knee_front", ("forward", "backward")),
+        ("knee_back", ("forward", "backward")),
     ]
     bounds = {p.name: (p.low, p.high) for p in space.continuous_params(nominal.discrete)}
     assert bounds["arm_dlen_upper"] == bounds["arm_dlen_forearm"] == (-0.10, 0.40)
@@ -237,30 +247,36 @@ def test_json_round_trip_is_exact(space, tmp_path):
     assert space.sample(10, seed=5) == space.sample(10, seed=5)
 
 
-@pytest.mark.parametrize("change, field", [
-    (lambda d: Design("viperx", d.discrete, d.continuous), "space"),
-    (lambda d: Design(d.space, (2, *d.discrete[1:]), d.continuous), "arm_mount"),
-    (lambda d: Design(d.space, (*d.discrete[:5], -1, d.discrete[6]), d.continuous), "knee_front"),
-    (lambda d: Design(d.space, d.discrete[:6], d.continuous), "discrete choices"),
-    (lambda d: Design(d.space, d.discrete, d.continuous[:-1]), "continuous choices"),
-    (lambda d: Design(d.space, d.discrete, (*d.continuous[:3], 0.6, *d.continuous[4:])), "body_length"),
-    (lambda d: Design(d.space, d.discrete, (*d.continuous[:4], 0.05, *d.continuous[5:])), "thigh_length"),
-    (lambda d: Design(d.space, d.discrete, (*d.continuous[:6], 0.8, *d.continuous[7:])), "leg_yaw_fl"),
-    (lambda d: Design(d.space, d.discrete, (*d.continuous[:-1], float("nan"))), "battery_x"),
-])
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        (lambda d: Design("viperx", d.discrete, d.continuous), "space"),
+        (lambda d: Design(d.space, (2, *d.discrete[1:]), d.continuous), "arm_mount"),
+        (lambda d: Design(d.space, (*d.discrete[:5], -1, d.discrete[6]), d.continuous), "knee_front"),
+        (lambda d: Design(d.space, d.discrete[:6], d.continuous), "discrete choices"),
+        (lambda d: Design(d.space, d.discrete, d.continuous[:-1]), "continuous choices"),
+        (lambda d: Design(d.space, d.discrete, (*d.continuous[:3], 0.6, *d.continuous[4:])), "body_length"),
+        (lambda d: Design(d.space, d.discrete, (*d.continuous[:4], 0.05, *d.continuous[5:])), "thigh_length"),
+        (lambda d: Design(d.space, d.discrete, (*d.continuous[:6], 0.8, *d.continuous[7:])), "leg_yaw_fl"),
+        (lambda d: Design(d.space, d.discrete, (*d.continuous[:-1], float("nan"))), "battery_x"),
+    ],
+)
 def test_invalid_designs_raise_naming_the_field(space, change, field):
     with pytest.raises(DesignError, match=field):
         space.to_mjcf(change(space.nominal()))
 
 
-@pytest.mark.parametrize("edit, field", [
-    (lambda d: d["discrete"].pop("leg_rr"), "leg_rr"),
-    (lambda d: d["discrete"].update(knee_back="sideways"), "knee_back"),
-    (lambda d: d["continuous"].pop("battery_x"), "battery_x"),
-    (lambda d: d["continuous"].update(arm_mount_x=0.3), "arm_mount_x"),
-    (lambda d: d["continuous"].update(arm_dlen_upper="long"), "arm_dlen_upper"),
-    (lambda d: d["continuous"].update(tail_length=0.2), "tail_length"),
-])
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        (lambda d: d["discrete"].pop("leg_rr"), "leg_rr"),
+        (lambda d: d["discrete"].update(knee_back="sideways"), "knee_back"),
+        (lambda d: d["continuous"].pop("battery_x"), "battery_x"),
+        (lambda d: d["continuous"].update(arm_mount_x=0.3), "arm_mount_x"),
+        (lambda d: d["continuous"].update(arm_dlen_upper="long"), "arm_dlen_upper"),
+        (lambda d: d["continuous"].update(tail_length=0.2), "tail_length"),
+    ],
+)
 def test_malformed_json_raises_naming_the_field(space, edit, field):
     data = space.to_dict(space.nominal())
     edit(data)

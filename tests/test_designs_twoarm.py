@@ -57,8 +57,15 @@ def _ik(model, targets, sites, iters=300):
 def test_200_designs_load_and_step_without_nan(space):
     rng = np.random.default_rng(0)
     kinds = set()
-    primitives = {int(t) for t in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER,
-                                   mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE)}
+    primitives = {
+        int(t)
+        for t in (
+            mujoco.mjtGeom.mjGEOM_CAPSULE,
+            mujoco.mjtGeom.mjGEOM_CYLINDER,
+            mujoco.mjtGeom.mjGEOM_BOX,
+            mujoco.mjtGeom.mjGEOM_SPHERE,
+        )
+    }
     for d in space.sample(200, seed=1):
         m = space.model(d)
         kinds.add(d.discrete)
@@ -185,8 +192,11 @@ def test_parameter_lists_follow_the_discrete_choices():
     bounds = {s: bimanual.continuous_params((s, 0))[0] for s in range(3)}
     assert [(b.low, b.high) for b in bounds.values()] == [(0.60, 1.40), (0.10, 0.50), (0.20, 0.80)]
     # DoF: 3 base + spine joint (sliding, bending) + torso pitch + 2 x 6 arm joints.
-    dofs = {(s, t): bimanual.model(_with(bimanual, (s, t), spine_length=bounds[s].low)).nu
-            for s in range(3) for t in range(2)}
+    dofs = {
+        (s, t): bimanual.model(_with(bimanual, (s, t), spine_length=bounds[s].low)).nu
+        for s in range(3)
+        for t in range(2)
+    }
     assert dofs == {(0, 0): 15, (0, 1): 16, (1, 0): 16, (1, 1): 17, (2, 0): 16, (2, 1): 17}
     assert [aloha.model(_with(aloha, (i,), mount_z=0.7)).nu for i in range(3)] == [12, 12, 12]
 
@@ -194,7 +204,7 @@ def test_parameter_lists_follow_the_discrete_choices():
 def _left_right_joints(m):
     names = [m.joint(j).name for j in range(m.njnt)]
     left = [j for j, n in enumerate(names) if n.startswith("left_")]
-    right = [names.index("right_" + names[j][len("left_"):]) for j in left]
+    right = [names.index("right_" + names[j][len("left_") :]) for j in left]
     return names, left, right
 
 

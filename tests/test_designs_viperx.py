@@ -28,8 +28,15 @@ def test_200_designs_load_and_step_without_nan(space):
         assert np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
         # Geoms only: every moving body's mass and inertia come from its primitives.
         assert np.all(m.body_mass[1:] > 0) and np.all(m.body_inertia[1:] > 0)
-        primitives = {int(t) for t in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER,
-                                       mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_SPHERE)}
+        primitives = {
+            int(t)
+            for t in (
+                mujoco.mjtGeom.mjGEOM_CAPSULE,
+                mujoco.mjtGeom.mjGEOM_CYLINDER,
+                mujoco.mjtGeom.mjGEOM_BOX,
+                mujoco.mjtGeom.mjGEOM_SPHERE,
+            )
+        }
         assert {int(t) for t in m.geom_type} <= primitives
         assert m.site("ee_0") is not None
     assert dofs == {5, 6, 7}
@@ -114,8 +121,8 @@ def test_dof_choice_changes_the_parameter_lists(space):
 def test_nominal_sub_space_fixes_the_structure():
     """viperx-nominal: the nominal arm's discrete choices, continuous ones free; its designs build
     the same MJCF as the equal ViperX design, its rewards are ViperX's."""
-    from tt.sim.rewards import get_reward
     from tt.sim.designs import DesignError, FixedStructureSpace, get_space
+    from tt.sim.rewards import get_reward
 
     full, sub = get_space("viperx"), get_space("viperx-nominal")
     assert isinstance(sub, FixedStructureSpace) and sub.family == "viperx" and full.family == "viperx"
@@ -131,8 +138,15 @@ def test_nominal_sub_space_fixes_the_structure():
         assert sub.from_dict(sub.to_dict(d)) == d
     assert full.to_mjcf(sub.to_base(sub.nominal())) == full.to_mjcf(full.nominal())
     with pytest.raises(DesignError, match="not sub-space"):
-        sub.from_base(full.sample(50, seed=1)[[d.discrete != full.nominal().discrete for d in full.sample(50, seed=1)].index(True)])
-    assert get_reward("tracking_velocity", "viperx-nominal").velocity_alpha == get_reward("tracking_velocity", "viperx").velocity_alpha
+        sub.from_base(
+            full.sample(50, seed=1)[
+                [d.discrete != full.nominal().discrete for d in full.sample(50, seed=1)].index(True)
+            ]
+        )
+    assert (
+        get_reward("tracking_velocity", "viperx-nominal").velocity_alpha
+        == get_reward("tracking_velocity", "viperx").velocity_alpha
+    )
 
 
 def test_servo_joints_follow_the_datasheets_torque_speed_line(space):
@@ -147,14 +161,19 @@ def test_servo_joints_follow_the_datasheets_torque_speed_line(space):
 
     model = space.model(space.nominal())
     model.opt.gravity[:] = 0.0  # the waist turns about the vertical: gravity does no work on it anyway
-    want = {"waist": (XM540_W270, 1), "shoulder": (XM540_W270, 2), "elbow": (XM540_W270, 2),
-            "wrist_rotate": (XM430_W350, 1)}
+    want = {
+        "waist": (XM540_W270, 1),
+        "shoulder": (XM540_W270, 2),
+        "elbow": (XM540_W270, 2),
+        "wrist_rotate": (XM430_W350, 1),
+    }
     for name, (servo, count) in want.items():
         a = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
         j = model.actuator_trnid[a, 0]
         assert model.actuator_forcerange[a, 1] == pytest.approx(servo.stall_torque * count, rel=1e-12)
         assert model.dof_damping[model.jnt_dofadr[j]] == pytest.approx(
-            FRICTION_DAMPING + count * servo.stall_torque / servo.no_load_speed, abs=1e-4)
+            FRICTION_DAMPING + count * servo.stall_torque / servo.no_load_speed, abs=1e-4
+        )
     data = mujoco.MjData(model)
     a = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "waist")
     dof = model.jnt_dofadr[model.actuator_trnid[a, 0]]

@@ -13,8 +13,17 @@ from tt.dit.model import DiTConfig, RoboDiT, TimeIdEmbedder, get_config
 from tt.dit.tasks import DYNAMICS, task_masks
 from tt.dit.toy import toy_episodes
 
-COUNTS = dict(link=4, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
-              control=3, target_pose=1)
+COUNTS = dict(
+    link=4,
+    dyna_joint=6,
+    fixed_joint=4,
+    actuator=3,
+    track_link_obs=1,
+    dyna_joint_obs=3,
+    actuator_obs=3,
+    control=3,
+    target_pose=1,
+)
 
 
 @pytest.fixture(scope="module")
@@ -60,9 +69,16 @@ def test_descriptions_round_trip_and_bad_anchors_fail(schema_toy):
     with pytest.raises(ValueError, match="need prediction 'x0', not 'eps'"):
         RoboDiT(layout, get_config("tiny"), anchors=anchors)
     with pytest.raises(LayoutError, match="anchored on a condition"):
-        RoboDiT(layout, get_config("tiny"), prediction="x0",
-                anchors={"track_link_obs": Anchor("track_link_obs", anchors["track_link_obs"].scale,
-                                                  anchors["track_link_obs"].offset)})
+        RoboDiT(
+            layout,
+            get_config("tiny"),
+            prediction="x0",
+            anchors={
+                "track_link_obs": Anchor(
+                    "track_link_obs", anchors["track_link_obs"].scale, anchors["track_link_obs"].offset
+                )
+            },
+        )
     with pytest.raises(LayoutError, match="3 scales and 3 offsets for 12 values"):
         Anchor("target_pose", (1.0,) * 3, (0.0,) * 3).check(layout, "track_link_obs")
     from tt.dit.train import TrainConfig
@@ -121,7 +137,9 @@ def test_control_anchor_round_trips_and_refuses_what_it_cannot_anchor(schema_toy
     with pytest.raises(LayoutError, match="value 2 of 'dyna_joint_obs'"):
         Anchor(a.on, a.scale, a.offset, 2).check(layout, "control")
     with pytest.raises(LayoutError, match="their slots differ"):  # slot for slot, a command is no joint state
-        RoboDiT(layout, get_config("tiny"), prediction="x0", anchors={"control": Anchor("dyna_joint_obs", (1.0,), (0.0,))})
+        RoboDiT(
+            layout, get_config("tiny"), prediction="x0", anchors={"control": Anchor("dyna_joint_obs", (1.0,), (0.0,))}
+        )
     from tt.dit.train import TrainConfig
 
     with pytest.raises(ValueError, match="--anchor-control needs --prediction x0"):
@@ -178,8 +196,9 @@ def test_control_anchor_gain_is_the_residuals_spread(schema_toy):
         torch.nn.init.constant_(model.heads["control"].linear.bias, 1.0)  # every residual output 1
         moved = model(tokens.values, tokens.ids, masks.noised, torch.full((64,), 0.5))
     torch.testing.assert_close(out["control"].double().reshape(64, 8, P)[real], held[real], rtol=0, atol=1e-5)
-    torch.testing.assert_close((moved["control"] - out["control"]).double(), torch.full_like(out["control"], gain).double(),
-                               rtol=0, atol=1e-5)
+    torch.testing.assert_close(
+        (moved["control"] - out["control"]).double(), torch.full_like(out["control"], gain).double(), rtol=0, atol=1e-5
+    )
     with pytest.raises(LayoutError, match="gains must be > 0"):
         Anchor("dyna_joint_obs", (1.0,), (0.0,), 0, (0.0,)).check(layout, "control")
 
@@ -200,7 +219,9 @@ def test_known_command_is_a_condition_and_the_command_anchor_repeats_it(schema_t
     real = tokens.mask["control"].reshape(16, 8, P)
     noised = masks.noised["control"].reshape(16, 8, P)
     assert not noised[:, 0].any() and torch.equal(noised[:, 1:], real[:, 1:])
-    assert torch.equal(task_masks(CONTROL, layout, tokens).noised["control"], tokens.mask["control"])  # default: all diffused
+    assert torch.equal(
+        task_masks(CONTROL, layout, tokens).noised["control"], tokens.mask["control"]
+    )  # default: all diffused
     anchors = control_anchors(layout, norm, windows, base="command")
     assert anchors["control"].on == "control" and anchors["control"].scale == pytest.approx((1.0,))
     model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors).eval()
@@ -225,8 +246,19 @@ def test_gain_anchored_loss_is_huber_in_the_residuals_units(schema_toy):
     windows = episodes.sample(8, 8, "consecutive", torch.Generator().manual_seed(5))
     anchors = control_anchors(layout, norm, windows, base="command")
     model = RoboDiT(layout, get_config("tiny"), prediction="x0", anchors=anchors)
-    parts = [(task, noise_tokens(task, CosineDDIM(task.diffusion_steps), layout, norm.normalize(windows),
-                                 torch.Generator().manual_seed(0), prediction="x0"))]
+    parts = [
+        (
+            task,
+            noise_tokens(
+                task,
+                CosineDDIM(task.diffusion_steps),
+                layout,
+                norm.normalize(windows),
+                torch.Generator().manual_seed(0),
+                prediction="x0",
+            ),
+        )
+    ]
     target = parts[0][1].target["control"]
     mask = parts[0][1].masks.loss_mask("control")
     gain = anchors["control"].gain[0]

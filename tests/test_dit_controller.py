@@ -21,10 +21,10 @@ import torch
 
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.closed_loop import closed_loop_rollout
-from tt.dit.policies import ControllerConfig, IKPolicy, ModelPolicy
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import layout_from_schema
 from tt.dit.model import RoboDiT, get_config
+from tt.dit.policies import ControllerConfig, IKPolicy, ModelPolicy
 from tt.dit.tasks import CONTROL
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
@@ -120,7 +120,11 @@ def test_commands_are_what_physics_ran(problem, trained):
             # float32 kernels vs float64 MuJoCo, with servos pushed into joint limits by the
             # random commands: the tolerance of the kernels' own MuJoCo test (1e-3 rad).
             np.testing.assert_allclose(ep.qpos[w, k].numpy(), data.qpos, atol=1e-3, err_msg=f"world {w} step {k}")
-            probe.qpos[:], probe.qvel[:], probe.ctrl[:] = ep.qpos[w, k].numpy(), ep.qvel[w, k].numpy(), ep.ctrl[w, k].numpy()
+            probe.qpos[:], probe.qvel[:], probe.ctrl[:] = (
+                ep.qpos[w, k].numpy(),
+                ep.qvel[w, k].numpy(),
+                ep.ctrl[w, k].numpy(),
+            )
             mujoco.mj_forward(m, probe)
             scale = np.abs(probe.actuator_force).max()
             np.testing.assert_allclose(ep.act_force[w, k].numpy(), probe.actuator_force, atol=1e-5 * scale + 1e-4)
@@ -178,7 +182,9 @@ def test_query_holds_the_training_window_of_the_episode(problem, trained):
 
     masks = task_masks(CONTROL, layout, tokens)
     dyn = masks.noised["dyna_joint_obs"].reshape(ep.worlds, 8, -1)
-    assert not dyn[:, 0].any() and bool(dyn[:, 1:][tokens.mask["dyna_joint_obs"].reshape(ep.worlds, 8, -1)[:, 1:]].all())
+    assert not dyn[:, 0].any() and bool(
+        dyn[:, 1:][tokens.mask["dyna_joint_obs"].reshape(ep.worlds, 8, -1)[:, 1:]].all()
+    )
     assert bool(masks.noised["control"][tokens.mask["control"]].all())
     known = task_masks(dataclasses.replace(CONTROL, known_command=True), layout, tokens).noised["control"]
     real = tokens.mask["control"].reshape(ep.worlds, 8, -1)
@@ -252,7 +258,9 @@ class IKEps(torch.nn.Module):
             spec = self.layout[n]
             b = values[n].shape[0]
             time_id = ids[n][..., spec.time_index].reshape(b, self.layout.steps, spec.per_step)
-            x0 = torch.where(time_id == self.step, self.command[:, None, :], torch.full_like(self.command[:, None, :], 0.9))
+            x0 = torch.where(
+                time_id == self.step, self.command[:, None, :], torch.full_like(self.command[:, None, :], 0.9)
+            )
             x0 = x0.reshape(b, -1, 1)
             out[n] = (values[n] - ab**0.5 * x0) / (1 - ab) ** 0.5
         return out
@@ -277,7 +285,9 @@ def test_model_path_with_an_ik_network_reproduces_the_ik_episode(problem, traine
             return super().__call__(step, worlds, state)
 
     # One query per command: the stand-in knows only the current step's command.
-    policy = Scripted(TrainedModel(stand_in, trained.normalizer, trained.layout, 0), config=ControllerConfig(ensemble=1))
+    policy = Scripted(
+        TrainedModel(stand_in, trained.normalizer, trained.layout, 0), config=ControllerConfig(ensemble=1)
+    )
     ep = closed_loop_rollout(designs, motions, policy, device="cpu", steps=STEPS)
     # Normalising and denormalising the command rounds it by ~1e-7 rad per step.
     for name in ("qpos", "ctrl", "ee_pos"):
@@ -341,8 +351,11 @@ def test_temporal_ensembling_averages_the_recent_chunks(problem, trained, ensemb
 
 def test_seeded_runs_repeat_and_seeds_differ(problem, trained):
     _, designs, motions, _ = problem
-    run = lambda seed: closed_loop_rollout(designs[:1], motions[:1], ModelPolicy(trained, config=ControllerConfig(seed=seed)),  # noqa: E731
-                                           device="cpu", steps=4)
+
+    def run(seed):
+        policy = ModelPolicy(trained, config=ControllerConfig(seed=seed))
+        return closed_loop_rollout(designs[:1], motions[:1], policy, device="cpu", steps=4)
+
     a, b, c = run(3), run(3), run(4)
     assert torch.equal(a.ctrl, b.ctrl) and torch.equal(a.qpos, b.qpos)
     assert not torch.equal(a.ctrl, c.ctrl)
@@ -368,8 +381,8 @@ def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
     from tt.baselines.evaluate import score_episode
     from tt.cli import app
     from tt.dit.checkpoint import save_checkpoint
-    from tt.dit.policies import model_rollout
     from tt.dit.ema import EMA
+    from tt.dit.policies import model_rollout
     from tt.sim.designs import save_designs
     from tt.sim.motions import save_npz
     from tt.sim.motions.base import Motion
@@ -379,15 +392,34 @@ def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
     short = Motion("toss_short", m.pos[:6], m.quat[:6], m.dt)
     save_npz(short, tmp_path / "toss_short.npz")
     save_designs(designs, tmp_path / "designs.json")
-    ckpt = save_checkpoint(tmp_path / "run" / "checkpoints" / "step_0000001.pt", {
-        "schema_version": trained.layout.schema_version, "model": trained.model.describe(),
-        "state_dict": trained.model.state_dict(), "ema": EMA(trained.model).state_dict(),
-        "normalizer": trained.normalizer.state_dict(), "train_config": {"task": "both", "control_diffusion_steps": 5},
-        "step": 1,
-    })
+    ckpt = save_checkpoint(
+        tmp_path / "run" / "checkpoints" / "step_0000001.pt",
+        {
+            "schema_version": trained.layout.schema_version,
+            "model": trained.model.describe(),
+            "state_dict": trained.model.state_dict(),
+            "ema": EMA(trained.model).state_dict(),
+            "normalizer": trained.normalizer.state_dict(),
+            "train_config": {"task": "both", "control_diffusion_steps": 5},
+            "step": 1,
+        },
+    )
     out = tmp_path / "val.json"
-    args = ["validate", "--design", str(tmp_path / "designs.json"), "--motion-file", str(tmp_path / "toss_short.npz"),
-            "--controller", "model", "--checkpoint", str(ckpt), "--device", "cpu", "--json", str(out)]
+    args = [
+        "validate",
+        "--design",
+        str(tmp_path / "designs.json"),
+        "--motion-file",
+        str(tmp_path / "toss_short.npz"),
+        "--controller",
+        "model",
+        "--checkpoint",
+        str(ckpt),
+        "--device",
+        "cpu",
+        "--json",
+        str(out),
+    ]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
@@ -401,8 +433,11 @@ def test_validate_cli_runs_the_model_controller(problem, trained, tmp_path):
     res = CliRunner().invoke(app, args + ["--ensemble", "1"])
     assert res.exit_code == 0, res.output
     ep1 = model_rollout(designs, placed, ckpt, device="cpu", config=ControllerConfig(ensemble=1))
-    np.testing.assert_allclose(json.loads(out.read_text())["per_motion"]["reward"],
-                               score_episode(ep1, designs, placed, "tracking")[1]["reward"], rtol=1e-6)
+    np.testing.assert_allclose(
+        json.loads(out.read_text())["per_motion"]["reward"],
+        score_episode(ep1, designs, placed, "tracking")[1]["reward"],
+        rtol=1e-6,
+    )
     assert not torch.equal(ep1.ctrl, ep.ctrl)  # the default averages the recent queries
     res = CliRunner().invoke(app, args + ["--ensemble", "8"])
     assert res.exit_code == 2 and "8-step window" in res.output

@@ -8,13 +8,12 @@ import pytest
 import torch
 
 from tt.dit.data import EpisodeTokens
-from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import PAD_VALUE
 from tt.dit.layout import LayoutError
 from tt.dit.tasks import CONTROL, task_masks
 from tt.dit.toy import toy_episodes
+from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import MIN_RANGE, Normalizer
-from tt.tokens.schema import SCHEMA
+from tt.tokens.schema import PAD_VALUE, SCHEMA
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +36,9 @@ def test_windows(episodes):
     assert torch.equal(time, steps[:, :, None].expand_as(time))
     per_step = layout["state"].per_step
     e, k = 3, 5
-    assert torch.equal(window.values["state"][e, k * per_step:(k + 1) * per_step], episodes.step_values["state"][e, steps[e, k]])
+    assert torch.equal(
+        window.values["state"][e, k * per_step : (k + 1) * per_step], episodes.step_values["state"][e, steps[e, k]]
+    )
     assert torch.equal(window.values["body"], episodes.static_values["body"])
     short = toy_episodes(episodes=2, steps=6)
     with pytest.raises(LayoutError, match="fewer than the window's 8"):
@@ -130,8 +131,10 @@ def test_normalizer(episodes):
     fit = Normalizer.fit({"a": (torch.tensor([[[2.0, 0.0], [2.0, 4.0]]]), torch.tensor([[True, True]]))})
     np.testing.assert_array_equal(fit.low["a"], [2.0 - MIN_RANGE / 2, 0.0])
     np.testing.assert_array_equal(fit.high["a"], [2.0 + MIN_RANGE / 2, 4.0])
-    torch.testing.assert_close(fit.normalize_values("a", torch.tensor([[2.0, 1.0]], dtype=torch.float64)),
-                               torch.tensor([[0.0, -0.5]], dtype=torch.float64))
+    torch.testing.assert_close(
+        fit.normalize_values("a", torch.tensor([[2.0, 1.0]], dtype=torch.float64)),
+        torch.tensor([[0.0, -0.5]], dtype=torch.float64),
+    )
 
 
 def test_checkpoint_normalizer_state_loads_unchanged():
@@ -142,18 +145,24 @@ def test_checkpoint_normalizer_state_loads_unchanged():
     import tt.dit
 
     assert tt.dit.Normalizer is Normalizer
-    state = {"low": {"a": torch.tensor([0.5, -3.0, 7.0]), "b": torch.tensor([-1.0])},
-             "high": {"a": torch.tensor([2.5, 1.0, 7.0]), "b": torch.tensor([0.25])}}
+    state = {
+        "low": {"a": torch.tensor([0.5, -3.0, 7.0]), "b": torch.tensor([-1.0])},
+        "high": {"a": torch.tensor([2.5, 1.0, 7.0]), "b": torch.tensor([0.25])},
+    }
     norm = Normalizer.from_state_dict(state)
     x = torch.tensor([[1.0, 0.0, 7.5], [2.5, -3.0, 6.0]])
     lo, hi = state["low"]["a"], state["high"]["a"]
     span = hi - lo
-    want = torch.stack([(x[:, 0] - lo[0]) * (2.0 / span[0]) - 1, (x[:, 1] - lo[1]) * (2.0 / span[1]) - 1, x[:, 2] - lo[2]], -1)
+    want = torch.stack(
+        [(x[:, 0] - lo[0]) * (2.0 / span[0]) - 1, (x[:, 1] - lo[1]) * (2.0 / span[1]) - 1, x[:, 2] - lo[2]], -1
+    )
     assert torch.equal(norm.normalize_values("a", x), want)
     torch.testing.assert_close(want, torch.tensor([[-0.5, 0.5, 0.5], [1.0, -1.0, -1.0]]))
     assert torch.equal(norm.denormalize_values("a", want), x)
     mask = torch.tensor([[True], [False]])
-    out = norm.normalize(TokenBatch({"b": torch.tensor([[[0.25]], [[0.0]]])}, {"b": torch.zeros(2, 1, 1, dtype=torch.long)}, {"b": mask}))
+    out = norm.normalize(
+        TokenBatch({"b": torch.tensor([[[0.25]], [[0.0]]])}, {"b": torch.zeros(2, 1, 1, dtype=torch.long)}, {"b": mask})
+    )
     assert isinstance(out, TokenBatch)
     assert torch.equal(out.values["b"], torch.tensor([[[1.0]], [[PAD_VALUE]]]))
     saved = norm.state_dict()
@@ -183,10 +192,23 @@ def test_from_tokens_package():
     def r(*shape):
         return torch.randn(*shape, generator=g)
 
-    episode = Episode(qpos=r(w, t, nq), qvel=r(w, t, nq), ctrl=r(w, t, nu), action=r(w, t, nu), act_force=r(w, t, nu),
-                      act_vel=r(w, t, nu), ee_pos=r(w, t, 1, 3), ee_quat=quat, target_pos=r(w, t, 1, 3), target_quat=quat,
-                      alive=torch.ones(w, t, dtype=torch.bool), fallen=torch.zeros(w, t, dtype=torch.bool),
-                      design_index=torch.arange(w), motion_index=torch.zeros(w, dtype=torch.long), dt=0.02)
+    episode = Episode(
+        qpos=r(w, t, nq),
+        qvel=r(w, t, nq),
+        ctrl=r(w, t, nu),
+        action=r(w, t, nu),
+        act_force=r(w, t, nu),
+        act_vel=r(w, t, nu),
+        ee_pos=r(w, t, 1, 3),
+        ee_quat=quat,
+        target_pos=r(w, t, 1, 3),
+        target_quat=quat,
+        alive=torch.ones(w, t, dtype=torch.bool),
+        fallen=torch.zeros(w, t, dtype=torch.bool),
+        design_index=torch.arange(w),
+        motion_index=torch.zeros(w, dtype=torch.long),
+        dt=0.02,
+    )
     dynamics = episode_tokens(episode, emb.index, step_index=torch.arange(t)[None].expand(w, t))
     data = EpisodeTokens.from_token_batches(emb.tokens, dynamics, torch.tensor([12, 10, 9]))
     layout = data.layout(8)
@@ -198,8 +220,8 @@ def test_from_tokens_package():
     assert int(steps[2].max()) < 9  # inside the third episode's 9 executed steps
     # Control tokens of world 1 at its window's third step are the episode's actions there.
     n_act = layout["control"].per_step
-    real = window.mask["control"][1, 2 * n_act:3 * n_act]
-    got = window.values["control"][1, 2 * n_act:3 * n_act, 0][real]
+    real = window.mask["control"][1, 2 * n_act : 3 * n_act]
+    got = window.values["control"][1, 2 * n_act : 3 * n_act, 0][real]
     torch.testing.assert_close(got, episode.action[1, steps[1, 2], : int(real.sum())])
     # Statistics are the schema fit of the same tokens as a numpy TokenBatch (fixed ranges
     # for bits and rotations), and the torch window normalises to a TokenBatch again.
@@ -207,10 +229,14 @@ def test_from_tokens_package():
     flat = {k: v.reshape(v.shape[0], -1, v.shape[-1]) for k, v in data.step_values.items()}
     valid = torch.arange(t)[None, :] < data.lengths[:, None]
     mask = {k: (valid[:, :, None] & data.step_mask[k][:, None, :]).reshape(3, -1) for k in flat}
-    batch = TokenBatch({**{k: v.numpy() for k, v in flat.items()}, **{k: v.numpy() for k, v in data.static_values.items()}},
-                       {**{k: np.zeros((*v.shape[:2], 2), np.int64) for k, v in flat.items()},
-                        **{k: v.numpy() for k, v in data.static_ids.items()}},
-                       {**{k: v.numpy() for k, v in mask.items()}, **{k: v.numpy() for k, v in data.static_mask.items()}})
+    batch = TokenBatch(
+        {**{k: v.numpy() for k, v in flat.items()}, **{k: v.numpy() for k, v in data.static_values.items()}},
+        {
+            **{k: np.zeros((*v.shape[:2], 2), np.int64) for k, v in flat.items()},
+            **{k: v.numpy() for k, v in data.static_ids.items()},
+        },
+        {**{k: v.numpy() for k, v in mask.items()}, **{k: v.numpy() for k, v in data.static_mask.items()}},
+    )
     theirs = Normalizer.fit(batch)
     assert sorted(ours.low) == sorted(theirs.low)
     for k in theirs.low:

@@ -14,11 +14,11 @@ import torch
 import torch.nn as nn
 
 from tt.dit.ddim import CosineDDIM
-from tt.tokens.batch import TokenBatch
-from tt.tokens.schema import Role
 from tt.dit.layout import Layout, TokenSpec
 from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
+from tt.tokens.batch import TokenBatch
+from tt.tokens.schema import Role
 
 
 def _f(u: float) -> float:
@@ -95,7 +95,9 @@ def test_noise_round_trip_and_step_closed_form():
     x40n, _ = s.step(x50, eps, 50, 40, eta=1.0, noise=z)
     sig = s.sigma(50, 40, 1.0)
     ab40 = float(s.alpha_bar(40))
-    torch.testing.assert_close(x40n, math.sqrt(ab40) * x0 + math.sqrt(1 - ab40 - sig**2) * eps + sig * z, rtol=0, atol=1e-5)
+    torch.testing.assert_close(
+        x40n, math.sqrt(ab40) * x0 + math.sqrt(1 - ab40 - sig**2) * eps + sig * z, rtol=0, atol=1e-5
+    )
 
 
 def test_clip_and_guided_eps():
@@ -129,7 +131,9 @@ def test_timesteps_trailing_spacing():
         assert CosineDDIM(T).timesteps(T, "trailing") == CosineDDIM(T).timesteps(T)
         for n in range(1, T + 1):
             steps = CosineDDIM(T).timesteps(n, "trailing")
-            assert len(steps) == n and steps[0] == T - 1 and steps == sorted(set(steps), reverse=True) and steps[-1] >= 0
+            assert (
+                len(steps) == n and steps[0] == T - 1 and steps == sorted(set(steps), reverse=True) and steps[-1] >= 0
+            )
 
 
 # ------------------------------------------------------------------ sampling a known Gaussian
@@ -164,8 +168,11 @@ class GaussianEps(nn.Module):
 def _tokens(b: int) -> TokenBatch:
     g = torch.Generator().manual_seed(1)
     values = {s.name: torch.randn(b, s.length, s.dim, generator=g) for s in LAYOUT.specs}
-    ids = {"goal": torch.arange(4).repeat(b, 1)[..., None], "shape": torch.arange(2).repeat(b, 1)[..., None],
-           "extra": torch.arange(2).repeat(b, 1)[..., None]}
+    ids = {
+        "goal": torch.arange(4).repeat(b, 1)[..., None],
+        "shape": torch.arange(2).repeat(b, 1)[..., None],
+        "extra": torch.arange(2).repeat(b, 1)[..., None],
+    }
     mask = {s.name: torch.ones(b, s.length, dtype=torch.bool) for s in LAYOUT.specs}
     return TokenBatch(values, ids, mask)
 
@@ -218,8 +225,15 @@ def test_one_trailing_step_gives_the_conditional_mean():
     v = ab * STD**2 + 1 - ab
 
     def draw(spacing: str) -> torch.Tensor:
-        out = sample(GaussianEps(sched), tokens, task, scheduler=sched, num_steps=1, spacing=spacing,
-                     generator=torch.Generator().manual_seed(2))
+        out = sample(
+            GaussianEps(sched),
+            tokens,
+            task,
+            scheduler=sched,
+            num_steps=1,
+            spacing=spacing,
+            generator=torch.Generator().manual_seed(2),
+        )
         return torch.cat([out.tokens.values["shape"].reshape(-1), out.tokens.values["extra"].reshape(-1)])
 
     x = draw("trailing")
@@ -249,8 +263,9 @@ def test_guide_hook_shifts_only_guided_types():
         return {"shape": sched.guided_eps(eps["shape"], grad, 5.0, t), "extra": eps["extra"] + 10.0}
 
     plain = sample(model, tokens, task, scheduler=sched, generator=torch.Generator().manual_seed(3))
-    guided = sample(model, tokens, task, scheduler=sched, generator=torch.Generator().manual_seed(3), guide=guide,
-                    guided=["shape"])
+    guided = sample(
+        model, tokens, task, scheduler=sched, generator=torch.Generator().manual_seed(3), guide=guide, guided=["shape"]
+    )
     assert seen == list(range(100))
     assert torch.equal(guided.tokens.values["extra"], plain.tokens.values["extra"])
     moved = float(guided.tokens.values["shape"].mean()) - float(plain.tokens.values["shape"].mean())

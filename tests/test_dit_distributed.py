@@ -23,16 +23,33 @@ from tt.dit.checkpoint import checkpoint_path, list_checkpoints, load_checkpoint
 from tt.dit.toy import toy_episodes
 
 LR = 3e-3
-ARGS = ["--size", "tiny", "--task", "both", "--batch-size", "8", "--device", "cpu", "--seed", "3",
-        "--lr", str(LR), "--checkpoint-every", "1"]
+ARGS = [
+    "--size",
+    "tiny",
+    "--task",
+    "both",
+    "--batch-size",
+    "8",
+    "--device",
+    "cpu",
+    "--seed",
+    "3",
+    "--lr",
+    str(LR),
+    "--checkpoint-every",
+    "1",
+]
 
 
 def _tt(args: list[str], processes: int = 1) -> None:
     # The tt of this interpreter's environment (a `tt` earlier on PATH may be another install).
     tt = os.path.join(os.path.dirname(sys.executable), "tt")
     tt = tt if os.path.exists(tt) else shutil.which("tt")
-    launcher = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", str(processes),
-                "--master-port", "29517"] if processes > 1 else []
+    launcher = (
+        [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", str(processes), "--master-port", "29517"]
+        if processes > 1
+        else []
+    )
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     res = subprocess.run([*launcher, tt, "train", *args], capture_output=True, text=True, timeout=600, env=env)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]

@@ -6,19 +6,27 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tt.tokens.schema import Role
 from tt.dit.layout import Layout, LayoutError, TokenSpec, layout_from_schema
 from tt.dit.model import RoboDiT, get_config
 from tt.dit.sampling import sample
 from tt.dit.tasks import CONTROL, DYNAMICS, ROBOT, TaskSpec, output_types, task_masks
 from tt.dit.toy import toy_episodes
-from tt.tokens.schema import SCHEMA, SCHEMA_VERSION
+from tt.tokens.schema import SCHEMA, SCHEMA_VERSION, Role
 
 #: Largest ViperX robot as `tt.tokens` tokenizes it (tokens per robot / per step): 16
 #: single-primitive links, 7 hinges and 9 rigid connections (two tokens each), 7 actuators,
 #: one end effector.
-VIPERX_COUNTS = dict(link=16, dyna_joint=14, fixed_joint=18, actuator=7, track_link_obs=1, dyna_joint_obs=7,
-                     actuator_obs=7, control=7, target_pose=1)
+VIPERX_COUNTS = dict(
+    link=16,
+    dyna_joint=14,
+    fixed_joint=18,
+    actuator=7,
+    track_link_obs=1,
+    dyna_joint_obs=7,
+    actuator_obs=7,
+    control=7,
+    target_pose=1,
+)
 
 
 @pytest.fixture(scope="module")
@@ -159,8 +167,9 @@ def test_sampling_keeps_conditioning(toy, task):
     episodes, layout, norm = toy
     model = _randomise(RoboDiT(layout, get_config("tiny")), seed=1)
     tokens = norm.normalize(episodes.sample(3, 8, task.window, torch.Generator().manual_seed(4)))
-    out = sample(model, tokens, task, num_steps=5 if task is ROBOT else None, eta=1.0,
-                 generator=torch.Generator().manual_seed(5))
+    out = sample(
+        model, tokens, task, num_steps=5 if task is ROBOT else None, eta=1.0, generator=torch.Generator().manual_seed(5)
+    )
     masks = task_masks(task, layout, tokens)
     changed_any = False
     for name in layout.names:

@@ -20,7 +20,9 @@ from tt.tokens import episode_tokens, tokenize_models
 from tt.tokens.draws import space_token_maxima
 
 #: Small refreshes on motions cut to 40 steps (20 kept at least), 2 refreshes buffered.
-CONFIG = OnlineConfig(space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40)
+CONFIG = OnlineConfig(
+    space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40
+)
 
 
 pytestmark = pytest.mark.usefixtures("single_thread")
@@ -69,8 +71,14 @@ def test_online_tokens_equal_the_copying_path(source):
 
     designs = space.sample(CONFIG.designs, seed=_seed_int(CONFIG.seed, 0, _STREAM_DESIGNS))
     motions = _motions(CONFIG.motions)
-    ep = rollout(designs, motions, backend="warp", device="cpu", action_noise=CONFIG.action_noise,
-                 noise_seed=_seed_int(CONFIG.seed, 0, _STREAM_NOISE))
+    ep = rollout(
+        designs,
+        motions,
+        backend="warp",
+        device="cpu",
+        action_noise=CONFIG.action_noise,
+        noise_seed=_seed_int(CONFIG.seed, 0, _STREAM_NOISE),
+    )
     emb = tokenize_models([space.model(d) for d in designs])
     lengths = ep.lengths()
     refresh = source._refreshes[0]
@@ -84,19 +92,24 @@ def test_online_tokens_equal_the_copying_path(source):
     for w in kept:
         n = int(lengths[w])
         ref = dyn.values["track_link_obs"].reshape(ep.worlds, T, -1, track.shape[-1])[w, :n]
-        hits = [e for e in range(len(refresh)) if int(refresh.lengths[e]) == n
-                and torch.equal(track[e, :n, :ref.shape[1]], ref.to(track.dtype))]
+        hits = [
+            e
+            for e in range(len(refresh))
+            if int(refresh.lengths[e]) == n and torch.equal(track[e, :n, : ref.shape[1]], ref.to(track.dtype))
+        ]
         assert len(hits) == 1, f"world {w}: {len(hits)} matching online episodes"
         e = hits[0]
         for name in refresh.step_values:
             r = dyn.values[name].reshape(ep.worlds, T, -1, refresh.step_values[name].shape[-1])[w, :n]
             got = refresh.step_values[name][e, :n]
-            torch.testing.assert_close(got[:, :r.shape[1]], r.to(got.dtype), rtol=0, atol=0, msg=name)
-            assert not got[:, r.shape[1]:].any(), f"{name}: padding is not zero"
+            torch.testing.assert_close(got[:, : r.shape[1]], r.to(got.dtype), rtol=0, atol=0, msg=name)
+            assert not got[:, r.shape[1] :].any(), f"{name}: padding is not zero"
         d = int(ep.design_index[w])
         for name in refresh.static_values:
             r = torch.as_tensor(np.asarray(emb.tokens.values[name][d]))
-            torch.testing.assert_close(refresh.static_values[name][e, :r.shape[0]], r.to(torch.float32), rtol=0, atol=0)
+            torch.testing.assert_close(
+                refresh.static_values[name][e, : r.shape[0]], r.to(torch.float32), rtol=0, atol=0
+            )
         seen += 1
     assert seen == len(kept)
 
@@ -114,8 +127,20 @@ def test_online_training_resumes_exactly(tmp_path):
         pass
 
     def cfg(folder, **kw):
-        return TrainConfig(out=str(tmp_path / folder), size="tiny", task="both", batch_size=4, steps=5, warmup_steps=2,
-                           lr=3e-3, device="cpu", window=4, checkpoint_every=1000, online=CONFIG, **kw)
+        return TrainConfig(
+            out=str(tmp_path / folder),
+            size="tiny",
+            task="both",
+            batch_size=4,
+            steps=5,
+            warmup_steps=2,
+            lr=3e-3,
+            device="cpu",
+            window=4,
+            checkpoint_every=1000,
+            online=CONFIG,
+            **kw,
+        )
 
     straight = train(cfg("a"))
 
@@ -147,9 +172,30 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
 
 
 def test_cli_trains_online(tt_cli, tmp_path):
-    code, out = tt_cli(["train", "--online", "--online-designs", "4", "--online-motions", "2", "--refresh-every", "2",
-                        "--size", "tiny", "--task", "both", "--steps", "3", "--batch-size", "4", "--device", "cpu",
-                        "--out", str(tmp_path / "run")])
+    code, out = tt_cli(
+        [
+            "train",
+            "--online",
+            "--online-designs",
+            "4",
+            "--online-motions",
+            "2",
+            "--refresh-every",
+            "2",
+            "--size",
+            "tiny",
+            "--task",
+            "both",
+            "--steps",
+            "3",
+            "--batch-size",
+            "4",
+            "--device",
+            "cpu",
+            "--out",
+            str(tmp_path / "run"),
+        ]
+    )
     assert code == 0, out
     assert "trained to step 3" in out
 
@@ -178,14 +224,18 @@ def test_absorbing_keeps_failures_to_the_motion_end():
     checked = 0
     for e in range(len(absorbing)):
         # The same design's episode in the plain data (none if it ended within min_steps).
-        same = [p for p in range(len(plain)) if torch.equal(plain.static_values["link"][p], absorbing.static_values["link"][e])]
+        same = [
+            p
+            for p in range(len(plain))
+            if torch.equal(plain.static_values["link"][p], absorbing.static_values["link"][e])
+        ]
         n = int(plain.lengths[same[0]]) if same else None
         track = absorbing.step_values["track_link_obs"][e]  # (T, P, D)
         if same:
             assert torch.equal(track[:n], plain.step_values["track_link_obs"][same[0]][:n])
         if n is None or n == T:
             continue
-        assert torch.equal(track[n:], track[n:n + 1].expand_as(track[n:]))
+        assert torch.equal(track[n:], track[n : n + 1].expand_as(track[n:]))
         target = absorbing.step_values["target_pose"][e]
         assert not torch.equal(target[n], target[-1])
         checked += 1

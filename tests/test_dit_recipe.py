@@ -93,8 +93,15 @@ def _parts(episodes, prediction="eps", weighting="none", seed=0):
 
     tokens = norm.normalize(with_slot_ids(layout, episodes.sample(8, 4, "random", torch.Generator().manual_seed(seed))))
     task = TaskSpec("robot", 100, "random")
-    inputs = noise_tokens(task, CosineDDIM(100), layout, tokens, torch.Generator().manual_seed(seed + 1),
-                          prediction=prediction, weighting=weighting)
+    inputs = noise_tokens(
+        task,
+        CosineDDIM(100),
+        layout,
+        tokens,
+        torch.Generator().manual_seed(seed + 1),
+        prediction=prediction,
+        weighting=weighting,
+    )
     return layout, tokens, task, inputs
 
 
@@ -152,8 +159,17 @@ def test_defaults_are_the_measured_winners():
 
 
 def _config(tmp_path, **kw) -> TrainConfig:
-    base = dict(out=str(tmp_path / "run"), size="tiny", batch_size=8, warmup_steps=5, lr=3e-3, device="cpu",
-                checkpoint_every=1000, window=4, steps=3)
+    base = dict(
+        out=str(tmp_path / "run"),
+        size="tiny",
+        batch_size=8,
+        warmup_steps=5,
+        lr=3e-3,
+        device="cpu",
+        checkpoint_every=1000,
+        window=4,
+        steps=3,
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -171,8 +187,9 @@ def test_prediction_is_kept_by_the_checkpoint_and_used_by_the_sampler(tmp_path, 
 
     tokens = norm.normalize(with_slot_ids(layout, episodes.sample(4, 4, "random", torch.Generator().manual_seed(3))))
     s = CosineDDIM(ROBOT.diffusion_steps)
-    res = sample(trained.model, tokens, ROBOT, scheduler=s, num_steps=1, generator=torch.Generator().manual_seed(4),
-                 keep_x0=True)
+    res = sample(
+        trained.model, tokens, ROBOT, scheduler=s, num_steps=1, generator=torch.Generator().manual_seed(4), keep_x0=True
+    )
     # Rebuild the step by hand from the network's raw output.
     from tt.dit.tasks import output_types, task_masks
 
@@ -188,8 +205,9 @@ def test_prediction_is_kept_by_the_checkpoint_and_used_by_the_sampler(tmp_path, 
             x_t[n] = tokens.values[n]
     with torch.no_grad():
         t = s.timesteps(1)[0]
-        out = trained.model(x_t, tokens.ids, masks.noised, torch.full((4,), float(s.model_time(t))), masks.attend,
-                            outputs=wanted)
+        out = trained.model(
+            x_t, tokens.ids, masks.noised, torch.full((4,), float(s.model_time(t))), masks.attend, outputs=wanted
+        )
     ab = float(s.alpha_bar(t))
     for n in wanted:
         x0 = (math.sqrt(ab) * x_t[n] - math.sqrt(1 - ab) * out[n]).clamp(-1, 1)
@@ -201,7 +219,9 @@ def test_bf16_cpu_autocasts_the_network(tmp_path, episodes):
     seen = []
     from torch.nn.modules.module import register_module_forward_hook
 
-    handle = register_module_forward_hook(lambda m, a, o: seen.append(o.dtype) if isinstance(m, torch.nn.Linear) else None)
+    handle = register_module_forward_hook(
+        lambda m, a, o: seen.append(o.dtype) if isinstance(m, torch.nn.Linear) else None
+    )
     try:
         plain = train(_config(tmp_path / "a", steps=2), episodes=episodes)
         dtypes_plain = set(seen)
@@ -224,7 +244,8 @@ def test_ddim_training_steps_set_the_noise_levels_trained(tmp_path, episodes):
 
     times = []
     handle = register_module_forward_hook(
-        lambda m, a, o: times.append(a[3].detach().clone()) if isinstance(m, RoboDiT) else None)
+        lambda m, a, o: times.append(a[3].detach().clone()) if isinstance(m, RoboDiT) else None
+    )
     try:
         train(_config(tmp_path, steps=6, robot_diffusion_steps=4), episodes=episodes)
     finally:

@@ -11,11 +11,10 @@ import torch
 from tt.dit.checkpoint import latest_checkpoint, list_checkpoints, load_checkpoint, load_model
 from tt.dit.ema import EMA
 from tt.dit.model import RoboDiT
-from tt.tokens.normalize import Normalizer
-from tt.dit.train import TrainConfig, lr_factor, train
 from tt.dit.toy import toy_episodes
+from tt.dit.train import TrainConfig, lr_factor, train
+from tt.tokens.normalize import Normalizer
 from tt.tokens.schema import SchemaVersionError
-
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 
@@ -26,8 +25,16 @@ def episodes():
 
 
 def _config(tmp_path, **kw) -> TrainConfig:
-    base = dict(out=str(tmp_path / "run"), size="tiny", batch_size=8, warmup_steps=5, lr=3e-3, device="cpu",
-                checkpoint_every=1000, window=4)
+    base = dict(
+        out=str(tmp_path / "run"),
+        size="tiny",
+        batch_size=8,
+        warmup_steps=5,
+        lr=3e-3,
+        device="cpu",
+        checkpoint_every=1000,
+        window=4,
+    )
     base.update(kw)
     return TrainConfig(**base)
 
@@ -179,7 +186,9 @@ def test_init_starts_a_new_run_from_the_ema_weights(tmp_path, episodes):
     source = train(_config(tmp_path / "a", task="both", steps=3), episodes=episodes)
     shadow = load_checkpoint(source.checkpoint)["ema"]["shadow"]
     # lr 0: the new run's one step leaves the weights where --init put them.
-    result = train(_config(tmp_path / "b", task="both", steps=1, lr=0.0, init=str(source.checkpoint)), episodes=episodes)
+    result = train(
+        _config(tmp_path / "b", task="both", steps=1, lr=0.0, init=str(source.checkpoint)), episodes=episodes
+    )
     state = load_checkpoint(result.checkpoint)
     assert state["step"] == 1 and len(result.losses) == 1
     weights = load_model(result.checkpoint, ema=False).model
@@ -188,11 +197,15 @@ def test_init_starts_a_new_run_from_the_ema_weights(tmp_path, episodes):
         assert torch.equal(p, a)
     _assert_same(state["normalizer"], load_checkpoint(source.checkpoint)["normalizer"], "normalizer")
     with pytest.raises(ValueError, match="holds a"):
-        train(_config(tmp_path / "c", task="both", steps=1, size="mini", init=str(source.checkpoint)), episodes=episodes)
+        train(
+            _config(tmp_path / "c", task="both", steps=1, size="mini", init=str(source.checkpoint)), episodes=episodes
+        )
 
 
 def test_tasks_split_the_batch():
-    split = lambda task, b: [(t.name, n) for t, n in TrainConfig(task=task, batch_size=b).tasks()]
+    def split(task, b):
+        return [(t.name, n) for t, n in TrainConfig(task=task, batch_size=b).tasks()]
+
     assert split("robot", 8) == [("robot", 8)]
     assert split("both", 9) == [("robot", 4), ("control", 5)]
     assert split("robot+dynamics", 8) == [("robot", 4), ("dynamics", 4)]

@@ -56,16 +56,28 @@ def test_every_link_resolves_inside_the_repository():
 
 def test_no_page_names_a_path_outside_the_repository():
     """Not even as text: a reader cannot follow `../shared/...` from a clone."""
-    found = [f"{page.relative_to(ROOT)}:{i}" for page in pages()
-             for i, line in enumerate(page.read_text().splitlines(), 1) if "../shared" in line]
+    found = [
+        f"{page.relative_to(ROOT)}:{i}"
+        for page in pages()
+        for i, line in enumerate(page.read_text().splitlines(), 1)
+        if "../shared" in line
+    ]
     assert not found, f"pages name ../shared, which is not in the repository: {found}"
 
 
 def test_the_checker_sees_bad_links(tmp_path):
-    text = ("[a](missing.md) [b](../../outside.md) [c](https://example.com) ![d](/abs.png) "
-            "[ok](../README.md#top) `[code](nowhere.md)`\n\n```\n[block](nowhere.md)\n```\n[e]: also_missing.md\n")
-    assert links(text) == ["missing.md", "../../outside.md", "https://example.com", "/abs.png", "../README.md#top",
-                           "also_missing.md"], links(text)
+    text = (
+        "[a](missing.md) [b](../../outside.md) [c](https://example.com) ![d](/abs.png) "
+        "[ok](../README.md#top) `[code](nowhere.md)`\n\n```\n[block](nowhere.md)\n```\n[e]: also_missing.md\n"
+    )
+    assert links(text) == [
+        "missing.md",
+        "../../outside.md",
+        "https://example.com",
+        "/abs.png",
+        "../README.md#top",
+        "also_missing.md",
+    ], links(text)
     (tmp_path / "README.md").write_text("")
     probe = tmp_path / "docs" / "p.md"
     probe.parent.mkdir()

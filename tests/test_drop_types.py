@@ -20,10 +20,21 @@ LEAN = ("dyna_joint_obs", "actuator_obs", "control")
 def _config(out, **kw):
     from tt.dit.online import OnlineConfig
 
-    base = dict(out=str(out), task="dynamics", size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu",
-                checkpoint_every=2, prediction="x0", anchor_track=True,
-                online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8,
-                                    absorbing=True))
+    base = dict(
+        out=str(out),
+        task="dynamics",
+        size="tiny",
+        steps=2,
+        batch_size=4,
+        warmup_steps=1,
+        device="cpu",
+        checkpoint_every=2,
+        prediction="x0",
+        anchor_track=True,
+        online=OnlineConfig(
+            space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8, absorbing=True
+        ),
+    )
     return TrainConfig(**{**base, **kw})
 
 
@@ -79,11 +90,14 @@ def test_predict_scores_tracking_and_refuses_effort_rewards(lean_run):
         predict_designs(trained, designs, motions, get_reward("tracking_torque", SPACE), num_steps=2)
 
 
-@pytest.mark.parametrize("kw, message", [
-    (dict(drop_types=("track_link_obs",)), "cannot be dropped"),
-    (dict(drop_types=("link",)), "cannot be dropped"),
-    (dict(drop_types=("control",), task="robot+control"), "control task reads and writes"),
-])
+@pytest.mark.parametrize(
+    "kw, message",
+    [
+        (dict(drop_types=("track_link_obs",)), "cannot be dropped"),
+        (dict(drop_types=("link",)), "cannot be dropped"),
+        (dict(drop_types=("control",), task="robot+control"), "control task reads and writes"),
+    ],
+)
 def test_bad_drop_types_are_refused(tmp_path, kw, message):
     with pytest.raises(ValueError, match=message):
         _config(tmp_path / "r", **kw)

@@ -23,7 +23,9 @@ from tt.sim.rewards import get_reward
 from tt.sim.rollout import _RECORDED, rollout_records
 from tt.tokens.schema import SCHEMA, STEP_ROLES, Role
 
-CONFIG = OnlineConfig(space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40)
+CONFIG = OnlineConfig(
+    space="viperx", designs=6, motions=2, refresh_every=2, buffer=2, min_steps=20, max_motion_steps=40
+)
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 
@@ -91,8 +93,20 @@ def test_first_steps_of_a_rollout_are_the_full_rollouts_bit_for_bit():
 @pytest.fixture(scope="module")
 def start_model(tmp_path_factory):
     out = tmp_path_factory.mktemp("start")
-    cfg = TrainConfig(out=str(out), size="tiny", task="dynamics", dynamics_start=True, prediction="x0", batch_size=4,
-                      steps=3, warmup_steps=1, lr=3e-3, device="cpu", checkpoint_every=1000, online=CONFIG)
+    cfg = TrainConfig(
+        out=str(out),
+        size="tiny",
+        task="dynamics",
+        dynamics_start=True,
+        prediction="x0",
+        batch_size=4,
+        steps=3,
+        warmup_steps=1,
+        lr=3e-3,
+        device="cpu",
+        checkpoint_every=1000,
+        online=CONFIG,
+    )
     train(cfg)
     return load_model(out)
 
@@ -147,8 +161,9 @@ def test_predict_designs_from_the_start_in_a_fresh_process(start_model):
     import subprocess
     import sys
 
-    proc = subprocess.run([sys.executable, "-c", _FRESH_PROCESS, str(start_model.path)], capture_output=True,
-                          text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-c", _FRESH_PROCESS, str(start_model.path)], capture_output=True, text=True, timeout=600
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.strip().splitlines()[-1] == "(2, 1)"
 
@@ -167,15 +182,18 @@ def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_mode
     sampler = dataclasses.replace(start_model, tasks=("robot", "dynamics"), dynamics_start=False, path=None)
     motion = _toss(40)
     problem = Problem("viperx", (motion,), "tracking", 3, seed=2, backend="warp", device="cpu")
-    res = ZerothOrder(SamplerConfig(num_steps=2, decode="all"), model=sampler, critic_model=start_model).optimize(problem)
+    res = ZerothOrder(SamplerConfig(num_steps=2, decode="all"), model=sampler, critic_model=start_model).optimize(
+        problem
+    )
     assert res.info["critic_on"] == "designs" and res.info["critic"] == "dynamics"
     order = res.info["ranking"]
     by_index = [res.designs[order.index(i)] for i in range(len(order))]
     pred = predict_designs(start_model, by_index, [motion], get_reward("tracking", "viperx"), num_steps=2, seed=2)
     np.testing.assert_allclose(res.rewards, pred.reward[order, 0], rtol=1e-6)
     with pytest.raises(ValueError, match="trained told the episode's start"):
-        ZerothOrder(SamplerConfig(num_steps=2, critic_on="tokens"), model=sampler,
-                    critic_model=start_model).optimize(problem)
+        ZerothOrder(SamplerConfig(num_steps=2, critic_on="tokens"), model=sampler, critic_model=start_model).optimize(
+            problem
+        )
     # A critic not told the start keeps the tokens default.
     plain = dataclasses.replace(start_model, dynamics_start=False)
     assert ZerothOrder(SamplerConfig(), model=sampler, critic_model=plain).critic_input() == "tokens"

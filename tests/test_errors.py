@@ -24,8 +24,10 @@ INTERNAL_VALUE_ERRORS = {
     "sim/designs/chain_tree.py": (4, "chain_fields gets arrays the space's batch builder shapes, and its template"),
     "sim/newton_backend.py": (4, "Newton's parse of the MJCF tt wrote disagrees with MuJoCo's"),
     "tokens/schema.py": (3, "the token schema's attribute definitions are tt's constants"),
-    "tokens/store.py": (10, "shard parts and reads that tt's generator and loader make (shard index, row counts, "
-                        "blocks, dtypes)"),
+    "tokens/store.py": (
+        10,
+        "shard parts and reads that tt's generator and loader make (shard index, row counts, blocks, dtypes)",
+    ),
     "dit/ema.py": (1, "the EMA shadows the very parameters of the model it was made from"),
     "guidance/critic_grad.py": (1, "the sampler passes each candidate's simulated first step to a start-aware critic"),
 }

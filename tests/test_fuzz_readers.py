@@ -17,8 +17,11 @@ from hypothesis import strategies as st
 from tt.kernels.errors import TTError
 
 #: Examples per property: modest for the default suite; TT_FUZZ_EXAMPLES=400 for a longer hunt.
-FUZZ = settings(max_examples=int(os.environ.get("TT_FUZZ_EXAMPLES", 40)), deadline=None,
-                suppress_health_check=[HealthCheck.function_scoped_fixture])
+FUZZ = settings(
+    max_examples=int(os.environ.get("TT_FUZZ_EXAMPLES", 40)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
 
 
 def _npz_bytes(**arrays) -> bytes:
@@ -111,9 +114,16 @@ def test_motion_file_random_values(fields, tmp_path):
 
 
 @FUZZ
-@given(replace=st.dictionaries(st.sampled_from(["schema_version", "link/values", "link/ids", "link/mask", "geom/values",
-                                                "geom/mask", "nope/values"]), _array(), max_size=3),
-       drop=st.lists(st.sampled_from(["schema_version", "link/values", "link/ids", "link/mask"]), max_size=2))
+@given(
+    replace=st.dictionaries(
+        st.sampled_from(
+            ["schema_version", "link/values", "link/ids", "link/mask", "geom/values", "geom/mask", "nope/values"]
+        ),
+        _array(),
+        max_size=3,
+    ),
+    drop=st.lists(st.sampled_from(["schema_version", "link/values", "link/ids", "link/mask"]), max_size=2),
+)
 def test_token_file_random_values(replace, drop, good, tmp_path):
     arrays = dict(np.load(io.BytesIO(good["tokens"])))
     for k in drop:
@@ -122,9 +132,11 @@ def test_token_file_random_values(replace, drop, good, tmp_path):
     _check("tokens", _npz_bytes(**arrays), tmp_path)
 
 
-_json = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
-                     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
-                     max_leaves=12)
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+    max_leaves=12,
+)
 
 
 @FUZZ

@@ -19,17 +19,18 @@ import numpy as np
 import pytest
 import torch
 
+from tt.generate import GenerateConfig, generate, shard_design_list
 from tt.sim.designs import get_space
 from tt.sim.motions import augment_motion, for_space, motion_set
 from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
 from tt.tokens import episode_tokens, tokenize_models
-from tt.generate import GenerateConfig, generate, shard_design_list
 from tt.tokens.store import DatasetError, TokenStore, read_root, shard_dirs
 
 #: 5 shards of 2 designs x 2 episodes on motions cut to 40 steps (20 kept at least).
-CONFIG = GenerateConfig(space="viperx", designs=10, episodes_per_design=2, designs_per_shard=2, min_steps=20,
-                        max_motion_steps=40)
+CONFIG = GenerateConfig(
+    space="viperx", designs=10, episodes_per_design=2, designs_per_shard=2, min_steps=20, max_motion_steps=40
+)
 
 _CHILD = """
 import json, sys
@@ -60,8 +61,11 @@ def _same_data(a, b, shards: int = CONFIG.shards) -> None:
 
 def test_killed_run_resumes_to_the_uninterrupted_dataset(reference, tmp_path):
     path = tmp_path / "killed"
-    child = subprocess.Popen([sys.executable, "-c", _CHILD, str(path), json.dumps(asdict(CONFIG))],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    child = subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(path), json.dumps(asdict(CONFIG))],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 600
     try:
         while child.poll() is None and len(shard_dirs(path)) < 2 and time.monotonic() < deadline:
@@ -87,8 +91,10 @@ def test_killed_run_resumes_to_the_uninterrupted_dataset(reference, tmp_path):
 def test_truncated_shard_is_detected_and_regenerated(reference, tmp_path):
     path = tmp_path / "damaged"
     shutil.copytree(reference, path)
-    chunk = max((p for p in (shard_dirs(path)[3] / "track_link_obs").rglob("*") if p.is_file() and "/c/" in str(p)),
-                key=lambda p: p.stat().st_size)
+    chunk = max(
+        (p for p in (shard_dirs(path)[3] / "track_link_obs").rglob("*") if p.is_file() and "/c/" in str(p)),
+        key=lambda p: p.stat().st_size,
+    )
     chunk.write_bytes(chunk.read_bytes()[:-5])
     leftover = path / ".partial" / "s000004-123-deadbeef"  # an interrupted write
     leftover.mkdir(parents=True)
@@ -111,11 +117,17 @@ def test_a_damaged_root_is_rebuilt_and_the_run_resumes_to_the_uninterrupted_data
     meta = path / "zarr.json"
     meta.write_bytes(meta.read_bytes()[:60])
     damaged = meta.read_bytes()
-    with pytest.raises(DatasetError, match=r"zarr.json, the dataset's root, is damaged \(not valid JSON.*re-running the `tt generate`"):
+    with pytest.raises(
+        DatasetError, match=r"zarr.json, the dataset's root, is damaged \(not valid JSON.*re-running the `tt generate`"
+    ):
         read_root(path)
-    with pytest.raises(DatasetError, match=r"zarr.json, the dataset's root, is damaged .*shard s000000 holds other designs.*--seed"):
+    with pytest.raises(
+        DatasetError, match=r"zarr.json, the dataset's root, is damaged .*shard s000000 holds other designs.*--seed"
+    ):
         generate(replace(CONFIG, seed=1), path, device="cpu", progress=False)
-    with pytest.raises(DatasetError, match=r"shard s000000 rolled out 4 episodes, these arguments 6 .*--episodes-per-design 3"):
+    with pytest.raises(
+        DatasetError, match=r"shard s000000 rolled out 4 episodes, these arguments 6 .*--episodes-per-design 3"
+    ):
         generate(replace(CONFIG, episodes_per_design=3), path, device="cpu", progress=False)
     with pytest.raises(DatasetError, match=r"shard s000000 regenerated with these arguments differs .*--action-noise"):
         generate(replace(CONFIG, action_noise=0.0), path, device="cpu", progress=False)
@@ -131,7 +143,9 @@ def test_a_damaged_root_is_rebuilt_and_the_run_resumes_to_the_uninterrupted_data
     assert list((path / ".partial").iterdir()) == []
 
     meta.unlink()  # a root deleted, then another seed asked for over the shards: refused as well
-    with pytest.raises(DatasetError, match=r"zarr.json, the dataset's root, is missing.*shard s000000 holds other designs"):
+    with pytest.raises(
+        DatasetError, match=r"zarr.json, the dataset's root, is missing.*shard s000000 holds other designs"
+    ):
         generate(replace(CONFIG, seed=1), path, device="cpu", progress=False)
     assert generate(CONFIG, path, device="cpu", progress=False).run["shards"] == 0
     assert meta.read_bytes() == (reference / "zarr.json").read_bytes()
@@ -167,7 +181,10 @@ def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
     orders = [r.field("design") for r in store.readers]
     assert any((np.diff(d) < 0).any() for d in orders)  # episodes are stored shuffled, not design by design
     generated = int(reader.attrs["generated"])
-    assert generated == 2 * CONFIG.episodes_per_design and reader.episodes + sum(reader.attrs["dropped"].values()) == generated
+    assert (
+        generated == 2 * CONFIG.episodes_per_design
+        and reader.episodes + sum(reader.attrs["dropped"].values()) == generated
+    )
     # Episode ids are shard-major, then design, then motion slot.
     local = block.episode["episode_id"] - 2 * CONFIG.designs_per_shard * K
     np.testing.assert_array_equal(local // K, block.design)
@@ -181,8 +198,13 @@ def test_stored_episodes_equal_a_direct_rollout_and_tokenization(reference):
         m = for_space([m], "viperx")[0]
         motions.append(Motion(m.name, m.pos[:40], m.quat[:40], m.dt))
     assert CONFIG.action_noise > 0
-    ep = rollout(designs, motions, device="cpu", action_noise=CONFIG.action_noise,
-                 noise_seed=_seed_int(CONFIG.seed, 2, _STREAM_NOISE, 0))
+    ep = rollout(
+        designs,
+        motions,
+        device="cpu",
+        action_noise=CONFIG.action_noise,
+        noise_seed=_seed_int(CONFIG.seed, 2, _STREAM_NOISE, 0),
+    )
     embs = [tokenize_models([sp.model(d)]) for d in designs]
     for e in range(len(block)):
         design, slot = int(block.design[e]), int(local[e] % K)
@@ -217,7 +239,7 @@ def _select(ep, w: int):
 
     from tt.sim.episode import Episode
 
-    kw = {f.name: getattr(ep, f.name)[w:w + 1] for f in dc_fields(Episode) if f.name != "dt"}
+    kw = {f.name: getattr(ep, f.name)[w : w + 1] for f in dc_fields(Episode) if f.name != "dt"}
     return Episode(**{**kw, "design_index": torch.zeros(1, dtype=torch.long)}, dt=ep.dt)
 
 
@@ -234,8 +256,15 @@ def test_cmaes_bias_keeps_every_design_cmaes_samples():
     for m in (0, 1):
         motion = for_space([training_motions("viperx")[m]], "viperx")[0]
         motion = Motion(motion.name, motion.pos[:40], motion.quat[:40], motion.dt)
-        problem = Problem(space="viperx", motions=(motion,), reward="tracking", budget=15,
-                          seed=_seed_int(cfg.seed, 0, 2, m, bits=21), backend="warp", device="cpu")
+        problem = Problem(
+            space="viperx",
+            motions=(motion,),
+            reward="tracking",
+            budget=15,
+            seed=_seed_int(cfg.seed, 0, 2, m, bits=21),
+            backend="warp",
+            device="cpu",
+        )
         reference += CMAES(CMAESConfig(popsize=5, generations=3)).optimize(problem).designs
     assert designs == reference[:20]
     assert len({d.discrete for d in designs[:15]}) == 1  # one run: one discrete choice, 15 samples

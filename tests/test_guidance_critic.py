@@ -16,7 +16,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from tiny_dit import tiny_model
 
+from tt.baselines.problem import Problem
 from tt.dit.ddim import CosineDDIM
 from tt.dit.sampling import sample
 from tt.dit.tasks import TaskSpec
@@ -24,12 +26,10 @@ from tt.guidance.critic_grad import FORMS, CriticGradient
 from tt.guidance.predicted import build_query
 from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, GuidanceScales, SelfGuidance
 from tt.guidance.zeroth import CandidateSampler, GuideContext, renormalize
-from tt.baselines.problem import Problem
+from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.rewards import get_reward
-from tt.sim.designs import get_space
 from tt.tokens.schema import STEP_ROLES, Role
-from tiny_dit import tiny_model
 
 STEPS = 6
 
@@ -49,17 +49,34 @@ def motions():
 def _context(critic, motions, n):
     queries = [build_query(critic.layout, critic.normalizer, m, n, device="cpu") for m in motions]
     names = tuple(s.name for s in critic.layout.specs if s.role not in STEP_ROLES)
-    return GuideContext(objective=None, scheduler=None, timesteps=[], embodiment=names, layout=critic.layout,
-                        motions=tuple(motions), queries=queries, split=None)
+    return GuideContext(
+        objective=None,
+        scheduler=None,
+        timesteps=[],
+        embodiment=names,
+        layout=critic.layout,
+        motions=tuple(motions),
+        queries=queries,
+        split=None,
+    )
 
 
 def test_differentiable_sampling_draws_the_plain_sample(critic, motions):
     q = build_query(critic.layout, critic.normalizer, motions[0], 3)
     task = TaskSpec("dynamics", critic.robot_diffusion_steps, "random")
     for eta in (0.0, 1.0):
-        plain = sample(critic.model, q.tokens, task, num_steps=STEPS, eta=eta, generator=torch.Generator().manual_seed(4))
-        diff = sample(critic.model, q.tokens, task, num_steps=STEPS, eta=eta, generator=torch.Generator().manual_seed(4),
-                      differentiable=True)
+        plain = sample(
+            critic.model, q.tokens, task, num_steps=STEPS, eta=eta, generator=torch.Generator().manual_seed(4)
+        )
+        diff = sample(
+            critic.model,
+            q.tokens,
+            task,
+            num_steps=STEPS,
+            eta=eta,
+            generator=torch.Generator().manual_seed(4),
+            differentiable=True,
+        )
         for name, v in plain.tokens.values.items():
             torch.testing.assert_close(diff.tokens.values[name].detach(), v, atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="differentiable"):
@@ -153,8 +170,9 @@ def test_start_aware_critic_gets_the_simulated_start_of_the_decoded_designs(crit
     assert bool((g["link"][1] == 0).all()) and bool((g["link"][[0, 2]] != 0).any())
     # The start reaches the critic: another start gives another gradient.
     again = CriticGradient(aware, get_reward("tracking", "viperx"), decoder=decoder, num_steps=STEPS)
-    monkeypatch.setattr(critic_grad, "start_tokens", lambda *a, **k: {
-        n: 0.0 * v - 0.25 for n, v in fake_start(*a, **k).items()})
+    monkeypatch.setattr(
+        critic_grad, "start_tokens", lambda *a, **k: {n: 0.0 * v - 0.25 for n, v in fake_start(*a, **k).items()}
+    )
     assert not torch.allclose(again.token_gradient(ctx, x0, 0)["link"], g["link"])
     with pytest.raises(ValueError, match="needs a decoder"):
         CriticGradient(aware, get_reward("tracking", "viperx"))
@@ -196,10 +214,13 @@ def test_gradient_at_the_decoded_design(motions):
         torch.testing.assert_close(g[n], at_tokens[n], atol=1e-5, rtol=1e-4)
     assert bool((g["link"] != 0).any())
     noisy = {n: v + 0.2 * torch.randn(v.shape, generator=torch.Generator().manual_seed(3)) for n, v in x0.items()}
-    moved = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1, at="design").token_gradient(ctx, noisy, 0)
+    moved = CriticGradient(critic, cfg, decoder=decoder, num_steps=STEPS, seed=1, at="design").token_gradient(
+        ctx, noisy, 0
+    )
     torch.testing.assert_close(moved["link"], g["link"])  # the same designs, so the same gradient
-    assert not torch.allclose(CriticGradient(critic, cfg, num_steps=STEPS, seed=1).token_gradient(ctx, noisy, 0)["link"],
-                              g["link"], atol=1e-3)
+    assert not torch.allclose(
+        CriticGradient(critic, cfg, num_steps=STEPS, seed=1).token_gradient(ctx, noisy, 0)["link"], g["link"], atol=1e-3
+    )
     failing = lambda batch, i: Decoded(None, "no") if i == 1 else Decoded(designs[i])  # noqa: E731
     some = CriticGradient(critic, cfg, decoder=failing, num_steps=STEPS, seed=1, at="design")
     g = some.token_gradient(ctx, x0, 0)
@@ -218,14 +239,13 @@ def test_gradient_through_the_start_matches_central_differences(motions):
     of each continuous choice c_j (the tokenizer's de/dc_j), what it adds is the central
     difference of the critic's objective with the design's tokens held and its start
     re-simulated at c_j +- h."""
+    from tt.dit.checkpoint import load_model
     from tt.dit.layout import robot_embodiment
     from tt.guidance.critic_grad import START_REL_STEP
     from tt.guidance.predicted import start_tokens
     from tt.guidance.simgrad import design_stencil, token_jacobian
     from tt.guidance.zeroth import Decoded
     from tt.tokens.normalize import is_padding
-
-    from tt.dit.checkpoint import load_model
 
     # The shipped critic itself: a random network's objective hardly moves with the start, and
     # its differences would be float32 rounding.
@@ -247,13 +267,17 @@ def test_gradient_through_the_start_matches_central_differences(motions):
     numeric, analytic = [], []
     for j in range(len(design.continuous)):
         with torch.no_grad():
-            value = [float(through.objective(ctx, x0, {n: v[:, [2 * j + s]] for n, v in moved.items()})) for s in (0, 1)]
+            value = [
+                float(through.objective(ctx, x0, {n: v[:, [2 * j + s]] for n, v in moved.items()})) for s in (0, 1)
+            ]
         numeric.append((value[0] - value[1]) / span[j])
         total = 0.0
         for n, d_e in jac.items():
             real = ~is_padding(x0[n][0])
             unit = torch.ones(1, x0[n].shape[-1], dtype=torch.float64)
-            de_dx = (critic.normalizer.denormalize_values(n, unit) - critic.normalizer.denormalize_values(n, 0 * unit))[0]
+            de_dx = (critic.normalizer.denormalize_values(n, unit) - critic.normalizer.denormalize_values(n, 0 * unit))[
+                0
+            ]
             total += float((added[n][0, real].double() * torch.as_tensor(d_e[j]) / de_dx).sum())
         analytic.append(total)
     numeric, analytic = np.array(numeric), np.array(analytic)
@@ -261,8 +285,9 @@ def test_gradient_through_the_start_matches_central_differences(motions):
     # Linearising the objective over one difference step of the start: a few % of the largest.
     np.testing.assert_allclose(analytic, numeric, rtol=5e-2, atol=2e-2 * np.abs(numeric).max())
     # Decoded by projection: the same term, on the slots the design's structure uses.
-    projected = CriticGradient(critic, cfg, decoder=lambda batch, i: Decoded(design, distance=2), num_steps=STEPS, seed=1,
-                               through_start=True)
+    projected = CriticGradient(
+        critic, cfg, decoder=lambda batch, i: Decoded(design, distance=2), num_steps=STEPS, seed=1, through_start=True
+    )
     g = projected.token_gradient(ctx, x0, 0)
     assert projected.stats.start_projected == 1 and projected.stats.start_terms == 1
     for n in g:
@@ -294,7 +319,9 @@ def test_critic_gradient_steers_as_the_simulators_and_start_step(critic, motions
     cfg = get_reward("tracking", "viperx")
 
     def run(guidance):
-        return sampler.run(motions[:1], cfg, 3, seed=5, num_steps=STEPS, eta=1.0, guidance=guidance).tokens.values["link"]
+        return sampler.run(motions[:1], cfg, 3, seed=5, num_steps=STEPS, eta=1.0, guidance=guidance).tokens.values[
+            "link"
+        ]
 
     by_critic = FixedGradient()
     a = run(SelfGuidance(2.0, critic=by_critic))
@@ -379,8 +406,9 @@ def test_guide_by_critic_config(critic, motions):
 
 def test_dgs_guided_by_a_critic_records_its_gradient(critic, motions):
     problem = Problem("viperx", tuple(motions[:1]), "tracking", 2, seed=0, device="cpu")
-    gen, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=3, guide_by="critic", guide_start=1),
-                                        model=critic).generate(problem)
+    gen, _, info = DynamicsSelfGuidance(
+        DGSConfig(num_steps=3, guide_by="critic", guide_start=1), model=critic
+    ).generate(problem)
     assert info["guide_by"] == "critic" and info["guide_start"] == 1
     scales = GuidanceScales()
     # The critic's own scale, not the paper's 50 for the model's own dynamics; one for any motion count.
@@ -428,8 +456,16 @@ def test_continuous_only_guidance_moves_only_continuous_values_of_real_tokens(cr
     base = {n: 0.5 * torch.rand(q.tokens.values[n].shape, generator=gen) for n in names}
     base["link"][:, 0] = -2.0  # x0_hat = x_t / 2: the first link slot is padding (all values -1)
     eps = {n: torch.randn(v.shape, generator=gen) for n, v in base.items()}
-    ctx = GuideContext(objective=lambda x0, flag: torch.zeros(2, 1), scheduler=scheduler, timesteps=scheduler.timesteps(STEPS),
-                       embodiment=tuple(names), layout=critic.layout, motions=tuple(motions[:1]), queries=[q], split=None)
+    ctx = GuideContext(
+        objective=lambda x0, flag: torch.zeros(2, 1),
+        scheduler=scheduler,
+        timesteps=scheduler.timesteps(STEPS),
+        embodiment=tuple(names),
+        layout=critic.layout,
+        motions=tuple(motions[:1]),
+        queries=[q],
+        split=None,
+    )
     moved = {}
     for only in (False, True):
         x_t = {n: v.clone().requires_grad_() for n, v in base.items()}
@@ -441,7 +477,9 @@ def test_continuous_only_guidance_moves_only_continuous_values_of_real_tokens(cr
         cols = continuous_columns(n, base[n].shape[-1])
         assert bool(moved[False][n].all())
         assert bool(moved[True][n][..., cols].any()) and not bool(moved[True][n][..., ~cols].any())
-    assert not bool(moved[True]["link"][:, 0].any()) and bool(moved[True]["link"][:, 1:][..., continuous_columns("link", 35)].all())
+    assert not bool(moved[True]["link"][:, 0].any()) and bool(
+        moved[True]["link"][:, 1:][..., continuous_columns("link", 35)].all()
+    )
     with pytest.raises(ValueError, match="choose one"):
         SelfGuidance(2.0, critic=AnchoredGradient({}, 1.0), project=True, continuous_only=True)
     with pytest.raises(ValueError, match="choose one"):

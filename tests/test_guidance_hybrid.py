@@ -40,8 +40,14 @@ class FixedProposals:
         self.ranked_with: list = []
 
     def generate(self, problem):
-        gen = Generation(tokens=None, layout=None, reward=self.predicted[:, None].repeat(len(problem.motions), 1),
-                         objective=self.predicted, metrics={}, seconds=0.0)
+        gen = Generation(
+            tokens=None,
+            layout=None,
+            reward=self.predicted[:, None].repeat(len(problem.motions), 1),
+            objective=self.predicted,
+            metrics={},
+            seconds=0.0,
+        )
         return gen, None, {}
 
     def rank(self, gen, decoder, *, limit=None):
@@ -55,8 +61,13 @@ def test_zeroth_sim_returns_the_best_simulated_of_the_top_k(motions, monkeypatch
     import tt.guidance.hybrid as hybrid
 
     # learned_result reads model tokens for its info; the stand-in has none.
-    monkeypatch.setattr(hybrid, "learned_result", lambda method, problem, gen, ranking, seconds, rollouts=0, info=None:
-                        type("R", (), {"info": dict(info or {}, samples=len(gen.objective)), "rollouts": rollouts})())
+    monkeypatch.setattr(
+        hybrid,
+        "learned_result",
+        lambda method, problem, gen, ranking, seconds, rollouts=0, info=None: type(
+            "R", (), {"info": dict(info or {}, samples=len(gen.objective)), "rollouts": rollouts}
+        )(),
+    )
     designs = get_space("viperx").sample(6, seed=3)
     truth = evaluate_designs(designs, motions, "tracking").objective  # (6,) mean over the two motions
     predicted = -truth  # a model that ranks them exactly backwards
@@ -124,17 +135,25 @@ def blank_model():
     return TrainedModel(net, shipped.normalizer, shipped.layout, 0)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--method", "zeroth-sim", "--samples", "4", "--verify", "8"], "--verify 8 is larger than --samples 4"),
-    (["--method", "random", "--verify", "2"], "--verify applies to zeroth-sim and dgs-sim"),
-    (["--method", "random", "--init", "model"], "--init model initialises CMA-ES"),
-    (["--method", "cmaes", "--init", "prior"], "--init 'prior'"),
-    (["--method", "zeroth", "--critic", "oracle"], "--critic 'oracle': valid are 'joint' and 'dynamics'"),
-    (["--method", "zeroth", "--critic", "joint", "--critic-samples", "4"], "--critic-samples 4 needs --critic dynamics"),
-    (["--method", "zeroth", "--critic-samples", "0"], "--critic-samples must be >= 1, got 0"),
-    (["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes", "--init", "model"],
-     "no shipped DiT checkpoint for design space 'aloha'"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--method", "zeroth-sim", "--samples", "4", "--verify", "8"], "--verify 8 is larger than --samples 4"),
+        (["--method", "random", "--verify", "2"], "--verify applies to zeroth-sim and dgs-sim"),
+        (["--method", "random", "--init", "model"], "--init model initialises CMA-ES"),
+        (["--method", "cmaes", "--init", "prior"], "--init 'prior'"),
+        (["--method", "zeroth", "--critic", "oracle"], "--critic 'oracle': valid are 'joint' and 'dynamics'"),
+        (
+            ["--method", "zeroth", "--critic", "joint", "--critic-samples", "4"],
+            "--critic-samples 4 needs --critic dynamics",
+        ),
+        (["--method", "zeroth", "--critic-samples", "0"], "--critic-samples must be >= 1, got 0"),
+        (
+            ["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes", "--init", "model"],
+            "no shipped DiT checkpoint for design space 'aloha'",
+        ),
+    ],
+)
 def test_cli_refuses_bad_hybrid_options(tt_cli, args, message):
     motion = [] if "--motion" in args else ["--motion", "toss"]
     code, out = tt_cli(["optimize", *motion, "--budget", "10", *args])
@@ -166,9 +185,14 @@ def test_hybrids_with_a_blank_model_fall_back_to_random_and_cmaes(blank_model, m
     rows = []
     for seed in range(5):
         problem = Problem(space="viperx", motions=motions[:1], reward="tracking", budget=20, seed=seed)
-        rows.append([SimVerified(sampler()).optimize(problem).best_reward, RandomSearch().optimize(problem).best_reward,
-                     ModelInitCMAES(sampler(), CMAESConfig(popsize=5, generations=2)).optimize(problem).best_reward,
-                     CMAES(CMAESConfig(popsize=5, generations=2)).optimize(problem).best_reward])
+        rows.append(
+            [
+                SimVerified(sampler()).optimize(problem).best_reward,
+                RandomSearch().optimize(problem).best_reward,
+                ModelInitCMAES(sampler(), CMAESConfig(popsize=5, generations=2)).optimize(problem).best_reward,
+                CMAES(CMAESConfig(popsize=5, generations=2)).optimize(problem).best_reward,
+            ]
+        )
     zsim, rand, cinit, cma = np.asarray(rows).T
     t95 = 2.776  # Student t, two-sided 95 %, 4 degrees of freedom
     for hybrid_, base in ((zsim, rand), (cinit, cma)):

@@ -24,9 +24,9 @@ from tt.guidance.predicted import (
     orthonormalize,
     query_steps,
 )
-from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, get_reward, orientation_error, robot_mass, robot_size
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, get_reward, orientation_error, robot_mass, robot_size
 from tt.tokens.batch import TokenBatch
 from tt.tokens.normalize import Normalizer
 from tt.tokens.schema import PAD_VALUE
@@ -100,13 +100,21 @@ def truth():
     vel = np.where(used[:, None], rng.uniform(-2, 2, (B, S, P)), 0.0)
     track = np.concatenate([ee_pos, ee_rot.as_matrix().reshape(B, S, 1, 9)], -1).reshape(B, S, 12)
     act = np.stack([vel, force], -1).reshape(B, S * P, 2)
-    step_mask = {"track_link_obs": np.ones((B, S), bool), "actuator_obs": np.repeat(used[:, None], S, 1).reshape(B, S * P)}
-    dyn = TokenBatch({"track_link_obs": track.astype(np.float32), "actuator_obs": act.astype(np.float32)},
-                     {"track_link_obs": np.zeros((B, S, 2), np.int64), "actuator_obs": np.zeros((B, S * P, 2), np.int64)},
-                     step_mask)
+    step_mask = {
+        "track_link_obs": np.ones((B, S), bool),
+        "actuator_obs": np.repeat(used[:, None], S, 1).reshape(B, S * P),
+    }
+    dyn = TokenBatch(
+        {"track_link_obs": track.astype(np.float32), "actuator_obs": act.astype(np.float32)},
+        {"track_link_obs": np.zeros((B, S, 2), np.int64), "actuator_obs": np.zeros((B, S * P, 2), np.int64)},
+        step_mask,
+    )
     target_raw = np.concatenate([target_pos.reshape(B, S, 3), target_rot.as_matrix().reshape(B, S, 9)], -1)
-    target = TokenBatch({"target_pose": target_raw.astype(np.float32)}, {"target_pose": np.zeros((B, S, 2), np.int64)},
-                        {"target_pose": np.ones((B, S), bool)})
+    target = TokenBatch(
+        {"target_pose": target_raw.astype(np.float32)},
+        {"target_pose": np.zeros((B, S, 2), np.int64)},
+        {"target_pose": np.ones((B, S), bool)},
+    )
     norm = Normalizer.fit([emb, dyn, target])
     counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) for n in emb.types}
     counts.update(track_link_obs=1, target_pose=1, actuator_obs=P)
@@ -117,8 +125,19 @@ def truth():
         for n in normed.types:
             x0[n] = normed.values[n]
     ee_quat = _scipy_quat(ee_rot).reshape(B, S, 1, 4)
-    return dict(space=space, models=models, motion=motion, layout=layout, norm=norm, x0=x0, ee_pos=ee_pos, ee_quat=ee_quat,
-                force=force, vel=vel, used=used)
+    return dict(
+        space=space,
+        models=models,
+        motion=motion,
+        layout=layout,
+        norm=norm,
+        x0=x0,
+        ee_pos=ee_pos,
+        ee_quat=ee_quat,
+        force=force,
+        vel=vel,
+        used=used,
+    )
 
 
 def test_predicted_inputs_recover_ground_truth(truth):
@@ -137,11 +156,20 @@ def test_predicted_inputs_recover_ground_truth(truth):
     torch.testing.assert_close(inputs.size, robot_size(t["models"]), atol=1e-5, rtol=1e-6)
     torch.testing.assert_close(inputs.mass, robot_mass(t["models"]), atol=1e-5, rtol=1e-6)
     # The query's targets are the motion's at the query's steps.
-    torch.testing.assert_close(query.target_pos, torch.tensor(t["motion"].pos[query.steps.numpy()], dtype=torch.float32))
+    torch.testing.assert_close(
+        query.target_pos, torch.tensor(t["motion"].pos[query.steps.numpy()], dtype=torch.float32)
+    )
     # The reward: (T / S) x the reward of the ground-truth inputs over the S steps.
-    ref = RewardInputs(torch.tensor(t["ee_pos"]), torch.tensor(t["ee_quat"]), query.target_pos.double(),
-                       query.target_quat.double(), torch.tensor(t["force"]), torch.tensor(t["vel"]),
-                       robot_size(t["models"], dtype=torch.float64), robot_mass(t["models"], dtype=torch.float64))
+    ref = RewardInputs(
+        torch.tensor(t["ee_pos"]),
+        torch.tensor(t["ee_quat"]),
+        query.target_pos.double(),
+        query.target_quat.double(),
+        torch.tensor(t["force"]),
+        torch.tensor(t["vel"]),
+        robot_size(t["models"], dtype=torch.float64),
+        robot_mass(t["models"], dtype=torch.float64),
+    )
     for name in ("tracking", "tracking_torque", "tracking_velocity", "tracking_size", "tracking_weight"):
         cfg = get_reward(name, "viperx")
         got = PredictedReward(t["layout"], t["norm"], cfg, query)(t["x0"])
@@ -156,8 +184,10 @@ def test_perfect_tracking_scores_the_motion_length(truth):
     B = len(t["models"])
     query = build_query(t["layout"], t["norm"], t["motion"], B)
     raw = torch.cat([query.target_pos[:, :, 0], query.target_quat.new_zeros(B, S, 9)], -1)
-    raw[..., 3:] = torch.tensor(Rotation.from_quat(np.roll(query.target_quat.reshape(-1, 4).numpy(), -1, axis=-1))
-                                .as_matrix().reshape(B, S, 9), dtype=torch.float32)
+    raw[..., 3:] = torch.tensor(
+        Rotation.from_quat(np.roll(query.target_quat.reshape(-1, 4).numpy(), -1, axis=-1)).as_matrix().reshape(B, S, 9),
+        dtype=torch.float32,
+    )
     x0 = dict(t["x0"], track_link_obs=t["norm"].normalize_values("track_link_obs", raw))
     T = t["motion"].steps
     tracking = PredictedReward(t["layout"], t["norm"], get_reward("tracking", "viperx"), query)(x0)
@@ -189,7 +219,9 @@ def test_a_motion_shorter_than_the_window_scores_its_own_steps(truth, T):
         assert steps.tolist() == [min(k, T - 1) for k in range(S)], placement
     query = build_query(t["layout"], t["norm"], motion, B)
     assert query.scored == T
-    rot = Rotation.from_quat(np.roll(query.target_quat.reshape(-1, 4).numpy(), -1, axis=-1)).as_matrix().reshape(B, S, 9)
+    rot = (
+        Rotation.from_quat(np.roll(query.target_quat.reshape(-1, 4).numpy(), -1, axis=-1)).as_matrix().reshape(B, S, 9)
+    )
     raw = torch.cat([query.target_pos[:, :, 0], torch.tensor(rot, dtype=torch.float32)], -1)
     raw[:, T:, :3] += 10.0  # the window's later slots far off: no step of the motion, not scored
     x0 = dict(t["x0"], track_link_obs=t["norm"].normalize_values("track_link_obs", raw))
@@ -203,9 +235,15 @@ def test_a_motion_shorter_than_the_window_scores_its_own_steps(truth, T):
     torch.testing.assert_close(sized, T - T * 0.1 * (size - 2.0).clamp_min(0), rtol=1e-5, atol=1e-3)
     # The reward of the same poses as `tt validate` scores them: T steps, no window.
     inputs = scorer.inputs(x0)
-    sim = RewardInputs(inputs.ee_pos[:, :T].double(), inputs.ee_quat[:, :T].double(),
-                       torch.tensor(motion.pos, dtype=torch.float64), torch.tensor(motion.quat, dtype=torch.float64))
-    torch.testing.assert_close(scorer(x0).double(), evaluate(sim, get_reward("tracking", "viperx")).reward, rtol=1e-5, atol=1e-5)
+    sim = RewardInputs(
+        inputs.ee_pos[:, :T].double(),
+        inputs.ee_quat[:, :T].double(),
+        torch.tensor(motion.pos, dtype=torch.float64),
+        torch.tensor(motion.quat, dtype=torch.float64),
+    )
+    torch.testing.assert_close(
+        scorer(x0).double(), evaluate(sim, get_reward("tracking", "viperx")).reward, rtol=1e-5, atol=1e-5
+    )
     raw[:, T - 1, :3] += 10.0  # a miss at the motion's last step ends the count there
     x0 = dict(t["x0"], track_link_obs=t["norm"].normalize_values("track_link_obs", raw))
     m = predicted_metrics(scorer, x0)
@@ -234,8 +272,16 @@ def test_predicted_reward_gradient_matches_finite_differences(truth):
     t = truth
     B = len(t["models"])
     query = build_query(t["layout"], t["norm"], t["motion"], B)
-    cfg = RewardConfig(name="tracking", space="viperx", torque_alpha=5e-5, velocity_alpha=0.1, size_alpha=0.1,
-                       size_target=0.5, mass_alpha=10.0, mass_target=0.5)
+    cfg = RewardConfig(
+        name="tracking",
+        space="viperx",
+        torque_alpha=5e-5,
+        velocity_alpha=0.1,
+        size_alpha=0.1,
+        size_target=0.5,
+        mass_alpha=10.0,
+        mass_target=0.5,
+    )
     scorer = PredictedReward(t["layout"], t["norm"], cfg, query)
     base = {k: v.double() for k, v in t["x0"].items()}
     # Real designs sit on kinks of the formulas: massless links (sites) decode to exactly
@@ -273,8 +319,11 @@ def test_training_padding_carries_the_ids_a_generation_query_gives():
     layout = layout_from_schema(counts, steps=S)
     emb = emb.pad_to({n: layout[n].length for n in emb.types}).to_torch()
     motion = for_space([get_motion("toss")], "viperx")[0]
-    target = TokenBatch({"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
-                        {"target_pose": np.zeros((4, S, 2), np.int64)}, {"target_pose": np.ones((4, S), bool)})
+    target = TokenBatch(
+        {"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
+        {"target_pose": np.zeros((4, S, 2), np.int64)},
+        {"target_pose": np.ones((4, S), bool)},
+    )
     query = build_query(layout, Normalizer.fit([emb, target]), motion, 3).tokens
     train = query.clone()
     names = [s.name for s in layout.specs if not s.per_step]
@@ -298,9 +347,9 @@ def test_design_query_holds_the_tokens_training_gives_those_designs():
     # Inpainting asks the motion-to-robot model for the dynamics of given designs; their
     # embodiment slots must look exactly as in a training batch of those designs
     # (normalised values, PAD_VALUE and positional IDs in the padding), and be marked known.
-    from tt.tokens.batch import TokenBatch
     from tt.dit.layout import with_slot_ids
     from tt.guidance.predicted import design_query
+    from tt.tokens.batch import TokenBatch
 
     space = get_space("viperx")
     by_dof = {}
@@ -314,17 +363,25 @@ def test_design_query_holds_the_tokens_training_gives_those_designs():
     counts.update(track_link_obs=1, target_pose=1, actuator_obs=7, dyna_joint_obs=7, control=7)
     layout = layout_from_schema(counts, steps=S)
     emb = emb.pad_to({n: layout[n].length for n in emb.types}).to_torch()
-    target = TokenBatch({"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
-                        {"target_pose": np.zeros((4, S, 2), np.int64)}, {"target_pose": np.ones((4, S), bool)})
+    target = TokenBatch(
+        {"target_pose": np.random.default_rng(0).normal(size=(4, S, 12)).astype(np.float32)},
+        {"target_pose": np.zeros((4, S, 2), np.int64)},
+        {"target_pose": np.ones((4, S), bool)},
+    )
     norm = Normalizer.fit([emb, target])
     motion = for_space([get_motion("toss")], "viperx")[0]
     query, known = design_query(layout, norm, motion, models)
     plain = build_query(layout, norm, motion, 3)
     names = [s.name for s in layout.specs if not s.per_step]
     assert sorted(known) == sorted(names)
-    training = norm.normalize(with_slot_ids(layout, TokenBatch({n: emb.values[n] for n in names},
-                                                                 {n: emb.ids[n] for n in names},
-                                                                 {n: emb.mask[n] for n in names})))
+    training = norm.normalize(
+        with_slot_ids(
+            layout,
+            TokenBatch(
+                {n: emb.values[n] for n in names}, {n: emb.ids[n] for n in names}, {n: emb.mask[n] for n in names}
+            ),
+        )
+    )
     for n in names:
         assert known[n].all()
         torch.testing.assert_close(query.tokens.values[n], training.values[n].float(), rtol=0, atol=0, msg=n)
@@ -332,4 +389,6 @@ def test_design_query_holds_the_tokens_training_gives_those_designs():
         assert (query.tokens.values[n][~emb.mask[n]] == PAD_VALUE).all(), n
     for n in layout.names:  # everything else is the plain query's
         if n not in names:
-            assert torch.equal(query.tokens.values[n], plain.tokens.values[n]) and torch.equal(query.tokens.ids[n], plain.tokens.ids[n]), n
+            assert torch.equal(query.tokens.values[n], plain.tokens.values[n]) and torch.equal(
+                query.tokens.ids[n], plain.tokens.ids[n]
+            ), n

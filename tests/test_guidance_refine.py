@@ -112,7 +112,7 @@ def test_refined_designs_score_higher_under_both_draws(critic, motion):
         if out.steps[i] == 0:
             assert r == d
             continue
-        first, second = (_predict(critic, [d, r], motion, smooth, seed=s) for s in (7, 7 + 2 ** 31))
+        first, second = (_predict(critic, [d, r], motion, smooth, seed=s) for s in (7, 7 + 2**31))
         assert first[1] > first[0] and second[1] > second[0]
         assert out.after[i] == pytest.approx(first[1], rel=1e-4, abs=1e-3)
 
@@ -125,7 +125,9 @@ def test_log_prediction_scores_the_same_samples_with_the_smooth_stand_in(critic,
     cfg = get_reward("tracking", "viperx")
     seen = []
     plain_metrics = predicted.predicted_metrics
-    monkeypatch.setattr(predicted, "predicted_metrics", lambda scorer, x0: seen.append((scorer, x0)) or plain_metrics(scorer, x0))
+    monkeypatch.setattr(
+        predicted, "predicted_metrics", lambda scorer, x0: seen.append((scorer, x0)) or plain_metrics(scorer, x0)
+    )
     both = predict_designs(critic, designs, motions, cfg, samples=2, num_steps=STEPS, seed=3, log=True)
     plain = predict_designs(critic, designs, motions, cfg, samples=2, num_steps=STEPS, seed=3)
     assert plain.log_reward is None and both.log_reward.shape == (2, 2)
@@ -141,11 +143,16 @@ def test_log_prediction_scores_the_same_samples_with_the_smooth_stand_in(critic,
 def test_log_objective_climbs_the_smooth_stand_in(critic, motion):
     design = _middle(get_space("viperx").sample(1, seed=11)[0], seed=2)
     cfg = get_reward("tracking", "viperx")
-    out = refine_designs(critic, [design], (motion,), cfg, RefineConfig(iterations=1, num_steps=STEPS, check=False,
-                                                                        form="log"), seed=4)
+    out = refine_designs(
+        critic, [design], (motion,), cfg, RefineConfig(iterations=1, num_steps=STEPS, check=False, form="log"), seed=4
+    )
     smooth = dataclasses.replace(cfg, threshold=NO_TERMINATION)
-    before, after = (predict_designs(critic, [d], (motion,), smooth, num_steps=STEPS, seed=4, common_noise=True,
-                                     log=True).log_reward[0, 0] for d in (design, out.designs[0]))
+    before, after = (
+        predict_designs(
+            critic, [d], (motion,), smooth, num_steps=STEPS, seed=4, common_noise=True, log=True
+        ).log_reward[0, 0]
+        for d in (design, out.designs[0])
+    )
     assert out.steps[0] == 1 and out.after[0] > out.before[0]
     assert out.before[0] == pytest.approx(before, rel=1e-4) and out.after[0] == pytest.approx(after, rel=1e-4)
 
@@ -157,14 +164,19 @@ def test_zeroth_order_returns_the_refined_design(critic, motion):
     opt = ZerothOrder(SamplerConfig(num_steps=STEPS, refine=1), model=critic)
     given = Result("zeroth", design, 1.0, [design], np.array([1.0]), 0.1, 0, [1.0], {"samples": 1})
     out = opt.refined(problem, given)
-    expected = refine_designs(critic, [design], (motion,), get_reward("tracking", "viperx"),
-                              RefineConfig(iterations=1), seed=4)
+    expected = refine_designs(
+        critic, [design], (motion,), get_reward("tracking", "viperx"), RefineConfig(iterations=1), seed=4
+    )
     assert out.best == expected.designs[0] != design
     assert out.designs == [out.best, design] and out.info["refine"]["ranked_objective"] == 1.0
     assert out.info["refine"]["form"] == "reward"
     # Both re-predicted in one call with common noise: the same as each alone.
-    before, after = (predict_designs(critic, [d], (motion,), get_reward("tracking", "viperx"), num_steps=STEPS, seed=4,
-                                     common_noise=True).reward.mean() for d in (design, out.best))
+    before, after = (
+        predict_designs(
+            critic, [d], (motion,), get_reward("tracking", "viperx"), num_steps=STEPS, seed=4, common_noise=True
+        ).reward.mean()
+        for d in (design, out.best)
+    )
     assert out.best_reward == pytest.approx(after, rel=1e-4, abs=1e-3)
     assert out.info["refine"]["objective_before"] == pytest.approx(before, rel=1e-4, abs=1e-3)
 
@@ -174,8 +186,13 @@ def test_zeroth_order_keeps_its_result_when_no_step_is_taken(critic, motion, mon
     from tt.guidance.refine import Refined
 
     design = get_space("viperx").sample(1, seed=11)[0]
-    monkeypatch.setattr(zeroth, "refine_designs", lambda critic, designs, *a, **k: Refined(
-        list(designs), np.array([5.0]), np.array([5.0]), np.array([0]), [[5.0]], 3, 0.1))
+    monkeypatch.setattr(
+        zeroth,
+        "refine_designs",
+        lambda critic, designs, *a, **k: Refined(
+            list(designs), np.array([5.0]), np.array([5.0]), np.array([0]), [[5.0]], 3, 0.1
+        ),
+    )
     problem = Problem("viperx", (motion,), "tracking", 1, seed=4, device="cpu")
     given = Result("zeroth", design, 1.0, [design], np.array([1.0]), 0.1, 0, [1.0], {"samples": 1})
     out = ZerothOrder(SamplerConfig(num_steps=STEPS, refine=2), model=critic).refined(problem, given)
@@ -191,15 +208,25 @@ def test_init_noise_of_a_type_the_task_does_not_diffuse_is_refused(critic, motio
     q = build_query(critic.layout, critic.normalizer, motion, 2)
     task = TaskSpec("dynamics", critic.robot_diffusion_steps, "start")
     with pytest.raises(ValueError, match="does not diffuse"):
-        sample(critic.model, q.tokens, task, num_steps=1, init_noise={"link": torch.zeros_like(q.tokens.values["link"])})
+        sample(
+            critic.model, q.tokens, task, num_steps=1, init_noise={"link": torch.zeros_like(q.tokens.values["link"])}
+        )
     name = next(n for n in q.tokens.values if n == "track_link_obs")
     with pytest.raises(ValueError, match="shape"):
         sample(critic.model, q.tokens, task, num_steps=1, init_noise={name: torch.zeros(1, 2, 3)})
 
 
 def test_bad_refine_settings_are_refused(critic, motion):
-    for bad in (dict(iterations=0), dict(rel_step=0.5), dict(step_sizes=()), dict(step_sizes=(0.1, 1.5)),
-                dict(samples=0), dict(num_steps=0), dict(form="rank"), dict(form="log", terminate=True)):
+    for bad in (
+        dict(iterations=0),
+        dict(rel_step=0.5),
+        dict(step_sizes=()),
+        dict(step_sizes=(0.1, 1.5)),
+        dict(samples=0),
+        dict(num_steps=0),
+        dict(form="rank"),
+        dict(form="log", terminate=True),
+    ):
         with pytest.raises(ValueError):
             RefineConfig(**bad)
     with pytest.raises(ValueError, match="refine"):
@@ -223,8 +250,26 @@ def test_tt_optimize_refine_reports_the_climb(tmp_path):
     from tt.cli import app
 
     out = tmp_path / "result.json"
-    result = CliRunner().invoke(app, ["optimize", "--method", "zeroth", "--motion", "reach_place", "--samples", "1",
-                                      "--budget", "1", "--num-steps", "10", "--refine", "2", "--json", str(out)])
+    result = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--method",
+            "zeroth",
+            "--motion",
+            "reach_place",
+            "--samples",
+            "1",
+            "--budget",
+            "1",
+            "--num-steps",
+            "10",
+            "--refine",
+            "2",
+            "--json",
+            str(out),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "refined by the dynamics critic" in result.output
     saved = json.loads(out.read_text())
@@ -232,9 +277,15 @@ def test_tt_optimize_refine_reports_the_climb(tmp_path):
     assert refine["iterations"] == 2 and len(refine["trace"][0]) == refine["steps"][0] + 1
     # The saved objective is the saved design's prediction: re-predicted with common noise
     # after a step, the ranking's own figure (one candidate, row 0) without one.
-    expected = predict_designs(_shipped_critic(), [get_space("viperx").from_dict(saved["design"])],
-                               for_space([get_motion("reach_place")], "viperx"), get_reward("tracking", "viperx"),
-                               num_steps=10, seed=0, common_noise=refine["steps"][0] > 0).reward.mean()
+    expected = predict_designs(
+        _shipped_critic(),
+        [get_space("viperx").from_dict(saved["design"])],
+        for_space([get_motion("reach_place")], "viperx"),
+        get_reward("tracking", "viperx"),
+        num_steps=10,
+        seed=0,
+        common_noise=refine["steps"][0] > 0,
+    ).reward.mean()
     assert saved["objective"] == pytest.approx(expected, rel=1e-4, abs=1e-3)
 
 

@@ -18,18 +18,17 @@ import numpy as np
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
+from tiny_dit import tiny_model
 
 from tt.baselines.problem import Problem
 from tt.dit.checkpoint import TrainedModel
 from tt.dit.ddim import CosineDDIM
 from tt.dit.layout import layout_from_schema
 from tt.dit.model import RoboDiT
-from tt.tokens.normalize import Normalizer
 from tt.dit.sampling import sample
 from tt.dit.tasks import ROBOT, task_masks
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens
 from tt.guidance.predicted import build_query, query_steps
-from tt.sim.rewards import get_reward
 from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance, GuidanceScales, SelfGuidance
 from tt.guidance.zeroth import (
     CandidateSampler,
@@ -42,7 +41,8 @@ from tt.guidance.zeroth import (
 )
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
-from tiny_dit import tiny_model
+from tt.sim.rewards import get_reward
+from tt.tokens.normalize import Normalizer
 
 STEPS = 8  # DDIM steps in these tests (of the process's 100)
 
@@ -116,6 +116,7 @@ def test_nonfinite_gradients_are_zeroed_and_counted(tiny, motions):
             def reward(x0):
                 r = ToyObjective.reward(x0)
                 return torch.cat([first(x0["link"][:1].sum((1, 2))), r[1:]])
+
         return Objective
 
     nan_first = objective(lambda u: torch.sqrt(-1.0 + 0.0 * u))  # NaN value, NaN gradient
@@ -159,7 +160,9 @@ def test_simulator_gradient_mixing(tiny, motions):
     cfg = get_reward("tracking", "viperx")
 
     def run(guidance):
-        return sampler.run(motions[:1], cfg, 3, seed=5, num_steps=STEPS, eta=1.0, guidance=guidance).tokens.values["link"]
+        return sampler.run(motions[:1], cfg, 3, seed=5, num_steps=STEPS, eta=1.0, guidance=guidance).tokens.values[
+            "link"
+        ]
 
     toy = run(ToyObjective(SelfGuidance(2.0)))
     sim = ToySim()
@@ -178,8 +181,14 @@ def test_composition_of_one_motion_equals_plain_sampling(tiny, motions):
     layout, model = tiny.layout, tiny.model
     query = build_query(layout, tiny.normalizer, motions[0], 3)
     plain = sample(model, query.tokens, ROBOT, num_steps=STEPS, eta=1.0, generator=torch.Generator().manual_seed(2))
-    composed = sample(ComposedModel(model, 1), compose_tokens(layout, [query.tokens]), ROBOT, num_steps=STEPS, eta=1.0,
-                      generator=torch.Generator().manual_seed(2))
+    composed = sample(
+        ComposedModel(model, 1),
+        compose_tokens(layout, [query.tokens]),
+        ROBOT,
+        num_steps=STEPS,
+        eta=1.0,
+        generator=torch.Generator().manual_seed(2),
+    )
     (back,) = split_tokens(layout, composed.tokens, 1)
     for name in layout.names:
         assert torch.equal(back.values[name], plain.tokens.values[name]), name
@@ -191,8 +200,10 @@ def test_composed_eps_is_the_mean_over_copies(tiny, motions):
     g = torch.Generator().manual_seed(4)
     composed = ComposedModel(model, 2)
     tokens = compose_tokens(layout, [q.tokens for q in queries])
-    tokens.values = {k: (torch.randn(v.shape, generator=g) if k != "target_pose@0" and k != "target_pose@1" else v)
-                     for k, v in tokens.values.items()}
+    tokens.values = {
+        k: (torch.randn(v.shape, generator=g) if k != "target_pose@0" and k != "target_pose@1" else v)
+        for k, v in tokens.values.items()
+    }
     masks = task_masks(ROBOT, composed.layout, tokens)
     time = torch.full((3,), 0.4)
     with torch.no_grad():
@@ -350,15 +361,19 @@ def test_zeroth_order_returns_the_design_with_the_best_predicted_tracking(motion
     steps = query_steps(motion.steps, 8, 3).numpy()  # the query's steps
     target_pos = torch.tensor(motion.pos[steps][:, :, 0], dtype=torch.float32)  # (3, 8, 3)
     wxyz = motion.quat[steps][:, :, 0].reshape(-1, 4)
-    mats = torch.tensor(Rotation.from_quat(np.roll(wxyz, -1, axis=-1)).as_matrix().reshape(3, 8, 9), dtype=torch.float32)
+    mats = torch.tensor(
+        Rotation.from_quat(np.roll(wxyz, -1, axis=-1)).as_matrix().reshape(3, 8, 9), dtype=torch.float32
+    )
     ee = target_pos + torch.stack([offsets, 0 * offsets, 0 * offsets], -1)[:, None]
     track = torch.cat([ee, mats], -1)  # (3, 8, 12)
     target = torch.cat([target_pos, mats], -1)
     # Statistics covering every value the candidates hold.
     ones = np.ones((3, 8), bool)
-    dyn = TokenBatch({"track_link_obs": track.numpy(), "target_pose": target.numpy()},
-                     {"track_link_obs": np.zeros((3, 8, 2), np.int64), "target_pose": np.zeros((3, 8, 2), np.int64)},
-                     {"track_link_obs": ones, "target_pose": ones})
+    dyn = TokenBatch(
+        {"track_link_obs": track.numpy(), "target_pose": target.numpy()},
+        {"track_link_obs": np.zeros((3, 8, 2), np.int64), "target_pose": np.zeros((3, 8, 2), np.int64)},
+        {"track_link_obs": ones, "target_pose": ones},
+    )
     norm = Normalizer.fit([emb, dyn])
     x0 = {n: v for n, v in norm.normalize(emb.to_torch()).values.items()}
     x0["track_link_obs"] = norm.normalize(dyn.subset(["track_link_obs"]).to_torch()).values["track_link_obs"]
@@ -366,14 +381,15 @@ def test_zeroth_order_returns_the_design_with_the_best_predicted_tracking(motion
     trained = TrainedModel(model, norm, layout, 0)
     table = CandidateTable(space, discrete=[d.discrete for d in designs])
     problem = Problem(space="viperx", motions=(motion,), reward="tracking", budget=3, seed=0)
-    result = ZerothOrder(SamplerConfig(num_steps=10, decode="all"), model=trained,
-                         decoder=DesignDecoder(space, table=table)).optimize(problem)
+    result = ZerothOrder(
+        SamplerConfig(num_steps=10, decode="all"), model=trained, decoder=DesignDecoder(space, table=table)
+    ).optimize(problem)
     assert result.info["ranking"] == [1, 0, 2] and result.info["decode_failures"] == 0
     assert result.best.discrete == designs[1].discrete
     np.testing.assert_allclose(result.best.continuous, designs[1].continuous, atol=1e-4)
     # The predicted objective is the tracking reward of those poses: (T / 8) sum_k exp(-d^2 / sigma_p - ...).
     T = motion.steps
-    want = T * torch.exp(-offsets.double() ** 2 / 0.01)
+    want = T * torch.exp(-(offsets.double() ** 2) / 0.01)
     np.testing.assert_allclose(result.info["predicted_objective"], want.numpy(), rtol=1e-3)
 
 
@@ -387,7 +403,9 @@ class _Recorder(torch.nn.Module):
         self.calls = []
 
     def forward(self, values, ids, noised, time, attend=None, outputs=None):
-        self.calls.append(({k: v.detach().clone() for k, v in values.items()}, {k: v.clone() for k, v in noised.items()}))
+        self.calls.append(
+            ({k: v.detach().clone() for k, v in values.items()}, {k: v.clone() for k, v in noised.items()})
+        )
         return self.inner(values, ids, noised, time, attend, outputs=outputs)
 
 
@@ -402,8 +420,15 @@ def test_inpainting_keeps_known_tokens_and_noises_them_to_each_step(tiny, motion
     known = {"link": torch.ones(n, layout["link"].length, dtype=torch.bool)}
     scheduler = CosineDDIM(ROBOT.diffusion_steps)
     rec = _Recorder(tiny.model)
-    res = sample(rec, q.tokens, ROBOT, scheduler=scheduler, num_steps=STEPS, known=known,
-                 generator=torch.Generator().manual_seed(0))
+    res = sample(
+        rec,
+        q.tokens,
+        ROBOT,
+        scheduler=scheduler,
+        num_steps=STEPS,
+        known=known,
+        generator=torch.Generator().manual_seed(0),
+    )
     assert torch.equal(res.tokens.values["link"], given) and not res.updated["link"].any()
     assert not torch.equal(res.tokens.values["actuator"], q.tokens.values["actuator"])
     steps = scheduler.timesteps(STEPS)
@@ -411,11 +436,24 @@ def test_inpainting_keeps_known_tokens_and_noises_them_to_each_step(tiny, motion
     for (values, noised), t in zip(rec.calls, steps):
         ab = scheduler.alpha_bar(t).float()
         eps = (values["link"] - ab.sqrt() * given) / (1 - ab).sqrt()
-        assert abs(float(eps.mean())) < 0.05 and abs(float(eps.std()) - 1) < 0.05, (t, float(eps.mean()), float(eps.std()))
+        assert abs(float(eps.mean())) < 0.05 and abs(float(eps.std()) - 1) < 0.05, (
+            t,
+            float(eps.mean()),
+            float(eps.std()),
+        )
         assert noised["link"].all()
-    plain = sample(tiny.model, q.tokens, ROBOT, scheduler=scheduler, num_steps=STEPS, generator=torch.Generator().manual_seed(0))
-    empty = sample(tiny.model, q.tokens, ROBOT, scheduler=scheduler, num_steps=STEPS, known={},
-                   generator=torch.Generator().manual_seed(0))
+    plain = sample(
+        tiny.model, q.tokens, ROBOT, scheduler=scheduler, num_steps=STEPS, generator=torch.Generator().manual_seed(0)
+    )
+    empty = sample(
+        tiny.model,
+        q.tokens,
+        ROBOT,
+        scheduler=scheduler,
+        num_steps=STEPS,
+        known={},
+        generator=torch.Generator().manual_seed(0),
+    )
     for name in layout.names:
         assert torch.equal(plain.tokens.values[name], empty.tokens.values[name]), name
     with pytest.raises(ValueError, match="does not diffuse"):

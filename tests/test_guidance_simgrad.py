@@ -17,7 +17,6 @@ import pytest
 import torch
 import warp as wp
 
-from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.guidance.simgrad import (
     WarpFunction,
     WarpProgram,
@@ -30,6 +29,7 @@ from tt.guidance.simgrad import (
 from tt.sim.designs import Design, get_space
 from tt.sim.designs.base import ContinuousParam, DesignSpace
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardConfig, RewardInputs, evaluate, robot_mass, robot_size
 from tt.sim.validate import oracle_rollout
 
 wp.config.quiet = True
@@ -47,18 +47,25 @@ class PlanarArm(DesignSpace):
         return ()
 
     def continuous_params(self, discrete):
-        return (ContinuousParam("l1", 0.15, 0.4), ContinuousParam("l2", 0.1, 0.35), ContinuousParam("radius", 0.01, 0.04))
+        return (
+            ContinuousParam("l1", 0.15, 0.4),
+            ContinuousParam("l2", 0.1, 0.35),
+            ContinuousParam("radius", 0.01, 0.04),
+        )
 
     def nominal(self):
         return Design(self.name, (), (0.28, 0.22, 0.02))
 
     def _mjcf(self, discrete, values, options):
         l1, l2, r = values["l1"], values["l2"], values["radius"]
-        return f"""<mujoco model="planar_arm"><compiler angle="radian"/><option timestep="0.002" integrator="Euler"><flag contact="disable"/></option>
+        return f"""<mujoco model="planar_arm"><compiler angle="radian"/>
+<option timestep="0.002" integrator="Euler"><flag contact="disable"/></option>
 <worldbody><body name="b1" pos="0 0 0.1"><joint name="j1" type="hinge" axis="0 0 1" range="-3 3"/>
 <geom type="capsule" fromto="0 0 0 {l1} 0 0" size="{r}" density="{DENSITY}"/>
-<body name="b2" pos="{l1} 0 0" euler="0 0 1.5707963267948966"><joint name="j2" type="hinge" axis="0 0 1" range="-2.8 2.8"/>
-<geom type="capsule" fromto="0 0 0 {l2} 0 0" size="{r}" density="{DENSITY}"/><site name="ee_0" pos="{l2} 0 0"/></body></body>
+<body name="b2" pos="{l1} 0 0" euler="0 0 1.5707963267948966">
+<joint name="j2" type="hinge" axis="0 0 1" range="-2.8 2.8"/>
+<geom type="capsule" fromto="0 0 0 {l2} 0 0" size="{r}" density="{DENSITY}"/><site name="ee_0" pos="{l2} 0 0"/>
+</body></body>
 </worldbody><actuator><position joint="j1" kp="30" kv="2" ctrlrange="-3 3"/>
 <position joint="j2" kp="30" kv="2" ctrlrange="-2.8 2.8"/></actuator></mujoco>"""
 
@@ -73,8 +80,9 @@ def circle(steps: int = 25) -> Motion:
 
 # ------------------------------------------------------------------------------ the boundary
 @wp.kernel
-def _scaled_norm(x: wp.array(dtype=wp.vec3), s: wp.array(dtype=float), y: wp.array(dtype=wp.vec3),
-                 big: wp.array(dtype=wp.int32)):
+def _scaled_norm(
+    x: wp.array(dtype=wp.vec3), s: wp.array(dtype=float), y: wp.array(dtype=wp.vec3), big: wp.array(dtype=wp.int32)
+):
     i = wp.tid()
     n = wp.length(x[i])
     y[i] = x[i] * (s[0] * n) + wp.vec3(wp.sin(x[i][0]), 0.0, 0.0)
@@ -134,8 +142,11 @@ def test_field_jacobian_matches_hand_derivatives():
     # Capsule mass rho (pi r^2 l + 4/3 pi r^3): d/dl = rho pi r^2, d/dr = rho (2 pi r l + 4 pi r^2).
     np.testing.assert_allclose(jac["body_mass"][0, 1], DENSITY * math.pi * r**2, rtol=2e-3)
     np.testing.assert_allclose(jac["body_mass"][2, 1], DENSITY * (2 * math.pi * r * l1 + 4 * math.pi * r**2), rtol=2e-3)
-    np.testing.assert_allclose(jac["mass"], DENSITY * np.array([math.pi * r**2, math.pi * r**2,
-                                                                2 * math.pi * r * (l1 + l2) + 8 * math.pi * r**2]), rtol=2e-3)
+    np.testing.assert_allclose(
+        jac["mass"],
+        DENSITY * np.array([math.pi * r**2, math.pi * r**2, 2 * math.pi * r * (l1 + l2) + 8 * math.pi * r**2]),
+        rtol=2e-3,
+    )
     # Size: each capsule's longest dimension is l + 2 r.
     np.testing.assert_allclose(jac["size"], [1, 1, 4], rtol=1e-6)
 
@@ -156,8 +167,11 @@ def test_choice_gradient_maps_to_tokens_through_the_linearised_decode():
     discrete = space.sample(1, seed=5)[0].discrete
     params = space.continuous_params(discrete)
     # Away from the bounds (one-sided differences there are covered by the stencil, not here).
-    design = Design(space.name, discrete,
-                    tuple(q.low + (0.3 + 0.4 * k / len(params)) * (q.high - q.low) for k, q in enumerate(params)))
+    design = Design(
+        space.name,
+        discrete,
+        tuple(q.low + (0.3 + 0.4 * k / len(params)) * (q.high - q.low) for k, q in enumerate(params)),
+    )
     jac = token_jacobian(space, design)
     p = len(design.continuous)
     flat = np.concatenate([jac[n].reshape(p, -1) for n in jac], 1).T  # (N, p)
@@ -175,14 +189,26 @@ def test_simulated_reward_gradient_matches_finite_differences():
     space = PlanarArm()
     design = space.nominal()
     motion = circle()
-    cfg = RewardConfig(name="tracking", space="viperx", torque_alpha=5e-5, velocity_alpha=0.1, size_alpha=0.1,
-                       size_target=0.3, mass_alpha=10.0, mass_target=0.5)
+    cfg = RewardConfig(
+        name="tracking",
+        space="viperx",
+        torque_alpha=5e-5,
+        velocity_alpha=0.1,
+        size_alpha=0.1,
+        size_target=0.3,
+        mass_alpha=10.0,
+        mass_target=0.5,
+    )
     got = design_reward_gradient(space, [design], [motion], cfg, guidance=False, device="cpu")
     # The reward on the differentiable path is the oracle's (MuJoCo C + mink) reward.
     model = space.model(design)
     ep = oracle_rollout([model], [motion])
-    oracle = evaluate(RewardInputs.from_episode(ep, robot_size([model], dtype=torch.float64),
-                                                robot_mass([model], dtype=torch.float64)), cfg).reward
+    oracle = evaluate(
+        RewardInputs.from_episode(
+            ep, robot_size([model], dtype=torch.float64), robot_mass([model], dtype=torch.float64)
+        ),
+        cfg,
+    ).reward
     assert got.reward[0] == pytest.approx(float(oracle[0]), rel=1e-4)
     assert np.isfinite(got.grad[0]).all()
     c0 = np.asarray(design.continuous)
@@ -229,16 +255,27 @@ def _token_gradient_case(monkeypatch=None):
     motion = circle()
     mats = np.stack([np.eye(3)] * motion.steps)  # target rotations only need a range here
     poses = np.concatenate([motion.pos[:, 0], mats.reshape(-1, 9)], -1)[None].astype(np.float32)
-    targets = TokenBatch({"target_pose": poses}, {"target_pose": np.zeros((1, motion.steps, 2), np.int64)},
-                         {"target_pose": np.ones((1, motion.steps), bool)})
+    targets = TokenBatch(
+        {"target_pose": poses},
+        {"target_pose": np.zeros((1, motion.steps, 2), np.int64)},
+        {"target_pose": np.ones((1, motion.steps), bool)},
+    )
     norm = Normalizer.fit([emb, targets])
     counts = {n: int(np.asarray(emb.mask[n]).sum(1).max()) + 2 for n in emb.types}  # room for padding
     layout = layout_from_schema({**counts, "track_link_obs": 1, "target_pose": 1}, steps=8)
     padded = norm.normalize(emb.pad_to({n: counts[n] for n in emb.types}).to_torch())
     x = {n: padded.values[n][:1].clone() for n in emb.types}
     dx = {n: (padded.values[n][1:2] - padded.values[n][2:3]).double() / 2 for n in emb.types}
-    cfg = RewardConfig(name="tracking", space="viperx", torque_alpha=5e-5, velocity_alpha=0.1, size_alpha_guidance=0.1,
-                       size_target=0.3, mass_alpha_guidance=10.0, mass_target=0.5)
+    cfg = RewardConfig(
+        name="tracking",
+        space="viperx",
+        torque_alpha=5e-5,
+        velocity_alpha=0.1,
+        size_alpha_guidance=0.1,
+        size_target=0.3,
+        mass_alpha_guidance=10.0,
+        mass_target=0.5,
+    )
     if monkeypatch is not None:
         c_star = np.array([0.3, 0.15, 0.03])
 
@@ -248,16 +285,22 @@ def _token_gradient_case(monkeypatch=None):
 
         monkeypatch.setattr(simgrad, "design_reward_gradient", quadratic)
     ctx = SimpleNamespace(queries=[build_query(layout, norm, motion, 1)], motions=(motion,))
-    sim = simgrad.SimGradient(space, cfg, SimpleNamespace(layout=layout, normalizer=norm),
-                              decoder=lambda batch, i: Decoded(design, None, 0.0), device="cpu")
+    sim = simgrad.SimGradient(
+        space,
+        cfg,
+        SimpleNamespace(layout=layout, normalizer=norm),
+        decoder=lambda batch, i: Decoded(design, None, 0.0),
+        device="cpu",
+    )
     grad = sim.token_gradient(ctx, x, step=0)
     assert sim.summary()["candidates"] == 1 and sim.summary()["decode_failures"] == 0
     # Padding slots get no gradient.
     for n, g in grad.items():
         assert bool((g[0, ~padded.mask[n][0]] == 0).all()), n
     predicted = sum(float((grad[n].double() * dx[n]).sum()) for n in grad)
-    r = simgrad.design_reward_gradient(space, [plus, minus], [motion], cfg, guidance=True, gradient=False,
-                                       device="cpu").reward
+    r = simgrad.design_reward_gradient(
+        space, [plus, minus], [motion], cfg, guidance=True, gradient=False, device="cpu"
+    ).reward
     return predicted, (r[0] - r[1]) / 2
 
 

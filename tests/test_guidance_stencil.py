@@ -13,9 +13,16 @@ from tt.sim.designs import get_space
 def test_central_points_cut_at_the_bounds():
     x = np.array([0.5, 0.0, 0.99])
     points, width = central_points(x, 0.02, 0.0, 1.0)
-    expected = np.array([[0.52, 0.0, 0.99], [0.48, 0.0, 0.99],
-                         [0.5, 0.02, 0.99], [0.5, 0.0, 0.99],   # at the lower bound: one-sided
-                         [0.5, 0.0, 1.0], [0.5, 0.0, 0.97]])    # 0.01 from the upper bound
+    expected = np.array(
+        [
+            [0.52, 0.0, 0.99],
+            [0.48, 0.0, 0.99],
+            [0.5, 0.02, 0.99],
+            [0.5, 0.0, 0.99],  # at the lower bound: one-sided
+            [0.5, 0.0, 1.0],
+            [0.5, 0.0, 0.97],
+        ]
+    )  # 0.01 from the upper bound
     np.testing.assert_allclose(points, expected, atol=1e-15)
     np.testing.assert_allclose(width, [0.04, 0.02, 0.03], atol=1e-15)
     assert x.tolist() == [0.5, 0.0, 0.99]  # not written to

@@ -18,11 +18,11 @@ import mujoco
 import numpy as np
 import pytest
 import warp as wp
+from ctrl_targets import some_at_the_ends
 
 from tt.kernels.dynamics import simulate
 from tt.kernels.model import build_tree_model, topology_key, topology_of
 from tt.sim.designs import get_space
-from ctrl_targets import some_at_the_ends
 
 STEP_REL_TOL = 1e-4
 HORIZON_STEPS = 1000  # 2 s at 0.002 s

@@ -132,8 +132,10 @@ def test_tree_arrays_struct_holds_every_field_and_with_fields_replaces_only_the_
     np.testing.assert_allclose(tree.arrays.body_mass.numpy()[0, 1:], models[0].body_mass[1:], rtol=1e-6)
     np.testing.assert_array_equal(tree.kinematics64.dof_ref.numpy()[0], models[0].qpos0)
     moved = tree.arrays.body_pos.numpy() + 0.01
-    other = tree.with_fields({"body_pos": wp.array(moved, dtype=wp.vec3)},
-                             {"dof_ref": wp.array(np.ones((2, models[0].nv)), dtype=wp.float64)})
+    other = tree.with_fields(
+        {"body_pos": wp.array(moved, dtype=wp.vec3)},
+        {"dof_ref": wp.array(np.ones((2, models[0].nv)), dtype=wp.float64)},
+    )
     np.testing.assert_array_equal(other.arrays.body_pos.numpy(), moved)
     np.testing.assert_array_equal(other.kinematics64.dof_ref.numpy(), 1.0)
     assert other.arrays.body_quat is tree.arrays.body_quat  # the rest is shared

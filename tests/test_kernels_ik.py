@@ -70,8 +70,9 @@ def _run(space, cases, config, device):
     pos = np.stack([c[2] for c in cases])[:, None].astype(np.float32)
     quat = np.stack([c[3] for c in cases])[:, None].astype(np.float32)
     out = ik_step(
-        tree, *(wp.array(a, dtype=t, device=device) for a, t in ((q, float), (pos, wp.vec3), (quat, wp.vec4))),
-        config.ik_weights()
+        tree,
+        *(wp.array(a, dtype=t, device=device) for a, t in ((q, float), (pos, wp.vec3), (quat, wp.vec4))),
+        config.ik_weights(),
     )
     return out.numpy(), np.stack([c[4] for c in cases])
 

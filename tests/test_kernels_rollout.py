@@ -5,7 +5,8 @@
 * Gradients of the tracking reward of a rollout with respect to link offsets (body_pos)
   and the mount pose, taken with `wp.Tape` through the differentiable rollout kernel, equal
   central finite differences of the same rollout run in float64 by MuJoCo C with the
-  oracle's mink controller (relative error <= 1e-2), on ten ViperX designs of 5, 6 and 7 DoF. The start posture is held fixed (the oracle's, passed to both): gradients flow
+  oracle's mink controller (relative error <= 1e-2), on ten ViperX designs of 5, 6 and 7
+  DoF. The start posture is held fixed (the oracle's, passed to both): gradients flow
   through the controller and the physics.
 """
 
@@ -15,13 +16,13 @@ import pytest
 import torch
 import warp as wp
 
-from tt.sim.rewards import RewardInputs, evaluate, get_reward
 from tt.kernels.model import build_tree_model
 from tt.kernels.pose import tracking_reward
 from tt.kernels.rollout import motion_arrays, rollout_tree
 from tt.sim.controller import DiffIKController, IKConfig
 from tt.sim.designs import get_space
 from tt.sim.motions import motion_set
+from tt.sim.rewards import RewardInputs, evaluate, get_reward
 
 GRAD_REL_TOL = 1e-2
 STEPS = 20  # control steps of the differentiated rollouts (0.4 s, 200 physics steps)
@@ -54,7 +55,10 @@ def test_tracking_reward_kernel_matches_the_torch_reward():
         )
     tape.backward(grads={reward: wp.ones(W, dtype=float)})
 
-    t = {k: torch.tensor(v, dtype=torch.float64) for k, v in dict(pos=pos, quat=quat, tpos=target_pos, tquat=target_quat).items()}
+    t = {
+        k: torch.tensor(v, dtype=torch.float64)
+        for k, v in dict(pos=pos, quat=quat, tpos=target_pos, tquat=target_quat).items()
+    }
     t["pos"].requires_grad_(True)
     t["quat"].requires_grad_(True)
     alive = torch.tensor(counted.astype(bool))
@@ -87,7 +91,7 @@ def _oracle_reward(model: mujoco.MjModel, motion, q0: np.ndarray, config: IKConf
         eps_p = np.linalg.norm(motion.pos[k, 0] - data.site_xpos[0])
         w = abs(float(np.dot(quat, motion.quat[k, 0])))
         eps_o = 2.0 * np.arctan2(np.sqrt(max(0.0, 1.0 - w * w)), w)
-        total += np.exp(-eps_p**2 / 0.01 - eps_o**2 / 0.5)
+        total += np.exp(-(eps_p**2) / 0.01 - eps_o**2 / 0.5)
     return total
 
 
@@ -258,8 +262,16 @@ def test_per_topology_modules_hash_without_code_generation(space):
     grads = grad_kernels(top)
     fk_kernel(top)
     control_step_kernel(top)
-    modules = {kernels.module, grads.module, module_name(top, "fk"), module_name(top, "control_step"),
-               "tt.kernels.fk", "tt.kernels.dynamics", "tt.kernels.ik", "tt.kernels.ltdl"}
+    modules = {
+        kernels.module,
+        grads.module,
+        module_name(top, "fk"),
+        module_name(top, "control_step"),
+        "tt.kernels.fk",
+        "tt.kernels.dynamics",
+        "tt.kernels.ik",
+        "tt.kernels.ltdl",
+    }
     for name in sorted(modules):
         assert not wp.get_module(name).has_unresolved_static_expressions, name
     for kernel in (kernels.rollout, kernels.initial_posture, grads.rollout):

@@ -290,9 +290,16 @@ def test_arguments_are_checked(space, standing):
     with pytest.raises(ValueError, match="qpos"):
         wbc_step(tree, wp.zeros((W, tree.nq + 1), dtype=float, device="cpu"), good_pos, good_quat)
     with pytest.raises(ValueError, match="target_quat"):
-        wbc_step(tree, wp.zeros((W, tree.nq), dtype=float, device="cpu"), good_pos, wp.zeros((W, 2), dtype=wp.vec4, device="cpu"))
+        wbc_step(
+            tree,
+            wp.zeros((W, tree.nq), dtype=float, device="cpu"),
+            good_pos,
+            wp.zeros((W, 2), dtype=wp.vec4, device="cpu"),
+        )
     with pytest.raises(ValueError, match="data holds"):
-        wbc_step(tree, wp.zeros((W, tree.nq), dtype=float, device="cpu"), good_pos, good_quat, data=make_wbc_data(tree, 2))
+        wbc_step(
+            tree, wp.zeros((W, tree.nq), dtype=float, device="cpu"), good_pos, good_quat, data=make_wbc_data(tree, 2)
+        )
 
 
 @pytest.mark.slow

@@ -41,8 +41,23 @@ main()
 
 
 def _train_args(data, out, steps: int) -> list[str]:
-    return ["train", "--data", str(data), "--size", "tiny", "--batch-size", "4", "--device", "cpu", "--steps", str(steps),
-            "--checkpoint-every", "2", "--out", str(out)]
+    return [
+        "train",
+        "--data",
+        str(data),
+        "--size",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--device",
+        "cpu",
+        "--steps",
+        str(steps),
+        "--checkpoint-every",
+        "2",
+        "--out",
+        str(out),
+    ]
 
 
 @pytest.mark.slow  # about a minute on a loaded 2-core box (a child process, three tiny trainings)
@@ -53,8 +68,14 @@ def test_train_killed_between_checkpoint_write_and_rename(tmp_path, tt_cli, sing
     toy_episodes(episodes=6, steps=12, seed=0).save(data)
     run = tmp_path / "run"
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    child = subprocess.run([sys.executable, "-c", _TRAIN_CHILD, *_train_args(data, run, 6)], env=env,
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=600)
+    child = subprocess.run(
+        [sys.executable, "-c", _TRAIN_CHILD, *_train_args(data, run, 6)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        timeout=600,
+    )
     assert child.returncode == 9, child.stdout[-2000:]
     folder = run / "checkpoints"
     assert [p.name for p in list_checkpoints(run)] == ["step_0000002.pt"]
@@ -84,8 +105,9 @@ def test_generate_killed_at_ten_random_points(tmp_path):
     from tt.generate import GenerateConfig, generate
     from tt.tokens.store import TokenStore, read_manifest, read_root, shard_dirs, verify_shard
 
-    config = GenerateConfig(space="viperx", designs=12, episodes_per_design=2, designs_per_shard=2, min_steps=20,
-                            max_motion_steps=40)
+    config = GenerateConfig(
+        space="viperx", designs=12, episodes_per_design=2, designs_per_shard=2, min_steps=20, max_motion_steps=40
+    )
     reference = tmp_path / "reference"
     generate(config, reference, device="cpu", progress=False)
     path = tmp_path / "killed"
@@ -93,8 +115,11 @@ def test_generate_killed_at_ten_random_points(tmp_path):
     kept: dict[str, bytes] = {}  # manifest of every shard seen complete
     mid_work = 0
     for kill in range(10):
-        child = subprocess.Popen([sys.executable, "-c", _GENERATE_CHILD, str(path), json.dumps(asdict(config))],
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        child = subprocess.Popen(
+            [sys.executable, "-c", _GENERATE_CHILD, str(path), json.dumps(asdict(config))],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         time.sleep(float(rng.uniform(1.0, 15.0)))
         os.kill(child.pid, signal.SIGKILL)
         child.wait()
@@ -126,8 +151,13 @@ def test_view_serve_listens_on_the_loopback_and_its_server_dies_with_it(tmp_path
     from tt.sim.designs import get_space, save_designs
 
     save_designs([get_space("viperx").nominal()], tmp_path / "designs.json")
-    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "view", str(tmp_path / "designs.json"), "--serve"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tt.cli", "view", str(tmp_path / "designs.json"), "--serve"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+    )
     server = None
     try:
         lines = []
@@ -152,7 +182,6 @@ def test_view_serve_listens_on_the_loopback_and_its_server_dies_with_it(tmp_path
         proc.kill()
         if server is not None and running(server):
             os.kill(server, signal.SIGKILL)
-
 
 
 def test_generate_workers_die_with_a_killed_run(tmp_path):

@@ -40,8 +40,11 @@ def test_r0_a_small_model_memorizes_64_episodes(tmp_path):
     from tt.ladder import R0_RECIPE, r0_online, score_designs
 
     online = r0_online()
-    train(TrainConfig(out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0_RECIPE["steps"], online=online,
-                      **R0_RECIPE))
+    train(
+        TrainConfig(
+            out=str(tmp_path / "r0"), device="cpu", checkpoint_every=R0_RECIPE["steps"], online=online, **R0_RECIPE
+        )
+    )
     # Scored with 20 DDIM steps, eta 0, one sample per pair (`tt predict --num-steps 20`; the
     # design given to the dynamics task, the default for a model trained on it).
     trained = load_model(tmp_path / "r0")

@@ -15,8 +15,9 @@ from tt.sim.motions import for_space, motion_set
 @pytest.mark.slow
 def test_every_validation_motion_is_tracked_to_the_end_by_cmaes_best_design():
     motions = for_space(motion_set("val", arms=1), "viperx")
-    winners = [CMAES(CMAESConfig()).optimize(Problem("viperx", (m,), "tracking", budget=64, seed=0)).best
-               for m in motions]
+    winners = [
+        CMAES(CMAESConfig()).optimize(Problem("viperx", (m,), "tracking", budget=64, seed=0)).best for m in motions
+    ]
     for m, design in zip(motions, winners):
         ev = evaluate_designs([design], [m], "tracking", backend="mujoco")
         survival = float(ev.metrics["survival"][0, 0])

@@ -24,18 +24,36 @@ from tt.tokens.draws import select_episodes
 from tt.tokens.store import TokenStore, shard_dirs
 
 #: 2 shards of 8 designs, one rollout group each, 2 motions cut to 40 steps; each motion keeps 2 of 8.
-CONFIG = GenerateConfig(space="viperx", designs=16, episodes_per_design=2, designs_per_shard=8, group_designs=8,
-                        min_steps=20, max_motion_steps=40, select=4)
+CONFIG = GenerateConfig(
+    space="viperx",
+    designs=16,
+    episodes_per_design=2,
+    designs_per_shard=8,
+    group_designs=8,
+    min_steps=20,
+    max_motion_steps=40,
+    select=4,
+)
 
 
 def _rewards(designs, motions, config, noise_seed: int) -> np.ndarray:
     """(D, M) reward of every design on every motion: one independent rollout of the screen."""
     ep = rollout(designs, motions, device="cpu", action_noise=config.action_noise, noise_seed=noise_seed)
     steps = torch.tensor([m.steps for m in motions])[ep.motion_index]
-    inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
-                          act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive,
-                          fallen=ep.fallen, motion_steps=steps)
-    return metrics(inputs, get_reward(config.reward, config.space))["reward"].numpy().reshape(len(designs), len(motions))
+    inputs = RewardInputs(
+        ep.ee_pos.double(),
+        ep.ee_quat.double(),
+        ep.target_pos.double(),
+        ep.target_quat.double(),
+        act_force=ep.act_force.double(),
+        act_vel=ep.act_vel.double(),
+        alive=ep.alive,
+        fallen=ep.fallen,
+        motion_steps=steps,
+    )
+    return (
+        metrics(inputs, get_reward(config.reward, config.space))["reward"].numpy().reshape(len(designs), len(motions))
+    )
 
 
 def test_select_episodes_keeps_each_motions_best_and_its_uniform_share():
@@ -77,20 +95,30 @@ def test_every_kept_episode_was_selected_on_its_own_motion(selected):
     for shard, reader in enumerate(store.readers):
         designs = reader.designs(sp)
         block = reader.read_block(0, reader.episodes, fields=True)
-        rows = reader.field("design")[:reader.episodes].astype(int)  # the shard's design rows (block.design is relative)
+        rows = reader.field("design")[: reader.episodes].astype(
+            int
+        )  # the shard's design rows (block.design is relative)
         K = CONFIG.episodes_per_design
         slot = (block.episode["episode_id"] - shard * CONFIG.designs_per_shard * K) % K
         motions = {}
         for e in range(len(block)):
-            m = augment_motion(base[int(block.episode["motion"][e])], int(block.episode["augment_seed"][e]),
-                               max_yaw=CONFIG.max_yaw, max_shift=CONFIG.max_shift)
+            m = augment_motion(
+                base[int(block.episode["motion"][e])],
+                int(block.episode["augment_seed"][e]),
+                max_yaw=CONFIG.max_yaw,
+                max_shift=CONFIG.max_shift,
+            )
             m = for_space([m], "viperx")[0]
             motions[int(slot[e])] = Motion(m.name, m.pos[:40], m.quat[:40], m.dt)
         assert sorted(motions) == list(range(K))
-        reward = _rewards(designs, [motions[k] for k in range(K)], CONFIG, _seed_int(CONFIG.seed, shard, _STREAM_NOISE, 0))
+        reward = _rewards(
+            designs, [motions[k] for k in range(K)], CONFIG, _seed_int(CONFIG.seed, shard, _STREAM_NOISE, 0)
+        )
         for k in range(K):
             kept = sorted(int(d) for d in rows[slot == k])
-            assert sorted(np.argsort(-reward[:, k], kind="stable")[:keep].tolist()) == kept, f"shard {shard}, motion {k}"
+            assert sorted(np.argsort(-reward[:, k], kind="stable")[:keep].tolist()) == kept, (
+                f"shard {shard}, motion {k}"
+            )
             np.testing.assert_allclose(np.sort(block.episode["reward"][slot == k]), np.sort(reward[kept, k]), rtol=1e-5)
         dropped = reader.attrs["dropped"]
         assert reader.episodes == K * keep and sum(dropped.values()) + reader.episodes == reader.attrs["generated"]
@@ -108,8 +136,17 @@ def test_a_selected_dataset_resumes_to_the_uninterrupted_one(selected, tmp_path)
 
 
 def test_the_uniform_share_holds_in_a_dataset(tmp_path):
-    cfg = GenerateConfig(space="viperx", designs=8, episodes_per_design=2, designs_per_shard=8, group_designs=8,
-                         min_steps=20, max_motion_steps=40, select=2, uniform_share=0.5)
+    cfg = GenerateConfig(
+        space="viperx",
+        designs=8,
+        episodes_per_design=2,
+        designs_per_shard=8,
+        group_designs=8,
+        min_steps=20,
+        max_motion_steps=40,
+        select=2,
+        uniform_share=0.5,
+    )
     generate(cfg, tmp_path / "u", device="cpu", progress=False)
     reader = TokenStore(tmp_path / "u").readers[0]
     block = reader.read_block(0, reader.episodes, fields=True)
@@ -131,7 +168,9 @@ def test_online_refresh_keeps_each_motions_best_designs():
     from tt.dit.online import _STREAM_NOISE, OnlineConfig, OnlineTokenSource
     from tt.tokens.draws import _seed_int
 
-    cfg = OnlineConfig(space="viperx", designs=2, motions=2, select=3, max_motion_steps=40, min_steps=20, absorbing=True)
+    cfg = OnlineConfig(
+        space="viperx", designs=2, motions=2, select=3, max_motion_steps=40, min_steps=20, absorbing=True
+    )
     src = OnlineTokenSource(cfg, device="cpu")
     tokens = src._refresh(0)
     assert len(tokens) == cfg.designs * cfg.motions
@@ -140,6 +179,6 @@ def test_online_refresh_keeps_each_motions_best_designs():
     reward = _rewards(designs, motions, cfg.generate_config(), _seed_int(cfg.seed, 0, _STREAM_NOISE))
     chosen = src.selected[0]  # (design, motion) pairs kept
     for m in range(cfg.motions):
-        want = sorted(np.argsort(-reward[:, m], kind="stable")[:cfg.designs].tolist())
+        want = sorted(np.argsort(-reward[:, m], kind="stable")[: cfg.designs].tolist())
         assert sorted(d for d, mm in chosen if mm == m) == want
     assert math.isclose(src.stats["screened"], 12)

@@ -61,8 +61,11 @@ MAX_ANG_SPEED = 5.0  # rad/s
 MAX_ANG_ACCEL = 60.0  # rad/s^2
 # Tosses and flings move at human speed (2-3 m/s peaks): an arm that cannot follow shows
 # it in its error, which is the point. Their limits are those of a fast human hand.
-DYNAMIC = {"toss": (3.0, 60.0, 2000.0, 12.0, 250.0), "fling": (3.0, 60.0, 2000.0, 12.0, 250.0),
-           "bi_fling": (3.0, 60.0, 2000.0, 12.0, 250.0)}
+DYNAMIC = {
+    "toss": (3.0, 60.0, 2000.0, 12.0, 250.0),
+    "fling": (3.0, 60.0, 2000.0, 12.0, 250.0),
+    "bi_fling": (3.0, 60.0, 2000.0, 12.0, 250.0),
+}
 
 SPLIT_SEEDS = TRAIN_SEEDS + VAL_SEEDS
 
@@ -92,7 +95,9 @@ def test_quaternion_helpers_match_scipy():
     # Tiny rotations take the series branches.
     np.testing.assert_allclose(quat_to_rotvec(quat_from_rotvec(v * 1e-10)), v * 1e-10, rtol=1e-9, atol=0)
     s = rng.uniform(size=64)
-    ref = np.array([Slerp([0, 1], Rotation.concatenate([a[i], b[i]]))(s[i]).as_quat(scalar_first=True) for i in range(64)])
+    ref = np.array(
+        [Slerp([0, 1], Rotation.concatenate([a[i], b[i]]))(s[i]).as_quat(scalar_first=True) for i in range(64)]
+    )
     out = quat_slerp(qa, qb, s)
     np.testing.assert_allclose(np.abs(np.sum(out * ref, axis=-1)), 1.0, atol=1e-12)  # same rotation, either sign
     np.testing.assert_allclose(quat_angle(qa, qb), (a.inv() * b).magnitude(), atol=1e-7)
@@ -113,7 +118,8 @@ def test_library_covers_the_required_skills():
 def test_split_motions_are_valid_smooth_and_reachable(name):
     skill = SKILLS[name]
     max_speed, max_accel, max_jerk, max_ang_speed, max_ang_accel = DYNAMIC.get(
-        name, (MAX_SPEED, MAX_ACCEL, MAX_JERK, MAX_ANG_SPEED, MAX_ANG_ACCEL))
+        name, (MAX_SPEED, MAX_ACCEL, MAX_JERK, MAX_ANG_SPEED, MAX_ANG_ACCEL)
+    )
     for seed in SPLIT_SEEDS:
         m = get_motion(name, seed)
         where = f"{m.name} ({m.meta['params']})"
@@ -139,7 +145,9 @@ def test_split_motions_are_valid_smooth_and_reachable(name):
         # The skill as written (before placement) stays where the nominal arm can reach.
         authored = skill.motion(seed, placed=False)
         np.testing.assert_array_equal(authored.quat, m.quat)
-        np.testing.assert_allclose(m.pos - authored.pos, np.broadcast_to(m.pos[:1] - authored.pos[:1], m.pos.shape), atol=1e-12)
+        np.testing.assert_allclose(
+            m.pos - authored.pos, np.broadcast_to(m.pos[:1] - authored.pos[:1], m.pos.shape), atol=1e-12
+        )
         for a, ws in enumerate(workspaces(m.arms)):
             inside = ws.contains(authored.pos[:, a], authored.quat[:, a])
             assert inside.all(), f"{where}: arm {a} leaves its workspace at step {int(np.argmin(inside))}"
@@ -362,7 +370,10 @@ def test_npz_errors_name_the_file_and_field(tmp_path):
         "dt.npz": (dict(pos=good_pos, quat=good_quat, dt=-1.0), "field 'dt' must be a positive"),
         "lengths.npz": (dict(pos=good_pos, quat=good_quat[:9], dt=0.02), "different lengths"),
         "half2.npz": (dict(pos=good_pos, quat=good_quat, dt=0.02, pos2=good_pos), "needs both 'pos2' and 'quat2'"),
-        "inf2.npz": (dict(pos=good_pos, quat=good_quat, dt=0.02, pos2=np.full_like(good_pos, np.inf), quat2=good_quat), "field 'pos2'"),
+        "inf2.npz": (
+            dict(pos=good_pos, quat=good_quat, dt=0.02, pos2=np.full_like(good_pos, np.inf), quat2=good_quat),
+            "field 'pos2'",
+        ),
     }
     for fname, (fields, pattern) in cases.items():
         path = _write_npz(tmp_path / fname, **fields)
@@ -427,8 +438,12 @@ def test_umi_zarr_loads_episodes_and_resamples(tmp_path, zipped):
     d = load_motion_file(path, episode=0, hz=hz)
     t0 = np.arange(d.steps) * MOTION_DT
     _, rot0 = _analytic(t0)
-    np.testing.assert_allclose(quat_rotate(d.quat[:, 0], [1.0, 0.0, 0.0]), quat_rotate(rot0, [0.0, 0.0, 1.0]), atol=1e-7)
-    np.testing.assert_allclose(quat_rotate(d.quat[:, 0], [0.0, 0.0, 1.0]), quat_rotate(rot0, [0.0, -1.0, 0.0]), atol=1e-7)
+    np.testing.assert_allclose(
+        quat_rotate(d.quat[:, 0], [1.0, 0.0, 0.0]), quat_rotate(rot0, [0.0, 0.0, 1.0]), atol=1e-7
+    )
+    np.testing.assert_allclose(
+        quat_rotate(d.quat[:, 0], [0.0, 0.0, 1.0]), quat_rotate(rot0, [0.0, -1.0, 0.0]), atol=1e-7
+    )
     assert np.allclose(UMI_TOOL_QUAT, [0.5, 0.5, -0.5, 0.5])
 
 
@@ -442,7 +457,9 @@ def test_umi_zarr_errors(tmp_path):
         load_umi_zarr(path, hz=0.0)
     rot = root["data/robot0_eef_rot_axis_angle"]
     rot[35] = [np.nan, 0.0, 0.0]
-    with pytest.raises(MotionError, match="bad.zarr: field 'data/robot0_eef_rot_axis_angle' has NaN/inf \\(first at step 5\\)"):
+    with pytest.raises(
+        MotionError, match="bad.zarr: field 'data/robot0_eef_rot_axis_angle' has NaN/inf \\(first at step 5\\)"
+    ):
         load_umi_zarr(path, episode=1)
     load_umi_zarr(path, episode=0)  # the NaN is in episode 1 only
 
@@ -480,10 +497,16 @@ def test_augment_se2_matches_rotation_matrices_and_keeps_relative_geometry():
         ref_q = (rz * Rotation.from_quat(_sq(quat[b].reshape(-1, 4)))).as_quat(scalar_first=True)
         np.testing.assert_allclose(np.abs(np.sum(q2[b].reshape(-1, 4) * ref_q, -1)), 1.0, atol=1e-12)
         # Relative geometry: distances between arms and along time, heights, relative rotations.
-        np.testing.assert_allclose(np.linalg.norm(p2[b, :, 0] - p2[b, :, 1], axis=-1),
-                                   np.linalg.norm(pos[b, :, 0] - pos[b, :, 1], axis=-1), atol=1e-12)
-        np.testing.assert_allclose(np.linalg.norm(np.diff(p2[b], axis=0), axis=-1),
-                                   np.linalg.norm(np.diff(pos[b], axis=0), axis=-1), atol=1e-12)
+        np.testing.assert_allclose(
+            np.linalg.norm(p2[b, :, 0] - p2[b, :, 1], axis=-1),
+            np.linalg.norm(pos[b, :, 0] - pos[b, :, 1], axis=-1),
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(
+            np.linalg.norm(np.diff(p2[b], axis=0), axis=-1),
+            np.linalg.norm(np.diff(pos[b], axis=0), axis=-1),
+            atol=1e-12,
+        )
         np.testing.assert_allclose(p2[b, ..., 2], pos[b, ..., 2], atol=0)
         rel = quat_mul(quat_conj(quat[b, :, 0]), quat[b, :, 1])
         rel2 = quat_mul(quat_conj(q2[b, :, 0]), q2[b, :, 1])
@@ -515,7 +538,9 @@ def test_augment_motion_is_seeded_and_rotates_about_the_pivot():
     assert not np.allclose(augment_motion(m, 6).pos, a.pos)
     # No shift, default pivot (the arm's base): every target keeps its distance from the base's vertical.
     r = augment_motion(m, 1, max_yaw=0.5, max_shift=0.0)
-    np.testing.assert_allclose(np.linalg.norm(r.pos[..., :2], axis=-1), np.linalg.norm(m.pos[..., :2], axis=-1), atol=1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(r.pos[..., :2], axis=-1), np.linalg.norm(m.pos[..., :2], axis=-1), atol=1e-12
+    )
     assert abs(r.meta["se2"]["yaw"]) <= 0.5
     # About another pivot: the pivot stays put.
     pivot = np.array(SINGLE_ARM.center[:2])

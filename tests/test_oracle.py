@@ -2,6 +2,7 @@
 solution, termination, padding of mixed batches, and argument errors."""
 
 import dataclasses
+
 import mujoco
 import numpy as np
 import pytest
@@ -63,7 +64,7 @@ def arms_mjcf(bases, links=(0.25, 0.25, 0.1), name="arms", free=False) -> str:
   <default><geom density="1000" contype="0" conaffinity="0"/><joint armature="0.02" damping="0.1"/></default>
   <worldbody>{world}
   </worldbody>
-  <actuator>{''.join(actuators)}</actuator>
+  <actuator>{"".join(actuators)}</actuator>
 </mujoco>"""
 
 
@@ -164,8 +165,11 @@ def _q_se3(v, w):
     a = (t - np.sin(t)) / t**3
     b = (1 - t**2 / 2 - np.cos(t)) / t**4
     c = 0.5 * (b - 3 * (t - np.sin(t) - t**3 / 6) / t**5)
-    return 0.5 * V + a * (W @ V + V @ W + W @ V @ W) - b * (W @ W @ V + V @ W @ W - 3 * W @ V @ W) - c * (
-        W @ V @ W @ W + W @ W @ V @ W
+    return (
+        0.5 * V
+        + a * (W @ V + V @ W + W @ V @ W)
+        - b * (W @ W @ V + V @ W @ W - 3 * W @ V @ W)
+        - c * (W @ V @ W @ W + W @ W @ V @ W)
     )
 
 
@@ -210,15 +214,30 @@ def _ik_cases(viperx):
     seven_design = Design("viperx", seven, tuple(0.0 for _ in viperx.continuous_params(seven)))
     tilt = Rotation.from_rotvec([0.2, -0.5, 0.3])
     return [
-        ("viperx", viperx.model(viperx.nominal()), [0.3, -0.4, 0.5, 0.2, 0.6, -0.3],
-         [[0.42, 0.08, 0.33]], [tilt.as_quat(scalar_first=True)], IKConfig()),
-        ("viperx-7dof", viperx.model(seven_design), [0.1, 0.2, -0.3, 0.4, 0.1, -0.2, 0.3],
-         [[0.5, -0.1, 0.3]], [[1.0, 0.0, 0.0, 0.0]],
-         IKConfig(position_cost=2.0, orientation_cost=0.3, posture_cost=0.1, damping=1e-2)),
-        ("two-arms", mujoco.MjModel.from_xml_string(arms_mjcf([(0, 0.3, 0), (0, -0.3, 0)])),
-         [0.2, -0.3, 0.6, 0.1, -0.2, -0.5, 0.8, -0.1],
-         [[0.35, 0.4, 0.2], [0.3, -0.2, 0.15]],
-         [tilt.as_quat(scalar_first=True), [0.9238795, 0.0, 0.3826834, 0.0]], IKConfig()),
+        (
+            "viperx",
+            viperx.model(viperx.nominal()),
+            [0.3, -0.4, 0.5, 0.2, 0.6, -0.3],
+            [[0.42, 0.08, 0.33]],
+            [tilt.as_quat(scalar_first=True)],
+            IKConfig(),
+        ),
+        (
+            "viperx-7dof",
+            viperx.model(seven_design),
+            [0.1, 0.2, -0.3, 0.4, 0.1, -0.2, 0.3],
+            [[0.5, -0.1, 0.3]],
+            [[1.0, 0.0, 0.0, 0.0]],
+            IKConfig(position_cost=2.0, orientation_cost=0.3, posture_cost=0.1, damping=1e-2),
+        ),
+        (
+            "two-arms",
+            mujoco.MjModel.from_xml_string(arms_mjcf([(0, 0.3, 0), (0, -0.3, 0)])),
+            [0.2, -0.3, 0.6, 0.1, -0.2, -0.5, 0.8, -0.1],
+            [[0.35, 0.4, 0.2], [0.3, -0.2, 0.15]],
+            [tilt.as_quat(scalar_first=True), [0.9238795, 0.0, 0.3826834, 0.0]],
+            IKConfig(),
+        ),
     ]
 
 
@@ -318,8 +337,13 @@ def test_two_arm_robot_records_both_end_effectors():
     model = mujoco.MjModel.from_xml_string(arms_mjcf([(0, 0.3, 0), (0, -0.3, 0)]))
     T = 25
     # Level-gripper poses the arms reach with the upper arm pitched 0.3 and -0.2 rad.
-    pos = np.tile([[0.35 + 0.25 * np.sin(0.3), 0.3, 0.1 + 0.25 * np.cos(0.3)],
-                   [0.35 - 0.25 * np.sin(0.2), -0.3, 0.1 + 0.25 * np.cos(0.2)]], (T, 1, 1))
+    pos = np.tile(
+        [
+            [0.35 + 0.25 * np.sin(0.3), 0.3, 0.1 + 0.25 * np.cos(0.3)],
+            [0.35 - 0.25 * np.sin(0.2), -0.3, 0.1 + 0.25 * np.cos(0.2)],
+        ],
+        (T, 1, 1),
+    )
     motion = Motion("hold", pos, np.tile([1.0, 0, 0, 0], (T, 2, 1)))
     ep = oracle_rollout([model], [motion])
     assert ep.ee_pos.shape == (1, T, 2, 3) and ep.qpos.shape == (1, T, 8)

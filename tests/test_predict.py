@@ -30,9 +30,17 @@ def checkpoint(tmp_path_factory):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("predict") / "run"
-    cfg = TrainConfig(out=str(out), task="robot+dynamics", size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu",
-                      checkpoint_every=2,
-                      online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8))
+    cfg = TrainConfig(
+        out=str(out),
+        task="robot+dynamics",
+        size="tiny",
+        steps=2,
+        batch_size=4,
+        warmup_steps=1,
+        device="cpu",
+        checkpoint_every=2,
+        online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8),
+    )
     try:
         result = train(cfg)
     finally:
@@ -59,8 +67,24 @@ def test_checkpoint_records_its_design_space(checkpoint):
 
 def test_json_schema(checkpoint, designs_file, tmp_path):
     out = tmp_path / "pred.json"
-    r = _invoke("--design", designs_file, "--motion", "toss", "--motion", "scrub", "--checkpoint", checkpoint,
-                "--reward", "tracking_torque", "--samples", "2", "--num-steps", "3", "--json", out)
+    r = _invoke(
+        "--design",
+        designs_file,
+        "--motion",
+        "toss",
+        "--motion",
+        "scrub",
+        "--checkpoint",
+        checkpoint,
+        "--reward",
+        "tracking_torque",
+        "--samples",
+        "2",
+        "--num-steps",
+        "3",
+        "--json",
+        out,
+    )
     assert r.exit_code == 0, r.output
     d = json.loads(out.read_text())
     assert d["reward"] == "tracking_torque" and d["motions"] == ["toss", "scrub"]
@@ -78,8 +102,18 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
         assert p["metrics"]["query_pos_err"] >= 0
     assert "design" in r.output and "toss" in r.output  # the table
     # designs.json#i reports the index in the file.
-    r = _invoke("--design", f"{designs_file}#-1", "--motion", "toss", "--checkpoint", checkpoint, "--num-steps", "2",
-                "--json", out)
+    r = _invoke(
+        "--design",
+        f"{designs_file}#-1",
+        "--motion",
+        "toss",
+        "--checkpoint",
+        checkpoint,
+        "--num-steps",
+        "2",
+        "--json",
+        out,
+    )
     assert r.exit_code == 0, r.output
     assert [p["design"] for p in json.loads(out.read_text())["predictions"]] == [2]
 
@@ -93,8 +127,20 @@ def test_default_ddim_steps_are_the_critics(checkpoint, designs_file, tmp_path):
     from tt.sim.rewards import get_reward
 
     out = tmp_path / "pred.json"
-    r = _invoke("--design", designs_file, "--motion", "toss", "--checkpoint", checkpoint, "--reward", "tracking",
-                "--device", "cpu", "--json", out)
+    r = _invoke(
+        "--design",
+        designs_file,
+        "--motion",
+        "toss",
+        "--checkpoint",
+        checkpoint,
+        "--reward",
+        "tracking",
+        "--device",
+        "cpu",
+        "--json",
+        out,
+    )
     assert r.exit_code == 0, r.output
     got = [p["reward"] for p in json.loads(out.read_text())["predictions"]]
     trained, cfg = load_model(checkpoint), get_reward("tracking", SPACE)
@@ -134,8 +180,8 @@ def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
     from tt.dit.sampling import sample
     from tt.dit.tasks import ROBOT
     from tt.guidance.predicted import PredictedReward, design_query, predict_designs
-    from tt.sim.rewards import get_reward
     from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
 
     trained = load_model(checkpoint)
     sp = get_space(SPACE)
@@ -144,8 +190,15 @@ def test_prediction_is_the_reward_of_the_inpainted_samples(checkpoint):
     cfg = get_reward("tracking", SPACE)
     pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11, via="inpaint")
     q, known = design_query(trained.layout, trained.normalizer, motion, [sp.model(design[0])] * 3)
-    res = sample(trained.model, q.tokens, ROBOT, scheduler=CosineDDIM(100), num_steps=4,
-                 generator=torch.Generator().manual_seed(11), known=known)
+    res = sample(
+        trained.model,
+        q.tokens,
+        ROBOT,
+        scheduler=CosineDDIM(100),
+        num_steps=4,
+        generator=torch.Generator().manual_seed(11),
+        known=known,
+    )
     for n, m in known.items():
         assert torch.equal(res.tokens.values[n][m], q.tokens.values[n][m])  # the design is kept exactly
     by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(res.tokens.values).double().mean()
@@ -161,8 +214,8 @@ def test_prediction_is_the_reward_of_the_dynamics_task_samples(checkpoint):
     from tt.dit.sampling import sample
     from tt.dit.tasks import DYNAMICS
     from tt.guidance.predicted import PredictedReward, design_query, predict_designs
-    from tt.sim.rewards import get_reward
     from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
 
     trained = load_model(checkpoint)
     assert trained.tasks == ("robot", "dynamics") and trained.trained_on("dynamics")
@@ -172,8 +225,14 @@ def test_prediction_is_the_reward_of_the_dynamics_task_samples(checkpoint):
     cfg = get_reward("tracking", SPACE)
     pred = predict_designs(trained, design, [motion], cfg, samples=3, num_steps=4, seed=11)
     q, known = design_query(trained.layout, trained.normalizer, motion, [sp.model(design[0])] * 3)
-    res = sample(trained.model, q.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4,
-                 generator=torch.Generator().manual_seed(11))
+    res = sample(
+        trained.model,
+        q.tokens,
+        DYNAMICS,
+        scheduler=CosineDDIM(100),
+        num_steps=4,
+        generator=torch.Generator().manual_seed(11),
+    )
     for n, m in known.items():
         assert torch.equal(res.tokens.values[n][m], q.tokens.values[n][m])
     by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(res.tokens.values).double().mean()
@@ -188,8 +247,8 @@ def test_dynamics_needs_a_model_trained_on_it(checkpoint):
     from tt.dit.checkpoint import load_model
     from tt.guidance.predicted import predict_designs
     from tt.kernels.errors import TTError
-    from tt.sim.rewards import get_reward
     from tt.sim.motions import for_space, resolve_motion
+    from tt.sim.rewards import get_reward
 
     robot_only = dataclasses.replace(load_model(checkpoint), tasks=("robot",))
     motion = for_space([resolve_motion("toss")], SPACE)
@@ -236,7 +295,9 @@ def test_zeroth_order_dynamics_critic(checkpoint):
     composed = ComposedModel(trained.model, 1)
     g = torch.Generator().manual_seed(4)
     q = build_query(trained.layout, trained.normalizer, motion, 3, generator=torch.Generator().manual_seed(4))
-    robot = sample(composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+    robot = sample(
+        composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g
+    )
     dyn = sample(composed, robot.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g)
     scored = split_tokens(trained.layout, dyn.tokens, 1)[0].values
     by_hand = PredictedReward(trained.layout, trained.normalizer, cfg, q)(scored).double().numpy()
@@ -245,9 +306,14 @@ def test_zeroth_order_dynamics_critic(checkpoint):
     # again), the tokens those of the first.
     averaged = sampler.run([motion], cfg, 3, seed=4, num_steps=4, critic="dynamics", critic_samples=2)
     g = torch.Generator().manual_seed(4)
-    robot = sample(composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g)
+    robot = sample(
+        composed, compose_tokens(trained.layout, [q.tokens]), ROBOT, scheduler=CosineDDIM(100), num_steps=4, generator=g
+    )
     scorer = PredictedReward(trained.layout, trained.normalizer, cfg, q)
-    draws = [sample(composed, robot.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g).tokens for _ in range(2)]
+    draws = [
+        sample(composed, robot.tokens, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g).tokens
+        for _ in range(2)
+    ]
     each = [scorer(split_tokens(trained.layout, d, 1)[0].values).double().numpy() for d in draws]
     assert not np.allclose(each[0], each[1])  # two draws, not one twice
     np.testing.assert_allclose(each[0], by_hand, rtol=1e-5)
@@ -308,13 +374,23 @@ def test_zeroth_order_with_a_critic_model(checkpoint):
     for units in ("same", "other"):
         norm = trained.normalizer if units == "same" else Normalizer(low, high, trained.normalizer.version)
         critic = dataclasses.replace(trained, model=net, normalizer=norm, tasks=("dynamics",), path=None)
-        got = CandidateSampler(trained, "cpu", critic_model=critic).run([motion], cfg, 3, seed=4, num_steps=4,
-                                                                         critic="dynamics")
+        got = CandidateSampler(trained, "cpu", critic_model=critic).run(
+            [motion], cfg, 3, seed=4, num_steps=4, critic="dynamics"
+        )
         g = torch.Generator().manual_seed(4)
-        robot = sample(ComposedModel(trained.model, 1), compose_tokens(trained.layout, [q.tokens]), ROBOT,
-                       scheduler=CosineDDIM(100), num_steps=4, generator=g).tokens
-        given = robot if units == "same" else TokenBatch(renormalize(robot.values, trained.normalizer, norm), robot.ids,
-                                                         robot.mask, robot.version)
+        robot = sample(
+            ComposedModel(trained.model, 1),
+            compose_tokens(trained.layout, [q.tokens]),
+            ROBOT,
+            scheduler=CosineDDIM(100),
+            num_steps=4,
+            generator=g,
+        ).tokens
+        given = (
+            robot
+            if units == "same"
+            else TokenBatch(renormalize(robot.values, trained.normalizer, norm), robot.ids, robot.mask, robot.version)
+        )
         dyn = sample(ComposedModel(net, 1), given, DYNAMICS, scheduler=CosineDDIM(100), num_steps=4, generator=g)
         by_hand = PredictedReward(trained.layout, norm, cfg, q)(split_tokens(trained.layout, dyn.tokens, 1)[0].values)
         np.testing.assert_allclose(got.reward[:, 0], by_hand.double().numpy(), rtol=1e-5)
@@ -338,17 +414,48 @@ def test_zeroth_order_with_a_critic_model(checkpoint):
     with pytest.raises(ValueError, match="does not go with critic = 'joint'"):
         SamplerConfig(critic="joint", critic_checkpoint=str(checkpoint))
     problem = Problem(SPACE, (motion,), "tracking", 2, seed=0, backend="warp", device="cpu")
-    info = ZerothOrder(SamplerConfig(num_steps=2, critic_checkpoint=str(checkpoint)), model=trained).generate(problem)[2]
+    info = ZerothOrder(SamplerConfig(num_steps=2, critic_checkpoint=str(checkpoint)), model=trained).generate(problem)[
+        2
+    ]
     assert info["critic"] == "dynamics" and info["critic_checkpoint"] == str(checkpoint)
 
 
 def test_optimize_refuses_a_joint_critic_checkpoint(checkpoint):
-    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
-                                      "--checkpoint", str(checkpoint), "--critic", "joint",
-                                      "--critic-checkpoint", str(checkpoint)])
+    result = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--space",
+            SPACE,
+            "--motion",
+            "toss",
+            "--method",
+            "zeroth",
+            "--checkpoint",
+            str(checkpoint),
+            "--critic",
+            "joint",
+            "--critic-checkpoint",
+            str(checkpoint),
+        ],
+    )
     assert result.exit_code != 0 and "does not go with --critic joint" in result.output
-    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
-                                      "--checkpoint", str(checkpoint), "--critic-checkpoint", "missing.pt"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--space",
+            SPACE,
+            "--motion",
+            "toss",
+            "--method",
+            "zeroth",
+            "--checkpoint",
+            str(checkpoint),
+            "--critic-checkpoint",
+            "missing.pt",
+        ],
+    )
     assert result.exit_code != 0 and "--critic-checkpoint missing.pt does not exist" in result.output
 
 
@@ -390,8 +497,9 @@ def test_critic_on_designs_ranks_by_tt_predicts_reward_of_the_decoded_designs(ch
             p.add_(0.05 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
     other = dataclasses.replace(trained, model=net, tasks=("dynamics",), path=None)
     for critic in (None, other):
-        res = ZerothOrder(SamplerConfig(num_steps=2, critic_on="designs", decode="all"), model=trained,
-                          critic_model=critic).optimize(problem)
+        res = ZerothOrder(
+            SamplerConfig(num_steps=2, critic_on="designs", decode="all"), model=trained, critic_model=critic
+        ).optimize(problem)
         order = res.info["ranking"]
         assert len(res.designs) == 4 and sorted(order) == [0, 1, 2, 3]  # projection decodes every candidate
         by_index = [res.designs[order.index(i)] for i in range(4)]
@@ -403,6 +511,22 @@ def test_critic_on_designs_ranks_by_tt_predicts_reward_of_the_decoded_designs(ch
         SamplerConfig(critic="joint", critic_on="designs")
     with pytest.raises(ValueError, match="critic_on = 'robots'"):
         SamplerConfig(critic_on="robots")
-    result = CliRunner().invoke(app, ["optimize", "--space", SPACE, "--motion", "toss", "--method", "zeroth",
-                                      "--checkpoint", str(checkpoint), "--critic", "joint", "--critic-on", "designs"])
+    result = CliRunner().invoke(
+        app,
+        [
+            "optimize",
+            "--space",
+            SPACE,
+            "--motion",
+            "toss",
+            "--method",
+            "zeroth",
+            "--checkpoint",
+            str(checkpoint),
+            "--critic",
+            "joint",
+            "--critic-on",
+            "designs",
+        ],
+    )
     assert result.exit_code != 0 and "does not go with --critic joint" in result.output

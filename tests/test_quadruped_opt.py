@@ -16,10 +16,10 @@ import pytest
 import torch
 
 from tt.baselines import CMAES, Problem
-from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.validate import oracle_rollout
 from tt.sim.wbc import WBCConfig
 
@@ -140,15 +140,39 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
     assert code == 2 and "has contacts" in text, text
 
     dataset = tmp_path / "ds"
-    code, text = tt_cli(["generate", "--space", "quadruped", "--designs", "1", "--episodes-per-design", "1",
-                          "--min-steps", "10", "--out", str(dataset)])
+    code, text = tt_cli(
+        [
+            "generate",
+            "--space",
+            "quadruped",
+            "--designs",
+            "1",
+            "--episodes-per-design",
+            "1",
+            "--min-steps",
+            "10",
+            "--out",
+            str(dataset),
+        ]
+    )
     assert code == 0, text
     assert "1 episodes kept of 1 generated" in text, text
     code, text = tt_cli(["dataset", "info", str(dataset), "--json"])
     config = json.loads(text)["config"]
     assert (config["backend"], config["action_noise"]) == ("mujoco", 0.0)
-    code, text = tt_cli(["generate", "--space", "quadruped", "--designs", "1", "--out", str(tmp_path / "noisy"),
-                          "--action-noise", "0.01"])
+    code, text = tt_cli(
+        [
+            "generate",
+            "--space",
+            "quadruped",
+            "--designs",
+            "1",
+            "--out",
+            str(tmp_path / "noisy"),
+            "--action-noise",
+            "0.01",
+        ]
+    )
     assert code == 2 and "needs backend 'warp'" in text, text
 
     code, text = tt_cli(["designs", "--space", "quadruped", "--n", "2", "--out", str(tmp_path / "d")])
@@ -158,8 +182,19 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
     assert code == 0 and html.stat().st_size > 10_000, text
     # `tt validate` rolls out on the oracle and saves the rollout that `tt view` animates.
     episode = tmp_path / "ep.npz"
-    code, text = tt_cli(["validate", "--design", f"{tmp_path / 'd' / 'designs.json'}#1", "--motion-file", str(motion_file),
-                          "--episode", str(episode), "--json", str(tmp_path / "val.json")])
+    code, text = tt_cli(
+        [
+            "validate",
+            "--design",
+            f"{tmp_path / 'd' / 'designs.json'}#1",
+            "--motion-file",
+            str(motion_file),
+            "--episode",
+            str(episode),
+            "--json",
+            str(tmp_path / "val.json"),
+        ]
+    )
     assert code == 0 and episode.exists(), text
     assert json.loads((tmp_path / "val.json").read_text())["metrics"][0]["survival_pct"] == 100.0
     code, text = tt_cli(["view", str(episode), "--html", str(tmp_path / "ep.html")])

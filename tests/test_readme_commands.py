@@ -37,7 +37,9 @@ def test_ci_runs_the_first_command_in_a_fresh_venv():
     test extra installed before it."""
     ci = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
     first, second = _readme_commands()
-    assert first in ci and second in ci, "README's commands are not in .ci/run as written (test_ci_runs_each_readme_command_as_written)"
+    assert first in ci and second in ci, (
+        "README's commands are not in .ci/run as written (test_ci_runs_each_readme_command_as_written)"
+    )
     at = ci.index(first)
     venv = [i for i, line in enumerate(ci) if re.match(r"python3? -m venv ", line)]
     activate = [i for i, line in enumerate(ci) if re.match(r"(source|\.) .*/bin/activate\"?$", line)]
@@ -45,5 +47,7 @@ def test_ci_runs_the_first_command_in_a_fresh_venv():
         ".ci/run must create a venv (python -m venv) and activate it before README's first command"
     )
     assert "--system-site-packages" not in ci[venv[-1]], ci[venv[-1]]
-    assert "deactivate" in ci[at + 1 : ci.index(second)], ".ci/run must deactivate the fresh venv before the test command"
+    assert "deactivate" in ci[at + 1 : ci.index(second)], (
+        ".ci/run must deactivate the fresh venv before the test command"
+    )
     assert ci.index(second) > at, ".ci/run must run the first command before the test command"

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 
+from tt.sim.episode import Episode
 from tt.sim.rewards import (
     METRIC_UNITS,
     REWARD_SPACES,
@@ -31,7 +32,6 @@ from tt.sim.rewards import (
     robot_size,
     summarize,
 )
-from tt.sim.episode import Episode
 
 SIGMA_P, SIGMA_O = 0.01, 0.5
 DT = torch.float64
@@ -166,9 +166,7 @@ def test_tracking_torque_clips_each_step_at_zero():
     torch.testing.assert_close(reward(inputs, cfg), torch.tensor([expected], dtype=DT), rtol=1e-12, atol=0)
     # Forces at steps that do not count cost nothing: terminate at step 1.
     inputs = make_inputs([[[0.0], [0.7], [0.0], [0.0]]], orn, act_force=tau)
-    torch.testing.assert_close(
-        reward(inputs, cfg), torch.tensor([1.0 - alpha * 1e4], dtype=DT), rtol=1e-12, atol=0
-    )
+    torch.testing.assert_close(reward(inputs, cfg), torch.tensor([1.0 - alpha * 1e4], dtype=DT), rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("space,alpha", [("viperx", 0.1), ("aloha", 0.1), ("bimanual", 0.5), ("quadruped", 0.005)])
@@ -238,9 +236,7 @@ def test_padded_motions():
     cfg = get_reward("tracking_size", "viperx")
     pos = [[[0.01], [0.02], [0.9], [0.9]], [[0.01], [0.02], [0.03], [0.04]]]
     orn = [[[0.0]] * 4] * 2
-    inputs = make_inputs(
-        pos, orn, size=torch.tensor([3.0, 3.0], dtype=DT), motion_steps=torch.tensor([2, 4])
-    )
+    inputs = make_inputs(pos, orn, size=torch.tensor([3.0, 3.0], dtype=DT), motion_steps=torch.tensor([2, 4]))
     terms = evaluate(inputs, cfg)
     # World 0's motion has 2 steps: the padding neither counts nor terminates, T = 2.
     expected = [
@@ -270,7 +266,11 @@ def test_metrics_by_hand():
     tau = torch.tensor([[[3.0, 4.0]] * 4, [[6.0, 8.0], [0.0, 1.0], [9.0, 9.0], [9.0, 9.0]]], dtype=DT)
     qdot = torch.tensor([[[0.0, 0.5]] * 4, [[0.3, 0.4], [0.0, 0.0], [5.0, 5.0], [5.0, 5.0]]], dtype=DT)
     inputs = make_inputs(
-        POS, ORN, act_force=tau, act_vel=qdot, size=torch.tensor([2.1, 2.2], dtype=DT),
+        POS,
+        ORN,
+        act_force=tau,
+        act_vel=qdot,
+        size=torch.tensor([2.1, 2.2], dtype=DT),
         mass=torch.tensor([3.0, 3.1], dtype=DT),
     )
     m = metrics(inputs, cfg)
@@ -350,12 +350,19 @@ def test_from_episode_reads_views():
     W, T, nq, nu = 2, 3, 4, 4
     inputs0 = make_inputs([[[0.01]] * T] * W, [[[0.0]] * T] * W, nu=nu)
     ep = Episode(
-        qpos=torch.zeros(W, T, nq), qvel=torch.zeros(W, T, nq), ctrl=torch.zeros(W, T, nu),
-        action=torch.zeros(W, T, nu), act_force=torch.randn(W, T, nu, dtype=DT),
+        qpos=torch.zeros(W, T, nq),
+        qvel=torch.zeros(W, T, nq),
+        ctrl=torch.zeros(W, T, nu),
+        action=torch.zeros(W, T, nu),
+        act_force=torch.randn(W, T, nu, dtype=DT),
         act_vel=torch.randn(W, T, nu, dtype=DT),
-        ee_pos=inputs0.ee_pos, ee_quat=inputs0.ee_quat, target_pos=inputs0.target_pos,
-        target_quat=inputs0.target_quat, alive=torch.ones(W, T, dtype=torch.bool),
-        fallen=torch.zeros(W, T, dtype=torch.bool), design_index=torch.arange(W),
+        ee_pos=inputs0.ee_pos,
+        ee_quat=inputs0.ee_quat,
+        target_pos=inputs0.target_pos,
+        target_quat=inputs0.target_quat,
+        alive=torch.ones(W, T, dtype=torch.bool),
+        fallen=torch.zeros(W, T, dtype=torch.bool),
+        design_index=torch.arange(W),
         motion_index=torch.zeros(W, dtype=torch.long),
         dt=0.02,
     )
@@ -380,6 +387,7 @@ def _gradcheck_inputs(seed: int, A: int):
     # and bimanual alphas), the others a small one that leaves the step positive.
     large = torch.tensor([[(w + t) % 2 == 0 for t in range(T)] for w in range(W)])[..., None]
     sign = torch.tensor(rng.choice([-1.0, 1.0], size=(W, T, nu)))
+
     def magnitudes(low_small, high_small, low_large, high_large):
         small = torch.tensor(rng.uniform(low_small, high_small, (W, T, nu)))
         return sign * torch.where(large, torch.tensor(rng.uniform(low_large, high_large, (W, T, nu))), small)
@@ -400,15 +408,21 @@ def test_reward_gradients_match_finite_differences(name, space):
 
     def build(ee_pos, ee_quat, act_force, act_vel, size, mass):
         return RewardInputs(
-            ee_pos=ee_pos, ee_quat=ee_quat, target_pos=base.target_pos, target_quat=base.target_quat,
-            act_force=act_force, act_vel=act_vel, size=size, mass=mass,
+            ee_pos=ee_pos,
+            ee_quat=ee_quat,
+            target_pos=base.target_pos,
+            target_quat=base.target_quat,
+            act_force=act_force,
+            act_vel=act_vel,
+            size=size,
+            mass=mass,
         )
 
     args = [t.clone().requires_grad_(True) for t in (base.ee_pos, base.ee_quat, force, vel, size, mass)]
     terms = evaluate(build(*args), cfg)
     assert bool(terms.counted.all())
     # Keep the finite differences off the clip's kink.
-    track = torch.exp(-terms.pos_err.sum(-1) ** 2 / cfg.sigma_p - terms.orn_err.sum(-1) ** 2 / cfg.sigma_o)
+    track = torch.exp(-(terms.pos_err.sum(-1) ** 2) / cfg.sigma_p - terms.orn_err.sum(-1) ** 2 / cfg.sigma_o)
     effort = cfg.torque_alpha * force.square().sum(-1) + cfg.velocity_alpha * vel.square().sum(-1)
     assert bool(((track - effort).abs() > 1e-3).all())
     if name in ("tracking_torque", "tracking_velocity"):
@@ -440,8 +454,14 @@ def test_uncounted_steps_have_zero_gradient():
     ee_pos = inputs.ee_pos.clone().requires_grad_(True)
     force = torch.full((1, 3, 2), 20.0, dtype=DT, requires_grad=True)
     r = reward(
-        RewardInputs(ee_pos=ee_pos, ee_quat=inputs.ee_quat, target_pos=inputs.target_pos,
-                     target_quat=inputs.target_quat, act_force=force), cfg
+        RewardInputs(
+            ee_pos=ee_pos,
+            ee_quat=inputs.ee_quat,
+            target_pos=inputs.target_pos,
+            target_quat=inputs.target_quat,
+            act_force=force,
+        ),
+        cfg,
     )
     r.sum().backward()
     assert ee_pos.grad[0, 1:].abs().max().item() == 0.0 and force.grad[0, 1:].abs().max().item() == 0.0
@@ -478,16 +498,25 @@ def test_unknown_names_and_missing_inputs():
     with pytest.raises(ValueError, match="mass"):
         reward(inputs, get_reward("tracking_weight", "viperx"))
     with pytest.raises(ValueError, match=r"ee_quat.*\(1, 1, 1, 4\)"):
-        RewardInputs(ee_pos=inputs.ee_pos, ee_quat=inputs.ee_quat[..., :3], target_pos=inputs.target_pos,
-                     target_quat=inputs.target_quat)
+        RewardInputs(
+            ee_pos=inputs.ee_pos,
+            ee_quat=inputs.ee_quat[..., :3],
+            target_pos=inputs.target_pos,
+            target_quat=inputs.target_quat,
+        )
     # Targets broadcast: one motion for all worlds.
-    two = RewardInputs(ee_pos=inputs.ee_pos.expand(2, 1, 1, 3), ee_quat=inputs.ee_quat.expand(2, 1, 1, 4),
-                       target_pos=inputs.target_pos[0], target_quat=inputs.target_quat[0])
+    two = RewardInputs(
+        ee_pos=inputs.ee_pos.expand(2, 1, 1, 3),
+        ee_quat=inputs.ee_quat.expand(2, 1, 1, 4),
+        target_pos=inputs.target_pos[0],
+        target_quat=inputs.target_quat[0],
+    )
     assert reward(two, get_reward("tracking", "viperx")).tolist() == [1.0, 1.0]
     # Targets that do not broadcast to (W, T, A, 3), e.g. three end effectors for two worlds' one.
     with pytest.raises(ValueError, match=r"target_pos has shape \(3, 3\); expected broadcastable to \(2, 1, 1, 3\)"):
-        RewardInputs(ee_pos=two.ee_pos, ee_quat=two.ee_quat, target_pos=torch.zeros(3, 3, dtype=DT),
-                     target_quat=two.target_quat)
+        RewardInputs(
+            ee_pos=two.ee_pos, ee_quat=two.ee_quat, target_pos=torch.zeros(3, 3, dtype=DT), target_quat=two.target_quat
+        )
 
 
 def test_reward_stays_on_its_device(device):

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 import torch
 
-from tt.sim.rewards import RewardInputs, evaluate, get_reward
 from tt.kernels.model import topology_of
 from tt.sim.designs import get_space
 from tt.sim.motions import Motion, for_space, motion_set
+from tt.sim.rewards import RewardInputs, evaluate, get_reward
 from tt.sim.rollout import rollout
 
 POS_ERR_TOL = 0.2  # [cm]
@@ -53,8 +53,14 @@ def _rounded_oracle(space, designs, motions):
 
 def _on_cpu(ep):
     """The episode with its tensors copied to the host (where the oracle's live)."""
-    return dataclasses.replace(ep, **{f.name: getattr(ep, f.name).cpu() for f in dataclasses.fields(ep)
-                                      if isinstance(getattr(ep, f.name), torch.Tensor)})
+    return dataclasses.replace(
+        ep,
+        **{
+            f.name: getattr(ep, f.name).cpu()
+            for f in dataclasses.fields(ep)
+            if isinstance(getattr(ep, f.name), torch.Tensor)
+        },
+    )
 
 
 def _compare(space, designs, motions, min_reproducible, device="cpu"):
@@ -87,10 +93,7 @@ def _compare(space, designs, motions, min_reproducible, device="cpu"):
 
     start_moved = (oracle_ep.qpos[:, 0] - again_ep.qpos[:, 0]).abs().amax(dim=-1)
     reproducible = (
-        (start_moved < 1e-4)
-        & (a.survived == o.survived)
-        & (pos_err_gap(a, o) <= 0.05)
-        & (reward_gap(a, o) <= 0.005)
+        (start_moved < 1e-4) & (a.survived == o.survived) & (pos_err_gap(a, o) <= 0.05) & (reward_gap(a, o) <= 0.005)
     )
     assert reproducible.float().mean() >= min_reproducible, reproducible.float().mean()
     r = reproducible
@@ -182,7 +185,15 @@ def test_every_backend_implements_the_interface_and_resolves_designs_like_their_
     for d, m, xml in zip(designs, robots.models, robots.mjcf):
         ref = viperx.model(d)
         assert xml == viperx.to_mjcf(d)
-        for field in ("body_pos", "body_quat", "body_mass", "body_inertia", "jnt_axis", "jnt_range", "actuator_gainprm"):
+        for field in (
+            "body_pos",
+            "body_quat",
+            "body_mass",
+            "body_inertia",
+            "jnt_axis",
+            "jnt_range",
+            "actuator_gainprm",
+        ):
             np.testing.assert_array_equal(getattr(m, field), getattr(ref, field), err_msg=field)
     assert robots.ee_sites == ("ee_0",)
     raw = resolve_designs([viperx.model(designs[0])])
@@ -234,7 +245,9 @@ def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, ba
     ref = evaluate_designs(designs, motions, "tracking", backend=backend, device="cpu")
     for key in ("pos_err", "survival", "reward"):
         # Strict JSON: a NaN (no step counted) is written as null.
-        stored = np.array([[np.nan if v is None else v for v in row] for row in summary["per_world"][key]], dtype=np.float64)
+        stored = np.array(
+            [[np.nan if v is None else v for v in row] for row in summary["per_world"][key]], dtype=np.float64
+        )
         np.testing.assert_allclose(stored, ref.metrics[key], rtol=1e-6, atol=1e-9)
     assert (tmp_path / "run" / "episode.npz").stat().st_size > 0
 

@@ -29,7 +29,11 @@ def _motions(steps: int = STEPS) -> list[Motion]:
 
 
 def _tensor_fields(ep) -> dict[str, np.ndarray]:
-    return {f.name: getattr(ep, f.name).numpy() for f in dataclasses.fields(ep) if isinstance(getattr(ep, f.name), torch.Tensor)}
+    return {
+        f.name: getattr(ep, f.name).numpy()
+        for f in dataclasses.fields(ep)
+        if isinstance(getattr(ep, f.name), torch.Tensor)
+    }
 
 
 @pytest.fixture
@@ -113,8 +117,23 @@ def test_cli_rollout_threads_flag(tmp_path, tt_cli, small_slices):
     save_npz(_motions(40)[0], tmp_path / "short.npz")
     summaries = {}
     for k in (1, 2):
-        code, text = tt_cli(["rollout", "--n", "5", "--seed", "2", "--motion-file", str(tmp_path / "short.npz"),
-                             "--threads", str(k), "--device", "cpu", "--out", str(tmp_path / f"t{k}")])
+        code, text = tt_cli(
+            [
+                "rollout",
+                "--n",
+                "5",
+                "--seed",
+                "2",
+                "--motion-file",
+                str(tmp_path / "short.npz"),
+                "--threads",
+                str(k),
+                "--device",
+                "cpu",
+                "--out",
+                str(tmp_path / f"t{k}"),
+            ]
+        )
         assert code == 0, text
         assert f"{k} threads" in text, text
         summaries[k] = json.loads((tmp_path / f"t{k}" / "summary.json").read_text())
@@ -136,8 +155,18 @@ def test_models_built_in_worker_processes_equal_the_serial_build(monkeypatch):
     serial = [space.model(d) for d in designs]
     assert len(parallel) == len(serial)
     for a, b in zip(parallel, serial):
-        for name in ("body_pos", "body_quat", "body_mass", "body_inertia", "jnt_axis", "jnt_range", "actuator_gainprm",
-                     "site_pos", "qpos0", "dof_invweight0"):
+        for name in (
+            "body_pos",
+            "body_quat",
+            "body_mass",
+            "body_inertia",
+            "jnt_axis",
+            "jnt_range",
+            "actuator_gainprm",
+            "site_pos",
+            "qpos0",
+            "dof_invweight0",
+        ):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 

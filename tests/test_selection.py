@@ -29,10 +29,21 @@ def run(tmp_path_factory):
     from tt.dit.train import TrainConfig, train
 
     out = tmp_path_factory.mktemp("select") / "run"
-    cfg = TrainConfig(out=str(out), task="dynamics", size="tiny", steps=4, batch_size=4, warmup_steps=1, device="cpu",
-                      checkpoint_every=2, keep_checkpoints=5, prediction="x0",
-                      online=OnlineConfig(space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8,
-                                          absorbing=True))
+    cfg = TrainConfig(
+        out=str(out),
+        task="dynamics",
+        size="tiny",
+        steps=4,
+        batch_size=4,
+        warmup_steps=1,
+        device="cpu",
+        checkpoint_every=2,
+        keep_checkpoints=5,
+        prediction="x0",
+        online=OnlineConfig(
+            space=SPACE, designs=4, motions=1, refresh_every=100, buffer=1, min_steps=8, absorbing=True
+        ),
+    )
     selector = CheckpointSelector(out, CONFIG)
     calls = []
 
@@ -78,14 +89,20 @@ def test_best_checkpoint_is_a_copy_of_the_best_row(run):
 def test_a_resumed_selector_reads_the_run_back(run):
     out, selector, _ = run
     again = CheckpointSelector(out, CONFIG)
-    assert again.rows == [SelectionRow(r.step, float(f"{r.within_r:.6g}"), float(f"{r.pooled_r:.6g}"),
-                                       float(f"{r.seconds:.3f}")) for r in selector.rows]
+    assert again.rows == [
+        SelectionRow(r.step, float(f"{r.within_r:.6g}"), float(f"{r.pooled_r:.6g}"), float(f"{r.seconds:.3f}"))
+        for r in selector.rows
+    ]
 
 
 def test_best_skips_nan_and_prefers_the_earlier_of_a_tie(tmp_path):
     sel = CheckpointSelector(tmp_path)
-    sel.rows = [SelectionRow(500, 0.4, 0.3, 1.0), SelectionRow(1000, float("nan"), 0.9, 1.0),
-                SelectionRow(1500, 0.4, 0.5, 1.0), SelectionRow(2000, 0.2, 0.6, 1.0)]
+    sel.rows = [
+        SelectionRow(500, 0.4, 0.3, 1.0),
+        SelectionRow(1000, float("nan"), 0.9, 1.0),
+        SelectionRow(1500, 0.4, 0.5, 1.0),
+        SelectionRow(2000, 0.2, 0.6, 1.0),
+    ]
     assert sel.best.step == 500
     sel.rows = [SelectionRow(500, float("nan"), 0.1, 1.0)]
     assert sel.best is None
@@ -96,8 +113,12 @@ def test_selection_designs_are_not_the_ladders_report_designs():
 
     chosen_on = heldout_designs("viperx", 8, seed=SELECTION_SEED)
     reported_on = heldout_designs("viperx", 8)
-    assert all(not np.allclose(a.continuous, b.continuous) for a in chosen_on for b in reported_on
-               if len(a.continuous) == len(b.continuous))
+    assert all(
+        not np.allclose(a.continuous, b.continuous)
+        for a in chosen_on
+        for b in reported_on
+        if len(a.continuous) == len(b.continuous)
+    )
 
 
 def test_a_foreign_csv_is_refused(tmp_path):
@@ -106,16 +127,20 @@ def test_a_foreign_csv_is_refused(tmp_path):
         CheckpointSelector(tmp_path)
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--select-designs", "2"], "--select-designs must be >= 3"),
-    (["--select-designs", "4", "--task", "control"], "needs --task with robot or dynamics"),
-    (["--select-designs", "4", "--select-reward", "speed"], "--select-reward 'speed' is not a reward"),
-    (["--select-designs", "4", "--select-motions", "0"], "--select-motions must be >= 1"),
-    (["--select-designs", "4", "--select-reward", "tracking_torque", "--drop-type", "actuator_obs"], "leaves out"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--select-designs", "2"], "--select-designs must be >= 3"),
+        (["--select-designs", "4", "--task", "control"], "needs --task with robot or dynamics"),
+        (["--select-designs", "4", "--select-reward", "speed"], "--select-reward 'speed' is not a reward"),
+        (["--select-designs", "4", "--select-motions", "0"], "--select-motions must be >= 1"),
+        (["--select-designs", "4", "--select-reward", "tracking_torque", "--drop-type", "actuator_obs"], "leaves out"),
+    ],
+)
 def test_bad_selection_flags_fail_clearly(tmp_path, args, message):
-    r = CliRunner().invoke(app, ["train", "--online", "--task", "dynamics", "--steps", "1", "--out", str(tmp_path / "r"),
-                                 *args])
+    r = CliRunner().invoke(
+        app, ["train", "--online", "--task", "dynamics", "--steps", "1", "--out", str(tmp_path / "r"), *args]
+    )
     assert r.exit_code == 2
     assert message in r.output
 

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import torch
 
+from tt.dit.loader import SE2Augment, StoreTokenSource, augment_se2_tokens, make_loader, window_steps
+from tt.generate import GenerateConfig, generate
+from tt.kernels.rotations import quat_to_mat
 from tt.sim.designs import get_space
 from tt.sim.motions import augment_se2
-from tt.tokens import SCHEMA, TokenBatch, Normalizer, tokenize_model
-from tt.kernels.rotations import quat_to_mat
-from tt.generate import GenerateConfig, generate
-from tt.dit.loader import SE2Augment, StoreTokenSource, augment_se2_tokens, make_loader, window_steps
+from tt.tokens import SCHEMA, Normalizer, TokenBatch, tokenize_model
 from tt.tokens.store import (
     ShardPart,
     ShardReader,
@@ -29,8 +29,9 @@ from tt.tokens.store import (
 )
 
 #: Small and fast: 2 shards of 3 designs x 2 episodes on 48-step motions.
-CONFIG = GenerateConfig(space="viperx", designs=6, episodes_per_design=2, designs_per_shard=3, min_steps=20,
-                        max_motion_steps=48)
+CONFIG = GenerateConfig(
+    space="viperx", designs=6, episodes_per_design=2, designs_per_shard=3, min_steps=20, max_motion_steps=48
+)
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,9 @@ def copy(dataset, tmp_path):
 
 def _chunk_file(shard):
     """A chunk file of the shard's largest per-step array."""
-    files = sorted((shard / "dyna_joint_obs" / "values" / "c").rglob("*"), key=lambda p: p.stat().st_size if p.is_file() else 0)
+    files = sorted(
+        (shard / "dyna_joint_obs" / "values" / "c").rglob("*"), key=lambda p: p.stat().st_size if p.is_file() else 0
+    )
     return files[-1]
 
 
@@ -81,8 +84,13 @@ def test_verify_detects_truncation_corruption_and_missing_manifest(copy):
 
 def test_writer_without_commit_leaves_no_shard(tmp_path):
     (tmp_path / "shards").mkdir()
-    part = ShardPart(np.zeros((1, 2)), np.zeros((1, 3)), {}, {"design": np.zeros(2, np.int64), "length": np.array([3, 2])},
-                     {"control": (np.ones((5, 4, 1), np.float32), np.zeros((2, 4, 2)), np.ones((2, 4), bool))})
+    part = ShardPart(
+        np.zeros((1, 2)),
+        np.zeros((1, 3)),
+        {},
+        {"design": np.zeros(2, np.int64), "length": np.array([3, 2])},
+        {"control": (np.ones((5, 4, 1), np.float32), np.zeros((2, 4, 2)), np.ones((2, 4), bool))},
+    )
     with pytest.raises(RuntimeError):
         with ShardWriter(tmp_path, 0) as w:
             w.append(part)
@@ -165,8 +173,13 @@ def test_se2_augmentation_equals_tokens_of_the_moved_scene():
     for name in ("track_link_obs", "target_pose"):
         values[name] = torch.as_tensor(_pose_tokens(name, pos, quat), dtype=torch.float32)
         mask[name] = torch.ones(1, 5, dtype=torch.bool)
-    out = augment_se2_tokens(values, mask, torch.tensor([yaw], dtype=torch.float64), torch.tensor([dx], dtype=torch.float64),
-                             torch.tensor([dy], dtype=torch.float64))
+    out = augment_se2_tokens(
+        values,
+        mask,
+        torch.tensor([yaw], dtype=torch.float64),
+        torch.tensor([dx], dtype=torch.float64),
+        torch.tensor([dy], dtype=torch.float64),
+    )
     changed = 0
     for name in emb.types:
         ref = emb_moved.values[name]
@@ -219,14 +232,18 @@ def test_token_source_is_deterministic_and_trains(dataset, tmp_path):
     for name in a.values:
         assert torch.equal(a.values[name], b.values[name]) and torch.equal(a.ids[name], b.ids[name])
     src.layout(8).check(a)
-    plain = StoreTokenSource(dataset, augment=None, windows_per_block=4).sample(9, 8, "random", torch.Generator().manual_seed(3))
+    plain = StoreTokenSource(dataset, augment=None, windows_per_block=4).sample(
+        9, 8, "random", torch.Generator().manual_seed(3)
+    )
     assert not torch.equal(plain.values["target_pose"], a.values["target_pose"])  # augmentation is on by default
     identity = StoreTokenSource(dataset, augment=SE2Augment(0.0, 0.0), windows_per_block=4)
     same = identity.sample(9, 8, "random", torch.Generator().manual_seed(3))
     assert all(torch.equal(same.values[n], plain.values[n]) for n in plain.values)  # g = identity changes nothing
     torch.set_num_threads(1)
-    result = train(TrainConfig(out=str(tmp_path / "run"), size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu"),
-                   episodes=src)
+    result = train(
+        TrainConfig(out=str(tmp_path / "run"), size="tiny", steps=2, batch_size=4, warmup_steps=1, device="cpu"),
+        episodes=src,
+    )
     assert result.step == 2 and torch.isfinite(result.losses).all()
 
 

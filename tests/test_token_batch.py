@@ -12,10 +12,14 @@ from tt.tokens.schema import SCHEMA, STEP_ROLES, Role
 
 def _toy(n: int = 3, length: int = 4) -> TokenBatch:
     g = torch.Generator().manual_seed(0)
-    return TokenBatch({"body": torch.randn(n, length, 5, generator=g), "link": torch.randn(n, 2, SCHEMA["link"].width, generator=g)},
-                      {"body": torch.randint(0, 4, (n, length, 1), generator=g),
-                       "link": torch.randint(0, 4, (n, 2, len(SCHEMA["link"].ids)), generator=g)},
-                      {"body": torch.rand(n, length, generator=g) > 0.3, "link": torch.ones(n, 2, dtype=torch.bool)})
+    return TokenBatch(
+        {"body": torch.randn(n, length, 5, generator=g), "link": torch.randn(n, 2, SCHEMA["link"].width, generator=g)},
+        {
+            "body": torch.randint(0, 4, (n, length, 1), generator=g),
+            "link": torch.randint(0, 4, (n, 2, len(SCHEMA["link"].ids)), generator=g),
+        },
+        {"body": torch.rand(n, length, generator=g) > 0.3, "link": torch.ones(n, 2, dtype=torch.bool)},
+    )
 
 
 def test_shapes_are_checked_for_schema_and_other_types():
@@ -44,7 +48,9 @@ def test_torch_and_numpy_operations_agree():
     assert torch.equal(sel.mask["body"], b.mask["body"][keep])
     # numpy batches of different lengths are padded to the longest; the torch result matches.
     short = b.select(slice(0, 1)).to_numpy()
-    short = TokenBatch({"body": short.values["body"][:, :2]}, {"body": short.ids["body"][:, :2]}, {"body": short.mask["body"][:, :2]})
+    short = TokenBatch(
+        {"body": short.values["body"][:, :2]}, {"body": short.ids["body"][:, :2]}, {"body": short.mask["body"][:, :2]}
+    )
     padded = TokenBatch.concatenate([short, b.subset(["body"]).to_numpy()])
     assert padded.values["body"].shape == (4, 4, 5) and not padded.mask["body"][0, 2:].any()
     np.testing.assert_array_equal(padded.values["body"][1:], b.values["body"].numpy())

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import torch
 
+from tt.kernels.rotations import mat_to_quat, quat_to_mat
 from tt.sim.designs import SPACE_NAMES, Design, get_space
 from tt.sim.episode import Episode
 from tt.tokens import (
@@ -49,7 +50,6 @@ from tt.tokens.encodings import (
     encode_signed_log,
     project_rotation,
 )
-from tt.kernels.rotations import mat_to_quat, quat_to_mat
 from tt.tokens.inertia import fit_masses, primitive_inertia, primitive_volume, repair_moments, valid_moments
 from tt.tokens.schema import GEOM_TYPES, Encoding
 
@@ -80,16 +80,36 @@ def test_schema_matches_the_paper_table():
     """Dims and encodings of the paper's Table "RoboToken Schema" (track IDs get 2 bits:
     two-arm robots have two end effectors; actuator types 2: position, velocity, motor)."""
     link = SCHEMA["link"]
-    expect = {"geom_type": (1, Encoding.BINARY, 3), "size": (3, Encoding.NONE, 3), "mass": (1, Encoding.LOG, 1),
-              "ipos": (3, Encoding.NONE, 3), "irot": (9, Encoding.ROTATION, 9), "inertia": (3, Encoding.LOG, 3),
-              "friction": (3, Encoding.NONE, 3), "contact": (1, Encoding.BINARY, 3), "rgba": (4, Encoding.NONE, 4),
-              "free_id": (1, Encoding.BINARY, 1), "track_id": (1, Encoding.BINARY, 2)}
+    expect = {
+        "geom_type": (1, Encoding.BINARY, 3),
+        "size": (3, Encoding.NONE, 3),
+        "mass": (1, Encoding.LOG, 1),
+        "ipos": (3, Encoding.NONE, 3),
+        "irot": (9, Encoding.ROTATION, 9),
+        "inertia": (3, Encoding.LOG, 3),
+        "friction": (3, Encoding.NONE, 3),
+        "contact": (1, Encoding.BINARY, 3),
+        "rgba": (4, Encoding.NONE, 4),
+        "free_id": (1, Encoding.BINARY, 1),
+        "track_id": (1, Encoding.BINARY, 2),
+    }
     for name, (dim, enc, width) in expect.items():
         a = link.attribute(name)
         assert (a.dim, a.encoding, a.width) == (dim, enc, width), name
     joint = SCHEMA["dyna_joint"]
-    assert [a.name for a in joint.attributes] == ["type", "range", "armature", "damping", "frictionloss", "stiffness",
-                                                  "springref", "ref", "pos", "rot", "link_id"]
+    assert [a.name for a in joint.attributes] == [
+        "type",
+        "range",
+        "armature",
+        "damping",
+        "frictionloss",
+        "stiffness",
+        "springref",
+        "ref",
+        "pos",
+        "rot",
+        "link_id",
+    ]
     assert joint.attribute("link_id").width == 7 and joint.attribute("type").width == 2
     assert [a.name for a in SCHEMA["ball_joint"].attributes] == [a.name for a in joint.attributes]
     act = SCHEMA["actuator"]
@@ -142,7 +162,9 @@ def test_rotation_projection_is_the_nearest_rotation():
     for k in range(5):
         for _ in range(20):
             other = quat_to_mat(mat_to_quat(p[k]) + rng.normal(0, 0.02, 4))
-            assert np.linalg.norm(other - noisy[k].reshape(3, 3)) >= np.linalg.norm(p[k] - noisy[k].reshape(3, 3)) - 1e-12
+            assert (
+                np.linalg.norm(other - noisy[k].reshape(3, 3)) >= np.linalg.norm(p[k] - noisy[k].reshape(3, 3)) - 1e-12
+            )
     assert np.allclose(project_rotation(np.zeros(9)), np.eye(3))
     assert np.allclose(project_rotation(torch.tensor(noisy)).numpy(), p, atol=1e-10)
 
@@ -154,8 +176,10 @@ def test_primitive_mass_properties_match_mujoco():
         name = GEOM_TYPES[code]
         size = rng.uniform(0.02, 0.3, 3)
         density = rng.uniform(100, 5000)
-        xml = (f'<mujoco><worldbody><body><freejoint/><geom type="{name}" size="{" ".join(map(str, size))}" '
-               f'density="{density}"/></body></worldbody></mujoco>')
+        xml = (
+            f'<mujoco><worldbody><body><freejoint/><geom type="{name}" size="{" ".join(map(str, size))}" '
+            f'density="{density}"/></body></worldbody></mujoco>'
+        )
         m = mujoco.MjModel.from_xml_string(xml)
         size = m.geom_size[0]
         mass = primitive_volume(np.array(code), size) * density
@@ -167,20 +191,34 @@ def test_primitive_mass_properties_match_mujoco():
 def test_lumped_inertia_split_recovers_per_geom_masses():
     """A body of parts in different materials: the fit finds each part's mass (MuJoCo
     computes them from the densities), so the split is exact."""
-    parts = [("cylinder", "0.15 0.02", "0 0 0", "", 2700), ("box", "0.04 0.04 0.08", "0 0 0.1", "", 900),
-             ("capsule", "0.03 0.1", "0.1 0 0.05", 'euler="0 1.2 0"', 1200)]
+    parts = [
+        ("cylinder", "0.15 0.02", "0 0 0", "", 2700),
+        ("box", "0.04 0.04 0.08", "0 0 0.1", "", 900),
+        ("capsule", "0.03 0.1", "0.1 0 0.05", 'euler="0 1.2 0"', 1200),
+    ]
     geoms = "".join(f'<geom type="{t}" size="{s}" pos="{p}" {e} density="{d}"/>' for t, s, p, e, d in parts)
-    m = mujoco.MjModel.from_xml_string(f'<mujoco><compiler angle="radian"/><worldbody><body><freejoint/>{geoms}</body></worldbody></mujoco>')
+    m = mujoco.MjModel.from_xml_string(
+        f'<mujoco><compiler angle="radian"/><worldbody><body><freejoint/>{geoms}</body></worldbody></mujoco>'
+    )
     truth = []
     for t, s, p, e, d in parts:
-        one = mujoco.MjModel.from_xml_string(f'<mujoco><compiler angle="radian"/><worldbody><body><freejoint/>'
-                                             f'<geom type="{t}" size="{s}" {e} density="{d}"/></body></worldbody></mujoco>')
+        one = mujoco.MjModel.from_xml_string(
+            f'<mujoco><compiler angle="radian"/><worldbody><body><freejoint/>'
+            f'<geom type="{t}" size="{s}" {e} density="{d}"/></body></worldbody></mujoco>'
+        )
         truth.append(one.body_mass[1])
     irot = quat_to_mat(m.body_iquat[1])
     inertia = irot @ np.diag(m.body_inertia[1]) @ irot.T
     codes = np.array([GEOM_TYPES.index(t) for t, *_ in parts])
-    masses = fit_masses(m.body_mass[1:2], m.body_ipos[1:2], inertia[None], codes[None], m.geom_size[None], m.geom_pos[None],
-                        quat_to_mat(m.geom_quat)[None])
+    masses = fit_masses(
+        m.body_mass[1:2],
+        m.body_ipos[1:2],
+        inertia[None],
+        codes[None],
+        m.geom_size[None],
+        m.geom_pos[None],
+        quat_to_mat(m.geom_quat)[None],
+    )
     assert np.allclose(masses[0], truth, rtol=1e-6)
 
 
@@ -213,7 +251,9 @@ def test_joint_tokens_hold_link_poses_in_the_joint_frame():
     p_wj = np.array([1, 2, 3.0]) + world_rz @ [0.1, 0, 0]
     assert np.allclose(j["rot"][0], r_wj.T) and np.allclose(j["pos"][0], -r_wj.T @ p_wj)  # the ground
     assert np.allclose(j["rot"][1], r_bj.T) and np.allclose(j["pos"][1], r_bj.T @ ([0, 0, 0.2] - np.array([0.1, 0, 0])))
-    assert np.allclose(j["range"][0], [-1, 2]) and np.isclose(j["damping"][0, 0], 0.5) and np.isclose(j["ref"][0, 0], 0.3)
+    assert (
+        np.allclose(j["range"][0], [-1, 2]) and np.isclose(j["damping"][0, 0], 0.5) and np.isclose(j["ref"][0, 0], 0.3)
+    )
     lk = dec["link"]
     assert lk["geom_type"].tolist() == [GEOM_TYPES.index("box")] and np.allclose(lk["size"][0], [0.1, 0.2, 0.3])
     assert np.allclose(lk["mass"][0, 0], 1000 * 0.2 * 0.4 * 0.6) and np.allclose(lk["irot"][0], np.eye(3))
@@ -222,12 +262,16 @@ def test_joint_tokens_hold_link_poses_in_the_joint_frame():
 
 
 def test_tokenizer_rejects_what_tokens_cannot_hold():
-    links = "".join('<body pos="0 0 0.01"><joint type="hinge"/><geom size="0.01"/>' for _ in range(130)) + "</body>" * 130
+    links = (
+        "".join('<body pos="0 0 0.01"><joint type="hinge"/><geom size="0.01"/>' for _ in range(130)) + "</body>" * 130
+    )
     with pytest.raises(TokenizeError, match="130 links; schema allows at most 127"):
         tokenize_models([mujoco.MjModel.from_xml_string(f"<mujoco><worldbody>{links}</worldbody></mujoco>")])
     with pytest.raises(TokenizeError, match="end-effector site 'tip'"):
-        tokenize_models([mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><geom size='1'/></body></worldbody></mujoco>")],
-                        TokenizeConfig(ee_sites=("tip",)))
+        tokenize_models(
+            [mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><geom size='1'/></body></worldbody></mujoco>")],
+            TokenizeConfig(ee_sites=("tip",)),
+        )
     with pytest.raises(TypeError, match="expected mujoco.MjModel"):
         tokenize_models(["robot.xml"])
 
@@ -321,7 +365,9 @@ def test_loop_closures_and_multi_joint_bodies_come_back():
     counts = {k: int(v[0]) for k, v in emb.tokens.counts().items()}
     assert counts["ball_joint"] == 2 and counts["fixed_joint"] >= 2  # connect -> ball, weld -> fixed
     out = detokenize(emb.tokens)[0].model
-    assert out.neq == 2 and sorted(out.eq_type.tolist()) == sorted([int(mujoco.mjtEq.mjEQ_CONNECT), int(mujoco.mjtEq.mjEQ_WELD)])
+    assert out.neq == 2 and sorted(out.eq_type.tolist()) == sorted(
+        [int(mujoco.mjtEq.mjEQ_CONNECT), int(mujoco.mjtEq.mjEQ_WELD)]
+    )
     g = mujoco.MjModel.from_xml_path(str(ROBOTS / "multi_joint.xml"))
     out = detokenize(_quiet_tokenize([g]).tokens)[0].model
     assert out.body_jntnum.tolist().count(3) == 1 and out.body_jntnum.tolist().count(2) == 1
@@ -337,8 +383,11 @@ def _noisy_decoding(space: str, designs: int, rounds: int) -> tuple[int, int]:
     rng = np.random.default_rng(0)
     ok = total = 0
     for _ in range(rounds):
-        noisy = TokenBatch({k: (v + rng.normal(0, 0.05, v.shape)).astype(np.float32) for k, v in clean.values.items()},
-                           clean.ids, clean.mask)
+        noisy = TokenBatch(
+            {k: (v + rng.normal(0, 0.05, v.shape)).astype(np.float32) for k, v in clean.values.items()},
+            clean.ids,
+            clean.mask,
+        )
         decoded = norm.denormalize(noisy, detect_padding=True)
         for k in decoded.types:  # padding is found again from the values alone
             assert np.array_equal(decoded.mask[k], emb.tokens.mask[k]), k
@@ -380,7 +429,11 @@ def test_garbage_is_reported_not_raised():
         junk = TokenBatch({k: rng.normal(0, 3, v.shape).astype(np.float32) for k, v in t.values.items()}, t.ids, t.mask)
         r = detokenize(junk)[0]
         assert r.ok or (isinstance(r.error, str) and r.error)
-    empty = TokenBatch({k: v[:, :0] for k, v in t.values.items()}, {k: v[:, :0] for k, v in t.ids.items()}, {k: v[:, :0] for k, v in t.mask.items()})
+    empty = TokenBatch(
+        {k: v[:, :0] for k, v in t.values.items()},
+        {k: v[:, :0] for k, v in t.ids.items()},
+        {k: v[:, :0] for k, v in t.mask.items()},
+    )
     r = detokenize(empty)[0]
     assert not r.ok and "no link tokens" in r.error
 
@@ -413,8 +466,14 @@ def _open_loop_episode(models, steps: int, seed: int, substeps: int = 10) -> Epi
     """Episodes from MuJoCo C: random smooth commands, recorded at 50 Hz."""
     rng = np.random.default_rng(seed)
     nq, nv, nu = (max(getattr(m, k) for m in models) for k in ("nq", "nv", "nu"))
-    a = max(len([i for i in range(m.nsite) if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i).startswith("ee_")]) for m in models)
-    rec = {k: np.zeros((len(models), steps, n)) for k, n in (("qpos", nq), ("qvel", nv), ("ctrl", nu), ("act_force", nu), ("act_vel", nu))}
+    a = max(
+        len([i for i in range(m.nsite) if mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i).startswith("ee_")])
+        for m in models
+    )
+    rec = {
+        k: np.zeros((len(models), steps, n))
+        for k, n in (("qpos", nq), ("qvel", nv), ("ctrl", nu), ("act_force", nu), ("act_vel", nu))
+    }
     ee_pos, ee_quat = np.zeros((len(models), steps, a, 3)), np.zeros((len(models), steps, a, 4))
     for w, m in enumerate(models):
         d = mujoco.MjData(m)
@@ -422,22 +481,40 @@ def _open_loop_episode(models, steps: int, seed: int, substeps: int = 10) -> Epi
         sites = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, f"ee_{k}") for k in range(a)]
         lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
         for t in range(steps):
-            d.ctrl[:] = np.where(m.actuator_ctrllimited, lo + (hi - lo) * (0.5 + 0.4 * np.sin(0.1 * t + rng.uniform(0, 6, m.nu))), 0.3)
+            d.ctrl[:] = np.where(
+                m.actuator_ctrllimited, lo + (hi - lo) * (0.5 + 0.4 * np.sin(0.1 * t + rng.uniform(0, 6, m.nu))), 0.3
+            )
             for _ in range(substeps):
                 mujoco.mj_step(m, d)
             mujoco.mj_forward(m, d)
             rec["qpos"][w, t, : m.nq], rec["qvel"][w, t, : m.nv] = d.qpos, d.qvel
-            rec["ctrl"][w, t, : m.nu], rec["act_force"][w, t, : m.nu], rec["act_vel"][w, t, : m.nu] = d.ctrl, d.actuator_force, d.actuator_velocity
+            rec["ctrl"][w, t, : m.nu], rec["act_force"][w, t, : m.nu], rec["act_vel"][w, t, : m.nu] = (
+                d.ctrl,
+                d.actuator_force,
+                d.actuator_velocity,
+            )
             for k, s in enumerate(sites):
                 ee_pos[w, t, k] = d.site_xpos[s]
                 ee_quat[w, t, k] = mat_to_quat(d.site_xmat[s].reshape(3, 3))
     f = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
     w_ = len(models)
-    return Episode(qpos=f(rec["qpos"]), qvel=f(rec["qvel"]), ctrl=f(rec["ctrl"]), action=f(rec["ctrl"]) + 0.01,
-                   act_force=f(rec["act_force"]), act_vel=f(rec["act_vel"]), ee_pos=f(ee_pos), ee_quat=f(ee_quat),
-                   target_pos=f(ee_pos + 0.05), target_quat=f(ee_quat), alive=torch.ones(w_, steps, dtype=torch.bool),
-                   fallen=torch.zeros(w_, steps, dtype=torch.bool), design_index=torch.arange(w_), motion_index=torch.zeros(w_, dtype=torch.long),
-                   dt=0.02)
+    return Episode(
+        qpos=f(rec["qpos"]),
+        qvel=f(rec["qvel"]),
+        ctrl=f(rec["ctrl"]),
+        action=f(rec["ctrl"]) + 0.01,
+        act_force=f(rec["act_force"]),
+        act_vel=f(rec["act_vel"]),
+        ee_pos=f(ee_pos),
+        ee_quat=f(ee_quat),
+        target_pos=f(ee_pos + 0.05),
+        target_quat=f(ee_quat),
+        alive=torch.ones(w_, steps, dtype=torch.bool),
+        fallen=torch.zeros(w_, steps, dtype=torch.bool),
+        design_index=torch.arange(w_),
+        motion_index=torch.zeros(w_, dtype=torch.long),
+        dt=0.02,
+    )
 
 
 def test_episode_tokens_read_the_rollout(device):
@@ -450,8 +527,14 @@ def test_episode_tokens_read_the_rollout(device):
     emb = _quiet_tokenize(models)
     ep = _open_loop_episode(models, steps=25, seed=0)
     steps = torch.tensor([[0, 3, 7, 8, 12, 20, 21, 24]] * len(models))
-    on_device = dataclasses.replace(ep, **{f.name: getattr(ep, f.name).to(device) for f in dataclasses.fields(ep)
-                                           if isinstance(getattr(ep, f.name), torch.Tensor)})
+    on_device = dataclasses.replace(
+        ep,
+        **{
+            f.name: getattr(ep, f.name).to(device)
+            for f in dataclasses.fields(ep)
+            if isinstance(getattr(ep, f.name), torch.Tensor)
+        },
+    )
     tok = episode_tokens(on_device, emb.index, step_index=steps.to(device))
     assert all(v.device == torch.device(device) for v in tok.values.values())
     tok = tok.to_torch("cpu")
@@ -460,8 +543,10 @@ def test_episode_tokens_read_the_rollout(device):
     for w, (m, ix) in enumerate(zip(models, emb.index)):
         D = len(ix.dyna_qposadr)
         for k, t in enumerate(steps[w].tolist()):
-            row = dj[w, k * dj.shape[1] // 8: k * dj.shape[1] // 8 + D]
-            assert torch.allclose(row[:, 0], ep.qpos[w, t, ix.dyna_qposadr]) and torch.allclose(row[:, 1], ep.qvel[w, t, ix.dyna_dofadr])
+            row = dj[w, k * dj.shape[1] // 8 : k * dj.shape[1] // 8 + D]
+            assert torch.allclose(row[:, 0], ep.qpos[w, t, ix.dyna_qposadr]) and torch.allclose(
+                row[:, 1], ep.qvel[w, t, ix.dyna_dofadr]
+            )
         ids = tok.ids["dyna_joint_obs"][w][tok.mask["dyna_joint_obs"][w]]
         assert ids[:, 1].unique().tolist() == steps[w].tolist()
     ctrl = tok.values["control"].reshape(len(models), 8, -1)
@@ -493,7 +578,7 @@ def test_episode_ball_joints_and_step_sampling():
     ball = tok.values["ball_joint_obs"].reshape(2, 8, 2, 7)
     times = tok.ids["ball_joint_obs"].reshape(2, 8, 2, 2)[..., 0, 1]
     for k, t in enumerate(times[0].tolist()):
-        q = ep.qpos[0, t, emb.index[0].ball_qposadr[0]: emb.index[0].ball_qposadr[0] + 4]
+        q = ep.qpos[0, t, emb.index[0].ball_qposadr[0] : emb.index[0].ball_qposadr[0] + 4]
         assert torch.allclose(ball[0, k, 0, :4], q if q[0] >= 0 else -q)
     assert (times[0].diff() > 0).all()  # distinct, in time order
     assert tok.mask["ball_joint_obs"].reshape(2, 8, 2)[1].any(-1).sum() == 5  # only 5 executed steps
@@ -613,7 +698,9 @@ def test_token_structure_off_by_bits_projects_onto_the_nearest_design():
     col = SCHEMA["dyna_joint"].slice("link_id").start
     values["dyna_joint"][0, 0, col] = 1.0 - values["dyna_joint"][0, 0, col]  # a wrong link-ID bit
     n = int(mask["dyna_joint"][0].sum())
-    values["dyna_joint"] = np.concatenate([values["dyna_joint"], values["dyna_joint"][:, :1]], 1)  # an extra joint token
+    values["dyna_joint"] = np.concatenate(
+        [values["dyna_joint"], values["dyna_joint"][:, :1]], 1
+    )  # an extra joint token
     mask["dyna_joint"] = np.concatenate([mask["dyna_joint"], np.ones((1, 1), bool)], 1)
     ids = {k: np.array(v, copy=True) for k, v in emb.ids.items()}
     ids["dyna_joint"] = np.concatenate([ids["dyna_joint"], ids["dyna_joint"][:, :1]], 1)
@@ -632,11 +719,16 @@ def test_token_structure_off_by_bits_projects_onto_the_nearest_design():
     # mismatch in every later one: the distance is an alignment, not slot by slot. (The
     # first fixed joint holds the mount, so the second is dropped.)
     keep = np.delete(np.flatnonzero(emb.mask["fixed_joint"][0]), 1)
-    dropped = TokenBatch({**emb.values, "fixed_joint": emb.values["fixed_joint"][:, keep]},
-                         {**emb.ids, "fixed_joint": emb.ids["fixed_joint"][:, keep]},
-                         {**emb.mask, "fixed_joint": emb.mask["fixed_joint"][:, keep]}, emb.version)
+    dropped = TokenBatch(
+        {**emb.values, "fixed_joint": emb.values["fixed_joint"][:, keep]},
+        {**emb.ids, "fixed_joint": emb.ids["fixed_joint"][:, keep]},
+        {**emb.mask, "fixed_joint": emb.mask["fixed_joint"][:, keep]},
+        emb.version,
+    )
     fit = design_from_tokens(dropped, 0, sp, table=table, max_distance=None)
-    assert fit.distance == SCHEMA["fixed_joint"].slice("link_id").stop - SCHEMA["fixed_joint"].slice("link_id").start + 1
+    assert (
+        fit.distance == SCHEMA["fixed_joint"].slice("link_id").stop - SCHEMA["fixed_joint"].slice("link_id").start + 1
+    )
     assert fit.design.discrete == design.discrete
     np.testing.assert_allclose(fit.design.continuous, design.continuous, atol=1e-4)
 
@@ -699,7 +791,9 @@ def _projection_problem(monkeypatch, seed: int):
     sp = get_space("viperx")
     a = sp.sample(1, seed=21)[0]
     lo, hi = (np.array([getattr(q, k) for q in sp.continuous_params(a.discrete)]) for k in ("low", "high"))
-    others = [Design(sp.name, a.discrete, tuple(lo + (hi - lo) * u)) for u in np.random.default_rng(seed).random((3, lo.size))]
+    others = [
+        Design(sp.name, a.discrete, tuple(lo + (hi - lo) * u)) for u in np.random.default_rng(seed).random((3, lo.size))
+    ]
     table = CandidateTable(sp, discrete=[(m, *a.discrete[1:]) for m in range(4)])
     calls = {"builds": 0}
     model = sp.model
@@ -721,8 +815,9 @@ def _averaged_target(model, a, b) -> TokenBatch:
     values = {n: (v[:1] + v[1:]) / 2 for n, v in emb.values.items()}
     col = SCHEMA["dyna_joint"].slice("link_id").start
     values["dyna_joint"][0, 0, col] = 1.0 - np.round(values["dyna_joint"][0, 0, col])
-    return TokenBatch(values, {n: v[:1] for n, v in emb.ids.items()}, {n: v[:1] for n, v in emb.mask.items()},
-                      emb.version)
+    return TokenBatch(
+        values, {n: v[:1] for n, v in emb.ids.items()}, {n: v[:1] for n, v in emb.mask.items()}, emb.version
+    )
 
 
 def test_broyden_fit_of_a_projected_structure_matches_finite_differences(monkeypatch):
@@ -738,8 +833,9 @@ def test_broyden_fit_of_a_projected_structure_matches_finite_differences(monkeyp
         fits, builds = {}, {}
         for broyden in (False, None):  # None: the default, Broyden for a projected structure
             calls["builds"] = 0
-            fits[broyden] = design_fit.design_from_tokens(target, 0, sp, table=table, max_distance=None, top_k=1,
-                                                          broyden=broyden, fit="least_squares")
+            fits[broyden] = design_fit.design_from_tokens(
+                target, 0, sp, table=table, max_distance=None, top_k=1, broyden=broyden, fit="least_squares"
+            )
             builds[broyden] = calls["builds"]
         assert not fits[None].exact
         assert fits[False].residual > 1e-4  # no exact fit to find

@@ -20,6 +20,7 @@ import pytest
 import torch
 import umsgpack
 
+from tt.kernels.rotations import quat_to_mat
 from tt.sim.designs import DesignError, get_space, save_designs
 from tt.sim.episode import Episode
 from tt.sim.motions.base import Motion
@@ -27,7 +28,6 @@ from tt.viz.camera import CameraOptions, CameraView, frame_points
 from tt.viz.cli import ViewError, view_cmd
 from tt.viz.episode_file import EpisodeFileError, EpisodeRecord, load_episode_npz, save_episode_npz
 from tt.viz.html import scene_html, viewer_js_path, write_html
-from tt.kernels.rotations import quat_to_mat
 from tt.viz.poses import PoseError, body_poses
 from tt.viz.scene import ROOT, SceneError, build_scene
 from tt.viz.screenshot import find_chromium, screenshot_html
@@ -139,7 +139,9 @@ def test_geoms_are_drawn_at_mujoco_poses_with_their_sizes_and_colours():
         elif gtype == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
             assert np.diag(np.array(obj["object"]["matrix"]).reshape(4, 4))[:3] == pytest.approx(size)
         elif gtype == mujoco.mjtGeom.mjGEOM_CAPSULE:
-            verts = np.frombuffer(geometry["data"]["attributes"]["position"]["array"].data, np.float32).reshape(-1, 3).T  # interleaved xyz
+            verts = (
+                np.frombuffer(geometry["data"]["attributes"]["position"]["array"].data, np.float32).reshape(-1, 3).T
+            )  # interleaved xyz
             r, h = size[0], size[1]
             np.testing.assert_allclose(verts.min(1), [-r, -r, -h - r], atol=1e-6)
             np.testing.assert_allclose(verts.max(1), [r, r, h + r], atol=1e-6)
@@ -197,7 +199,9 @@ def test_animation_tracks_follow_mj_kinematics_and_targets():
         assert clip["fps"] == pytest.approx(50.0)
         tracks = {tr["name"]: tr for tr in clip["tracks"]}
         np.testing.assert_array_equal(_ext_floats(tracks[".position"]["times"]), np.arange(frames))
-        np.testing.assert_allclose(_ext_floats(tracks[".position"]["values"]).reshape(frames, 3), ref_pos[:, b], atol=1e-6)
+        np.testing.assert_allclose(
+            _ext_floats(tracks[".position"]["values"]).reshape(frames, 3), ref_pos[:, b], atol=1e-6
+        )
         xyzw = _ext_floats(tracks[".quaternion"]["values"]).reshape(frames, 4)
         np.testing.assert_allclose(xyzw[:, [3, 0, 1, 2]], ref_quat[:, b], atol=1e-6)
     target = clips[_find(clips, "/target/frame_0")]
@@ -319,11 +323,21 @@ def _episode(models, frames=30, seed=0):
     alive = torch.ones(w, frames, dtype=torch.bool)
     alive[0, -5:] = False
     return Episode(
-        qpos=torch.tensor(qpos, dtype=torch.float32), qvel=z(w, frames, nv), ctrl=z(w, frames, nu), action=z(w, frames, nu),
-        act_force=z(w, frames, nu), act_vel=z(w, frames, nu), ee_pos=torch.tensor(tp, dtype=torch.float32),
-        ee_quat=torch.tensor(tq, dtype=torch.float32), target_pos=torch.tensor(tp, dtype=torch.float32),
-        target_quat=torch.tensor(tq, dtype=torch.float32), alive=alive, fallen=torch.zeros(w, frames, dtype=torch.bool),
-        design_index=torch.arange(w), motion_index=torch.zeros(w, dtype=torch.long), dt=0.02,
+        qpos=torch.tensor(qpos, dtype=torch.float32),
+        qvel=z(w, frames, nv),
+        ctrl=z(w, frames, nu),
+        action=z(w, frames, nu),
+        act_force=z(w, frames, nu),
+        act_vel=z(w, frames, nu),
+        ee_pos=torch.tensor(tp, dtype=torch.float32),
+        ee_quat=torch.tensor(tq, dtype=torch.float32),
+        target_pos=torch.tensor(tp, dtype=torch.float32),
+        target_quat=torch.tensor(tq, dtype=torch.float32),
+        alive=alive,
+        fallen=torch.zeros(w, frames, dtype=torch.bool),
+        design_index=torch.arange(w),
+        motion_index=torch.zeros(w, dtype=torch.long),
+        dt=0.02,
     )
 
 
@@ -349,8 +363,9 @@ def test_episode_file_round_trip(tmp_path):
     scene = rec.scene()
     assert scene.frames == 30 and scene.labels == ("a", "b")
     # Concatenating (e.g. winners of different methods) pads shorter episodes and widens qpos.
-    other = EpisodeRecord.from_episode(_episode([space.model(_same_dof_designs(1, "7")[0])], frames=10),
-                                       _same_dof_designs(1, "7"), labels=["c"])
+    other = EpisodeRecord.from_episode(
+        _episode([space.model(_same_dof_designs(1, "7")[0])], frames=10), _same_dof_designs(1, "7"), labels=["c"]
+    )
     both = EpisodeRecord.concat([rec, other])
     assert both.worlds == 3 and both.steps == 30 and both.qpos.shape[2] == 7
     np.testing.assert_array_equal(both.world_qpos(2)[10:], np.repeat(other.qpos[0, -1:], 20, axis=0))
@@ -362,8 +377,18 @@ def test_episode_whose_body_count_does_not_match_its_design_is_refused(tmp_path)
     space = get_space("viperx")
     designs = _same_dof_designs(1)
     rec = EpisodeRecord.from_episode(_episode([space.model(designs[0])]), designs)
-    bad = EpisodeRecord(rec.designs, rec.qpos, rec.nq, rec.nbody + 1, rec.alive, rec.target_pos, rec.target_quat,
-                        rec.labels, rec.motion_name, rec.dt)
+    bad = EpisodeRecord(
+        rec.designs,
+        rec.qpos,
+        rec.nq,
+        rec.nbody + 1,
+        rec.alive,
+        rec.target_pos,
+        rec.target_quat,
+        rec.labels,
+        rec.motion_name,
+        rec.dt,
+    )
     path = save_episode_npz(tmp_path / "bad.npz", bad)
     with pytest.raises(EpisodeFileError, match=r"poses for 9 bodies .* model with 8 bodies"):
         view_cmd(str(path), html=tmp_path / "x.html", echo=lambda s: None)
@@ -431,8 +456,9 @@ def test_view_with_library_motion_and_motion_file(tmp_path):
     pts = np.frombuffer(line["geometries"][0]["data"]["attributes"]["position"]["array"].data, np.float32)
     np.testing.assert_allclose(pts.reshape(-1, 3), toss.pos[:, 0], atol=1e-6)
     save_npz(toss, tmp_path / "toss.npz")
-    res = view_cmd(str(tmp_path / "d.json"), motion=str(tmp_path / "toss.npz"), html=tmp_path / "f.html",
-                   echo=lambda s: None)
+    res = view_cmd(
+        str(tmp_path / "d.json"), motion=str(tmp_path / "toss.npz"), html=tmp_path / "f.html", echo=lambda s: None
+    )
     assert res.scene.frames == toss.steps
 
 
@@ -468,7 +494,9 @@ def _robot_surface(model, qpos):
     data.qpos[:] = qpos
     mujoco.mj_kinematics(model, data)
     sphere = _unit_sphere()
-    ring = np.stack([np.cos(np.linspace(0, 2 * np.pi, 96)), np.sin(np.linspace(0, 2 * np.pi, 96)), 0 * np.arange(96)], -1)
+    ring = np.stack(
+        [np.cos(np.linspace(0, 2 * np.pi, 96)), np.sin(np.linspace(0, 2 * np.pi, 96)), 0 * np.arange(96)], -1
+    )
     pts = []
     for g in range(model.ngeom):
         size = model.geom_size[g]
@@ -516,7 +544,9 @@ def _inside(mask, box, pad=4):
     return ok.mean()
 
 
-@pytest.mark.skipif(find_chromium() is None, reason="headless Chromium not installed (Debian: apt-get install -y chromium)")
+@pytest.mark.skipif(
+    find_chromium() is None, reason="headless Chromium not installed (Debian: apt-get install -y chromium)"
+)
 def test_exported_html_renders_the_robot_and_its_animation_in_chromium(tmp_path):
     from PIL import Image
 
@@ -530,7 +560,9 @@ def test_exported_html_renders_the_robot_and_its_animation_in_chromium(tmp_path)
     robot = f"{ROOT}/robot_00/bodies"
     empty = build_scene([model], qpos=[qs], labels=["nominal"])
     # The same scene, framing and label without the robot's bodies: the background to beat.
-    empty.commands = [c for c in empty.commands if not c.get("path", "").startswith(robot) and c["type"] != "set_animation"]
+    empty.commands = [
+        c for c in empty.commands if not c.get("path", "").startswith(robot) and c["type"] != "set_animation"
+    ]
     write_html(scene, tmp_path / "scene.html")
     write_html(empty, tmp_path / "empty.html")
     jobs = [("empty.html", "empty.png", None), ("scene.html", "t0.png", 0.0), ("scene.html", "t1.png", 1.0)]
@@ -602,7 +634,9 @@ def test_serve_listens_where_asked_and_host_needs_serve(tmp_path, tt_cli):
         close_visualizer(res.visualizer)
     code, text = tt_cli(["view", str(tmp_path / "d.json"), "--host", "0.0.0.0", "--html", str(tmp_path / "v.html")])
     assert code == 2 and "--host" in text and "--serve" in text, text
-    code, text = tt_cli(["view", str(tmp_path / "d.json"), "--serve", "--host", "198.51.100.77"])  # TEST-NET-2: no machine's own
+    code, text = tt_cli(
+        ["view", str(tmp_path / "d.json"), "--serve", "--host", "198.51.100.77"]
+    )  # TEST-NET-2: no machine's own
     assert code == 2 and "--host 198.51.100.77" in text and "cannot listen" in text, text
 
 
@@ -636,14 +670,24 @@ def test_bar_table_draws_values_and_intervals(tmp_path):
 def test_scatter_and_curve(tmp_path):
     from tt.viz.plots import PlotError, curve_figure, save_curve, save_scatter, scatter_figure
 
-    fig = scatter_figure([1.0, 2.0, 3.0], [4.0, 5.0, 6.0], groups=["a", "a", "b"], annotations=["x", "y", "z"],
-                         yci=([3.5, 4.5, 5.0], [4.5, 5.5, 7.0]), title="s", xlabel="time [s]", ylabel="error [cm]")
+    fig = scatter_figure(
+        [1.0, 2.0, 3.0],
+        [4.0, 5.0, 6.0],
+        groups=["a", "a", "b"],
+        annotations=["x", "y", "z"],
+        yci=([3.5, 4.5, 5.0], [4.5, 5.5, 7.0]),
+        title="s",
+        xlabel="time [s]",
+        ylabel="error [cm]",
+    )
     ax = fig.axes[0]
     assert [t.get_text() for t in ax.texts] == ["x", "y", "z"]
     assert sorted(t.get_text() for t in ax.get_legend().get_texts()) == ["a", "b"]
     assert save_scatter(tmp_path / "s.png", [1, 2], [3, 4], title="s", xlabel="x [m]", ylabel="y [m]").is_file()
     x = np.linspace(0, 1, 11)
-    fig = curve_figure(x, {"loss": x**2}, ci={"loss": (x**2 - 0.1, x**2 + 0.2)}, title="c", xlabel="step", ylabel="loss")
+    fig = curve_figure(
+        x, {"loss": x**2}, ci={"loss": (x**2 - 0.1, x**2 + 0.2)}, title="c", xlabel="step", ylabel="loss"
+    )
     ax = fig.axes[0]
     np.testing.assert_allclose(ax.lines[0].get_ydata(), x**2)
     band = ax.collections[0].get_paths()[0].vertices

@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 import torch
 
-from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.controller import IKConfig
 from tt.sim.designs import Design, get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.motions.base import Motion
+from tt.sim.rewards import RewardInputs, get_reward, metrics
 from tt.sim.validate import oracle_rollout
 from tt.sim.wbc import (
     WBCConfig,
@@ -184,7 +184,11 @@ def test_ik_step_is_the_documented_least_squares(space, nominal, linkage, which)
     np.testing.assert_allclose(ctl.step(q, pos, quat), expected, atol=1e-9)
     # The posture rows reach the arm (and rail) joints with the arm cost: the reference picks
     # them by name, the controller by the kinematic path to ee_0.
-    arm = {model.jnt_dofadr[model.actuator_trnid[a, 0]] for a in range(model.nu) if model.actuator(a).name.startswith("arm_")}
+    arm = {
+        model.jnt_dofadr[model.actuator_trnid[a, 0]]
+        for a in range(model.nu)
+        if model.actuator(a).name.startswith("arm_")
+    }
     assert set(ctl.arm_dofs.tolist()) == arm
 
 
@@ -303,8 +307,9 @@ def test_fall_predicate_on_states():
         return np.concatenate([[math.cos(math.radians(deg) / 2)], math.sin(math.radians(deg) / 2) * axis])
 
     pos = np.array([[0, 0, 0.51 * h], [0, 0, 0.49 * h], [0, 0, h], [0, 0, h], [0, 0, h], [0, 0, h], [0, 0, np.nan]])
-    quat = np.array([up, up, about([1, 0, 0], 44), about([1, 0, 0], 46), about([1, 1, 0], 46),
-                     2.0 * about([0, 0, 1], 170), up])
+    quat = np.array(
+        [up, up, about([1, 0, 0], 44), about([1, 0, 0], 46), about([1, 1, 0], 46), 2.0 * about([0, 0, 1], 170), up]
+    )
     np.testing.assert_array_equal(fallen(pos, quat, h, cfg), [False, True, False, True, True, False, True])
     # Tilt against MuJoCo's rotation matrix: the angle between the body z axis and the world's.
     rng = np.random.default_rng(0)

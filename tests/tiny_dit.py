@@ -11,8 +11,17 @@ from tt.dit.model import RoboDiT, get_config
 from tt.dit.toy import toy_episodes
 
 #: Slots per type of the tiny layout.
-COUNTS = dict(link=6, dyna_joint=6, fixed_joint=4, actuator=3, track_link_obs=1, dyna_joint_obs=3, actuator_obs=3,
-              control=3, target_pose=1)
+COUNTS = dict(
+    link=6,
+    dyna_joint=6,
+    fixed_joint=4,
+    actuator=3,
+    track_link_obs=1,
+    dyna_joint_obs=3,
+    actuator_obs=3,
+    control=3,
+    target_pose=1,
+)
 
 
 def tiny_model(tasks: tuple[str, ...] = ("robot",)) -> TrainedModel:

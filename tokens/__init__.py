@@ -22,8 +22,8 @@ from tt.tokens.tokenize import (
     RobotIndex,
     TokenizeConfig,
     TokenizeError,
-    TokenizeWarning,
     Tokenizer,
+    TokenizeWarning,
     tokenize_model,
     tokenize_models,
 )

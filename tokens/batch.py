@@ -48,7 +48,10 @@ class TokenBatch:
         schema_names = SCHEMA.names()
         for name, v in self.values.items():
             if name not in self.ids or name not in self.mask:
-                raise TTError(f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, mask={name in self.mask}")
+                raise TTError(
+                    f"token type {name!r} needs values, ids and mask; got ids={name in self.ids}, "
+                    f"mask={name in self.mask}"
+                )
             ids_shape, mask_shape = tuple(self.ids[name].shape), tuple(self.mask[name].shape)
             if name in schema_names:
                 t = SCHEMA[name]
@@ -65,7 +68,9 @@ class TokenBatch:
     def types(self) -> tuple[str, ...]:
         """Token types present: schema types in schema order, then any others as given."""
         schema_names = SCHEMA.names()
-        return tuple(n for n in schema_names if n in self.values) + tuple(n for n in self.values if n not in schema_names)
+        return tuple(n for n in schema_names if n in self.values) + tuple(
+            n for n in self.values if n not in schema_names
+        )
 
     def __len__(self) -> int:
         for v in self.values.values():
@@ -80,8 +85,12 @@ class TokenBatch:
         raise TTError("an empty TokenBatch has no device")
 
     def _map(self, fv, fi, fm) -> "TokenBatch":
-        return TokenBatch({n: fv(self.values[n]) for n in self.types}, {n: fi(self.ids[n]) for n in self.types},
-                          {n: fm(self.mask[n]) for n in self.types}, self.version)
+        return TokenBatch(
+            {n: fv(self.values[n]) for n in self.types},
+            {n: fi(self.ids[n]) for n in self.types},
+            {n: fm(self.mask[n]) for n in self.types},
+            self.version,
+        )
 
     def counts(self) -> dict[str, np.ndarray]:
         """Real tokens per type and sample: type -> (N,) int."""
@@ -104,7 +113,12 @@ class TokenBatch:
     def subset(self, types: Sequence[str]) -> "TokenBatch":
         """Only the token types in `types` (those present)."""
         keep = [n for n in self.types if n in types]
-        return TokenBatch({n: self.values[n] for n in keep}, {n: self.ids[n] for n in keep}, {n: self.mask[n] for n in keep}, self.version)
+        return TokenBatch(
+            {n: self.values[n] for n in keep},
+            {n: self.ids[n] for n in keep},
+            {n: self.mask[n] for n in keep},
+            self.version,
+        )
 
     def merge(self, other: "TokenBatch") -> "TokenBatch":
         """Token types of both batches (same N); a type present in both is an error."""
@@ -114,29 +128,43 @@ class TokenBatch:
         if both:
             raise TTError(f"both batches hold token types {sorted(both)}")
         check_version(other.version, "merged batch")
-        return TokenBatch({**self.values, **other.values}, {**self.ids, **other.ids}, {**self.mask, **other.mask}, self.version)
+        return TokenBatch(
+            {**self.values, **other.values}, {**self.ids, **other.ids}, {**self.mask, **other.mask}, self.version
+        )
 
     def clone(self) -> "TokenBatch":
         """A copy that shares no memory with this batch."""
+
         def c(x):
             return x.clone() if isinstance(x, torch.Tensor) else np.array(x, copy=True)
+
         return self._map(c, c, c)
 
     def to(self, device: str | torch.device) -> "TokenBatch":
         """Torch tensors on `device`, dtypes kept (numpy arrays become tensors first)."""
+
         def t(x):
             return (x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))).to(device)
+
         return self._map(t, t, t)
 
     def to_torch(self, device: str = "cpu", dtype: torch.dtype = torch.float32) -> "TokenBatch":
         """Torch tensors on `device` (values in `dtype`, ids int64, mask bool)."""
+
         def t(x, dt):
-            return x.to(device=device, dtype=dt) if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x), device=device, dtype=dt)
+            return (
+                x.to(device=device, dtype=dt)
+                if isinstance(x, torch.Tensor)
+                else torch.as_tensor(np.asarray(x), device=device, dtype=dt)
+            )
+
         return self._map(lambda x: t(x, dtype), lambda x: t(x, torch.int64), lambda x: t(x, torch.bool))
 
     def to_numpy(self, dtype=np.float32) -> "TokenBatch":
         """Numpy arrays on the host (values in `dtype`)."""
-        return self._map(lambda x: _np(x).astype(dtype), lambda x: _np(x).astype(np.int64), lambda x: _np(x).astype(bool))
+        return self._map(
+            lambda x: _np(x).astype(dtype), lambda x: _np(x).astype(np.int64), lambda x: _np(x).astype(bool)
+        )
 
     def pad_to(self, lengths: dict[str, int]) -> "TokenBatch":
         """Pad (never truncate) each type to ``lengths[type]`` tokens, as numpy arrays; absent
@@ -155,7 +183,11 @@ class TokenBatch:
                 v, i, m = _np(self.values[name]), _np(self.ids[name]), _np(self.mask[name])
             else:
                 t = SCHEMA[name]
-                v, i, m = np.zeros((n, 0, t.width), np.float32), np.zeros((n, 0, len(t.ids)), np.int64), np.zeros((n, 0), bool)
+                v, i, m = (
+                    np.zeros((n, 0, t.width), np.float32),
+                    np.zeros((n, 0, len(t.ids)), np.int64),
+                    np.zeros((n, 0), bool),
+                )
             values[name] = np.concatenate([v, np.zeros((n, want - cur, v.shape[-1]), v.dtype)], 1)
             ids[name] = np.concatenate([i, np.zeros((n, want - cur, i.shape[-1]), i.dtype)], 1)
             mask[name] = np.concatenate([m, np.zeros((n, want - cur), bool)], 1)
@@ -175,16 +207,21 @@ class TokenBatch:
             for b in batches[1:]:
                 if b.types != names:
                     raise TTError(f"cannot concatenate torch batches of types {list(names)} and {list(b.types)}")
-            return TokenBatch({n: torch.cat([b.values[n] for b in batches]) for n in names},
-                              {n: torch.cat([b.ids[n] for b in batches]) for n in names},
-                              {n: torch.cat([b.mask[n] for b in batches]) for n in names}, batches[0].version)
+            return TokenBatch(
+                {n: torch.cat([b.values[n] for b in batches]) for n in names},
+                {n: torch.cat([b.ids[n] for b in batches]) for n in names},
+                {n: torch.cat([b.mask[n] for b in batches]) for n in names},
+                batches[0].version,
+            )
         names = [n for n in SCHEMA.names() if any(n in b.values for b in batches)]
         names += [n for b in batches for n in b.values if n not in SCHEMA.names() and n not in names]
         lengths = {n: max(b.values[n].shape[1] if n in b.values else 0 for b in batches) for n in names}
         padded = [b.pad_to(lengths) for b in batches]
-        return TokenBatch({n: np.concatenate([p.values[n] for p in padded]) for n in names},
-                          {n: np.concatenate([p.ids[n] for p in padded]) for n in names},
-                          {n: np.concatenate([p.mask[n] for p in padded]) for n in names})
+        return TokenBatch(
+            {n: np.concatenate([p.values[n] for p in padded]) for n in names},
+            {n: np.concatenate([p.ids[n] for p in padded]) for n in names},
+            {n: np.concatenate([p.mask[n] for p in padded]) for n in names},
+        )
 
     # ---------------------------------------------------------------- files
     def save(self, path: str | Path) -> None:
@@ -208,8 +245,10 @@ class TokenBatch:
         path = Path(path)
         f = read_npz(path, "token file")
         if "schema_version" not in f:
-            raise CorruptFileError(f"token file {path} is not a RoboToken file (no 'schema_version' entry; "
-                                   "write one with `tt tokenize --out`)")
+            raise CorruptFileError(
+                f"token file {path} is not a RoboToken file (no 'schema_version' entry; "
+                "write one with `tt tokenize --out`)"
+            )
         version = f["schema_version"]
         if version.shape != () or version.dtype.kind not in "iu":
             version = str(version) if version.dtype.kind in "US" else version.tolist()
@@ -217,8 +256,10 @@ class TokenBatch:
         names = sorted({k.split("/")[0] for k in f if "/" in k})
         unknown = [n for n in names if n not in SCHEMA.names()]
         if unknown:
-            raise CorruptFileError(f"token file {path} holds unknown token types {unknown}; schema v{SCHEMA_VERSION} "
-                                   f"has {list(SCHEMA.names())}")
+            raise CorruptFileError(
+                f"token file {path} holds unknown token types {unknown}; schema v{SCHEMA_VERSION} "
+                f"has {list(SCHEMA.names())}"
+            )
         if not names:
             raise CorruptFileError(f"token file {path} holds no tokens")
         arrays: dict[str, dict] = {"values": {}, "ids": {}, "mask": {}}
@@ -228,13 +269,15 @@ class TokenBatch:
                 if key not in f:
                     raise CorruptFileError(f"token file {path} lacks the entry {key!r}")
                 if f[key].dtype.kind not in kinds:
-                    raise CorruptFileError(f"token file {path}: {key!r} has dtype {f[key].dtype}, expected {part} "
-                                           f"of kind {kinds!r}")
+                    raise CorruptFileError(
+                        f"token file {path}: {key!r} has dtype {f[key].dtype}, expected {part} of kind {kinds!r}"
+                    )
                 arrays[part][n] = f[key]
             v, m = f[f"{n}/values"], f[f"{n}/mask"]
             if v.ndim != 3 or m.shape != v.shape[:2]:
-                raise CorruptFileError(f"token file {path}: {n!r} values {v.shape} and mask {m.shape} are not (N, L, D) "
-                                       "and (N, L)")
+                raise CorruptFileError(
+                    f"token file {path}: {n!r} values {v.shape} and mask {m.shape} are not (N, L, D) and (N, L)"
+                )
             bad = m & ~np.isfinite(v).all(-1)
             if bad.any():
                 i, j = (int(x) for x in np.argwhere(bad)[0])

@@ -45,7 +45,9 @@ def _load_robots(spec: str) -> list[tuple[str, str, mujoco.MjModel]]:
         except (DesignError, ValueError) as e:
             raise TokenCommandError(str(e)) from None
         numbers = [int(index)] if path != Path(spec) else range(len(designs))  # load_designs checked the index
-        return [(f"{d.space}#{i}", text, model) for i, d, text, model in zip(numbers, designs, robots.mjcf, robots.models)]
+        return [
+            (f"{d.space}#{i}", text, model) for i, d, text, model in zip(numbers, designs, robots.mjcf, robots.models)
+        ]
     try:
         # From the path, so meshes and includes resolve next to the file.
         model = mujoco.MjModel.from_xml_path(str(path))
@@ -110,7 +112,10 @@ def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None
     if not result.ok:
         raise TokenCommandError(f"{result.error}" + (f" (MJCF written to {out})" if result.xml else ""))
     m = result.model
-    lines = [f"wrote {out}: {m.nbody - 1} bodies, {m.njnt} joints, {m.nu} actuators, {m.neq} loop closures, {len(result.xml)} characters"]
+    lines = [
+        f"wrote {out}: {m.nbody - 1} bodies, {m.njnt} joints, {m.nu} actuators, {m.neq} loop closures, "
+        f"{len(result.xml)} characters"
+    ]
     lines += [f"note: {n}" for n in result.notes]
     if space is not None:
         from tt.sim.designs import DesignError, get_space, save_designs
@@ -122,10 +127,14 @@ def detokenize_cmd(path: str, out: str, index: int = 0, space: str | None = None
             raise TokenCommandError(str(e)) from None
         fit = design_from_tokens(tokens, index, sp, max_distance=None if project else 0)
         if fit.design is None:
-            raise TokenCommandError(f"no {space} design has this token structure (nearest: {fit.distance} binary attributes "
-                                    "off); --project takes the nearest design")
+            raise TokenCommandError(
+                f"no {space} design has this token structure (nearest: {fit.distance} binary attributes "
+                "off); --project takes the nearest design"
+            )
         design_path = str(Path(out).with_suffix("")) + ".design.json"
         save_designs([fit.design], design_path)
-        lines.append(f"wrote {design_path}: {space} design, token residual {fit.residual:.2e} (RMS)"
-                     + (f", projected from a structure {fit.distance} binary attributes off" if fit.distance else ""))
+        lines.append(
+            f"wrote {design_path}: {space} design, token residual {fit.residual:.2e} (RMS)"
+            + (f", projected from a structure {fit.distance} binary attributes off" if fit.distance else "")
+        )
     return "\n".join(lines)

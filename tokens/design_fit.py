@@ -80,7 +80,9 @@ def _type_features(tokens: TokenBatch, i: int) -> dict[str, tuple[np.ndarray, np
     return out
 
 
-def _stack(feats: list[dict[str, tuple[np.ndarray, np.ndarray]]]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _stack(
+    feats: list[dict[str, tuple[np.ndarray, np.ndarray]]],
+) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per type: (counts (C,), bits (C, P, nb), continuous (C, P, nc)), padded with zeros to
     the largest count P."""
     out = {}
@@ -91,7 +93,7 @@ def _stack(feats: list[dict[str, tuple[np.ndarray, np.ndarray]]]) -> dict[str, t
         bits = np.zeros((len(feats), P, nb), np.int8)
         cont = np.zeros((len(feats), P, nc))
         for k, f in enumerate(feats):
-            bits[k, :counts[k]], cont[k, :counts[k]] = f[name]
+            bits[k, : counts[k]], cont[k, : counts[k]] = f[name]
         out[name] = (counts, bits, cont)
     return out
 
@@ -135,8 +137,11 @@ def _alignment(sb: np.ndarray, cb: np.ndarray, tie: np.ndarray) -> tuple[np.ndar
     move[1:, 0], move[0, 1:] = 1, 2
     for i in range(1, n + 1):
         for j in range(1, c + 1):
-            options = ((D[i - 1, j - 1] + sub[i - 1, j - 1], E[i - 1, j - 1] + tie[i - 1, j - 1], 0),
-                       (D[i - 1, j] + gap, E[i - 1, j], 1), (D[i, j - 1] + gap, E[i, j - 1], 2))
+            options = (
+                (D[i - 1, j - 1] + sub[i - 1, j - 1], E[i - 1, j - 1] + tie[i - 1, j - 1], 0),
+                (D[i - 1, j] + gap, E[i - 1, j], 1),
+                (D[i, j - 1] + gap, E[i, j - 1], 2),
+            )
             D[i, j], E[i, j], move[i, j] = min(options)
     rows, cols = [], []
     i, j = n, c
@@ -165,7 +170,10 @@ def discrete_choices(space: DesignSpace, limit: int = 20000) -> list[tuple[int, 
         if len(prefix) == len(params):
             out.append(prefix)
             if len(out) > limit:
-                raise TTError(f"space {space.name!r} has more than {limit} discrete combinations; raise `limit` to search them all")
+                raise TTError(
+                    f"space {space.name!r} has more than {limit} discrete combinations; raise `limit` to "
+                    "search them all"
+                )
             continue
         for o in reversed(range(len(params[len(prefix)].options))):
             stack.append(prefix + (o,))
@@ -183,22 +191,31 @@ class CandidateTable:
     table to decode many token sets of the same space.
     """
 
-    def __init__(self, space: DesignSpace, limit: int = 20000, batch: int = 256, discrete: list[tuple[int, ...]] | None = None):
+    def __init__(
+        self, space: DesignSpace, limit: int = 20000, batch: int = 256, discrete: list[tuple[int, ...]] | None = None
+    ):
         """discrete: only these combinations (default: all of them, at most `limit`)."""
         self.space = space
-        self.discrete = [tuple(int(i) for i in d) for d in discrete] if discrete is not None else discrete_choices(space, limit)
+        self.discrete = (
+            [tuple(int(i) for i in d) for d in discrete] if discrete is not None else discrete_choices(space, limit)
+        )
         self._linear: dict[int, tuple] = {}  # candidate -> `linearization`, computed on first use
         feats = []
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", TokenizeWarning)
             for start in range(0, len(self.discrete), batch):
-                chunk = self.discrete[start:start + batch]
+                chunk = self.discrete[start : start + batch]
                 emb = tokenize_models([space.model(_middle(space, d)) for d in chunk])
                 feats += [_type_features(emb.tokens, i) for i in range(len(chunk))]
         self.features = _stack(feats)
         # Candidates that share a token structure share alignments (ViperX: 1,404 choices, 24 structures).
-        keys = [b"".join(np.ascontiguousarray(self.features[n][1][k, :self.features[n][0][k]]).tobytes() + b"|"
-                         for n in EMBODIMENT_TYPES) for k in range(len(self.discrete))]
+        keys = [
+            b"".join(
+                np.ascontiguousarray(self.features[n][1][k, : self.features[n][0][k]]).tobytes() + b"|"
+                for n in EMBODIMENT_TYPES
+            )
+            for k in range(len(self.discrete))
+        ]
         first: dict[bytes, int] = {}
         representative = []  # the first candidate of each structure
         for k, key in enumerate(keys):
@@ -235,7 +252,9 @@ class CandidateTable:
             per_structure += _edit_distances(feat[name][0], bits[reps], counts[reps])
         return per_structure[self.structure]
 
-    def alignment(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    def alignment(
+        self, feat: dict[str, tuple[np.ndarray, np.ndarray]], i: int
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Per type, the (sample rows, candidate rows) token pairs of candidate i's optimal
         alignment, the same for every candidate of its structure (`self.structure`): among
         alignments of equal edit distance, the one whose paired tokens' continuous values
@@ -244,9 +263,9 @@ class CandidateTable:
         out = {}
         for name in EMBODIMENT_TYPES:
             counts, bits, cont = self.features[name]
-            mean = cont[same, :counts[i]].mean(axis=0)
+            mean = cont[same, : counts[i]].mean(axis=0)
             tie = (self.weights[name] * (feat[name][1][:, None, :] - mean[None, :, :]) ** 2).sum(-1)
-            out[name] = _alignment(feat[name][0], bits[i, :counts[i]], tie)
+            out[name] = _alignment(feat[name][0], bits[i, : counts[i]], tie)
         return out
 
     def linearization(self, i: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -263,20 +282,38 @@ class CandidateTable:
             X = np.vstack([x[None], x[None] + np.diag(h)])
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", TokenizeWarning)
-                emb = tokenize_models([self.space.model(Design(self.space.name, self.discrete[i], tuple(float(v) for v in row)))
-                                      for row in X], _FLOAT64)
+                emb = tokenize_models(
+                    [
+                        self.space.model(Design(self.space.name, self.discrete[i], tuple(float(v) for v in row)))
+                        for row in X
+                    ],
+                    _FLOAT64,
+                )
             feats = [_type_features(emb.tokens, k) for k in range(len(X))]
             base = feats[0]
             same = [all(np.array_equal(f[n][0], base[n][0]) for n in EMBODIMENT_TYPES) for f in feats[1:]]
             values = {n: base[n][1] for n in EMBODIMENT_TYPES}
-            slopes = {n: np.stack([(f[n][1] - base[n][1]) / h[j] if ok else np.zeros_like(base[n][1])
-                                   for j, (f, ok) in enumerate(zip(feats[1:], same))], -1) if len(h)
-                      else np.zeros(base[n][1].shape + (0,)) for n in EMBODIMENT_TYPES}
+            slopes = {
+                n: np.stack(
+                    [
+                        (f[n][1] - base[n][1]) / h[j] if ok else np.zeros_like(base[n][1])
+                        for j, (f, ok) in enumerate(zip(feats[1:], same))
+                    ],
+                    -1,
+                )
+                if len(h)
+                else np.zeros(base[n][1].shape + (0,))
+                for n in EMBODIMENT_TYPES
+            }
             self._linear[i] = (values, slopes)
         return self._linear[i]
 
-    def continuous_error(self, feat: dict[str, tuple[np.ndarray, np.ndarray]], candidates: np.ndarray,
-                         pairs: dict[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    def continuous_error(
+        self,
+        feat: dict[str, tuple[np.ndarray, np.ndarray]],
+        candidates: np.ndarray,
+        pairs: dict[str, tuple[np.ndarray, np.ndarray]],
+    ) -> np.ndarray:
         """Weighted sum of squared differences of the continuous values of the aligned tokens
         (`self.weights`), (K,) for K candidates of one structure (`pairs`, its alignment)."""
         out = np.zeros(len(candidates))
@@ -354,8 +391,17 @@ class _BroydenJacobian:
         return self.J
 
 
-def _chord_fit(residuals, f0: np.ndarray, J: np.ndarray, x0: np.ndarray, target: np.ndarray, lo: np.ndarray,
-               hi: np.ndarray, iterations: int, ftol: float) -> tuple[np.ndarray, np.ndarray]:
+def _chord_fit(
+    residuals,
+    f0: np.ndarray,
+    J: np.ndarray,
+    x0: np.ndarray,
+    target: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    iterations: int,
+    ftol: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Bounded least squares of the token residuals from a linearization (the chord method,
     with Broyden's updates), one model build per step.
 
@@ -408,9 +454,18 @@ POLISH_BELOW = 1e-3
 CHORD_STEPS, CHORD_FTOL = 20, 1e-4
 
 
-def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, table: CandidateTable | None = None,
-                       top_k: int = 6, tol: float = 1e-5, max_distance: int | None = 0,
-                       broyden: bool | None = None, fit: str = "chord") -> DesignFit:
+def design_from_tokens(
+    tokens: TokenBatch,
+    index: int,
+    space: DesignSpace,
+    *,
+    table: CandidateTable | None = None,
+    top_k: int = 6,
+    tol: float = 1e-5,
+    max_distance: int | None = 0,
+    broyden: bool | None = None,
+    fit: str = "chord",
+) -> DesignFit:
     """The design of `space` whose tokens best match sample `index` of `tokens` (see module).
 
     max_distance: the largest structure distance (`CandidateTable.distances`) to the nearest
@@ -455,7 +510,7 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
         params = space.continuous_params(discrete)
         lo = np.array([p.low for p in params])
         hi = np.array([p.high for p in params])
-        own = {n: table.features[n][1][i, :table.features[n][0][i]] for n in EMBODIMENT_TYPES}
+        own = {n: table.features[n][1][i, : table.features[n][0][i]] for n in EMBODIMENT_TYPES}
         target = np.concatenate([feat[n][1][r].ravel() for n, (r, _) in pairs[i].items()])
 
         def residuals(X: np.ndarray, discrete=discrete, own=own, rows=pairs[i], target=target) -> np.ndarray:
@@ -463,7 +518,9 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
             X = np.clip(X, lo, hi)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", TokenizeWarning)
-                emb = tokenize_models([space.model(Design(space.name, discrete, tuple(float(v) for v in x))) for x in X], _FLOAT64)
+                emb = tokenize_models(
+                    [space.model(Design(space.name, discrete, tuple(float(v) for v in x))) for x in X], _FLOAT64
+                )
             out = np.empty((len(X), len(target)))
             for k in range(len(X)):
                 f = _type_features(emb.tokens, k)
@@ -493,9 +550,14 @@ def design_from_tokens(tokens: TokenBatch, index: int, space: DesignSpace, *, ta
         # as exactly as least squares does); a model's sample stalls far above that, where more
         # precision means nothing.
         if len(params) and (r is None or (r.size and np.sqrt(np.mean(r**2)) < POLISH_BELOW)):
-            options = dict(bounds=(lo, hi), x_scale=np.maximum(hi - lo, 1e-9), xtol=1e-10 if exact else 1e-4,
-                           ftol=1e-10 if exact else 1e-4, gtol=1e-10 if exact else 1e-6,
-                           max_nfev=(20 if exact else 5) * (len(params) + 1))
+            options = dict(
+                bounds=(lo, hi),
+                x_scale=np.maximum(hi - lo, 1e-9),
+                xtol=1e-10 if exact else 1e-4,
+                ftol=1e-10 if exact else 1e-4,
+                gtol=1e-10 if exact else 1e-6,
+                max_nfev=(20 if exact else 5) * (len(params) + 1),
+            )
             use_broyden = (not exact) if broyden is None else broyden
             jac = _BroydenJacobian(residuals, hi, update=use_broyden)
             sol = least_squares(jac.fun, x, jac=jac, **options)

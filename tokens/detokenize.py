@@ -134,7 +134,7 @@ def _collect_joints(dec: dict, kind: str, notes: list[str], links: set[int]) -> 
             notes.append(f"{name} {jid}: {len(rows)} halves instead of 2; dropped")
             continue
         la, lb = (int(d["link_id"][r]) for r in rows)
-        if la == lb or any(l != -1 and l not in links for l in (la, lb)):
+        if la == lb or any(lid != -1 and lid not in links for lid in (la, lb)):
             notes.append(f"{name} {jid}: link IDs ({la}, {lb}) do not name two existing links; dropped")
             continue
         if lb < la:
@@ -145,7 +145,17 @@ def _collect_joints(dec: dict, kind: str, notes: list[str], links: set[int]) -> 
             for k in ("range", "armature", "damping", "frictionloss", "stiffness", "springref", "ref"):
                 params[k] = 0.5 * (d[k][rows[0]] + d[k][rows[1]])
             params["type"] = int(d["type"][rows[0]])
-        out.append(_Joint(kind, int(jid), la, lb, (d["rot"][rows[0]], d["pos"][rows[0]]), (d["rot"][rows[1]], d["pos"][rows[1]]), params))
+        out.append(
+            _Joint(
+                kind,
+                int(jid),
+                la,
+                lb,
+                (d["rot"][rows[0]], d["pos"][rows[0]]),
+                (d["rot"][rows[1]], d["pos"][rows[1]]),
+                params,
+            )
+        )
     return out
 
 
@@ -252,10 +262,12 @@ class _RobotTree:
                 by_tid.setdefault(tid, []).append(lid)
         self.track_link: dict[int, int] = {}
         for tid, lids in sorted(by_tid.items()):
-            keep = max(lids, key=lambda l: (depth(self.group_of[l]), l))
+            keep = max(lids, key=lambda lid: (depth(self.group_of[lid]), lid))
             if len(lids) > 1:
-                self.notes.append(f"track link {tid}: marked on links {sorted(lids)}; kept on link {keep} (deepest), "
-                                  "dropped from the others")
+                self.notes.append(
+                    f"track link {tid}: marked on links {sorted(lids)}; kept on link {keep} (deepest), "
+                    "dropped from the others"
+                )
             self.track_link[tid] = keep
 
     # ------------------------------------------------------------------ structure
@@ -313,7 +325,7 @@ class _RobotTree:
                     queue.append(og)
 
         bfs(-1)
-        for lid in sorted(self.free_of, key=lambda l: self.free_of[l]):
+        for lid in sorted(self.free_of, key=lambda lid: self.free_of[lid]):
             g = self.group_of[lid]
             if g in self.parent_edge:
                 self.notes.append(f"link {lid}: free link already attached to the tree; its free joint is dropped")
@@ -342,16 +354,18 @@ class _RobotTree:
         for g in self.members:
             a = self.anchor[g]
             pe = self.parent_edge.get(g)
-            self.in_body[a] = (pe.tb if a == pe.b else pe.ta) if pe is not None and pe.kind == "ball" else (np.eye(3), np.zeros(3))
+            self.in_body[a] = (
+                (pe.tb if a == pe.b else pe.ta) if pe is not None and pe.kind == "ball" else (np.eye(3), np.zeros(3))
+            )
             stack = [a]
             while stack:
-                l = stack.pop()
-                for j in fixed_adj.get(l, []):
-                    o = j.b if j.a == l else j.a
+                lid = stack.pop()
+                for j in fixed_adj.get(lid, []):
+                    o = j.b if j.a == lid else j.a
                     if o in self.in_body:
                         continue
-                    t_l, t_o = (j.ta, j.tb) if j.a == l else (j.tb, j.ta)
-                    r, p = compose(*self.in_body[l], *invert(*t_l))
+                    t_l, t_o = (j.ta, j.tb) if j.a == lid else (j.tb, j.ta)
+                    r, p = compose(*self.in_body[lid], *invert(*t_l))
                     self.in_body[o] = compose(r, p, *t_o)
                     stack.append(o)
 
@@ -360,17 +374,17 @@ class _RobotTree:
         """Mass, centre of mass and inertia about it of a group, in its body frame."""
         lk = self.lk
         parts = []
-        for l in self.members[g]:
-            row = self.row[l]
+        for lid in self.members[g]:
+            row = self.row[lid]
             m = float(lk["mass"][row, 0])
             if m <= 0:
                 continue
-            rb, pb = self.in_body[l]
+            rb, pb = self.in_body[lid]
             mom = lk["inertia"][row]
             i1, i2, i3 = (float(x) for x in mom)
             tol = 1e-9 * (i1 + i2 + i3)
             if min(i1, i2, i3) < 0 or i1 + i2 < i3 - tol or i1 + i3 < i2 - tol or i2 + i3 < i1 - tol:
-                self.notes.append(f"link {l}: principal moments ({_fmt(mom)}) repaired")
+                self.notes.append(f"link {lid}: principal moments ({_fmt(mom)}) repaired")
                 mom = repair_moments(mom)
             ri = rb @ lk["irot"][row]
             parts.append((m, rb @ lk["ipos"][row] + pb, ri @ np.diag(mom) @ ri.T))
@@ -388,8 +402,10 @@ class _RobotTree:
         if pe is None or pe.kind != "dyna" or len(kids) != 1 or self.parent_edge[kids[0]].kind != "dyna":
             return False
         lk = self.lk
-        return all(lk["geom_type"][r] == 0 and lk["mass"][r, 0] <= MASSLESS and lk["track_id"][r] < 0 and lk["free_id"][r] < 0
-                   for r in (self.row[l] for l in self.members[g]))
+        return all(
+            lk["geom_type"][r] == 0 and lk["mass"][r, 0] <= MASSLESS and lk["track_id"][r] < 0 and lk["free_id"][r] < 0
+            for r in (self.row[lid] for lid in self.members[g])
+        )
 
     def joint_in_body(self, g: int) -> dict:
         """The joint of a group's parent edge in the group's body frame. Its coordinate moves
@@ -444,7 +460,9 @@ class _RobotTree:
                 gc = self.children[ch][0]
                 t_gc = self.body_pose(gc)
                 ir, ip = invert(*t_gc)
-                joints = [{**ji, "pos": ir @ ji["pos"] + ip, "axis": ir @ ji["axis"]} for ji in joints] + [self.joint_in_body(gc)]
+                joints = [{**ji, "pos": ir @ ji["pos"] + ip, "axis": ir @ ji["axis"]} for ji in joints] + [
+                    self.joint_in_body(gc)
+                ]
                 pose = compose(*pose, *t_gc)
                 ch = gc
             self._emit(ch, pose, joints, depth)
@@ -472,15 +490,18 @@ class _RobotTree:
                 self.notes.append(f"body {name}: moves with near-zero inertia; moments raised to {MIN_MOVING_INERTIA}")
                 mom = np.maximum(mom, MIN_MOVING_INERTIA)
             mom = repair_moments(mom)
-            self.lines.append(f'{pad}  <inertial pos="{_fmt(com)}" quat="{_fmt(_quat(rot))}" mass="{_fmt(m)}" diaginertia="{_fmt(mom)}"/>')
-        for l in self.members[g]:
-            row = self.row[l]
+            self.lines.append(
+                f'{pad}  <inertial pos="{_fmt(com)}" quat="{_fmt(_quat(rot))}" mass="{_fmt(m)}" '
+                f'diaginertia="{_fmt(mom)}"/>'
+            )
+        for lid in self.members[g]:
+            row = self.row[lid]
             code = int(lk["geom_type"][row])
-            rb, pb = self.in_body[l]
+            rb, pb = self.in_body[lid]
             if code > 0:
-                self.lines.append(pad + "  " + _geom_xml(l, code, lk, row, rb, pb, self.config, self.notes))
+                self.lines.append(pad + "  " + _geom_xml(lid, code, lk, row, rb, pb, self.config, self.notes))
             tid = int(lk["track_id"][row])
-            if tid >= 0 and self.track_link.get(tid) == l:
+            if tid >= 0 and self.track_link.get(tid) == lid:
                 self.lines.append(f'{pad}  <site name="ee_{tid}"{_pose(rb, pb)} size="0.01"/>')
         self.lines += [f"{pad}  {site}" for site in self.loop_sites.get(g, [])]
         self._emit_children(g, depth + 1)
@@ -519,12 +540,19 @@ class _RobotTree:
         any_contact = bool(np.any(lk["contact"][list(self.row.values())] > 0))
         floor = any_contact if config.floor is None else config.floor
         flag = "" if config.contacts else '\n    <flag contact="disable"/>'
-        out = [f'<mujoco model="{config.model}">',
-               '  <compiler angle="radian" autolimits="true" inertiafromgeom="false"/>',
-               f'  <option timestep="{config.timestep!r}" integrator="{config.integrator}" gravity="{_fmt(config.gravity)}">{flag}',
-               "  </option>", "  <worldbody>"]
+        out = [
+            f'<mujoco model="{config.model}">',
+            '  <compiler angle="radian" autolimits="true" inertiafromgeom="false"/>',
+            f'  <option timestep="{config.timestep!r}" integrator="{config.integrator}" '
+            f'gravity="{_fmt(config.gravity)}">{flag}',
+            "  </option>",
+            "  <worldbody>",
+        ]
         if floor:
-            out.append('    <geom name="floor" type="plane" size="0 0 0.05" contype="1" conaffinity="1" rgba="0.85 0.85 0.8 1"/>')
+            out.append(
+                '    <geom name="floor" type="plane" size="0 0 0.05" contype="1" conaffinity="1" rgba="0.85 '
+                '0.85 0.8 1"/>'
+            )
         out += self.lines
         out.append("  </worldbody>")
         if act_lines:

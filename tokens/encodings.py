@@ -33,13 +33,17 @@ def encode_binary(values, bits: int, offset: int = 0):
         v = values.long() + offset
         if v.numel() and (int(v.min()) < 0 or int(v.max()) > 2**bits - 1):
             bad = int((v[(v < 0) | (v > 2**bits - 1)][0]) - offset)
-            raise TTError(f"value {bad} does not fit {bits} bits with offset {offset}: valid {-offset}..{2**bits - 1 - offset}")
+            raise TTError(
+                f"value {bad} does not fit {bits} bits with offset {offset}: valid {-offset}..{2**bits - 1 - offset}"
+            )
         shifts = torch.arange(bits - 1, -1, -1, device=v.device)
         return ((v.unsqueeze(-1) >> shifts) & 1).float()
     v = np.asarray(values).astype(np.int64) + offset
     if v.size and (v.min() < 0 or v.max() > 2**bits - 1):
         bad = int(v[(v < 0) | (v > 2**bits - 1)][0]) - offset
-        raise TTError(f"value {bad} does not fit {bits} bits with offset {offset}: valid {-offset}..{2**bits - 1 - offset}")
+        raise TTError(
+            f"value {bad} does not fit {bits} bits with offset {offset}: valid {-offset}..{2**bits - 1 - offset}"
+        )
     shifts = np.arange(bits - 1, -1, -1)
     return ((v[..., None] >> shifts) & 1).astype(np.float64)
 

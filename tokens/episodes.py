@@ -27,8 +27,13 @@ from tt.tokens.tokenize import RobotIndex
 STEP_MODES = ("random", "consecutive")
 
 
-def sample_steps(lengths: torch.Tensor, steps: int, mode: str = "random", generator: torch.Generator | None = None,
-                 horizon: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def sample_steps(
+    lengths: torch.Tensor,
+    steps: int,
+    mode: str = "random",
+    generator: torch.Generator | None = None,
+    horizon: int | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Control steps to tokenize per world.
 
     lengths: executed steps per world, (W,) long (at least one step is always usable: the
@@ -84,11 +89,20 @@ def _uniform(shape: tuple, device, generator: torch.Generator | None) -> torch.T
 def _quat_to_mat(q: torch.Tensor) -> torch.Tensor:
     q = q / q.norm(dim=-1, keepdim=True).clamp(min=1e-12)
     w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(*q.shape[:-1], 3, 3)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(*q.shape[:-1], 3, 3)
 
 
 # Address fields of RobotIndex that episode tokens read, each padded into one (R, Emax)
@@ -137,7 +151,9 @@ def _step_rows(x: torch.Tensor, rows: torch.Tensor, w: torch.Tensor, t: torch.Te
     return x[w, t].reshape(len(rows), c)
 
 
-def _step_buffer(episode: Episode, names: Sequence[str], rows, w, t, invalid: torch.Tensor | None) -> tuple[torch.Tensor, dict, int]:
+def _step_buffer(
+    episode: Episode, names: Sequence[str], rows, w, t, invalid: torch.Tensor | None
+) -> tuple[torch.Tensor, dict, int]:
     """The chosen steps of the episode tensors `names` side by side, and one zero column.
 
     Returns the buffer (W*K, C) in the tensors' promoted dtype, the first column of each
@@ -156,7 +172,9 @@ def _step_buffer(episode: Episode, names: Sequence[str], rows, w, t, invalid: to
     return buf, start, c
 
 
-def _columns(addr: np.ndarray, width: int, start: int, limit: int, zero: int, field: str, source: str, used: np.ndarray) -> np.ndarray:
+def _columns(
+    addr: np.ndarray, width: int, start: int, limit: int, zero: int, field: str, source: str, used: np.ndarray
+) -> np.ndarray:
     """Step-buffer columns of `width` entries from each address: addr (R, E) (-1 padded) ->
     (R, E, width); padded entities read the zero column.
 
@@ -165,8 +183,10 @@ def _columns(addr: np.ndarray, width: int, start: int, limit: int, zero: int, fi
     live = addr[used]
     if live.size and int(live.max()) + width > limit:
         bad = int(np.argmax((addr.max(1) + width > limit) & used))
-        raise TTError(f"robots[{bad}].{field} reaches column {int(addr[bad].max()) + width - 1} of episode.{source}, "
-                         f"which has {limit} columns: the episode was not rolled out with this robot")
+        raise TTError(
+            f"robots[{bad}].{field} reaches column {int(addr[bad].max()) + width - 1} of episode.{source}, "
+            f"which has {limit} columns: the episode was not rolled out with this robot"
+        )
     return np.where(addr[..., None] >= 0, start + addr[..., None] + np.arange(width), zero)
 
 
@@ -179,9 +199,16 @@ def _token_ids(E: int, steps: torch.Tensor) -> torch.Tensor:
     return ids.reshape(W, K * E, 2)
 
 
-def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int = 8, mode: str = "random",
-                   step_index: torch.Tensor | None = None, generator: torch.Generator | None = None,
-                   dtype: torch.dtype = torch.float32) -> TokenBatch:
+def episode_tokens(
+    episode: Episode,
+    robots: Sequence[RobotIndex],
+    *,
+    steps: int = 8,
+    mode: str = "random",
+    step_index: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> TokenBatch:
     """Dynamics tokens (free / track link obs, dynamic and ball joint obs, actuator obs,
     control) and target-pose tokens of every world, at `steps` control steps each.
 
@@ -194,8 +221,10 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
     W, T = episode.worlds, episode.steps
     design = episode.design_index.detach().cpu().numpy().astype(np.int64)
     if design.shape != (W,) or (W and (design.min() < 0 or design.max() >= len(robots))):
-        raise TTError(f"episode.design_index must index the {len(robots)} robots given, one per world; got shape {design.shape}"
-                         + (f", values {design.min()}..{design.max()}" if W else ""))
+        raise TTError(
+            f"episode.design_index must index the {len(robots)} robots given, one per world; got shape {design.shape}"
+            + (f", values {design.min()}..{design.max()}" if W else "")
+        )
     if step_index is None:
         st, valid = sample_steps(episode.lengths().to(dev), steps, mode, generator, horizon=T)
     else:
@@ -228,7 +257,10 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
 
     # Track links and targets: one per end effector.
     if A:
-        for name, p, q in (("track_link_obs", episode.ee_pos, episode.ee_quat), ("target_pose", episode.target_pos, episode.target_quat)):
+        for name, p, q in (
+            ("track_link_obs", episode.ee_pos, episode.ee_quat),
+            ("target_pose", episode.target_pos, episode.target_quat),
+        ):
             pos = _step_rows(p, rows, w_rows, t_rows).view(W, K, A, 3)
             rot = _quat_to_mat(_step_rows(q, rows, w_rows, t_rows).view(W, K, A, 4)).reshape(W, K, A, 9)
             v = torch.cat([pos, rot], -1)
@@ -237,7 +269,11 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
             put(name, v, np.ones((W, A), dtype=bool))
 
     F, D, B, nA = (tab[f].shape[1] for f in ("free_qposadr", "dyna_qposadr", "ball_qposadr", "actuator_mj"))
-    names = (("qpos",) if F or D or B else ()) + (("qvel",) if D or B else ()) + (("act_vel", "act_force", "action") if nA else ())
+    names = (
+        (("qpos",) if F or D or B else ())
+        + (("qvel",) if D or B else ())
+        + (("act_vel", "act_force", "action") if nA else ())
+    )
     if not names:
         return TokenBatch(values, ids, mask)
     buf, start, zero = _step_buffer(episode, names, rows, w_rows, t_rows, invalid)
@@ -282,7 +318,11 @@ def episode_tokens(episode: Episode, robots: Sequence[RobotIndex], *, steps: int
     # Actuators: observation and the clean command.
     if nA:
         ok = (tab["actuator_mj"] >= 0)[design]
-        put("actuator_obs", gather(np.concatenate([cols("actuator_mj", "act_vel", 1), cols("actuator_mj", "act_force", 1)], -1)), ok)
+        put(
+            "actuator_obs",
+            gather(np.concatenate([cols("actuator_mj", "act_vel", 1), cols("actuator_mj", "act_force", 1)], -1)),
+            ok,
+        )
         put("control", gather(cols("actuator_mj", "action", 1)), ok)
 
     return TokenBatch(values, ids, mask)

@@ -15,7 +15,9 @@ import numpy as np
 from tt.tokens.frames import skew_parallel_axis
 from tt.tokens.schema import GEOM_TYPES
 
-SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX = (GEOM_TYPES.index(n) for n in ("sphere", "capsule", "ellipsoid", "cylinder", "box"))
+SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX = (
+    GEOM_TYPES.index(n) for n in ("sphere", "capsule", "ellipsoid", "cylinder", "box")
+)
 
 #: Number of meaningful size entries per geometry code.
 SIZE_DIMS = {0: 0, SPHERE: 1, CAPSULE: 2, ELLIPSOID: 3, CYLINDER: 2, BOX: 3}
@@ -99,7 +101,11 @@ def valid_moments(moments: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
     """Principal moments (..., 3) that are non-negative and satisfy the triangle inequality."""
     d = np.asarray(moments)
     tol = rtol * np.abs(d).sum(-1)
-    tri = (d[..., 0] + d[..., 1] >= d[..., 2] - tol) & (d[..., 0] + d[..., 2] >= d[..., 1] - tol) & (d[..., 1] + d[..., 2] >= d[..., 0] - tol)
+    tri = (
+        (d[..., 0] + d[..., 1] >= d[..., 2] - tol)
+        & (d[..., 0] + d[..., 2] >= d[..., 1] - tol)
+        & (d[..., 1] + d[..., 2] >= d[..., 0] - tol)
+    )
     return tri & np.all(d >= -tol[..., None], axis=-1)
 
 
@@ -122,8 +128,15 @@ def repair_moments(moments: np.ndarray, margin: float = 1e-6) -> np.ndarray:
     return (1 - alpha) * d + alpha * mean
 
 
-def fit_masses(mass: np.ndarray, com: np.ndarray, inertia: np.ndarray, codes: np.ndarray, sizes: np.ndarray,
-               centers: np.ndarray, rotations: np.ndarray) -> np.ndarray:
+def fit_masses(
+    mass: np.ndarray,
+    com: np.ndarray,
+    inertia: np.ndarray,
+    codes: np.ndarray,
+    sizes: np.ndarray,
+    centers: np.ndarray,
+    rotations: np.ndarray,
+) -> np.ndarray:
     """Non-negative primitive masses whose solids best reproduce B bodies' lumped mass,
     centre of mass and inertia (all in the body frame; inertia about the com).
 
@@ -147,10 +160,17 @@ def fit_masses(mass: np.ndarray, com: np.ndarray, inertia: np.ndarray, codes: np
     trace = np.trace(j_total, axis1=-2, axis2=-1)
     length = np.sqrt(np.maximum(trace / np.maximum(mass, 1e-300), 1e-12))
     scale = np.maximum(trace, 1e-300)
-    a = np.concatenate([np.ones((len(mass), 1, k)) / mass[:, None, None],
-                        np.swapaxes(centers, -1, -2) / (mass * length)[:, None, None],
-                        np.moveaxis(j_unit[:, :, iu[0], iu[1]], -1, -2) / scale[:, None, None]], axis=1)  # (B, 10, k)
-    b = np.concatenate([np.ones((len(mass), 1)), com / length[:, None], j_total[:, iu[0], iu[1]] / scale[:, None]], axis=1)
+    a = np.concatenate(
+        [
+            np.ones((len(mass), 1, k)) / mass[:, None, None],
+            np.swapaxes(centers, -1, -2) / (mass * length)[:, None, None],
+            np.moveaxis(j_unit[:, :, iu[0], iu[1]], -1, -2) / scale[:, None, None],
+        ],
+        axis=1,
+    )  # (B, 10, k)
+    b = np.concatenate(
+        [np.ones((len(mass), 1)), com / length[:, None], j_total[:, iu[0], iu[1]] / scale[:, None]], axis=1
+    )
     m = (np.linalg.pinv(a) @ b[..., None])[..., 0]
     for i in np.flatnonzero((m < 0).any(-1)):
         m[i], _ = nnls(a[i], b[i])
@@ -171,11 +191,12 @@ def split_lumped_inertia(
     """Split B bodies' lumped inertias over their k primitives each (paper, "Inertia Splitting").
 
     Masses follow a uniform density over the primitives' volumes, unless `masses` (B, k)
-    gives them (`fit_masses`). Every primitive but the first gets its own solid inertia; the first takes the remainder (mass, centre of mass
-    and inertia, by the parallel axis theorem), so each body's total mass, centre of mass
-    and inertia are kept exactly. Where the remainder is not a physical inertia (a lumped
-    inertia far from the primitives' shapes), every primitive of that body keeps its solid
-    inertia instead and its entry of the returned ``exact`` is False.
+    gives them (`fit_masses`). Every primitive but the first gets its own solid inertia;
+    the first takes the remainder (mass, centre of mass and inertia, by the parallel axis
+    theorem), so each body's total mass, centre of mass and inertia are kept exactly.
+    Where the remainder is not a physical inertia (a lumped inertia far from the
+    primitives' shapes), every primitive of that body keeps its solid inertia instead and
+    its entry of the returned ``exact`` is False.
 
     mass (B,) [kg]; com (B, 3) [m] and inertia (B, 3, 3) [kg m^2] about the com, in the body
     frame; codes (B, k), sizes (B, k, 3), centers (B, k, 3) [m] and rotations (B, k, 3, 3) of
@@ -192,7 +213,12 @@ def split_lumped_inertia(
     tensors = rotations @ (solid[..., :, None] * np.swapaxes(rotations, -1, -2))
     coms = np.array(centers, dtype=np.float64)
     if k == 1:
-        return mass[:, None], np.asarray(com, dtype=np.float64)[:, None].copy(), np.asarray(inertia, dtype=np.float64)[:, None].copy(), np.ones(len(mass), bool)
+        return (
+            mass[:, None],
+            np.asarray(com, dtype=np.float64)[:, None].copy(),
+            np.asarray(inertia, dtype=np.float64)[:, None].copy(),
+            np.ones(len(mass), bool),
+        )
     rest_m = masses[:, 1:]
     m0 = mass - rest_m.sum(-1)
     ok = m0 > 1e-12 * np.maximum(mass, 1e-300)

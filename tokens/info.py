@@ -37,13 +37,23 @@ def dataset_info(path: str | Path, *, verify: str = "size") -> tuple[dict, np.nd
     size = sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
     reward = table.get("reward", np.zeros(0))
     out = {
-        "path": str(path), "format": attrs["format"], "schema_version": attrs["schema_version"],
-        "tt_version": attrs.get("tt_version"), "space": attrs.get("space"), "config": attrs.get("config", {}),
-        "complete": bool(attrs.get("complete", False)), "shards": len(store.readers),
-        "shards_expected": attrs.get("config", {}).get("shards"), "damaged": store.damaged,
-        "designs": sum(r.attrs["designs"] for r in store.readers), "episodes": store.episodes,
-        "episodes_generated": generated, "dropped": dropped, "steps": sum(int(r.attrs["steps"]) for r in store.readers),
-        "bytes": size, "maxima": store.maxima,
+        "path": str(path),
+        "format": attrs["format"],
+        "schema_version": attrs["schema_version"],
+        "tt_version": attrs.get("tt_version"),
+        "space": attrs.get("space"),
+        "config": attrs.get("config", {}),
+        "complete": bool(attrs.get("complete", False)),
+        "shards": len(store.readers),
+        "shards_expected": attrs.get("config", {}).get("shards"),
+        "damaged": store.damaged,
+        "designs": sum(r.attrs["designs"] for r in store.readers),
+        "episodes": store.episodes,
+        "episodes_generated": generated,
+        "dropped": dropped,
+        "steps": sum(int(r.attrs["steps"]) for r in store.readers),
+        "bytes": size,
+        "maxima": store.maxima,
     }
     if len(table.get("length", [])):
         out["length"] = _summary(table["length"].astype(np.float64))
@@ -60,17 +70,23 @@ def info_text(info: dict, rewards: np.ndarray) -> str:
     """The text of ``tt dataset info``: `dataset_info`'s summary and a text histogram of the
     episode rewards."""
     cfg = info["config"]
-    lines = [f"{info['path']}: {info['format']}, RoboToken schema v{info['schema_version']}, tt {info['tt_version']}",
-             f"space {info['space']}; seed {cfg.get('seed')}; bias {cfg.get('bias') or 'none'}; "
-             f"{cfg.get('episodes_per_design')} episodes per design; min {cfg.get('min_steps')} steps",
-             f"shards {info['shards']}/{info['shards_expected']}" + ("" if info["complete"] else " (incomplete: run `tt generate` again)")
-             + (f"; damaged: {sorted(info['damaged'])}" if info["damaged"] else ""),
-             f"designs {info['designs']:,}; episodes {info['episodes']:,} kept of {info['episodes_generated']:,} generated"
-             + "".join(f"; dropped {v:,} {k}" for k, v in sorted(info["dropped"].items()) if v),
-             f"steps {info['steps']:,}; size on disk {format_bytes(info['bytes'])}"]
+    lines = [
+        f"{info['path']}: {info['format']}, RoboToken schema v{info['schema_version']}, tt {info['tt_version']}",
+        f"space {info['space']}; seed {cfg.get('seed')}; bias {cfg.get('bias') or 'none'}; "
+        f"{cfg.get('episodes_per_design')} episodes per design; min {cfg.get('min_steps')} steps",
+        f"shards {info['shards']}/{info['shards_expected']}"
+        + ("" if info["complete"] else " (incomplete: run `tt generate` again)")
+        + (f"; damaged: {sorted(info['damaged'])}" if info["damaged"] else ""),
+        f"designs {info['designs']:,}; episodes {info['episodes']:,} kept of {info['episodes_generated']:,} generated"
+        + "".join(f"; dropped {v:,} {k}" for k, v in sorted(info["dropped"].items()) if v),
+        f"steps {info['steps']:,}; size on disk {format_bytes(info['bytes'])}",
+    ]
     if "length" in info:
         ln = info["length"]
-        lines.append(f"episode length [steps]: mean {ln['mean']:.1f}, min {ln['min']:.0f}, median {ln['p50']:.0f}, max {ln['max']:.0f}")
+        lines.append(
+            f"episode length [steps]: mean {ln['mean']:.1f}, min {ln['min']:.0f}, median {ln['p50']:.0f}, max "
+            f"{ln['max']:.0f}"
+        )
     for k, unit in (("pos_err", "cm"), ("orn_err", "deg"), ("survival", "")):
         if k in info and info[k].get("n"):
             lines.append(f"{k} [{unit or '1'}]: mean {info[k]['mean']:.3f}, median {info[k]['p50']:.3f}")
@@ -103,8 +119,14 @@ def _summary(x: np.ndarray) -> dict[str, float]:
     x = x[np.isfinite(x)]
     if not len(x):
         return {"n": 0}
-    return {"n": int(len(x)), "mean": float(x.mean()), "std": float(x.std()), "min": float(x.min()),
-            "p50": float(np.median(x)), "max": float(x.max())}
+    return {
+        "n": int(len(x)),
+        "mean": float(x.mean()),
+        "std": float(x.std()),
+        "min": float(x.min()),
+        "p50": float(np.median(x)),
+        "max": float(x.max()),
+    }
 
 
 def _text_histogram(x: np.ndarray, bins: int = 12, width: int = 40) -> list[str]:
@@ -113,7 +135,10 @@ def _text_histogram(x: np.ndarray, bins: int = 12, width: int = 40) -> list[str]
         return ["  (no episodes)"]
     counts, edges = np.histogram(x, bins=bins)
     top = max(int(counts.max()), 1)
-    return [f"  {edges[i]:9.2f} .. {edges[i + 1]:9.2f} | {'#' * int(round(width * c / top)):<{width}} {c}" for i, c in enumerate(counts)]
+    return [
+        f"  {edges[i]:9.2f} .. {edges[i + 1]:9.2f} | {'#' * int(round(width * c / top)):<{width}} {c}"
+        for i, c in enumerate(counts)
+    ]
 
 
 __all__ = ["dataset_info", "format_bytes", "info_text"]

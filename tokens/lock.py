@@ -62,8 +62,11 @@ class DatasetLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 other = self._owner(fd)
-                self._refuse(fd, f"{self.what}{self.file.parent} is being written by process {other.get('pid', '?')} on "
-                                 f"{other.get('host', 'this host')}; wait for it or stop it first")
+                self._refuse(
+                    fd,
+                    f"{self.what}{self.file.parent} is being written by process {other.get('pid', '?')} on "
+                    f"{other.get('host', 'this host')}; wait for it or stop it first",
+                )
             try:  # a holder that released (unlinked) the file between our open and flock: retry on the new file
                 same = os.fstat(fd).st_ino == os.stat(self.file).st_ino
             except FileNotFoundError:
@@ -75,11 +78,17 @@ class DatasetLock:
             pid = other.get("pid", -1)
             pid = pid if isinstance(pid, int) else -1
             if other.get("host") == me["host"] and pid != me["pid"] and _pid_alive(pid):
-                self._refuse(fd, f"{self.what}{self.file.parent} is being written by process {pid} on this host; "
-                                 "wait for it or stop it first")
+                self._refuse(
+                    fd,
+                    f"{self.what}{self.file.parent} is being written by process {pid} on this host; "
+                    "wait for it or stop it first",
+                )
             if other.get("host") not in (None, me["host"]):
-                self._refuse(fd, f"{self.what}{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if "
-                                 f"that run is gone, delete {self.file}")
+                self._refuse(
+                    fd,
+                    f"{self.what}{self.file.parent} is locked by {other.get('host')}:{other.get('pid')}; if "
+                    f"that run is gone, delete {self.file}",
+                )
             if other:
                 logger.info("taking over the lock %s of a run that is gone (%s)", self.file, other)
             os.ftruncate(fd, 0)

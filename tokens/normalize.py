@@ -41,6 +41,7 @@ CONSTANT_RANGE = 1e-6
 #: whose rotation entries alone keep them ~0.6 RMS away.
 PADDING_RMS = 0.3
 
+
 def _fixed_range(tname: str) -> tuple[np.ndarray, np.ndarray]:
     """Per-value [low, high] fixed by the schema (NaN where the data decides)."""
     t = SCHEMA[tname]
@@ -73,7 +74,9 @@ class Normalizer:
         self.version = int(version)
         for k in self.low:
             if self.low[k].ndim != 1 or self.low[k].shape != self.high[k].shape:
-                raise TTError(f"type {k!r}: low {self.low[k].shape} and high {self.high[k].shape} must be equal (D,) shapes")
+                raise TTError(
+                    f"type {k!r}: low {self.low[k].shape} and high {self.high[k].shape} must be equal (D,) shapes"
+                )
             if (self.high[k] < self.low[k]).any():
                 raise TTError(f"type {k!r}: high < low in value {int(np.flatnonzero(self.high[k] < self.low[k])[0])}")
 
@@ -107,7 +110,10 @@ class Normalizer:
             for name, values, mask in items:
                 v = _np(values).astype(np.float64)[_np(mask).astype(bool)]  # (n, D)
                 if name in SCHEMA.names() and v.shape[-1] != SCHEMA[name].width:
-                    raise TTError(f"values of token type {name!r} are {v.shape[-1]} wide; schema v{SCHEMA_VERSION} says {SCHEMA[name].width}")
+                    raise TTError(
+                        f"values of token type {name!r} are {v.shape[-1]} wide; schema v{SCHEMA_VERSION} says "
+                        f"{SCHEMA[name].width}"
+                    )
                 if not len(v):
                     continue
                 if quantile > 0:
@@ -120,13 +126,13 @@ class Normalizer:
             lo[name], hi[name] = np.quantile(v, quantile, axis=0), np.quantile(v, 1 - quantile, axis=0)
         low, high = {}, {}
         for name in lo:
-            l, h = lo[name], hi[name]
+            lower, h = lo[name], hi[name]
             if name in SCHEMA.names():
                 flo, fhi = _fixed_range(name)
-                l, h = np.where(np.isnan(flo), l, flo), np.where(np.isnan(fhi), h, fhi)
-            mid = 0.5 * (l + h)
-            narrow = h - l < MIN_RANGE
-            low[name] = np.where(narrow, mid - MIN_RANGE / 2, l)
+                lower, h = np.where(np.isnan(flo), lower, flo), np.where(np.isnan(fhi), h, fhi)
+            mid = 0.5 * (lower + h)
+            narrow = h - lower < MIN_RANGE
+            low[name] = np.where(narrow, mid - MIN_RANGE / 2, lower)
             high[name] = np.where(narrow, mid + MIN_RANGE / 2, h)
         return Normalizer(low, high)
 
@@ -199,8 +205,10 @@ class Normalizer:
     def state_dict(self) -> dict:
         """``{"low": {type: tensor}, "high": {type: tensor}}``, float32 on the CPU: what DiT
         checkpoints hold."""
-        return {"low": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.low.items()},
-                "high": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.high.items()}}
+        return {
+            "low": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.low.items()},
+            "high": {k: torch.tensor(v, dtype=torch.float32) for k, v in self.high.items()},
+        }
 
     @staticmethod
     def from_state_dict(state: Mapping) -> "Normalizer":
@@ -212,11 +220,18 @@ class Normalizer:
         out = {"schema_version": self.version, "types": {}}
         for name in self.low:
             if name not in SCHEMA.names():
-                raise TTError(f"token type {name!r} is not in schema v{SCHEMA_VERSION} ({list(SCHEMA.names())}); "
-                                 "save its statistics with state_dict")
+                raise TTError(
+                    f"token type {name!r} is not in schema v{SCHEMA_VERSION} ({list(SCHEMA.names())}); "
+                    "save its statistics with state_dict"
+                )
             t = SCHEMA[name]
-            out["types"][name] = {a.name: {"low": self.low[name][t.slice(a.name)].tolist(), "high": self.high[name][t.slice(a.name)].tolist()}
-                                  for a in t.attributes}
+            out["types"][name] = {
+                a.name: {
+                    "low": self.low[name][t.slice(a.name)].tolist(),
+                    "high": self.high[name][t.slice(a.name)].tolist(),
+                }
+                for a in t.attributes
+            }
         return out
 
     @staticmethod

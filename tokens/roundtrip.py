@@ -49,10 +49,25 @@ class RoundTripReport:
     joint_rel: float = 0.0
     actuator_rel: float = 0.0
 
-    def within(self, pos: float = 1e-5, rot: float = 1e-5, mass: float = 1e-5, inertia: float = 1e-5,
-               joint: float = 1e-5, actuator: float = 1e-5) -> bool:
-        return (not self.structure and self.fk_pos <= pos and self.com_pos <= pos and self.fk_rot <= rot and self.mass_rel <= mass
-                and self.inertia_rel <= inertia and self.joint_rel <= joint and self.actuator_rel <= actuator)
+    def within(
+        self,
+        pos: float = 1e-5,
+        rot: float = 1e-5,
+        mass: float = 1e-5,
+        inertia: float = 1e-5,
+        joint: float = 1e-5,
+        actuator: float = 1e-5,
+    ) -> bool:
+        return (
+            not self.structure
+            and self.fk_pos <= pos
+            and self.com_pos <= pos
+            and self.fk_rot <= rot
+            and self.mass_rel <= mass
+            and self.inertia_rel <= inertia
+            and self.joint_rel <= joint
+            and self.actuator_rel <= actuator
+        )
 
 
 def _rel(a, b, floor: float = 1e-6) -> float:
@@ -95,7 +110,9 @@ def _groups(m: mujoco.MjModel, d: mujoco.MjData) -> dict[int, tuple[float, np.nd
         for b in bodies:
             r = d.ximat[b].reshape(3, 3)
             rel = d.xipos[b] - com
-            inertia += r @ np.diag(m.body_inertia[b]) @ r.T + m.body_mass[b] * (rel @ rel * np.eye(3) - np.outer(rel, rel))
+            inertia += r @ np.diag(m.body_inertia[b]) @ r.T + m.body_mass[b] * (
+                rel @ rel * np.eye(3) - np.outer(rel, rel)
+            )
         out[key] = (mass, com, inertia)
     return out
 
@@ -106,12 +123,12 @@ def _random_qpos(m: mujoco.MjModel, rng: np.random.Generator) -> np.ndarray:
         a = m.jnt_qposadr[j]
         t = m.jnt_type[j]
         if t == mujoco.mjtJoint.mjJNT_FREE:
-            q[a:a + 3] = rng.uniform(-1, 1, 3)
+            q[a : a + 3] = rng.uniform(-1, 1, 3)
             quat = rng.normal(size=4)
-            q[a + 3:a + 7] = quat / np.linalg.norm(quat)
+            q[a + 3 : a + 7] = quat / np.linalg.norm(quat)
         elif t == mujoco.mjtJoint.mjJNT_BALL:
             quat = rng.normal(size=4)
-            q[a:a + 4] = quat / np.linalg.norm(quat)
+            q[a : a + 4] = quat / np.linalg.norm(quat)
         else:
             lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (-np.pi, np.pi)
             q[a] = rng.uniform(lo, hi)
@@ -122,9 +139,11 @@ def _transfer_qpos(q: np.ndarray, m: mujoco.MjModel, index: RobotIndex) -> np.nd
     """qpos of the original -> qpos of the round trip (free bodies move to their free link)."""
     q = q.copy()
     for f, adr in enumerate(index.free_qposadr):
-        r, p = compose(quat_to_mat(q[adr + 3:adr + 7]), q[adr:adr + 3], index.free_offset_rot[f], index.free_offset_pos[f])
-        q[adr:adr + 3] = p
-        q[adr + 3:adr + 7] = mat_to_quat(r)
+        r, p = compose(
+            quat_to_mat(q[adr + 3 : adr + 7]), q[adr : adr + 3], index.free_offset_rot[f], index.free_offset_pos[f]
+        )
+        q[adr : adr + 3] = p
+        q[adr + 3 : adr + 7] = mat_to_quat(r)
     return q
 
 
@@ -133,11 +152,13 @@ def _anchors(m: mujoco.MjModel, d: mujoco.MjData, e: int) -> np.ndarray:
         return np.stack([d.site_xpos[m.eq_obj1id[e]], d.site_xpos[m.eq_obj2id[e]]])
     out = []
     for k, b in enumerate((m.eq_obj1id[e], m.eq_obj2id[e])):
-        out.append(d.xpos[b] + d.xmat[b].reshape(3, 3) @ m.eq_data[e, 3 * k:3 * k + 3])
+        out.append(d.xpos[b] + d.xmat[b].reshape(3, 3) @ m.eq_data[e, 3 * k : 3 * k + 3])
     return np.stack(out)
 
 
-def compare_models(original: mujoco.MjModel, rebuilt: mujoco.MjModel, index: RobotIndex, samples: int = 4, seed: int = 0) -> RoundTripReport:
+def compare_models(
+    original: mujoco.MjModel, rebuilt: mujoco.MjModel, index: RobotIndex, samples: int = 4, seed: int = 0
+) -> RoundTripReport:
     """Differences between `original` and its round trip `rebuilt` (`index` from tokenizing
     `original`), at qpos0 and `samples` random configurations."""
     rep = RoundTripReport()
@@ -173,25 +194,43 @@ def compare_models(original: mujoco.MjModel, rebuilt: mujoco.MjModel, index: Rob
     ja, jb = a.jnt_qposadr[scalar], b.jnt_qposadr[scalar]
     da, db = a.jnt_dofadr, b.jnt_dofadr
     rep.joint_rel = max(
-        _rel(a.jnt_limited, b.jnt_limited), _rel(a.jnt_range[a.jnt_limited.astype(bool)], b.jnt_range[b.jnt_limited.astype(bool)]),
-        _rel(a.dof_armature[da], b.dof_armature[db]), _rel(a.dof_damping[da], b.dof_damping[db]),
-        _rel(a.dof_frictionloss[da], b.dof_frictionloss[db]), _rel(a.jnt_stiffness, b.jnt_stiffness),
-        _rel(a.qpos0[ja], b.qpos0[jb]), _rel(a.qpos_spring[ja], b.qpos_spring[jb]),
+        _rel(a.jnt_limited, b.jnt_limited),
+        _rel(a.jnt_range[a.jnt_limited.astype(bool)], b.jnt_range[b.jnt_limited.astype(bool)]),
+        _rel(a.dof_armature[da], b.dof_armature[db]),
+        _rel(a.dof_damping[da], b.dof_damping[db]),
+        _rel(a.dof_frictionloss[da], b.dof_frictionloss[db]),
+        _rel(a.jnt_stiffness, b.jnt_stiffness),
+        _rel(a.qpos0[ja], b.qpos0[jb]),
+        _rel(a.qpos_spring[ja], b.qpos_spring[jb]),
     )
     rep.actuator_rel = max(
-        [0.0] if not len(acts) else [
-            _rel(a.actuator_gainprm[acts, 0], b.actuator_gainprm[:, 0]), _rel(a.actuator_biasprm[acts, :3], b.actuator_biasprm[:, :3]),
-            _rel(a.actuator_gear[acts, 0], b.actuator_gear[:, 0]), _rel(a.actuator_ctrllimited[acts], b.actuator_ctrllimited),
+        [0.0]
+        if not len(acts)
+        else [
+            _rel(a.actuator_gainprm[acts, 0], b.actuator_gainprm[:, 0]),
+            _rel(a.actuator_biasprm[acts, :3], b.actuator_biasprm[:, :3]),
+            _rel(a.actuator_gear[acts, 0], b.actuator_gear[:, 0]),
+            _rel(a.actuator_ctrllimited[acts], b.actuator_ctrllimited),
             _rel(a.actuator_forcelimited[acts], b.actuator_forcelimited),
-            _rel(np.where(a.actuator_ctrllimited[acts, None], a.actuator_ctrlrange[acts], 0), np.where(b.actuator_ctrllimited[:, None], b.actuator_ctrlrange, 0)),
-            _rel(np.where(a.actuator_forcelimited[acts, None], a.actuator_forcerange[acts], 0), np.where(b.actuator_forcelimited[:, None], b.actuator_forcerange, 0)),
+            _rel(
+                np.where(a.actuator_ctrllimited[acts, None], a.actuator_ctrlrange[acts], 0),
+                np.where(b.actuator_ctrllimited[:, None], b.actuator_ctrlrange, 0),
+            ),
+            _rel(
+                np.where(a.actuator_forcelimited[acts, None], a.actuator_forcerange[acts], 0),
+                np.where(b.actuator_forcelimited[:, None], b.actuator_forcerange, 0),
+            ),
         ]
     )
 
     # Forward kinematics, masses and inertias.
-    link_geoms = [(l, int(g)) for l, g in enumerate(index.link_geom) if g >= 0 and a.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH]
-    gid_b = {l: mujoco.mj_name2id(b, mujoco.mjtObj.mjOBJ_GEOM, f"g{l}") for l, _ in link_geoms}
-    ee = [mujoco.mj_id2name(a, mujoco.mjtObj.mjOBJ_SITE, int(index.link_site[l])) for l in index.track_link]
+    link_geoms = [
+        (lid, int(g))
+        for lid, g in enumerate(index.link_geom)
+        if g >= 0 and a.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH
+    ]
+    gid_b = {lid: mujoco.mj_name2id(b, mujoco.mjtObj.mjOBJ_GEOM, f"g{lid}") for lid, _ in link_geoms}
+    ee = [mujoco.mj_id2name(a, mujoco.mjtObj.mjOBJ_SITE, int(index.link_site[lid])) for lid in index.track_link]
     ee_b = [mujoco.mj_name2id(b, mujoco.mjtObj.mjOBJ_SITE, f"ee_{k}") for k in range(len(ee))]
     if any(g < 0 for g in gid_b.values()) or any(s < 0 for s in ee_b):
         rep.structure.append("geoms or end-effector sites missing in the round trip")
@@ -211,9 +250,9 @@ def compare_models(original: mujoco.MjModel, rebuilt: mujoco.MjModel, index: Rob
         hinge = a.jnt_type != mujoco.mjtJoint.mjJNT_FREE
         pos_err = [np.abs(da_.xanchor[hinge] - db_.xanchor[hinge]).max(initial=0)]
         rot_err = [np.abs(da_.xaxis[hinge] - db_.xaxis[hinge]).max(initial=0)]
-        for l, g in link_geoms:
-            pos_err.append(np.abs(da_.geom_xpos[g] - db_.geom_xpos[gid_b[l]]).max())
-            rot_err.append(np.abs(da_.geom_xmat[g] - db_.geom_xmat[gid_b[l]]).max())
+        for lid, g in link_geoms:
+            pos_err.append(np.abs(da_.geom_xpos[g] - db_.geom_xpos[gid_b[lid]]).max())
+            rot_err.append(np.abs(da_.geom_xmat[g] - db_.geom_xmat[gid_b[lid]]).max())
         for sa, sb in zip(ee_a, ee_b):
             pos_err.append(np.abs(da_.site_xpos[sa] - db_.site_xpos[sb]).max())
             rot_err.append(np.abs(da_.site_xmat[sa] - db_.site_xmat[sb]).max())

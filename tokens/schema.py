@@ -182,7 +182,9 @@ class TokenType:
         for a in self.attributes:
             if a.name == name:
                 return a
-        raise KeyError(f"token type {self.name!r} has no attribute {name!r}; attributes: {[a.name for a in self.attributes]}")
+        raise KeyError(
+            f"token type {self.name!r} has no attribute {name!r}; attributes: {[a.name for a in self.attributes]}"
+        )
 
     def slice(self, name: str) -> slice:
         """Where attribute `name` sits in the encoded token vector."""
@@ -272,8 +274,7 @@ ACTUATOR = TokenType(
         Attribute("joint_id", 1, Encoding.BINARY, bits=JOINT_ID_BITS),
     ),
     ids=("actuator",),
-    doc="A joint actuator: control and force limits, servo gains, gear, type and the dynamic "
-    "joint it drives.",
+    doc="A joint actuator: control and force limits, servo gains, gear, type and the dynamic joint it drives.",
 )
 
 FREE_LINK_OBS = TokenType(
@@ -358,8 +359,16 @@ class Schema:
                     "role": t.role.value,
                     "ids": list(t.ids),
                     "attributes": [
-                        {"name": a.name, "dim": a.dim, "width": a.width, "encoding": a.encoding.value,
-                         "bits": a.bits, "offset": a.offset, "log_offset": a.log_offset, "unit": a.unit}
+                        {
+                            "name": a.name,
+                            "dim": a.dim,
+                            "width": a.width,
+                            "encoding": a.encoding.value,
+                            "bits": a.bits,
+                            "offset": a.offset,
+                            "log_offset": a.log_offset,
+                            "unit": a.unit,
+                        }
                         for a in t.attributes
                     ],
                 }
@@ -370,9 +379,20 @@ class Schema:
 
 SCHEMA = Schema(
     SCHEMA_VERSION,
-    (LINK, DYNA_JOINT, BALL_JOINT, FIXED_JOINT, ACTUATOR,
-     FREE_LINK_OBS, TRACK_LINK_OBS, DYNA_JOINT_OBS, BALL_JOINT_OBS, ACTUATOR_OBS, CONTROL,
-     TARGET_POSE),
+    (
+        LINK,
+        DYNA_JOINT,
+        BALL_JOINT,
+        FIXED_JOINT,
+        ACTUATOR,
+        FREE_LINK_OBS,
+        TRACK_LINK_OBS,
+        DYNA_JOINT_OBS,
+        BALL_JOINT_OBS,
+        ACTUATOR_OBS,
+        CONTROL,
+        TARGET_POSE,
+    ),
 )
 
 EMBODIMENT_TYPES = SCHEMA.names(Role.EMBODIMENT)
@@ -389,8 +409,10 @@ def check_version(version: int, what: str) -> None:
             raise TypeError
         version = operator.index(version)  # ints, numpy integers and 0-d integer arrays
     except TypeError:
-        raise SchemaVersionError(f"{what} has schema_version {version!r}, which is not an integer; this code reads "
-                                 f"RoboToken schema {SCHEMA_VERSION}") from None
+        raise SchemaVersionError(
+            f"{what} has schema_version {version!r}, which is not an integer; this code reads "
+            f"RoboToken schema {SCHEMA_VERSION}"
+        ) from None
     if int(version) != SCHEMA_VERSION:
         raise SchemaVersionError(
             f"{what} uses RoboToken schema v{int(version)}, this code reads v{SCHEMA_VERSION}; "

@@ -141,11 +141,15 @@ def read_root(path: str | Path) -> dict:
     """Root attributes of a dataset; raises `DatasetError` for a missing or foreign folder."""
     path = Path(path)
     if not (path / "zarr.json").is_file():
-        raise DatasetError(f"{path} is not a tt dataset: it has no zarr.json (create one with `tt generate --out {path}`)")
+        raise DatasetError(
+            f"{path} is not a tt dataset: it has no zarr.json (create one with `tt generate --out {path}`)"
+        )
     damage = root_damage(path)
     if damage is not None:
-        raise DatasetError(f"{path / 'zarr.json'}, the dataset's root, is damaged ({damage}); re-running the `tt generate` "
-                           "command that wrote the dataset rebuilds it from its intact shards")
+        raise DatasetError(
+            f"{path / 'zarr.json'}, the dataset's root, is damaged ({damage}); re-running the `tt generate` "
+            "command that wrote the dataset rebuilds it from its intact shards"
+        )
     try:
         attrs = json.loads((path / "zarr.json").read_text()).get("attributes", {})
     except (UnicodeDecodeError, ValueError, AttributeError) as e:
@@ -164,7 +168,13 @@ def create_root(path: str | Path, attrs: Mapping) -> None:
     path = Path(path)
     if (path / "zarr.json").exists():
         raise DatasetError(f"{path} already holds a zarr store")
-    full = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "schema": SCHEMA.to_dict(), "tt_version": tt_version(), **attrs}
+    full = {
+        "format": FORMAT,
+        "schema_version": SCHEMA_VERSION,
+        "schema": SCHEMA.to_dict(),
+        "tt_version": tt_version(),
+        **attrs,
+    }
     zarr.create_group(str(path), zarr_format=3, attributes=_jsonable(full))
     (path / "shards").mkdir(exist_ok=True)
 
@@ -250,7 +260,9 @@ def check_shards(path: str | Path, *, shards: int | None = None, full: bool = Tr
     The check `tt generate` runs before it resumes, and `tt dataset verify`."""
     out = {}
     for i, folder in shard_dirs(path).items():
-        out[i] = verify_shard(folder, full=full) if shards is None or i < shards else f"index beyond the {shards} shards"
+        out[i] = (
+            verify_shard(folder, full=full) if shards is None or i < shards else f"index beyond the {shards} shards"
+        )
     return out
 
 
@@ -267,8 +279,10 @@ def dataset_verify_cmd(path: str | Path) -> str:
     if damaged:
         named = "; ".join(f"{shard_name(i)}: {why}" for i, why in list(damaged.items())[:5])
         more = f"; and {len(damaged) - 5} more" if len(damaged) > 5 else ""
-        raise DatasetError(f"{path}: {len(damaged)} of {len(verdicts)} shards fail verification ({named}{more}); re-run "
-                           "the `tt generate` command that wrote the dataset to regenerate them")
+        raise DatasetError(
+            f"{path}: {len(damaged)} of {len(verdicts)} shards fail verification ({named}{more}); re-run "
+            "the `tt generate` command that wrote the dataset to regenerate them"
+        )
     missing = [] if expected is None else [i for i in range(expected) if i not in verdicts]
     files = sum(len(read_manifest(f)["files"]) for f in shard_dirs(path).values())
     text = f"{path}: all {len(verdicts)} shards intact ({files} files, sizes and CRC-32 checked)"
@@ -292,7 +306,12 @@ def dataset_fingerprint(path: str | Path) -> dict:
             h.update((folder / _MANIFEST).read_bytes())
         except OSError:
             h.update(b"(no manifest)")
-    return {"kind": "dataset", "config": _jsonable(attrs.get("config", {})), "shards": len(shards), "digest": h.hexdigest()}
+    return {
+        "kind": "dataset",
+        "config": _jsonable(attrs.get("config", {})),
+        "shards": len(shards),
+        "digest": h.hexdigest(),
+    }
 
 
 def read_manifest(folder: str | Path) -> dict:
@@ -356,7 +375,9 @@ class ShardPart:
                 raise ValueError(f"static[{name!r}]: values {v.shape}, ids {i.shape}, mask {m.shape} for {d} designs")
         for name, (v, i, m) in self.steps.items():
             if v.shape[0] != s or i.shape[:2] != (e, v.shape[1]) or m.shape != (e, v.shape[1]):
-                raise ValueError(f"steps[{name!r}]: values {v.shape}, ids {i.shape}, mask {m.shape} for {e} episodes of {s} steps")
+                raise ValueError(
+                    f"steps[{name!r}]: values {v.shape}, ids {i.shape}, mask {m.shape} for {e} episodes of {s} steps"
+                )
 
 
 class ShardWriter:
@@ -402,7 +423,10 @@ class ShardWriter:
         if key in self._pending:
             first = self._pending[key][0]
             if first.shape[1:] != data.shape[1:] or first.dtype != data.dtype:
-                raise ValueError(f"{self.name}/{key}: appending {data.dtype}{data.shape[1:]} to an array of {first.dtype}{first.shape[1:]}")
+                raise ValueError(
+                    f"{self.name}/{key}: appending {data.dtype}{data.shape[1:]} to an array of "
+                    f"{first.dtype}{first.shape[1:]}"
+                )
         else:
             self._chunks[key] = chunk
         self._pending.setdefault(key, []).append(data)
@@ -415,8 +439,13 @@ class ShardWriter:
             arr = self._arrays.get(key)
             if arr is None:
                 fill = np.nan if data.dtype.kind == "f" and key.endswith("continuous") else 0
-                self._arrays[key] = self.group.create_array(key, data=data, chunks=(self._chunks[key], *data.shape[1:]),
-                                                            compressors=_compressor(), fill_value=fill)
+                self._arrays[key] = self.group.create_array(
+                    key,
+                    data=data,
+                    chunks=(self._chunks[key], *data.shape[1:]),
+                    compressors=_compressor(),
+                    fill_value=fill,
+                )
             elif data.shape[0]:
                 arr.append(data, axis=0)
             self._pending[key] = [data[:0]]
@@ -468,15 +497,26 @@ class ShardWriter:
 
         attrs: stored in the shard group's ``zarr.json`` (content: part of the checksums).
         Nothing that differs between runs (timings) is stored, so a shard is a pure function
-        of its arguments and index, manifest included. An existing damaged shard of the same index is replaced; an intact one is kept
-        (another writer finished it first) and this one discarded.
+        of its arguments and index, manifest included. An existing damaged shard of the same
+        index is replaced; an intact one is kept (another writer finished it first) and this
+        one discarded.
         """
         self.flush()
         stats = {name: {"min": self._lo[name].tolist(), "max": self._hi[name].tolist()} for name in self._lo}
-        self.group.attrs.update(_jsonable({**attrs, "index": self.index, "designs": self.designs, "episodes": self.episodes,
-                                           "steps": self.steps, "stats": stats,
-                                           "length_min": self._length[0] if self.episodes else 0,
-                                           "length_max": self._length[1]}))
+        self.group.attrs.update(
+            _jsonable(
+                {
+                    **attrs,
+                    "index": self.index,
+                    "designs": self.designs,
+                    "episodes": self.episodes,
+                    "steps": self.steps,
+                    "stats": stats,
+                    "length_min": self._length[0] if self.episodes else 0,
+                    "length_max": self._length[1],
+                }
+            )
+        )
         files = {}
         for rel in _shard_files(self.tmp):
             p = self.tmp / rel
@@ -602,9 +642,11 @@ class ShardReader:
 
     def _damaged(self, what: str, error: BaseException) -> DatasetError:
         dataset = self.folder.parent.parent
-        return DatasetError(f"dataset shard {self.folder}: {what} cannot be read ({reason(error)}); "
-                            f"`tt dataset verify {dataset}` checks every chunk, and re-running the `tt generate` "
-                            "command that wrote it regenerates a damaged shard")
+        return DatasetError(
+            f"dataset shard {self.folder}: {what} cannot be read ({reason(error)}); "
+            f"`tt dataset verify {dataset}` checks every chunk, and re-running the `tt generate` "
+            "command that wrote it regenerates a damaged shard"
+        )
 
     def _read(self, key: str, rows: slice = slice(None)) -> np.ndarray:
         """Rows `rows` of array `key` of the shard; a chunk that does not decode is a `DatasetError`."""
@@ -646,8 +688,11 @@ class ShardReader:
 
     def static_rows(self, start: int, stop: int) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Embodiment tokens (values, ids, mask) of designs [start, stop) of the shard."""
-        return {n: tuple(self._read(f"{n}/{part}", slice(start, stop)) for part in ("values", "ids", "mask"))
-                for n in self.types if n in EMBODIMENT_TYPES}
+        return {
+            n: tuple(self._read(f"{n}/{part}", slice(start, stop)) for part in ("values", "ids", "mask"))
+            for n in self.types
+            if n in EMBODIMENT_TYPES
+        }
 
     @property
     def static(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -669,11 +714,20 @@ class ShardReader:
         for n in self.types:
             if n in EMBODIMENT_TYPES:
                 continue
-            steps[n] = (self._read(f"{n}/values", slice(s0, s1)), self._read(f"{n}/ids", slice(start, stop)),
-                        self._read(f"{n}/mask", slice(start, stop)))
+            steps[n] = (
+                self._read(f"{n}/values", slice(s0, s1)),
+                self._read(f"{n}/ids", slice(start, stop)),
+                self._read(f"{n}/mask", slice(start, stop)),
+            )
         episode = {k: v[start:stop] for k, v in self.index.items()} if fields else {}
-        return EpisodeBlock(length=length, design=design - d0, offset=step_start - s0, static=self.static_rows(d0, d1),
-                            steps=steps, episode=episode)
+        return EpisodeBlock(
+            length=length,
+            design=design - d0,
+            offset=step_start - s0,
+            static=self.static_rows(d0, d1),
+            steps=steps,
+            episode=episode,
+        )
 
     def designs(self, space) -> list:
         """The shard's designs as `tt.sim.designs.Design` of `space` (a DesignSpace)."""
@@ -683,7 +737,9 @@ class ShardReader:
         cont = self._read("design/continuous")
         out = []
         for d, c in zip(disc, cont):
-            out.append(Design(space.name, tuple(int(v) for v in d if v >= 0), tuple(float(v) for v in c if not np.isnan(v))))
+            out.append(
+                Design(space.name, tuple(int(v) for v in d if v >= 0), tuple(float(v) for v in c if not np.isnan(v)))
+            )
         return out
 
     def episode_digests(self) -> dict[int, str]:
@@ -704,7 +760,9 @@ class ShardReader:
                 o, ln = block.offset[e], block.length[e]
                 for name in sorted(block.steps):
                     v, i, m = block.steps[name]
-                    h.update(name.encode() + np.ascontiguousarray(v[o:o + ln]).tobytes() + i[e].tobytes() + m[e].tobytes())
+                    h.update(
+                        name.encode() + np.ascontiguousarray(v[o : o + ln]).tobytes() + i[e].tobytes() + m[e].tobytes()
+                    )
                 out[int(block.episode["episode_id"][e])] = h.hexdigest()
         return out
 
@@ -723,15 +781,22 @@ class TokenStore:
         self.path = Path(path)
         self.attrs = read_root(self.path)
         if require_complete and not self.attrs.get("complete"):
-            raise DatasetError(f"{self.path} is incomplete (its generation was interrupted); run the same "
-                               "`tt generate` command again to finish it")
+            raise DatasetError(
+                f"{self.path} is incomplete (its generation was interrupted); run the same "
+                "`tt generate` command again to finish it"
+            )
         self.readers: list[ShardReader] = []
         self.damaged: dict[int, str] = {}
         for index, folder in shard_dirs(self.path).items():
             why = None if verify == "none" else verify_shard(folder, full=verify == "full")
             if why is not None:
-                logger.warning("skipping damaged shard %s of %s: %s (re-running the `tt generate` command that wrote it "
-                               "regenerates it)", folder.name, self.path, why)
+                logger.warning(
+                    "skipping damaged shard %s of %s: %s (re-running the `tt generate` command that wrote it "
+                    "regenerates it)",
+                    folder.name,
+                    self.path,
+                    why,
+                )
                 self.damaged[index] = why
                 continue
             self.readers.append(ShardReader(folder))
@@ -786,9 +851,27 @@ class TokenStore:
 
 
 __all__ = [
-    "BLOCK_EPISODES", "DatasetError", "EpisodeBlock", "FORMAT", "ShardPart", "ShardReader",
-    "ShardWriter", "TokenStore", "check_shards", "clear_partial", "create_root", "dataset_fingerprint", "dataset_verify_cmd",
+    "BLOCK_EPISODES",
+    "DatasetError",
+    "EpisodeBlock",
+    "FORMAT",
+    "ShardPart",
+    "ShardReader",
+    "ShardWriter",
+    "TokenStore",
+    "check_shards",
+    "clear_partial",
+    "create_root",
+    "dataset_fingerprint",
+    "dataset_verify_cmd",
     "discard_shard",
-    "is_dataset", "merge_stats", "normalizer_from_stats", "read_manifest", "read_root", "shard_dirs",
-    "shard_name", "update_root", "verify_shard",
+    "is_dataset",
+    "merge_stats",
+    "normalizer_from_stats",
+    "read_manifest",
+    "read_root",
+    "shard_dirs",
+    "shard_name",
+    "update_root",
+    "verify_shard",
 ]

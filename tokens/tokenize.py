@@ -180,7 +180,9 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
     body_jntadr, body_jntnum, body_parentid = m.body_jntadr.tolist(), m.body_jntnum.tolist(), m.body_parentid.tolist()
 
     def new_link(k, body, geom=-1, site=-1, code=0, row=0, free=-1, track=-1) -> int:
-        for lst, v in zip((kind, lbody, lgeom, lsite, lcode, lrow, lfree, ltrack), (k, body, geom, site, code, row, free, track)):
+        for lst, v in zip(
+            (kind, lbody, lgeom, lsite, lcode, lrow, lfree, ltrack), (k, body, geom, site, code, row, free, track)
+        ):
             lst.append(v)
         return len(kind) - 1
 
@@ -204,13 +206,17 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
         for g in range(body_geomadr[b], body_geomadr[b] + max(body_geomnum[b], 0)):
             t = geom_type[g]
             if t not in _SCENE_GEOMS and t not in _GEOM_CODE:
-                raise TokenizeError(f"{_name(m, mujoco.mjtObj.mjOBJ_GEOM, g, 'geom')} has type {mujoco.mjtGeom(t).name}; "
-                                    "RoboTokens hold spheres, capsules, ellipsoids, cylinders, boxes and meshes (as boxes)")
+                raise TokenizeError(
+                    f"{_name(m, mujoco.mjtObj.mjOBJ_GEOM, g, 'geom')} has type {mujoco.mjtGeom(t).name}; "
+                    "RoboTokens hold spheres, capsules, ellipsoids, cylinders, boxes and meshes (as boxes)"
+                )
         sites = [s for s in ee_sites if site_bodyid[s] == b]
         if b == 0:
             # World geoms that are not scene geometry are links welded to the ground.
             for g in geoms:
-                link = new_link(1 if geom_type[g] == _MESH else 0, 0, geom=g, code=_GEOM_CODE[geom_type[g]], row=off["geom"] + g)
+                link = new_link(
+                    1 if geom_type[g] == _MESH else 0, 0, geom=g, code=_GEOM_CODE[geom_type[g]], row=off["geom"] + g
+                )
                 fixed_to(-1, link, 0, 0)
             for s in sites:
                 link = new_link(4, 0, site=s, row=off["site"] + s, track=site_track[s])
@@ -228,7 +234,9 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
         inter = [new_link(3, b, row=0) for _ in moving[:-1]]
         if geoms:
             g0 = geoms[0]
-            p = new_link(1 if geom_type[g0] == _MESH else 0, b, geom=g0, code=_GEOM_CODE[geom_type[g0]], row=off["geom"] + g0)
+            p = new_link(
+                1 if geom_type[g0] == _MESH else 0, b, geom=g0, code=_GEOM_CODE[geom_type[g0]], row=off["geom"] + g0
+            )
         else:
             p = new_link(2, b, row=0)
             body_links.append((b, p))
@@ -238,7 +246,9 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
             free_link.append(p)
             lfree[p] = len(free_jnt) - 1
             if parent != 0:
-                raise TokenizeError(f"{_name(m, mujoco.mjtObj.mjOBJ_BODY, b, 'body')} has a free joint but is not a child of the world")
+                raise TokenizeError(
+                    f"{_name(m, mujoco.mjtObj.mjOBJ_BODY, b, 'body')} has a free joint but is not a child of the world"
+                )
         elif not moving:
             # lp: pose of the parent link in the parent body; jp_pre: this body in its parent.
             lp_row = 0 if parent == 0 else lrow[parent_link]
@@ -260,7 +270,9 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
                     dyna_jnt.append(j)
         mass_links = [p] if geoms else []
         for g in geoms[1:]:
-            link = new_link(1 if geom_type[g] == _MESH else 0, b, geom=g, code=_GEOM_CODE[geom_type[g]], row=off["geom"] + g)
+            link = new_link(
+                1 if geom_type[g] == _MESH else 0, b, geom=g, code=_GEOM_CODE[geom_type[g]], row=off["geom"] + g
+            )
             fixed_to(p, link, 0, lrow[p])
             mass_links.append(link)
         for g in geoms:
@@ -311,7 +323,10 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
         if m.actuator_dyntype[a] != mujoco.mjtDyn.mjDYN_NONE:
             notes.append(f"{aname}: activation dynamics dropped")
         gt, bt = int(m.actuator_gaintype[a]), int(m.actuator_biastype[a])
-        if gt != int(mujoco.mjtGain.mjGAIN_FIXED) or bt not in (int(mujoco.mjtBias.mjBIAS_AFFINE), int(mujoco.mjtBias.mjBIAS_NONE)):
+        if gt != int(mujoco.mjtGain.mjGAIN_FIXED) or bt not in (
+            int(mujoco.mjtBias.mjBIAS_AFFINE),
+            int(mujoco.mjtBias.mjBIAS_NONE),
+        ):
             notes.append(f"{aname} dropped: only position, velocity and motor actuators are representable")
             continue
         act_mj.append(a)
@@ -320,32 +335,74 @@ def _build_plan(m: mujoco.MjModel, ee_sites: list[int]) -> _Plan:
         notes.append(f"{m.ntendon} tendon(s) ignored")
 
     n_links = len(kind)
-    for what, count, limit in (("links", n_links, MAX_LINKS), ("dynamic joints", len(dyna_jnt), MAX_DYNA_JOINTS),
-                               ("free links", len(free_jnt), MAX_FREE_LINKS), ("track links", len(ee_sites), MAX_TRACK_LINKS)):
+    for what, count, limit in (
+        ("links", n_links, MAX_LINKS),
+        ("dynamic joints", len(dyna_jnt), MAX_DYNA_JOINTS),
+        ("free links", len(free_jnt), MAX_FREE_LINKS),
+        ("track links", len(ee_sites), MAX_TRACK_LINKS),
+    ):
         if count > limit:
             raise TokenizeError(f"model {_model_name(m)!r} has {count} {what}; schema allows at most {limit}")
 
     def arr(rows):
         a = np.asarray(rows, dtype=np.int64).reshape(-1, 8)
-        return {"parent": a[:, 0], "child": a[:, 1], "jp_pre": a[:, 2], "jp": a[:, 3], "jc": a[:, 4], "lp": a[:, 5], "lc": a[:, 6], "mj": a[:, 7]}
+        return {
+            "parent": a[:, 0],
+            "child": a[:, 1],
+            "jp_pre": a[:, 2],
+            "jp": a[:, 3],
+            "jc": a[:, 4],
+            "lp": a[:, 5],
+            "lc": a[:, 6],
+            "mj": a[:, 7],
+        }
 
-    split_groups = {k: (np.array([b for b, _ in v], dtype=np.int64), np.array([ls for _, ls in v], dtype=np.int64))
-                    for k, v in sorted(split_by_k.items())}
+    split_groups = {
+        k: (np.array([b for b, _ in v], dtype=np.int64), np.array([ls for _, ls in v], dtype=np.int64))
+        for k, v in sorted(split_by_k.items())
+    }
     depth = np.zeros(m.nbody, dtype=np.int64)
     for b in range(1, m.nbody):
         depth[b] = depth[m.body_parentid[b]] + 1
     return _Plan(
-        link_kind=np.array(kind, dtype=np.int64), link_body=np.array(lbody, dtype=np.int64), link_geom=np.array(lgeom, dtype=np.int64),
-        link_site=np.array(lsite, dtype=np.int64), link_code=np.array(lcode, dtype=np.int64), link_pose_row=np.array(lrow, dtype=np.int64),
-        link_free=np.array(lfree, dtype=np.int64), link_track=np.array(ltrack, dtype=np.int64), primary=primary,
-        split_groups=split_groups, inertial_body=np.array([b for b, _ in body_links], dtype=np.int64),
-        inertial_link=np.array([link for _, link in body_links], dtype=np.int64), edges={k: arr(v) for k, v in edges.items()},
-        dyna_jnt=np.array(dyna_jnt, dtype=np.int64), ball_jnt=np.array(ball_jnt, dtype=np.int64), free_jnt=np.array(free_jnt, dtype=np.int64),
-        free_link=np.array(free_link, dtype=np.int64), track_site=np.array(ee_sites, dtype=np.int64), track_link=np.array(track_link, dtype=np.int64),
-        act_mj=np.array(act_mj, dtype=np.int64), act_joint=np.array(act_joint, dtype=np.int64), eq_rows=eq_rows,
-        eq=np.array(eq_rows, dtype=np.int64).reshape(-1, 6), n_pose_rows=off["end"], pose_off=off,
-        counts={"body": m.nbody, "geom": m.ngeom, "site": m.nsite, "jnt": m.njnt, "eq": m.neq, "act": m.nu, "dof": m.nv, "qpos": m.nq},
-        body_parent=m.body_parentid.astype(np.int64), body_depth=depth, notes=tuple(notes),
+        link_kind=np.array(kind, dtype=np.int64),
+        link_body=np.array(lbody, dtype=np.int64),
+        link_geom=np.array(lgeom, dtype=np.int64),
+        link_site=np.array(lsite, dtype=np.int64),
+        link_code=np.array(lcode, dtype=np.int64),
+        link_pose_row=np.array(lrow, dtype=np.int64),
+        link_free=np.array(lfree, dtype=np.int64),
+        link_track=np.array(ltrack, dtype=np.int64),
+        primary=primary,
+        split_groups=split_groups,
+        inertial_body=np.array([b for b, _ in body_links], dtype=np.int64),
+        inertial_link=np.array([link for _, link in body_links], dtype=np.int64),
+        edges={k: arr(v) for k, v in edges.items()},
+        dyna_jnt=np.array(dyna_jnt, dtype=np.int64),
+        ball_jnt=np.array(ball_jnt, dtype=np.int64),
+        free_jnt=np.array(free_jnt, dtype=np.int64),
+        free_link=np.array(free_link, dtype=np.int64),
+        track_site=np.array(ee_sites, dtype=np.int64),
+        track_link=np.array(track_link, dtype=np.int64),
+        act_mj=np.array(act_mj, dtype=np.int64),
+        act_joint=np.array(act_joint, dtype=np.int64),
+        eq_rows=eq_rows,
+        eq=np.array(eq_rows, dtype=np.int64).reshape(-1, 6),
+        n_pose_rows=off["end"],
+        pose_off=off,
+        counts={
+            "body": m.nbody,
+            "geom": m.ngeom,
+            "site": m.nsite,
+            "jnt": m.njnt,
+            "eq": m.neq,
+            "act": m.nu,
+            "dof": m.nv,
+            "qpos": m.nq,
+        },
+        body_parent=m.body_parentid.astype(np.int64),
+        body_depth=depth,
+        notes=tuple(notes),
     )
 
 
@@ -353,7 +410,11 @@ def _signature(m: mujoco.MjModel, ee_sites: list[int]) -> bytes:
     """Bytes that are equal for models with equal topology (the plan is then the same)."""
     parts = [
         np.array([m.nbody, m.njnt, m.ngeom, m.nsite, m.nu, m.neq, m.ntendon, *ee_sites], dtype=np.int32),
-        m.body_parentid, m.body_jntnum, m.body_geomnum, m.jnt_type, m.geom_type,
+        m.body_parentid,
+        m.body_jntnum,
+        m.body_geomnum,
+        m.jnt_type,
+        m.geom_type,
     ]
     if m.nu:
         parts += [m.actuator_trntype, m.actuator_trnid, m.actuator_gaintype, m.actuator_biastype, m.actuator_dyntype]
@@ -403,8 +464,13 @@ class RobotIndex:
 
     @property
     def counts(self) -> dict[str, int]:
-        return {"dyna_joint": len(self.dyna_qposadr), "ball_joint": len(self.ball_qposadr), "free_link": len(self.free_qposadr),
-                "track_link": len(self.track_link), "actuator": len(self.actuator_mj)}
+        return {
+            "dyna_joint": len(self.dyna_qposadr),
+            "ball_joint": len(self.ball_qposadr),
+            "free_link": len(self.free_qposadr),
+            "track_link": len(self.track_link),
+            "actuator": len(self.actuator_mj),
+        }
 
 
 @dataclass
@@ -478,7 +544,9 @@ class _Layout:
         self.plans = plans
         self.sizes = np.array([len(g) for g in groups], dtype=np.int64)  # (G,) robots per topology
         self.bounds = np.concatenate([[0], np.cumsum(self.sizes)])  # robots of plan p: bounds[p]:bounds[p + 1]
-        self.order = np.concatenate([np.asarray(g, dtype=np.int64) for g in groups])  # (N,) input position of each robot
+        self.order = np.concatenate(
+            [np.asarray(g, dtype=np.int64) for g in groups]
+        )  # (N,) input position of each robot
         self.group = np.repeat(np.arange(len(plans)), self.sizes)  # (N,) plan of each robot
         self.models = [models[i] for i in self.order]
         self._cat: dict[str, np.ndarray] = {}
@@ -651,8 +719,10 @@ def _tokenize_batch(lay: _Layout, config: TokenizeConfig) -> tuple[TokenBatch, l
             for row in np.flatnonzero(~exact):
                 s = int(robot[row])
                 name = _name(lay.models[s], mujoco.mjtObj.mjOBJ_BODY, int(bf[row] - start["body"][s]), "body")
-                inexact_notes.setdefault(s, []).append(f"{name}: lumped inertia does not split exactly over its primitives; "
-                                                       "links get solid inertias of best-fit masses")
+                inexact_notes.setdefault(s, []).append(
+                    f"{name}: lumped inertia does not split exactly over its primitives; "
+                    "links get solid inertias of best-fit masses"
+                )
     ib = lay.shift([p.inertial_body for p in plans], start["body"])
     il = lay.shift([p.inertial_link for p in plans], link_start)
     mass[il] = body_mass[ib]
@@ -672,9 +742,17 @@ def _tokenize_batch(lay: _Layout, config: TokenizeConfig) -> tuple[TokenBatch, l
     moments[massless] = 0.0
 
     link_raw = {
-        "geom_type": code, "size": size, "mass": mass[..., None], "ipos": ipos, "irot": irot, "inertia": moments,
-        "friction": friction, "contact": contact, "rgba": rgba,
-        "free_id": lay.tile([p.link_free for p in plans]), "track_id": lay.tile([p.link_track for p in plans]),
+        "geom_type": code,
+        "size": size,
+        "mass": mass[..., None],
+        "ipos": ipos,
+        "irot": irot,
+        "inertia": moments,
+        "friction": friction,
+        "contact": contact,
+        "rgba": rgba,
+        "free_id": lay.tile([p.link_free for p in plans]),
+        "track_id": lay.tile([p.link_track for p in plans]),
     }
     flat = {"link": (_encode("link", link_raw, config.dtype), link_count)}
 
@@ -720,13 +798,24 @@ def _tokenize_batch(lay: _Layout, config: TokenizeConfig) -> tuple[TokenBatch, l
         affine = lay.fixed("actuator_biastype")[a] == _AFFINE
         is_pos = affine & (bias[..., 1] != 0)
         is_vel = affine & (bias[..., 1] == 0)
-        atype = np.where(is_pos, ACTUATOR_TYPES.index("position"), np.where(is_vel, ACTUATOR_TYPES.index("velocity"), ACTUATOR_TYPES.index("motor")))
+        atype = np.where(
+            is_pos,
+            ACTUATOR_TYPES.index("position"),
+            np.where(is_vel, ACTUATOR_TYPES.index("velocity"), ACTUATOR_TYPES.index("motor")),
+        )
         kp = np.where(is_pos, gain, 0.0)
         kv = np.where(is_pos, -bias[..., 2], np.where(is_vel, gain, 0.0))
         ctrl = np.where(lay.cat("actuator_ctrllimited")[a, None].astype(bool), lay.cat("actuator_ctrlrange")[a], 0.0)
         force = np.where(lay.cat("actuator_forcelimited")[a, None].astype(bool), lay.cat("actuator_forcerange")[a], 0.0)
-        raw = {"ctrlrange": ctrl, "forcerange": force, "kp": kp[..., None], "kv": kv[..., None],
-               "gear": lay.cat("actuator_gear")[a, :1], "type": atype, "joint_id": lay.tile([p.act_joint for p in plans])}
+        raw = {
+            "ctrlrange": ctrl,
+            "forcerange": force,
+            "kp": kp[..., None],
+            "kv": kv[..., None],
+            "gear": lay.cat("actuator_gear")[a, :1],
+            "type": atype,
+            "joint_id": lay.tile([p.act_joint for p in plans]),
+        }
         flat["actuator"] = (_encode("actuator", raw, config.dtype), count)
 
     # ---------------------------------------------------------------- padded batch, input order
@@ -755,17 +844,31 @@ def _tokenize_batch(lay: _Layout, config: TokenizeConfig) -> tuple[TokenBatch, l
         lo, hi = lay.bounds[p], lay.bounds[p + 1]
         m0 = lay.models[lo]
         shared = dict(
-            dyna_qposadr=m0.jnt_qposadr[plan.dyna_jnt].astype(np.int64), dyna_dofadr=m0.jnt_dofadr[plan.dyna_jnt].astype(np.int64),
-            ball_qposadr=m0.jnt_qposadr[plan.ball_jnt].astype(np.int64), ball_dofadr=m0.jnt_dofadr[plan.ball_jnt].astype(np.int64),
+            dyna_qposadr=m0.jnt_qposadr[plan.dyna_jnt].astype(np.int64),
+            dyna_dofadr=m0.jnt_dofadr[plan.dyna_jnt].astype(np.int64),
+            ball_qposadr=m0.jnt_qposadr[plan.ball_jnt].astype(np.int64),
+            ball_dofadr=m0.jnt_dofadr[plan.ball_jnt].astype(np.int64),
             free_qposadr=m0.jnt_qposadr[plan.free_jnt].astype(np.int64),
-            actuator_mj=plan.act_mj, link_geom=plan.link_geom, link_body=plan.link_body, link_site=plan.link_site,
-            track_link=plan.track_link, dyna_jnt=plan.dyna_jnt, ball_jnt=plan.ball_jnt, free_jnt=plan.free_jnt, topology=p,
+            actuator_mj=plan.act_mj,
+            link_geom=plan.link_geom,
+            link_body=plan.link_body,
+            link_site=plan.link_site,
+            track_link=plan.track_link,
+            dyna_jnt=plan.dyna_jnt,
+            ball_jnt=plan.ball_jnt,
+            free_jnt=plan.free_jnt,
+            topology=p,
         )
         free = link_start[lo:hi, None] + plan.free_link[None]  # (n, F)
         free_rot, free_pos = lrot[free], lpos[free]
         for r, s in enumerate(range(lo, hi)):
-            index[lay.order[s]] = RobotIndex(name=_model_name(lay.models[s]), free_offset_rot=free_rot[r], free_offset_pos=free_pos[r],
-                                             notes=plan.notes + tuple(inexact_notes.get(s, ())), **shared)
+            index[lay.order[s]] = RobotIndex(
+                name=_model_name(lay.models[s]),
+                free_offset_rot=free_rot[r],
+                free_offset_pos=free_pos[r],
+                notes=plan.notes + tuple(inexact_notes.get(s, ())),
+                **shared,
+            )
     return tokens, index
 
 
@@ -774,7 +877,9 @@ def _model_name(m: mujoco.MjModel) -> str:
     return raw[: raw.index(b"\0")].decode() if b"\0" in raw else ""
 
 
-def _joint_params(lay: _Layout, mj: np.ndarray, start: dict, jnt_type: np.ndarray, qpos0: np.ndarray, qspring: np.ndarray) -> dict:
+def _joint_params(
+    lay: _Layout, mj: np.ndarray, start: dict, jnt_type: np.ndarray, qpos0: np.ndarray, qspring: np.ndarray
+) -> dict:
     """Token parameters (E, ...) of joints `mj`: indices into the concatenated joint arrays
     of `lay` (-1: a loop closure). `start`: each robot's first joint / dof / qpos entry."""
     E = len(mj)
@@ -803,8 +908,9 @@ def _joint_params(lay: _Layout, mj: np.ndarray, start: dict, jnt_type: np.ndarra
     return out
 
 
-def _loop_closure_rows(lay: _Layout, rot: np.ndarray, pos: np.ndarray, start: dict, pose_start: np.ndarray,
-                       site_pos: np.ndarray) -> None:
+def _loop_closure_rows(
+    lay: _Layout, rot: np.ndarray, pos: np.ndarray, start: dict, pose_start: np.ndarray, site_pos: np.ndarray
+) -> None:
     """Joint frames of loop closures in each of their two bodies, at the reference pose, for
     every robot of `lay` (written into the pose table rows of its closures).
 
@@ -866,6 +972,6 @@ def _encode(tname: str, raw: dict, dtype) -> np.ndarray:
         if out is None:
             out = np.empty((len(v), t.width), dtype=dtype)
         # Encoded in float64, rounded to `dtype` by the assignment (as astype would).
-        out[:, col:col + a.width] = np.asarray(encode_attribute(a, v), dtype=np.float64).reshape(len(v), a.width)
+        out[:, col : col + a.width] = np.asarray(encode_attribute(a, v), dtype=np.float64).reshape(len(v), a.width)
         col += a.width
     return out

@@ -104,8 +104,16 @@ def rollout(
     designs = _designs(designs) if designs is not None else get_space(space).sample(n, seed)
     sp = _one_space(designs)
     ms = _placed(motions if motions is not None else [DEFAULT_MOTION], sp)
-    return evaluate_designs(designs, ms, reward, backend=backend or default_backend(sp), device=device,
-                            progress=progress, threads=threads, graph=graph)
+    return evaluate_designs(
+        designs,
+        ms,
+        reward,
+        backend=backend or default_backend(sp),
+        device=device,
+        progress=progress,
+        threads=threads,
+        graph=graph,
+    )
 
 
 def control_checkpoint(space: str, checkpoint: str | Path | None = None) -> Path:
@@ -150,8 +158,14 @@ def validate(
     from tt.baselines.evaluate import score_episode
     from tt.dit.policies import ControllerConfig, model_rollout
 
-    ep = model_rollout(designs, ms, control_checkpoint(sp, checkpoint), device=device, progress=progress,
-                       config=ControllerConfig(ensemble=ensemble))
+    ep = model_rollout(
+        designs,
+        ms,
+        control_checkpoint(sp, checkpoint),
+        device=device,
+        progress=progress,
+        config=ControllerConfig(ensemble=ensemble),
+    )
     r, metrics = score_episode(ep, designs, ms, reward)
     return Evaluation(objective=r.mean(axis=1), reward=r, metrics=metrics, episode=ep)
 
@@ -192,11 +206,21 @@ def optimize(
     if not motions:
         from tt.kernels.errors import TTError
 
-        raise TTError("optimize: no motion given; pass motions=[...]: library names such as 'toss', motion files "
-                      "or tt.motion(...) objects")
+        raise TTError(
+            "optimize: no motion given; pass motions=[...]: library names such as 'toss', motion files "
+            "or tt.motion(...) objects"
+        )
     get_space(space)  # an unknown space fails here, naming the valid ones
-    problem = Problem(space=space, motions=tuple(_placed(motions, space)), reward=reward, budget=budget, seed=seed,
-                      backend=backend, device=device, threads=threads)
+    problem = Problem(
+        space=space,
+        motions=tuple(_placed(motions, space)),
+        reward=reward,
+        budget=budget,
+        seed=seed,
+        backend=backend,
+        device=device,
+        threads=threads,
+    )
     if checkpoint is not None:
         options["checkpoint"] = checkpoint
     return run_optimizer(problem, method, **options)
@@ -242,8 +266,16 @@ def predict(
     ms = _placed(motions if motions is not None else [DEFAULT_MOTION], sp)
     cfg = get_reward(reward, sp)
     trained = load_model(predict_checkpoint(sp, checkpoint), device=device or default_device())
-    return predict_designs(trained, designs, ms, cfg, samples=samples, seed=seed, via=via,
-                           num_steps=CRITIC_DDIM_STEPS if num_steps is None else num_steps)
+    return predict_designs(
+        trained,
+        designs,
+        ms,
+        cfg,
+        samples=samples,
+        seed=seed,
+        via=via,
+        num_steps=CRITIC_DDIM_STEPS if num_steps is None else num_steps,
+    )
 
 
 def generate_dataset(space: str, designs: int, out: str | Path, **options) -> str:
@@ -288,8 +320,9 @@ def view(
         lookup = lambda _name: motion_obj  # noqa: E731  (the object itself, not a library look-up)
         motion = motion_obj.name
     if isinstance(source, (str, Path)):
-        return view_cmd(str(source), motion=motion, html=html, serve=serve, png=png, time=time, block=block,
-                        motion_lookup=lookup)
+        return view_cmd(
+            str(source), motion=motion, html=html, serve=serve, png=png, time=time, block=block, motion_lookup=lookup
+        )
     if html is None and not serve:
         html = Path("tt_view.html")
     with tempfile.TemporaryDirectory(prefix="tt_view_") as tmp:
@@ -306,8 +339,9 @@ def view(
 
             path = Path(tmp) / "designs.json"
             save_designs(_designs(source), path)
-        return view_cmd(str(path), motion=motion, html=html, serve=serve, png=png, time=time, block=block,
-                        motion_lookup=lookup)
+        return view_cmd(
+            str(path), motion=motion, html=html, serve=serve, png=png, time=time, block=block, motion_lookup=lookup
+        )
 
 
 def _designs(designs: DesignsLike) -> list[Design]:
@@ -320,7 +354,9 @@ def _designs(designs: DesignsLike) -> list[Design]:
     if not designs:
         from tt.kernels.errors import TTError
 
-        raise TTError("no designs given; pass Design objects (tt.get_space(...).sample(n, seed)) or a designs.json path")
+        raise TTError(
+            "no designs given; pass Design objects (tt.get_space(...).sample(n, seed)) or a designs.json path"
+        )
     return designs
 
 
@@ -346,7 +382,22 @@ def _placed(motions: Sequence[MotionLike], space: str) -> list[Motion]:
 
 
 __all__ = [
-    "DEFAULT_BUDGET", "DEFAULT_CONTROLLER", "DEFAULT_METHOD", "DEFAULT_MOTION", "DEFAULT_REWARD", "DEFAULT_SEED",
-    "DEFAULT_SPACE", "control_checkpoint", "generate_dataset", "get_space", "load_motion", "motion", "optimize",
-    "predict", "predict_checkpoint", "rollout", "validate", "view",
+    "DEFAULT_BUDGET",
+    "DEFAULT_CONTROLLER",
+    "DEFAULT_METHOD",
+    "DEFAULT_MOTION",
+    "DEFAULT_REWARD",
+    "DEFAULT_SEED",
+    "DEFAULT_SPACE",
+    "control_checkpoint",
+    "generate_dataset",
+    "get_space",
+    "load_motion",
+    "motion",
+    "optimize",
+    "predict",
+    "predict_checkpoint",
+    "rollout",
+    "validate",
+    "view",
 ]

@@ -20,10 +20,10 @@ Time. The defaults keep the whole demo to a few minutes on a 2-core CPU: the lea
 methods sample 16 candidates with 20 DDIM steps (of the process's 100; DDIM's strided
 schedule) rather than the paper's 128 x 100. With the shipped ViperX checkpoint and critic
 the whole `tt demo` took 38 s on the repository's 2-core CPU when idle (2026-12-04;
-Zeroth-Order ~8 s and Self-Guidance ~11 s of it, mostly decoding the 16 candidates). One-time costs are excluded from each
-method's optimize time, as the kernel compile is for Random and CMA-ES: loading the
-checkpoint and building the space's decoding table (ViperX: ~10 s) happen once before the
-learned methods run and are reported on their own line.
+Zeroth-Order ~8 s and Self-Guidance ~11 s of it, mostly decoding the 16 candidates).
+One-time costs are excluded from each method's optimize time, as the kernel compile is for
+Random and CMA-ES: loading the checkpoint and building the space's decoding table (ViperX:
+~10 s) happen once before the learned methods run and are reported on their own line.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from tt.kernels.errors import TTError
 
 log = logging.getLogger(__name__)
@@ -107,9 +108,9 @@ def resolve_checkpoint(config: DemoConfig) -> tuple[Path | None, str]:
 
 def learned_setup(checkpoint: Path, space: str, device: str | None) -> LearnedSetup:
     """Load the model and build the decoder once for both learned methods."""
-    from tt.kernels.device import default_device
     from tt.dit.checkpoint import load_model, shipped_critic
     from tt.guidance.zeroth import DesignDecoder, check_critic
+    from tt.kernels.device import default_device
     from tt.sim.designs import get_space
     from tt.tokens.design_fit import CandidateTable
 
@@ -136,15 +137,23 @@ def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None
         if learned is None:
             raise TTError(f"method {method!r} needs a DiT checkpoint")
         if method in ("zeroth", "zeroth-sim"):
-            zeroth = ZerothOrder(SamplerConfig(samples=config.samples, num_steps=config.num_steps),
-                                 model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
+            zeroth = ZerothOrder(
+                SamplerConfig(samples=config.samples, num_steps=config.num_steps),
+                model=learned.trained,
+                decoder=learned.decoder,
+                critic_model=learned.critic,
+            )
             if method == "zeroth":
                 return zeroth
             from tt.guidance.hybrid import SimVerified
 
             return SimVerified(zeroth)
-        return DynamicsSelfGuidance(DGSConfig(samples=config.samples, num_steps=config.num_steps),
-                                    model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
+        return DynamicsSelfGuidance(
+            DGSConfig(samples=config.samples, num_steps=config.num_steps),
+            model=learned.trained,
+            decoder=learned.decoder,
+            critic_model=learned.critic,
+        )
     return get_optimizer(method)
 
 
@@ -175,13 +184,21 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
         else:
             learned = learned_setup(checkpoint, config.space, config.device)
             critic = "" if learned.critic is None else f", the critic {learned.critic.path.name}"
-            echo(f"loaded the model (step {learned.trained.step}){critic} and the {config.space} decoding table in "
-                 f"{learned.seconds:.1f} s (once, not in the optimize times)")
+            echo(
+                f"loaded the model (step {learned.trained.step}){critic} and the {config.space} decoding table in "
+                f"{learned.seconds:.1f} s (once, not in the optimize times)"
+            )
     results, labels, failures = [], [], []
     for method in methods:
         budget = config.samples if method in LEARNED else config.budget
-        problem = Problem(space=config.space, motions=tuple(motions), reward=config.reward, budget=budget,
-                          seed=config.seed, device=config.device)  # the space's default backend
+        problem = Problem(
+            space=config.space,
+            motions=tuple(motions),
+            reward=config.reward,
+            budget=budget,
+            seed=config.seed,
+            device=config.device,
+        )  # the space's default backend
         what = f"{budget} samples, {config.num_steps} DDIM steps" if method in LEARNED else f"{budget} candidates"
         echo(f"[{method}] optimizing ({what}) ...")
         start = time.perf_counter()
@@ -193,8 +210,14 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
             # A model whose candidates all fail to decode to the space's designs returns none;
             # the other methods' results still stand.
             echo(f"[{method}] no design: {e}")
-            failures.append({"name": LABELS[method], "seconds": time.perf_counter() - start, "rollouts": 0,
-                             "note": "no design decoded"})
+            failures.append(
+                {
+                    "name": LABELS[method],
+                    "seconds": time.perf_counter() - start,
+                    "rollouts": 0,
+                    "note": "no design decoded",
+                }
+            )
             continue
         kind = "predicted objective" if method in ("zeroth", "dgs") else "objective"
         echo(f"[{method}] {result.rollouts} rollouts, {result.seconds:.1f} s, {kind} {result.best_reward:.1f}")
@@ -213,20 +236,29 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     rows += failures
 
     config.out.mkdir(parents=True, exist_ok=True)
-    write_json(config.out / "demo.json", {
-        "space": config.space, "motion": config.motion, "reward": config.reward, "rows": rows,
-        "designs": {label: space.to_dict(r.best) for label, r in zip(labels, results)},
-        "checkpoint": None if learned is None else str(learned.checkpoint),
-        "critic": None if learned is None or learned.critic is None else str(learned.critic.path),
-        "checkpoint_note": checkpoint_note,
-        "samples": config.samples, "num_steps": config.num_steps, "budget": config.budget,
-    })
+    write_json(
+        config.out / "demo.json",
+        {
+            "space": config.space,
+            "motion": config.motion,
+            "reward": config.reward,
+            "rows": rows,
+            "designs": {label: space.to_dict(r.best) for label, r in zip(labels, results)},
+            "checkpoint": None if learned is None else str(learned.checkpoint),
+            "critic": None if learned is None or learned.critic is None else str(learned.critic.path),
+            "checkpoint_note": checkpoint_note,
+            "samples": config.samples,
+            "num_steps": config.num_steps,
+            "budget": config.budget,
+        },
+    )
     try:
-        from tt.viz.episode_file import save_episode_npz
         from tt.viz.cli import view_cmd
+        from tt.viz.episode_file import save_episode_npz
 
-        episode_file = save_episode_npz(config.out / "demo_episode.npz", ev.episode, winners,
-                                        labels=labels, motion_name=config.motion)
+        episode_file = save_episode_npz(
+            config.out / "demo_episode.npz", ev.episode, winners, labels=labels, motion_name=config.motion
+        )
         view_cmd(str(episode_file), html=config.out / "demo.html", echo=lambda s: None)
         echo(f"wrote {config.out / 'demo.html'} (the winners tracking {config.motion}; open it in a browser)")
     except Exception as e:  # the table is the result; a viewer problem must not hide it

@@ -80,9 +80,9 @@ from tt.tokens.draws import (
     space_token_maxima,
     training_motions,
 )
-from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA
 from tt.tokens.info import format_bytes
 from tt.tokens.lock import DatasetLock
+from tt.tokens.schema import EMBODIMENT_TYPES, SCHEMA
 from tt.tokens.store import (
     DatasetError,
     ShardPart,
@@ -112,7 +112,9 @@ STAGES = ("designs", "rollout", "score", "tokenize", "write")
 
 
 # ------------------------------------------------------------------------------ one shard
-def shard_design_list(config: GenerateConfig, index: int, *, device: str | None = None, threads: int | None = None) -> list:
+def shard_design_list(
+    config: GenerateConfig, index: int, *, device: str | None = None, threads: int | None = None
+) -> list:
     """The designs of shard `index` (a pure function of config and index)."""
     from tt.sim.designs import get_space
 
@@ -142,8 +144,16 @@ def _cmaes_designs(config: GenerateConfig, index: int, n: int, device: str | Non
     for m, count in by_motion.items():
         motion = episode_motion(replace(config, max_yaw=0.0, max_shift=0.0), base[m], 0)
         # Runs on one motion go in lock step (CMA-ES restarts), one batched rollout per generation.
-        problem = Problem(space=config.space, motions=(motion,), reward=config.reward, budget=per_run * count, threads=threads,
-                          seed=_seed_int(config.seed, index, _STREAM_CMAES, m, bits=21), backend=config.backend, device=device)
+        problem = Problem(
+            space=config.space,
+            motions=(motion,),
+            reward=config.reward,
+            budget=per_run * count,
+            threads=threads,
+            seed=_seed_int(config.seed, index, _STREAM_CMAES, m, bits=21),
+            backend=config.backend,
+            device=device,
+        )
         designs += optimizer.optimize(problem).designs
     return designs[:n]
 
@@ -160,8 +170,10 @@ def _select_worlds(ep, worlds: torch.Tensor):
 def _pad_last(x: np.ndarray, axis: int, size: int, what: str) -> np.ndarray:
     cur = x.shape[axis]
     if cur > size:
-        raise DatasetError(f"{what} has {cur} tokens, more than the design space's maximum {size}; "
-                           "the maxima stored with the dataset are wrong")
+        raise DatasetError(
+            f"{what} has {cur} tokens, more than the design space's maximum {size}; "
+            "the maxima stored with the dataset are wrong"
+        )
     if cur == size:
         return x
     pad = [(0, 0)] * x.ndim
@@ -202,17 +214,28 @@ def _store_pool(threads: int | None, device: str):
     the rollouts run on the CPU and may use more than one thread (None: every core); else
     no pool (None). On a GPU the store's torch work would run during the next rollout's
     graph capture, so there it stays inline."""
-    from contextlib import nullcontext
     from concurrent.futures import ThreadPoolExecutor
+    from contextlib import nullcontext
 
     from tt.kernels.rollout import cpu_threads
 
     on_cpu = str(device).startswith("cpu")
-    return ThreadPoolExecutor(1, thread_name_prefix="tt-store") if on_cpu and cpu_threads(threads) > 1 else nullcontext()
+    return (
+        ThreadPoolExecutor(1, thread_name_prefix="tt-store") if on_cpu and cpu_threads(threads) > 1 else nullcontext()
+    )
 
 
-def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, device: str, widths: Mapping,
-                   progress: Callable[[int], None] | None = None, tokenizer=None, threads: int | None = None) -> ShardResult:
+def generate_shard(
+    config: GenerateConfig,
+    index: int,
+    out: str | Path,
+    *,
+    device: str,
+    widths: Mapping,
+    progress: Callable[[int], None] | None = None,
+    tokenizer=None,
+    threads: int | None = None,
+) -> ShardResult:
     """Generate shard `index` of the dataset at `out` (whose root exists) and commit it.
 
     widths: ``space_token_maxima(config.space)`` as stored in the root. progress: called with
@@ -220,8 +243,8 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
     rollouts (None: every core; the shard is the same for every count). Returns the shard's
     `ShardResult`.
     """
-    from tt.sim.rewards import RewardInputs, get_reward, metrics
     from tt.sim.designs import get_space
+    from tt.sim.rewards import RewardInputs, get_reward, metrics
     from tt.sim.rollout import rollout
     from tt.tokens.episodes import episode_tokens
     from tt.tokens.tokenize import Tokenizer
@@ -251,7 +274,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
         static = {n: (static_tb.values[n], static_tb.ids[n], static_tb.mask[n]) for n in static_len}
         steps: dict[str, list] = {}
         for c0 in range(0, len(keep), _TOKENIZE_WORLDS):
-            chunk = keep[c0:c0 + _TOKENIZE_WORLDS]
+            chunk = keep[c0 : c0 + _TOKENIZE_WORLDS]
             sub = _select_worlds(ep, torch.as_tensor(chunk))
             ln = lengths[chunk]
             tmax = int(ln.max())
@@ -267,8 +290,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
                 if not np.isfinite(v).all():
                     raise FloatingPointError(f"shard {index}: non-finite {name} tokens from finite episodes")
                 size = maxima[name]
-                steps.setdefault(name, []).append((_pad_last(v, 1, size, name), _pad_last(ids, 1, size, name),
-                                                   _pad_last(mask, 1, size, name)))
+                steps.setdefault(name, []).append(
+                    (_pad_last(v, 1, size, name), _pad_last(ids, 1, size, name), _pad_last(mask, 1, size, name))
+                )
         step_arrays = {n: tuple(np.concatenate([c[k] for c in parts]) for k in range(3)) for n, parts in steps.items()}
         # A type none of this group's robots has still needs its rows (all padding), so
         # every per-step array of the shard stays aligned with the episode index.
@@ -276,9 +300,11 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
         for name in step_types:
             if name not in step_arrays:
                 spec = SCHEMA[name]
-                step_arrays[name] = (np.zeros((n_steps, maxima[name], spec.width), np.float32),
-                                     np.zeros((len(keep), maxima[name], len(spec.ids)), np.int64),
-                                     np.zeros((len(keep), maxima[name]), bool))
+                step_arrays[name] = (
+                    np.zeros((n_steps, maxima[name], spec.width), np.float32),
+                    np.zeros((len(keep), maxima[name], len(spec.ids)), np.int64),
+                    np.zeros((len(keep), maxima[name]), bool),
+                )
         seconds["tokenize"] += time.perf_counter() - t
 
         t = time.perf_counter()
@@ -305,7 +331,7 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
     with ShardWriter(out, index) as writer, _store_pool(threads, device) as pool:
         pending = None
         for g0 in range(0, len(designs), config.group_designs):
-            group = designs[g0:g0 + config.group_designs]
+            group = designs[g0 : g0 + config.group_designs]
             t = time.perf_counter()
             rng = _rng(config.seed, index, _STREAM_EPISODES, g0)
             motion_ids = rng.choice(len(base), size=K, replace=K > len(base))
@@ -316,8 +342,15 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             # warp rollout of Designs does, so `rollout(designs)` replays a shard bit for bit.
             models = [sp.model(d) for d in group]
             trees = sp.trees(group) if config.backend == "warp" else None
-            ep = rollout(models if trees is None else trees, motions, backend=config.backend, device=device, action_noise=config.action_noise, threads=threads,
-                         noise_seed=_seed_int(config.seed, index, _STREAM_NOISE, g0))
+            ep = rollout(
+                models if trees is None else trees,
+                motions,
+                backend=config.backend,
+                device=device,
+                action_noise=config.action_noise,
+                threads=threads,
+                noise_seed=_seed_int(config.seed, index, _STREAM_NOISE, g0),
+            )
             seconds["rollout"] += time.perf_counter() - t
 
             t = time.perf_counter()
@@ -326,9 +359,17 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             motion_steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
             # Summed in float64, so the float32 values stored do not depend on the summation
             # order (thread count) of the worker that computed them.
-            inputs = RewardInputs(ep.ee_pos.double(), ep.ee_quat.double(), ep.target_pos.double(), ep.target_quat.double(),
-                                  act_force=ep.act_force.double(), act_vel=ep.act_vel.double(), alive=ep.alive, fallen=ep.fallen,
-                                  motion_steps=motion_steps)
+            inputs = RewardInputs(
+                ep.ee_pos.double(),
+                ep.ee_quat.double(),
+                ep.target_pos.double(),
+                ep.target_quat.double(),
+                act_force=ep.act_force.double(),
+                act_vel=ep.act_vel.double(),
+                alive=ep.alive,
+                fallen=ep.fallen,
+                motion_steps=motion_steps,
+            )
             score = {k: v.cpu().numpy() for k, v in metrics(inputs, reward_cfg).items()}
             lengths = ep.lengths().cpu().numpy().astype(np.int64)
             finite = finite_worlds(ep)
@@ -339,9 +380,14 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
             # then holds many robots, not the K episodes of a few.
             eligible = finite & ~short
             if config.select > 1:
-                eligible &= select_episodes(score["reward"], ep.motion_index.cpu().numpy(), eligible,
-                                            config.group_keep(len(group)), config.uniform_share,
-                                            _rng(config.seed, index, _STREAM_SELECT, g0))
+                eligible &= select_episodes(
+                    score["reward"],
+                    ep.motion_index.cpu().numpy(),
+                    eligible,
+                    config.group_keep(len(group)),
+                    config.uniform_share,
+                    _rng(config.seed, index, _STREAM_SELECT, g0),
+                )
                 dropped["unselected"] = dropped.get("unselected", 0) + int((finite & ~short).sum() - eligible.sum())
             keep = rng.permutation(np.nonzero(eligible)[0])
             generated += W
@@ -353,7 +399,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
                 # One group in flight: its tokens are written while the next group rolls out.
                 if pending is not None:
                     pending.result()
-                pending = pool.submit(store, group, models, ep, motions, motion_ids, aug_seeds, g0, keep, lengths, score)
+                pending = pool.submit(
+                    store, group, models, ep, motions, motion_ids, aug_seeds, g0, keep, lengths, score
+                )
             if progress is not None:
                 progress(W)
         if pending is not None:
@@ -364,7 +412,9 @@ def generate_shard(config: GenerateConfig, index: int, out: str | Path, *, devic
         seconds["write"] += time.perf_counter() - t
     manifest = read_manifest(folder)
     size = sum(v[0] for v in manifest["files"].values())
-    return ShardResult(index, generated, writer.episodes, dropped, writer.steps, size, seconds, time.process_time() - cpu0, device)
+    return ShardResult(
+        index, generated, writer.episodes, dropped, writer.steps, size, seconds, time.process_time() - cpu0, device
+    )
 
 
 def _shard_task(config: dict, index: int, out: str, device: str, widths: dict, queue=None, threads: int = 1) -> dict:
@@ -403,18 +453,24 @@ class GenerateReport:
     def text(self) -> str:
         t, r = self.totals, self.run
         drops = ", ".join(f"{v:,} {k}" for k, v in sorted(t["dropped"].items()) if v) or "none"
-        lines = [f"dataset {self.path}: {t['shards']} shards, {t['designs']:,} designs, {t['kept']:,} episodes kept of "
-                 f"{t['generated']:,} generated (dropped: {drops}), {t['steps']:,} steps, {format_bytes(t['bytes'])}"]
+        lines = [
+            f"dataset {self.path}: {t['shards']} shards, {t['designs']:,} designs, {t['kept']:,} episodes kept of "
+            f"{t['generated']:,} generated (dropped: {drops}), {t['steps']:,} steps, {format_bytes(t['bytes'])}"
+        ]
         if r["shards"]:
             stage = r["stage_seconds"]
             total = sum(stage.values()) or 1.0
             split = ", ".join(f"{k} {100 * v / total:.0f}%" for k, v in stage.items())
-            lines.append(f"this run: {r['shards']} shards ({r['episodes']:,} episodes) in {r['seconds']:.1f} s = "
-                         f"{r['episodes_per_second']:.1f} episodes/s; time per stage: {split}")
+            lines.append(
+                f"this run: {r['shards']} shards ({r['episodes']:,} episodes) in {r['seconds']:.1f} s = "
+                f"{r['episodes_per_second']:.1f} episodes/s; time per stage: {split}"
+            )
         else:
             lines.append("this run: nothing to do, every shard was already complete")
         if r["regenerated"]:
-            lines.append("regenerated damaged shards: " + "; ".join(f"{k}: {v}" for k, v in sorted(r["regenerated"].items())))
+            lines.append(
+                "regenerated damaged shards: " + "; ".join(f"{k}: {v}" for k, v in sorted(r["regenerated"].items()))
+            )
         if r.get("repaired_root"):
             lines.append(r["repaired_root"])
         return "\n".join(lines)
@@ -423,14 +479,18 @@ class GenerateReport:
 def _check_config(stored: Mapping, wanted: Mapping, path: Path) -> None:
     for k, v in wanted.items():
         if k in stored and stored[k] != v:
-            raise DatasetError(f"{path} was generated with {k}={stored[k]!r}, this run asks for {k}={v!r}; "
-                               "re-run with the dataset's arguments to resume it, or choose another --out")
+            raise DatasetError(
+                f"{path} was generated with {k}={stored[k]!r}, this run asks for {k}={v!r}; "
+                "re-run with the dataset's arguments to resume it, or choose another --out"
+            )
     missing = [k for k in wanted if k not in stored]
     if missing:
         raise DatasetError(f"{path} has no stored value for {missing}; it was written by another tt version")
 
 
-def _open_or_create(config: GenerateConfig, out: Path, *, device: str = "cpu", threads: int | None = None) -> tuple[dict, str | None]:
+def _open_or_create(
+    config: GenerateConfig, out: Path, *, device: str = "cpu", threads: int | None = None
+) -> tuple[dict, str | None]:
     """The root attributes of dataset `out` for `config`: read (the stored config must be
     `config`), created, or rebuilt: a root ``zarr.json`` that is damaged (`root_damage`) or
     missing beside shards is written anew from `config` when the intact shards agree with it
@@ -442,21 +502,38 @@ def _open_or_create(config: GenerateConfig, out: Path, *, device: str = "cpu", t
         attrs = read_root(out)
         _check_config(attrs.get("config", {}), wanted, out)
         return attrs, None
-    others = [p.name for p in out.iterdir()
-              if p.name not in (".lock", ".partial", "shards") and not (damage is not None and p.name == "zarr.json")]
+    others = [
+        p.name
+        for p in out.iterdir()
+        if p.name not in (".lock", ".partial", "shards") and not (damage is not None and p.name == "zarr.json")
+    ]
     if others:
-        raise DatasetError(f"{out} exists and is not a tt dataset (it holds {sorted(others)[:5]}); choose an empty or new folder")
+        raise DatasetError(
+            f"{out} exists and is not a tt dataset (it holds {sorted(others)[:5]}); choose an empty or new folder"
+        )
     widths = space_token_maxima(config.space)
     shards = shard_dirs(out)
     repaired = None
     if damage is not None or shards:
-        what = f"{meta}, the dataset's root, is damaged ({damage})" if damage is not None else f"{meta}, the dataset's root, is missing"
-        repaired = f"{what}; rebuilt it from these arguments" + _adopt_shards(config, out, shards, widths, what, device, threads)
+        what = (
+            f"{meta}, the dataset's root, is damaged ({damage})"
+            if damage is not None
+            else f"{meta}, the dataset's root, is missing"
+        )
+        repaired = f"{what}; rebuilt it from these arguments" + _adopt_shards(
+            config, out, shards, widths, what, device, threads
+        )
         logger.warning("%s", repaired)
     motions = [m.name for m in training_motions(config.space)]
-    attrs = {"space": config.space, "config": wanted, "maxima": widths["maxima"],
-             "design_widths": {"discrete": widths["discrete"], "continuous": widths["continuous"]},
-             "maxima_source": widths["source"], "motions": motions, "complete": False}
+    attrs = {
+        "space": config.space,
+        "config": wanted,
+        "maxima": widths["maxima"],
+        "design_widths": {"discrete": widths["discrete"], "continuous": widths["continuous"]},
+        "maxima_source": widths["source"],
+        "motions": motions,
+        "complete": False,
+    }
     if damage is None:
         create_root(out, attrs)
     else:  # written beside, then renamed over the damaged file: a crash leaves one or the other
@@ -467,8 +544,15 @@ def _open_or_create(config: GenerateConfig, out: Path, *, device: str = "cpu", t
     return read_root(out), repaired
 
 
-def _adopt_shards(config: GenerateConfig, out: Path, shards: Mapping[int, Path], widths: Mapping, what: str,
-                  device: str, threads: int | None) -> str:
+def _adopt_shards(
+    config: GenerateConfig,
+    out: Path,
+    shards: Mapping[int, Path],
+    widths: Mapping,
+    what: str,
+    device: str,
+    threads: int | None,
+) -> str:
     """Check that the shards of `out`, whose root is lost, were generated with `config`
     before a root of `config` is written over them: every intact shard's records
     (`_shard_disagreement`), and, where this run's device is the kind the shards were
@@ -479,9 +563,11 @@ def _adopt_shards(config: GenerateConfig, out: Path, shards: Mapping[int, Path],
     for i, folder in intact.items():
         why = _shard_disagreement(config, i, folder, widths)
         if why is not None:
-            raise DatasetError(f"{what}, and its shard {folder.name} {why}, so it was not generated with these arguments "
-                               "and the root cannot be rebuilt from them; re-run the `tt generate` command that wrote "
-                               "the dataset (its arguments were in the lost root), or choose another --out")
+            raise DatasetError(
+                f"{what}, and its shard {folder.name} {why}, so it was not generated with these arguments "
+                "and the root cannot be rebuilt from them; re-run the `tt generate` command that wrote "
+                "the dataset (its arguments were in the lost root), or choose another --out"
+            )
     if not intact:
         return " (no intact shard to check them against)"
     note = f" (the intact shards, {len(intact)}, agree with them: counts, designs and seeded draws"
@@ -500,11 +586,15 @@ def _adopt_shards(config: GenerateConfig, out: Path, shards: Mapping[int, Path],
         shutil.rmtree(scratch, ignore_errors=True)
     stored = read_manifest(folder)
     if again != stored:
-        differ = sorted(k for k in set(again["files"]) | set(stored["files"]) if again["files"].get(k) != stored["files"].get(k))
-        raise DatasetError(f"{what}, and its shard {folder.name} regenerated with these arguments differs from the stored "
-                           f"one ({', '.join(differ[:3])}), so it was not generated with them (--action-noise, --bias, "
-                           "--min-steps, ...) and the root cannot be rebuilt from them; re-run the `tt generate` command "
-                           "that wrote the dataset (its arguments were in the lost root), or choose another --out")
+        differ = sorted(
+            k for k in set(again["files"]) | set(stored["files"]) if again["files"].get(k) != stored["files"].get(k)
+        )
+        raise DatasetError(
+            f"{what}, and its shard {folder.name} regenerated with these arguments differs from the stored "
+            f"one ({', '.join(differ[:3])}), so it was not generated with them (--action-noise, --bias, "
+            "--min-steps, ...) and the root cannot be rebuilt from them; re-run the `tt generate` command "
+            "that wrote the dataset (its arguments were in the lost root), or choose another --out"
+        )
     return note + f"; shard {folder.name} regenerated byte for byte)"
 
 
@@ -516,14 +606,19 @@ def _shard_disagreement(config: GenerateConfig, index: int, folder: Path, widths
     from tt.tokens.store import ShardReader
 
     if index >= config.shards:
-        return f"is shard {index}, but --designs {config.designs} in shards of --designs-per-shard {config.designs_per_shard} make {config.shards}"
+        return (
+            f"is shard {index}, but --designs {config.designs} in shards of --designs-per-shard "
+            f"{config.designs_per_shard} make {config.shards}"
+        )
     r = ShardReader(folder)
     a = r.attrs
     n, K = config.shard_designs(index), config.episodes_per_design
     if int(a["designs"]) != n:
         return f"holds {a['designs']} designs, these arguments give it {n} (--designs, --designs-per-shard)"
     if int(a["generated"]) != n * K:
-        return f"rolled out {a['generated']} episodes, these arguments {n * K} ({n} designs x --episodes-per-design {K})"
+        return (
+            f"rolled out {a['generated']} episodes, these arguments {n * K} ({n} designs x --episodes-per-design {K})"
+        )
     if ("unselected" in a.get("dropped", {})) != (config.select > 1):
         return "was generated " + ("without --select" if config.select > 1 else "with --select above 1")
     disc, cont = r._read("design/discrete"), r._read("design/continuous")
@@ -545,11 +640,15 @@ def _shard_disagreement(config: GenerateConfig, index: int, folder: Path, widths
             motion_ids = rng.choice(count, size=K, replace=K > count)
             aug_seeds = rng.integers(0, 2**31, size=K)
             sel = group == g0
-            if not (np.array_equal(r.field("motion")[sel], motion_ids[slot[sel]])
-                    and np.array_equal(r.field("augment_seed")[sel], aug_seeds[slot[sel]])):
+            if not (
+                np.array_equal(r.field("motion")[sel], motion_ids[slot[sel]])
+                and np.array_equal(r.field("augment_seed")[sel], aug_seeds[slot[sel]])
+            ):
                 return "holds episodes on other motions than these arguments draw (--seed, --episodes-per-design)"
         if int(r.field("length").min()) < config.min_steps:
-            return f"keeps episodes of {int(r.field('length').min())} control steps, below --min-steps {config.min_steps}"
+            return (
+                f"keeps episodes of {int(r.field('length').min())} control steps, below --min-steps {config.min_steps}"
+            )
     return None
 
 
@@ -557,9 +656,17 @@ def _widths(attrs: Mapping) -> dict:
     return {"maxima": attrs["maxima"], **attrs["design_widths"]}
 
 
-def generate(config: GenerateConfig, out: str | Path, *, device: str | None = None, workers: int = 1,
-             ray_address: str | None = None, progress: bool = True, verify: str = "full",
-             threads: int | None = None) -> GenerateReport:
+def generate(
+    config: GenerateConfig,
+    out: str | Path,
+    *,
+    device: str | None = None,
+    workers: int = 1,
+    ray_address: str | None = None,
+    progress: bool = True,
+    verify: str = "full",
+    threads: int | None = None,
+) -> GenerateReport:
     """Generate (or resume) the dataset of `config` in folder `out`; see the module docstring.
 
     device: Warp/torch device of the rollouts (None: `tt.kernels.device.default_device()`).
@@ -572,7 +679,6 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
     Raises `DatasetError` when `out` holds another config or is not a dataset.
     """
     from tt.kernels.device import resolve_device
-
     from tt.kernels.rollout import cpu_threads
 
     if workers < 1:
@@ -605,7 +711,14 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
         if progress:
             from tqdm import tqdm
 
-            bar = tqdm(total=total, initial=initial, desc=f"generate {config.space}", unit="ep", dynamic_ncols=True, smoothing=0.05)
+            bar = tqdm(
+                total=total,
+                initial=initial,
+                desc=f"generate {config.space}",
+                unit="ep",
+                dynamic_ncols=True,
+                smoothing=0.05,
+            )
         results: list[dict] = []
         try:
             if todo and ray_address is not None:
@@ -614,15 +727,26 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
                 results = _run_pool(config, todo, out, device, widths, workers, bar, threads)
             else:
                 for i in todo:
-                    results.append(generate_shard(config, i, out, device=device, widths=widths, threads=threads,
-                                                  progress=bar.update if bar is not None else None).to_dict())
+                    results.append(
+                        generate_shard(
+                            config,
+                            i,
+                            out,
+                            device=device,
+                            widths=widths,
+                            threads=threads,
+                            progress=bar.update if bar is not None else None,
+                        ).to_dict()
+                    )
         except OSError as e:
             if e.errno not in (errno.ENOSPC, errno.EDQUOT):
                 raise
             kept = sum(verify_shard(f, full=False) is None for f in shard_dirs(out).values())
-            raise DatasetError(f"{e.strerror} while writing {out} ({e.filename or 'a shard'}): {kept} of {config.shards} shards "
-                               "are complete and kept, the one being written is discarded on the next run; free space, "
-                               "then re-run the same command to resume") from None
+            raise DatasetError(
+                f"{e.strerror} while writing {out} ({e.filename or 'a shard'}): {kept} of {config.shards} shards "
+                "are complete and kept, the one being written is discarded on the next run; free space, "
+                "then re-run the same command to resume"
+            ) from None
         finally:
             if bar is not None:
                 bar.close()
@@ -630,16 +754,27 @@ def generate(config: GenerateConfig, out: str | Path, *, device: str | None = No
             done[r["index"]] = _shard_attrs(out / "shards" / f"s{r['index']:06d}")
         if len(done) == config.shards and not attrs.get("complete"):
             stats = merge_stats(a["stats"] for a in done.values())
-            update_root(out, {"complete": True, "normalizer": normalizer_from_stats(stats).to_dict(),
-                              "totals": _totals(done, out)})
+            update_root(
+                out,
+                {"complete": True, "normalizer": normalizer_from_stats(stats).to_dict(), "totals": _totals(done, out)},
+            )
         totals = _totals(done, out)
     seconds = time.perf_counter() - start
     stage = {s: sum(r["seconds"][s] for r in results) for s in STAGES}
     episodes = sum(r["generated"] for r in results)
-    run = {"shards": len(results), "episodes": episodes, "seconds": seconds,
-           "cpu_seconds": sum(r["cpu_seconds"] for r in results),
-           "episodes_per_second": episodes / seconds if seconds > 0 else 0.0, "stage_seconds": stage,
-           "regenerated": regenerated, "workers": workers, "ray": ray_address, "device": device, "repaired_root": repaired}
+    run = {
+        "shards": len(results),
+        "episodes": episodes,
+        "seconds": seconds,
+        "cpu_seconds": sum(r["cpu_seconds"] for r in results),
+        "episodes_per_second": episodes / seconds if seconds > 0 else 0.0,
+        "stage_seconds": stage,
+        "regenerated": regenerated,
+        "workers": workers,
+        "ray": ray_address,
+        "device": device,
+        "repaired_root": repaired,
+    }
     return GenerateReport(str(out), totals, run, results)
 
 
@@ -656,10 +791,15 @@ def _totals(done: Mapping[int, dict], out: Path) -> dict:
     for a in done.values():
         for k, v in a.get("dropped", {}).items():
             dropped[k] = dropped.get(k, 0) + int(v)
-    return {"shards": len(done), "designs": sum(int(a["designs"]) for a in done.values()),
-            "generated": sum(int(a["generated"]) for a in done.values()), "kept": sum(int(a["episodes"]) for a in done.values()),
-            "dropped": dropped, "steps": sum(int(a["steps"]) for a in done.values()),
-            "bytes": sum(int(a["bytes"]) for a in done.values())}
+    return {
+        "shards": len(done),
+        "designs": sum(int(a["designs"]) for a in done.values()),
+        "generated": sum(int(a["generated"]) for a in done.values()),
+        "kept": sum(int(a["episodes"]) for a in done.values()),
+        "dropped": dropped,
+        "steps": sum(int(a["steps"]) for a in done.values()),
+        "bytes": sum(int(a["bytes"]) for a in done.values()),
+    }
 
 
 def _run_pool(config, todo, out, device, widths, workers, bar, threads: int) -> list[dict]:
@@ -674,9 +814,12 @@ def _run_pool(config, todo, out, device, widths, workers, bar, threads: int) -> 
     with manager:
         queue = manager.Queue()
         results = []
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                                 initargs=(os.getpid(),)) as pool:
-            pending = {pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue, threads) for i in todo}
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(os.getpid(),)
+        ) as pool:
+            pending = {
+                pool.submit(_shard_task, config.to_dict(), i, str(out), device, widths, queue, threads) for i in todo
+            }
             try:
                 while pending:
                     finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
@@ -742,11 +885,26 @@ def _run_ray(config, todo, out, device, widths, workers, address, bar) -> list[d
 
 
 # ------------------------------------------------------------------------------ tt generate
-def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_design: int = 10, device: str | None = None,
-                 workers: int = 1, bias: str | None = None, seed: int = 0, ray: str | None = None,
-                 designs_per_shard: int = 1024, min_steps: int = 100, max_motion_steps: int | None = None,
-                 action_noise: float | None = None, progress: bool = True, threads: int | None = None,
-                 select: int = 1, uniform_share: float = 0.0) -> str:
+def generate_cmd(
+    space: str,
+    designs: int,
+    out: str | Path,
+    *,
+    episodes_per_design: int = 10,
+    device: str | None = None,
+    workers: int = 1,
+    bias: str | None = None,
+    seed: int = 0,
+    ray: str | None = None,
+    designs_per_shard: int = 1024,
+    min_steps: int = 100,
+    max_motion_steps: int | None = None,
+    action_noise: float | None = None,
+    progress: bool = True,
+    threads: int | None = None,
+    select: int = 1,
+    uniform_share: float = 0.0,
+) -> str:
     """``tt generate --space S --designs N --episodes-per-design K --out DATASET [--device D]
     [--workers W] [--threads T] [--bias cmaes] [--seed S] [--ray ADDRESS|local] [--action-noise SIGMA]
     [--select K [--uniform-share F]]``.
@@ -764,15 +922,35 @@ def generate_cmd(space: str, designs: int, out: str | Path, *, episodes_per_desi
     if action_noise is None:
         # Only the warp backend perturbs commands; the oracle runs the clean ones.
         action_noise = DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
-    config = GenerateConfig(space=space, designs=designs, episodes_per_design=episodes_per_design, seed=seed,
-                            designs_per_shard=designs_per_shard, bias=bias, min_steps=min_steps,
-                            max_motion_steps=max_motion_steps, backend=backend, action_noise=action_noise,
-                            select=select, uniform_share=uniform_share)
+    config = GenerateConfig(
+        space=space,
+        designs=designs,
+        episodes_per_design=episodes_per_design,
+        seed=seed,
+        designs_per_shard=designs_per_shard,
+        bias=bias,
+        min_steps=min_steps,
+        max_motion_steps=max_motion_steps,
+        backend=backend,
+        action_noise=action_noise,
+        select=select,
+        uniform_share=uniform_share,
+    )
     report = generate(config, out, device=device, workers=workers, ray_address=ray, progress=progress, threads=threads)
     return report.text()
 
 
 __all__ = [
-    "BIASES", "DEFAULT_ACTION_NOISE", "GenerateConfig", "GenerateReport", "STAGES", "ShardResult", "generate", "generate_cmd", "generate_shard",
-    "shard_design_list", "space_token_maxima", "training_motions",
+    "BIASES",
+    "DEFAULT_ACTION_NOISE",
+    "GenerateConfig",
+    "GenerateReport",
+    "STAGES",
+    "ShardResult",
+    "generate",
+    "generate_cmd",
+    "generate_shard",
+    "shard_design_list",
+    "space_token_maxima",
+    "training_motions",
 ]

@@ -24,9 +24,8 @@ from typing import Sequence
 
 import numpy as np
 
-from tt.kernels.errors import TTError
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
-
+from tt.kernels.errors import TTError
 
 #: Seed offset of held-out designs: far from every seed a training run or `tt generate` draws
 #: designs with (`tt.tokens.draws` and `tt.dit.online` hash (seed, index, stream)).
@@ -48,8 +47,17 @@ def r0_online():
     motion's end (`tt.dit.online.OnlineConfig`; refresh 0 only)."""
     from tt.dit.online import OnlineConfig
 
-    return OnlineConfig(space="viperx-nominal", designs=16, motions=4, refresh_every=10**9, buffer=1,
-                        action_noise=0.0, min_steps=8, seed=0, absorbing=True)
+    return OnlineConfig(
+        space="viperx-nominal",
+        designs=16,
+        motions=4,
+        refresh_every=10**9,
+        buffer=1,
+        action_noise=0.0,
+        min_steps=8,
+        seed=0,
+        absorbing=True,
+    )
 
 
 def validation_motions(space: str, count: int | None = None) -> list:
@@ -121,17 +129,36 @@ class LadderScore:
         return float(np.mean(v)) if v else float("nan")
 
     def to_dict(self) -> dict:
-        return {"motions": self.motions, "pooled_r": self.pooled, "within_r": self.within,
-                "within_r_mean": self.within_mean, "estimator_pooled_r": self.estimator_pooled,
-                "estimator_within_r": self.estimator_within, "predicted": self.predicted.tolist(),
-                "simulated": self.simulated.tolist(), "estimator": self.estimator.tolist(),
-                "predicted_error_cm": self.predicted_error.tolist(), "simulated_error_cm": self.simulated_error.tolist(),
-                "seconds": self.seconds}
+        return {
+            "motions": self.motions,
+            "pooled_r": self.pooled,
+            "within_r": self.within,
+            "within_r_mean": self.within_mean,
+            "estimator_pooled_r": self.estimator_pooled,
+            "estimator_within_r": self.estimator_within,
+            "predicted": self.predicted.tolist(),
+            "simulated": self.simulated.tolist(),
+            "estimator": self.estimator.tolist(),
+            "predicted_error_cm": self.predicted_error.tolist(),
+            "simulated_error_cm": self.simulated_error.tolist(),
+            "seconds": self.seconds,
+        }
 
 
-def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "tracking", *, samples: int = 1,
-                  num_steps: int | None = CRITIC_DDIM_STEPS, seed: int = 0, chunk: int | None = None, backend: str = "warp",
-                  device: str | None = None, via: str | None = None) -> LadderScore:
+def score_designs(
+    trained,
+    designs: Sequence,
+    motions: Sequence,
+    reward: str = "tracking",
+    *,
+    samples: int = 1,
+    num_steps: int | None = CRITIC_DDIM_STEPS,
+    seed: int = 0,
+    chunk: int | None = None,
+    backend: str = "warp",
+    device: str | None = None,
+    via: str | None = None,
+) -> LadderScore:
     """`tt predict` and the simulator on `designs` x `motions` (see the module docstring).
 
     trained: `tt.dit.checkpoint.TrainedModel`; designs: of the checkpoint's space; motions:
@@ -149,8 +176,9 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
     designs, motions = list(designs), list(motions)
     cfg = get_reward(reward, designs[0].space)
     t0 = time.perf_counter()
-    pred = predict_designs(trained, designs, motions, cfg, samples=samples, num_steps=num_steps, seed=seed, chunk=chunk,
-                           via=via)
+    pred = predict_designs(
+        trained, designs, motions, cfg, samples=samples, num_steps=num_steps, seed=seed, chunk=chunk, via=via
+    )
     t1 = time.perf_counter()
     ev = evaluate_designs(designs, motions, reward, backend=backend, device=device)
     t2 = time.perf_counter()
@@ -164,15 +192,38 @@ def score_designs(trained, designs: Sequence, motions: Sequence, reward: str = "
         n = scored_steps(m.steps, S)  # a motion shorter than the window: its own steps only
         st = query_steps(m.steps, S, 1)[0][:n].to(ep.ee_pos.device)
         w = world[:, j].to(ep.ee_pos.device)
-        inputs = RewardInputs(ep.ee_pos[w][:, st].double(), ep.ee_quat[w][:, st].double(),
-                              ep.target_pos[w][:, st].double(), ep.target_quat[w][:, st].double())
+        inputs = RewardInputs(
+            ep.ee_pos[w][:, st].double(),
+            ep.ee_quat[w][:, st].double(),
+            ep.target_pos[w][:, st].double(),
+            ep.target_quat[w][:, st].double(),
+        )
         estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
-    return LadderScore(pred.reward, ev.reward, estimator, [m.name for m in motions],
-                       pearson(pred.reward, ev.reward), within_motion(pred.reward, ev.reward),
-                       pearson(estimator, ev.reward), within_motion(estimator, ev.reward),
-                       pred.metrics["query_pos_err"], simulated_error, {"predict": t1 - t0, "simulate": t2 - t1})
+    return LadderScore(
+        pred.reward,
+        ev.reward,
+        estimator,
+        [m.name for m in motions],
+        pearson(pred.reward, ev.reward),
+        within_motion(pred.reward, ev.reward),
+        pearson(estimator, ev.reward),
+        within_motion(estimator, ev.reward),
+        pred.metrics["query_pos_err"],
+        simulated_error,
+        {"predict": t1 - t0, "simulate": t2 - t1},
+    )
 
 
-__all__ = ["HELDOUT_SEED", "R0_RECIPE", "R0_TRAINING", "r0_online", "LadderScore", "heldout_designs", "pearson", "score_designs", "validation_motions",
-           "within_motion"]
+__all__ = [
+    "HELDOUT_SEED",
+    "R0_RECIPE",
+    "R0_TRAINING",
+    "r0_online",
+    "LadderScore",
+    "heldout_designs",
+    "pearson",
+    "score_designs",
+    "validation_motions",
+    "within_motion",
+]

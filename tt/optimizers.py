@@ -48,8 +48,12 @@ def learned_defaults(method: str, space: str, options: dict) -> dict:
         from tt.dit.checkpoint import default_checkpoint
 
         out["checkpoint"] = str(default_checkpoint(space, task="robot"))
-    if (out.get("critic_checkpoint") is None and method in RANKED and out.get("critic") != "joint"
-            and out.get("critic_on") != "tokens"):
+    if (
+        out.get("critic_checkpoint") is None
+        and method in RANKED
+        and out.get("critic") != "joint"
+        and out.get("critic_on") != "tokens"
+    ):
         from tt.dit.checkpoint import shipped_critic
 
         critic = shipped_critic(space, out["checkpoint"])
@@ -106,8 +110,9 @@ def get_optimizer(method: str, *, space: str | None = None, **options) -> Optimi
 
         cma_names = {f.name for f in fields(CMAESConfig)}
         cma = {k: v for k, v in options.items() if k in cma_names}
-        return ModelInitCMAES(ZerothOrder(SamplerConfig(**{k: v for k, v in options.items() if k not in cma_names})),
-                              CMAESConfig(**cma))
+        return ModelInitCMAES(
+            ZerothOrder(SamplerConfig(**{k: v for k, v in options.items() if k not in cma_names})), CMAESConfig(**cma)
+        )
     raise TTError(f"unknown method {method!r}; valid: {list(METHODS)}")
 
 

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tt.kernels.errors import TTError
 from tt.guidance.predicted import CRITIC_DDIM_STEPS
+from tt.kernels.errors import TTError
 from tt.kernels.files import CorruptFileError, atomic_write, read_json, reason, write_text
 
 log = logging.getLogger(__name__)
@@ -119,13 +119,17 @@ class CheckpointSelector:
         # one device may be resumed and scored on another.
         stored = read_json(self.config_path, "selection settings")
         if not isinstance(stored, dict):
-            raise CorruptFileError(f"selection settings {self.config_path} hold a {type(stored).__name__}, not the "
-                                   "settings tt train writes; move it away, or start the run over with --no-resume")
+            raise CorruptFileError(
+                f"selection settings {self.config_path} hold a {type(stored).__name__}, not the "
+                "settings tt train writes; move it away, or start the run over with --no-resume"
+            )
         before = {k: v for k, v in stored.items() if k != "device"}
         now = {k: v for k, v in json.loads(json.dumps(asdict(self.config))).items() if k != "device"}
         if before != now:
-            raise TTError(f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
-                             "compare; give the same --select-* flags, or start the run over with --no-resume")
+            raise TTError(
+                f"{self.run} was selected with {before}, this run asks for {now}: their r values do not "
+                "compare; give the same --select-* flags, or start the run over with --no-resume"
+            )
 
     @property
     def csv_path(self) -> Path:
@@ -152,24 +156,33 @@ class CheckpointSelector:
             with self.csv_path.open(encoding="utf-8", newline="") as f:
                 reader = csv.DictReader(f)
                 if tuple(reader.fieldnames or ()) != _COLUMNS:
-                    raise CorruptFileError(f"selection table {self.csv_path} has columns {reader.fieldnames}, not "
-                                           f"{list(_COLUMNS)}; move it away to start the selection over")
-                return [SelectionRow(int(r["step"]), float(r["within_r"]), float(r["pooled_r"]), float(r["seconds"]))
-                        for r in reader]
+                    raise CorruptFileError(
+                        f"selection table {self.csv_path} has columns {reader.fieldnames}, not "
+                        f"{list(_COLUMNS)}; move it away to start the selection over"
+                    )
+                return [
+                    SelectionRow(int(r["step"]), float(r["within_r"]), float(r["pooled_r"]), float(r["seconds"]))
+                    for r in reader
+                ]
         except UnicodeDecodeError as e:
             why = f"it is not text (byte {e.start} is not UTF-8)"
         except (ValueError, TypeError, KeyError, csv.Error) as e:
             why = f"a row is not step,within_r,pooled_r,seconds numbers ({reason(e)})"
-        raise CorruptFileError(f"selection table {self.csv_path} is damaged: {why}; move it away to start the selection "
-                               "over, or start the run over with --no-resume")
+        raise CorruptFileError(
+            f"selection table {self.csv_path} is damaged: {why}; move it away to start the selection "
+            "over, or start the run over with --no-resume"
+        )
 
     def _pairs_for(self, space: str):
         from tt.ladder import heldout_designs, validation_motions
 
         if self._pairs is None or self._pairs[0] != space:
             cfg = self.config
-            self._pairs = (space, heldout_designs(space, cfg.designs, seed=SELECTION_SEED),
-                           validation_motions(space, cfg.motions))
+            self._pairs = (
+                space,
+                heldout_designs(space, cfg.designs, seed=SELECTION_SEED),
+                validation_motions(space, cfg.motions),
+            )
         return self._pairs[1], self._pairs[2]
 
     def __call__(self, step: int, checkpoint: str | Path) -> SelectionRow:
@@ -190,8 +203,9 @@ class CheckpointSelector:
             from tt.sim.designs import get_space
 
             backend = "mujoco" if get_space(trained.space).has_contacts else "warp"
-        score = score_designs(trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps,
-                              backend=backend)
+        score = score_designs(
+            trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps, backend=backend
+        )
         # A motion whose predictions do not spread has no r; it counts 0, not left out, so a
         # degenerate checkpoint is not ranked on the motions where it happens to vary.
         within = float(np.mean([r if math.isfinite(r) else 0.0 for r in score.within]))
@@ -202,11 +216,20 @@ class CheckpointSelector:
         if best is row:
             self._keep(Path(checkpoint), row)
         elif best is not None and self.kept_step != best.step:
-            log.warning("selection: best.pt holds step %s but the best scored step is %d, whose checkpoint is no "
-                        "longer at hand", self.kept_step, best.step)
-        log.info("selection: step %d within-motion r %.3f, pooled r %.3f (best: step %d, %.3f)", row.step,
-                 row.within_r, row.pooled_r, self.best.step if self.best else -1,
-                 self.best.within_r if self.best else float("nan"))
+            log.warning(
+                "selection: best.pt holds step %s but the best scored step is %d, whose checkpoint is no "
+                "longer at hand",
+                self.kept_step,
+                best.step,
+            )
+        log.info(
+            "selection: step %d within-motion r %.3f, pooled r %.3f (best: step %d, %.3f)",
+            row.step,
+            row.within_r,
+            row.pooled_r,
+            self.best.step if self.best else -1,
+            self.best.within_r if self.best else float("nan"),
+        )
         return row
 
     @property
@@ -219,15 +242,19 @@ class CheckpointSelector:
         try:
             return int(data["step"])
         except (KeyError, TypeError, ValueError):
-            raise CorruptFileError(f"best-checkpoint record {meta} has no step number; move it away, or start the run "
-                                   "over with --no-resume") from None
+            raise CorruptFileError(
+                f"best-checkpoint record {meta} has no step number; move it away, or start the run "
+                "over with --no-resume"
+            ) from None
 
     def _keep(self, checkpoint: Path, row: SelectionRow) -> None:
         # Copied, not linked: the run prunes old checkpoints (`keep_checkpoints`).
         with open(checkpoint, "rb") as src, atomic_write(self.best_path) as dst:
             shutil.copyfileobj(src, dst)
-        write_text(self.best_meta_path, json.dumps({**asdict(row), "checkpoint": checkpoint.name,
-                                                    "config": asdict(self.config)}, indent=1))
+        write_text(
+            self.best_meta_path,
+            json.dumps({**asdict(row), "checkpoint": checkpoint.name, "config": asdict(self.config)}, indent=1),
+        )
 
     def _write(self) -> None:
         write_text(self.config_path, json.dumps(asdict(self.config), indent=1))
@@ -239,11 +266,14 @@ class CheckpointSelector:
         if len(self.rows) >= 2:
             from tt.viz.plots import save_curve
 
-            save_curve(self.run / "selection.png", [r.step for r in self.rows],
-                       {"within-motion r": [r.within_r for r in self.rows],
-                        "pooled r": [r.pooled_r for r in self.rows]},
-                       title=f"held-out r per checkpoint (best: step {self.best.step})" if self.best else "held-out r",
-                       xlabel="training step", ylabel="predicted vs simulated reward, Pearson r")
+            save_curve(
+                self.run / "selection.png",
+                [r.step for r in self.rows],
+                {"within-motion r": [r.within_r for r in self.rows], "pooled r": [r.pooled_r for r in self.rows]},
+                title=f"held-out r per checkpoint (best: step {self.best.step})" if self.best else "held-out r",
+                xlabel="training step",
+                ylabel="predicted vs simulated reward, Pearson r",
+            )
 
 
 __all__ = ["SELECTION_SEED", "CheckpointSelector", "SelectionConfig", "SelectionRow"]

@@ -117,7 +117,9 @@ def view_cmd(
     if host is not None and not serve:
         raise ViewError(f"--host {host} is where --serve's viewer listens; give --serve too")
     if host is not None and zmq_url is not None:
-        raise ViewError(f"--host {host} is for a server tt view starts; the server at {zmq_url} listens where it was started")
+        raise ViewError(
+            f"--host {host} is for a server tt view starts; the server at {zmq_url} listens where it was started"
+        )
     motion_obj = load_motion_spec(motion, motion_lookup) if motion else None
     scene = scene_for_source(source, motion=motion_obj)
     result = ViewResult(scene)
@@ -126,8 +128,10 @@ def view_cmd(
     if png is not None and html is None:
         raise ViewError("--png renders the exported HTML; give --html too")
     if time is not None and html is None:
-        raise ViewError("--time applies to the exported HTML (the time it opens paused at), not --serve's live viewer; "
-                        "give --html too")
+        raise ViewError(
+            "--time applies to the exported HTML (the time it opens paused at), not --serve's live viewer; "
+            "give --html too"
+        )
     if time is not None and not 0.0 <= time <= scene.duration + 1e-9:
         raise ViewError(f"--time {time} s is outside the animation, which runs 0..{scene.duration:.2f} s")
     if html is not None:

@@ -94,7 +94,9 @@ class EpisodeRecord:
         nbody = np.asarray(self.nbody, dtype=np.int64).reshape(-1)
         for name, arr in (("nq", nq), ("nbody", nbody)):
             if arr.shape != (w,):
-                raise EpisodeFileError(f"{name} has shape {arr.shape}; qpos has W = {w} worlds, so {name} must be ({w},)")
+                raise EpisodeFileError(
+                    f"{name} has shape {arr.shape}; qpos has W = {w} worlds, so {name} must be ({w},)"
+                )
         if np.any(nq < 0) or np.any(nq > q.shape[2]):
             bad = int(np.argmax((nq < 0) | (nq > q.shape[2])))
             raise EpisodeFileError(f"nq[{bad}] = {nq[bad]}; valid: 0..{q.shape[2]} (the width of qpos)")
@@ -112,7 +114,9 @@ class EpisodeRecord:
             tp = np.asarray(self.target_pos, dtype=np.float64)
             tq = np.asarray(self.target_quat, dtype=np.float64)
             if tp.ndim != 4 or tp.shape[:2] != (w, t) or tp.shape[3] != 3:
-                raise EpisodeFileError(f"target_pos has shape {tp.shape}; expected (W, T, A, 3) with (W, T) = ({w}, {t})")
+                raise EpisodeFileError(
+                    f"target_pos has shape {tp.shape}; expected (W, T, A, 3) with (W, T) = ({w}, {t})"
+                )
             if tq.shape != tp.shape[:3] + (4,):
                 raise EpisodeFileError(f"target_quat has shape {tq.shape}; expected {tp.shape[:3] + (4,)}")
         if not (np.isfinite(self.dt) and self.dt > 0):
@@ -218,7 +222,9 @@ class EpisodeRecord:
             nbody=np.concatenate([r.nbody for r in records]),
             alive=np.concatenate([pad_alive(r.alive) for r in records]),
             target_pos=None if records[0].target_pos is None else np.concatenate([pad(r.target_pos) for r in records]),
-            target_quat=None if records[0].target_quat is None else np.concatenate([pad(r.target_quat) for r in records]),
+            target_quat=None
+            if records[0].target_quat is None
+            else np.concatenate([pad(r.target_quat) for r in records]),
             labels=tuple(s for r in records for s in r.labels),
             motion_name=names.pop() if len(names) == 1 else "",
             dt=records[0].dt,

@@ -81,7 +81,9 @@ def start_server(host: str = DEFAULT_HOST) -> tuple[subprocess.Popen, str]:
         # -P: the current folder is not searched for modules (a file there could shadow one)
         proc = subprocess.Popen(
             [sys.executable, "-P", "-u", "-m", "tt.viz.meshcat_server", "--host", host, "--parent", str(os.getpid())],
-            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=errors,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=errors,
             start_new_session=True,  # Ctrl-C reaches tt view, which stops the server itself
         )
         _SERVERS.add(proc)
@@ -96,8 +98,10 @@ def start_server(host: str = DEFAULT_HOST) -> tuple[subprocess.Popen, str]:
             proc.wait(timeout=10)
             errors.seek(0)
             why = errors.read().decode("utf-8", "replace").strip().splitlines()
-            raise ServerError(f"the meshcat server for --serve (--host {host}) exited with code {proc.returncode}: "
-                              f"{why[-1] if why else 'no message'}")
+            raise ServerError(
+                f"the meshcat server for --serve (--host {host}) exited with code {proc.returncode}: "
+                f"{why[-1] if why else 'no message'}"
+            )
     proc.stdout.close()
     return proc, zmq_url
 
@@ -108,7 +112,9 @@ def _check_host(host: str) -> None:
     import socket
 
     try:
-        family, kind, proto, _, address = socket.getaddrinfo(host or None, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[0]
+        family, kind, proto, _, address = socket.getaddrinfo(
+            host or None, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
         with socket.socket(family, kind, proto) as s:
             s.bind(address)
     except OSError as e:

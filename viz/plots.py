@@ -52,7 +52,9 @@ def _error_distances(name: str, values: np.ndarray, interval: _Interval | None) 
     ok = np.isnan(values) | ((low <= values + 1e-12 * np.abs(values)) & (values <= high + 1e-12 * np.abs(values)))
     if not np.all(ok):
         k = int(np.argmin(ok))
-        raise PlotError(f"interval of {name!r} at index {k} is [{low[k]}, {high[k]}], which excludes the value {values[k]}")
+        raise PlotError(
+            f"interval of {name!r} at index {k} is [{low[k]}, {high[k]}], which excludes the value {values[k]}"
+        )
     return np.stack([values - low, high - values])
 
 
@@ -116,8 +118,9 @@ def bar_table_figure(
     return fig
 
 
-def save_bar_table(path: str | Path, categories: Sequence[str], series: Mapping[str, Sequence[float]], *,
-                   dpi: int = 150, **kwargs) -> Path:
+def save_bar_table(
+    path: str | Path, categories: Sequence[str], series: Mapping[str, Sequence[float]], *, dpi: int = 150, **kwargs
+) -> Path:
     """Write `bar_table_figure` (same arguments) to the PNG at `path`; returns the path."""
     return _finish(bar_table_figure(categories, series, **kwargs), path, dpi)
 
@@ -153,10 +156,13 @@ def scatter_figure(
     for g in dict.fromkeys(group_of):
         m = np.array([gg == g for gg in group_of])
         ax.errorbar(
-            xv[m], yv[m],
+            xv[m],
+            yv[m],
             xerr=None if xerr is None else xerr[:, m],
             yerr=None if yerr is None else yerr[:, m],
-            fmt="o", capsize=3, label=g or None,
+            fmt="o",
+            capsize=3,
+            label=g or None,
         )
     if annotations is not None:
         if len(annotations) != xv.shape[0]:
@@ -225,16 +231,22 @@ def curve_figure(
     return fig
 
 
-def save_curve(path: str | Path, x: Sequence[float], curves: Mapping[str, Sequence[float]], *, dpi: int = 150,
-               **kwargs) -> Path:
+def save_curve(
+    path: str | Path, x: Sequence[float], curves: Mapping[str, Sequence[float]], *, dpi: int = 150, **kwargs
+) -> Path:
     """Write `curve_figure` (same arguments) to the PNG at `path`; returns the path."""
     return _finish(curve_figure(x, curves, **kwargs), path, dpi)
 
 
 # ---------------------------------------------------------------- histograms
-def reward_histogram_figure(rewards: Sequence[float], *, title: str, bins: int = 50,
-                            xlabel: str = "episode reward (tracking, sum over steps)",
-                            size: tuple[float, float] = (6.0, 3.5)) -> Figure:
+def reward_histogram_figure(
+    rewards: Sequence[float],
+    *,
+    title: str,
+    bins: int = 50,
+    xlabel: str = "episode reward (tracking, sum over steps)",
+    size: tuple[float, float] = (6.0, 3.5),
+) -> Figure:
     """Histogram of per-episode rewards (non-finite ones left out; the title gives n)."""
     _require_text(title=title, xlabel=xlabel)
     x = np.asarray(rewards, dtype=np.float64).reshape(-1)

@@ -60,8 +60,9 @@ def body_poses(model: mujoco.MjModel, qpos: np.ndarray, *, name: str = "model") 
     return BodyPoses(pos, quat)
 
 
-def pose_matrix(pos: Sequence[float] | np.ndarray, quat: Sequence[float] | np.ndarray | None = None,
-                rot: np.ndarray | None = None) -> np.ndarray:
+def pose_matrix(
+    pos: Sequence[float] | np.ndarray, quat: Sequence[float] | np.ndarray | None = None, rot: np.ndarray | None = None
+) -> np.ndarray:
     """4x4 homogeneous transform from a position [m] and a quaternion (w, x, y, z) or a 3x3
     rotation (identity when neither is given)."""
     m = np.eye(4)

@@ -244,7 +244,9 @@ def build_scene(
         raise SceneError(f"dt = {dt}; valid: a positive number of seconds")
     qpos_list = _per_robot(qpos, n, "qpos")
     motion_list = _motions(motions, n)
-    label_list = [f"robot {i}" for i in range(n)] if labels is None else [str(s) for s in _per_robot(labels, n, "labels")]
+    label_list = (
+        [f"robot {i}" for i in range(n)] if labels is None else [str(s) for s in _per_robot(labels, n, "labels")]
+    )
 
     robots: list[_Robot] = []
     for i, (model, q, motion, label) in enumerate(zip(models, qpos_list, motion_list, label_list)):
@@ -253,7 +255,9 @@ def build_scene(
         sites = ee_site_ids(model)
         if motion is not None:
             if abs(motion.dt - dt) > 1e-9 * dt:
-                raise SceneError(f"motion {motion.name!r} of {who} has dt = {motion.dt} s; the scene's frames are dt = {dt} s")
+                raise SceneError(
+                    f"motion {motion.name!r} of {who} has dt = {motion.dt} s; the scene's frames are dt = {dt} s"
+                )
             if sites and motion.arms != len(sites):
                 raise SceneError(
                     f"motion {motion.name!r} of {who} has {motion.arms} end effectors; the model has "

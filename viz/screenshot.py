@@ -51,7 +51,9 @@ def screenshot_html(
     """
     exe = find_chromium()
     if exe is None:
-        raise ScreenshotError(f"no Chromium found on PATH (tried {', '.join(CHROMIUM_NAMES)}); install: apt-get install -y chromium")
+        raise ScreenshotError(
+            f"no Chromium found on PATH (tried {', '.join(CHROMIUM_NAMES)}); install: apt-get install -y chromium"
+        )
     html = Path(html).resolve()
     if not html.is_file():
         raise FileNotFoundError(f"HTML file {html} does not exist")

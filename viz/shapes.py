@@ -75,7 +75,9 @@ def _material(rgba) -> mg.MeshPhongMaterial:
     return mg.MeshPhongMaterial(color=rgba_to_hex(rgba), opacity=float(rgba[3]), shininess=40)
 
 
-def capsule_mesh(radius: float, half_length: float, segments: int = 24, rings: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def capsule_mesh(
+    radius: float, half_length: float, segments: int = 24, rings: int = 6
+) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh of a capsule along z: a cylinder of `half_length` [m] capped by hemispheres
     of `radius` [m]. Returns vertices (V, 3) and faces (F, 3), counter-clockwise seen from outside."""
     # Profile from the bottom pole to the top pole, excluding the poles: (ring radius, z).
@@ -104,7 +106,9 @@ def capsule_mesh(radius: float, half_length: float, segments: int = 24, rings: i
     return vertices.astype(np.float32), np.asarray(faces, dtype=np.uint32)
 
 
-def geom_visuals(model: mujoco.MjModel, *, groups: tuple[int, ...] = (0, 1, 2), plane_extent: float = 1.0) -> list[GeomVisual]:
+def geom_visuals(
+    model: mujoco.MjModel, *, groups: tuple[int, ...] = (0, 1, 2), plane_extent: float = 1.0
+) -> list[GeomVisual]:
     """Drawable primitive geoms of a model: planes, spheres, capsules, ellipsoids, cylinders, boxes.
 
     groups: geom groups to draw (MuJoCo's viewer shows 0, 1 and 2 by default).
@@ -149,7 +153,9 @@ def geom_visuals(model: mujoco.MjModel, *, groups: tuple[int, ...] = (0, 1, 2), 
         obj = mg.Mesh(geometry, _material(rgba)).lower()
         out.append(GeomVisual(g, int(model.geom_bodyid[g]), name, obj, local, center, radius))
     if skipped:
-        log.warning("skipped %d non-primitive geoms (mesh, height field or SDF); the viewer draws primitives only", skipped)
+        log.warning(
+            "skipped %d non-primitive geoms (mesh, height field or SDF); the viewer draws primitives only", skipped
+        )
     return out
 
 
@@ -230,7 +236,13 @@ def text_sprite(text: str, window_fraction: float, fov_deg: float) -> dict:
     width = height * w_px / h_px
     image = mg.PngImage(png)
     texture = mg.ImageTexture(image)
-    data = {"metadata": {"version": 4.5, "type": "Object"}, "geometries": [], "materials": [], "textures": [], "images": []}
+    data = {
+        "metadata": {"version": 4.5, "type": "Object"},
+        "geometries": [],
+        "materials": [],
+        "textures": [],
+        "images": [],
+    }
     material = {
         "uuid": mg.SceneElement().uuid,
         "type": "SpriteMaterial",

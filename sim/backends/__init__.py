@@ -6,7 +6,7 @@ resolver) and hands the `Robots` to its `run`. The implementations:
 
 | name | simulator | implementation |
 |---|---|---|
-| ``warp`` | tt's fused Warp kernels, contact-free trees (default) | `tt.sim.rollout` (launch code) over `tt.kernels.rollout` |
+| ``warp`` | tt's fused Warp kernels, contact-free trees (default) | `tt.sim.rollout` over `tt.kernels.rollout` |
 | ``mjwarp`` | MuJoCo-Warp, contacts too; the batched reference | `tt.sim.mjwarp_backend` |
 | ``newton`` | Newton's Featherstone solver, contact-free arms | `tt.sim.newton_backend` |
 | ``mujoco`` | the oracle: MuJoCo C + mink, one world at a time | `tt.sim.validate` |
@@ -48,16 +48,38 @@ class WarpBackend:
                 return trees
         return resolve_designs(designs, who=who, contacts=False, hint=hint)
 
-    def run(self, robots: "Robots | DesignTrees", motions: Sequence[Motion], *, config: IKConfig, device: str,
-            chunk: int | None, progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
-            graph: bool | None = None) -> Episode:
+    def run(
+        self,
+        robots: "Robots | DesignTrees",
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig,
+        device: str,
+        chunk: int | None,
+        progress: bool,
+        action_noise: float,
+        noise_seed: int,
+        threads: int | None = None,
+        graph: bool | None = None,
+    ) -> Episode:
         from tt.sim.rollout import _rollout_warp
 
         sites = robots.ee_sites
         check_motions(motions, config.control_dt, len(sites))
         models = robots if isinstance(robots, DesignTrees) else list(robots.models)
-        return _rollout_warp(models, sites, motions, config=config, device=device, chunk=chunk,
-                             progress=progress, action_noise=action_noise, noise_seed=noise_seed, threads=threads, graph=graph)
+        return _rollout_warp(
+            models,
+            sites,
+            motions,
+            config=config,
+            device=device,
+            chunk=chunk,
+            progress=progress,
+            action_noise=action_noise,
+            noise_seed=noise_seed,
+            threads=threads,
+            graph=graph,
+        )
 
 
 class MjWarpBackend:
@@ -69,9 +91,20 @@ class MjWarpBackend:
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
         return resolve_designs(designs, who="the 'mjwarp' backend", one_space=False)
 
-    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
-            graph: bool | None = None) -> Episode:
+    def run(
+        self,
+        robots: Robots,
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig,
+        device: str,
+        chunk: int | None,
+        progress: bool,
+        action_noise: float,
+        noise_seed: int,
+        threads: int | None = None,
+        graph: bool | None = None,
+    ) -> Episode:
         from tt.sim.mjwarp_backend import mjwarp_rollout
 
         return mjwarp_rollout(robots, motions, config=config, device=device, progress=progress, graph=graph)
@@ -86,9 +119,20 @@ class NewtonBackend:
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
         return resolve_designs(designs, who="the 'newton' backend", contacts=False, hint="use backend='mjwarp'")
 
-    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
-            graph: bool | None = None) -> Episode:
+    def run(
+        self,
+        robots: Robots,
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig,
+        device: str,
+        chunk: int | None,
+        progress: bool,
+        action_noise: float,
+        noise_seed: int,
+        threads: int | None = None,
+        graph: bool | None = None,
+    ) -> Episode:
         from tt.sim.newton_backend import newton_rollout
 
         return newton_rollout(robots, motions, config=config, device=device, progress=progress)
@@ -103,16 +147,29 @@ class OracleBackend:
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
         return resolve_designs(designs, who="the 'mujoco' backend")
 
-    def run(self, robots: Robots, motions: Sequence[Motion], *, config: IKConfig, device: str, chunk: int | None,
-            progress: bool, action_noise: float, noise_seed: int, threads: int | None = None,
-            graph: bool | None = None) -> Episode:
+    def run(
+        self,
+        robots: Robots,
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig,
+        device: str,
+        chunk: int | None,
+        progress: bool,
+        action_noise: float,
+        noise_seed: int,
+        threads: int | None = None,
+        graph: bool | None = None,
+    ) -> Episode:
         from tt.sim.validate import oracle_rollout
 
         check_motions(motions, config.control_dt, len(robots.ee_sites))
         return oracle_rollout(robots, motions, config=config, progress=progress)
 
 
-_REGISTRY: dict[str, RolloutBackend] = {b.name: b for b in (WarpBackend(), MjWarpBackend(), NewtonBackend(), OracleBackend())}
+_REGISTRY: dict[str, RolloutBackend] = {
+    b.name: b for b in (WarpBackend(), MjWarpBackend(), NewtonBackend(), OracleBackend())
+}
 
 #: Rollout backends by name.
 BACKENDS: tuple[str, ...] = tuple(_REGISTRY)

@@ -48,8 +48,10 @@ class Robots:
         first = self.sites[0]
         for i, s in enumerate(self.sites):
             if s != first:
-                raise TTError(f"designs[{i}] ({model_name(self.models[i])!r}) has end effectors {list(s)}, "
-                                 f"designs[0] has {list(first)}")
+                raise TTError(
+                    f"designs[{i}] ({model_name(self.models[i])!r}) has end effectors {list(s)}, "
+                    f"designs[0] has {list(first)}"
+                )
         return first
 
 
@@ -70,15 +72,19 @@ def check_designs(
     spaces = sorted({d.space for d in designs if isinstance(d, Design)})
     if one_space:
         if len(spaces) > 1:
-            raise TTError(f"designs mix design spaces {spaces}; roll out one design space per call "
-                             "(motions and rewards are per space)")
+            raise TTError(
+                f"designs mix design spaces {spaces}; roll out one design space per call "
+                "(motions and rewards are per space)"
+            )
         if spaces and any(isinstance(d, mujoco.MjModel) for d in designs):
             raise TTError("designs mix tt Designs and raw MjModels; pass one kind per call")
     if not contacts:
         for name in spaces:
             if get_space(name).has_contacts:
-                raise TTError(f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
-                                 f"contact-free trees only{'; ' + hint if hint else ''}")
+                raise TTError(
+                    f"design space {name!r} has contacts (has_contacts=True); {who} simulates "
+                    f"contact-free trees only{'; ' + hint if hint else ''}"
+                )
 
 
 def resolve_designs(
@@ -137,7 +143,9 @@ def check_motions(motions: Sequence[Motion], control_dt: float, arms: int) -> No
         )
     for m, motion in enumerate(motions):
         if motion.arms != arms:
-            raise TTError(f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)")
+            raise TTError(
+                f"motions[{m}] ({motion.name!r}) has {motion.arms} arm(s); the designs have {arms} end effector(s)"
+            )
 
 
 @runtime_checkable

@@ -273,8 +273,9 @@ class DesignSpace(ABC):
         cuts = [len(designs) * k // processes for k in range(processes + 1)]
         # spawn: a forked child would inherit this process's Warp/torch/OpenMP thread state.
         with ProcessPoolExecutor(processes, mp_context=mp.get_context("spawn")) as pool:
-            parts = pool.map(_build_models, [self.name] * processes,
-                             [designs[lo:hi] for lo, hi in zip(cuts[:-1], cuts[1:])])
+            parts = pool.map(
+                _build_models, [self.name] * processes, [designs[lo:hi] for lo, hi in zip(cuts[:-1], cuts[1:])]
+            )
             return [m for part in parts for m in part]
 
     # ---------------------------------------------------------------- JSON
@@ -326,7 +327,9 @@ class DesignSpace(ABC):
             if not isinstance(v, (int, float)) or isinstance(v, bool):
                 raise DesignError(f"continuous field {p.name!r} = {v!r} is not a number")
             if isinstance(v, int) and abs(v) > 1e300:  # float() of a huge JSON integer overflows
-                raise DesignError(f"continuous field {p.name!r} is an integer beyond 1e300, outside [{p.low}, {p.high}] {p.unit}")
+                raise DesignError(
+                    f"continuous field {p.name!r} is an integer beyond 1e300, outside [{p.low}, {p.high}] {p.unit}"
+                )
             values.append(float(v))
         design = Design(self.name, tuple(discrete), tuple(values))
         self.validate(design)
@@ -356,16 +359,27 @@ def design_items(data, path: str | Path) -> list:
     demo.json, in its order), and a bare design or list of designs.
     """
     # tt optimize --json's file has its 'space' beside 'design': a design's own fields decide
-    if isinstance(data, dict) and not {"discrete", "continuous"} & set(data) and ("designs" in data or "design" in data):
+    if (
+        isinstance(data, dict)
+        and not {"discrete", "continuous"} & set(data)
+        and ("designs" in data or "design" in data)
+    ):
         if "designs" in data:
             items = data["designs"]
-            if isinstance(items, dict) and "space" not in items and items and all(isinstance(v, dict) for v in items.values()):
+            if (
+                isinstance(items, dict)
+                and "space" not in items
+                and items
+                and all(isinstance(v, dict) for v in items.values())
+            ):
                 items = list(items.values())  # labelled designs
         else:
             items = [data["design"]]
     elif isinstance(data, dict) and not {"space", "discrete", "continuous"} & set(data):
-        raise DesignError(f"{path} holds no designs: expected a design file tt wrote ('designs': [...] from "
-                          f"`tt designs`, or 'design': {{...}} from `tt optimize --json`); its fields are {sorted(data)[:8]}")
+        raise DesignError(
+            f"{path} holds no designs: expected a design file tt wrote ('designs': [...] from "
+            f"`tt designs`, or 'design': {{...}} from `tt optimize --json`); its fields are {sorted(data)[:8]}"
+        )
     else:
         items = data
     if isinstance(items, dict):
@@ -433,11 +447,15 @@ class FixedStructureSpace(DesignSpace):
         fixed = tuple(int(i) for i in discrete)
         params = base.discrete_params(fixed)
         if len(fixed) != len(params):
-            raise DesignError(f"sub-space {name!r}: {len(fixed)} discrete choices given, space {base.name!r} "
-                              f"needs {len(params)}: {[p.name for p in params]}")
+            raise DesignError(
+                f"sub-space {name!r}: {len(fixed)} discrete choices given, space {base.name!r} "
+                f"needs {len(params)}: {[p.name for p in params]}"
+            )
         for i, (p, v) in enumerate(zip(params, fixed)):
             if not 0 <= v < len(p.options):
-                raise DesignError(f"sub-space {name!r}: discrete[{i}] ({p.name!r}) = {v}; valid: 0..{len(p.options) - 1}")
+                raise DesignError(
+                    f"sub-space {name!r}: discrete[{i}] ({p.name!r}) = {v}; valid: 0..{len(p.options) - 1}"
+                )
         self.name = name
         self.base = base
         self.fixed = fixed
@@ -485,6 +503,8 @@ class FixedStructureSpace(DesignSpace):
         """A design of `base` with this sub-space's discrete choices as a design of the sub-space."""
         self.base.validate(design)
         if tuple(design.discrete) != self.fixed:
-            raise DesignError(f"design's discrete choices {list(design.discrete)} are not sub-space {self.name!r}'s "
-                              f"{list(self.fixed)}")
+            raise DesignError(
+                f"design's discrete choices {list(design.discrete)} are not sub-space {self.name!r}'s "
+                f"{list(self.fixed)}"
+            )
         return Design(self.name, (0,) * len(self.fixed), tuple(design.continuous))

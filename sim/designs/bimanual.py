@@ -230,8 +230,9 @@ class _Tree:
             self.close()
 
 
-def _robot_xml(spine: str, values: dict[str, float], trunk: list[JointSpec], arm: list[JointSpec],
-               segments: list[Segment]) -> str:
+def _robot_xml(
+    spine: str, values: dict[str, float], trunk: list[JointSpec], arm: list[JointSpec], segments: list[Segment]
+) -> str:
     """MJCF of a design given its (sized) trunk joints and its left arm."""
     joint = {j.name: j for j in trunk}
     length = values["spine_length"]

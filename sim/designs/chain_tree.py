@@ -58,8 +58,14 @@ class ChainBatch:
     def take(self, index: Sequence[int]) -> "ChainBatch":
         """The chains `index`, in that order."""
         index = np.asarray(index, dtype=np.int64)
-        return replace(self, base_pos=self.base_pos[index], base_quat=self.base_quat[index], axes=self.axes[index],
-                       vectors=self.vectors[index], radii=self.radii[index])
+        return replace(
+            self,
+            base_pos=self.base_pos[index],
+            base_quat=self.base_quat[index],
+            axes=self.axes[index],
+            vectors=self.vectors[index],
+            radii=self.radii[index],
+        )
 
 
 def _cylinder(radius: float, half_height: float, density: float) -> tuple[float, float, float]:
@@ -75,7 +81,9 @@ def _capsules(radius: np.ndarray, length: np.ndarray, density: float) -> tuple[n
     sph = density * 4.0 / 3.0 * np.pi * radius**3
     # Each hemisphere's center of mass sits 3r/8 beyond its flat face, which is length/2
     # from the center; its own moment about that face is the sphere's, 2/5 m r^2.
-    transverse = cyl * (3.0 * radius**2 + length**2) / 12.0 + sph * (0.4 * radius**2 + length**2 / 4.0 + 3.0 * length * radius / 8.0)
+    transverse = cyl * (3.0 * radius**2 + length**2) / 12.0 + sph * (
+        0.4 * radius**2 + length**2 / 4.0 + 3.0 * length * radius / 8.0
+    )
     axial = cyl * radius**2 / 2.0 + sph * 0.4 * radius**2
     return cyl + sph, transverse, axial
 
@@ -89,8 +97,10 @@ def _axial_tensor(axis: np.ndarray, transverse: np.ndarray, axial: np.ndarray) -
 
 def _shift(mass: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """Parallel-axis term m (|d|^2 I - d d^T) for point masses at `offset` (..., 3)."""
-    return mass[..., None, None] * (np.einsum("...i,...i->...", offset, offset)[..., None, None] * np.eye(3)
-                                    - offset[..., :, None] * offset[..., None, :])
+    return mass[..., None, None] * (
+        np.einsum("...i,...i->...", offset, offset)[..., None, None] * np.eye(3)
+        - offset[..., :, None] * offset[..., None, :]
+    )
 
 
 def principal_frames(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -102,8 +112,15 @@ def principal_frames(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return moments, mat_to_quat(vecs)
 
 
-def chain_fields(template: TreeFields, chains: ChainBatch, *, base_body: int, chain_bodies: Sequence[int],
-                 ee: int = 0, density: float = LINK_DENSITY) -> TreeFields:
+def chain_fields(
+    template: TreeFields,
+    chains: ChainBatch,
+    *,
+    base_body: int,
+    chain_bodies: Sequence[int],
+    ee: int = 0,
+    density: float = LINK_DENSITY,
+) -> TreeFields:
     """The tree fields of N chains hanging from a base body, from one compiled template.
 
     template: the `TreeFields` of one design of the same topology (one entry); it supplies
@@ -114,11 +131,15 @@ def chain_fields(template: TreeFields, chains: ChainBatch, *, base_body: int, ch
     """
     n, J = chains.count, len(chain_bodies)
     if chains.axes.shape != (n, J, 3) or chains.vectors.shape != (n, J, 3) or chains.radii.shape != (n, J):
-        raise ValueError(f"chains of {J} joints need axes and vectors (N, {J}, 3) and radii (N, {J}); got "
-                         f"{chains.axes.shape}, {chains.vectors.shape}, {chains.radii.shape}")
+        raise ValueError(
+            f"chains of {J} joints need axes and vectors (N, {J}, 3) and radii (N, {J}); got "
+            f"{chains.axes.shape}, {chains.vectors.shape}, {chains.radii.shape}"
+        )
     if chains.base_pos.shape != (n, 3) or chains.base_quat.shape != (n, 4):
-        raise ValueError(f"base_pos and base_quat need shapes ({n}, 3) and ({n}, 4); got "
-                         f"{chains.base_pos.shape}, {chains.base_quat.shape}")
+        raise ValueError(
+            f"base_pos and base_quat need shapes ({n}, 3) and ({n}, 4); got "
+            f"{chains.base_pos.shape}, {chains.base_quat.shape}"
+        )
     if template.count != 1:
         raise ValueError(f"the template has {template.count} entries; chain_fields needs one compiled design")
     topo = template.topology
@@ -148,10 +169,12 @@ def chain_fields(template: TreeFields, chains: ChainBatch, *, base_body: int, ch
     house_mass = np.broadcast_to(h_mass * hinge, (n, J))
     mass = cap_mass + house_mass
     com = cap_mass[..., None] * cap_center / np.maximum(mass, 1e-300)[..., None]
-    tensor = (np.where(has_link, 1.0, 0.0)[..., None, None] * _axial_tensor(direction, cap_t, cap_a)
-              + _shift(cap_mass, cap_center - com)
-              + hinge[None, :, None, None] * _axial_tensor(axes, np.full((n, J), h_t), np.full((n, J), h_a))
-              + _shift(house_mass, -com))
+    tensor = (
+        np.where(has_link, 1.0, 0.0)[..., None, None] * _axial_tensor(direction, cap_t, cap_a)
+        + _shift(cap_mass, cap_center - com)
+        + hinge[None, :, None, None] * _axial_tensor(axes, np.full((n, J), h_t), np.full((n, J), h_a))
+        + _shift(house_mass, -com)
+    )
     moments, frames = principal_frames(tensor)
     v["body_mass"][:, bodies] = mass
     v["body_ipos"][:, bodies] = com

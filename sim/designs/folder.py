@@ -62,11 +62,15 @@ def recorded_files(folder: str | Path, flag: str = "--out") -> set[str]:
     try:
         data = read_json(path, "design record")
     except CorruptFileError as e:
-        raise CorruptFileError(f"{flag} {folder}: {e}; tt designs cannot tell which files there it wrote: move it "
-                               "away or choose another folder") from None
+        raise CorruptFileError(
+            f"{flag} {folder}: {e}; tt designs cannot tell which files there it wrote: move it "
+            "away or choose another folder"
+        ) from None
     if not isinstance(data, dict) or not isinstance(data.get("designs"), list):
-        raise DesignFolderError(f"{flag} {folder}: its {RECORD} is not a design file tt wrote (no 'designs' list); "
-                                f"tt designs would overwrite it: move it away or choose another {flag}")
+        raise DesignFolderError(
+            f"{flag} {folder}: its {RECORD} is not a design file tt wrote (no 'designs' list); "
+            f"tt designs would overwrite it: move it away or choose another {flag}"
+        )
     if "files" in data:
         files = data["files"]
         return {f for f in files if isinstance(f, str) and f == Path(f).name} if isinstance(files, list) else set()
@@ -77,8 +81,9 @@ def recorded_files(folder: str | Path, flag: str = "--out") -> set[str]:
     return names
 
 
-def write_design_folder(designs: Sequence[Design], folder: str | Path, mjcf: Sequence[str], *,
-                        flag: str = "--out") -> FolderResult:
+def write_design_folder(
+    designs: Sequence[Design], folder: str | Path, mjcf: Sequence[str], *, flag: str = "--out"
+) -> FolderResult:
     """Write `designs` (MJCF texts `mjcf`, one each) and ``designs.json`` into `folder` (see
     the module docstring). Raises `DesignFolderError` naming `flag` when a file to be
     written exists and no earlier run recorded it; OSError (a full disk, naming the file)
@@ -90,9 +95,11 @@ def write_design_folder(designs: Sequence[Design], folder: str | Path, mjcf: Seq
     names = [mjcf_name(d, i) for i, d in enumerate(designs)]
     foreign = [n for n in names if (folder / n).exists() and n not in owned]
     if foreign:
-        raise DesignFolderError(f"{flag} {folder} holds {foreign[0]}{f' (and {len(foreign) - 1} more)' if len(foreign) > 1 else ''}, "
-                                f"which no earlier `tt designs` run there wrote ({RECORD} does not list it); move it "
-                                f"away or choose another {flag}")
+        raise DesignFolderError(
+            f"{flag} {folder} holds {foreign[0]}{f' (and {len(foreign) - 1} more)' if len(foreign) > 1 else ''}, "
+            f"which no earlier `tt designs` run there wrote ({RECORD} does not list it); move it "
+            f"away or choose another {flag}"
+        )
     staging = folder / f"{STAGING}{uuid.uuid4().hex[:8]}"
     staging.mkdir()
     try:

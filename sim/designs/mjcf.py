@@ -51,8 +51,14 @@ def fmt(values) -> str:
     return " ".join(repr(float(v)) for v in np.atleast_1d(values))
 
 
-def chain_xml(prefix: str, joints: list[JointSpec], segments: list[Segment], ee_site: str,
-              housing_radius: float = 0.03, indent: str = "    ") -> str:
+def chain_xml(
+    prefix: str,
+    joints: list[JointSpec],
+    segments: list[Segment],
+    ee_site: str,
+    housing_radius: float = 0.03,
+    indent: str = "    ",
+) -> str:
     """Nested bodies of a serial chain: body i holds joint i, a motor housing along the joint
     axis, and the capsule of segment i; the end-effector site sits at the end of the last
     segment with the identity orientation of the last body's frame.
@@ -72,7 +78,8 @@ def chain_xml(prefix: str, joints: list[JointSpec], segments: list[Segment], ee_
         )
         if j.kind == "hinge":
             lines.append(
-                f'{pad}  <geom name="{prefix}{j.name}_motor" type="cylinder" size="{housing_radius!r} {housing_radius!r}" '
+                f'{pad}  <geom name="{prefix}{j.name}_motor" type="cylinder" size="{housing_radius!r} '
+                f'{housing_radius!r}" '
                 f'zaxis="{fmt(j.axis)}" rgba="0.15 0.15 0.15 1"/>'
             )
         if np.linalg.norm(s.vector) > 1e-9:
@@ -114,24 +121,29 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (w, x, y, z) quaternions."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return np.array([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 def quat_mul_batch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """`quat_mul` of (..., 4) arrays of (w, x, y, z) quaternions, broadcast."""
     aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
     bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
 
 
 def axis_angle_quat(axis, angle: float) -> np.ndarray:
@@ -141,17 +153,34 @@ def axis_angle_quat(axis, angle: float) -> np.ndarray:
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
 
 
-def servo(name: str, axis, range: tuple[float, float], kp: float, force: float, armature: float,
-          *, kind: str = "hinge", damping: float = 0.1) -> JointSpec:
+def servo(
+    name: str,
+    axis,
+    range: tuple[float, float],
+    kp: float,
+    force: float,
+    armature: float,
+    *,
+    kind: str = "hinge",
+    damping: float = 0.1,
+) -> JointSpec:
     """A joint with a position servo whose derivative gain is critical for the rotor alone.
 
     kv = 2 sqrt(kp armature): the servo never rings on its own reflected inertia; the
     link inertia on top only slows it. Units as in `JointSpec` (N and m for slides).
     """
     kv = 2.0 * np.sqrt(kp * armature)
-    return JointSpec(name, tuple(float(a) for a in axis), (float(range[0]), float(range[1])), kp=float(kp),
-                     kv=float(round(kv, 4)), force=float(force), armature=float(armature),
-                     damping=float(damping), kind=kind)
+    return JointSpec(
+        name,
+        tuple(float(a) for a in axis),
+        (float(range[0]), float(range[1])),
+        kp=float(kp),
+        kv=float(round(kv, 4)),
+        force=float(force),
+        armature=float(armature),
+        damping=float(damping),
+        kind=kind,
+    )
 
 
 # Mirror images through the world XZ plane (y -> -y), for left/right symmetric robots.
@@ -181,8 +210,9 @@ def mirror_quat_xz(quat) -> np.ndarray:
     return np.array([w, -x, y, -z]) + 0.0
 
 
-def stiffen_for_gravity(model: mujoco.MjModel, joints: dict[str, JointSpec], ee_sites: Sequence[str],
-                        sag: float) -> dict[str, JointSpec]:
+def stiffen_for_gravity(
+    model: mujoco.MjModel, joints: dict[str, JointSpec], ee_sites: Sequence[str], sag: float
+) -> dict[str, JointSpec]:
     """Raise servo stiffness where needed so the home posture sags at most `sag` [m].
 
     A position servo holding gravity torque tau_j deflects by tau_j / kp_j, which moves an
@@ -221,6 +251,10 @@ def stiffen_for_gravity(model: mujoco.MjModel, joints: dict[str, JointSpec], ee_
     for n, load_n, a_n, s_n in zip(names, load, a, s):
         spec = joints[n]
         kp = spec.kp if s_n <= cap else float(a_n / cap)
-        out[n] = replace(spec, kp=float(kp), kv=float(round(2.0 * np.sqrt(kp * spec.armature), 4)),
-                         force=float(max(spec.force, 2.0 * load_n)))
+        out[n] = replace(
+            spec,
+            kp=float(kp),
+            kv=float(round(2.0 * np.sqrt(kp * spec.armature), 4)),
+            force=float(max(spec.force, 2.0 * load_n)),
+        )
     return out

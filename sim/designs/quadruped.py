@@ -176,15 +176,27 @@ def _pitch(angle: float) -> np.ndarray:
     return axis_angle_quat((0, 1, 0), angle)
 
 
-def _joint_xml(pad: str, name: str, axis, rng: tuple[float, float] | None, ref: float, *, armature: float,
-               damping: float, stiffness: float = 0.0, kind: str = "hinge") -> str:
+def _joint_xml(
+    pad: str,
+    name: str,
+    axis,
+    rng: tuple[float, float] | None,
+    ref: float,
+    *,
+    armature: float,
+    damping: float,
+    stiffness: float = 0.0,
+    kind: str = "hinge",
+) -> str:
     """A joint element; `ref` is its angle in the pose the bodies are written in, and the rest
     angle of its spring when `stiffness` [N m/rad] is set; `rng` None leaves it unlimited."""
     rng_attr = f' range="{fmt(rng)}"' if rng is not None else ' limited="false"'
     spring = f' stiffness="{stiffness!r}" springref="{ref!r}"' if stiffness else ""
     ref_attr = f' ref="{ref!r}"' if ref else ""
-    return (f'{pad}<joint name="{name}" type="{kind}" axis="{fmt(axis)}"{rng_attr}{ref_attr}{spring} '
-            f'armature="{armature!r}" damping="{damping!r}"/>')
+    return (
+        f'{pad}<joint name="{name}" type="{kind}" axis="{fmt(axis)}"{rng_attr}{ref_attr}{spring} '
+        f'armature="{armature!r}" damping="{damping!r}"/>'
+    )
 
 
 def _leg_joint(leg: str, role: str, axis, rng) -> JointSpec:
@@ -192,8 +204,16 @@ def _leg_joint(leg: str, role: str, axis, rng) -> JointSpec:
     # kv near critical damping of the servo on its armature plus a light link, kept low enough
     # for the explicit Euler step (actuator damping is not integrated implicitly).
     kv = 2.0 * math.sqrt(LEG_KP * (LEG_ARMATURE + LEG_LINK_INERTIA))
-    return JointSpec(f"{leg}_{role}", axis, rng, kp=LEG_KP, kv=round(kv, 4), force=LEG_FORCE[role],
-                     armature=LEG_ARMATURE, damping=LEG_DAMPING)
+    return JointSpec(
+        f"{leg}_{role}",
+        axis,
+        rng,
+        kp=LEG_KP,
+        kv=round(kv, 4),
+        force=LEG_FORCE[role],
+        armature=LEG_ARMATURE,
+        damping=LEG_DAMPING,
+    )
 
 
 @dataclass(frozen=True)
@@ -217,11 +237,16 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
     lines = [
         f'{p}<body name="{name}_hip" pos="{fmt(hip_pos)}" quat="{fmt(axis_angle_quat((0, 0, 1), yaw))}">',
         _joint_xml(p + "  ", abd.name, abd.axis, abd.range, 0.0, armature=abd.armature, damping=abd.damping),
-        f'{p}  <geom name="{name}_hip_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="1 0 0" rgba="0.15 0.15 0.15 1"/>',
+        f'{p}  <geom name="{name}_hip_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" '
+        'zaxis="1 0 0" rgba="0.15 0.15 0.15 1"/>',
         f'{p}  <body name="{name}_thigh" pos="0 {side * HIP_OFFSET!r} 0" quat="{fmt(_pitch(pose.hip_flex))}">',
-        _joint_xml(p + "    ", flex.name, flex.axis, flex.range, pose.hip_flex, armature=flex.armature, damping=flex.damping),
-        f'{p}    <geom name="{name}_thigh_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
-        f'{p}    <geom name="{name}_thigh" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" size="{THIGH_RADIUS!r}" rgba="0.55 0.6 0.7 1"/>',
+        _joint_xml(
+            p + "    ", flex.name, flex.axis, flex.range, pose.hip_flex, armature=flex.armature, damping=flex.damping
+        ),
+        f'{p}    <geom name="{name}_thigh_motor" type="cylinder" size="{MOTOR_RADIUS!r} '
+        f'{MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
+        f'{p}    <geom name="{name}_thigh" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" '
+        f'size="{THIGH_RADIUS!r}" rgba="0.55 0.6 0.7 1"/>',
         f'{p}    <body name="{name}_calf" pos="0 0 {-thigh!r}" quat="{fmt(_pitch(pose.knee))}">',
     ]
     q = p + "      "
@@ -233,20 +258,38 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
         actuated.append(knee_joint)
         home_ctrl.append(pose.knee)
         lines += [
-            _joint_xml(q, knee_joint.name, knee_joint.axis, knee_range, pose.knee,
-                       armature=knee_joint.armature, damping=knee_joint.damping),
-            f'{q}<geom name="{name}_knee_motor" type="cylinder" size="{KNEE_MOTOR[0]!r} {KNEE_MOTOR[1]!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
+            _joint_xml(
+                q,
+                knee_joint.name,
+                knee_joint.axis,
+                knee_range,
+                pose.knee,
+                armature=knee_joint.armature,
+                damping=knee_joint.damping,
+            ),
+            f'{q}<geom name="{name}_knee_motor" type="cylinder" size="{KNEE_MOTOR[0]!r} {KNEE_MOTOR[1]!r}" '
+            'zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
         ]
     else:
         lever_end = (0.0, side * LINKAGE_OFFSET, LEVER_LENGTH)
         lines += [
-            _joint_xml(q, f"{name}_knee", (0.0, 1.0, 0.0), knee_range, pose.knee, armature=0.0,
-                       damping=PASSIVE_DAMPING, stiffness=KNEE_SPRING),
-            f'{q}<geom name="{name}_calf_lever" type="capsule" fromto="0 0 0 {fmt(lever_end)}" size="{LEVER_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
+            _joint_xml(
+                q,
+                f"{name}_knee",
+                (0.0, 1.0, 0.0),
+                knee_range,
+                pose.knee,
+                armature=0.0,
+                damping=PASSIVE_DAMPING,
+                stiffness=KNEE_SPRING,
+            ),
+            f'{q}<geom name="{name}_calf_lever" type="capsule" fromto="0 0 0 {fmt(lever_end)}" '
+            f'size="{LEVER_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
             f'{q}<site name="{name}_calf_pin" pos="{fmt(lever_end)}" size="0.01"/>',
         ]
     lines += [
-        f'{q}<geom name="{name}_calf" type="capsule" fromto="0 0 0 0 0 {-calf!r}" size="{CALF_RADIUS!r}" rgba="0.55 0.6 0.7 1"/>',
+        f'{q}<geom name="{name}_calf" type="capsule" fromto="0 0 0 0 0 {-calf!r}" size="{CALF_RADIUS!r}" '
+        'rgba="0.55 0.6 0.7 1"/>',
         f'{q}<geom name="{name}_foot" type="sphere" pos="0 0 {-calf!r}" size="{FOOT_RADIUS!r}" contype="1" '
         f'friction="{fmt(FOOT_FRICTION)}" rgba="0.1 0.1 0.1 1"/>',
         f'{q}<site name="foot_{name}" pos="0 0 {-calf!r}" size="0.01"/>',
@@ -263,19 +306,31 @@ def _leg(name: str, kind: str, knee: str, hip_pos, yaw: float, thigh: float, cal
         y = side * (HIP_OFFSET + LINKAGE_OFFSET)
         lines += [
             f'{p}  <body name="{name}_crank" pos="0 {y!r} 0" quat="{fmt(_pitch(pose.calf_pitch))}">',
-            _joint_xml(p + "    ", crank.name, crank.axis, crank.range, pose.calf_pitch,
-                       armature=crank.armature, damping=crank.damping),
-            f'{p}    <geom name="{name}_crank_motor" type="cylinder" size="{MOTOR_RADIUS!r} {MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
+            _joint_xml(
+                p + "    ",
+                crank.name,
+                crank.axis,
+                crank.range,
+                pose.calf_pitch,
+                armature=crank.armature,
+                damping=crank.damping,
+            ),
+            f'{p}    <geom name="{name}_crank_motor" type="cylinder" size="{MOTOR_RADIUS!r} '
+            f'{MOTOR_HALF_LENGTH!r}" zaxis="0 1 0" rgba="0.15 0.15 0.15 1"/>',
             f'{p}    <body name="{name}_rod" pos="0 0 {LEVER_LENGTH!r}" quat="{fmt(_pitch(rod_ref))}">',
-            _joint_xml(p + "      ", f"{name}_rod", (0.0, 1.0, 0.0), None, rod_ref, armature=0.0,
-                       damping=PASSIVE_DAMPING),
-            f'{p}      <geom name="{name}_rod" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" size="{ROD_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
+            _joint_xml(
+                p + "      ", f"{name}_rod", (0.0, 1.0, 0.0), None, rod_ref, armature=0.0, damping=PASSIVE_DAMPING
+            ),
+            f'{p}      <geom name="{name}_rod" type="capsule" fromto="0 0 0 0 0 {-thigh!r}" '
+            f'size="{ROD_RADIUS!r}" rgba="0.8 0.6 0.2 1"/>',
             f'{p}      <site name="{name}_rod_pin" pos="0 0 {-thigh!r}" size="0.01"/>',
             f"{p}    </body>",
             f"{p}  </body>",
         ]
-        equality = (f'    <connect name="{name}_linkage" site1="{name}_rod_pin" site2="{name}_calf_pin" '
-                     f'solref="{fmt(LINKAGE_SOLREF)}" solimp="{fmt(LINKAGE_SOLIMP)}"/>')
+        equality = (
+            f'    <connect name="{name}_linkage" site1="{name}_rod_pin" site2="{name}_calf_pin" '
+            f'solref="{fmt(LINKAGE_SOLREF)}" solimp="{fmt(LINKAGE_SOLIMP)}"/>'
+        )
     lines.append(f"{p}</body>")
     return _Leg("\n".join(lines), actuated, home_qpos, home_ctrl, equality)
 
@@ -371,25 +426,47 @@ class QuadrupedSpace(DesignSpace):
         if options["arm_mount"] == "rail":
             # The carriage may travel the whole back, whatever its home position.
             travel = 0.5 * torso_length - RAIL_MARGIN
-            rail = JointSpec("arm_rail", (1.0, 0.0, 0.0), (-travel - mount_x, travel - mount_x), kp=RAIL_KP,
-                             kv=round(2.0 * math.sqrt(RAIL_KP * 5.0), 4), force=RAIL_FORCE,
-                             armature=RAIL_ARMATURE, damping=5.0, kind="slide")
+            rail = JointSpec(
+                "arm_rail",
+                (1.0, 0.0, 0.0),
+                (-travel - mount_x, travel - mount_x),
+                kp=RAIL_KP,
+                kv=round(2.0 * math.sqrt(RAIL_KP * 5.0), 4),
+                force=RAIL_FORCE,
+                armature=RAIL_ARMATURE,
+                damping=5.0,
+                kind="slide",
+            )
             arm_actuated.insert(0, rail)
             rail_size = (0.5 * torso_length - RAIL_END, *RAIL_HALF)
-            rail_geom = (f'\n      <geom name="rail" type="box" size="{fmt(rail_size)}" '
-                         f'pos="0 0 {top + RAIL_HALF[1]!r}" rgba="0.3 0.3 0.3 1"/>')
+            rail_geom = (
+                f'\n      <geom name="rail" type="box" size="{fmt(rail_size)}" '
+                f'pos="0 0 {top + RAIL_HALF[1]!r}" rgba="0.3 0.3 0.3 1"/>'
+            )
             mount_z = top + 2 * RAIL_HALF[1] + 2 * plate_h
-            mount_open = (f'      <body name="arm_mount" pos="{mount_x!r} 0 {mount_z!r}">\n'
-                          + _joint_xml("        ", rail.name, rail.axis, rail.range, 0.0, armature=rail.armature,
-                                       damping=rail.damping, kind="slide") + "\n")
+            mount_open = (
+                f'      <body name="arm_mount" pos="{mount_x!r} 0 {mount_z!r}">\n'
+                + _joint_xml(
+                    "        ",
+                    rail.name,
+                    rail.axis,
+                    rail.range,
+                    0.0,
+                    armature=rail.armature,
+                    damping=rail.damping,
+                    kind="slide",
+                )
+                + "\n"
+            )
         else:
             rail_geom = ""
             mount_z = top + 2 * plate_h
             mount_open = f'      <body name="arm_mount" pos="{mount_x!r} 0 {mount_z!r}">\n'
-        arm_xml = (mount_open
-                   + f'        <geom name="arm_plate" type="cylinder" size="{plate_r!r} {plate_h!r}" pos="0 0 {-plate_h!r}" '
-                     f'rgba="0.2 0.2 0.2 1"/>\n'
-                   + chain + "\n      </body>")
+        arm_xml = (
+            mount_open
+            + f'        <geom name="arm_plate" type="cylinder" size="{plate_r!r} {plate_h!r}" pos="0 0 {-plate_h!r}" '
+            f'rgba="0.2 0.2 0.2 1"/>\n' + chain + "\n      </body>"
+        )
 
         height = stance_depth(thigh, calf) + FOOT_RADIUS
         qpos = [0.0, 0.0, height, 1.0, 0.0, 0.0, 0.0]
@@ -430,7 +507,7 @@ class QuadrupedSpace(DesignSpace):
     <key name="home" qpos="{fmt(qpos)}" ctrl="{fmt(ctrl)}"/>
   </keyframe>
 </mujoco>
-"""
+"""  # noqa: E501 (MJCF lines of the template: the model text stays as MuJoCo reads it)
 
 
 SPACE = QuadrupedSpace()

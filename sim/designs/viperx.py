@@ -32,7 +32,6 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from tt.sim.designs.base import ContinuousParam, Design, DesignError, DesignSpace, DiscreteParam, FixedStructureSpace
-from tt.sim.designs.servos import XM430_W350, XM540_W270, ServoJoint
 from tt.sim.designs.mjcf import (
     JointSpec,
     Segment,
@@ -44,6 +43,7 @@ from tt.sim.designs.mjcf import (
     quat_mul,
     quat_mul_batch,
 )
+from tt.sim.designs.servos import XM430_W350, XM540_W270, ServoJoint
 
 if TYPE_CHECKING:
     from tt.sim.designs.chain_tree import ChainBatch
@@ -76,8 +76,16 @@ def _joint(name: str, axis: str, rng: tuple[float, float], kp: float, servo: Ser
     # kv near critical damping for the joint's own reflected inertia. The servo's voltage
     # limit is the force limit and its back-EMF a joint damping (tt.sim.designs.servos).
     kv = 2.0 * np.sqrt(kp * armature)
-    return JointSpec(name, _AXIS_VEC[axis], rng, kp=kp, kv=float(round(kv, 4)), force=servo.force, armature=armature,
-                     damping=float(round(FRICTION_DAMPING + servo.damping, 4)))
+    return JointSpec(
+        name,
+        _AXIS_VEC[axis],
+        rng,
+        kp=kp,
+        kv=float(round(kv, 4)),
+        force=servo.force,
+        armature=armature,
+        damping=float(round(FRICTION_DAMPING + servo.damping, 4)),
+    )
 
 
 #: (joint name, nominal axis, range, kp, servos, armature) by role, base to tip. The
@@ -141,7 +149,9 @@ def joint_axes(dof: str, axis_choices: np.ndarray) -> np.ndarray:
     return np.concatenate([np.broadcast_to(fixed, choices.shape[:-1] + fixed.shape), table[choices]], axis=-2)
 
 
-def arm_parts(dof: str, axes: Sequence[str], dlens: Sequence[float], prefix_roles: bool = False) -> tuple[list[JointSpec], list[Segment]]:
+def arm_parts(
+    dof: str, axes: Sequence[str], dlens: Sequence[float], prefix_roles: bool = False
+) -> tuple[list[JointSpec], list[Segment]]:
     """Joints and segments of one ViperX-like arm.
 
     axes: axis name for every joint after the shoulder; dlens: length change [m] per segment
@@ -169,12 +179,15 @@ def segment_names(dof: str) -> tuple[str, ...]:
 # The parameters of each DoF variant, built once: validating thousands of designs asks for
 # them once per discrete prefix of every design.
 _FIRST_PARAMS = (DiscreteParam("mount", MOUNTS), DiscreteParam("dof", DOFS))
-_DISCRETE_PARAMS = {dof: _FIRST_PARAMS + tuple(DiscreteParam(f"axis_{j}", AXES) for j in _JOINTS[dof][2:])
-                    for dof in DOFS}
+_DISCRETE_PARAMS = {
+    dof: _FIRST_PARAMS + tuple(DiscreteParam(f"axis_{j}", AXES) for j in _JOINTS[dof][2:]) for dof in DOFS
+}
 _CONTINUOUS_PARAMS = {
-    dof: (*(ContinuousParam(k, -v, v) for k, v in MOUNT_RANGE.items()),
-          ContinuousParam("mount_yaw", -np.pi / 2, np.pi / 2, "rad"),
-          *(ContinuousParam(n, *DLEN_RANGE) for n in segment_names(dof)))
+    dof: (
+        *(ContinuousParam(k, -v, v) for k, v in MOUNT_RANGE.items()),
+        ContinuousParam("mount_yaw", -np.pi / 2, np.pi / 2, "rad"),
+        *(ContinuousParam(n, *DLEN_RANGE) for n in segment_names(dof)),
+    )
     for dof in DOFS
 }
 
@@ -243,8 +256,12 @@ class ViperXSpace(DesignSpace):
             dof = DOFS[dof_index]
             chains = self._chains([designs[i] for i in members], dof)
             template = self.model(designs[members[0]])
-            fields = chain_fields(tree_fields([template], self.ee_sites()), chains, base_body=1,
-                                  chain_bodies=range(2, 2 + len(_JOINTS[dof])))
+            fields = chain_fields(
+                tree_fields([template], self.ee_sites()),
+                chains,
+                base_body=1,
+                chain_bodies=range(2, 2 + len(_JOINTS[dof])),
+            )
             # The base's geoms: the template's size less its chain's share.
             base_size = float(robot_size([template], dtype=torch.float64)[0]) - float(chain_sizes(chains.take([0]))[0])
             idx = np.asarray(members, dtype=np.int64)
@@ -265,8 +282,9 @@ class ViperXSpace(DesignSpace):
         base_pos, base_quat = mount_poses(discrete[:, 0], col)
         vectors = segment_vectors(dof, np.stack([col[n] for n in segment_names(dof)], axis=-1))
         radii = np.broadcast_to([_SEGMENTS[n][2] for n in names], (len(designs), len(names)))
-        return ChainBatch(base_pos, base_quat, joint_axes(dof, discrete[:, 2:]), vectors, np.array(radii),
-                          hinge=(True,) * len(names))
+        return ChainBatch(
+            base_pos, base_quat, joint_axes(dof, discrete[:, 2:]), vectors, np.array(radii), hinge=(True,) * len(names)
+        )
 
 
 def mount_poses(mounts: np.ndarray, values: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -28,10 +28,18 @@ from tt.sim.motions.io import (
     save_npz,
     umi_episode_count,
 )
-from tt.sim.motions.stats import MotionStats, motion_stats
 from tt.sim.motions.registry import SKILLS, MotionInfo, get_motion, list_motions, motion_set
 from tt.sim.motions.skills import SPLITS, TRAIN_SEEDS, VAL_SEEDS, Skill, SkillParam, split_of
-from tt.sim.motions.workspace import BIMANUAL, BIMANUAL_CENTER, BIMANUAL_MOUNT_Y, SINGLE_ARM, SINGLE_ARM_CENTER, Workspace, workspaces
+from tt.sim.motions.stats import MotionStats, motion_stats
+from tt.sim.motions.workspace import (
+    BIMANUAL,
+    BIMANUAL_CENTER,
+    BIMANUAL_MOUNT_Y,
+    SINGLE_ARM,
+    SINGLE_ARM_CENTER,
+    Workspace,
+    workspaces,
+)
 
 __all__ = [
     "motion_stats",

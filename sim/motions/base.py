@@ -42,7 +42,9 @@ class Motion:
         if pos.ndim != 3 or pos.shape[-1] != 3:
             raise MotionError(f"motion {self.name!r}: pos must have shape (T, 3) or (T, A, 3), got {pos.shape}")
         if quat.shape != pos.shape[:2] + (4,):
-            raise MotionError(f"motion {self.name!r}: quat shape {quat.shape} does not match pos {pos.shape[:2]} + (4,)")
+            raise MotionError(
+                f"motion {self.name!r}: quat shape {quat.shape} does not match pos {pos.shape[:2]} + (4,)"
+            )
         if pos.shape[0] == 0:
             raise MotionError(f"motion {self.name!r} is empty (T = 0)")
         if not np.all(np.isfinite(pos)):
@@ -55,7 +57,8 @@ class Motion:
         if np.any(np.abs(norms - 1.0) > 1e-3):
             bad = int(np.argwhere(np.abs(norms - 1.0) > 1e-3)[0, 0])
             raise MotionError(
-                f"motion {self.name!r}: quaternion at step {bad} has norm {norms.flat[np.argmax(np.abs(norms - 1))]:.4f}; "
+                f"motion {self.name!r}: quaternion at step {bad} has norm "
+                f"{norms.flat[np.argmax(np.abs(norms - 1))]:.4f}; "
                 "quaternions must be unit (w, x, y, z)"
             )
         if not (np.isfinite(self.dt) and self.dt > 0):

@@ -14,7 +14,7 @@ Every loader resamples to `MOTION_DT` (linear in position, slerp in rotation) an
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence, Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -66,7 +66,9 @@ def resample(pos: np.ndarray, quat: np.ndarray, src_dt: float, dt: float = MOTIO
         return pos, quat
     end = (n - 1) * src_dt
     if not end / dt <= MAX_STEPS:
-        raise MotionError(f"a motion of {n} samples every {src_dt:g} s lasts {end:g} s, more than {MAX_STEPS:,} steps of {dt:g} s")
+        raise MotionError(
+            f"a motion of {n} samples every {src_dt:g} s lasts {end:g} s, more than {MAX_STEPS:,} steps of {dt:g} s"
+        )
     t = np.arange(int(np.floor(end / dt + 1e-9)) + 1) * dt
     x = t / src_dt
     i = np.minimum(np.floor(x).astype(int), n - 2)
@@ -131,7 +133,12 @@ def save_npz(motion: Motion, path: str | Path) -> None:
     """Write `motion` (one or two end effectors) as ``.npz``; `load_npz` reads it back exactly."""
     if motion.arms > 2:
         raise MotionError(f"motion {motion.name!r}: the npz layout holds 1 or 2 end effectors, not {motion.arms}")
-    arrays = {"pos": motion.pos[:, 0], "quat": motion.quat[:, 0], "dt": np.float64(motion.dt), "name": np.str_(motion.name)}
+    arrays = {
+        "pos": motion.pos[:, 0],
+        "quat": motion.quat[:, 0],
+        "dt": np.float64(motion.dt),
+        "name": np.str_(motion.name),
+    }
     if motion.arms == 2:
         arrays |= {"pos2": motion.pos[:, 1], "quat2": motion.quat[:, 1]}
     with atomic_write(path) as f:  # through a handle: np.savez appends .npz to names without it
@@ -255,7 +262,9 @@ def load_umi_zarr(
         pos.append(fields["eef_pos"])
         quat.append(quat_mul(quat_continuous(quat_from_rotvec(fields["eef_rot_axis_angle"])), fix))
     meta = {"source": str(path), "episode": int(episode), "source_dt": 1.0 / hz}
-    return _motion(path, name or f"{path.name.split('.')[0]}:{episode}", np.stack(pos, 1), np.stack(quat, 1), 1.0 / hz, meta)
+    return _motion(
+        path, name or f"{path.name.split('.')[0]}:{episode}", np.stack(pos, 1), np.stack(quat, 1), 1.0 / hz, meta
+    )
 
 
 # ------------------------------------------------------------------ dispatch
@@ -323,7 +332,10 @@ def augment_se2(pos, quat, yaw, dx, dy):
         stack = lambda xs: np.stack(xs, axis=-1)  # noqa: E731
         cos, sin = np.cos, np.sin
     if pos.shape[-1] != 3 or quat.shape[-1] != 4 or pos.shape[:-1] != quat.shape[:-1]:
-        raise MotionError(f"augment_se2 needs pos (..., 3) and quat (..., 4) with equal leading shapes, got {tuple(pos.shape)} and {tuple(quat.shape)}")
+        raise MotionError(
+            "augment_se2 needs pos (..., 3) and quat (..., 4) with equal leading shapes, got "
+            f"{tuple(pos.shape)} and {tuple(quat.shape)}"
+        )
 
     def per_batch(v, field):
         v = as_arr(v)
@@ -403,7 +415,9 @@ def recenter(motion: Motion, center: tuple[float, float, float] | np.ndarray) ->
     pos = motion.pos
     mid = 0.5 * (pos.reshape(-1, 3).min(0) + pos.reshape(-1, 3).max(0))
     shift = np.asarray(center, dtype=np.float64) - mid
-    return Motion(motion.name, pos + shift, motion.quat, motion.dt, meta=dict(motion.meta, recenter_shift=shift.tolist()))
+    return Motion(
+        motion.name, pos + shift, motion.quat, motion.dt, meta=dict(motion.meta, recenter_shift=shift.tolist())
+    )
 
 
 #: Below this distance [m] a motion already counts as placed, so that placing a placed

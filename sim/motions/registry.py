@@ -35,8 +35,21 @@ from tt.sim.motions.skills import (
 SKILLS: dict[str, Skill] = {
     s.name: s
     for s in (
-        TOSS, SCRUB, DRAWER_OPEN, SCREW, WIPE, POUR, REACH_PLACE, FLING, STIR, HAMMER,
-        BI_FLING, BI_LIFT, BI_HANDOVER, BI_FOLD, BI_JAR,
+        TOSS,
+        SCRUB,
+        DRAWER_OPEN,
+        SCREW,
+        WIPE,
+        POUR,
+        REACH_PLACE,
+        FLING,
+        STIR,
+        HAMMER,
+        BI_FLING,
+        BI_LIFT,
+        BI_HANDOVER,
+        BI_FOLD,
+        BI_JAR,
     )
 }
 
@@ -156,8 +169,18 @@ def list_motions(arms: int | None = None) -> list[MotionInfo]:
         if arms is not None and sk.arms != arms:
             continue
         m = sk.motion(0)
-        out.append(MotionInfo(sk.name, sk.arms, m.duration, m.steps, tuple(p.name for p in sk.params),
-                              TRAIN_SEEDS, VAL_SEEDS, sk.summary))
+        out.append(
+            MotionInfo(
+                sk.name,
+                sk.arms,
+                m.duration,
+                m.steps,
+                tuple(p.name for p in sk.params),
+                TRAIN_SEEDS,
+                VAL_SEEDS,
+                sk.summary,
+            )
+        )
     return out
 
 
@@ -195,6 +218,24 @@ def motion_set(split: str, arms: int | None = None) -> list[Motion]:
 
 
 __all__ = [
-    "SKILLS", "MotionInfo", "bi_fling", "bi_fold", "bi_handover", "bi_jar", "bi_lift", "drawer_open", "fling", "get_motion",
-    "hammer", "list_motions", "motion_set", "pour", "reach_place", "screw", "scrub", "stir", "toss", "wipe",
+    "SKILLS",
+    "MotionInfo",
+    "bi_fling",
+    "bi_fold",
+    "bi_handover",
+    "bi_jar",
+    "bi_lift",
+    "drawer_open",
+    "fling",
+    "get_motion",
+    "hammer",
+    "list_motions",
+    "motion_set",
+    "pour",
+    "reach_place",
+    "screw",
+    "scrub",
+    "stir",
+    "toss",
+    "wipe",
 ]

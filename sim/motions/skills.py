@@ -141,7 +141,9 @@ def _toss(y, pivot_z, radius, back, forward, swing_time, flick) -> Script:
 
 
 TOSS = Skill(
-    "toss", 1, "underhand toss: wind back, swing forward-up on an arc with a wrist flick, return",
+    "toss",
+    1,
+    "underhand toss: wind back, swing forward-up on an arc with a wrist flick, return",
     (
         _p("y", 0.0, -0.15, 0.15, "m", "lateral position of the swing plane"),
         _p("pivot_z", 0.34, 0.30, 0.38, "m", "height of the swing circle's centre"),
@@ -183,7 +185,9 @@ def _scrub(cx, cy, z, amplitude, frequency, direction, drift, scrub_time) -> Scr
 
 
 SCRUB = Skill(
-    "scrub", 1, "table scrub: descend, back-and-forth strokes with sideways drift, retract",
+    "scrub",
+    1,
+    "table scrub: descend, back-and-forth strokes with sideways drift, retract",
     (
         _p("cx", 0.38, 0.32, 0.44, "m", "x of the scrubbed patch"),
         _p("cy", 0.0, -0.15, 0.15, "m", "y of the scrubbed patch"),
@@ -214,7 +218,9 @@ def _drawer_open(hx, hy, hz, pull, pull_time, handle_roll, pitch) -> Script:
 
 
 DRAWER_OPEN = Skill(
-    "drawer_open", 1, "open a drawer: approach the handle, grasp, pull straight back, release, retreat",
+    "drawer_open",
+    1,
+    "open a drawer: approach the handle, grasp, pull straight back, release, retreat",
     (
         _p("hx", 0.46, 0.43, 0.50, "m", "handle x (closed drawer)"),
         _p("hy", 0.0, -0.15, 0.15, "m", "handle y"),
@@ -254,7 +260,9 @@ def _screw(sx, sy, sz, turn, drop, turn_time) -> Script:
 
 
 SCREW = Skill(
-    "screw", 1, "screw in: three ratchet turns about the downward approach axis, descending with the thread",
+    "screw",
+    1,
+    "screw in: three ratchet turns about the downward approach axis, descending with the thread",
     (
         _p("sx", 0.35, 0.28, 0.42, "m", "screw x"),
         _p("sy", 0.0, -0.15, 0.15, "m", "screw y"),
@@ -289,7 +297,9 @@ def _wipe(wx, wy, wz, radius, period, sweep, wipe_time) -> Script:
 
 
 WIPE = Skill(
-    "wipe", 1, "wipe a vertical surface: press in, circular strokes sweeping sideways, pull back",
+    "wipe",
+    1,
+    "wipe a vertical surface: press in, circular strokes sweeping sideways, pull back",
     (
         _p("wx", 0.44, 0.40, 0.47, "m", "x of the surface (gripper tip)"),
         _p("wy", 0.0, -0.08, 0.08, "m", "y of the wiped patch"),
@@ -318,7 +328,9 @@ def _pour(sx, sy, gx, gy, gz, tilt, tilt_time, pour_time) -> Script:
 
 
 POUR = Skill(
-    "pour", 1, "pour: lift a cup, carry it over a target, tilt it about the approach axis, return it",
+    "pour",
+    1,
+    "pour: lift a cup, carry it over a target, tilt it about the approach axis, return it",
     (
         _p("sx", 0.33, 0.28, 0.38, "m", "x where the cup stands"),
         _p("sy", -0.15, -0.22, -0.08, "m", "y where the cup stands"),
@@ -359,7 +371,9 @@ def _reach_place(ax, ay, bx, by, bz, lift, turn, transfer_time) -> Script:
 
 
 REACH_PLACE = Skill(
-    "reach_place", 1, "pick and place: descend, grasp, carry on an arc while turning, place, lift",
+    "reach_place",
+    1,
+    "pick and place: descend, grasp, carry on an arc while turning, place, lift",
     (
         _p("ax", 0.38, 0.30, 0.45, "m", "pick x"),
         _p("ay", 0.15, 0.08, 0.22, "m", "pick y"),
@@ -384,12 +398,14 @@ def _fling_script(y: float, depth: float, height: float, fling_time: float, arms
     s.hold(0.3)  # grasp the corner
     s.move(1.2, *([back, mirror_pose(back)][:arms]))
     # Fling: over the top and forward, then lay the cloth down while pulling back.
-    ctrl = np.array([
-        [0.22, height, 20.0],
-        [0.22 + depth * 0.9, height + 0.02, -10.0],
-        [0.22 + depth, 0.22, 40.0],
-        [0.42, 0.09, 75.0],
-    ])
+    ctrl = np.array(
+        [
+            [0.22, height, 20.0],
+            [0.22 + depth * 0.9, height + 0.02, -10.0],
+            [0.22 + depth, 0.22, 40.0],
+            [0.42, 0.09, 75.0],
+        ]
+    )
     yaw0 = s.pose(0)["yaw"]
 
     def fling(u: np.ndarray) -> np.ndarray:
@@ -417,7 +433,9 @@ def _fling(y, depth, height, fling_time) -> Script:
 
 
 FLING = Skill(
-    "fling", 1, "cloth fling with one corner: grab low, lift back, fling over and forward, lay down",
+    "fling",
+    1,
+    "cloth fling with one corner: grab low, lift back, fling over and forward, lay down",
     (
         _p("y", 0.0, -0.15, 0.15, "m", "lateral position"),
         _p("depth", 0.30, 0.25, 0.33, "m", "forward reach of the fling from the lifted pose"),
@@ -452,7 +470,9 @@ def _stir(cx, cy, z, radius, period, tilt, stir_time) -> Script:
 
 
 STIR = Skill(
-    "stir", 1, "stir a pot: dip a held spoon, circle with the tip, lift out",
+    "stir",
+    1,
+    "stir a pot: dip a held spoon, circle with the tip, lift out",
     (
         _p("cx", 0.38, 0.32, 0.44, "m", "x where the spoon dips in (the circle's far edge)"),
         _p("cy", 0.0, -0.12, 0.12, "m", "y of the pot centre"),
@@ -484,7 +504,9 @@ def _hammer(nx, ny, nz, raise_height, swing, strike_time) -> Script:
 
 
 HAMMER = Skill(
-    "hammer", 1, "hammer a nail: four blows, each a raise with the wrist cocked back and a fast strike",
+    "hammer",
+    1,
+    "hammer a nail: four blows, each a raise with the wrist cocked back and a fast strike",
     (
         _p("nx", 0.42, 0.36, 0.48, "m", "x of the hand at impact"),
         _p("ny", 0.0, -0.15, 0.15, "m", "y of the hand at impact"),
@@ -505,12 +527,21 @@ def _bi_fling(y, depth, height, fling_time) -> Script:
 
 
 BI_FLING = Skill(
-    "bi_fling", 2, "two-arm cloth fling: grab two corners, lift back, fling over and forward, lay down",
+    "bi_fling",
+    2,
+    "two-arm cloth fling: grab two corners, lift back, fling over and forward, lay down",
     (
         _p("y", 0.20, 0.15, 0.25, "m", "half the distance between the held corners"),
         _p("depth", 0.24, 0.20, 0.26, "m", "forward reach of the fling from the lifted pose"),
         _p("height", 0.40, 0.35, 0.44, "m", "height of the lifted pose"),
-        _p("fling_time", 0.38, 0.33, 0.45, "s", "duration of the fling (two arms with a cloth between them: a little slower)"),
+        _p(
+            "fling_time",
+            0.38,
+            0.33,
+            0.45,
+            "s",
+            "duration of the fling (two arms with a cloth between them: a little slower)",
+        ),
     ),
     _bi_fling,
 )
@@ -535,7 +566,9 @@ def _bi_lift(cx, cy, half_width, lift, carry, hold_time) -> Script:
 
 
 BI_LIFT = Skill(
-    "bi_lift", 2, "two-arm box lift: squeeze a box from both sides, lift and carry it, set it down",
+    "bi_lift",
+    2,
+    "two-arm box lift: squeeze a box from both sides, lift and carry it, set it down",
     (
         _p("cx", 0.34, 0.30, 0.38, "m", "box x"),
         _p("cy", 0.0, -0.04, 0.04, "m", "box y"),
@@ -558,8 +591,11 @@ def _bi_handover(px, py, hx, hz, gap, qx, qy) -> Script:
     s.move(0.8, {"z": 0.06}, None)
     s.hold(0.4)  # arm 0 grasps
     # Arm 1 sets off towards the handover while arm 0 is still on its way.
-    s.move(1.6, {"x": hx, "y": gap / 2, "z": hz, "pitch": 30.0, "yaw": -90.0},
-           {"x": hx, "y": -gap / 2 - 0.06, "z": hz, "pitch": 30.0, "yaw": 90.0})
+    s.move(
+        1.6,
+        {"x": hx, "y": gap / 2, "z": hz, "pitch": 30.0, "yaw": -90.0},
+        {"x": hx, "y": -gap / 2 - 0.06, "z": hz, "pitch": 30.0, "yaw": 90.0},
+    )
     s.move(0.6, None, {"y": -gap / 2})
     s.hold(0.4)  # arm 1 grasps, arm 0 lets go
     s.move(1.0, {"x": 0.30, "y": 0.25, "z": 0.25, "pitch": 60.0, "yaw": -30.0}, {"y": -gap / 2 - 0.06})
@@ -571,7 +607,9 @@ def _bi_handover(px, py, hx, hz, gap, qx, qy) -> Script:
 
 
 BI_HANDOVER = Skill(
-    "bi_handover", 2, "handover: arm 0 picks and presents an object at the middle, arm 1 takes and places it",
+    "bi_handover",
+    2,
+    "handover: arm 0 picks and presents an object at the middle, arm 1 takes and places it",
     (
         _p("px", 0.35, 0.30, 0.42, "m", "pick x (arm 0's side)"),
         _p("py", 0.22, 0.15, 0.28, "m", "pick y"),
@@ -594,12 +632,14 @@ def _bi_fold(fx, width, length, height, fold_time) -> Script:
     s.hold(0.3)
     s.move(0.8, {"z": z0}, {"z": z0})
     s.hold(0.4)
-    ctrl = np.array([
-        [fx, z0, 90.0],
-        [fx, z0 + height, 80.0],
-        [fx - length, z0 + height, 55.0],
-        [fx - length, z0 + 0.01, 60.0],
-    ])
+    ctrl = np.array(
+        [
+            [fx, z0, 90.0],
+            [fx, z0 + height, 80.0],
+            [fx - length, z0 + height, 55.0],
+            [fx - length, z0 + 0.01, 60.0],
+        ]
+    )
 
     def fold(u: np.ndarray) -> np.ndarray:
         c = bezier(ctrl, u)
@@ -620,7 +660,9 @@ def _bi_fold(fx, width, length, height, fold_time) -> Script:
 
 
 BI_FOLD = Skill(
-    "bi_fold", 2, "two-arm cloth fold: grab the far corners, carry them over on an arc, lay them on the near edge",
+    "bi_fold",
+    2,
+    "two-arm cloth fold: grab the far corners, carry them over on an arc, lay them on the near edge",
     (
         _p("fx", 0.45, 0.42, 0.48, "m", "x of the far corners"),
         _p("width", 0.15, 0.10, 0.22, "m", "half the cloth width (y of arm 0)"),
@@ -661,7 +703,9 @@ def _bi_jar(jx, jz, turn, turn_time, hold_pitch) -> Script:
 
 
 BI_JAR = Skill(
-    "bi_jar", 2, "open a jar: arm 1 holds the jar, arm 0 unscrews the lid with two ratchet turns and sets it aside",
+    "bi_jar",
+    2,
+    "open a jar: arm 1 holds the jar, arm 0 unscrews the lid with two ratchet turns and sets it aside",
     (
         _p("jx", 0.33, 0.30, 0.37, "m", "jar x"),
         _p("jz", 0.13, 0.10, 0.16, "m", "height where arm 1 holds the jar"),
@@ -674,6 +718,25 @@ BI_JAR = Skill(
 
 
 __all__ = [
-    "BI_FLING", "BI_FOLD", "BI_HANDOVER", "BI_JAR", "BI_LIFT", "DRAWER_OPEN", "FLING", "HAMMER", "POUR", "REACH_PLACE",
-    "SCREW", "SCRUB", "SPLITS", "STIR", "TOSS", "TRAIN_SEEDS", "VAL_SEEDS", "WIPE", "Skill", "SkillParam", "split_of",
+    "BI_FLING",
+    "BI_FOLD",
+    "BI_HANDOVER",
+    "BI_JAR",
+    "BI_LIFT",
+    "DRAWER_OPEN",
+    "FLING",
+    "HAMMER",
+    "POUR",
+    "REACH_PLACE",
+    "SCREW",
+    "SCRUB",
+    "SPLITS",
+    "STIR",
+    "TOSS",
+    "TRAIN_SEEDS",
+    "VAL_SEEDS",
+    "WIPE",
+    "Skill",
+    "SkillParam",
+    "split_of",
 ]

@@ -53,10 +53,16 @@ def motion_stats(motions: Sequence[Motion]) -> list[MotionStats]:
         acc = np.gradient(vel, m.dt, axis=0)  # (T, A, 3) [m/s^2]
         speed = np.linalg.norm(vel, axis=-1)  # (T, A)
         extent = (m.pos.max(axis=0) - m.pos.min(axis=0)).max()
-        out.append(MotionStats(
-            name=m.name, arms=m.arms, duration=m.duration,
-            peak_speed=float(speed.max()), p95_speed=float(np.percentile(speed, 95, axis=0).max()),
-            peak_accel=float(np.linalg.norm(acc, axis=-1).max()), extent=float(extent),
-            orn_range=max(_largest_rotation_deg(m.quat[:, a]) for a in range(m.arms)),
-        ))
+        out.append(
+            MotionStats(
+                name=m.name,
+                arms=m.arms,
+                duration=m.duration,
+                peak_speed=float(speed.max()),
+                p95_speed=float(np.percentile(speed, 95, axis=0).max()),
+                peak_accel=float(np.linalg.norm(acc, axis=-1).max()),
+                extent=float(extent),
+                orn_range=max(_largest_rotation_deg(m.quat[:, a]) for a in range(m.arms)),
+            )
+        )
     return out

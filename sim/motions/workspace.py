@@ -105,5 +105,13 @@ def workspaces(arms: int) -> tuple[Workspace, ...]:
     raise MotionError(f"arms must be 1 or 2, got {arms}")
 
 
-__all__ = ["BIMANUAL", "BIMANUAL_CENTER", "BIMANUAL_MOUNT_Y", "SHOULDER_HEIGHT", "SINGLE_ARM", "SINGLE_ARM_CENTER", "Workspace",
-           "workspaces"]
+__all__ = [
+    "BIMANUAL",
+    "BIMANUAL_CENTER",
+    "BIMANUAL_MOUNT_Y",
+    "SHOULDER_HEIGHT",
+    "SINGLE_ARM",
+    "SINGLE_ARM_CENTER",
+    "Workspace",
+    "workspaces",
+]
