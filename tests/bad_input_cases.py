@@ -856,6 +856,33 @@ def _online_resume_message(files, work: Path) -> tuple[str, str]:
     return "silent", "resumed with another --online-designs"
 
 
+def _api_generate_messages(files, work: Path) -> tuple[str, str]:
+    """tt.api.generate_dataset's bad arguments, which no CLI check sees first, are refused
+    before any folder is made, naming the flag and the keyword argument ("--designs
+    (designs=)"), never a GenerateConfig field."""
+    from tt.api import generate_dataset
+    from tt.kernels.errors import TTError
+
+    cases = [({"designs": 0}, "--designs (designs=)"),
+             ({"episodes_per_design": 0}, "--episodes-per-design (episodes_per_design=)"),
+             ({"designs_per_shard": 0}, "--designs-per-shard (designs_per_shard=)"),
+             ({"min_steps": 0}, "--min-steps (min_steps=)"), ({"seed": 2**32}, "--seed (seed=)"),
+             ({"bias": "nope"}, "--bias (bias=)"), ({"action_noise": float("nan")}, "--action-noise (action_noise=)"),
+             ({"select": 0}, "--select (select=)"), ({"uniform_share": 0.5}, "--uniform-share (uniform_share=)"),
+             ({"space": "quadruped", "action_noise": 0.1}, "--action-noise (action_noise=)")]
+    out = work / "g"
+    for given, named in cases:
+        args = {"space": "viperx", "designs": 4, **given}
+        try:
+            generate_dataset(args.pop("space"), args.pop("designs"), out, progress=False, **args)
+        except TTError as e:
+            if named not in str(e) or any(w in str(e) for w in INTERNAL_NAMES):
+                return "misleading", f"{given}: {e}"
+            continue
+        return "silent", f"generate_dataset accepted {given}"
+    return ("silent", f"{out} was made for refused arguments") if out.exists() else ("clear", "")
+
+
 def _serve_with_time(files, work: Path) -> tuple[str, str]:
     """--time with --serve alone (no HTML to open paused) is refused, naming both."""
     from tt.viz.cli import ViewError, view_cmd
@@ -1027,6 +1054,7 @@ SCENARIOS: list[Scenario] = [
     Scenario("view --serve --time", 14, _serve_with_time),
     Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
     Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
+    Scenario("tt.api.generate_dataset: bad arguments name the flag and the keyword", 15, _api_generate_messages),
     Scenario("predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted),
     Scenario("generate over a dataset whose zarr.json is damaged, its shards intact", 17, _damaged_dataset_root),
 ]

@@ -173,7 +173,7 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
             "0.01",
         ]
     )
-    assert code == 2 and "needs backend 'warp'" in text, text
+    assert code == 2 and "--action-noise" in text and "has contacts" in text, text
 
     code, text = tt_cli(["designs", "--space", "quadruped", "--n", "2", "--out", str(tmp_path / "d")])
     assert code == 0, text

@@ -34,6 +34,20 @@ _STEP_COUNT = {"free_link_obs": "free_link", "track_link_obs": "track_link", "dy
 _NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
 
 
+#: The `tt generate` flag of each `GenerateConfig` field that has one (the Python API,
+#: `tt.api.generate_dataset`, takes the field's name as its keyword argument).
+FLAGS = {"space": "--space", "designs": "--designs", "episodes_per_design": "--episodes-per-design", "seed": "--seed",
+         "designs_per_shard": "--designs-per-shard", "bias": "--bias", "min_steps": "--min-steps",
+         "action_noise": "--action-noise", "select": "--select", "uniform_share": "--uniform-share"}
+
+
+def _named(field: str) -> str:
+    """How an error names a `GenerateConfig` field: its `tt generate` flag and the keyword
+    argument of the Python API ("--designs (designs=)"), or the argument alone for a field
+    the command line does not set ("group_designs=")."""
+    return f"{FLAGS[field]} ({field}=)" if field in FLAGS else f"{field}="
+
+
 @dataclass(frozen=True)
 class GenerateConfig:
     """What a dataset is; two runs with equal configs produce identical shards.
@@ -86,36 +100,45 @@ class GenerateConfig:
         for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
-                raise TTError(f"GenerateConfig.{name} = {v!r}; must be an integer >= 1")
+                raise TTError(f"{_named(name)} must be an integer >= 1, got {v!r}")
         if self.bias not in (None, *BIASES):
-            raise TTError(f"GenerateConfig.bias = {self.bias!r}; valid: None or {list(BIASES)}")
+            raise TTError(f"{_named('bias')} must be one of {list(BIASES)} or left out (uniform designs), "
+                          f"got {self.bias!r}")
         if self.backend not in BACKENDS:
-            raise TTError(f"GenerateConfig.backend = {self.backend!r}; valid: {list(BACKENDS)}")
+            raise TTError(f"{_named('backend')} must be one of {list(BACKENDS)}, got {self.backend!r}")
         if self.backend == "warp" and get_space(self.space).has_contacts:
-            raise TTError(f"design space {self.space!r} has contacts; GenerateConfig.backend 'warp' simulates "
-                             "contact-free trees only, use backend='mujoco'")
+            raise TTError(f"--space {self.space} (space={self.space!r}) has contacts; backend='warp' simulates "
+                          "contact-free trees only: give backend='mujoco'")
         if self.reward not in REWARDS:
-            raise TTError(f"GenerateConfig.reward = {self.reward!r}; valid: {list(REWARDS)}")
+            raise TTError(f"{_named('reward')} must be one of {list(REWARDS)}, got {self.reward!r}")
         if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
-            raise TTError(f"GenerateConfig.max_motion_steps = {self.max_motion_steps} is below min_steps = "
-                             f"{self.min_steps}: every episode would be dropped")
+            raise TTError(f"{_named('max_motion_steps')} {self.max_motion_steps} is below {_named('min_steps')} "
+                          f"{self.min_steps}: every episode would be dropped")
         if self.cmaes_popsize < 2 or self.cmaes_generations < 1:
-            raise TTError(f"CMA-ES needs popsize >= 2 and generations >= 1, got {self.cmaes_popsize}, {self.cmaes_generations}")
+            raise TTError(f"CMA-ES needs {_named('cmaes_popsize')} >= 2 and {_named('cmaes_generations')} >= 1, "
+                          f"got {self.cmaes_popsize} and {self.cmaes_generations}")
         if not (0 <= self.max_yaw <= math.pi and 0 <= self.max_shift):
-            raise TTError(f"augmentation ranges must satisfy 0 <= max_yaw <= pi, max_shift >= 0; got {self.max_yaw}, {self.max_shift}")
+            raise TTError(f"the motion augmentation needs 0 <= {_named('max_yaw')} <= pi [rad] and "
+                          f"{_named('max_shift')} >= 0 [m], got {self.max_yaw} and {self.max_shift}")
         if not 0 <= self.seed < 2**32:
-            raise TTError(f"GenerateConfig.seed = {self.seed}; must be in 0..2**32-1")
-        if not (isinstance(self.action_noise, (int, float, np.integer, np.floating)) and math.isfinite(self.action_noise) and self.action_noise >= 0):
-            raise TTError(f"GenerateConfig.action_noise = {self.action_noise!r}; must be a finite standard deviation >= 0 [rad or m]")
+            raise TTError(f"{_named('seed')} must be in 0..2**32-1, got {self.seed}")
+        noise = self.action_noise
+        if not (isinstance(noise, (int, float, np.integer, np.floating)) and math.isfinite(noise) and noise >= 0):
+            raise TTError(f"{_named('action_noise')} must be a finite standard deviation >= 0 [rad or m], "
+                          f"got {noise!r}")
         if not (isinstance(self.select, (int, np.integer)) and self.select >= 1):
-            raise TTError(f"--select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}")
+            raise TTError(f"{_named('select')} must be an integer >= 1 (designs screened per kept episode), "
+                          f"got {self.select!r}")
         if not 0.0 <= self.uniform_share <= 1.0:
-            raise TTError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
+            raise TTError(f"{_named('uniform_share')} must lie in [0, 1], got {self.uniform_share}")
         if self.uniform_share > 0 and self.select == 1:
-            raise TTError("--uniform-share applies only with --select above 1 (without selection every design is uniform)")
+            raise TTError(f"{_named('uniform_share')} applies only with {_named('select')} above 1 (without "
+                          "selection every design is uniform)")
         if self.action_noise > 0 and self.backend != "warp":
-            raise TTError(f"GenerateConfig.action_noise = {self.action_noise} needs backend 'warp' (the backend that "
-                             f"perturbs commands); backend {self.backend!r} needs action_noise=0")
+            contacts = get_space(self.space).has_contacts
+            oracle = f" (the MuJoCo oracle, which --space {self.space} needs for its contacts)" if contacts else ""
+            raise TTError(f"{_named('action_noise')} {self.action_noise} needs backend 'warp', the one that perturbs "
+                          f"commands; backend {self.backend!r}{oracle} runs the clean ones: give 0")
 
     @property
     def shards(self) -> int:
