@@ -46,8 +46,18 @@ CLASSES = {
 
 #: Words of Python internals (config classes and fields) no error line may carry: a message
 #: names the flag or file instead.
-INTERNAL_NAMES = ("GenerateConfig", "TrainConfig", "OnlineConfig", "DiTConfig", "SelectionConfig", "SamplerConfig",
-                  "drop_types", "type_weights", "config.steps", "arms must be 1, 2 or None")
+INTERNAL_NAMES = (
+    "GenerateConfig",
+    "TrainConfig",
+    "OnlineConfig",
+    "DiTConfig",
+    "SelectionConfig",
+    "SamplerConfig",
+    "drop_types",
+    "type_weights",
+    "config.steps",
+    "arms must be 1, 2 or None",
+)
 
 #: Words of torch's and numpy's advice about loading pickles; no message may carry them.
 PICKLE_ADVICE = ("allow_pickle", "weights_only", "untrusted")
@@ -110,7 +120,9 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     (root / "designs_garbage.json").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe")
     put("designs_garbage", root / "designs_garbage.json")
     put("designs_truncated", _truncate(root / "designs.json", root / "designs_truncated.json"))
-    (root / "designs_space.json").write_text(json.dumps({"designs": [{"space": "cheetah", "discrete": {}, "continuous": {}}]}))
+    (root / "designs_space.json").write_text(
+        json.dumps({"designs": [{"space": "cheetah", "discrete": {}, "continuous": {}}]})
+    )
     put("designs_space", root / "designs_space.json")
     (root / "designs_empty.json").write_text('{"designs": []}')
     put("designs_empty", root / "designs_empty.json")
@@ -127,7 +139,10 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     np.save(root / "motion_npy.npy", short.pos[:, 0])
     shutil.move(root / "motion_npy.npy", root / "motion_npy.npz")
     put("motion_npy", root / "motion_npy.npz")
-    put("motion_dt", _savez(root / "motion_dt.npz", pos=short.pos[:, 0], quat=short.quat[:, 0], dt=np.array([0.02, 0.02])))
+    put(
+        "motion_dt",
+        _savez(root / "motion_dt.npz", pos=short.pos[:, 0], quat=short.quat[:, 0], dt=np.array([0.02, 0.02])),
+    )
     # 5 m up: motion files are placed over the base on load, and placing keeps heights.
     far = Motion("far", short.pos + np.array([0.0, 0.0, 5.0]), short.quat, short.dt)
     save_npz(far, root / "motion_far.npz")
@@ -150,8 +165,16 @@ def make_files(root: Path, dataset: Path | None = None) -> SimpleNamespace:
     from tt.dit.train import TrainConfig, train
 
     with torch.random.fork_rng(devices=[]):  # a real (tiny, one-step) checkpoint of the toy episodes
-        trained = train(TrainConfig(data=str(root / "episodes.npz"), out=str(root / "trained"), size="tiny", steps=1,
-                                    batch_size=4, device="cpu")).checkpoint
+        trained = train(
+            TrainConfig(
+                data=str(root / "episodes.npz"),
+                out=str(root / "trained"),
+                size="tiny",
+                steps=1,
+                batch_size=4,
+                device="cpu",
+            )
+        ).checkpoint
     put("trained", trained)
     put("episodes_truncated", _truncate(root / "episodes.npz", root / "episodes_truncated.npz"))
 
@@ -256,11 +279,13 @@ def _shipped_critic() -> Path:
 
 def _written_through(link: str, target: str):
     """A check: the link at files.<link> is still a link, and files.<target> holds what was written."""
+
     def check(f: SimpleNamespace, out: str) -> str | None:
         if not Path(getattr(f, link)).is_symlink():
             return f"{getattr(f, link)} was replaced by a regular file"
         data = Path(getattr(f, target)).read_bytes() if Path(getattr(f, target)).exists() else b""
         return None if data.startswith(b"PK") else f"{getattr(f, target)} does not hold the output"
+
     return check
 
 
@@ -275,198 +300,857 @@ def _user_designs_kept(f: SimpleNamespace, out: str) -> str | None:
 V = ["validate", "--design"]
 CASES: list[Case] = [
     # -- 1: corrupt or foreign files, every reader
-    Case("validate: designs.json of binary garbage", 1, lambda f: [*V, f.designs_garbage, "--motion", "toss"], ("designs_garbage.json", "not text")),
-    Case("validate: truncated designs.json", 1, lambda f: [*V, f.designs_truncated, "--motion", "toss"], ("designs_truncated.json", "not valid JSON")),
-    Case("validate: unknown space in designs.json", 1, lambda f: [*V, f.designs_space, "--motion", "toss"], ("designs_space.json", "cheetah")),
-    Case("validate: designs.json with no designs", 1, lambda f: [*V, f.designs_empty, "--motion", "toss"], ("designs_empty.json", "no designs")),
-    Case("validate: truncated motion file", 1, lambda f: [*V, f.designs, "--motion-file", f.motion_truncated], ("motion_truncated.npz", "truncated")),
-    Case("validate: motion file holding pickled objects", 1, lambda f: [*V, f.designs, "--motion-file", f.motion_pickle], ("motion_pickle.npz", "Python objects")),
-    Case("validate: motion file that is one .npy array", 1, lambda f: [*V, f.designs, "--motion-file", f.motion_npy], ("motion_npy.npz", ".npy")),
-    Case("validate: motion file with two dt values", 1, lambda f: [*V, f.designs, "--motion-file", f.motion_dt], ("motion_dt.npz", "'dt'")),
-    Case("validate: motion file with NaN", 1, lambda f: [*V, f.designs, "--motion-file", f.motion_nan], ("motion_nan.npz", "NaN")),
-    Case("validate: motion file that does not exist", 1, lambda f: [*V, f.designs, "--motion-file", f.root + "/nope.npz"], ("nope.npz", "no such file")),
-    Case("validate: truncated checkpoint for --controller model", 1,
-         lambda f: [*V, f.designs, "--motion-file", f.motion, "--controller", "model", "--checkpoint", f.ckpt_truncated, "--device", "cpu"],
-         ("ckpt_truncated.pt", "truncated")),
-    Case("rollout: truncated designs.json", 1, lambda f: ["rollout", "--design", f.designs_truncated], ("designs_truncated.json",)),
-    Case("rollout: motion file of garbage", 1, lambda f: ["rollout", "--n", "1", "--motion-file", f.garbage_xml], ("garbage.xml", "unknown motion file type")),
-    Case("optimize: pickled motion file", 1, lambda f: ["optimize", "--motion-file", f.motion_pickle], ("motion_pickle.npz",)),
-    Case("optimize: empty checkpoint for zeroth", 1, lambda f: ["optimize", "--method", "zeroth", "--motion", "toss", "--checkpoint", f.ckpt_empty, "--device", "cpu"],
-         ("ckpt_empty.pt", "empty")),
-    Case("view: episode file of garbage", 1, lambda f: ["view", f.episode_garbage, "--html", f.root + "/v.html"], ("episode_garbage.npz",)),
-    Case("view: truncated designs.json", 1, lambda f: ["view", f.designs_truncated, "--html", f.root + "/v.html"], ("designs_truncated.json",)),
-    Case("view: pickled motion file as --motion", 1, lambda f: ["view", f.designs, "--motion", f.motion_pickle, "--html", f.root + "/v.html"], ("motion_pickle.npz",)),
+    Case(
+        "validate: designs.json of binary garbage",
+        1,
+        lambda f: [*V, f.designs_garbage, "--motion", "toss"],
+        ("designs_garbage.json", "not text"),
+    ),
+    Case(
+        "validate: truncated designs.json",
+        1,
+        lambda f: [*V, f.designs_truncated, "--motion", "toss"],
+        ("designs_truncated.json", "not valid JSON"),
+    ),
+    Case(
+        "validate: unknown space in designs.json",
+        1,
+        lambda f: [*V, f.designs_space, "--motion", "toss"],
+        ("designs_space.json", "cheetah"),
+    ),
+    Case(
+        "validate: designs.json with no designs",
+        1,
+        lambda f: [*V, f.designs_empty, "--motion", "toss"],
+        ("designs_empty.json", "no designs"),
+    ),
+    Case(
+        "validate: truncated motion file",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.motion_truncated],
+        ("motion_truncated.npz", "truncated"),
+    ),
+    Case(
+        "validate: motion file holding pickled objects",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.motion_pickle],
+        ("motion_pickle.npz", "Python objects"),
+    ),
+    Case(
+        "validate: motion file that is one .npy array",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.motion_npy],
+        ("motion_npy.npz", ".npy"),
+    ),
+    Case(
+        "validate: motion file with two dt values",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.motion_dt],
+        ("motion_dt.npz", "'dt'"),
+    ),
+    Case(
+        "validate: motion file with NaN",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.motion_nan],
+        ("motion_nan.npz", "NaN"),
+    ),
+    Case(
+        "validate: motion file that does not exist",
+        1,
+        lambda f: [*V, f.designs, "--motion-file", f.root + "/nope.npz"],
+        ("nope.npz", "no such file"),
+    ),
+    Case(
+        "validate: truncated checkpoint for --controller model",
+        1,
+        lambda f: [
+            *V,
+            f.designs,
+            "--motion-file",
+            f.motion,
+            "--controller",
+            "model",
+            "--checkpoint",
+            f.ckpt_truncated,
+            "--device",
+            "cpu",
+        ],
+        ("ckpt_truncated.pt", "truncated"),
+    ),
+    Case(
+        "rollout: truncated designs.json",
+        1,
+        lambda f: ["rollout", "--design", f.designs_truncated],
+        ("designs_truncated.json",),
+    ),
+    Case(
+        "rollout: motion file of garbage",
+        1,
+        lambda f: ["rollout", "--n", "1", "--motion-file", f.garbage_xml],
+        ("garbage.xml", "unknown motion file type"),
+    ),
+    Case(
+        "optimize: pickled motion file",
+        1,
+        lambda f: ["optimize", "--motion-file", f.motion_pickle],
+        ("motion_pickle.npz",),
+    ),
+    Case(
+        "optimize: empty checkpoint for zeroth",
+        1,
+        lambda f: [
+            "optimize",
+            "--method",
+            "zeroth",
+            "--motion",
+            "toss",
+            "--checkpoint",
+            f.ckpt_empty,
+            "--device",
+            "cpu",
+        ],
+        ("ckpt_empty.pt", "empty"),
+    ),
+    Case(
+        "view: episode file of garbage",
+        1,
+        lambda f: ["view", f.episode_garbage, "--html", f.root + "/v.html"],
+        ("episode_garbage.npz",),
+    ),
+    Case(
+        "view: truncated designs.json",
+        1,
+        lambda f: ["view", f.designs_truncated, "--html", f.root + "/v.html"],
+        ("designs_truncated.json",),
+    ),
+    Case(
+        "view: pickled motion file as --motion",
+        1,
+        lambda f: ["view", f.designs, "--motion", f.motion_pickle, "--html", f.root + "/v.html"],
+        ("motion_pickle.npz",),
+    ),
     Case("tokenize: empty MJCF file", 1, lambda f: ["tokenize", f.empty_xml], ("empty.xml", "empty")),
-    Case("tokenize: MJCF of binary garbage", 1, lambda f: ["tokenize", f.garbage_xml], ("garbage.xml", "MuJoCo cannot load")),
+    Case(
+        "tokenize: MJCF of binary garbage",
+        1,
+        lambda f: ["tokenize", f.garbage_xml],
+        ("garbage.xml", "MuJoCo cannot load"),
+    ),
     Case("tokenize: designs.json of garbage", 1, lambda f: ["tokenize", f.designs_garbage], ("designs_garbage.json",)),
-    Case("detokenize: truncated token file", 1, lambda f: ["detokenize", f.tokens_truncated, "--out", f.root + "/r.xml"], ("tokens_truncated.npz", "truncated")),
-    Case("detokenize: token file lacking a key", 1, lambda f: ["detokenize", f.tokens_nokey, "--out", f.root + "/r.xml"], ("tokens_nokey.npz", "link/mask")),
-    Case("detokenize: a motion file as token file", 1, lambda f: ["detokenize", f.motion, "--out", f.root + "/r.xml"], ("motion.npz", "not a RoboToken file")),
-    Case("train: truncated episode token file", 1, lambda f: ["train", "--data", f.episodes_truncated, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_t"],
-         ("episodes_truncated.npz", "truncated")),
-    Case("train: a motion file as --data", 1, lambda f: ["train", "--data", f.motion, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_m"], ("motion.npz", "header")),
-    Case("train: truncated checkpoint as --init", 1, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_truncated, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_i"],
-         ("ckpt_truncated.pt", "truncated")),
-    Case("train: checkpoint lacking keys as --init", 1, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_nokey, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_k"],
-         ("ckpt_nokey.pt", "'model'")),
-    Case("train: foreign torch file as --init", 1, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_foreign, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_f"],
-         ("ckpt_foreign.pt", "not a tt DiT checkpoint")),
-    Case("train: pickle bytes as --init", 1, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_pickle, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_p"],
-         ("ckpt_pickle.pt",)),
-    Case("dataset info: a chunk with a flipped byte", 1, lambda f: ["dataset", "info", f.ds_flipped], ("s000001", "episode/reward", "tt dataset verify")),
-    Case("dataset verify: a chunk with a flipped byte", 1, lambda f: ["dataset", "verify", f.ds_flipped], ("s000001", "CRC-32")),
-    Case("dataset info: a folder that is no dataset", 1, lambda f: ["dataset", "info", f.foreign], ("foreign", "not a tt dataset")),
-    Case("generate: --out over a folder of other files", 1, lambda f: ["generate", "--designs", "1", "--out", f.foreign], ("foreign", "not a tt dataset")),
-    Case("dataset info: a dataset whose zarr.json is damaged", 17, lambda f: ["dataset", "info", f.ds_root],
-         ("{ds_root}/zarr.json", "damaged", "tt generate")),
-    Case("train on a dataset whose zarr.json is damaged", 17,
-         lambda f: ["train", "--data", f.ds_root, "--size", "tiny", "--steps", "1", "--out", f.root + "/run17"],
-         ("{ds_root}/zarr.json", "damaged", "tt generate")),
+    Case(
+        "detokenize: truncated token file",
+        1,
+        lambda f: ["detokenize", f.tokens_truncated, "--out", f.root + "/r.xml"],
+        ("tokens_truncated.npz", "truncated"),
+    ),
+    Case(
+        "detokenize: token file lacking a key",
+        1,
+        lambda f: ["detokenize", f.tokens_nokey, "--out", f.root + "/r.xml"],
+        ("tokens_nokey.npz", "link/mask"),
+    ),
+    Case(
+        "detokenize: a motion file as token file",
+        1,
+        lambda f: ["detokenize", f.motion, "--out", f.root + "/r.xml"],
+        ("motion.npz", "not a RoboToken file"),
+    ),
+    Case(
+        "train: truncated episode token file",
+        1,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes_truncated,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_t",
+        ],
+        ("episodes_truncated.npz", "truncated"),
+    ),
+    Case(
+        "train: a motion file as --data",
+        1,
+        lambda f: ["train", "--data", f.motion, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_m"],
+        ("motion.npz", "header"),
+    ),
+    Case(
+        "train: truncated checkpoint as --init",
+        1,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_truncated,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_i",
+        ],
+        ("ckpt_truncated.pt", "truncated"),
+    ),
+    Case(
+        "train: checkpoint lacking keys as --init",
+        1,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_nokey,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_k",
+        ],
+        ("ckpt_nokey.pt", "'model'"),
+    ),
+    Case(
+        "train: foreign torch file as --init",
+        1,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_foreign,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_f",
+        ],
+        ("ckpt_foreign.pt", "not a tt DiT checkpoint"),
+    ),
+    Case(
+        "train: pickle bytes as --init",
+        1,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_pickle,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_p",
+        ],
+        ("ckpt_pickle.pt",),
+    ),
+    Case(
+        "dataset info: a chunk with a flipped byte",
+        1,
+        lambda f: ["dataset", "info", f.ds_flipped],
+        ("s000001", "episode/reward", "tt dataset verify"),
+    ),
+    Case(
+        "dataset verify: a chunk with a flipped byte",
+        1,
+        lambda f: ["dataset", "verify", f.ds_flipped],
+        ("s000001", "CRC-32"),
+    ),
+    Case(
+        "dataset info: a folder that is no dataset",
+        1,
+        lambda f: ["dataset", "info", f.foreign],
+        ("foreign", "not a tt dataset"),
+    ),
+    Case(
+        "generate: --out over a folder of other files",
+        1,
+        lambda f: ["generate", "--designs", "1", "--out", f.foreign],
+        ("foreign", "not a tt dataset"),
+    ),
+    Case(
+        "dataset info: a dataset whose zarr.json is damaged",
+        17,
+        lambda f: ["dataset", "info", f.ds_root],
+        ("{ds_root}/zarr.json", "damaged", "tt generate"),
+    ),
+    Case(
+        "train on a dataset whose zarr.json is damaged",
+        17,
+        lambda f: ["train", "--data", f.ds_root, "--size", "tiny", "--steps", "1", "--out", f.root + "/run17"],
+        ("{ds_root}/zarr.json", "damaged", "tt generate"),
+    ),
     # -- 3: outputs created before the work, or refused up front
-    Case("motions --out into missing folders", 3, lambda f: ["motions", "--name", "toss", "--out", f.missing + "/toss.npz"], ok=True,
-         check=lambda f, out: None if Path(f.missing, "toss.npz").exists() else "toss.npz not written"),
-    Case("tokenize --out into missing folders", 3, lambda f: ["tokenize", f.designs, "--out", f.missing + "/t.npz"], ok=True,
-         check=lambda f, out: None if Path(f.missing, "t.npz").exists() else "t.npz not written"),
-    Case("validate --json onto an existing folder", 3, lambda f: [*V, f.designs, "--motion", "toss", "--json", f.robots_dir], ("--json", "robots_dir", "is a folder")),
-    Case("predict: truncated checkpoint", 1, lambda f: ["predict", "--design", f.designs + "#0", "--motion", "toss", "--checkpoint", f.ckpt_truncated, "--device", "cpu"],
-         ("ckpt_truncated.pt",)),
-    Case("predict: garbage designs.json", 1, lambda f: ["predict", "--design", f.designs_garbage, "--motion", "toss"], ("designs_garbage.json",)),
-    Case("predict --json under a file", 3, lambda f: ["predict", "--design", f.designs + "#0", "--motion", "toss", "--json", f.afile + "/x.json"],
-         ("--json", "afile")),
-    Case("predict --samples 0 names the flag", 6, lambda f: ["predict", "--design", f.designs + "#0", "--motion", "toss", "--samples", "0"],
-         ("--samples",)),
-    Case("optimize --json under a file", 3, lambda f: ["optimize", "--motion", "toss", "--json", f.afile + "/x.json"], ("--json", "afile")),
-    Case("rollout --out onto a file", 3, lambda f: ["rollout", "--n", "1", "--out", f.afile], ("--out", "afile", "is a file")),
-    Case("designs --out under a file", 3, lambda f: ["designs", "--n", "1", "--out", f.afile + "/d"], ("--out", "afile")),
-    Case("dataset info --plot under a file", 3, lambda f: ["dataset", "info", f.foreign, "--plot", f.afile + "/p.png"], ("--plot", "afile")),
-    Case("view --html under a file", 3, lambda f: ["view", f.designs, "--html", f.afile + "/v.html"], ("--html", "afile")),
+    Case(
+        "motions --out into missing folders",
+        3,
+        lambda f: ["motions", "--name", "toss", "--out", f.missing + "/toss.npz"],
+        ok=True,
+        check=lambda f, out: None if Path(f.missing, "toss.npz").exists() else "toss.npz not written",
+    ),
+    Case(
+        "tokenize --out into missing folders",
+        3,
+        lambda f: ["tokenize", f.designs, "--out", f.missing + "/t.npz"],
+        ok=True,
+        check=lambda f, out: None if Path(f.missing, "t.npz").exists() else "t.npz not written",
+    ),
+    Case(
+        "validate --json onto an existing folder",
+        3,
+        lambda f: [*V, f.designs, "--motion", "toss", "--json", f.robots_dir],
+        ("--json", "robots_dir", "is a folder"),
+    ),
+    Case(
+        "predict: truncated checkpoint",
+        1,
+        lambda f: [
+            "predict",
+            "--design",
+            f.designs + "#0",
+            "--motion",
+            "toss",
+            "--checkpoint",
+            f.ckpt_truncated,
+            "--device",
+            "cpu",
+        ],
+        ("ckpt_truncated.pt",),
+    ),
+    Case(
+        "predict: garbage designs.json",
+        1,
+        lambda f: ["predict", "--design", f.designs_garbage, "--motion", "toss"],
+        ("designs_garbage.json",),
+    ),
+    Case(
+        "predict --json under a file",
+        3,
+        lambda f: ["predict", "--design", f.designs + "#0", "--motion", "toss", "--json", f.afile + "/x.json"],
+        ("--json", "afile"),
+    ),
+    Case(
+        "predict --samples 0 names the flag",
+        6,
+        lambda f: ["predict", "--design", f.designs + "#0", "--motion", "toss", "--samples", "0"],
+        ("--samples",),
+    ),
+    Case(
+        "optimize --json under a file",
+        3,
+        lambda f: ["optimize", "--motion", "toss", "--json", f.afile + "/x.json"],
+        ("--json", "afile"),
+    ),
+    Case(
+        "rollout --out onto a file",
+        3,
+        lambda f: ["rollout", "--n", "1", "--out", f.afile],
+        ("--out", "afile", "is a file"),
+    ),
+    Case(
+        "designs --out under a file", 3, lambda f: ["designs", "--n", "1", "--out", f.afile + "/d"], ("--out", "afile")
+    ),
+    Case(
+        "dataset info --plot under a file",
+        3,
+        lambda f: ["dataset", "info", f.foreign, "--plot", f.afile + "/p.png"],
+        ("--plot", "afile"),
+    ),
+    Case(
+        "view --html under a file", 3, lambda f: ["view", f.designs, "--html", f.afile + "/v.html"], ("--html", "afile")
+    ),
     Case("demo --out onto a file", 3, lambda f: ["demo", "--out", f.afile], ("--out", "afile", "is a file")),
-    Case("train --out onto a file", 3, lambda f: ["train", "--data", f.episodes, "--size", "tiny", "--steps", "1", "--out", f.afile], ("--out", "afile")),
-    Case("generate --out onto a file", 3, lambda f: ["generate", "--designs", "1", "--out", f.afile], ("--out", "afile")),
-    Case("detokenize --out onto a folder", 3, lambda f: ["detokenize", f.tokens, "--out", f.robots_dir], ("--out", "robots_dir", "is a folder")),
-    Case("validate --json into missing folders", 3, lambda f: [*V, f.designs + "#0", "--motion-file", f.motion, "--json", f.missing + "/v.json"], ok=True,
-         check=lambda f, out: _strict_json(Path(f.missing, "v.json"))),
+    Case(
+        "train --out onto a file",
+        3,
+        lambda f: ["train", "--data", f.episodes, "--size", "tiny", "--steps", "1", "--out", f.afile],
+        ("--out", "afile"),
+    ),
+    Case(
+        "generate --out onto a file", 3, lambda f: ["generate", "--designs", "1", "--out", f.afile], ("--out", "afile")
+    ),
+    Case(
+        "detokenize --out onto a folder",
+        3,
+        lambda f: ["detokenize", f.tokens, "--out", f.robots_dir],
+        ("--out", "robots_dir", "is a folder"),
+    ),
+    Case(
+        "validate --json into missing folders",
+        3,
+        lambda f: [*V, f.designs + "#0", "--motion-file", f.motion, "--json", f.missing + "/v.json"],
+        ok=True,
+        check=lambda f, out: _strict_json(Path(f.missing, "v.json")),
+    ),
     # -- 4: garbage reported as success
-    Case("detokenize: NaN inside a real token", 4, lambda f: ["detokenize", f.tokens_nan, "--out", f.root + "/r.xml"], ("tokens_nan.npz", "NaN", "'link'")),
-    Case("optimize: no candidate survives a step", 4, lambda f: ["optimize", "--method", "random", "--budget", "3", "--motion-file", f.motion_far],
-         ("no candidate", "survived")),
-    Case("train: a dataset chunk failing its checksum", 4, lambda f: ["train", "--data", f.ds_flipped, "--size", "tiny", "--steps", "1", "--batch-size", "2",
-                                                                      "--out", f.root + "/run_ds"], ok=True,
-         check=lambda f, out: None if "damaged shard s000001" in out else "no warning about the damaged shard"),
+    Case(
+        "detokenize: NaN inside a real token",
+        4,
+        lambda f: ["detokenize", f.tokens_nan, "--out", f.root + "/r.xml"],
+        ("tokens_nan.npz", "NaN", "'link'"),
+    ),
+    Case(
+        "optimize: no candidate survives a step",
+        4,
+        lambda f: ["optimize", "--method", "random", "--budget", "3", "--motion-file", f.motion_far],
+        ("no candidate", "survived"),
+    ),
+    Case(
+        "train: a dataset chunk failing its checksum",
+        4,
+        lambda f: [
+            "train",
+            "--data",
+            f.ds_flipped,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--batch-size",
+            "2",
+            "--out",
+            f.root + "/run_ds",
+        ],
+        ok=True,
+        check=lambda f, out: None if "damaged shard s000001" in out else "no warning about the damaged shard",
+    ),
     # -- 5: data loss and leaks
-    Case("designs --out over an earlier run's folder", 5, lambda f: ["designs", "--n", "2", "--out", f.root + "/designs_out"], ok=True,
-         check=_stale_designs_removed, setup=_earlier_designs),
+    Case(
+        "designs --out over an earlier run's folder",
+        5,
+        lambda f: ["designs", "--n", "2", "--out", f.root + "/designs_out"],
+        ok=True,
+        check=_stale_designs_removed,
+        setup=_earlier_designs,
+    ),
     # -- 6: misleading messages
-    Case("validate: an error in design #1 of 2", 6, lambda f: [*V, f.designs_bad1, "--motion", "toss"], ("design #1 of 2", "99.0")),
-    Case("validate: design index out of range", 6, lambda f: [*V, f.designs + "#5", "--motion", "toss"], ("index 5", "holds 2")),
-    Case("optimize --budget 0 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--budget", "0"], ("--budget",)),
-    Case("optimize --popsize 1 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--popsize", "1"], ("--popsize",)),
-    Case("optimize --method nope lists the methods", 6, lambda f: ["optimize", "--motion", "toss", "--method", "nope"], ("random", "cmaes", "zeroth", "dgs")),
-    Case("optimize --samples 0 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--samples", "0"], ("--samples",)),
-    Case("optimize --guide-by nope lists the sources", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"], ("--guide-by", "model", "critic")),
-    Case("optimize --guide-by critic for cmaes names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"], ("--guide-by", "dgs")),
-    Case("optimize --critic-at nope lists the places", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "nope"], ("--critic-at", "tokens", "design", "project")),
-    Case("optimize --critic-at project without --scale", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "project"], ("--critic-at project", "--scale")),
-    Case("optimize --refine below 0 names the flag", 6, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--refine", "-1"], ("--refine", ">= 0")),
-    Case("optimize --refine for cmaes names the methods", 6, lambda f: ["optimize", "--motion", "toss", "--refine", "3"], ("--refine", "zeroth or dgs", "cmaes")),
-    Case("optimize --refine with the joint critic", 6, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic", "joint", "--refine", "3"], ("--refine", "dynamics critic", "--critic joint")),
-    Case("optimize --critic-at design without --guide-by critic", 6, lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--critic-at", "design"], ("--critic-at", "--guide-by critic")),
+    Case(
+        "validate: an error in design #1 of 2",
+        6,
+        lambda f: [*V, f.designs_bad1, "--motion", "toss"],
+        ("design #1 of 2", "99.0"),
+    ),
+    Case(
+        "validate: design index out of range",
+        6,
+        lambda f: [*V, f.designs + "#5", "--motion", "toss"],
+        ("index 5", "holds 2"),
+    ),
+    Case(
+        "optimize --budget 0 names the flag",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--budget", "0"],
+        ("--budget",),
+    ),
+    Case(
+        "optimize --popsize 1 names the flag",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--popsize", "1"],
+        ("--popsize",),
+    ),
+    Case(
+        "optimize --method nope lists the methods",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "nope"],
+        ("random", "cmaes", "zeroth", "dgs"),
+    ),
+    Case(
+        "optimize --samples 0 names the flag",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--samples", "0"],
+        ("--samples",),
+    ),
+    Case(
+        "optimize --guide-by nope lists the sources",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"],
+        ("--guide-by", "model", "critic"),
+    ),
+    Case(
+        "optimize --guide-by critic for cmaes names the flag",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"],
+        ("--guide-by", "dgs"),
+    ),
+    Case(
+        "optimize --critic-at nope lists the places",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "nope"],
+        ("--critic-at", "tokens", "design", "project"),
+    ),
+    Case(
+        "optimize --critic-at project without --scale",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "project"],
+        ("--critic-at project", "--scale"),
+    ),
+    Case(
+        "optimize --refine below 0 names the flag",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--refine", "-1"],
+        ("--refine", ">= 0"),
+    ),
+    Case(
+        "optimize --refine for cmaes names the methods",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--refine", "3"],
+        ("--refine", "zeroth or dgs", "cmaes"),
+    ),
+    Case(
+        "optimize --refine with the joint critic",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic", "joint", "--refine", "3"],
+        ("--refine", "dynamics critic", "--critic joint"),
+    ),
+    Case(
+        "optimize --critic-at design without --guide-by critic",
+        6,
+        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--critic-at", "design"],
+        ("--critic-at", "--guide-by critic"),
+    ),
     Case("rollout --n 0 names the flag", 6, lambda f: ["rollout", "--n", "0"], ("--n",)),
     Case("designs --n 0 names the flag", 6, lambda f: ["designs", "--n", "0", "--out", f.root + "/d0"], ("--n",)),
-    Case("generate --designs 0 names the flag", 6, lambda f: ["generate", "--designs", "0", "--out", f.root + "/g0"], ("--designs",)),
-    Case("generate --workers 0 names the flag", 6, lambda f: ["generate", "--designs", "1", "--workers", "0", "--out", f.root + "/g0"], ("--workers",)),
-    Case("train --steps 0 names the flag", 6, lambda f: ["train", "--data", f.episodes, "--steps", "0", "--out", f.root + "/r0"], ("--steps",)),
-    Case("train --batch-size 0 names the flag", 6, lambda f: ["train", "--data", f.episodes, "--batch-size", "0", "--out", f.root + "/r0"], ("--batch-size",)),
-    Case("train --lr -1 names the flag", 6, lambda f: ["train", "--data", f.episodes, "--lr", "-1", "--out", f.root + "/r0"], ("--lr",)),
-    Case("train --data that does not exist", 6, lambda f: ["train", "--data", f.root + "/nothing", "--out", f.root + "/r0"], ("--data", "nothing")),
-    Case("demo --budget 0 names the flag", 6, lambda f: ["demo", "--budget", "0", "--out", f.root + "/demo"], ("--budget",)),
+    Case(
+        "generate --designs 0 names the flag",
+        6,
+        lambda f: ["generate", "--designs", "0", "--out", f.root + "/g0"],
+        ("--designs",),
+    ),
+    Case(
+        "generate --workers 0 names the flag",
+        6,
+        lambda f: ["generate", "--designs", "1", "--workers", "0", "--out", f.root + "/g0"],
+        ("--workers",),
+    ),
+    Case(
+        "train --steps 0 names the flag",
+        6,
+        lambda f: ["train", "--data", f.episodes, "--steps", "0", "--out", f.root + "/r0"],
+        ("--steps",),
+    ),
+    Case(
+        "train --batch-size 0 names the flag",
+        6,
+        lambda f: ["train", "--data", f.episodes, "--batch-size", "0", "--out", f.root + "/r0"],
+        ("--batch-size",),
+    ),
+    Case(
+        "train --lr -1 names the flag",
+        6,
+        lambda f: ["train", "--data", f.episodes, "--lr", "-1", "--out", f.root + "/r0"],
+        ("--lr",),
+    ),
+    Case(
+        "train --data that does not exist",
+        6,
+        lambda f: ["train", "--data", f.root + "/nothing", "--out", f.root + "/r0"],
+        ("--data", "nothing"),
+    ),
+    Case(
+        "demo --budget 0 names the flag",
+        6,
+        lambda f: ["demo", "--budget", "0", "--out", f.root + "/demo"],
+        ("--budget",),
+    ),
     Case("tokenize: a folder as MJCF path", 6, lambda f: ["tokenize", f.robots_dir], ("robots_dir", "is a folder")),
-    Case("detokenize: an empty checkpoint-like file as tokens", 6, lambda f: ["detokenize", f.ckpt_empty, "--out", f.root + "/r.xml"], ("ckpt_empty.pt", "empty")),
-    Case("train: empty checkpoint as --init", 6, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_empty, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_e"],
-         ("ckpt_empty.pt", "empty")),
-    Case("train: checkpoint with schema_version 'v1'", 6, lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_v1, "--size", "tiny", "--steps", "1", "--out", f.root + "/run_v"],
-         ("ckpt_v1.pt", "'v1'", "not an integer")),
-    Case("detokenize: token file with schema_version 'v1'", 6, lambda f: ["detokenize", f.tokens_v1, "--out", f.root + "/r.xml"], ("tokens_v1.npz", "'v1'", "not an integer")),
-    Case("detokenize --index 3 of a one-robot file", 6, lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--index", "3"], ("index 3", "1 robot")),
-    Case("view: design index out of range", 6, lambda f: ["view", f.designs + "#7", "--html", f.root + "/v.html"], ("index 7",)),
-    Case("generate: unknown space", 6, lambda f: ["generate", "--space", "cheetah", "--designs", "1", "--out", f.root + "/g1"], ("cheetah", "viperx")),
+    Case(
+        "detokenize: an empty checkpoint-like file as tokens",
+        6,
+        lambda f: ["detokenize", f.ckpt_empty, "--out", f.root + "/r.xml"],
+        ("ckpt_empty.pt", "empty"),
+    ),
+    Case(
+        "train: empty checkpoint as --init",
+        6,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_empty,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_e",
+        ],
+        ("ckpt_empty.pt", "empty"),
+    ),
+    Case(
+        "train: checkpoint with schema_version 'v1'",
+        6,
+        lambda f: [
+            "train",
+            "--data",
+            f.episodes,
+            "--init",
+            f.ckpt_v1,
+            "--size",
+            "tiny",
+            "--steps",
+            "1",
+            "--out",
+            f.root + "/run_v",
+        ],
+        ("ckpt_v1.pt", "'v1'", "not an integer"),
+    ),
+    Case(
+        "detokenize: token file with schema_version 'v1'",
+        6,
+        lambda f: ["detokenize", f.tokens_v1, "--out", f.root + "/r.xml"],
+        ("tokens_v1.npz", "'v1'", "not an integer"),
+    ),
+    Case(
+        "detokenize --index 3 of a one-robot file",
+        6,
+        lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--index", "3"],
+        ("index 3", "1 robot"),
+    ),
+    Case(
+        "view: design index out of range",
+        6,
+        lambda f: ["view", f.designs + "#7", "--html", f.root + "/v.html"],
+        ("index 7",),
+    ),
+    Case(
+        "generate: unknown space",
+        6,
+        lambda f: ["generate", "--space", "cheetah", "--designs", "1", "--out", f.root + "/g1"],
+        ("cheetah", "viperx"),
+    ),
     Case("rollout: unknown backend", 6, lambda f: ["rollout", "--n", "1", "--backend", "bullet"], ("bullet", "warp")),
     Case("validate: unknown reward", 6, lambda f: [*V, f.designs, "--motion", "toss", "--reward", "speed"], ("speed",)),
     Case("motions --name nope", 6, lambda f: ["motions", "--name", "nope", "--out", f.root + "/m.npz"], ("nope",)),
     # -- 8: outputs written safely: through links, never over a socket
-    Case("tokenize --out through a symlink writes its target", 8, lambda f: ["tokenize", f.designs, "--out", f.link], ok=True,
-         check=_written_through("link", "link_target")),
-    Case("motions --out through a dangling symlink creates its target", 8,
-         lambda f: ["motions", "--name", "toss", "--out", f.dangling], ok=True, check=_written_through("dangling", "dangling_target")),
-    Case("validate --json onto a socket is refused", 8, lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", f.socket],
-         ("--json", "sock", "socket")),
-    Case("view --html onto a socket is refused", 8, lambda f: ["view", f.designs, "--html", f.socket], ("--html", "socket")),
+    Case(
+        "tokenize --out through a symlink writes its target",
+        8,
+        lambda f: ["tokenize", f.designs, "--out", f.link],
+        ok=True,
+        check=_written_through("link", "link_target"),
+    ),
+    Case(
+        "motions --out through a dangling symlink creates its target",
+        8,
+        lambda f: ["motions", "--name", "toss", "--out", f.dangling],
+        ok=True,
+        check=_written_through("dangling", "dangling_target"),
+    ),
+    Case(
+        "validate --json onto a socket is refused",
+        8,
+        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", f.socket],
+        ("--json", "sock", "socket"),
+    ),
+    Case(
+        "view --html onto a socket is refused",
+        8,
+        lambda f: ["view", f.designs, "--html", f.socket],
+        ("--html", "socket"),
+    ),
     # -- 9: '-' is stdout: a folder cannot go there, and two outputs cannot share it
-    Case("rollout --out - (a folder) is refused", 9, lambda f: ["rollout", "--n", "1", "--out", "-"], ("--out -", "folder")),
-    Case("validate --json - with --episode - is refused", 9,
-         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", "-", "--episode", "-"], ("--json", "--episode", "stdout")),
-    Case("detokenize --out - with --space is refused", 9, lambda f: ["detokenize", f.tokens, "--out", "-", "--space", "viperx"],
-         ("--space", "--out")),
+    Case(
+        "rollout --out - (a folder) is refused",
+        9,
+        lambda f: ["rollout", "--n", "1", "--out", "-"],
+        ("--out -", "folder"),
+    ),
+    Case(
+        "validate --json - with --episode - is refused",
+        9,
+        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--json", "-", "--episode", "-"],
+        ("--json", "--episode", "stdout"),
+    ),
+    Case(
+        "detokenize --out - with --space is refused",
+        9,
+        lambda f: ["detokenize", f.tokens, "--out", "-", "--space", "viperx"],
+        ("--space", "--out"),
+    ),
     # -- 10: tt designs removes and overwrites only its own files
-    Case("designs --out over a user's viperx_0001.xml", 10, lambda f: ["designs", "--n", "3", "--out", f.user_designs],
-         ("--out", "viperx_0001.xml", "no earlier `tt designs` run"), check=_user_designs_kept),
-    Case("designs --out beside a user's aloha_0007.xml", 10, lambda f: ["designs", "--n", "1", "--out", f.user_designs], ok=True,
-         check=_user_designs_kept),
+    Case(
+        "designs --out over a user's viperx_0001.xml",
+        10,
+        lambda f: ["designs", "--n", "3", "--out", f.user_designs],
+        ("--out", "viperx_0001.xml", "no earlier `tt designs` run"),
+        check=_user_designs_kept,
+    ),
+    Case(
+        "designs --out beside a user's aloha_0007.xml",
+        10,
+        lambda f: ["designs", "--n", "1", "--out", f.user_designs],
+        ok=True,
+        check=_user_designs_kept,
+    ),
     # -- 14: a flag that does not apply to the method or mode is refused, naming both
-    Case("optimize --critic-checkpoint with --method cmaes", 14,
-         lambda f: ["optimize", "--motion", "toss", "--critic-checkpoint", f.ckpt_nokey], ("--critic-checkpoint", "--method cmaes")),
-    Case("optimize --samples with --method random", 14, lambda f: ["optimize", "--motion", "toss", "--method", "random", "--samples", "4"],
-         ("--samples", "--method random")),
-    Case("optimize --num-steps with --method random", 14,
-         lambda f: ["optimize", "--motion", "toss", "--method", "random", "--num-steps", "5"], ("--num-steps", "--method random")),
-    Case("optimize --critic-samples with --method random", 14,
-         lambda f: ["optimize", "--motion", "toss", "--method", "random", "--critic-samples", "2"], ("--critic-samples", "--method random")),
-    Case("optimize --popsize with --method zeroth", 14, lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--popsize", "4"],
-         ("--popsize", "--method zeroth")),
-    Case("validate --checkpoint with --controller ik", 14,
-         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--checkpoint", f.ckpt_nokey], ("--checkpoint", "--controller ik")),
-    Case("detokenize --project without --space", 14, lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--project"],
-         ("--project", "--space")),
+    Case(
+        "optimize --critic-checkpoint with --method cmaes",
+        14,
+        lambda f: ["optimize", "--motion", "toss", "--critic-checkpoint", f.ckpt_nokey],
+        ("--critic-checkpoint", "--method cmaes"),
+    ),
+    Case(
+        "optimize --samples with --method random",
+        14,
+        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--samples", "4"],
+        ("--samples", "--method random"),
+    ),
+    Case(
+        "optimize --num-steps with --method random",
+        14,
+        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--num-steps", "5"],
+        ("--num-steps", "--method random"),
+    ),
+    Case(
+        "optimize --critic-samples with --method random",
+        14,
+        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--critic-samples", "2"],
+        ("--critic-samples", "--method random"),
+    ),
+    Case(
+        "optimize --popsize with --method zeroth",
+        14,
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--popsize", "4"],
+        ("--popsize", "--method zeroth"),
+    ),
+    Case(
+        "validate --checkpoint with --controller ik",
+        14,
+        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--checkpoint", f.ckpt_nokey],
+        ("--checkpoint", "--controller ik"),
+    ),
+    Case(
+        "detokenize --project without --space",
+        14,
+        lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--project"],
+        ("--project", "--space"),
+    ),
     Case("motions --out without --name", 14, lambda f: ["motions", "--out", f.root + "/m.npz"], ("--out", "--name")),
-    Case("rollout --n with --design", 14, lambda f: ["rollout", "--design", f.designs, "--n", "3"], ("--n", "--design")),
-    Case("train --online-designs with --data", 14,
-         lambda f: ["train", "--data", f.episodes, "--online-designs", "8", "--out", f.root + "/r14"], ("--online-designs", "--data")),
-    Case("train --select-motions without --select-designs", 14,
-         lambda f: ["train", "--data", f.episodes, "--select-motions", "3", "--out", f.root + "/r14"], ("--select-motions", "--select-designs")),
+    Case(
+        "rollout --n with --design", 14, lambda f: ["rollout", "--design", f.designs, "--n", "3"], ("--n", "--design")
+    ),
+    Case(
+        "train --online-designs with --data",
+        14,
+        lambda f: ["train", "--data", f.episodes, "--online-designs", "8", "--out", f.root + "/r14"],
+        ("--online-designs", "--data"),
+    ),
+    Case(
+        "train --select-motions without --select-designs",
+        14,
+        lambda f: ["train", "--data", f.episodes, "--select-motions", "3", "--out", f.root + "/r14"],
+        ("--select-motions", "--select-designs"),
+    ),
     # -- 15: messages name flags and files, never Python names (`outcome` checks every case for them)
-    Case("generate --bias nope lists the biases", 15, lambda f: ["generate", "--designs", "1", "--bias", "nope", "--out", f.root + "/g15"],
-         ("--bias", "cmaes")),
-    Case("generate --seed 2**32 names the flag", 15, lambda f: ["generate", "--designs", "1", "--seed", str(2**32), "--out", f.root + "/g15"],
-         ("--seed",)),
-    Case("generate --action-noise nan names the flag", 15,
-         lambda f: ["generate", "--designs", "1", "--action-noise", "nan", "--out", f.root + "/g15"], ("--action-noise",)),
-    Case("generate --action-noise on a space with contacts", 15,
-         lambda f: ["generate", "--space", "quadruped", "--designs", "1", "--action-noise", "0.1", "--out", f.root + "/g15"],
-         ("--action-noise", "quadruped")),
-    Case("train --drop-type nope names the flag", 15,
-         lambda f: ["train", "--data", f.episodes, "--drop-type", "nope", "--out", f.root + "/r15"], ("--drop-type", "nope")),
-    Case("train --online --action-noise nan names the flag", 15,
-         lambda f: ["train", "--online", "--action-noise", "nan", "--out", f.root + "/r15"], ("--action-noise",)),
+    Case(
+        "generate --bias nope lists the biases",
+        15,
+        lambda f: ["generate", "--designs", "1", "--bias", "nope", "--out", f.root + "/g15"],
+        ("--bias", "cmaes"),
+    ),
+    Case(
+        "generate --seed 2**32 names the flag",
+        15,
+        lambda f: ["generate", "--designs", "1", "--seed", str(2**32), "--out", f.root + "/g15"],
+        ("--seed",),
+    ),
+    Case(
+        "generate --action-noise nan names the flag",
+        15,
+        lambda f: ["generate", "--designs", "1", "--action-noise", "nan", "--out", f.root + "/g15"],
+        ("--action-noise",),
+    ),
+    Case(
+        "generate --action-noise on a space with contacts",
+        15,
+        lambda f: [
+            "generate",
+            "--space",
+            "quadruped",
+            "--designs",
+            "1",
+            "--action-noise",
+            "0.1",
+            "--out",
+            f.root + "/g15",
+        ],
+        ("--action-noise", "quadruped"),
+    ),
+    Case(
+        "train --drop-type nope names the flag",
+        15,
+        lambda f: ["train", "--data", f.episodes, "--drop-type", "nope", "--out", f.root + "/r15"],
+        ("--drop-type", "nope"),
+    ),
+    Case(
+        "train --online --action-noise nan names the flag",
+        15,
+        lambda f: ["train", "--online", "--action-noise", "nan", "--out", f.root + "/r15"],
+        ("--action-noise",),
+    ),
     Case("motions --arms 3 names the flag", 15, lambda f: ["motions", "--arms", "3"], ("--arms", "1 or 2")),
-    Case("train --init of another size names --size", 15,
-         lambda f: ["train", "--data", f.episodes, "--init", f.trained, "--size", "mini", "--out", f.root + "/r15"],
-         ("--init", "--size tiny", "--size mini")),
-    Case("optimize: a truncated --critic-checkpoint names that flag", 15,
-         lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint", f.ckpt_truncated],
-         ("--critic-checkpoint", "ckpt_truncated.pt")),
-    Case("optimize: a --critic-checkpoint of another space", 15,
-         lambda f: ["optimize", "--space", "aloha", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint",
-                    str(_shipped_critic())], ("--critic-checkpoint", "'viperx'", "'aloha'")),
-    Case("train: random bytes as --init are not called pickled data", 15,
-         lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_random, "--out", f.root + "/r15"], ("ckpt_random.pt", "no file tt wrote"),
-         check=lambda f, out: "said to hold pickled data" if "pickled data)" in out or "Python objects" in out else None),
-    Case("train --select-designs over a damaged selection.json", 15,
-         lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_json], ("selection.json", "not valid JSON")),
-    Case("train --select-designs over a damaged selection.csv", 15,
-         lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_csv], ("selection.csv", "not text")),
-    Case("validate --episode: the tt view hint is shell-quoted", 15,
-         lambda f: [*V, f.designs + "#0", "--motion", "toss", "--episode", f.spaced + "/ep.npz"], ok=True,
-         check=lambda f, out: None if f"tt view '{f.spaced}/ep.npz'" in out else "the printed `tt view` command is not shell-quoted"),
+    Case(
+        "train --init of another size names --size",
+        15,
+        lambda f: ["train", "--data", f.episodes, "--init", f.trained, "--size", "mini", "--out", f.root + "/r15"],
+        ("--init", "--size tiny", "--size mini"),
+    ),
+    Case(
+        "optimize: a truncated --critic-checkpoint names that flag",
+        15,
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint", f.ckpt_truncated],
+        ("--critic-checkpoint", "ckpt_truncated.pt"),
+    ),
+    Case(
+        "optimize: a --critic-checkpoint of another space",
+        15,
+        lambda f: [
+            "optimize",
+            "--space",
+            "aloha",
+            "--motion",
+            "toss",
+            "--method",
+            "zeroth",
+            "--critic-checkpoint",
+            str(_shipped_critic()),
+        ],
+        ("--critic-checkpoint", "'viperx'", "'aloha'"),
+    ),
+    Case(
+        "train: random bytes as --init are not called pickled data",
+        15,
+        lambda f: ["train", "--data", f.episodes, "--init", f.ckpt_random, "--out", f.root + "/r15"],
+        ("ckpt_random.pt", "no file tt wrote"),
+        check=lambda f, out: "said to hold pickled data" if "pickled data)" in out or "Python objects" in out else None,
+    ),
+    Case(
+        "train --select-designs over a damaged selection.json",
+        15,
+        lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_json],
+        ("selection.json", "not valid JSON"),
+    ),
+    Case(
+        "train --select-designs over a damaged selection.csv",
+        15,
+        lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_csv],
+        ("selection.csv", "not text"),
+    ),
+    Case(
+        "validate --episode: the tt view hint is shell-quoted",
+        15,
+        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--episode", f.spaced + "/ep.npz"],
+        ok=True,
+        check=lambda f, out: (
+            None if f"tt view '{f.spaced}/ep.npz'" in out else "the printed `tt view` command is not shell-quoted"
+        ),
+    ),
 ]
 
 
@@ -548,8 +1232,11 @@ def noisy_detokenized(sigmas=(0.3, 1.0, 3.0)):
     clean = norm.normalize(tokens)
     rng = np.random.default_rng(0)
     for sigma in sigmas:
-        noisy = TokenBatch({k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
-                           clean.ids, clean.mask)
+        noisy = TokenBatch(
+            {k: (v + rng.normal(0, sigma, v.shape)).astype(np.float32) for k, v in clean.values.items()},
+            clean.ids,
+            clean.mask,
+        )
         yield from detokenize(norm.denormalize(noisy, detect_padding=True))
 
 
@@ -719,8 +1406,16 @@ def _stdout_outputs(files, work: Path) -> tuple[str, str]:
     named ``-`` appears."""
     cases = [
         ("validate --json -", [*V, files.designs + "#0", "--motion", "toss", "--json", "-"], "json"),
-        ("optimize --json -", ["optimize", "--motion", "toss", "--method", "random", "--budget", "2", "--json", "-"], "json"),
-        ("predict --json -", ["predict", "--design", files.designs + "#0", "--motion", "toss", "--device", "cpu", "--json", "-"], "json"),
+        (
+            "optimize --json -",
+            ["optimize", "--motion", "toss", "--method", "random", "--budget", "2", "--json", "-"],
+            "json",
+        ),
+        (
+            "predict --json -",
+            ["predict", "--design", files.designs + "#0", "--motion", "toss", "--device", "cpu", "--json", "-"],
+            "json",
+        ),
         ("motions --out -", ["motions", "--name", "toss", "--out", "-"], "npz"),
         ("view --html -", ["view", files.designs + "#0", "--html", "-"], "html"),
     ]
@@ -743,8 +1438,24 @@ def _stdout_outputs(files, work: Path) -> tuple[str, str]:
 
 
 def _train(files, out: Path, steps: int, *extra, data: str | None = None) -> list:
-    return ["train", "--data", data or files.episodes, "--size", "tiny", "--batch-size", "4", "--device", "cpu",
-            "--steps", str(steps), "--checkpoint-every", "2", "--out", out, *extra]
+    return [
+        "train",
+        "--data",
+        data or files.episodes,
+        "--size",
+        "tiny",
+        "--batch-size",
+        "4",
+        "--device",
+        "cpu",
+        "--steps",
+        str(steps),
+        "--checkpoint-every",
+        "2",
+        "--out",
+        out,
+        *extra,
+    ]
 
 
 def _no_resume_empties(files, work: Path) -> tuple[str, str]:
@@ -781,7 +1492,10 @@ def _two_writers(files, work: Path) -> tuple[str, str]:
     with DatasetLock(run):  # the first writer
         code, out, err = _cli(_train(files, run, 2, "--no-resume"))
     if [p.name for p in list_checkpoints(run)] != before:
-        return "loss", f"the second writer changed the run's checkpoints: {before} -> {[p.name for p in list_checkpoints(run)]}"
+        return (
+            "loss",
+            f"the second writer changed the run's checkpoints: {before} -> {[p.name for p in list_checkpoints(run)]}",
+        )
     return _error(code, out, err, str(run), "being written")
 
 
@@ -831,8 +1545,19 @@ def _all_dropped(files, work: Path) -> tuple[str, str]:
     from tt.generate import GenerateConfig, generate
 
     data = work / "ds"
-    generate(GenerateConfig(space="viperx", designs=1, episodes_per_design=1, designs_per_shard=1, min_steps=100_000,
-                            max_motion_steps=None), data, device="cpu", progress=False)
+    generate(
+        GenerateConfig(
+            space="viperx",
+            designs=1,
+            episodes_per_design=1,
+            designs_per_shard=1,
+            min_steps=100_000,
+            max_motion_steps=None,
+        ),
+        data,
+        device="cpu",
+        progress=False,
+    )
     code, out, err = _cli(_train(files, work / "run", 1, data=str(data)))
     kind, why = _error(code, out, err, "complete", "--min-steps 100000")
     if kind == "clear" and "first" in out + err:
@@ -863,13 +1588,18 @@ def _api_generate_messages(files, work: Path) -> tuple[str, str]:
     from tt.api import generate_dataset
     from tt.kernels.errors import TTError
 
-    cases = [({"designs": 0}, "--designs (designs=)"),
-             ({"episodes_per_design": 0}, "--episodes-per-design (episodes_per_design=)"),
-             ({"designs_per_shard": 0}, "--designs-per-shard (designs_per_shard=)"),
-             ({"min_steps": 0}, "--min-steps (min_steps=)"), ({"seed": 2**32}, "--seed (seed=)"),
-             ({"bias": "nope"}, "--bias (bias=)"), ({"action_noise": float("nan")}, "--action-noise (action_noise=)"),
-             ({"select": 0}, "--select (select=)"), ({"uniform_share": 0.5}, "--uniform-share (uniform_share=)"),
-             ({"space": "quadruped", "action_noise": 0.1}, "--action-noise (action_noise=)")]
+    cases = [
+        ({"designs": 0}, "--designs (designs=)"),
+        ({"episodes_per_design": 0}, "--episodes-per-design (episodes_per_design=)"),
+        ({"designs_per_shard": 0}, "--designs-per-shard (designs_per_shard=)"),
+        ({"min_steps": 0}, "--min-steps (min_steps=)"),
+        ({"seed": 2**32}, "--seed (seed=)"),
+        ({"bias": "nope"}, "--bias (bias=)"),
+        ({"action_noise": float("nan")}, "--action-noise (action_noise=)"),
+        ({"select": 0}, "--select (select=)"),
+        ({"uniform_share": 0.5}, "--uniform-share (uniform_share=)"),
+        ({"space": "quadruped", "action_noise": 0.1}, "--action-noise (action_noise=)"),
+    ]
     out = work / "g"
     for given, named in cases:
         args = {"space": "viperx", "designs": 4, **given}
@@ -923,8 +1653,10 @@ def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
         save_npz(Motion(f"frames_{T}", full.pos[:T], full.quat[:T], full.dt), paths[-1])
     motion_args = [a for p in paths for a in ("--motion-file", p)]
     predicted, validated = work / "predicted.json", work / "validated.json"
-    for args, out in ((["predict", "--design", files.designs, "--device", "cpu"], predicted),
-                      ([*V, files.designs], validated)):
+    for args, out in (
+        (["predict", "--design", files.designs, "--device", "cpu"], predicted),
+        ([*V, files.designs], validated),
+    ):
         code, text, err = _cli([*args, *motion_args, "--json", out])
         if code:
             return "misleading", f"{args[0]}: exit {code}: {(text + err)[-300:]}"
@@ -932,8 +1664,10 @@ def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
     for p in json.loads(predicted.read_text())["predictions"]:
         T, m = frames[p["motion"]], p["metrics"]
         if m["length"] > T or (m["survival"] == 1.0) != (m["length"] == T):
-            return "silent", (f"tt predict scored {m['length']:g} steps (survival {m['survival']:g}) of design "
-                              f"#{p['design']} on the {T}-frame motion {p['motion']}")
+            return "silent", (
+                f"tt predict scored {m['length']:g} steps (survival {m['survival']:g}) of design "
+                f"#{p['design']} on the {T}-frame motion {p['motion']}"
+            )
     # Nothing terminating: both count every step of the motion, and only those.
     designs = load_designs(files.designs)
     motions = for_space([load_motion_file(p) for p in paths], "viperx")
@@ -946,8 +1680,10 @@ def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
     sim = sim.cpu().numpy().reshape(len(designs), len(motions))
     ran = ep.alive.sum(1).cpu().numpy().reshape(len(designs), len(motions)) == np.array([m.steps for m in motions])
     if not ran.any() or not (pred == np.array([m.steps for m in motions])).all() or not (pred == sim)[ran].all():
-        return "silent", (f"with no termination tt predict counts {pred.tolist()} steps of the {[m.steps for m in motions]}, "
-                          f"tt validate {sim.tolist()} (episodes that ran every step: {ran.tolist()})")
+        return "silent", (
+            f"with no termination tt predict counts {pred.tolist()} steps of the {[m.steps for m in motions]}, "
+            f"tt validate {sim.tolist()} (episodes that ran every step: {ran.tolist()})"
+        )
     return "ok", ""
 
 
@@ -958,8 +1694,19 @@ def _damaged_dataset_root(files, work: Path) -> tuple[str, str]:
     uninterrupted run writes (episode digests, shard manifests and root alike)."""
     from tt.tokens.store import TokenStore, shard_dirs
 
-    args = ["generate", "--designs", "2", "--designs-per-shard", "1", "--episodes-per-design", "1", "--min-steps", "10",
-            "--device", "cpu"]
+    args = [
+        "generate",
+        "--designs",
+        "2",
+        "--designs-per-shard",
+        "1",
+        "--episodes-per-design",
+        "1",
+        "--min-steps",
+        "10",
+        "--device",
+        "cpu",
+    ]
     whole, data = work / "whole", work / "ds"
     code, out, err = _cli([*args, "--out", whole])
     if code:
@@ -977,9 +1724,12 @@ def _damaged_dataset_root(files, work: Path) -> tuple[str, str]:
     if f"{meta}, the dataset's root, is damaged" not in out + err or "rebuilt" not in out + err:
         return "misleading", f"the repair of {meta} is not reported: {(out + err)[-300:]}"
     a, b = shard_dirs(whole), shard_dirs(data)
-    same = (TokenStore(whole, verify="full").episode_digests() == TokenStore(data, verify="full").episode_digests()
-            and sorted(a) == sorted(b) and all((a[i] / "manifest.json").read_bytes() == (b[i] / "manifest.json").read_bytes() for i in a)
-            and meta.read_bytes() == (whole / "zarr.json").read_bytes())
+    same = (
+        TokenStore(whole, verify="full").episode_digests() == TokenStore(data, verify="full").episode_digests()
+        and sorted(a) == sorted(b)
+        and all((a[i] / "manifest.json").read_bytes() == (b[i] / "manifest.json").read_bytes() for i in a)
+        and meta.read_bytes() == (whole / "zarr.json").read_bytes()
+    )
     return ("ok", "") if same else ("silent", "the repaired dataset differs from the uninterrupted one")
 
 
@@ -1007,10 +1757,32 @@ def killed_generate_leaves_no_workers(work: Path) -> tuple[str, str]:
         return found
 
     out = work / "ds"
-    proc = subprocess.Popen([sys.executable, "-m", "tt.cli", "generate", "--designs", "40", "--designs-per-shard", "1",
-                             "--episodes-per-design", "1", "--min-steps", "10", "--workers", "2", "--device", "cpu",
-                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=work,
-                            env=dict(os.environ, OMP_NUM_THREADS="1"))
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "tt.cli",
+            "generate",
+            "--designs",
+            "40",
+            "--designs-per-shard",
+            "1",
+            "--episodes-per-design",
+            "1",
+            "--min-steps",
+            "10",
+            "--workers",
+            "2",
+            "--device",
+            "cpu",
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=work,
+        env=dict(os.environ, OMP_NUM_THREADS="1"),
+    )
     left: list[int] = []
     try:
         deadline = time.monotonic() + 240
@@ -1050,11 +1822,15 @@ SCENARIOS: list[Scenario] = [
     Scenario("train --init on a run that has checkpoints", 11, _init_on_a_run),
     Scenario("train resume on a dataset regenerated with another --seed", 12, _regenerated_dataset),
     Scenario("train resume on a rewritten episode file", 12, _rewritten_episode_file),
-    Scenario("generate --workers 2 killed with SIGKILL", 13, lambda files, work: killed_generate_leaves_no_workers(work)),
+    Scenario(
+        "generate --workers 2 killed with SIGKILL", 13, lambda files, work: killed_generate_leaves_no_workers(work)
+    ),
     Scenario("view --serve --time", 14, _serve_with_time),
     Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
     Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
     Scenario("tt.api.generate_dataset: bad arguments name the flag and the keyword", 15, _api_generate_messages),
-    Scenario("predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted),
+    Scenario(
+        "predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted
+    ),
     Scenario("generate over a dataset whose zarr.json is damaged, its shards intact", 17, _damaged_dataset_root),
 ]

@@ -275,7 +275,9 @@ def test_action_noise_is_checked_and_defaults_to_the_measured_value():
     from tt.tokens.draws import DEFAULT_ACTION_NOISE
 
     assert CONFIG.action_noise == DEFAULT_ACTION_NOISE > 0
-    with pytest.raises(ValueError, match=r"--action-noise \(action_noise=\) must be a finite standard deviation .*-0.01"):
+    with pytest.raises(
+        ValueError, match=r"--action-noise \(action_noise=\) must be a finite standard deviation .*-0.01"
+    ):
         replace(CONFIG, action_noise=-0.01)
     with pytest.raises(ValueError, match="needs backend 'warp'"):
         replace(CONFIG, backend="mujoco")

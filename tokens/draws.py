@@ -28,17 +28,33 @@ _STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES, _STREAM_NOISE, _STREAM_SELECT 
 #: Default control perturbation [rad or m] (measured, see the module docstring).
 DEFAULT_ACTION_NOISE = 0.01
 #: Which robot count (`tt.tokens.tokenize.RobotIndex.counts`) sets each per-step type's tokens per step.
-_STEP_COUNT = {"free_link_obs": "free_link", "track_link_obs": "track_link", "dyna_joint_obs": "dyna_joint",
-               "ball_joint_obs": "ball_joint", "actuator_obs": "actuator", "control": "actuator", "target_pose": "track_link"}
+_STEP_COUNT = {
+    "free_link_obs": "free_link",
+    "track_link_obs": "track_link",
+    "dyna_joint_obs": "dyna_joint",
+    "ball_joint_obs": "ball_joint",
+    "actuator_obs": "actuator",
+    "control": "actuator",
+    "target_pose": "track_link",
+}
 #: A quoted attribute value made of numbers only (MJCF numbers and vectors).
 _NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
 
 
 #: The `tt generate` flag of each `GenerateConfig` field that has one (the Python API,
 #: `tt.api.generate_dataset`, takes the field's name as its keyword argument).
-FLAGS = {"space": "--space", "designs": "--designs", "episodes_per_design": "--episodes-per-design", "seed": "--seed",
-         "designs_per_shard": "--designs-per-shard", "bias": "--bias", "min_steps": "--min-steps",
-         "action_noise": "--action-noise", "select": "--select", "uniform_share": "--uniform-share"}
+FLAGS = {
+    "space": "--space",
+    "designs": "--designs",
+    "episodes_per_design": "--episodes-per-design",
+    "seed": "--seed",
+    "designs_per_shard": "--designs-per-shard",
+    "bias": "--bias",
+    "min_steps": "--min-steps",
+    "action_noise": "--action-noise",
+    "select": "--select",
+    "uniform_share": "--uniform-share",
+}
 
 
 def _named(field: str) -> str:
@@ -92,9 +108,9 @@ class GenerateConfig:
     uniform_share: float = 0.0
 
     def __post_init__(self) -> None:
-        from tt.sim.rewards import REWARDS
-        from tt.sim.designs import get_space
         from tt.sim.backends import BACKENDS
+        from tt.sim.designs import get_space
+        from tt.sim.rewards import REWARDS
 
         get_space(self.space)  # raises listing the valid spaces
         for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
@@ -102,43 +118,58 @@ class GenerateConfig:
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise TTError(f"{_named(name)} must be an integer >= 1, got {v!r}")
         if self.bias not in (None, *BIASES):
-            raise TTError(f"{_named('bias')} must be one of {list(BIASES)} or left out (uniform designs), "
-                          f"got {self.bias!r}")
+            raise TTError(
+                f"{_named('bias')} must be one of {list(BIASES)} or left out (uniform designs), got {self.bias!r}"
+            )
         if self.backend not in BACKENDS:
             raise TTError(f"{_named('backend')} must be one of {list(BACKENDS)}, got {self.backend!r}")
         if self.backend == "warp" and get_space(self.space).has_contacts:
-            raise TTError(f"--space {self.space} (space={self.space!r}) has contacts; backend='warp' simulates "
-                          "contact-free trees only: give backend='mujoco'")
+            raise TTError(
+                f"--space {self.space} (space={self.space!r}) has contacts; backend='warp' simulates "
+                "contact-free trees only: give backend='mujoco'"
+            )
         if self.reward not in REWARDS:
             raise TTError(f"{_named('reward')} must be one of {list(REWARDS)}, got {self.reward!r}")
         if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
-            raise TTError(f"{_named('max_motion_steps')} {self.max_motion_steps} is below {_named('min_steps')} "
-                          f"{self.min_steps}: every episode would be dropped")
+            raise TTError(
+                f"{_named('max_motion_steps')} {self.max_motion_steps} is below {_named('min_steps')} "
+                f"{self.min_steps}: every episode would be dropped"
+            )
         if self.cmaes_popsize < 2 or self.cmaes_generations < 1:
-            raise TTError(f"CMA-ES needs {_named('cmaes_popsize')} >= 2 and {_named('cmaes_generations')} >= 1, "
-                          f"got {self.cmaes_popsize} and {self.cmaes_generations}")
+            raise TTError(
+                f"CMA-ES needs {_named('cmaes_popsize')} >= 2 and {_named('cmaes_generations')} >= 1, "
+                f"got {self.cmaes_popsize} and {self.cmaes_generations}"
+            )
         if not (0 <= self.max_yaw <= math.pi and 0 <= self.max_shift):
-            raise TTError(f"the motion augmentation needs 0 <= {_named('max_yaw')} <= pi [rad] and "
-                          f"{_named('max_shift')} >= 0 [m], got {self.max_yaw} and {self.max_shift}")
+            raise TTError(
+                f"the motion augmentation needs 0 <= {_named('max_yaw')} <= pi [rad] and "
+                f"{_named('max_shift')} >= 0 [m], got {self.max_yaw} and {self.max_shift}"
+            )
         if not 0 <= self.seed < 2**32:
             raise TTError(f"{_named('seed')} must be in 0..2**32-1, got {self.seed}")
         noise = self.action_noise
         if not (isinstance(noise, (int, float, np.integer, np.floating)) and math.isfinite(noise) and noise >= 0):
-            raise TTError(f"{_named('action_noise')} must be a finite standard deviation >= 0 [rad or m], "
-                          f"got {noise!r}")
+            raise TTError(
+                f"{_named('action_noise')} must be a finite standard deviation >= 0 [rad or m], got {noise!r}"
+            )
         if not (isinstance(self.select, (int, np.integer)) and self.select >= 1):
-            raise TTError(f"{_named('select')} must be an integer >= 1 (designs screened per kept episode), "
-                          f"got {self.select!r}")
+            raise TTError(
+                f"{_named('select')} must be an integer >= 1 (designs screened per kept episode), got {self.select!r}"
+            )
         if not 0.0 <= self.uniform_share <= 1.0:
             raise TTError(f"{_named('uniform_share')} must lie in [0, 1], got {self.uniform_share}")
         if self.uniform_share > 0 and self.select == 1:
-            raise TTError(f"{_named('uniform_share')} applies only with {_named('select')} above 1 (without "
-                          "selection every design is uniform)")
+            raise TTError(
+                f"{_named('uniform_share')} applies only with {_named('select')} above 1 (without "
+                "selection every design is uniform)"
+            )
         if self.action_noise > 0 and self.backend != "warp":
             contacts = get_space(self.space).has_contacts
             oracle = f" (the MuJoCo oracle, which --space {self.space} needs for its contacts)" if contacts else ""
-            raise TTError(f"{_named('action_noise')} {self.action_noise} needs backend 'warp', the one that perturbs "
-                          f"commands; backend {self.backend!r}{oracle} runs the clean ones: give 0")
+            raise TTError(
+                f"{_named('action_noise')} {self.action_noise} needs backend 'warp', the one that perturbs "
+                f"commands; backend {self.backend!r}{oracle} runs the clean ones: give 0"
+            )
 
     @property
     def shards(self) -> int:
@@ -229,14 +260,18 @@ def space_token_maxima(space_name: str, limit: int = 4096) -> dict:
     maxima = {n: 0 for n in SCHEMA.names()}
     texts = list(trees.values())
     for start in range(0, len(texts), 512):
-        emb = tokenizer([mujoco.MjModel.from_xml_string(t) for t in texts[start:start + 512]])
+        emb = tokenizer([mujoco.MjModel.from_xml_string(t) for t in texts[start : start + 512]])
         for name, c in emb.tokens.counts().items():
             maxima[name] = max(maxima[name], int(c.max()))
         for r in emb.index:
             for name, key in _STEP_COUNT.items():
                 maxima[name] = max(maxima[name], int(r.counts[key]))
-    return {"maxima": maxima, "discrete": max(len(d.discrete) for d in designs),
-            "continuous": max(len(d.continuous) for d in designs), "source": source}
+    return {
+        "maxima": maxima,
+        "discrete": max(len(d.discrete) for d in designs),
+        "continuous": max(len(d.continuous) for d in designs),
+        "source": source,
+    }
 
 
 # ------------------------------------------------------------------------------ motions
@@ -275,8 +310,14 @@ def finite_worlds(ep) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ motion-selected episodes
-def select_episodes(reward: np.ndarray, motion: np.ndarray, eligible: np.ndarray, keep: int, uniform_share: float,
-                    rng: np.random.Generator | None) -> np.ndarray:
+def select_episodes(
+    reward: np.ndarray,
+    motion: np.ndarray,
+    eligible: np.ndarray,
+    keep: int,
+    uniform_share: float,
+    rng: np.random.Generator | None,
+) -> np.ndarray:
     """Which screened episodes a dataset keeps so that each design was chosen for its motion.
 
     Every design of a screen runs every motion; per motion, the `keep` eligible episodes are
@@ -301,9 +342,9 @@ def select_episodes(reward: np.ndarray, motion: np.ndarray, eligible: np.ndarray
         idx = np.nonzero((motion == m) & eligible)[0]
         # lexsort: the last key is primary; stable on the world index for equal rewards.
         order = idx[np.lexsort((idx, -np.nan_to_num(reward[idx], nan=-np.inf)))]
-        top = order[:max(keep - n_uniform, 0)]
+        top = order[: max(keep - n_uniform, 0)]
         out[top] = True
-        rest = order[len(top):]
+        rest = order[len(top) :]
         if n_uniform and len(rest):
             out[rng.choice(rest, size=min(n_uniform, len(rest)), replace=False)] = True
     return out
