@@ -42,9 +42,10 @@ class Problem:
     """One design optimization problem.
 
     space: design space name. motions: target motions (all with one dt and the space's
-    end-effector count). reward: reward name (`tt.sim.rewards.REWARDS`). budget:
-    candidate designs per motion. seed: random seed. backend: rollout backend used to
-    evaluate candidates in batches. device: Warp/torch device, None for the default.
+    end-effector count). reward: reward name (`tt.sim.rewards.REWARDS`, or a paper's name of
+    `REWARD_ALIASES`, stored as tt's). budget: candidate designs per motion. seed: random
+    seed. backend: rollout backend used to evaluate candidates in batches. device:
+    Warp/torch device, None for the default.
     threads: CPU threads of the "warp" backend's batched rollouts, None for every core.
     """
 
@@ -58,10 +59,11 @@ class Problem:
     threads: int | None = None
 
     def __post_init__(self) -> None:
-        from tt.sim.rewards import get_reward
+        from tt.sim.rewards import get_reward, reward_name
 
         sp = get_space(self.space)  # raises on an unknown space, listing valid ones
-        get_reward(self.reward, self.space)  # raises on an unknown reward
+        object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names become tt's; raises on unknown
+        get_reward(self.reward, self.space)
         object.__setattr__(self, "motions", tuple(self.motions))
         if not self.motions:
             raise TTError("Problem.motions is empty; give at least one target motion")

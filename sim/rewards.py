@@ -44,6 +44,7 @@ Conventions that the paper leaves open, fixed here:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, fields, replace
 from typing import Mapping, NamedTuple, Sequence
 
@@ -60,6 +61,50 @@ REWARDS: tuple[str, ...] = (
     "tracking_size",
     "tracking_weight",
 )
+
+#: The paper's names of the rewards (its appendix sections "Tracking Only", "Tracking Torque",
+#: "Tracking Velocity", "Tracking Size", "Tracking Weight"; the main text's "Tracking
+#: Velocity" reward of the ALOHA result) and their short forms (the torque, velocity, size and
+#: weight rewards), each with the reward it names. `reward_name` accepts these and `REWARDS`
+#: wherever a reward is named, in any case, with spaces, hyphens or underscores between words.
+REWARD_ALIASES: dict[str, str] = {
+    "Tracking Only": "tracking",
+    "Tracking Torque": "tracking_torque",
+    "Torque": "tracking_torque",
+    "Tracking Velocity": "tracking_velocity",
+    "Velocity": "tracking_velocity",
+    "Tracking Size": "tracking_size",
+    "Size": "tracking_size",
+    "Tracking Weight": "tracking_weight",
+    "Weight": "tracking_weight",
+    "Tracking Mass": "tracking_weight",
+    "Mass": "tracking_weight",
+}
+
+
+def _reward_key(name: str) -> str:
+    return "_".join(re.split(r"[\s_-]+", name.strip().lower())).strip("_")
+
+
+_REWARD_KEYS: dict[str, str] = {_reward_key(n): n for n in REWARDS}
+_REWARD_KEYS.update({_reward_key(alias): n for alias, n in REWARD_ALIASES.items()})
+
+
+def reward_name(name: str) -> str:
+    """The reward (one of `REWARDS`) that `name` names: a name of `REWARDS` or an alias of
+    `REWARD_ALIASES`, in any case, words separated by spaces, hyphens or underscores
+    ("Tracking Velocity", "tracking-velocity" and "velocity" all give "tracking_velocity");
+    raises TTError on anything else."""
+    if not isinstance(name, str):
+        raise TTError(f"a reward name is a string, got {type(name).__name__}")
+    key = _reward_key(name)
+    if key not in _REWARD_KEYS:
+        raise TTError(
+            f"unknown reward {name!r}; valid: {list(REWARDS)} or the paper's names {list(REWARD_ALIASES)} "
+            "(any case; spaces, hyphens or underscores)"
+        )
+    return _REWARD_KEYS[key]
+
 
 #: Units of the per-world metrics returned by `metrics`.
 METRIC_UNITS: dict[str, str] = {
@@ -88,7 +133,7 @@ WITHIN_CM = 2.0
 class RewardConfig:
     """Weights of one reward on one design space; calling it evaluates the reward.
 
-    name: reward name, one of `REWARDS`.
+    name: reward name, one of `REWARDS` (`get_reward` also takes the paper's names).
     space: design space name.
     sigma_p: position falloff [m^2].
     sigma_o: orientation falloff [rad^2].
@@ -179,9 +224,9 @@ _EMBODIMENT_ALPHA_GUIDANCE = 0.005
 
 
 def get_reward(name: str, space: str) -> RewardConfig:
-    """The config of reward `name` on design space `space`; raises ValueError on unknown names."""
-    if name not in REWARDS:
-        raise TTError(f"unknown reward {name!r}; valid: {list(REWARDS)}")
+    """The config of reward `name` (one of `REWARDS` or an alias, `reward_name`) on design space
+    `space`; raises TTError on unknown names."""
+    name = reward_name(name)
     if space not in _SPACE_WEIGHTS:
         raise TTError(f"no reward weights for design space {space!r}; valid: {list(_SPACE_WEIGHTS)}")
     w = _SPACE_WEIGHTS[space]
@@ -549,6 +594,7 @@ __all__ = [
     "PERCENT_METRICS",
     "WITHIN_CM",
     "REWARDS",
+    "REWARD_ALIASES",
     "REWARD_SPACES",
     "RewardConfig",
     "RewardInputs",
@@ -561,6 +607,7 @@ __all__ = [
     "orientation_error",
     "position_error",
     "reward",
+    "reward_name",
     "robot_mass",
     "robot_size",
     "summarize",

@@ -487,6 +487,66 @@ def test_registry():
     assert get_reward("tracking_size", "viperx").needs == ("size",)
 
 
+def test_the_papers_reward_names_are_aliases():
+    """Every alias names its reward in any case, with spaces, hyphens or underscores between words;
+    tt's names stay; the paper's appendix sections ("Tracking Only" ... "Tracking Weight") are all there."""
+    from tt.baselines import Problem
+    from tt.sim.rewards import REWARD_ALIASES, reward_name
+
+    for section in ("Tracking Only", "Tracking Torque", "Tracking Velocity", "Tracking Size", "Tracking Weight"):
+        assert section in REWARD_ALIASES
+    assert set(REWARD_ALIASES.values()) == set(REWARDS)
+    for name in REWARDS:
+        assert reward_name(name) == name and reward_name(name.upper().replace("_", " ")) == name
+    for alias, name in REWARD_ALIASES.items():
+        spellings = (alias, alias.lower(), alias.upper(), alias.replace(" ", "-"), alias.replace(" ", "_"), f" {alias} ")
+        for spelled in spellings:
+            assert reward_name(spelled) == name, spelled
+    assert reward_name("tracking-velocity") == reward_name("Tracking  Velocity") == "tracking_velocity"
+    assert get_reward("Tracking Velocity", "aloha") == get_reward("tracking_velocity", "aloha")
+    assert get_reward("tracking only", "viperx").name == "tracking"
+    problem = Problem(space="viperx", motions=(_short_toss(),), reward="Tracking Weight", budget=5)
+    assert problem.reward == "tracking_weight"
+    for bad in ("speed", "tracking velocityy", "", "tracking_speed"):
+        with pytest.raises(ValueError, match="unknown reward .*Tracking Velocity"):
+            reward_name(bad)
+
+
+def _short_toss(steps: int = 20):
+    from tt.sim.motions import for_space, get_motion
+    from tt.sim.motions.base import Motion
+
+    m = for_space([get_motion("toss")], "viperx")[0]
+    return Motion(f"{m.name}[:{steps}]", m.pos[:steps], m.quat[:steps], m.dt)
+
+
+def test_cli_takes_the_papers_reward_names(tmp_path, tt_cli, monkeypatch):
+    """tt validate --reward "Tracking Velocity" scores tt's tracking_velocity: its JSON names it,
+    its table shows the velocity and the max joint speed; --help lists the paper's names."""
+    import json
+
+    from tt.sim.designs import get_space, save_designs
+    from tt.sim.motions.io import save_npz
+
+    monkeypatch.setenv("COLUMNS", "250")  # the table's headers in full
+    save_designs([get_space("viperx").nominal()], tmp_path / "designs.json")
+    save_npz(_short_toss(), tmp_path / "toss.npz")
+    args = ["validate", "--design", str(tmp_path / "designs.json"), "--motion-file", str(tmp_path / "toss.npz")]
+    outs = {}
+    for spelled in ("Tracking Velocity", "tracking-velocity", "tracking_velocity"):
+        code, text = tt_cli([*args, "--reward", spelled, "--json", str(tmp_path / "v.json")])
+        assert code == 0, text
+        assert "max joint speed" in text and "tracking_velocity" in text, text
+        outs[spelled] = json.loads((tmp_path / "v.json").read_text())
+    assert {o["reward"] for o in outs.values()} == {"tracking_velocity"}
+    assert len({json.dumps(o["metrics"]) for o in outs.values()}) == 1
+    assert outs["tracking_velocity"]["metrics"][0]["max_joint_speed"] > 0
+    code, text = tt_cli([*args, "--reward", "speed"])
+    assert code == 2 and "unknown reward 'speed'" in text
+    code, text = tt_cli(["validate", "--help"])
+    assert code == 0 and "Tracking Velocity" in text
+
+
 def test_unknown_names_and_missing_inputs():
     with pytest.raises(ValueError, match="tracking_torque"):
         get_reward("tracking_speed", "viperx")

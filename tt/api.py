@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 
 #: Design space when none is named (`tt rollout`, `tt optimize`, `tt demo`, ...).
 DEFAULT_SPACE = "viperx"
-#: Reward when none is named (`tt.sim.rewards.REWARDS` lists them).
+#: Reward when none is named (`tt.sim.rewards.REWARDS` lists them; every function here also
+#: takes the paper's names, `tt.sim.rewards.REWARD_ALIASES`, e.g. "Tracking Velocity").
 DEFAULT_REWARD = "tracking"
 #: Motion of `tt rollout` and `tt demo` when none is named.
 DEFAULT_MOTION = "toss"

@@ -97,6 +97,26 @@ _RECIPE = "Model and loss"
 _SELECTION = "Checkpoint selection"
 
 
+#: Help of every option that names a reward (`tt.sim.rewards.REWARDS` and `REWARD_ALIASES`).
+_REWARD_HELP = ("tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight, or the paper's name "
+                "('Tracking Velocity', velocity, ...).")
+
+
+def _reward(value: str | None) -> str | None:
+    """Callback of the options that name a reward: the paper's names and the aliases
+    (`tt.sim.rewards.reward_name`) become tt's; an unknown name passes through, for the
+    command to refuse naming its flag."""
+    if value is None:
+        return None
+    from tt.kernels.errors import TTError
+    from tt.sim.rewards import reward_name
+
+    try:
+        return reward_name(value)
+    except TTError:
+        return value
+
+
 def _fail(message: str) -> None:
     typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
     raise typer.Exit(code=2)
@@ -324,7 +344,7 @@ def validate(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
-    reward: str = typer.Option(DEFAULT_REWARD, help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file (-: stdout, the table then goes to stderr)."),
     episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view` (-: stdout)."),
@@ -395,7 +415,7 @@ def rollout(
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     backend: Optional[str] = typer.Option(None, help="warp | mjwarp | newton | mujoco (default: warp; mujoco, the oracle, for spaces with contacts)."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    reward: str = typer.Option("tracking", help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    reward: str = typer.Option("tracking", help=_REWARD_HELP, callback=_reward),
     out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
     threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
     graph: Optional[bool] = typer.Option(None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."),
@@ -497,7 +517,7 @@ def optimize(
     space: str = typer.Option(DEFAULT_SPACE, help="Design space."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
-    reward: str = typer.Option(DEFAULT_REWARD, help="Reward name."),
+    reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     method: str = typer.Option(DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim."),
     budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion."),
     seed: int = typer.Option(DEFAULT_SEED, help="Random seed."),
@@ -721,7 +741,7 @@ def predict(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, <space>_<size>_dynamics.pt, else its shipped generalist)."),
-    reward: str = typer.Option(DEFAULT_REWARD, help="tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight."),
+    reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
     num_steps: Optional[int] = typer.Option(None, help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md)."),
     seed: int = typer.Option(DEFAULT_SEED, help="Seed of the sampling noise."),
@@ -832,11 +852,13 @@ def train(
     online_absorbing: bool = typer.Option(False, "--online-absorbing", help="Keep terminated episodes to the motion's end.", rich_help_panel=_ONLINE),
     online_select: int = typer.Option(1, help="Designs screened per kept episode (1: unselected).", rich_help_panel=_ONLINE),
     uniform_share: float = typer.Option(0.0, help="--online-select: share of kept episodes drawn uniformly.", rich_help_panel=_ONLINE),
-    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by.", rich_help_panel=_ONLINE),
+    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by.", callback=_reward,
+                                  rich_help_panel=_ONLINE),
     action_noise: Optional[float] = typer.Option(None, help="Control perturbation std, rad or m (0: none).", rich_help_panel=_ONLINE),
     select_designs: int = typer.Option(0, help="Held-out designs each checkpoint is scored on (0: off).", rich_help_panel=_SELECTION),
     select_motions: int = typer.Option(5, help="--select-designs: validation motions.", rich_help_panel=_SELECTION),
-    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated.", rich_help_panel=_SELECTION),
+    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated.",
+                                      callback=_reward, rich_help_panel=_SELECTION),
     prediction: str = typer.Option("x0", help="What the network predicts: x0 | eps (the paper's) | v.", rich_help_panel=_RECIPE),
     weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm.", rich_help_panel=_RECIPE),
     min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma.", rich_help_panel=_RECIPE),
@@ -1069,7 +1091,7 @@ def dataset_verify(path: Path = typer.Argument(..., help="Dataset folder.")) -> 
 def demo(
     space: str = typer.Option("viperx", help="Design space."),
     motion: str = typer.Option("toss", help="Target motion (library name or file)."),
-    reward: str = typer.Option("tracking", help="Reward name."),
+    reward: str = typer.Option("tracking", help=_REWARD_HELP, callback=_reward),
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
     samples: int = typer.Option(16, help="Candidates for Zeroth-Order and Self-Guidance."),
     num_steps: int = typer.Option(20, help="DDIM steps of Zeroth-Order and Self-Guidance (of 100)."),

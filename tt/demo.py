@@ -68,6 +68,9 @@ class DemoConfig:
     cmaes_options: dict = field(default_factory=lambda: {"popsize": 8, "generations": 4})
 
     def __post_init__(self) -> None:
+        from tt.sim.rewards import reward_name
+
+        object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names become tt's
         unknown = [m for m in self.methods if m not in ALL_METHODS]
         if unknown:
             raise TTError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")

@@ -43,6 +43,14 @@ def _fmt(v) -> str:
 
 
 def columns_for(reward: str, extra: Sequence[tuple[str, str]] = ()) -> list[tuple[str, str]]:
+    """The columns of a metrics table for `reward` (tt's name or an alias), then `extra`."""
+    from tt.kernels.errors import TTError
+    from tt.sim.rewards import reward_name
+
+    try:
+        reward = reward_name(reward)
+    except TTError:
+        pass  # no reward-specific column
     cols = list(COLUMNS)
     metric = REWARD_METRIC.get(reward)
     if metric:
