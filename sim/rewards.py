@@ -51,6 +51,7 @@ from typing import Mapping, NamedTuple, Sequence
 import mujoco
 import numpy as np
 import torch
+
 from tt.kernels.errors import TTError
 
 #: Reward names, in the paper's order.

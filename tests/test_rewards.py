@@ -499,7 +499,14 @@ def test_the_papers_reward_names_are_aliases():
     for name in REWARDS:
         assert reward_name(name) == name and reward_name(name.upper().replace("_", " ")) == name
     for alias, name in REWARD_ALIASES.items():
-        spellings = (alias, alias.lower(), alias.upper(), alias.replace(" ", "-"), alias.replace(" ", "_"), f" {alias} ")
+        spellings = (
+            alias,
+            alias.lower(),
+            alias.upper(),
+            alias.replace(" ", "-"),
+            alias.replace(" ", "_"),
+            f" {alias} ",
+        )
         for spelled in spellings:
             assert reward_name(spelled) == name, spelled
     assert reward_name("tracking-velocity") == reward_name("Tracking  Velocity") == "tracking_velocity"

@@ -35,8 +35,10 @@ def error_message(e: BaseException) -> str:
     elif not is_bug(e):
         text = str(e)
     else:
-        text = (f"internal error ({type(e).__name__}: {e}); this is a bug in tt: please report it with the command "
-                "and the traceback above")
+        text = (
+            f"internal error ({type(e).__name__}: {e}); this is a bug in tt: please report it with the command "
+            "and the traceback above"
+        )
     if any(w in text.lower() for w in _PICKLE_WORDS):
         text = "a file holds Python objects (pickled data), which tt never writes and does not load"
     return " ".join(line.strip() for line in text.splitlines() if line.strip())
@@ -98,8 +100,10 @@ _SELECTION = "Checkpoint selection"
 
 
 #: Help of every option that names a reward (`tt.sim.rewards.REWARDS` and `REWARD_ALIASES`).
-_REWARD_HELP = ("tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight, or the paper's name "
-                "('Tracking Velocity', velocity, ...).")
+_REWARD_HELP = (
+    "tracking, tracking_torque, tracking_velocity, tracking_size, tracking_weight, or the paper's name "
+    "('Tracking Velocity', velocity, ...)."
+)
 
 
 def _reward(value: str | None) -> str | None:
@@ -140,8 +144,10 @@ def _draw_flags(space: str, seed: int, action_noise: float | None) -> None:
     if action_noise is not None and not math.isfinite(action_noise):
         _fail(f"--action-noise must be a finite standard deviation >= 0 [rad or m], got {action_noise}")
     if action_noise and get_space(space).has_contacts:
-        _fail(f"--action-noise perturbs the commands of tt's Warp rollouts; --space {space} has contacts and rolls out "
-              "on the MuJoCo oracle, which runs the clean commands: leave --action-noise out (or give 0)")
+        _fail(
+            f"--action-noise perturbs the commands of tt's Warp rollouts; --space {space} has contacts and rolls out "
+            "on the MuJoCo oracle, which runs the clean commands: leave --action-noise out (or give 0)"
+        )
 
 
 def _given(ctx: typer.Context, *names: str) -> list[str]:
@@ -206,8 +212,11 @@ def _write_json(path: Path, data: dict, flag: str) -> None:
 
     nulls = write_json(path, data, flag=flag)
     if nulls:
-        typer.echo(f"note: {path}: {len(nulls)} NaN/inf value(s) written as null (strict JSON has no NaN), "
-                   f"e.g. {nulls[0]}; the file's null_values entry lists them", err=True)
+        typer.echo(
+            f"note: {path}: {len(nulls)} NaN/inf value(s) written as null (strict JSON has no NaN), "
+            f"e.g. {nulls[0]}; the file's null_values entry lists them",
+            err=True,
+        )
 
 
 class _Stderr(logging.StreamHandler):
@@ -223,7 +232,11 @@ class _Stderr(logging.StreamHandler):
 
 
 @app.callback()
-def _main(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log at INFO level; on an error, print the traceback too.")) -> None:
+def _main(
+    verbose: bool = typer.Option(
+        False, "--verbose", "-v", help="Log at INFO level; on an error, print the traceback too."
+    ),
+) -> None:
     # tt's warnings (a damaged shard skipped, a checkpoint fallen back from) go to stderr;
     # other libraries' warnings reach it through logging's last-resort handler.
     log = logging.getLogger("tt")
@@ -244,7 +257,9 @@ def designs(
     space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual, quadruped."),
     n: Optional[int] = typer.Option(None, help="Number of designs to sample (default 8)."),
     seed: Optional[int] = typer.Option(None, help="Random seed (default 0)."),
-    nominal: bool = typer.Option(False, "--nominal", help="Write the space's nominal design (the robot it is built around) instead of sampling."),
+    nominal: bool = typer.Option(
+        False, "--nominal", help="Write the space's nominal design (the robot it is built around) instead of sampling."
+    ),
     out: Path = typer.Option(Path("designs"), help="Output folder for MJCF files and designs.json."),
 ) -> None:
     """Sample designs of a space (or take its nominal one); write one MJCF file each and designs.json.
@@ -264,8 +279,10 @@ def designs(
     _output(out, "--out", folder=True)
     stale = write_design_folder(ds, out, [sp.to_mjcf(d) for d in ds]).removed
     if stale:
-        typer.echo(f"removed {len(stale)} design file(s) of an earlier run from {out}/ ({stale[0]} ...); "
-                   "other files there are left as they were")
+        typer.echo(
+            f"removed {len(stale)} design file(s) of an earlier run from {out}/ ({stale[0]} ...); "
+            "other files there are left as they were"
+        )
     what = f"the nominal {space} design" if nominal else f"{len(ds)} {space} designs"
     typer.echo(f"wrote {what} to {out}/ (designs.json + {len(ds)} MJCF file{'s' if len(ds) > 1 else ''})")
 
@@ -288,7 +305,12 @@ def motions(
     name: Optional[str] = typer.Option(None, help="Export this motion (NAME or NAME:SEED) instead of listing."),
     out: Optional[Path] = typer.Option(None, help="With --name: write the motion to this .npz file (-: stdout)."),
     arms: Optional[int] = typer.Option(None, help="List only motions for 1 or 2 end effectors."),
-    stats: bool = typer.Option(False, "--stats", help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions (min-max)."),
+    stats: bool = typer.Option(
+        False,
+        "--stats",
+        help="Print each skill's speed, acceleration, extent and orientation range over its train and val motions "
+        "(min-max).",
+    ),
 ) -> None:
     """List the motion library, or export one motion to .npz."""
     from rich.console import Console
@@ -307,8 +329,14 @@ def motions(
         by_skill: dict[str, list] = {s: [] for s in skills}
         for st in motion_stats([m for split in ("train", "val") for m in motion_set(split, arms=arms)]):
             by_skill[st.name.split(":")[0]].append(st)
-        cols = (("peak_speed", "peak speed (m/s)"), ("p95_speed", "p95 speed (m/s)"), ("peak_accel", "peak accel (m/s^2)"),
-                ("extent", "extent (m)"), ("orn_range", "orn range (deg)"), ("duration", "duration (s)"))
+        cols = (
+            ("peak_speed", "peak speed (m/s)"),
+            ("p95_speed", "p95 speed (m/s)"),
+            ("peak_accel", "peak accel (m/s^2)"),
+            ("extent", "extent (m)"),
+            ("orn_range", "orn range (deg)"),
+            ("duration", "duration (s)"),
+        )
         table = Table(title="tt motion library statistics: min-max over each skill's train and val motions")
         for header in ("skill", "motions") + tuple(h for _, h in cols):
             table.add_column(header, justify="left" if header == "skill" else "right")
@@ -346,17 +374,40 @@ def validate(
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the metrics and designs to this JSON file (-: stdout, the table then goes to stderr)."),
-    episode: Optional[Path] = typer.Option(None, help="Also save the rollouts to this episode file (.npz) for `tt view` (-: stdout)."),
-    controller: str = typer.Option(DEFAULT_CONTROLLER, help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per control step, each command the mean of the recent queries' predictions for it: `tt.dit.policies.ControllerConfig`) on tt's batched Warp physics."),
-    checkpoint: Optional[Path] = typer.Option(None, help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, <space>_<size>_control.pt, else its shipped checkpoint)."),
-    device: Optional[str] = typer.Option(None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."),
-    ensemble: Optional[int] = typer.Option(None, help="--controller model: queries whose predictions each command averages (default: all whose window holds the step, 7 for the shipped models; 1: the paper's single query); measurements: docs/results/controller.md."),
+    json_out: Optional[Path] = typer.Option(
+        None,
+        "--json",
+        help="Write the metrics and designs to this JSON file (-: stdout, the table then goes to stderr).",
+    ),
+    episode: Optional[Path] = typer.Option(
+        None, help="Also save the rollouts to this episode file (.npz) for `tt view` (-: stdout)."
+    ),
+    controller: str = typer.Option(
+        DEFAULT_CONTROLLER,
+        help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per "
+        "control step, each command the mean of the recent queries' predictions for it: "
+        "`tt.dit.policies.ControllerConfig`) on tt's batched Warp physics.",
+    ),
+    checkpoint: Optional[Path] = typer.Option(
+        None,
+        help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, "
+        "<space>_<size>_control.pt, else its shipped checkpoint).",
+    ),
+    device: Optional[str] = typer.Option(
+        None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."
+    ),
+    ensemble: Optional[int] = typer.Option(
+        None,
+        help="--controller model: queries whose predictions each command averages (default: all whose window "
+        "holds the step, 7 for the shipped models; 1: the paper's single query); measurements: "
+        "docs/results/controller.md.",
+    ),
 ) -> None:
     """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
     from rich.console import Console
 
-    from tt.api import control_checkpoint, validate as validate_designs
+    from tt.api import control_checkpoint
+    from tt.api import validate as validate_designs
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.designs import get_space, load_designs
 
@@ -378,8 +429,16 @@ def validate(
     if controller == "model" and ensemble is not None:
         _at_least("--ensemble", ensemble, 1)
     ckpt = control_checkpoint(sp_name, checkpoint) if controller == "model" else None
-    ev = validate_designs(designs, ms, reward, controller=controller, checkpoint=ckpt, device=device, ensemble=ensemble,
-                          progress=controller == "model")
+    ev = validate_designs(
+        designs,
+        ms,
+        reward,
+        controller=controller,
+        checkpoint=ckpt,
+        device=device,
+        ensemble=ensemble,
+        progress=controller == "model",
+    )
     ep = ev.episode
     title = "oracle (MuJoCo C + mink)" if ckpt is None else f"DiT controller ({ckpt.name}, Warp physics)"
     rows = []
@@ -387,19 +446,29 @@ def validate(
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
     if len(designs) > 1:
         rows.append({"name": "mean", **summary_row(ev.metrics)})
-    Console(stderr=quiet).print(rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}"))
+    Console(stderr=quiet).print(
+        rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}")
+    )
     if json_out is not None:
         sp = get_space(sp_name)
-        _write_json(json_out, {
-            "reward": reward, "controller": controller, "motions": [m.name for m in ms],
-            "designs": [sp.to_dict(d) for d in designs], "metrics": rows,
-            "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
-        }, "--json")
+        _write_json(
+            json_out,
+            {
+                "reward": reward,
+                "controller": controller,
+                "motions": [m.name for m in ms],
+                "designs": [sp.to_dict(d) for d in designs],
+                "metrics": rows,
+                "per_motion": {k: v.tolist() for k, v in ev.metrics.items()},
+            },
+            "--json",
+        )
     if episode is not None:
         from tt.viz.episode_file import save_episode_npz
 
-        path = save_episode_npz(episode, ev.episode if controller == "ik" else ep, designs,
-                                motion_name=", ".join(m.name for m in ms))
+        path = save_episode_npz(
+            episode, ev.episode if controller == "ik" else ep, designs, motion_name=", ".join(m.name for m in ms)
+        )
         hint = "" if quiet else f"; show them with `{_shell('tt', 'view', path)}`"
         typer.echo(f"wrote {path}: {len(designs) * len(ms)} rollouts{hint}", err=quiet)
 
@@ -413,12 +482,23 @@ def rollout(
     design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable; default: toss); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
-    backend: Optional[str] = typer.Option(None, help="warp | mjwarp | newton | mujoco (default: warp; mujoco, the oracle, for spaces with contacts)."),
+    backend: Optional[str] = typer.Option(
+        None, help="warp | mjwarp | newton | mujoco (default: warp; mujoco, the oracle, for spaces with contacts)."
+    ),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     reward: str = typer.Option("tracking", help=_REWARD_HELP, callback=_reward),
-    out: Optional[Path] = typer.Option(None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count."),
-    graph: Optional[bool] = typer.Option(None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."),
+    out: Optional[Path] = typer.Option(
+        None, help="Folder for designs.json, episode.npz (for `tt view`) and summary.json."
+    ),
+    threads: Optional[int] = typer.Option(
+        None,
+        "--threads",
+        min=1,
+        help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count.",
+    ),
+    graph: Optional[bool] = typer.Option(
+        None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."
+    ),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
     metrics per motion and the world-steps per second."""
@@ -428,8 +508,8 @@ def rollout(
 
     from tt.baselines.evaluate import evaluate_designs
     from tt.report import columns_for, rich_table, summary_row
-    from tt.sim.controller import IKConfig
     from tt.sim.backends import BACKENDS
+    from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space, load_designs
 
     _output(out, "--out", folder=True)
@@ -452,36 +532,62 @@ def rollout(
     # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
-    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads, graph=graph)
+    ev = evaluate_designs(
+        designs, ms, reward, backend=backend, device=device, progress=True, threads=threads, graph=graph
+    )
     seconds = time.perf_counter() - start
     ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
     if len(ms) > 1:
         rows.append({"name": "all", **summary_row(metrics)})
-    Console().print(rich_table(rows, columns_for(reward), first=("name", "motion"),
-                               title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)"))
+    Console().print(
+        rich_table(
+            rows,
+            columns_for(reward),
+            first=("name", "motion"),
+            title=f"{len(designs)} {sp.name} designs, backend {backend}, {reward} (mean over designs)",
+        )
+    )
     rate = world_steps / seconds
     used = None
     if backend == "warp" and ep.qpos.device.type == "cpu":
         from tt.kernels.rollout import cpu_threads
 
         used = cpu_threads(threads)
-    typer.echo(f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
-               f"(backend {backend}, device {ep.qpos.device}{f', {used} threads' if used else ''}; "
-               "model building, kernel compile or cache load and scoring included)")
+    typer.echo(
+        f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
+        f"(backend {backend}, device {ep.qpos.device}{f', {used} threads' if used else ''}; "
+        "model building, kernel compile or cache load and scoring included)"
+    )
     if out is not None:
         from tt.sim.designs import save_designs
         from tt.viz.episode_file import save_episode_npz
 
         save_designs(designs, out / "designs.json")
         save_episode_npz(out / "episode.npz", ep, designs, motion_name=", ".join(mo.name for mo in ms))
-        _write_json(out / "summary.json", {
-            "space": sp.name, "backend": backend, "device": str(ep.qpos.device), "reward": reward,
-            "motions": [mo.name for mo in ms], "designs": len(designs), "worlds": worlds, "world_steps": world_steps,
-            "seconds": seconds, "world_steps_per_s": rate, "threads": used, "metrics": rows,
-            "per_world": {k: v.tolist() for k, v in metrics.items()},
-        }, "--out")
-        typer.echo(f"wrote {out}/designs.json, episode.npz (show with `{_shell('tt', 'view', out / 'episode.npz')}`) and summary.json")
+        _write_json(
+            out / "summary.json",
+            {
+                "space": sp.name,
+                "backend": backend,
+                "device": str(ep.qpos.device),
+                "reward": reward,
+                "motions": [mo.name for mo in ms],
+                "designs": len(designs),
+                "worlds": worlds,
+                "world_steps": world_steps,
+                "seconds": seconds,
+                "world_steps_per_s": rate,
+                "threads": used,
+                "metrics": rows,
+                "per_world": {k: v.tolist() for k, v in metrics.items()},
+            },
+            "--out",
+        )
+        typer.echo(
+            f"wrote {out}/designs.json, episode.npz (show with `{_shell('tt', 'view', out / 'episode.npz')}`) "
+            "and summary.json"
+        )
 
 
 def _check_critic(path: Path, space: str) -> None:
@@ -495,11 +601,15 @@ def _check_critic(path: Path, space: str) -> None:
     except (ValueError, OSError) as e:
         _fail(f"--critic-checkpoint: {error_message(e)}")
     if critic.space is not None and critic.space != space:
-        _fail(f"--critic-checkpoint {path} was trained on design space {critic.space!r}, and --space is {space!r}; "
-              f"give a critic trained on {space!r}")
+        _fail(
+            f"--critic-checkpoint {path} was trained on design space {critic.space!r}, and --space is {space!r}; "
+            f"give a critic trained on {space!r}"
+        )
     if not critic.trained_on("dynamics"):
-        _fail(f"--critic-checkpoint {path} was trained on --task {'+'.join(critic.tasks)}, not the dynamics task a "
-              "critic needs (train one with --task dynamics)")
+        _fail(
+            f"--critic-checkpoint {path} was trained on --task {'+'.join(critic.tasks)}, not the dynamics task a "
+            "critic needs (train one with --task dynamics)"
+        )
 
 
 def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dict]:
@@ -522,26 +632,58 @@ def optimize(
     budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion."),
     seed: int = typer.Option(DEFAULT_SEED, help="Random seed."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present)."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write design, time and metrics as JSON (-: stdout, tables to stderr)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint or run folder (default: the shipped one).", rich_help_panel=_MODEL),
-    samples: Optional[int] = typer.Option(None, help="Candidates to sample (default: --budget).", rich_help_panel=_MODEL),
+    json_out: Optional[Path] = typer.Option(
+        None, "--json", help="Write design, time and metrics as JSON (-: stdout, tables to stderr)."
+    ),
+    checkpoint: Optional[Path] = typer.Option(
+        None, help="DiT checkpoint or run folder (default: the shipped one).", rich_help_panel=_MODEL
+    ),
+    samples: Optional[int] = typer.Option(
+        None, help="Candidates to sample (default: --budget).", rich_help_panel=_MODEL
+    ),
     num_steps: int = typer.Option(100, help="DDIM steps.", rich_help_panel=_MODEL),
-    critic: Optional[str] = typer.Option(None, help="How candidates are scored: joint (the paper's) | dynamics.", rich_help_panel=_MODEL),
-    critic_checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint whose dynamics task scores them (default: the shipped critic).", rich_help_panel=_MODEL),
+    critic: Optional[str] = typer.Option(
+        None, help="How candidates are scored: joint (the paper's) | dynamics.", rich_help_panel=_MODEL
+    ),
+    critic_checkpoint: Optional[Path] = typer.Option(
+        None, help="Checkpoint whose dynamics task scores them (default: the shipped critic).", rich_help_panel=_MODEL
+    ),
     refine: int = typer.Option(0, help="Critic-refinement iterations of the winner.", rich_help_panel=_MODEL),
-    scale: Optional[float] = typer.Option(None, help="dgs: guidance scale (default: the space's).", rich_help_panel=_MODEL),
-    verify: Optional[int] = typer.Option(None, help="zeroth-sim, dgs-sim: candidates simulated (default: all).", rich_help_panel=_MODEL),
-    init: Optional[str] = typer.Option(None, help="cmaes: 'model' starts from the model's samples.", rich_help_panel=_MODEL),
+    scale: Optional[float] = typer.Option(
+        None, help="dgs: guidance scale (default: the space's).", rich_help_panel=_MODEL
+    ),
+    verify: Optional[int] = typer.Option(
+        None, help="zeroth-sim, dgs-sim: candidates simulated (default: all).", rich_help_panel=_MODEL
+    ),
+    init: Optional[str] = typer.Option(
+        None, help="cmaes: 'model' starts from the model's samples.", rich_help_panel=_MODEL
+    ),
     popsize: int = typer.Option(5, help="CMA-ES population size.", rich_help_panel=_SEARCH),
     generations: int = typer.Option(3, help="CMA-ES generations per restart.", rich_help_panel=_SEARCH),
-    sequential: bool = typer.Option(False, "--sequential", help="CMA-ES one rollout at a time on the oracle.", rich_help_panel=_SEARCH),
-    backend: Optional[str] = typer.Option(None, help="warp | mjwarp | newton | mujoco (default: per space).", rich_help_panel=_SEARCH),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of warp rollouts (default: all).", rich_help_panel=_SEARCH),
-    critic_samples: int = typer.Option(1, help="Dynamics predictions averaged per candidate.", rich_help_panel=_ABLATIONS),
-    critic_on: Optional[str] = typer.Option(None, help="What the dynamics critic is asked: tokens | designs.", rich_help_panel=_ABLATIONS),
-    sim_grad_weight: float = typer.Option(0.0, help="dgs: share of the simulator's gradient (0..1).", rich_help_panel=_ABLATIONS),
+    sequential: bool = typer.Option(
+        False, "--sequential", help="CMA-ES one rollout at a time on the oracle.", rich_help_panel=_SEARCH
+    ),
+    backend: Optional[str] = typer.Option(
+        None, help="warp | mjwarp | newton | mujoco (default: per space).", rich_help_panel=_SEARCH
+    ),
+    threads: Optional[int] = typer.Option(
+        None, "--threads", min=1, help="CPU threads of warp rollouts (default: all).", rich_help_panel=_SEARCH
+    ),
+    critic_samples: int = typer.Option(
+        1, help="Dynamics predictions averaged per candidate.", rich_help_panel=_ABLATIONS
+    ),
+    critic_on: Optional[str] = typer.Option(
+        None, help="What the dynamics critic is asked: tokens | designs.", rich_help_panel=_ABLATIONS
+    ),
+    sim_grad_weight: float = typer.Option(
+        0.0, help="dgs: share of the simulator's gradient (0..1).", rich_help_panel=_ABLATIONS
+    ),
     guide_by: str = typer.Option("model", help="dgs: model (the paper's) | critic.", rich_help_panel=_ABLATIONS),
-    critic_at: str = typer.Option("tokens", help="dgs --guide-by critic: tokens | design | project | continuous | start.", rich_help_panel=_ABLATIONS),
+    critic_at: str = typer.Option(
+        "tokens",
+        help="dgs --guide-by critic: tokens | design | project | continuous | start.",
+        rich_help_panel=_ABLATIONS,
+    ),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
@@ -596,9 +738,8 @@ def optimize(
       the gradient through the decoded design's simulated start, which a critic told the start
       otherwise takes as a constant); measurements: docs/experiments.md.
     """
-    from rich.console import Console
-
     import numpy as np
+    from rich.console import Console
 
     from tt.baselines import Problem
     from tt.optimizers import LEARNED, METHODS, run_optimizer
@@ -631,14 +772,19 @@ def optimize(
             _fail(f"--critic {critic!r}: valid are {' and '.join(map(repr, CRITICS))}")
         _at_least("--critic-samples", critic_samples, 1)
         if critic == "joint" and critic_samples > 1:
-            _fail(f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
-                  "sampled with each design")
+            _fail(
+                f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
+                "sampled with each design"
+            )
         from tt.guidance.zeroth import CRITIC_INPUTS
 
         if critic_on is not None and critic_on not in CRITIC_INPUTS:
             _fail(f"--critic-on {critic_on!r}: valid are {' and '.join(map(repr, CRITIC_INPUTS))}")
         if critic == "joint" and critic_on == "designs":
-            _fail("--critic-on designs asks the dynamics critic about the decoded designs; it does not go with --critic joint")
+            _fail(
+                "--critic-on designs asks the dynamics critic about the decoded designs; it does not go with "
+                "--critic joint"
+            )
         if critic == "joint" and critic_checkpoint is not None:
             _fail("--critic-checkpoint is a dynamics critic; it does not go with --critic joint")
         if critic_checkpoint is not None and not critic_checkpoint.exists():
@@ -646,8 +792,10 @@ def optimize(
         if critic_checkpoint is not None:
             _check_critic(critic_checkpoint, space)
         if verify is not None and verify > (samples or budget):
-            _fail(f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
-                  "sampled candidates")
+            _fail(
+                f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
+                "sampled candidates"
+            )
     _at_least("--refine", refine, 0)
     if refine and method not in ("zeroth", "dgs"):
         _fail(f"--refine refines the design zeroth or dgs returns; it does not apply to --method {method}")
@@ -660,10 +808,11 @@ def optimize(
     if guide_by not in GUIDES:
         _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
     chosen = "--method cmaes --init model" if method == "cmaes-init-model" else f"--method {method}"
-    for names, methods in ((("checkpoint", "samples", "num_steps", "critic", "critic_samples", "critic_checkpoint",
-                             "critic_on"), LEARNED),
-                           (("popsize", "generations", "sequential"), ("cmaes", "cmaes-init-model")),
-                           (("scale", "sim_grad_weight", "guide_by"), ("dgs", "dgs-sim"))):
+    for names, methods in (
+        (("checkpoint", "samples", "num_steps", "critic", "critic_samples", "critic_checkpoint", "critic_on"), LEARNED),
+        (("popsize", "generations", "sequential"), ("cmaes", "cmaes-init-model")),
+        (("scale", "sim_grad_weight", "guide_by"), ("dgs", "dgs-sim")),
+    ):
         if method not in methods:
             shown = [("cmaes --init model" if m == "cmaes-init-model" else m) for m in methods]
             _applies(ctx, names, ", ".join(shown[:-1]) + " and " + shown[-1], chosen)
@@ -685,8 +834,14 @@ def optimize(
         options = {"popsize": popsize, "generations": generations, "sequential": sequential}
     if method in LEARNED:
         # checkpoint and critic_checkpoint None: the space's shipped ones (tt.optimizers.learned_defaults)
-        options.update(checkpoint=checkpoint, critic_checkpoint=critic_checkpoint, samples=samples, num_steps=num_steps,
-                       critic=critic, critic_samples=critic_samples)
+        options.update(
+            checkpoint=checkpoint,
+            critic_checkpoint=critic_checkpoint,
+            samples=samples,
+            num_steps=num_steps,
+            critic=critic,
+            critic_samples=critic_samples,
+        )
         if refine:
             options.update(refine=refine)
         if critic_on is not None:
@@ -697,42 +852,80 @@ def optimize(
                 options.update(CRITIC_PLACES[critic_at])
         if method in ("zeroth-sim", "dgs-sim"):
             options.update(verify=verify)
-    problem = Problem(space=space, motions=tuple(ms), reward=reward, budget=budget, seed=seed, backend=backend, device=device,
-                      threads=threads)
+    problem = Problem(
+        space=space,
+        motions=tuple(ms),
+        reward=reward,
+        budget=budget,
+        seed=seed,
+        backend=backend,
+        device=device,
+        threads=threads,
+    )
     result = run_optimizer(problem, method, **options)  # what tt.optimize runs
     rewards = np.asarray(result.rewards, dtype=np.float64)
     if method in ("random", "cmaes") and rewards.size and not np.any(np.isfinite(rewards) & (rewards != 0.0)):
         # A rollout that terminates at its first step scores exactly 0 under every reward.
-        _fail(f"no candidate of {rewards.size} survived a single control step (every objective is 0 or NaN): the "
-              f"motion is out of reach of these {space} designs; try another motion, space or a larger --budget")
+        _fail(
+            f"no candidate of {rewards.size} survived a single control step (every objective is 0 or NaN): the "
+            f"motion is out of reach of these {space} designs; try another motion, space or a larger --budget"
+        )
     sp = get_space(space)
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds
     console = Console(stderr=quiet)
-    console.print(f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective {result.best_reward:.2f}")
+    console.print(
+        f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective "
+        f"{result.best_reward:.2f}"
+    )
     if "verified_simulated" in result.info:
         info = result.info
-        console.print(f"verified {info['verified']} of {info['samples']} sampled candidates in the batched simulator: "
-                      f"predicted vs simulated r = {info['predicted_vs_simulated_r']:.2f}; the simulator's pick was the "
-                      f"model's #{info['best_predicted_rank'] + 1}")
+        console.print(
+            f"verified {info['verified']} of {info['samples']} sampled candidates in the batched simulator: "
+            f"predicted vs simulated r = {info['predicted_vs_simulated_r']:.2f}; the simulator's pick was the "
+            f"model's #{info['best_predicted_rank'] + 1}"
+        )
     if "refine" in result.info:
         r = result.info["refine"]
         if r["steps"][0]:
-            console.print(f"refined by the dynamics critic: {r['steps'][0]} of at most {r['iterations']} steps taken, its "
-                          f"objective {r['before'][0]:.2f} -> {r['after'][0]:.2f} (predicted reward "
-                          f"{r['objective_before']:.2f} -> {result.best_reward:.2f}, same noise) in {r['seconds']:.1f} s")
+            console.print(
+                f"refined by the dynamics critic: {r['steps'][0]} of at most {r['iterations']} steps taken, its "
+                f"objective {r['before'][0]:.2f} -> {r['after'][0]:.2f} (predicted reward "
+                f"{r['objective_before']:.2f} -> {result.best_reward:.2f}, same noise) in {r['seconds']:.1f} s"
+            )
         else:
-            console.print(f"refined by the dynamics critic: no step raised its prediction ({r['seconds']:.1f} s); the "
-                          "sampled design is returned")
+            console.print(
+                f"refined by the dynamics critic: no step raised its prediction ({r['seconds']:.1f} s); the "
+                "sampled design is returned"
+            )
     console.print_json(json.dumps(sp.to_dict(result.best)))
-    console.print(rich_table(rows, columns_for(reward, [("seconds", "optimize (s)")]), title=f"validated on the oracle: {', '.join(m.name for m in ms)}"))
+    console.print(
+        rich_table(
+            rows,
+            columns_for(reward, [("seconds", "optimize (s)")]),
+            title=f"validated on the oracle: {', '.join(m.name for m in ms)}",
+        )
+    )
     if json_out is not None:
-        _write_json(json_out, {
-            "method": result.method, "space": space, "reward": reward, "motions": [m.name for m in ms],
-            "budget": budget, "seed": seed, "backend": problem.backend, "optimize_seconds": result.seconds,
-            "rollouts": result.rollouts, "objective": result.best_reward, "design": sp.to_dict(result.best),
-            "validated": rows[0], "info": result.info,
-        }, "--json")
+        _write_json(
+            json_out,
+            {
+                "method": result.method,
+                "space": space,
+                "reward": reward,
+                "motions": [m.name for m in ms],
+                "budget": budget,
+                "seed": seed,
+                "backend": problem.backend,
+                "optimize_seconds": result.seconds,
+                "rollouts": result.rollouts,
+                "objective": result.best_reward,
+                "design": sp.to_dict(result.best),
+                "validated": rows[0],
+                "info": result.info,
+            },
+            "--json",
+        )
 
 
 @app.command()
@@ -740,14 +933,28 @@ def predict(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, <space>_<size>_dynamics.pt, else its shipped generalist)."),
+    checkpoint: Optional[Path] = typer.Option(
+        None,
+        help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, "
+        "<space>_<size>_dynamics.pt, else its shipped generalist).",
+    ),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
-    num_steps: Optional[int] = typer.Option(None, help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md)."),
+    num_steps: Optional[int] = typer.Option(
+        None,
+        help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: "
+        "held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md).",
+    ),
     seed: int = typer.Option(DEFAULT_SEED, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the predictions to this JSON file (-: stdout, the table then goes to stderr)."),
-    via: Optional[str] = typer.Option(None, help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task (default: dynamics when the checkpoint was trained on it)."),
+    json_out: Optional[Path] = typer.Option(
+        None, "--json", help="Write the predictions to this JSON file (-: stdout, the table then goes to stderr)."
+    ),
+    via: Optional[str] = typer.Option(
+        None,
+        help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task "
+        "(default: dynamics when the checkpoint was trained on it).",
+    ),
 ) -> None:
     """The model as a critic: predict each design's dynamics on each motion (its embodiment
     given to the model) and the reward of those dynamics, without simulating."""
@@ -776,11 +983,13 @@ def predict(
         _fail(f"designs from several spaces in one call: {spaces}")
     space = spaces[0]
     ms = _motions(motion, motion_file, space)
-    from tt.api import predict as predict_designs, predict_checkpoint
+    from tt.api import predict as predict_designs
+    from tt.api import predict_checkpoint
 
     ckpt = predict_checkpoint(space, checkpoint)
-    pred = predict_designs(designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed,
-                           device=device, via=via)
+    pred = predict_designs(
+        designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed, device=device, via=via
+    )
 
     def clean(v: float) -> float | None:
         return float(v) if math.isfinite(v) else None
@@ -789,18 +998,34 @@ def predict(
     for a, i in enumerate(indices):
         for j, m in enumerate(ms):
             values = {k: clean(float(v[a, j])) for k, v in pred.metrics.items()}
-            predictions.append({"design": i, "motion": m.name, "reward": clean(float(pred.reward[a, j])), "metrics": values})
+            predictions.append(
+                {"design": i, "motion": m.name, "reward": clean(float(pred.reward[a, j])), "metrics": values}
+            )
             row = {"name": str(i), "motion": m.name, **{k: v for k, v in values.items() if v is not None}}
             if values.get("survival") is not None:
                 row["survival_pct"] = 100.0 * values["survival"]
             rows.append(row)
-    Console(stderr=quiet).print(rich_table(rows, [("motion", "motion")] + columns_for(reward), first=("name", "design"),
-                               title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)"))
+    Console(stderr=quiet).print(
+        rich_table(
+            rows,
+            [("motion", "motion")] + columns_for(reward),
+            first=("name", "design"),
+            title=f"predicted by {Path(ckpt).name} ({samples} sample(s), {reward}; not simulated)",
+        )
+    )
     if json_out is not None:
-        _write_json(json_out, {
-            "reward": reward, "motions": [m.name for m in ms], "space": space, "checkpoint": str(ckpt),
-            "samples": samples, "predictions": predictions,
-        }, "--json")
+        _write_json(
+            json_out,
+            {
+                "reward": reward,
+                "motions": [m.name for m in ms],
+                "space": space,
+                "checkpoint": str(ckpt),
+                "samples": samples,
+                "predictions": predictions,
+            },
+            "--json",
+        )
         typer.echo(f"wrote {len(predictions)} predictions to {json_out}", err=quiet)
 
 
@@ -810,22 +1035,33 @@ def view(
     motion: Optional[str] = typer.Option(None, help="Target motion to draw: library name or file."),
     html: Optional[Path] = typer.Option(None, help="Write one self-contained offline HTML file (-: stdout)."),
     serve: bool = typer.Option(False, help="Start a live meshcat server and print its URL."),
-    host: Optional[str] = typer.Option(None, help="--serve: the address the viewer listens on (default 127.0.0.1, this machine only; 0.0.0.0: every interface)."),
+    host: Optional[str] = typer.Option(
+        None,
+        help="--serve: the address the viewer listens on (default 127.0.0.1, this machine only; 0.0.0.0: every "
+        "interface).",
+    ),
     png: Optional[Path] = typer.Option(None, help="Also screenshot the HTML with headless Chromium (-: stdout)."),
     time: Optional[float] = typer.Option(None, help="Animation time (s) the HTML opens paused at."),
 ) -> None:
     """Show designs or rollouts in meshcat, live or as standalone HTML."""
-    from tt.viz.cli import view_cmd
-
     from tt.kernels.files import is_stdout
+    from tt.viz.cli import view_cmd
 
     _output(html, "--html")
     _output(png, "--png")
     quiet = _on_stdout(("--html", html), ("--png", png))
     if png is not None and is_stdout(html):
         _fail("--png renders the HTML file --html writes; give --html a file name, not -")
-    view_cmd(source, motion=motion, html=html, serve=serve, host=host, png=png, time=time,
-             echo=lambda text: typer.echo(text, err=quiet))
+    view_cmd(
+        source,
+        motion=motion,
+        html=html,
+        serve=serve,
+        host=host,
+        png=png,
+        time=time,
+        echo=lambda text: typer.echo(text, err=quiet),
+    )
 
 
 @app.command()
@@ -833,7 +1069,9 @@ def train(
     ctx: typer.Context,
     data: Optional[Path] = typer.Option(None, help="Dataset folder from `tt generate` (or an episode token file)."),
     online: bool = typer.Option(False, "--online", help="Train on episodes simulated as training goes (no --data)."),
-    task: str = typer.Option("robot", help="robot | dynamics | control, or several joined by '+'; both = robot+control."),
+    task: str = typer.Option(
+        "robot", help="robot | dynamics | control, or several joined by '+'; both = robot+control."
+    ),
     size: str = typer.Option("small", help="tiny | mini | small | large."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
     steps: int = typer.Option(10_000, help="Optimizer steps."),
@@ -849,32 +1087,73 @@ def train(
     online_motions: int = typer.Option(4, help="Augmented training motions per refresh.", rich_help_panel=_ONLINE),
     refresh_every: int = typer.Option(50, help="Optimizer steps between refreshes.", rich_help_panel=_ONLINE),
     online_buffer: int = typer.Option(4, help="Refreshes whose episodes training draws from.", rich_help_panel=_ONLINE),
-    online_absorbing: bool = typer.Option(False, "--online-absorbing", help="Keep terminated episodes to the motion's end.", rich_help_panel=_ONLINE),
-    online_select: int = typer.Option(1, help="Designs screened per kept episode (1: unselected).", rich_help_panel=_ONLINE),
-    uniform_share: float = typer.Option(0.0, help="--online-select: share of kept episodes drawn uniformly.", rich_help_panel=_ONLINE),
-    select_by: str = typer.Option("tracking", help="--online-select: the reward designs are ranked by.", callback=_reward,
-                                  rich_help_panel=_ONLINE),
-    action_noise: Optional[float] = typer.Option(None, help="Control perturbation std, rad or m (0: none).", rich_help_panel=_ONLINE),
-    select_designs: int = typer.Option(0, help="Held-out designs each checkpoint is scored on (0: off).", rich_help_panel=_SELECTION),
+    online_absorbing: bool = typer.Option(
+        False, "--online-absorbing", help="Keep terminated episodes to the motion's end.", rich_help_panel=_ONLINE
+    ),
+    online_select: int = typer.Option(
+        1, help="Designs screened per kept episode (1: unselected).", rich_help_panel=_ONLINE
+    ),
+    uniform_share: float = typer.Option(
+        0.0, help="--online-select: share of kept episodes drawn uniformly.", rich_help_panel=_ONLINE
+    ),
+    select_by: str = typer.Option(
+        "tracking", help="--online-select: the reward designs are ranked by.", callback=_reward, rich_help_panel=_ONLINE
+    ),
+    action_noise: Optional[float] = typer.Option(
+        None, help="Control perturbation std, rad or m (0: none).", rich_help_panel=_ONLINE
+    ),
+    select_designs: int = typer.Option(
+        0, help="Held-out designs each checkpoint is scored on (0: off).", rich_help_panel=_SELECTION
+    ),
     select_motions: int = typer.Option(5, help="--select-designs: validation motions.", rich_help_panel=_SELECTION),
-    select_reward: str = typer.Option("tracking", help="--select-designs: the reward predicted and simulated.",
-                                      callback=_reward, rich_help_panel=_SELECTION),
-    prediction: str = typer.Option("x0", help="What the network predicts: x0 | eps (the paper's) | v.", rich_help_panel=_RECIPE),
-    weighting: str = typer.Option("none", help="Noise-level loss weighting: none | min_snr | edm.", rich_help_panel=_RECIPE),
+    select_reward: str = typer.Option(
+        "tracking",
+        help="--select-designs: the reward predicted and simulated.",
+        callback=_reward,
+        rich_help_panel=_SELECTION,
+    ),
+    prediction: str = typer.Option(
+        "x0", help="What the network predicts: x0 | eps (the paper's) | v.", rich_help_panel=_RECIPE
+    ),
+    weighting: str = typer.Option(
+        "none", help="Noise-level loss weighting: none | min_snr | edm.", rich_help_panel=_RECIPE
+    ),
     min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma.", rich_help_panel=_RECIPE),
-    type_weight: Optional[List[str]] = typer.Option(None, help="Loss weight of a token type, TYPE=W (repeatable).", rich_help_panel=_RECIPE),
-    robot_diffusion_steps: int = typer.Option(100, help="DDIM training steps T of the robot task.", rich_help_panel=_RECIPE),
-    control_diffusion_steps: int = typer.Option(5, help="DDIM training steps T of the control task.", rich_help_panel=_RECIPE),
+    type_weight: Optional[List[str]] = typer.Option(
+        None, help="Loss weight of a token type, TYPE=W (repeatable).", rich_help_panel=_RECIPE
+    ),
+    robot_diffusion_steps: int = typer.Option(
+        100, help="DDIM training steps T of the robot task.", rich_help_panel=_RECIPE
+    ),
+    control_diffusion_steps: int = typer.Option(
+        5, help="DDIM training steps T of the control task.", rich_help_panel=_RECIPE
+    ),
     warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps.", rich_help_panel=_RECIPE),
-    time_ids: str = typer.Option("sinusoidal", help="Time-step ID embedding: sinusoidal | learned.", rich_help_panel=_RECIPE),
-    bf16_cpu: bool = typer.Option(False, "--bf16-cpu", help="Autocast to bfloat16 on the CPU too.", rich_help_panel=_RECIPE),
-    future_states: bool = typer.Option(True, help="Control task: also diffuse later states.", rich_help_panel=_ABLATIONS),
-    anchor_track: bool = typer.Option(False, "--anchor-track", help="Track-link poses as residuals from targets.", rich_help_panel=_ABLATIONS),
+    time_ids: str = typer.Option(
+        "sinusoidal", help="Time-step ID embedding: sinusoidal | learned.", rich_help_panel=_RECIPE
+    ),
+    bf16_cpu: bool = typer.Option(
+        False, "--bf16-cpu", help="Autocast to bfloat16 on the CPU too.", rich_help_panel=_RECIPE
+    ),
+    future_states: bool = typer.Option(
+        True, help="Control task: also diffuse later states.", rich_help_panel=_ABLATIONS
+    ),
+    anchor_track: bool = typer.Option(
+        False, "--anchor-track", help="Track-link poses as residuals from targets.", rich_help_panel=_ABLATIONS
+    ),
     anchor_control: str = typer.Option("", help="Commands as residuals: joints | command.", rich_help_panel=_ABLATIONS),
-    known_command: bool = typer.Option(False, "--known-command", help="Control task: give the last command.", rich_help_panel=_ABLATIONS),
-    control_target_offset: int = typer.Option(0, help="Control task: targets this many steps later.", rich_help_panel=_ABLATIONS),
-    dynamics_start: bool = typer.Option(False, "--dynamics-start", help="Dynamics task: condition on the first step.", rich_help_panel=_ABLATIONS),
-    drop_type: Optional[List[str]] = typer.Option(None, help="A per-step token type left out (repeatable).", rich_help_panel=_ABLATIONS),
+    known_command: bool = typer.Option(
+        False, "--known-command", help="Control task: give the last command.", rich_help_panel=_ABLATIONS
+    ),
+    control_target_offset: int = typer.Option(
+        0, help="Control task: targets this many steps later.", rich_help_panel=_ABLATIONS
+    ),
+    dynamics_start: bool = typer.Option(
+        False, "--dynamics-start", help="Dynamics task: condition on the first step.", rich_help_panel=_ABLATIONS
+    ),
+    drop_type: Optional[List[str]] = typer.Option(
+        None, help="A per-step token type left out (repeatable).", rich_help_panel=_ABLATIONS
+    ),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes: a dataset (--data) or episodes
     simulated as training goes (--online). Each option in full: docs/cli.md.
@@ -931,16 +1210,39 @@ def train(
     if online == (data is not None):
         _fail("give exactly one source of training data: --data DATASET or --online")
     if not online:
-        _applies(ctx, ("space", "online_designs", "online_motions", "refresh_every", "online_buffer", "online_absorbing",
-                       "online_select", "uniform_share", "select_by", "action_noise"), "--online training",
-                 "--data, whose episodes are generated already")
+        _applies(
+            ctx,
+            (
+                "space",
+                "online_designs",
+                "online_motions",
+                "refresh_every",
+                "online_buffer",
+                "online_absorbing",
+                "online_select",
+                "uniform_share",
+                "select_by",
+                "action_noise",
+            ),
+            "--online training",
+            "--data, whose episodes are generated already",
+        )
     if not select_designs:
-        _applies(ctx, ("select_motions", "select_reward"), "--select-designs (checkpoint selection)",
-                 "a run without it")
-    for flag, value, low in (("--steps", steps, 1), ("--batch-size", batch_size, 1), ("--checkpoint-every", checkpoint_every, 1),
-                             ("--online-designs", online_designs, 1), ("--online-motions", online_motions, 1),
-                             ("--refresh-every", refresh_every, 1), ("--online-buffer", online_buffer, 1), ("--online-select", online_select, 1),
-                             ("--action-noise", action_noise, 0.0), ("--seed", seed, 0)):
+        _applies(
+            ctx, ("select_motions", "select_reward"), "--select-designs (checkpoint selection)", "a run without it"
+        )
+    for flag, value, low in (
+        ("--steps", steps, 1),
+        ("--batch-size", batch_size, 1),
+        ("--checkpoint-every", checkpoint_every, 1),
+        ("--online-designs", online_designs, 1),
+        ("--online-motions", online_motions, 1),
+        ("--refresh-every", refresh_every, 1),
+        ("--online-buffer", online_buffer, 1),
+        ("--online-select", online_select, 1),
+        ("--action-noise", action_noise, 0.0),
+        ("--seed", seed, 0),
+    ):
         _at_least(flag, value, low)
     if lr is not None and not lr > 0:
         _fail(f"--lr must be > 0, got {lr}")
@@ -955,13 +1257,24 @@ def train(
             eq = ""
         if not eq or not name:
             _fail(f"--type-weight {item!r} is not TYPE=WEIGHT (e.g. track_link_obs=4)")
-    recipe = dict(prediction=prediction, weighting=weighting, min_snr_gamma=min_snr_gamma, type_weights=weights,
-                  bf16_cpu=bf16_cpu, robot_diffusion_steps=robot_diffusion_steps,
-                  control_diffusion_steps=control_diffusion_steps, warmup_steps=warmup_steps, anchor_track=anchor_track,
-                  anchor_control=anchor_control, known_command=known_command, control_target_offset=control_target_offset,
-                  dynamics_start=dynamics_start,
-                  future_states=future_states, time_ids=time_ids,
-                  drop_types=tuple(drop_type or ()))
+    recipe = dict(
+        prediction=prediction,
+        weighting=weighting,
+        min_snr_gamma=min_snr_gamma,
+        type_weights=weights,
+        bf16_cpu=bf16_cpu,
+        robot_diffusion_steps=robot_diffusion_steps,
+        control_diffusion_steps=control_diffusion_steps,
+        warmup_steps=warmup_steps,
+        anchor_track=anchor_track,
+        anchor_control=anchor_control,
+        known_command=known_command,
+        control_target_offset=control_target_offset,
+        dynamics_start=dynamics_start,
+        future_states=future_states,
+        time_ids=time_ids,
+        drop_types=tuple(drop_type or ()),
+    )
     _output(out, "--out", folder=True)
     selector = None
     if select_designs:
@@ -973,61 +1286,123 @@ def train(
 
         trained_tasks = task_names(task)  # a TTError names --task
         if not {"robot", "dynamics"} & set(trained_tasks):
-            _fail(f"--select-designs scores the model as a critic, which needs --task with robot or dynamics, got {task!r}")
+            _fail(
+                "--select-designs scores the model as a critic, which needs --task with robot or dynamics, "
+                f"got {task!r}"
+            )
         if select_reward not in REWARDS:
             _fail(f"--select-reward {select_reward!r} is not a reward; valid: {list(REWARDS)}")
         reads_actuators = {"act_force", "act_vel"} & set(get_reward(select_reward, space).needs)
         if reads_actuators and "actuator_obs" in (drop_type or ()):
-            _fail(f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
-                  "actuator_obs leaves out")
-        selector = CheckpointSelector(out, SelectionConfig(designs=select_designs, motions=select_motions,
-                                                           reward=select_reward, device=device),
-                                      fresh=not resume)
+            _fail(
+                f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
+                "actuator_obs leaves out"
+            )
+        selector = CheckpointSelector(
+            out,
+            SelectionConfig(designs=select_designs, motions=select_motions, reward=select_reward, device=device),
+            fresh=not resume,
+        )
     online_config = None
     if online:
         from tt.dit.online import OnlineConfig
 
         _draw_flags(space, seed, action_noise)
         extra = {} if action_noise is None else {"action_noise": action_noise}
-        online_config = OnlineConfig(space=space, designs=online_designs, motions=online_motions,
-                                     refresh_every=refresh_every, buffer=online_buffer, seed=seed,
-                                     absorbing=online_absorbing, select=online_select, uniform_share=uniform_share,
-                                     reward=select_by, **extra)
-    result = train_cmd(data, task=task, size=size, out=out, steps=steps, batch_size=batch_size, lr=lr,
-                       device=device, seed=seed, checkpoint_every=checkpoint_every, resume=resume, init=init,
-                       online=online_config, on_checkpoint=selector,
-                       on_start_over=selector.start_over if selector is not None else None, **recipe)
+        online_config = OnlineConfig(
+            space=space,
+            designs=online_designs,
+            motions=online_motions,
+            refresh_every=refresh_every,
+            buffer=online_buffer,
+            seed=seed,
+            absorbing=online_absorbing,
+            select=online_select,
+            uniform_share=uniform_share,
+            reward=select_by,
+            **extra,
+        )
+    result = train_cmd(
+        data,
+        task=task,
+        size=size,
+        out=out,
+        steps=steps,
+        batch_size=batch_size,
+        lr=lr,
+        device=device,
+        seed=seed,
+        checkpoint_every=checkpoint_every,
+        resume=resume,
+        init=init,
+        online=online_config,
+        on_checkpoint=selector,
+        on_start_over=selector.start_over if selector is not None else None,
+        **recipe,
+    )
     import os
 
     if int(os.environ.get("RANK", "0")) != 0:
         return  # a data-parallel run (torchrun) reports from rank 0
     final = float(result.losses[-1]) if len(result.losses) else float("nan")
-    typer.echo(f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; checkpoint {result.checkpoint}")
+    typer.echo(
+        f"trained to step {result.step} ({result.parameters:,} parameters); final loss {final:.4f}; "
+        f"checkpoint {result.checkpoint}"
+    )
     if selector is not None and result.step not in {r.step for r in selector.rows}:
         selector(result.step, result.checkpoint)  # a run killed while scoring its last checkpoint
     if selector is not None and selector.best is not None:
         b = selector.best
-        typer.echo(f"best checkpoint on {select_designs} held-out designs: step {b.step}, within-motion r {b.within_r:.3f}, "
-                   f"pooled r {b.pooled_r:.3f}: {selector.best_path}")
+        typer.echo(
+            f"best checkpoint on {select_designs} held-out designs: step {b.step}, within-motion r {b.within_r:.3f}, "
+            f"pooled r {b.pooled_r:.3f}: {selector.best_path}"
+        )
 
 
 @app.command()
 def generate(
-    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual (tt's warp kernels), quadruped (the MuJoCo + mink oracle: contacts)."),
+    space: str = typer.Option(
+        "viperx",
+        help="Design space: viperx, aloha, bimanual (tt's warp kernels), quadruped (the MuJoCo + mink oracle: "
+        "contacts).",
+    ),
     designs: int = typer.Option(..., help="Number of designs N."),
     episodes_per_design: int = typer.Option(10, help="Episodes per design K (augmented training motions)."),
     out: Path = typer.Option(..., help="Dataset folder (zarr v3 store); run the same command again to resume it."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     workers: int = typer.Option(1, help="Shards generated at once: worker processes, or the CPUs of --ray local."),
-    bias: Optional[str] = typer.Option(None, help="Data biasing: cmaes (CMA-ES, population 5, 3 generations per training motion)."),
+    bias: Optional[str] = typer.Option(
+        None, help="Data biasing: cmaes (CMA-ES, population 5, 3 generations per training motion)."
+    ),
     seed: int = typer.Option(0, help="Random seed; every shard derives its draws from (seed, shard index)."),
-    ray: Optional[str] = typer.Option(None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt\\[ray]')."),
+    ray: Optional[str] = typer.Option(
+        None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt\\[ray]')."
+    ),
     designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
     min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
-    action_noise: Optional[float] = typer.Option(None, help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged (default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none)."),
-    threads: Optional[int] = typer.Option(None, "--threads", min=1, help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the dataset is the same for any count."),
-    select: int = typer.Option(1, help="Designs screened per kept episode: each motion of a rollout group keeps the best 1/K of the group's designs on it (--designs counts the screen), so the data pairs motions with designs chosen for them. 1: every episode."),
-    uniform_share: float = typer.Option(0.0, help="--select: share of each motion's kept episodes drawn uniformly from the screen instead of the best (a critic still sees failures)."),
+    action_noise: Optional[float] = typer.Option(
+        None,
+        help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged "
+        "(default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none).",
+    ),
+    threads: Optional[int] = typer.Option(
+        None,
+        "--threads",
+        min=1,
+        help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the "
+        "dataset is the same for any count.",
+    ),
+    select: int = typer.Option(
+        1,
+        help="Designs screened per kept episode: each motion of a rollout group keeps the best 1/K of the group's "
+        "designs on it (--designs counts the screen), so the data pairs motions with designs chosen for "
+        "them. 1: every episode.",
+    ),
+    uniform_share: float = typer.Option(
+        0.0,
+        help="--select: share of each motion's kept episodes drawn uniformly from the screen instead of the best "
+        "(a critic still sees failures).",
+    ),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
     from tt.generate import BIASES, generate_cmd
@@ -1036,15 +1411,37 @@ def generate(
         _fail(f"--bias {bias!r} does not exist; biases: {', '.join(BIASES)}")
     _draw_flags(space, seed, action_noise)
 
-    for flag, value, low in (("--designs", designs, 1), ("--episodes-per-design", episodes_per_design, 1),
-                             ("--workers", workers, 1), ("--designs-per-shard", designs_per_shard, 1),
-                             ("--min-steps", min_steps, 1), ("--action-noise", action_noise, 0.0), ("--seed", seed, 0),
-                             ("--select", select, 1)):
+    for flag, value, low in (
+        ("--designs", designs, 1),
+        ("--episodes-per-design", episodes_per_design, 1),
+        ("--workers", workers, 1),
+        ("--designs-per-shard", designs_per_shard, 1),
+        ("--min-steps", min_steps, 1),
+        ("--action-noise", action_noise, 0.0),
+        ("--seed", seed, 0),
+        ("--select", select, 1),
+    ):
         _at_least(flag, value, low)
     _output(out, "--out", folder=True)
-    typer.echo(generate_cmd(space, designs, out, episodes_per_design=episodes_per_design, device=device, workers=workers,
-                            bias=bias, seed=seed, ray=ray, designs_per_shard=designs_per_shard, min_steps=min_steps,
-                            action_noise=action_noise, threads=threads, select=select, uniform_share=uniform_share))
+    typer.echo(
+        generate_cmd(
+            space,
+            designs,
+            out,
+            episodes_per_design=episodes_per_design,
+            device=device,
+            workers=workers,
+            bias=bias,
+            seed=seed,
+            ray=ray,
+            designs_per_shard=designs_per_shard,
+            min_steps=min_steps,
+            action_noise=action_noise,
+            threads=threads,
+            select=select,
+            uniform_share=uniform_share,
+        )
+    )
 
 
 dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")
@@ -1054,12 +1451,15 @@ app.add_typer(dataset_app, name="dataset")
 @dataset_app.command("info")
 def dataset_info(
     path: Path = typer.Argument(..., help="Dataset folder."),
-    plot: Optional[Path] = typer.Option(None, help="Also save the histogram of episode rewards as this PNG (-: stdout)."),
+    plot: Optional[Path] = typer.Option(
+        None, help="Also save the histogram of episode rewards as this PNG (-: stdout)."
+    ),
     json_out: bool = typer.Option(False, "--json", help="Print JSON instead of text."),
 ) -> None:
     """Counts, token-type maxima, normalisation statistics and the reward histogram of a dataset."""
     from tt.kernels.files import strict_json
-    from tt.tokens.info import dataset_info as summarize, info_text
+    from tt.tokens.info import dataset_info as summarize
+    from tt.tokens.info import info_text
     from tt.viz.plots import save_reward_histogram
 
     _output(plot, "--plot")
@@ -1095,7 +1495,9 @@ def demo(
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
     samples: int = typer.Option(16, help="Candidates for Zeroth-Order and Self-Guidance."),
     num_steps: int = typer.Option(20, help="DDIM steps of Zeroth-Order and Self-Guidance (of 100)."),
-    checkpoint: Optional[Path] = typer.Option(None, help="DiT checkpoint file or run folder (default: the space's shipped one)."),
+    checkpoint: Optional[Path] = typer.Option(
+        None, help="DiT checkpoint file or run folder (default: the space's shipped one)."
+    ),
     seed: int = typer.Option(0, help="Random seed."),
     out: Path = typer.Option(Path("tt_demo"), help="Folder for demo.json and demo.html."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
@@ -1109,14 +1511,35 @@ def demo(
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 
-    for flag, value, low in (("--budget", budget, 1), ("--samples", samples, 1), ("--num-steps", num_steps, 1), ("--seed", seed, 0)):
+    for flag, value, low in (
+        ("--budget", budget, 1),
+        ("--samples", samples, 1),
+        ("--num-steps", num_steps, 1),
+        ("--seed", seed, 0),
+    ):
         _at_least(flag, value, low)
-    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, samples=samples, num_steps=num_steps,
-                        checkpoint=checkpoint, seed=seed, out=out, device=device)
+    config = DemoConfig(
+        space=space,
+        motion=motion,
+        reward=reward,
+        budget=budget,
+        samples=samples,
+        num_steps=num_steps,
+        checkpoint=checkpoint,
+        seed=seed,
+        out=out,
+        device=device,
+    )
     _output(out, "--out", folder=True)
     rows = run_demo(config, echo=typer.echo)
-    extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + ([("note", "note")] if any("note" in r for r in rows) else [])
-    Console().print(rich_table(rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"))
+    extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + (
+        [("note", "note")] if any("note" in r for r in rows) else []
+    )
+    Console().print(
+        rich_table(
+            rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"
+        )
+    )
 
 
 @app.command()
@@ -1140,8 +1563,12 @@ def detokenize(
     path: Path = typer.Argument(..., help="Tokens .npz (from `tt tokenize --out`)."),
     out: Path = typer.Option(..., help="Write the robot's MJCF here (-: stdout)."),
     index: int = typer.Option(0, help="Which robot of the file."),
-    space: Optional[str] = typer.Option(None, help="Also fit the design choices of this space (writes OUT.design.json)."),
-    project: bool = typer.Option(False, help="With --space: take the nearest design when no choice has these tokens' exact structure."),
+    space: Optional[str] = typer.Option(
+        None, help="Also fit the design choices of this space (writes OUT.design.json)."
+    ),
+    project: bool = typer.Option(
+        False, help="With --space: take the nearest design when no choice has these tokens' exact structure."
+    ),
 ) -> None:
     """Turn RoboTokens back into MJCF (and, for tt's spaces, design choices)."""
     from tt.tokens.cli import detokenize_cmd

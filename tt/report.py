@@ -59,7 +59,9 @@ def columns_for(reward: str, extra: Sequence[tuple[str, str]] = ()) -> list[tupl
     return cols + list(extra)
 
 
-def markdown_table(rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], first: tuple[str, str] = ("name", "")) -> str:
+def markdown_table(
+    rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], first: tuple[str, str] = ("name", "")
+) -> str:
     """A GitHub markdown table: one row per mapping, `columns` as (key, header)."""
     cols = [first] + list(columns)
     lines = ["| " + " | ".join(h for _, h in cols) + " |", "|" + "---|" * len(cols)]
@@ -68,7 +70,9 @@ def markdown_table(rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], 
     return "\n".join(lines)
 
 
-def rich_table(rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], title: str = "", first: tuple[str, str] = ("name", "")):
+def rich_table(
+    rows: Sequence[Mapping], columns: Sequence[tuple[str, str]], title: str = "", first: tuple[str, str] = ("name", "")
+):
     """The same table for the terminal (rich)."""
     from rich.table import Table
 
@@ -131,8 +135,9 @@ def mean_ci(values) -> tuple[float, float]:
     return float(v.mean()), float(stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
 
 
-def plot_method_bars(settings: Mapping[str, Sequence[Mapping]], path, order: Sequence[str] | None = None,
-                     space: str = "ViperX") -> None:
+def plot_method_bars(
+    settings: Mapping[str, Sequence[Mapping]], path, order: Sequence[str] | None = None, space: str = "ViperX"
+) -> None:
     """One column per setting: validated reward (top) and optimize time (bottom, log scale) per
     reward and method, mean with 95 % CI. Records carry method, reward_name, reward, seconds;
     `order` fixes the methods' order (default: first appearance)."""
@@ -151,11 +156,19 @@ def plot_method_bars(settings: Mapping[str, Sequence[Mapping]], path, order: Seq
         for row, key in enumerate(("reward", "seconds")):
             ax = axes[row][col]
             for j, label in enumerate(labels):
-                ms = [mean_ci([r[key] for r in records if r["method"] == label and r["reward_name"] == rw])
-                      for rw in rewards]
+                ms = [
+                    mean_ci([r[key] for r in records if r["method"] == label and r["reward_name"] == rw])
+                    for rw in rewards
+                ]
                 x = np.arange(len(rewards)) + (j - (len(labels) - 1) / 2) * width
-                ax.bar(x, [m if math.isfinite(m) else 0.0 for m, _ in ms], width,
-                       yerr=[h if math.isfinite(h) else 0.0 for _, h in ms], capsize=3, label=label)
+                ax.bar(
+                    x,
+                    [m if math.isfinite(m) else 0.0 for m, _ in ms],
+                    width,
+                    yerr=[h if math.isfinite(h) else 0.0 for _, h in ms],
+                    capsize=3,
+                    label=label,
+                )
             ax.set_xticks(np.arange(len(rewards)), rewards, rotation=15)
             ax.set_ylabel("validated reward" if key == "reward" else "optimize time (s)")
             if key == "seconds":
