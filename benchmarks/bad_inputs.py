@@ -5,12 +5,14 @@ leaked process), and which of the issues' classes of failure are fixed.
 Runs the table of ``tests/bad_input_cases.py`` through the real CLI (typer's runner, in process),
 its `SCENARIOS` (issue 50's second round: a full disk, ``-`` as stdout, a named pipe,
 ``tt designs`` over a user's files, ``tt train``'s run folder, a regenerated dataset, a killed
-``tt generate --workers 2``, flags that do not apply, messages) and the scenarios of issue 22
+``tt generate --workers 2``, flags that do not apply, messages, ``tt predict`` on motions
+shorter than the model's window, ``tt generate`` over a dataset whose root ``zarr.json`` is
+damaged, ``tt.api.generate_dataset``'s messages) and the scenarios of issue 22
 a table row cannot hold (resume from a damaged checkpoint, a resume with another learning
 rate, ``tt view --serve`` under SIGTERM, detokenizing noisy tokens), each classified as
 clear | ok (odd but valid input, handled) | traceback | misleading | silent | loss. Prints one
 JSON line per case (``{"bench": "bad_inputs", ...}``) and writes
-``benchmarks/results/bad_inputs.md``. Takes a few minutes (two small `tt generate` datasets).
+``benchmarks/results/bad_inputs.md``. Takes a few minutes (small `tt generate` datasets).
 
     python benchmarks/bad_inputs.py [--out benchmarks/results/bad_inputs.md]
 """
