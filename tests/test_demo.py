@@ -191,6 +191,41 @@ def test_demo_without_a_shipped_checkpoint_says_so_and_runs_the_baselines(tmp_pa
     )
 
 
+def test_aloha_demo_shows_the_original_against_the_optimized_designs(tmp_path, monkeypatch):
+    """tt demo --space aloha: the paper's ALOHA experiment on the first validation fling for the
+    velocity reward, without learned methods where no checkpoint ships; the original ALOHA
+    (the space's nominal design) is the table's first row, validated as tt validate would, and
+    the scene's first robot; each winner's change from it is printed."""
+    from tt.baselines.evaluate import evaluate_designs
+    from tt.demo import DemoConfig, run_demo
+    from tt.report import summary_row
+    from tt.sim.designs import get_space
+    from tt.sim.motions import for_space, get_motion
+
+    monkeypatch.setattr(ckpt, "shipped_folder", lambda: tmp_path / "none")
+    config = DemoConfig(space="aloha", budget=16, out=tmp_path / "demo")
+    assert (config.motion, config.reward, config.original) == ("bi_fling:100", "tracking_velocity", True)
+    assert DemoConfig().original is False and DemoConfig(space="aloha", reward="tracking").reward == "tracking"
+    lines: list[str] = []
+    rows = run_demo(config, echo=lines.append)
+    assert [r["name"] for r in rows] == ["Original ALOHA", "Random", "CMA-ES"]
+    assert any(
+        line.startswith("the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped") for line in lines
+    )
+    nominal = get_space("aloha").nominal()
+    fling = for_space([get_motion("bi_fling:100")], "aloha")
+    want = summary_row(evaluate_designs([nominal], fling, "tracking_velocity", backend="mujoco").metrics, 0)
+    for key in ("pos_err", "max_joint_speed", "velocity", "reward"):
+        assert rows[0][key] == pytest.approx(want[key], rel=1e-6), key
+    for row in rows[1:]:
+        assert math.isfinite(row["max_joint_speed"]) and row["rollouts"] == 16
+        assert any(line.startswith(f"{row['name']} against Original ALOHA: position error") for line in lines)
+    saved = json.loads((tmp_path / "demo" / "demo.json").read_text())
+    assert saved["reward"] == "tracking_velocity" and list(saved["designs"])[0] == "Original ALOHA"
+    assert saved["designs"]["Original ALOHA"] == get_space("aloha").to_dict(nominal)
+    assert (tmp_path / "demo" / "demo.html").is_file()
+
+
 def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, tiny_checkpoint):
     from tt.cli import app
 

@@ -1490,8 +1490,17 @@ def dataset_verify(path: Path = typer.Argument(..., help="Dataset folder.")) -> 
 @app.command()
 def demo(
     space: str = typer.Option("viperx", help="Design space."),
-    motion: str = typer.Option("toss", help="Target motion (library name or file)."),
-    reward: str = typer.Option("tracking", help=_REWARD_HELP, callback=_reward),
+    motion: Optional[str] = typer.Option(
+        None, help="Target motion (library name or file; default: the space's, toss; aloha: bi_fling:100)."
+    ),
+    reward: Optional[str] = typer.Option(
+        None, help=_REWARD_HELP + " Default: the space's, tracking; aloha: tracking_velocity.", callback=_reward
+    ),
+    original: Optional[bool] = typer.Option(
+        None,
+        "--original/--no-original",
+        help="Validate the space's nominal design beside the winners (default: aloha).",
+    ),
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
     samples: int = typer.Option(16, help="Candidates for Zeroth-Order and Self-Guidance."),
     num_steps: int = typer.Option(20, help="DDIM steps of Zeroth-Order and Self-Guidance (of 100)."),
@@ -1505,7 +1514,8 @@ def demo(
     """The main job: co-design a robot for a motion with every method; validate; show the winners.
 
     Random and batched CMA-ES always run; Zeroth-Order and Dynamics Self-Guidance run when
-    the space has a shipped DiT checkpoint (or --checkpoint is given)."""
+    the space has a shipped DiT checkpoint (or --checkpoint is given). --space aloha: the
+    paper's ALOHA experiment on a fling, the original ALOHA against the optimized designs."""
     from rich.console import Console
 
     from tt.demo import DemoConfig, run_demo
@@ -1529,9 +1539,11 @@ def demo(
         seed=seed,
         out=out,
         device=device,
+        original=original,
     )
     _output(out, "--out", folder=True)
     rows = run_demo(config, echo=typer.echo)
+    space, motion, reward = config.space, config.motion, config.reward
     extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + (
         [("note", "note")] if any("note" in r for r in rows) else []
     )

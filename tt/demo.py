@@ -5,6 +5,12 @@ reward by default), re-runs each winner on the MuJoCo + mink oracle, prints the 
 table (validated metrics and optimize time) and writes an HTML scene of the winners
 tracking the motion.
 
+The ALOHA (``tt demo --space aloha``) runs the paper's ALOHA experiment on one motion: a
+bimanual validation fling (bi_fling:100) for the "Tracking Velocity" reward, the original
+ALOHA (the space's nominal design) validated beside the winners, first in the table and the
+scene, and each winner's change in position error and max joint speed from it printed
+(`SPACE_DEFAULTS`; benchmarks/aloha.py runs it over 9 seeds).
+
 Methods: Random and batched CMA-ES (budget candidates each, scored by tt's batched Warp
 rollout), and, when the design space has a shipped DiT checkpoint
 (`tt.dit.checkpoint.default_checkpoint`) or one is given, the diffusion model's
@@ -46,17 +52,39 @@ LEARNED = ("zeroth", "dgs", "zeroth-sim")
 ALL_METHODS = ("random", "cmaes") + LEARNED
 
 
+#: Each space's demo problem when none is named, (motion, reward, original): ViperX tosses for
+#: the tracking reward; the ALOHA is the paper's ALOHA experiment, a bimanual validation fling
+#: for "Tracking Velocity", the optimized designs beside the original ALOHA (`original`).
+SPACE_DEFAULTS: dict[str, tuple[str, str, bool]] = {
+    "viperx": ("toss", "tracking", False),
+    "aloha": ("bi_fling:100", "tracking_velocity", True),
+}
+
+
+def space_defaults(space: str) -> tuple[str, str, bool]:
+    """(motion, reward, original) of `space`'s demo: `SPACE_DEFAULTS`, else the toss (one end
+    effector) or the first bimanual validation fling (two), the tracking reward, no original."""
+    if space in SPACE_DEFAULTS:
+        return SPACE_DEFAULTS[space]
+    from tt.sim.designs import get_space
+
+    return ("toss" if get_space(space).ee_count == 1 else "bi_fling:100"), "tracking", False
+
+
 @dataclass(frozen=True)
 class DemoConfig:
-    """space / motion / reward: the problem. budget: candidates per motion for the rollout-based
-    methods. samples: candidates for the learned methods; num_steps: their DDIM steps.
-    checkpoint: DiT checkpoint file or run folder for the learned methods (None: the
-    space's shipped one; where there is none they are skipped). methods: which to run, in
-    order. out: folder for demo.json and demo.html. device: Warp/torch device (None: default)."""
+    """space / motion / reward: the problem (None: the space's, `space_defaults`). budget:
+    candidates per motion for the rollout-based methods. samples: candidates for the learned
+    methods; num_steps: their DDIM steps. checkpoint: DiT checkpoint file or run folder for
+    the learned methods (None: the space's shipped one; where there is none they are
+    skipped). methods: which to run, in order. original: also validate the space's nominal
+    design (the robot it is built around: the original ALOHA), first in the table and the
+    scene, with each winner's change from it (None: the space's default). out: folder for
+    demo.json and demo.html. device: Warp/torch device (None: default)."""
 
     space: str = "viperx"
-    motion: str = "toss"
-    reward: str = "tracking"
+    motion: str | None = None
+    reward: str | None = None
     budget: int = 64
     samples: int = 16
     num_steps: int = 20
@@ -66,11 +94,16 @@ class DemoConfig:
     out: Path = Path("tt_demo")
     device: str | None = None
     cmaes_options: dict = field(default_factory=lambda: {"popsize": 8, "generations": 4})
+    original: bool | None = None
 
     def __post_init__(self) -> None:
         from tt.sim.rewards import reward_name
 
-        object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names become tt's
+        motion, reward, original = space_defaults(self.space)
+        object.__setattr__(self, "motion", motion if self.motion is None else self.motion)
+        reward = reward if self.reward is None else self.reward
+        object.__setattr__(self, "reward", reward_name(reward))  # the paper's names become tt's
+        object.__setattr__(self, "original", original if self.original is None else bool(self.original))
         unknown = [m for m in self.methods if m not in ALL_METHODS]
         if unknown:
             raise TTError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")
@@ -160,6 +193,23 @@ def make_optimizer(method: str, config: DemoConfig, learned: LearnedSetup | None
     return get_optimizer(method)
 
 
+#: The row name of a space's original (nominal) design.
+ORIGINAL = {"aloha": "Original ALOHA", "viperx": "Original ViperX"}
+#: Metrics whose change from the original design the demo reports (the paper's ALOHA result).
+CHANGED = (("pos_err", "position error", "cm"), ("max_joint_speed", "max joint speed", "rad/s"))
+
+
+def changes_from_original(original: dict, row: dict) -> list[str]:
+    """One line per `CHANGED` metric: the row's value against the original's, relative change."""
+    parts = []
+    for key, name, unit in CHANGED:
+        a, b = original.get(key), row.get(key)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) or a == 0:
+            continue
+        parts.append(f"{name} {a:.2f} -> {b:.2f} {unit} ({100 * (b / a - 1):+.0f} %)")
+    return [f"{row['name']} against {original['name']}: " + "; ".join(parts)] if parts else []
+
+
 #: Row names, the paper's (CMA-ES is tt's batched CMA-ES; DGS is Dynamics Self-Guidance).
 LABELS = {"random": "Random", "cmaes": "CMA-ES", "zeroth": "Zeroth", "dgs": "DGS", "zeroth-sim": "Zeroth + sim"}
 
@@ -228,14 +278,25 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
         labels.append(LABELS[method])
 
     winners = [r.best for r in results]
-    ev = evaluate_designs(winners, motions, config.reward, backend="mujoco")
+    # The original design (where asked) first: one oracle call validates it with the winners.
+    originals = [space.nominal()] if config.original else []
+    shown = originals + winners
+    shown_labels = [ORIGINAL.get(config.space, "Original")] * len(originals) + labels
+    ev = evaluate_designs(shown, motions, config.reward, backend="mujoco")
     rows = []
+    if originals:
+        rows.append({"name": shown_labels[0], **summary_row(ev.metrics, 0)})
     for i, r in enumerate(results):
-        row = {"name": labels[i], **summary_row(ev.metrics, i), "seconds": r.seconds, "rollouts": r.rollouts}
+        k = len(originals) + i
+        row = {"name": labels[i], **summary_row(ev.metrics, k), "seconds": r.seconds, "rollouts": r.rollouts}
         if not np.isfinite(row.get("pos_err", 0.0)):
             # No step counted: the error is past the termination threshold from the start.
             row["note"] = "ended at step 1"
         rows.append(row)
+    if originals:
+        for row in rows[1:]:
+            for line in changes_from_original(rows[0], row):
+                echo(line)
     rows += failures
 
     config.out.mkdir(parents=True, exist_ok=True)
@@ -246,7 +307,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
             "motion": config.motion,
             "reward": config.reward,
             "rows": rows,
-            "designs": {label: space.to_dict(r.best) for label, r in zip(labels, results)},
+            "designs": {label: space.to_dict(d) for label, d in zip(shown_labels, shown)},
             "checkpoint": None if learned is None else str(learned.checkpoint),
             "critic": None if learned is None or learned.critic is None else str(learned.critic.path),
             "checkpoint_note": checkpoint_note,
@@ -260,10 +321,11 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
         from tt.viz.episode_file import save_episode_npz
 
         episode_file = save_episode_npz(
-            config.out / "demo_episode.npz", ev.episode, winners, labels=labels, motion_name=config.motion
+            config.out / "demo_episode.npz", ev.episode, shown, labels=shown_labels, motion_name=config.motion
         )
         view_cmd(str(episode_file), html=config.out / "demo.html", echo=lambda s: None)
-        echo(f"wrote {config.out / 'demo.html'} (the winners tracking {config.motion}; open it in a browser)")
+        who = f"the {shown_labels[0]} and the winners" if originals else "the winners"
+        echo(f"wrote {config.out / 'demo.html'} ({who} tracking {config.motion}; open it in a browser)")
     except Exception as e:  # the table is the result; a viewer problem must not hide it
         log.warning("could not write the demo scene: %s", e)
     return rows
