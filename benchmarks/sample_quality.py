@@ -78,7 +78,28 @@ def main() -> None:
     p.add_argument("--critic", default=None, help="dynamics critic of the Zeroth-Order rows (default: the shipped one)")
     p.add_argument("--out", default=str(RESULTS / "sample_quality.md"))
     p.add_argument("--records", default=None, help="also write every validated draw to this JSON file")
+    p.add_argument("--from-records", default=None, help="rewrite the report (and plot) from a --records file; no run")
     args = p.parse_args()
+    if args.from_records is not None:
+        saved = json.loads(Path(args.from_records).read_text())
+        kept = argparse.Namespace(**{**saved["args"], "out": args.out})
+        motions = [argparse.Namespace(name=m) for m in dict.fromkeys(r["motion"] for r in saved["records"])]
+        names = [k for k in saved["records"][0] if k not in ("seed", "motion", "uniform")]
+        lines = report(
+            saved["records"],
+            names,
+            kept,
+            motions,
+            saved.get("critic", "viperx_mini_dynamics.pt"),
+            saved.get("minutes", float("nan")),
+            saved.get("load_start", "?"),
+            _mean_ci(),
+            header=saved.get("header"),
+            load_end=saved.get("load_end"),
+        )
+        write_report(args.out, lines)
+        plot(saved["records"], names, kept.ns, kept.n, Path(args.out).with_suffix(".png"))
+        return
     if args.n < max(args.ns) or min(args.ns) < 1:
         p.error("--ns must lie in 1 .. --n")
 
@@ -149,9 +170,68 @@ def main() -> None:
     minutes = (time.perf_counter() - start) / 60
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    header, load_end = machine_header("cpu").rstrip(), load_line()
     if args.records is not None:
-        Path(args.records).write_text(json.dumps({"args": vars(args), "records": records}))
-    write_report(out, report(records, [n for n, _ in models], args, motions, critic_path, minutes, load_start, mean_ci))
+        Path(args.records).write_text(
+            json.dumps(
+                {
+                    "args": vars(args),
+                    "records": records,
+                    "minutes": minutes,
+                    "load_start": load_start,
+                    "load_end": load_end,
+                    "header": header,
+                    "critic": str(critic_path),
+                }
+            )
+        )
+    names = [n for n, _ in models]
+    write_report(
+        out,
+        report(
+            records, names, args, motions, critic_path, minutes, load_start, mean_ci, header=header, load_end=load_end
+        ),
+    )
+    plot(records, names, args.ns, args.n, out.with_suffix(".png"))
+
+
+def _mean_ci():
+    from tt.report import mean_ci
+
+    return mean_ci
+
+
+def plot(records: list, names: list[str], ns: list[int], n_pool: int, path: Path) -> None:
+    """Validated reward of the best of n against n and against wall time (the pool's per-design costs)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    curves = [("Random", "uniform", "sim_reward", ("sim_seconds",))]
+    for s in names:
+        curves += [
+            (f"zeroth-sim {s}", s, "sim_reward", ("draw_seconds", "sim_seconds")),
+            (f"Zeroth-Order {s}", s, "predicted", ("draw_seconds", "critic_seconds")),
+        ]
+    for label, src, key, costs in curves:
+        mean = [np.mean([_pick(rec[src], key, n) for rec in records]) for n in ns]
+        per = np.mean([sum(rec[src].get(c, 0.0) for c in costs) for rec in records]) / n_pool
+        style = "-o" if src == "uniform" else ("--s" if key == "predicted" else "-^")
+        axes[0].plot(ns, mean, style, label=label)
+        axes[1].plot([per * n for n in ns], mean, style, label=label)
+    axes[0].set(
+        xscale="log",
+        xlabel="n (designs drawn)",
+        ylabel="validated reward (mean over runs)",
+        title="best of n at equal draws",
+    )
+    axes[1].set(xscale="log", xlabel="wall time [s] (pool cost per design x n)", title="at equal wall time")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def _pick(row: dict, key: str, n: int) -> float:
@@ -161,14 +241,24 @@ def _pick(row: dict, key: str, n: int) -> float:
 
 
 def report(
-    records: list, names: list[str], args, motions, critic_path, minutes: float, load_start: str, mean_ci
+    records: list,
+    names: list[str],
+    args,
+    motions,
+    critic_path,
+    minutes: float,
+    load_start: str,
+    mean_ci,
+    *,
+    header: str | None = None,
+    load_end: str | None = None,
 ) -> list[str]:
     sources = ["uniform", *names]
     lines = [
         "# Sample quality: generator samples against uniform designs (issue 51)",
         "",
-        machine_header("cpu").rstrip(),
-        f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_line()}",
+        header or machine_header("cpu").rstrip(),
+        f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_end or load_line()}",
         f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(m.name for m in motions)})"
         f"{' (seed i on motion i only)' if args.paired else ''}, "
         f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
