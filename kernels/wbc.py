@@ -833,4 +833,19 @@ def wbc_initial_q(
     return out
 
 
-__all__ = ["WBCData", "WBCModel", "WBCWeights", "make_wbc_data", "wbc_initial_q", "wbc_step", "wbc_weights"]
+def load_wbc_kernels(device: str | None = None) -> None:
+    """Compile (or load from Warp's cache) the whole-body kernels on `device` now: a caller
+    that launches them from several threads loads them once, before the threads start."""
+    wp.load_module(_kinematics.module, device=device)
+
+
+__all__ = [
+    "WBCData",
+    "WBCModel",
+    "WBCWeights",
+    "load_wbc_kernels",
+    "make_wbc_data",
+    "wbc_initial_q",
+    "wbc_step",
+    "wbc_weights",
+]

@@ -174,7 +174,7 @@ def test_every_backend_implements_the_interface_and_resolves_designs_like_their_
 
     from tt.sim.backends import BACKENDS, RolloutBackend, get_backend, resolve_designs
 
-    assert BACKENDS == ("warp", "mjwarp", "newton", "mujoco")
+    assert BACKENDS == ("warp", "mjwarp", "newton", "mjbatch", "mujoco")
     for name in BACKENDS:
         impl = get_backend(name)
         assert isinstance(impl, RolloutBackend) and impl.name == name

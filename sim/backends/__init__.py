@@ -1,4 +1,4 @@
-"""Rollout backends by name: one interface (`RolloutBackend`), one resolver, four simulators.
+"""Rollout backends by name: one interface (`RolloutBackend`), one resolver, five simulators.
 
 ``rollout(designs, motions, backend=name)`` (`tt.sim.rollout`) resolves the designs with
 the backend's `resolve` (`tt.sim.backends.base.resolve_designs`, the only design -> model
@@ -9,6 +9,7 @@ resolver) and hands the `Robots` to its `run`. The implementations:
 | ``warp`` | tt's fused Warp kernels, contact-free trees (default) | `tt.sim.rollout` over `tt.kernels.rollout` |
 | ``mjwarp`` | MuJoCo-Warp, contacts too; the batched reference | `tt.sim.mjwarp_backend` |
 | ``newton`` | Newton's Featherstone solver, contact-free arms | `tt.sim.newton_backend` |
+| ``mjbatch`` | MuJoCo C on a thread pool, legged floating bases (the quadruped) | `tt.sim.mjbatch_backend` |
 | ``mujoco`` | the oracle: MuJoCo C + mink, one world at a time | `tt.sim.validate` |
 
 The simulators import lazily (MuJoCo-Warp and Newton take seconds to import).
@@ -138,6 +139,36 @@ class NewtonBackend:
         return newton_rollout(robots, motions, config=config, device=device, progress=progress)
 
 
+class MjBatchBackend:
+    """MuJoCo C's own physics (the oracle's, float64) stepped by ``mujoco.batch`` on every
+    thread, with tt's batched whole-body controller kernel: floating-base legged robots
+    (the quadruped), any mix of structures in one call."""
+
+    name = "mjbatch"
+    perturbs = False
+
+    def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
+        return resolve_designs(designs, who="the 'mjbatch' backend")
+
+    def run(
+        self,
+        robots: Robots,
+        motions: Sequence[Motion],
+        *,
+        config: IKConfig,
+        device: str,
+        chunk: int | None,
+        progress: bool,
+        action_noise: float,
+        noise_seed: int,
+        threads: int | None = None,
+        graph: bool | None = None,
+    ) -> Episode:
+        from tt.sim.mjbatch_backend import mjbatch_rollout
+
+        return mjbatch_rollout(robots, motions, config=config, threads=threads, progress=progress)
+
+
 class OracleBackend:
     """The oracle (MuJoCo C + mink, world by world), the reference of every other backend."""
 
@@ -168,7 +199,7 @@ class OracleBackend:
 
 
 _REGISTRY: dict[str, RolloutBackend] = {
-    b.name: b for b in (WarpBackend(), MjWarpBackend(), NewtonBackend(), OracleBackend())
+    b.name: b for b in (WarpBackend(), MjWarpBackend(), NewtonBackend(), MjBatchBackend(), OracleBackend())
 }
 
 #: Rollout backends by name.
@@ -184,6 +215,7 @@ def get_backend(name: str) -> RolloutBackend:
 
 __all__ = [
     "BACKENDS",
+    "MjBatchBackend",
     "MjWarpBackend",
     "NewtonBackend",
     "OracleBackend",
