@@ -164,15 +164,16 @@ def evaluate_designs(
             f"design space {sp.name!r} has contacts; backend 'warp' simulates contact-free trees only, "
             "use backend='mujoco' or 'mjwarp'"
         )
-    # Each design's model is built once, for the size and mass terms and, on "warp" (where a
-    # second build is a visible share of a small batch's time), for the rollout too: as tree
+    # Each design's model is built once, for the size and mass terms and, on "warp" and
+    # "mjbatch" (where a second build is a visible share of the time), for the rollout too: as tree
     # fields where the space builds them directly, else as MuJoCo models, large batches in
     # worker processes, one per rollout thread.
     models = sp.trees(designs) if backend == "warp" else None
     if models is None:
         models = _models(sp, designs, backend=backend, device=device, threads=threads)
     ep = run_rollout(
-        models if backend == "warp" else designs,
+        # "warp" and "mjbatch" run the models built here; the others import MJCF or build their own.
+        models if backend in ("warp", "mjbatch") else designs,
         motions,
         backend=backend,
         device=device,

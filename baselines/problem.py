@@ -28,13 +28,14 @@ BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)
 
 def default_backend(space: str) -> str:
     """The backend candidates of `space` are evaluated with when a problem names none:
-    ``"warp"`` (tt's kernels) for contact-free spaces, ``"mujoco"`` (the oracle) for spaces
-    with contacts (the quadruped), which ``"warp"`` cannot simulate. ``"mjwarp"`` simulates
-    them too; on a CPU it ran the quadruped at 0.02x (1 world) to 0.95x (256 worlds of one
-    structure) the oracle's world-steps per CPU second, and 0.03x for random designs, which
-    rarely share a structure (benchmarks/results/quadruped.md). Name it to use it, e.g. on
-    a GPU, where it was not measured."""
-    return "mujoco" if get_space(space).has_contacts else "warp"
+    ``"warp"`` (tt's kernels) for contact-free spaces, ``"mjbatch"`` for spaces with contacts
+    (the quadruped), which ``"warp"`` cannot simulate: the oracle's own MuJoCo C physics on
+    every thread with tt's batched whole-body controller, whose episodes agree with the
+    oracle's (tests/test_mjbatch.py) at several times its speed
+    (benchmarks/results/quadruped_batched.md). ``"mujoco"`` is the oracle itself;
+    ``"mjwarp"`` simulates contacts too but on a CPU ran random quadruped designs at 0.03x
+    the oracle (benchmarks/results/quadruped.md): name it to use it, e.g. on a GPU."""
+    return "mjbatch" if get_space(space).has_contacts else "warp"
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,7 @@ class Problem:
     `REWARD_ALIASES`, stored as tt's). budget: candidate designs per motion. seed: random
     seed. backend: rollout backend used to evaluate candidates in batches. device:
     Warp/torch device, None for the default.
-    threads: CPU threads of the "warp" backend's batched rollouts, None for every core.
+    threads: CPU threads of the "warp" and "mjbatch" backends' batched rollouts, None for every core.
     """
 
     space: str

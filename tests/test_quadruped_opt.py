@@ -95,7 +95,7 @@ def test_cmaes_improves_over_random_designs_on_the_quadruped(space):
 
     motion = _reach_up_and_ahead()
     problem = Problem(space="quadruped", motions=(motion,), reward="tracking", budget=20, seed=0)
-    assert problem.backend == "mujoco", "a space with contacts is evaluated on the oracle by default"
+    assert problem.backend == "mjbatch", "a space with contacts is evaluated on MuJoCo C, batched, by default"
     random_designs = space.sample(problem.budget, seed=problem.seed)  # what RandomSearch draws and scores
     rnd = evaluate_designs(random_designs, [motion], "tracking", backend="mujoco")
     cma = CMAES().optimize(problem)

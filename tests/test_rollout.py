@@ -214,9 +214,9 @@ def test_every_backend_implements_the_interface_and_resolves_designs_like_their_
     assert isinstance(get_backend("mujoco").resolve([quadruped.nominal()]).models[0], mujoco.MjModel)
 
 
-@pytest.mark.parametrize("space_name, backend, motion_steps", [("viperx", "warp", None), ("quadruped", "mujoco", 20)])
+@pytest.mark.parametrize("space_name, backend, motion_steps", [("viperx", "warp", None), ("quadruped", "mjbatch", 20)])
 def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, backend, motion_steps, tt_cli):
-    """`tt rollout` (warp by default, the oracle for the quadruped's contacts) writes the
+    """`tt rollout` (warp by default, mjbatch for the quadruped's contacts) writes the
     metrics an evaluation of the same designs on the same backend gives, and counts world-steps."""
     import json
 

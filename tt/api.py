@@ -94,8 +94,8 @@ def rollout(
     """Roll out every design on every motion in one batch and score it (``tt rollout``).
 
     designs: designs of one space (None: `n` random designs of `space`, seed `seed`).
-    motions: None: the toss. backend: "warp" (tt's kernels), "mjwarp", "newton" or "mujoco"
-    (None: "warp", or "mujoco" for spaces with contacts: `tt.baselines.default_backend`).
+    motions: None: the toss. backend: "warp" (tt's kernels), "mjwarp", "newton", "mjbatch" or
+    "mujoco" (None: "warp", or "mjbatch" for spaces with contacts: `tt.baselines.default_backend`).
     threads: CPU threads of the warp backend (None: every core; results are the same).
     Returns a `tt.baselines.Evaluation`: ``objective`` (D,), ``reward`` (D, M), ``metrics``
     name -> (D, M) (units in `tt.sim.rewards.METRIC_UNITS`: position error in cm, ...) and the

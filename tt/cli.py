@@ -146,7 +146,7 @@ def _draw_flags(space: str, seed: int, action_noise: float | None) -> None:
     if action_noise and get_space(space).has_contacts:
         _fail(
             f"--action-noise perturbs the commands of tt's Warp rollouts; --space {space} has contacts and rolls out "
-            "on the MuJoCo oracle, which runs the clean commands: leave --action-noise out (or give 0)"
+            "on MuJoCo C (the mjbatch backend), which runs the clean commands: leave --action-noise out (or give 0)"
         )
 
 
@@ -483,7 +483,7 @@ def rollout(
     motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable; default: toss); see `tt motions`."),
     motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
     backend: Optional[str] = typer.Option(
-        None, help="warp | mjwarp | newton | mujoco (default: warp; mujoco, the oracle, for spaces with contacts)."
+        None, help="warp | mjwarp | newton | mjbatch | mujoco (default: warp; mjbatch for spaces with contacts)."
     ),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
     reward: str = typer.Option("tracking", help=_REWARD_HELP, callback=_reward),
@@ -494,7 +494,7 @@ def rollout(
         None,
         "--threads",
         min=1,
-        help="CPU threads of the warp backend's rollouts (default: every core); results are the same for any count.",
+        help="CPU threads of warp / mjbatch rollouts (default: every core); results are the same for any count.",
     ),
     graph: Optional[bool] = typer.Option(
         None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."
@@ -507,6 +507,7 @@ def rollout(
     from rich.console import Console
 
     from tt.baselines.evaluate import evaluate_designs
+    from tt.baselines.problem import default_backend
     from tt.report import columns_for, rich_table, summary_row
     from tt.sim.backends import BACKENDS
     from tt.sim.controller import IKConfig
@@ -524,7 +525,7 @@ def rollout(
         _at_least("--n", n, 1)
         designs = sp.sample(n, seed)
     ms = _motions(motion if (motion or motion_file) else ["toss"], motion_file, sp.name)
-    backend = backend or ("mujoco" if sp.has_contacts else "warp")
+    backend = backend or default_backend(sp.name)
     if backend not in BACKENDS:
         _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")
     worlds = len(designs) * len(ms)
@@ -550,7 +551,7 @@ def rollout(
     )
     rate = world_steps / seconds
     used = None
-    if backend == "warp" and ep.qpos.device.type == "cpu":
+    if backend in ("warp", "mjbatch") and ep.qpos.device.type == "cpu":
         from tt.kernels.rollout import cpu_threads
 
         used = cpu_threads(threads)
@@ -664,10 +665,10 @@ def optimize(
         False, "--sequential", help="CMA-ES one rollout at a time on the oracle.", rich_help_panel=_SEARCH
     ),
     backend: Optional[str] = typer.Option(
-        None, help="warp | mjwarp | newton | mujoco (default: per space).", rich_help_panel=_SEARCH
+        None, help="warp | mjwarp | newton | mjbatch | mujoco (default: per space).", rich_help_panel=_SEARCH
     ),
     threads: Optional[int] = typer.Option(
-        None, "--threads", min=1, help="CPU threads of warp rollouts (default: all).", rich_help_panel=_SEARCH
+        None, "--threads", min=1, help="CPU threads of warp / mjbatch rollouts (default: all).", rich_help_panel=_SEARCH
     ),
     critic_samples: int = typer.Option(
         1, help="Dynamics predictions averaged per candidate.", rich_help_panel=_ABLATIONS
@@ -699,10 +700,10 @@ def optimize(
       candidates (best predicted first; default: all `--samples`); `--method cmaes --init model`
       is the third hybrid: CMA-ES started from the model's samples (its screen and step sizes)
       instead of random designs.
-    - `--backend`: the batched rollout of candidates: warp, mjwarp, newton or mujoco (default:
-      warp, or mujoco for spaces with contacts: quadruped).
-    - `--threads`: CPU threads of the warp backend's rollouts (default: every core); results
-      are the same for any count.
+    - `--backend`: the batched rollout of candidates: warp, mjwarp, newton, mjbatch or mujoco
+      (default: warp, or mjbatch for spaces with contacts: quadruped).
+    - `--threads`: CPU threads of the warp and mjbatch backends' rollouts (default: every
+      core); results are the same for any count.
     - `--sequential`: CMA-ES the paper's way, one rollout at a time on the oracle.
     - `--json`: the design, time and metrics as JSON; `-` is stdout, and the tables then go to
       stderr.
@@ -1363,8 +1364,8 @@ def train(
 def generate(
     space: str = typer.Option(
         "viperx",
-        help="Design space: viperx, aloha, bimanual (tt's warp kernels), quadruped (the MuJoCo + mink oracle: "
-        "contacts).",
+        help="Design space: viperx, aloha, bimanual (tt's warp kernels), quadruped (MuJoCo C on every thread, "
+        "the mjbatch backend: contacts).",
     ),
     designs: int = typer.Option(..., help="Number of designs N."),
     episodes_per_design: int = typer.Option(10, help="Episodes per design K (augmented training motions)."),

@@ -910,17 +910,17 @@ def generate_cmd(
     [--select K [--uniform-share F]]``.
 
     The rollout backend is `tt.baselines.problem.default_backend` of the space: "warp" for
-    contact-free spaces, "mujoco" (the oracle, one world at a time) for the quadruped.
-    action_noise None: `DEFAULT_ACTION_NOISE` on "warp", 0 on "mujoco" (which does not
-    perturb). Generates or resumes the dataset and returns the summary text. Raises ValueError for
+    contact-free spaces, "mjbatch" (the oracle's MuJoCo C physics on every thread) for the
+    quadruped. action_noise None: `DEFAULT_ACTION_NOISE` on "warp", 0 on "mjbatch" (which does
+    not perturb). Generates or resumes the dataset and returns the summary text. Raises ValueError for
     bad arguments and `DatasetError` when DATASET holds a dataset of other arguments.
     """
     from tt.baselines.problem import default_backend
 
-    # tt's kernels for contact-free spaces, the oracle for spaces with contacts (the quadruped).
+    # tt's kernels for contact-free spaces, MuJoCo C batched for spaces with contacts (the quadruped).
     backend = default_backend(space)
     if action_noise is None:
-        # Only the warp backend perturbs commands; the oracle runs the clean ones.
+        # Only the warp backend perturbs commands; mjbatch runs the clean ones.
         action_noise = DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
     config = GenerateConfig(
         space=space,

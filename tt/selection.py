@@ -200,9 +200,9 @@ class CheckpointSelector:
         cfg = self.config
         backend = cfg.backend
         if backend is None:
-            from tt.sim.designs import get_space
+            from tt.baselines.problem import default_backend
 
-            backend = "mujoco" if get_space(trained.space).has_contacts else "warp"
+            backend = default_backend(trained.space)
         score = score_designs(
             trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps, backend=backend
         )
