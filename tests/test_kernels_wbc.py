@@ -151,6 +151,32 @@ def test_wbc_step_matches_the_oracle_on_200_random_standing_states(space, standi
     assert clipped > 0
 
 
+def test_the_cpu_row_launch_of_the_normal_equations_equals_the_entry_launch(standing):
+    """On the CPU `wbc_step` forms H one row per thread, skipping zero Jacobian entries; the
+    GPU's launch (one thread per entry) gives the same H and gradient bit for bit."""
+    import tt.kernels.wbc as kw
+
+    tree, W = standing.tree, len(standing.models)
+    data = make_wbc_data(tree, W, device="cpu")
+    wbc_step(
+        tree,
+        wp.array(standing.qpos, dtype=wp.float64, device="cpu"),
+        wp.array(standing.pos, dtype=wp.vec3d, device="cpu"),
+        wp.array(standing.quat, dtype=wp.vec4d, device="cpu"),
+        data=data,
+    )
+    inputs = [tree.dof_count, tree.dof_qposadr, tree.dof_posture_cost, tree.q_home, tree.weights]
+    inputs += [data.q, data.jac, data.err, data.mu]
+    out = {}
+    for kernel, dim in ((kw._normal_equations, (W, tree.nv, tree.nv)), (kw._normal_equations_rows, (W, tree.nv))):
+        hess, grad = wp.zeros_like(data.hess), wp.zeros_like(data.grad)
+        wp.launch(kernel, dim=dim, inputs=inputs, outputs=[hess, grad], device="cpu")
+        out[kernel.key] = np.tril(hess.numpy()), grad.numpy()
+    (h1, g1), (h2, g2) = out.values()
+    assert np.array_equal(h1, h2) and np.array_equal(g1, g2)
+    assert np.count_nonzero(h1) > W * tree.nv  # off-diagonal entries were formed
+
+
 def test_joints_at_their_limits_are_clipped_as_the_oracle_clips(space):
     """Every limited joint within 0.02 rad of one of its limits (some just past it) and far
     targets: mink's step leaves the ranges and both sides clip; the unclipped rest still agrees."""
