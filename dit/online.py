@@ -314,17 +314,7 @@ class OnlineTokenSource:
             dev = ep.ee_pos.device
             steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
             # float64 sums: the ranking does not depend on the rollout's thread count.
-            inputs = RewardInputs(
-                ep.ee_pos.double(),
-                ep.ee_quat.double(),
-                ep.target_pos.double(),
-                ep.target_quat.double(),
-                act_force=ep.act_force.double(),
-                act_vel=ep.act_vel.double(),
-                alive=ep.alive,
-                fallen=ep.fallen,
-                motion_steps=steps,
-            )
+            inputs = RewardInputs.from_episode(ep, motion_steps=steps, double=True)
             rewards.append(metrics(inputs, reward_cfg)["reward"].cpu().numpy())
             motion_of.append(ep.motion_index.cpu().numpy())
             eligible.append(keep.cpu().numpy())

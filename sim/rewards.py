@@ -333,15 +333,19 @@ class RewardInputs:
         mass: torch.Tensor | None = None,
         *,
         motion_steps: torch.Tensor | None = None,
+        double: bool = False,
     ) -> RewardInputs:
-        """Inputs reading the tensors of a `tt.sim.episode.Episode` (views, no copies)."""
+        """Inputs reading the tensors of a `tt.sim.episode.Episode` (views, no copies; with
+        `double`, float64 copies of the float ones, so sums over steps do not depend on the
+        summation order, i.e. on the thread count of the rollout that recorded them)."""
+        f = (lambda x: x.double()) if double else (lambda x: x)
         return cls(
-            ee_pos=ep.ee_pos,
-            ee_quat=ep.ee_quat,
-            target_pos=ep.target_pos,
-            target_quat=ep.target_quat,
-            act_force=ep.act_force,
-            act_vel=ep.act_vel,
+            ee_pos=f(ep.ee_pos),
+            ee_quat=f(ep.ee_quat),
+            target_pos=f(ep.target_pos),
+            target_quat=f(ep.target_quat),
+            act_force=f(ep.act_force),
+            act_vel=f(ep.act_vel),
             size=size,
             mass=mass,
             alive=ep.alive,

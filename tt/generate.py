@@ -359,17 +359,7 @@ def generate_shard(
             motion_steps = torch.tensor([m.steps for m in motions], device=dev)[ep.motion_index.to(dev)]
             # Summed in float64, so the float32 values stored do not depend on the summation
             # order (thread count) of the worker that computed them.
-            inputs = RewardInputs(
-                ep.ee_pos.double(),
-                ep.ee_quat.double(),
-                ep.target_pos.double(),
-                ep.target_quat.double(),
-                act_force=ep.act_force.double(),
-                act_vel=ep.act_vel.double(),
-                alive=ep.alive,
-                fallen=ep.fallen,
-                motion_steps=motion_steps,
-            )
+            inputs = RewardInputs.from_episode(ep, motion_steps=motion_steps, double=True)
             score = {k: v.cpu().numpy() for k, v in metrics(inputs, reward_cfg).items()}
             lengths = ep.lengths().cpu().numpy().astype(np.int64)
             finite = finite_worlds(ep)
