@@ -9,7 +9,9 @@ The ALOHA (``tt demo --space aloha``) runs the paper's ALOHA experiment on one m
 bimanual validation fling (bi_fling:100) for the "Tracking Velocity" reward, the original
 ALOHA (the space's nominal design) validated beside the winners, first in the table and the
 scene, and each winner's change in position error and max joint speed from it printed
-(`SPACE_DEFAULTS`; benchmarks/aloha.py runs it over 9 seeds).
+(`SPACE_DEFAULTS`; benchmarks/aloha.py runs it over 9 seeds). Without an ALOHA checkpoint
+(none ships yet) it runs Random and CMA-ES only: 7 s in all on the repository's 2-core CPU when
+idle (2026-12-06).
 
 Methods: Random and batched CMA-ES (budget candidates each, scored by tt's batched Warp
 rollout), and, when the design space has a shipped DiT checkpoint
