@@ -145,6 +145,12 @@ def _pct(values) -> str:
     return f"{100 * m:+.0f} %" + (f" ± {100 * h:.0f}" if math.isfinite(h) else "")
 
 
+def _holds0(values) -> str:
+    """ " (the interval holds 0)" where the 95 % interval of `values`' mean holds 0, else ""."""
+    m, h = mean_ci(values)
+    return " (the interval holds 0)" if math.isfinite(h) and m - h <= 0 <= m + h else ""
+
+
 def _span(values) -> str:
     """Mean relative change and its 95 % interval in percent: "-56 % (-60 to -52 %)"."""
     c, lo, hi = _pct_ci(values)
@@ -171,6 +177,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         "with tt's baselines; `python benchmarks/aloha.py` (the module docstring says what it runs).",
         "",
         machine_header("cpu").rstrip("\n"),
+        f"- runs measured {info.get('date', '?')}",
         f"- load (1, 5, 15 min) at start: {info.get('load_start', '?')}; at end: {info.get('load_end', '?')}",
         f"- command: `{info.get('command', 'python benchmarks/aloha.py')}`",
         f"- {len(runs)} run(s) (run i: seed i on fling i mod {len(info.get('motions', [])) or '?'}: "
@@ -186,11 +193,12 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         "",
         "Mean over the runs ± the 95 % Student-t half-width. Changes: each run's relative change from the "
         "original design on the same fling (paired), then their mean ± half-width. Max joint speed: the largest "
-        "|qdot| of any actuator at any counted step of the episode.",
+        "|qdot| of any actuator at any counted step of the episode; velocity: the mean over the counted steps of "
+        "|qdot|_2 over the actuators (what the reward penalises, squared).",
         "",
-        "| design | pos err (cm) | change | max joint speed (rad/s) | change | velocity (rad/s) | survival (%) "
-        "| reward | optimize (s) | candidates |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| design | pos err (cm) | change | max joint speed (rad/s) | change | velocity (rad/s) | change "
+        "| survival (%) | reward | optimize (s) | candidates |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m in methods:
         rs = [r for r in records if r["method"] == m]
@@ -201,6 +209,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             _ci([r.get("max_joint_speed") for r in rs]),
             "-" if m == ORIGINAL else _pct(relative_changes(records, m, "max_joint_speed")),
             _ci([r.get("velocity") for r in rs]),
+            "-" if m == ORIGINAL else _pct(relative_changes(records, m, "velocity")),
             _ci([r.get("survival_pct") for r in rs]),
             _ci([r.get("reward") for r in rs]),
             "-" if m == ORIGINAL else _ci([r["seconds"] for r in rs]),
@@ -269,20 +278,51 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             f"{_ci(t_r)} s, CMA-ES {_ci(t_c)} s), paired per run, CMA-ES minus Random (= time):",
             "",
             f"- validated reward: {_ci(d_rew)} (CMA-ES higher in {wins} of {len(d_rew)} run(s)): **{verdict}**",
-            f"- position error: {_ci(d_err)} cm; max joint speed: {_ci(d_spd)} rad/s",
+            f"- position error: {_ci(d_err)} cm{_holds0(d_err)}; max joint speed: {_ci(d_spd)} rad/s{_holds0(d_spd)}",
         ]
+        d_eq = paired(records, CMAES_B, RANDOM, "reward")
+        if d_eq:
+            lines.append(
+                f"- at equal candidates ({info.get('budget')} each), CMA-ES minus Random: validated reward {_ci(d_eq)}"
+                f"{_holds0(d_eq)}"
+            )
     else:
         lines.append("no paired runs")
 
+    lines += ["", "## Reading", ""]
+    for m in (CMAES_B, RANDOM):
+        v, j = relative_changes(records, m, "velocity"), relative_changes(records, m, "max_joint_speed")
+        if v and j:
+            lines.append(
+                f"- {m}: the winners of the velocity reward change the mean joint-velocity norm by {_span(v)} from "
+                f"the original, the max joint speed by {_span(j)}"
+                + (
+                    ": the fling's peak still asks some joint for nearly the original's speed."
+                    if abs(mean_ci(j)[0]) < abs(mean_ci(v)[0]) / 2
+                    else "."
+                )
+            )
+    same = [
+        seed
+        for seed, r in _by(records, CMAES_B).items()
+        if seed in _by(records, RANDOM) and _by(records, RANDOM)[seed]["design"] == r["design"]
+    ]
+    if same:
+        lines.append(
+            f"- CMA-ES returned Random's winner in {len(same)} of {len(runs)} runs (runs {', '.join(map(str, same))}): "
+            "its screen (half the budget) is the first half of the same seed's random draws, and no restart beat "
+            "that screen's best."
+        )
+
     lines += ["", "## Per run", ""]
-    head = ["run", "fling"] + [f"{m}: pos err / max speed" for m in methods]
+    head = ["run", "fling"] + [f"{m}: pos err (cm) / max joint speed (rad/s)" for m in methods]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for seed in runs:
         rs = {r["method"]: r for r in records if r["seed"] == seed}
         cells = [str(seed), next(iter(rs.values()))["motion"]]
         for m in methods:
             r = rs.get(m, {})
-            cells.append(f"{r.get('pos_err', float('nan')):.2f} cm / {r.get('max_joint_speed', float('nan')):.2f}")
+            cells.append(f"{r.get('pos_err', float('nan')):.2f} / {r.get('max_joint_speed', float('nan')):.2f}")
         lines.append("| " + " | ".join(cells) + " |")
     path = write_report(out, lines)
     return str(path)
@@ -316,6 +356,7 @@ def main() -> None:
         motions = [Motion(m.name, m.pos[: args.steps], m.quat[: args.steps], m.dt) for m in motions]
     info = {
         "command": " ".join(["python", "benchmarks/aloha.py", *sys.argv[1:]]),
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "load_start": load_line(),
         "motions": [m.name for m in motions],
         "reward": args.reward,
