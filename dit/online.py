@@ -87,7 +87,7 @@ class OnlineConfig:
 
     def __post_init__(self) -> None:
         from tt.sim.designs import get_space
-        from tt.sim.rewards import REWARDS
+        from tt.sim.rewards import REWARDS, reward_name
 
         if self.refresh_every < 1 or self.buffer < 1:
             raise TTError(
@@ -103,8 +103,10 @@ class OnlineConfig:
             raise TTError(
                 "--uniform-share applies only with --online-select above 1 (without selection every design is uniform)"
             )
-        if self.reward not in REWARDS:
-            raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}")
+        try:
+            object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
+        except TTError:
+            raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
         if get_space(self.space).has_contacts:
             raise TTError(
                 f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "

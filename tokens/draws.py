@@ -110,7 +110,7 @@ class GenerateConfig:
     def __post_init__(self) -> None:
         from tt.sim.backends import BACKENDS
         from tt.sim.designs import get_space
-        from tt.sim.rewards import REWARDS
+        from tt.sim.rewards import REWARDS, reward_name
 
         get_space(self.space)  # raises listing the valid spaces
         for name in ("designs", "episodes_per_design", "designs_per_shard", "group_designs", "min_steps"):
@@ -128,8 +128,10 @@ class GenerateConfig:
                 f"--space {self.space} (space={self.space!r}) has contacts; backend='warp' simulates "
                 "contact-free trees only: give backend='mujoco'"
             )
-        if self.reward not in REWARDS:
-            raise TTError(f"{_named('reward')} must be one of {list(REWARDS)}, got {self.reward!r}")
+        try:
+            object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
+        except TTError:
+            raise TTError(f"{_named('reward')} must be one of {list(REWARDS)}, got {self.reward!r}") from None
         if self.max_motion_steps is not None and self.max_motion_steps < self.min_steps:
             raise TTError(
                 f"{_named('max_motion_steps')} {self.max_motion_steps} is below {_named('min_steps')} "
