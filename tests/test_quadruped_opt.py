@@ -116,7 +116,8 @@ def test_cmaes_improves_over_random_designs_on_the_quadruped(space):
 # ------------------------------------------------------------------------------ the CLI
 def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
     """`tt optimize --method random|cmaes`, `tt generate` and `tt view` on the quadruped with
-    no backend named: the oracle evaluates, and asking for 'warp' fails naming the contacts."""
+    no backend named: mjbatch (MuJoCo C batched, equal to the oracle) evaluates, and asking for
+    'warp' fails naming the contacts."""
     import json
 
     from tt.sim.motions import save_npz
@@ -130,7 +131,7 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
         code, text = tt_cli([*common, "--method", method, "--budget", str(budget), *extra, "--json", str(out)])
         assert code == 0, text
         data = json.loads(out.read_text())
-        assert data["backend"] == "mujoco" and data["rollouts"] == budget
+        assert data["backend"] == "mjbatch" and data["rollouts"] == budget
         get_space("quadruped").validate(get_space("quadruped").from_dict(data["design"]))
         v = data["validated"]
         assert v["survival_pct"] == 100.0 and 0.0 < v["pos_err"] < 20.0, v
@@ -159,7 +160,7 @@ def test_cli_optimizes_generates_and_views_the_quadruped(tmp_path, tt_cli):
     assert "1 episodes kept of 1 generated" in text, text
     code, text = tt_cli(["dataset", "info", str(dataset), "--json"])
     config = json.loads(text)["config"]
-    assert (config["backend"], config["action_noise"]) == ("mujoco", 0.0)
+    assert (config["backend"], config["action_noise"]) == ("mjbatch", 0.0)
     code, text = tt_cli(
         [
             "generate",
