@@ -282,7 +282,7 @@ def mjbatch_rollout(
 
 def _build_layouts(shard: _Shard) -> None:
     """One batch per MjData layout of the shard's worlds, each world on its own model, reset
-    to the ``home`` keyframe (qpos and ctrl), derived fields bound."""
+    to the ``home`` keyframe (qpos and ctrl) with its kinematics computed, derived fields bound."""
     from mujoco.batch import Batch
 
     groups: dict[tuple, list[int]] = {}
@@ -292,13 +292,14 @@ def _build_layouts(shard: _Shard) -> None:
         ms = [shard.models[i] for i in local]
         batch = Batch(ms[0], nsim=len(ms), nthread=1)  # runs on the shard's own thread
         batch.set_models(ms)
-        keys = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY) for m in ms])
-        batch.reset(keyframe=keys, stage=mujoco.mjtStage.mjSTAGE_NONE.value)
         # Outputs are bound before the first call, so every call copies them out.
         bound = {
             name: batch.bind(name)
             for name in ("qpos", "qvel", "ctrl", "actuator_force", "actuator_velocity", "site_xpos", "site_xmat")
         }
+        # The home pose's kinematics: its foot sites are the stance points.
+        keys = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY) for m in ms])
+        batch.reset(keyframe=keys, stage=mujoco.mjtStage.mjSTAGE_POS.value)
         shard.layouts.append(_Layout(batch, np.array(local), ms[0].nq, ms[0].nv, ms[0].nu, bound))
 
 
@@ -336,18 +337,29 @@ def _run_shard(
     site_ids = np.zeros((Ws, A), np.int64)
     base = np.zeros(Ws, np.int64)
     height = np.zeros(Ws)
+    feet: list[list[int]] = []
     per_model: dict[int, tuple] = {}
     for i, m in enumerate(models):
         if id(m) not in per_model:
             limited = m.actuator_ctrllimited.astype(bool)
             rng = np.where(limited[:, None], m.actuator_ctrlrange, [-np.inf, np.inf])
             ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, s) for s in sites]
-            per_model[id(m)] = (actuated_qpos(m), rng, ids, int(m.jnt_qposadr[free_joint(m)]), standing_height(m))
-        aq, rng, ids, b, h = per_model[id(m)]
+            foot_ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, s) for s in foot_site_names(m)]
+            per_model[id(m)] = (
+                actuated_qpos(m), rng, ids, int(m.jnt_qposadr[free_joint(m)]), standing_height(m), foot_ids,
+            )  # fmt: skip
+        aq, rng, ids, b, h, foot_ids = per_model[id(m)]
         act_qpos[i, : m.nu], lo[i, : m.nu], hi[i, : m.nu] = aq, rng[:, 0], rng[:, 1]
         site_ids[i], base[i], height[i] = ids, b, h
+        feet.append(foot_ids)
 
     _build_layouts(shard)
+    # Stance points (the foot sites in the home pose) from the batches' kinematics, in C.
+    stance: list = [None] * Ws
+    for lay in shard.layouts:
+        xpos = lay.bound["site_xpos"]
+        for sim, i in enumerate(lay.local):
+            stance[i] = xpos[sim, feet[i]]
     q = np.zeros((Ws, NQ))
     first_pos, first_quat = mpos[shard.motion, 0], mquat[shard.motion, 0]
     if controller == "kernel":
@@ -356,7 +368,7 @@ def _run_shard(
         from tt.kernels.wbc import make_wbc_data, wbc_initial_q, wbc_step
         from tt.sim.wbc_model import build_wbc_model
 
-        wbc = build_wbc_model(models, config, device="cpu")
+        wbc = build_wbc_model(models, config, device="cpu", stance=stance)
         wbc_data = make_wbc_data(wbc, Ws, device="cpu")
         q_w = wp.zeros((Ws, wbc.nq), dtype=wp.float64, device="cpu")
         q_cmd_w = wp.zeros((Ws, wbc.nq), dtype=wp.float64, device="cpu")

@@ -76,7 +76,11 @@ def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
 
 
 def build_wbc_model(
-    models: Sequence[mujoco.MjModel], config: WBCConfig = WBCConfig(), *, device: str | None = None
+    models: Sequence[mujoco.MjModel],
+    config: WBCConfig = WBCConfig(),
+    *,
+    device: str | None = None,
+    stance: Sequence[np.ndarray] | None = None,
 ) -> WBCModel:
     """A `WBCModel` with one entry per MuJoCo model (any mix of structures; the same object
     may repeat and is read once).
@@ -85,6 +89,9 @@ def build_wbc_model(
         foot sites ``foot_*``, end-effector sites ``ee_0``, ..., a ``home`` keyframe).
     config: the whole-body controller's settings (`WBCConfig`): its weights, and the
         per-DoF posture costs it implies.
+    stance: each model's stance points, (F, 3) [m] in `tt.sim.wbc.foot_site_names` order,
+        where the caller has them (the foot sites' positions in the ``home`` pose, which
+        `tt.sim.wbc.stance_points` computes with an MjData of its own); None computes them.
     Raises ValueError naming the first model the kernels cannot drive.
     """
     from tt.kernels.device import resolve_device
@@ -99,8 +106,13 @@ def build_wbc_model(
         _check_model(m, i)
         sites = ee_site_names(m)
         feet = foot_site_names(m)
+        if stance is not None and np.shape(stance[i]) != (len(feet), 3):
+            raise TTError(
+                f"stance[{i}] has shape {np.shape(stance[i])}; model {i} has {len(feet)} feet: ({len(feet)}, 3)"
+            )
         distinct[id(m)] = dict(
-            sites=sites, feet=feet, stance=stance_points(m, feet), connects=_connects(m),
+            sites=sites, feet=feet, connects=_connects(m),
+            stance=stance_points(m, feet) if stance is None else np.asarray(stance[i], dtype=np.float64),
             posture=posture_costs(m, config), home=home_qpos(m),
         )  # fmt: skip
     ne = {len(v["sites"]) for v in distinct.values()}

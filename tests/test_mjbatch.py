@@ -106,6 +106,20 @@ def test_kernel_controller_agrees_with_the_oracle():
     _equal(rollout(designs, motions, backend="mjbatch", threads=1), ep)
 
 
+def test_stance_points_from_the_batch_are_stance_points(monkeypatch):
+    """The backend reads the stance points from its batches' home-pose kinematics; the
+    controller they give is the one `tt.sim.wbc.stance_points` gives, bit for bit."""
+    import tt.sim.wbc_model as wbc_model
+
+    space = get_space("quadruped")
+    robots = get_backend("mjbatch").resolve(_layout_mates(space, seed=5))
+    motions = _val(8, 1)
+    ep = mjbatch_rollout(robots, motions, threads=1)
+    build = wbc_model.build_wbc_model
+    monkeypatch.setattr(wbc_model, "build_wbc_model", lambda *a, stance=None, **k: build(*a, **k))
+    _equal(mjbatch_rollout(robots, motions, threads=1), ep)
+
+
 def test_mat2quat_is_mujocos():
     rng = np.random.default_rng(0)
     quats = rng.standard_normal((400, 4))
