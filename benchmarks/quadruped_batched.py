@@ -209,8 +209,16 @@ def run(args) -> dict:
     def oracle():
         return oracle_rollout(get_backend("mujoco").resolve(oracle_designs), [motion])
 
+    compile_s: dict[int, float] = {}
+
     def batched(threads):
-        return lambda: mjbatch_rollout(backend.resolve(designs), [motion], threads=threads)
+        def call():
+            start = time.perf_counter()
+            robots = backend.resolve(designs)
+            compile_s[threads] = time.perf_counter() - start
+            return mjbatch_rollout(robots, [motion], threads=threads)
+
+        return call
 
     # Warm-up: Warp's whole-body kernels (cached on disk) and the first calls of each path.
     short = _motion(args.motion, 2)
@@ -229,6 +237,9 @@ def run(args) -> dict:
                 episodes[name] = ep
             ws = world_steps[name.split("/")[0]]
             runs[name].append({"wall_s": wall, "cpu_s": cpu, "world_steps_per_s": ws / wall, "per_cpu_s": ws / cpu})
+            if name != "oracle":  # the models' compile (serial: MJCF in Python, MuJoCo's compiler) apart
+                t = int(name.split("/")[1])
+                runs[name][-1].update(compile_s=compile_s[t], rollout_per_s=ws / (wall - compile_s[t]))
             print(json.dumps({"run": name, "round": r, **runs[name][-1], "load": load_line()}), flush=True)
     loads.append(load_line())
     # Setup alone: compile, batches, controller arrays, start postures and one control step.
@@ -339,11 +350,17 @@ def _fmt(x: float) -> str:
 
 
 def _round_row(runs: dict, k: int, thread_counts: list[int]) -> str:
-    """Round k's row: the oracle's and each thread count's world-steps/s, and the speed-up."""
-    rate = {t: runs[f"mjbatch/{t}"][k]["world_steps_per_s"] for t in thread_counts}
-    speedup = f"{rate[max(thread_counts)] / rate[min(thread_counts)]:.2f}x" if len(thread_counts) > 1 else "-"
-    cells = " | ".join(_fmt(rate[t]) for t in thread_counts)
-    return f"| {k + 1} | {_fmt(runs['oracle'][k]['world_steps_per_s'])} | {cells} | {speedup} |"
+    """Round k's row: the oracle's and each thread count's world-steps/s and the speed-up, then
+    the same without the models' compile where the round timed it."""
+    out = []
+    for key in ("world_steps_per_s", "rollout_per_s"):
+        rate = {t: runs[f"mjbatch/{t}"][k].get(key) for t in thread_counts}
+        if None in rate.values():
+            out.append(" | ".join("-" for _ in thread_counts) + " | -")
+            continue
+        speedup = f"{rate[max(thread_counts)] / rate[min(thread_counts)]:.2f}x" if len(thread_counts) > 1 else "-"
+        out.append(" | ".join(_fmt(rate[t]) for t in thread_counts) + f" | {speedup}")
+    return f"| {k + 1} | {_fmt(runs['oracle'][k]['world_steps_per_s'])} | {out[0]} | {out[1]} |"
 
 
 def report(raw: dict, command: str) -> list[str]:
@@ -377,8 +394,10 @@ def report(raw: dict, command: str) -> list[str]:
         "",
         "| round | oracle (world-steps/s) | "
         + " | ".join(f"mjbatch, {t} thread{'s' if t > 1 else ''}" for t in thread_counts)
+        + " | speed-up | "
+        + " | ".join(f"without the compile, {t} thread{'s' if t > 1 else ''}" for t in thread_counts)
         + " | speed-up |",
-        "|---|---|" + "---|" * len(thread_counts) + "---|",
+        "|---|---|" + "---|" * (2 * len(thread_counts) + 2),
         *[_round_row(runs, k, thread_counts) for k in range(len(runs["oracle"]))],
         "",
         "The best of each:",
@@ -405,6 +424,12 @@ def report(raw: dict, command: str) -> list[str]:
             for r_lo, r_hi in zip(runs[f"mjbatch/{lo}"], runs[f"mjbatch/{hi}"])
         ]
         rounds_met = sum(x >= 1.7 for x in per_round)
+        no_compile = [
+            r_hi["rollout_per_s"] / r_lo["rollout_per_s"]
+            for r_lo, r_hi in zip(runs[f"mjbatch/{lo}"], runs[f"mjbatch/{hi}"])
+            if "rollout_per_s" in r_lo and "rollout_per_s" in r_hi
+        ]
+        nc = f"; {min(no_compile):.2f}-{max(no_compile):.2f}x without the models' compile" if no_compile else ""
         lines += [
             "",
             f"Speed-up {lo} -> {hi} threads (wall): {speedup:.2f}x between the bests, "
@@ -435,7 +460,7 @@ def report(raw: dict, command: str) -> list[str]:
             "|---|---|---|",
             f"| >= 10x the oracle's world-steps/s | {top / oracle:.1f}x | {met(top >= 10 * oracle)} |",
             f"| >= 50,000 world-steps/s | {top:,.0f} | {met(top >= 50_000)} |",
-            f"| 1 -> 2 thread speed-up >= 1.7x | {min(per_round):.2f}-{max(per_round):.2f}x per round | "
+            f"| 1 -> 2 thread speed-up >= 1.7x | {min(per_round):.2f}-{max(per_round):.2f}x per round{nc} | "
             f"{'met' if rounds_met == len(per_round) else f'met in {rounds_met} of {len(per_round)} rounds'} |",
             "",
             f"Why not 10x: the physics is the oracle's own, and it alone (10 `mj_step`s and one `mj_forward` per "
@@ -460,15 +485,20 @@ def report(raw: dict, command: str) -> list[str]:
         f"{_fmt(per_core)} world-steps/s; the oracle's mink controller costs far more than its physics "
         f"({_fmt(oracle_cpu)} world-steps per CPU second).",
     ]
-    ps = c.get("physics_scaling")
-    if ps:
+    scalings = c.get("physics_scalings") or ([c["physics_scaling"]] if c.get("physics_scaling") else [])
+    if scalings:
+        ps = scalings[0]
+        each = "; ".join(
+            f"{_fmt(x['one_thread'])} on one thread, {_fmt(x['two_threads'])} on two, {x['speedup']:.2f}x"
+            for x in scalings
+        )
         lines += [
             "",
             f"What two cores give MuJoCo C alone (no Python in the loop: 64 standing nominal quadrupeds per "
-            f"`mujoco.batch.Batch`, {ps['seconds']:.0f} s on one thread, then two batches for as long on two threads): "
-            f"{_fmt(ps['one_thread'])} world-steps/s on one thread, {_fmt(ps['two_threads'])} on two, "
-            f"{ps['speedup']:.2f}x. This virtual machine's second core adds less than a first one when both run "
-            "for tens of seconds, which bounds what any 2-thread path here can show.",
+            f"`mujoco.batch.Batch`, {ps['seconds']:.0f} s on one thread, then two batches for as long on two threads; "
+            f"world-steps/s, one measurement per invocation that made it): {each}. This virtual machine's second "
+            "core adds less than a first one when both run for tens of seconds, and varies with what else the host "
+            "runs, which bounds what any 2-thread path here can show.",
         ]
     lines += ["", "## Agreement and determinism", ""]
     g = raw["agreement"]
@@ -557,7 +587,10 @@ def _merge(parts: list[dict]) -> dict:
         raw["runs"] = {name: [r for p in speed for r in p["runs"][name]] for name in speed[0]["runs"]}
         raw["commands"] = [p.get("command", "") for p in speed]
         raw["load_runs"] = [p["loads"] for p in speed]
-        raw["costs"] = min((p["costs"] for p in speed), key=lambda c: c["mj_step_us"])  # the least disturbed
+        raw["costs"] = dict(min((p["costs"] for p in speed), key=lambda c: c["mj_step_us"]))  # the least disturbed
+        scaling = [p["costs"]["physics_scaling"] for p in speed if p["costs"].get("physics_scaling")]
+        raw["costs"]["physics_scaling"] = scaling[0] if scaling else None
+        raw["costs"]["physics_scalings"] = scaling
         raw["setup_s"] = {
             k: min(p.get("setup_s", {}).get(k, float("inf")) for p in speed) for k in speed[-1].get("setup_s", {})
         }
