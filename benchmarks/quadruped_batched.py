@@ -375,6 +375,15 @@ def report(raw: dict, command: str) -> list[str]:
         "",
         raw["header"].rstrip("\n"),
         *[f"- command: `{c}`" for c in raw.get("commands", [command])],
+        *(
+            [
+                "- the merged measurements: benchmarks/results/quadruped_batched.json; `python "
+                "benchmarks/quadruped_batched.py --from-raw benchmarks/results/quadruped_batched.json` rewrites "
+                "this page"
+            ]
+            if len(raw.get("commands", [])) > 1
+            else []
+        ),
         *[
             f"- load average (1, 5, 15 min) {lo[0]} at the start, {lo[1]} at the end of the timed runs"
             + (f" of invocation {i + 1}" if len(raw.get("load_runs", [])) > 1 else "")
@@ -447,6 +456,10 @@ def report(raw: dict, command: str) -> list[str]:
     if len(thread_counts) > 1:
         top = best[f"mjbatch/{max(thread_counts)}"]["world_steps_per_s"]
         physics_core = 1e6 / (c["mj_step_us"] + c["mj_forward_us"] / raw["substeps"])
+        ratios = [
+            r["world_steps_per_s"] / o["world_steps_per_s"]
+            for r, o in zip(runs[f"mjbatch/{max(thread_counts)}"], runs["oracle"])
+        ]
         ceiling = max(thread_counts) * physics_core
 
         def met(ok: bool) -> str:
@@ -458,7 +471,8 @@ def report(raw: dict, command: str) -> list[str]:
             "",
             "| target | measured | |",
             "|---|---|---|",
-            f"| >= 10x the oracle's world-steps/s | {top / oracle:.1f}x | {met(top >= 10 * oracle)} |",
+            f"| >= 10x the oracle's world-steps/s | {top / oracle:.1f}x between the bests, "
+            f"{min(ratios):.1f}-{max(ratios):.1f}x within a round | {met(top >= 10 * oracle)} |",
             f"| >= 50,000 world-steps/s | {top:,.0f} | {met(top >= 50_000)} |",
             f"| 1 -> 2 thread speed-up >= 1.7x | {min(per_round):.2f}-{max(per_round):.2f}x per round{nc} | "
             f"{'met' if rounds_met == len(per_round) else f'met in {rounds_met} of {len(per_round)} rounds'} |",
@@ -585,10 +599,16 @@ def _merge(parts: list[dict]) -> dict:
     if speed:
         raw.update(speed[-1])
         raw["runs"] = {name: [r for p in speed for r in p["runs"][name]] for name in speed[0]["runs"]}
-        raw["commands"] = [p.get("command", "") for p in speed]
-        raw["load_runs"] = [p["loads"] for p in speed]
+        # A record merged before keeps its invocations' commands and loads.
+        raw["commands"] = [c for p in speed for c in p.get("commands", [p.get("command", "")])]
+        raw["load_runs"] = [lo for p in speed for lo in p.get("load_runs", [p["loads"]])]
         raw["costs"] = dict(min((p["costs"] for p in speed), key=lambda c: c["mj_step_us"]))  # the least disturbed
-        scaling = [p["costs"]["physics_scaling"] for p in speed if p["costs"].get("physics_scaling")]
+        scaling = [
+            x
+            for p in speed
+            for x in p["costs"].get("physics_scalings")
+            or ([p["costs"]["physics_scaling"]] if p["costs"].get("physics_scaling") else [])
+        ]
         raw["costs"]["physics_scaling"] = scaling[0] if scaling else None
         raw["costs"]["physics_scalings"] = scaling
         raw["setup_s"] = {
@@ -631,7 +651,7 @@ def main() -> None:
     else:
         raw = run(args)
         raw["command"] = command
-    if args.raw and not args.from_raw:
+    if args.raw:  # with --from-raw: the merged record
         args.raw.write_text(json.dumps(raw, indent=1))
     if "runs" not in raw:
         print(f"{args.part} measured; merge it into the report with --from-raw SPEED.json {args.raw}")
