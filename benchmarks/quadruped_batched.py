@@ -456,6 +456,8 @@ def report(raw: dict, command: str) -> list[str]:
     if len(thread_counts) > 1:
         top = best[f"mjbatch/{max(thread_counts)}"]["world_steps_per_s"]
         physics_core = 1e6 / (c["mj_step_us"] + c["mj_forward_us"] / raw["substeps"])
+        two = [r["world_steps_per_s"] for r in runs[f"mjbatch/{max(thread_counts)}"]]
+        over = [x for x in two if x >= 50_000]
         ratios = [
             r["world_steps_per_s"] / o["world_steps_per_s"]
             for r, o in zip(runs[f"mjbatch/{max(thread_counts)}"], runs["oracle"])
@@ -473,7 +475,9 @@ def report(raw: dict, command: str) -> list[str]:
             "|---|---|---|",
             f"| >= 10x the oracle's world-steps/s | {top / oracle:.1f}x between the bests, "
             f"{min(ratios):.1f}-{max(ratios):.1f}x within a round | {met(top >= 10 * oracle)} |",
-            f"| >= 50,000 world-steps/s | {top:,.0f} | {met(top >= 50_000)} |",
+            f"| >= 50,000 world-steps/s | {top:,.0f} (best round) | "
+            + (met(top >= 50_000) if len(over) in (0, len(two)) else f"met in {len(over)} of {len(two)} rounds")
+            + " |",
             f"| 1 -> 2 thread speed-up >= 1.7x | {min(per_round):.2f}-{max(per_round):.2f}x per round{nc} | "
             f"{'met' if rounds_met == len(per_round) else f'met in {rounds_met} of {len(per_round)} rounds'} |",
             "",
