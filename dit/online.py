@@ -24,7 +24,6 @@ sees values in the same units.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from tt.dit.data import EpisodeTokens
 from tt.dit.layout import Layout, LayoutError
 from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
-from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig
+from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig, check_selection
 from tt.tokens.normalize import Normalizer
 
 log = logging.getLogger(__name__)
@@ -93,16 +92,7 @@ class OnlineConfig:
             raise TTError(
                 f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}"
             )
-        if not (isinstance(self.select, int) and self.select >= 1):
-            raise TTError(
-                f"--online-select must be an integer >= 1 (designs screened per kept episode), got {self.select!r}"
-            )
-        if not 0.0 <= self.uniform_share <= 1.0:
-            raise TTError(f"--uniform-share must lie in [0, 1], got {self.uniform_share}")
-        if self.uniform_share > 0 and self.select == 1:
-            raise TTError(
-                "--uniform-share applies only with --online-select above 1 (without selection every design is uniform)"
-            )
+        check_selection(self.select, self.uniform_share, "--online-select", "--uniform-share")
         try:
             object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
         except TTError:
@@ -263,23 +253,14 @@ class OnlineTokenSource:
             keep = torch.as_tensor(finite_worlds(ep), device=lengths.device) & (lengths >= cfg.min_steps)
             dropped += int((~keep).sum())
             groups.append((members, ep, lengths, keep))
-        if cfg.select == 1:
-            embodiment = self._tokenizer(models)
-        else:
+        if cfg.select > 1:
             groups = self._select(k, groups, motions)
-            # Only the kept designs are tokenized; a group's unkept worlds borrow a kept
-            # member's index (they are cut out before their tokens are used).
-            used = sorted({int(d) for _, ep, _, keep in groups for d in ep.design_index[keep].tolist()})
-            embodiment = self._tokenizer([models[d] for d in used]) if used else None
-            slot = torch.full((len(models),), -1, dtype=torch.long)
-            slot[used] = torch.arange(len(used))
+        # Every screened model is tokenized (about 0.2 ms each, small beside building it), so
+        # episodes index the embodiment by their own design index.
+        embodiment = self._tokenizer(models)
         for members, ep, lengths, keep in groups:
             if not bool(keep.any()):
                 continue
-            if cfg.select > 1:
-                local = slot[ep.design_index.cpu()]
-                local[local < 0] = int(local[local >= 0][0])
-                ep = dataclasses.replace(ep, design_index=local.to(ep.design_index.device))
             parts.append(episode_token_batch(ep, embodiment, lengths, keep.nonzero()[:, 0], cfg.max_time, self.maxima))
         if not parts:
             raise RuntimeError(
@@ -320,9 +301,10 @@ class OnlineTokenSource:
             rewards.append(metrics(inputs, reward_cfg)["reward"].cpu().numpy())
             motion_of.append(ep.motion_index.cpu().numpy())
             eligible.append(keep.cpu().numpy())
+        motion_of = np.concatenate(motion_of)
         chosen = select_episodes(
             np.concatenate(rewards),
-            np.concatenate(motion_of),
+            motion_of,
             np.concatenate(eligible),
             cfg.designs,
             cfg.uniform_share,
@@ -335,9 +317,7 @@ class OnlineTokenSource:
             out.append((members, ep, lengths, keep & mask))
         self.stats["screened"] = self.stats.get("screened", 0) + start
         design_of = np.concatenate([ep.design_index.cpu().numpy() for _, ep, _, _ in groups])
-        self.selected[k] = [
-            (int(design_of[w]), int(m)) for w, m in zip(np.nonzero(chosen)[0], np.concatenate(motion_of)[chosen])
-        ]
+        self.selected[k] = [(int(design_of[w]), int(motion_of[w])) for w in np.nonzero(chosen)[0]]
         return out
 
 

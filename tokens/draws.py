@@ -154,17 +154,7 @@ class GenerateConfig:
             raise TTError(
                 f"{_named('action_noise')} must be a finite standard deviation >= 0 [rad or m], got {noise!r}"
             )
-        if not (isinstance(self.select, (int, np.integer)) and self.select >= 1):
-            raise TTError(
-                f"{_named('select')} must be an integer >= 1 (designs screened per kept episode), got {self.select!r}"
-            )
-        if not 0.0 <= self.uniform_share <= 1.0:
-            raise TTError(f"{_named('uniform_share')} must lie in [0, 1], got {self.uniform_share}")
-        if self.uniform_share > 0 and self.select == 1:
-            raise TTError(
-                f"{_named('uniform_share')} applies only with {_named('select')} above 1 (without "
-                "selection every design is uniform)"
-            )
+        check_selection(self.select, self.uniform_share, _named("select"), _named("uniform_share"))
         if self.action_noise > 0 and self.backend != "warp":
             contacts = get_space(self.space).has_contacts
             oracle = f" (the MuJoCo oracle, which --space {self.space} needs for its contacts)" if contacts else ""
@@ -312,6 +302,19 @@ def finite_worlds(ep) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ motion-selected episodes
+def check_selection(select, uniform_share: float, select_flag: str, share_flag: str) -> None:
+    """Refuse a selection setting (`GenerateConfig`, `tt.dit.online.OnlineConfig`), naming the
+    flags: `select` an integer >= 1, `uniform_share` in [0, 1] and only with `select` above 1."""
+    if not (isinstance(select, (int, np.integer)) and select >= 1):
+        raise TTError(f"{select_flag} must be an integer >= 1 (designs screened per kept episode), got {select!r}")
+    if not 0.0 <= uniform_share <= 1.0:
+        raise TTError(f"{share_flag} must lie in [0, 1], got {uniform_share}")
+    if uniform_share > 0 and select == 1:
+        raise TTError(
+            f"{share_flag} applies only with {select_flag} above 1 (without selection every design is uniform)"
+        )
+
+
 def select_episodes(
     reward: np.ndarray,
     motion: np.ndarray,
