@@ -81,24 +81,7 @@ def main() -> None:
     p.add_argument("--from-records", default=None, help="rewrite the report (and plot) from a --records file; no run")
     args = p.parse_args()
     if args.from_records is not None:
-        saved = json.loads(Path(args.from_records).read_text())
-        kept = argparse.Namespace(**{**saved["args"], "out": args.out})
-        motions = [argparse.Namespace(name=m) for m in dict.fromkeys(r["motion"] for r in saved["records"])]
-        names = [k for k in saved["records"][0] if k not in ("seed", "motion", "uniform")]
-        lines = report(
-            saved["records"],
-            names,
-            kept,
-            motions,
-            saved.get("critic", "viperx_mini_dynamics.pt"),
-            saved.get("minutes", float("nan")),
-            saved.get("load_start", "?"),
-            _mean_ci(),
-            header=saved.get("header"),
-            load_end=saved.get("load_end"),
-        )
-        write_report(args.out, lines)
-        plot(saved["records"], names, kept.ns, kept.n, Path(args.out).with_suffix(".png"))
+        write_outputs(json.loads(Path(args.from_records).read_text()), Path(args.out))
         return
     if args.n < max(args.ns) or min(args.ns) < 1:
         p.error("--ns must lie in 1 .. --n")
@@ -107,7 +90,6 @@ def main() -> None:
     from tt.dit.checkpoint import default_checkpoint, load_model
     from tt.guidance.predicted import predict_designs
     from tt.guidance.zeroth import DesignDecoder
-    from tt.report import mean_ci
     from tt.sim.designs import get_space
     from tt.sim.rewards import get_reward
 
@@ -167,38 +149,28 @@ def main() -> None:
             ),
             flush=True,
         )
-    minutes = (time.perf_counter() - start) / 60
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    header, load_end = machine_header("cpu").rstrip(), load_line()
+    saved = {
+        "args": vars(args),
+        "records": records,
+        "minutes": (time.perf_counter() - start) / 60,
+        "load_start": load_start,
+        "load_end": load_line(),
+        "header": machine_header("cpu").rstrip(),
+        "critic": str(critic_path),
+    }
     if args.records is not None:
-        Path(args.records).write_text(
-            json.dumps(
-                {
-                    "args": vars(args),
-                    "records": records,
-                    "minutes": minutes,
-                    "load_start": load_start,
-                    "load_end": load_end,
-                    "header": header,
-                    "critic": str(critic_path),
-                }
-            )
-        )
-    names = [n for n, _ in models]
-    write_report(
-        out,
-        report(
-            records, names, args, motions, critic_path, minutes, load_start, mean_ci, header=header, load_end=load_end
-        ),
-    )
+        Path(args.records).write_text(json.dumps(saved))
+    write_outputs(saved, Path(args.out))
+
+
+def write_outputs(saved: dict, out: Path) -> None:
+    """The report and its plot from a run's record (what ``--records`` writes)."""
+    records = saved["records"]
+    args = argparse.Namespace(**saved["args"])
+    names = [k for k in records[0] if k not in ("seed", "motion", "uniform")]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_report(out, report(records, names, args, saved))
     plot(records, names, args.ns, args.n, out.with_suffix(".png"))
-
-
-def _mean_ci():
-    from tt.report import mean_ci
-
-    return mean_ci
 
 
 def plot(records: list, names: list[str], ns: list[int], n_pool: int, path: Path) -> None:
@@ -240,29 +212,22 @@ def _pick(row: dict, key: str, n: int) -> float:
     return float(row["reward"][int(np.argmax(score))])
 
 
-def report(
-    records: list,
-    names: list[str],
-    args,
-    motions,
-    critic_path,
-    minutes: float,
-    load_start: str,
-    mean_ci,
-    *,
-    header: str | None = None,
-    load_end: str | None = None,
-) -> list[str]:
+def report(records: list, names: list[str], args, saved: dict) -> list[str]:
+    """The report's lines: `records` of the sources `names` (and "uniform"), the run's `args`
+    and the rest of its record `saved` (machine header, loads, minutes, critic)."""
+    from tt.report import mean_ci
+
+    motions = list(dict.fromkeys(rec["motion"] for rec in records))
     sources = ["uniform", *names]
     lines = [
         "# Sample quality: generator samples against uniform designs (issue 51)",
         "",
-        header or machine_header("cpu").rstrip(),
-        f"- load (1, 5, 15 min) at start: {load_start}; at end: {load_end or load_line()}",
-        f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(m.name for m in motions)})"
+        saved["header"],
+        f"- load (1, 5, 15 min) at start: {saved['load_start']}; at end: {saved['load_end']}",
+        f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(motions)})"
         f"{' (seed i on motion i only)' if args.paired else ''}, "
         f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
-        f"validated on the oracle (MuJoCo C + mink); {minutes:.1f} min in all",
+        f"validated on the oracle (MuJoCo C + mink); {saved['minutes']:.1f} min in all",
         f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
         f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns "
         f"{' '.join(map(str, args.ns))} --steps {args.steps}`",
@@ -318,7 +283,7 @@ def report(
         "## Best of n at equal rollouts, validated on the oracle",
         "",
         "Random(n) and zeroth-sim(n) pick the simulator's best of the first n draws of their pool; Zeroth-Order(n) "
-        f"picks by the critic `{Path(critic_path).name}` without a rollout. Mean validated reward over "
+        f"picks by the critic `{Path(saved['critic']).name}` without a rollout. Mean validated reward over "
         f"{len(records)} (seed, motion) pairs; the paired difference against Random(n) with its 95 % CI.",
         "",
         "| n | method | validated reward | minus Random(n) | higher / lower |",
