@@ -578,6 +578,32 @@ def _task_rows(
                 d = dof_parent[mid, d]
 
 
+@wp.func
+def _diagonal_terms(
+    worldid: int,
+    mid: int,
+    i: int,
+    dof_qposadr: wp.array2d(dtype=wp.int32),
+    dof_posture_cost: wp.array2d(dtype=wp.float64),
+    q_home: wp.array2d(dtype=wp.float64),
+    weights: WBCWeights,
+    q_in: wp.array2d(dtype=wp.float64),
+    mu_in: wp.array2d(dtype=wp.float64),
+):
+    """What DoF i adds beyond the task rows: to ``H[i, i]`` its posture cost squared, the
+    damping and the limit terms ``mu``; to the gradient (subtracted) its posture pull. One
+    definition for both launches of the normal equations, so they stay equal bit for bit."""
+    c = dof_posture_cost[mid, i]
+    mu = wp.float64(0.0)
+    for e in range(mu_in.shape[1]):
+        mu += mu_in[worldid, e]
+    posture = wp.float64(0.0)
+    qa = dof_qposadr[mid, i]
+    if qa >= 0:
+        posture = c * c * (q_in[worldid, qa] - q_home[mid, qa])
+    return c * c + weights.damping + mu, posture
+
+
 @wp.kernel(module=_MODULE)
 def _normal_equations(
     # Model:
@@ -605,17 +631,12 @@ def _normal_equations(
     for r in range(rows):
         h += jac_in[worldid, r, i] * jac_in[worldid, r, j]
     if i == j:
-        c = dof_posture_cost[mid, i]
-        mu = wp.float64(0.0)
-        for e in range(mu_in.shape[1]):
-            mu += mu_in[worldid, e]
-        h += c * c + weights.damping + mu
+        extra, posture = _diagonal_terms(worldid, mid, i, dof_qposadr, dof_posture_cost, q_home, weights, q_in, mu_in)
+        h += extra
         g = wp.float64(0.0)
         for r in range(rows):
             g += jac_in[worldid, r, i] * err_in[worldid, r]
-        qa = dof_qposadr[mid, i]
-        if qa >= 0:
-            g -= c * c * (q_in[worldid, qa] - q_home[mid, qa])
+        g -= posture
         grad_out[worldid, i] = g
     hess_out[worldid, i, j] = h
 
@@ -656,15 +677,9 @@ def _normal_equations_rows(
             for j in range(i + 1):
                 hess_out[worldid, i, j] = hess_out[worldid, i, j] + a * jac_in[worldid, r, j]
             g += a * err_in[worldid, r]
-    c = dof_posture_cost[mid, i]
-    mu = zero
-    for e in range(mu_in.shape[1]):
-        mu += mu_in[worldid, e]
-    hess_out[worldid, i, i] = hess_out[worldid, i, i] + (c * c + weights.damping + mu)
-    qa = dof_qposadr[mid, i]
-    if qa >= 0:
-        g -= c * c * (q_in[worldid, qa] - q_home[mid, qa])
-    grad_out[worldid, i] = g
+    extra, posture = _diagonal_terms(worldid, mid, i, dof_qposadr, dof_posture_cost, q_home, weights, q_in, mu_in)
+    hess_out[worldid, i, i] = hess_out[worldid, i, i] + extra
+    grad_out[worldid, i] = g - posture
 
 
 @wp.kernel(module=_MODULE)
