@@ -27,10 +27,10 @@ ALOHA checkpoint yet):
   excluded and reported on its own line); which of Random and CMA-ES wins at equal time
   (paired difference of the validated reward).
 
-Writes benchmarks/results/aloha.md (or ``--out``) and the runs as JSON lines beside it
-(aloha.jsonl); prints one JSON line per run. ``--from-log FILE.jsonl`` rewrites the report
-from such lines. Run from the repository root: ``python benchmarks/aloha.py`` (9 runs of
-128 candidates: a few minutes on a 2-core CPU).
+Writes benchmarks/results/aloha.md (or ``--out``) and the runs as JSON lines to ``--log``
+(default runs/benchmarks/aloha.jsonl, outside the results folder); prints one JSON line per
+run. ``--from-log FILE.jsonl`` rewrites the report from such lines. Run from the repository
+root: ``python benchmarks/aloha.py`` (9 runs of 128 candidates: a few minutes on a 2-core CPU).
 """
 
 from __future__ import annotations
@@ -54,6 +54,8 @@ except ImportError:  # run as a module from the repository root
     from benchmarks.machine import load_line, machine_header, write_report
 
 RESULTS = Path(__file__).parent / "results"
+#: Logs of runs: outside the repository's tree of results (runs/ is not tracked).
+RUNS = Path(__file__).resolve().parents[1] / "runs" / "benchmarks"
 SPACE = "aloha"
 ORIGINAL, RANDOM, CMAES_B, RANDOM_T = "Original ALOHA", "Random", "CMA-ES batched", "Random (= time)"
 METHODS = (RANDOM, CMAES_B, RANDOM_T)
@@ -337,7 +339,8 @@ def main() -> None:
     ap.add_argument("--generations", type=int, default=3, help="CMA-ES generations per restart")
     ap.add_argument("--steps", type=int, default=None, help="smoke test: the flings' first N steps only")
     ap.add_argument("--threads", type=int, default=None, help="CPU threads of the warp rollouts (default: all)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "aloha.md", help="report (the runs go to .jsonl beside it)")
+    ap.add_argument("--out", type=Path, default=RESULTS / "aloha.md", help="report")
+    ap.add_argument("--log", type=Path, default=RUNS / "aloha.jsonl", help="the runs as JSON lines")
     ap.add_argument("--from-log", type=Path, default=None, help="rewrite the report from a .jsonl of runs")
     args = ap.parse_args()
     args.reward = reward_name(args.reward)
@@ -372,7 +375,7 @@ def main() -> None:
     info["wall_seconds"] = time.perf_counter() - t0
     info["warmup_seconds"] = sum(r.get("warmup_seconds", 0.0) for r in records)
     info["load_end"] = load_line()
-    log = Path(args.out).with_suffix(".jsonl")
+    log = args.log
     log.parent.mkdir(parents=True, exist_ok=True)
     log.write_text("\n".join(json.dumps(x) for x in [{"bench": "aloha", "config": info}] + records) + "\n")
     print(f"wrote {report(records, info, args.out)} and {log} in {info['wall_seconds']:.0f} s")

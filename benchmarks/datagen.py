@@ -10,7 +10,7 @@ episodes per design) on full training motions:
        imports and Warp module loading included: what a fresh `tt generate --ray local` pays).
 Prints one JSON line per run and writes benchmarks/results/datagen.md. Usage:
     python benchmarks/datagen.py [--designs-per-shard 1024] [--workers 2] [--threads 1 2] [--out /tmp/datagen]
-        [--name datagen]   # writes benchmarks/results/<name>.md and appends to <name>.jsonl
+        [--name datagen]   # writes benchmarks/results/<name>.md, appends to runs/benchmarks/<name>.jsonl
     python benchmarks/datagen.py --table-only   # rebuild the table from the JSON lines of earlier runs
 """
 
@@ -33,6 +33,8 @@ except ImportError:  # run as a module from the repository root
 from tt.generate import STAGES, GenerateConfig, generate
 
 RESULTS = Path(__file__).parent / "results"
+#: Logs of runs: outside the repository's tree of results (runs/ is not tracked).
+RUNS = Path(__file__).resolve().parents[1] / "runs" / "benchmarks"
 
 
 def _cpu_seconds() -> float:
@@ -124,8 +126,13 @@ def main() -> None:
         help="rollout threads of the serial runs, one run per count (default: every core)",
     )
     ap.add_argument("--note", default="", help="a note shown with this invocation's rows")
-    ap.add_argument("--name", default="datagen", help="results file stem: <name>.md, and <name>.jsonl unless --log")
-    ap.add_argument("--log", type=Path, default=None, help="JSON lines of every run (appended; default <name>.jsonl)")
+    ap.add_argument("--name", default="datagen", help="results file stem: benchmarks/results/<name>.md")
+    ap.add_argument(
+        "--log",
+        type=Path,
+        default=None,
+        help="JSON lines of every run, appended (default runs/benchmarks/<name>.jsonl)",
+    )
     ap.add_argument("--table-only", action="store_true")
     ap.add_argument(
         "--full-run",
@@ -134,7 +141,7 @@ def main() -> None:
         help="log of a large run whose last line is 'RESULT {json}' (see full_run below), added as a section",
     )
     args = ap.parse_args()
-    args.log = args.log or RESULTS / f"{args.name}.jsonl"
+    args.log = args.log or RUNS / f"{args.name}.jsonl"
 
     rows = []
     if not args.table_only:
@@ -169,6 +176,7 @@ def main() -> None:
                 **{**base.__dict__, "designs": args.workers * args.designs_per_shard, "seed": args.seed + 1}
             )
             rows.append(run("ray", cfg, args.out / "ray", args.workers))
+        args.log.parent.mkdir(parents=True, exist_ok=True)
         with open(args.log, "a") as f:
             for r in rows:
                 r["note"] = args.note

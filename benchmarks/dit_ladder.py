@@ -10,11 +10,14 @@ reward estimate (the same estimator on the simulated poses). Targets (issue 17):
 (``viperx-nominal``) pooled >= 0.8, within-motion >= 0.6; R2 (``viperx``) 0.7 and 0.5.
 
 Prints one JSON line per result; writes a markdown report (``--out``, default
-``benchmarks/results/dit_ladder_<space>.md``) and the raw numbers beside it (``.json``).
+``runs/benchmarks/dit_ladder_<space>.md``, outside the results folder) and the raw numbers
+beside it (``.json``).
 
 Usage: ``python benchmarks/dit_ladder.py RUN_OR_CHECKPOINT [--designs 32] [--motions 5] [--samples 1]
-[--num-steps 20] [--threads 2] [--via dynamics|inpaint]``; ``python benchmarks/dit_ladder.py --summary DIR
-[--note TEXT]`` tabulates the ``.json`` results in DIR (one per checkpoint or setting) into DIR.md.
+[--num-steps 20] [--threads 2] [--via dynamics|inpaint] [--out runs/ladder/r2j/step_2000.md]``;
+``python benchmarks/dit_ladder.py --summary DIR [--note TEXT] [--out FILE]`` tabulates the
+``.json`` results in DIR (one per checkpoint or setting) into FILE (default DIR.md), e.g.
+``--summary runs/ladder/r2j --out benchmarks/results/dit_ladder_r2j.md``.
 """
 
 from __future__ import annotations
@@ -30,7 +33,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from machine import machine_header  # noqa: E402
 
-RESULTS = Path(__file__).parent / "results"
+#: Per-checkpoint reports and their raw numbers: run logs, outside the results folder.
+RUNS = Path(__file__).resolve().parents[1] / "runs" / "benchmarks"
 
 
 #: A simulated tracking reward below this is a design that (nearly) fails at once: less
@@ -55,8 +59,8 @@ def failure_split(predicted: np.ndarray, simulated: np.ndarray) -> dict:
     return out
 
 
-def summary(folder: Path, note: str) -> Path:
-    """DIR.md: one row per result JSON in `folder`, by step then samples and DDIM steps."""
+def summary(folder: Path, note: str, out: Path | None = None) -> Path:
+    """`out` (default DIR.md): one row per result JSON in `folder`, by step then samples and DDIM steps."""
     results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
     results.sort(key=lambda r: (r.get("pairs", "held-out") != "held-out", r["step"], r["samples"], r["num_steps"]))
     lines = [
@@ -97,7 +101,7 @@ def summary(folder: Path, note: str) -> Path:
             f"{r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
             f"{per} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |"
         )
-    out = folder.with_suffix(".md")
+    out = Path(out) if out is not None else folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
     return out
 
@@ -107,8 +111,9 @@ def main() -> None:
         p = argparse.ArgumentParser(description="tabulate ladder results")
         p.add_argument("--summary", required=True, type=Path)
         p.add_argument("--note", default="")
+        p.add_argument("--out", type=Path, default=None, help="the table (default: DIR.md)")
         a = p.parse_args()
-        print(f"wrote {summary(a.summary, a.note)}", file=sys.stderr)
+        print(f"wrote {summary(a.summary, a.note, a.out)}", file=sys.stderr)
         return
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("checkpoint", help="checkpoint file or run folder")
@@ -199,7 +204,7 @@ def main() -> None:
     }
     print(json.dumps(result), flush=True)
     suffix = "" if args.online_refresh is None else f"_online{args.online_refresh}"
-    out = Path(args.out) if args.out else RESULTS / f"dit_ladder_{space}{suffix}.md"
+    out = Path(args.out) if args.out else RUNS / f"dit_ladder_{space}{suffix}.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = [
         f"| {m} | {sc.predicted[:, j].mean():.1f} | {sc.simulated[:, j].mean():.1f} | {sc.within[j]:.2f} | "

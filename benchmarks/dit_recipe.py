@@ -9,12 +9,13 @@ rows change one choice at a time, from the paper's recipe (robot task with the d
 inpainted, eps prediction, a learned time-ID table) to tt's (the dynamics task, sinusoidal
 time IDs, x0 prediction with the track-link pose anchored on its target).
 
-Each row runs on one thread and writes ``benchmarks/results/dit_recipe/damped_start/<row>.json``,
-so two processes can share a 2-core machine (``--rows a b`` and ``--rows c d``); ``--report``
-renders every row written so far into ``benchmarks/results/dit_recipe.md``. The rows of
-``benchmarks/results/dit_recipe/*.json`` were trained and scored before the start posture had
-its own IK damping (2026-12-03, `tt.sim.controller.IKConfig.init_damping`), when the reward was
-close to noise in the design; the report keeps them in a table of their own.
+Each row runs on one thread and writes ``runs/benchmarks/dit_recipe/damped_start/<row>.json``
+(a run log, outside the results folder), so two processes can share a 2-core machine
+(``--rows a b`` and ``--rows c d``); ``--report`` renders every row written so far into
+``benchmarks/results/dit_recipe.md``. Rows in ``runs/benchmarks/dit_recipe/*.json`` (the
+committed report's older rows, in git before issue 52) were trained and scored before the start
+posture had its own IK damping (2026-12-03, `tt.sim.controller.IKConfig.init_damping`), when
+the reward was close to noise in the design; the report keeps them in a table of their own.
 
 Usage: ``python benchmarks/dit_recipe.py [--rows NAME ...] [--steps 1000] [--report]``.
 """
@@ -33,7 +34,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from machine import machine_header  # noqa: E402
 
 RESULTS = Path(__file__).parent / "results"
-ROWS_DIR = RESULTS / "dit_recipe"
+#: The rows' raw results: run logs, outside the results folder (runs/ is not tracked).
+ROWS_DIR = Path(__file__).resolve().parents[1] / "runs" / "benchmarks" / "dit_recipe"
 #: Rows on today's data (the damped start posture); ROWS_DIR itself holds the older rows.
 CURRENT_DIR = ROWS_DIR / "damped_start"
 
@@ -193,6 +195,8 @@ def report() -> Path:
 
     current = [json.loads(p.read_text()) for p in sorted(CURRENT_DIR.glob("*.json"))]
     older = [json.loads(p.read_text()) for p in sorted(ROWS_DIR.glob("*.json"))]
+    if not current and not older:
+        raise SystemExit(f"no rows in {ROWS_DIR}: run some with --rows first")
     lines = [
         "# DiT recipe: what lets the model learn what a design does (R0-sized ablations)",
         "",
@@ -221,20 +225,24 @@ def report() -> Path:
             "Commands: " + "; ".join(f"`{r['command']}`" for r in current),
             "",
         ]
-    lines += [
-        "## Before the damped start posture (2026-12-02)",
-        "",
-        "Measured 2026-12-02 01:05 UTC on the 2-core AMD EPYC. "
-        "The reward was then close to noise in the design (`reward_reliability_*.md`); R0's designs "
-        "failed more often, so their rewards lay further apart and 1,000 steps were enough.",
-        "",
-        *_table(older),
-        "",
-        KEPT,
-        "",
-        "Commands: " + "; ".join(f"`{r['command']}`" for r in older),
-        "",
-    ]
+    lines += (
+        []
+        if not older
+        else [
+            "## Before the damped start posture (2026-12-02)",
+            "",
+            "Measured 2026-12-02 01:05 UTC on the 2-core AMD EPYC. "
+            "The reward was then close to noise in the design (`reward_reliability_*.md`); R0's designs "
+            "failed more often, so their rewards lay further apart and 1,000 steps were enough.",
+            "",
+            *_table(older),
+            "",
+            KEPT,
+            "",
+            "Commands: " + "; ".join(f"`{r['command']}`" for r in older),
+            "",
+        ]
+    )
     out = RESULTS / "dit_recipe.md"
     out.write_text("\n".join(lines))
     return out
