@@ -24,11 +24,11 @@ STAGE=/tmp/tt_wheels
 TRAIN_SECONDS=${TRAIN_SECONDS:-90}
 # The recipe of step 2 (default: the generalist on the full space, robot + control). The
 # controller's open question (issue 17) is whether the DiT learns DiffIK's map at the reference's
-# sample count. No regressor did across the full space on 2 cores (`control_ceiling_21m.md`,
-# `control_ceiling_film_heldout.md`); within one structure a joints-anchored, design-modulated
+# sample count. No regressor did across the full space on 2 cores (`control_ceiling_21m.md`, in git
+# at 4fd8d8f; `control_ceiling_film_heldout.md`); within one structure a joints-anchored, design-modulated
 # one did (52 %, `control_ceiling_nominal21m.md`). The DiT's run on that structure (without
 # the last command: given it, the DiT feeds its own commands back and falls in closed loop,
-# 11.8 % against 21.9 % at 256,000 windows, `dit_control_r1_known_command.md`):
+# 11.8 % against 21.9 % at 256,000 windows, docs/experiments.md):
 #   TRAIN_ARGS="--space viperx-nominal --task control --size mini --batch-size 1024 --online-designs 256
 #     --online-motions 4 --refresh-every 20 --no-future-states --anchor-control joints --no-known-command
 #     --control-target-offset 2 --prediction x0" bash benchmarks/gpu_call.sh run
