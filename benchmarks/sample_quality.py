@@ -21,11 +21,17 @@ oracle, for n in ``--ns`` (the first n draws of each pool):
 * ``Zeroth-Order(n)``: a checkpoint's pool, best by the shipped dynamics critic's prediction
   (`tt.guidance.predicted.predict_designs`, no rollout).
 
+* ``CMA-ES(n)``: tt's batched CMA-ES (`tt.baselines.CMAES`, default config) with a budget of n
+  rollouts, for n of ``--ns`` at or above one restart (popsize x generations); its best validated.
+
 Paired differences against Random(n) are given with 95 % CIs (`tt.report.mean_ci`) over every
-(seed, motion).
+(seed, motion). ``--validate picks`` validates only the designs the searches pick (what the
+best-of-n table needs) instead of every draw, for runs over many (seed, motion) pairs; the
+pooled distributions are then left out.
 
 Usage: ``python benchmarks/sample_quality.py CKPT [CKPT ...] [--seeds 9] [--motions 9] [--n 64]
-[--ns 1 4 16 64] [--steps 20] [--reward tracking] [--out benchmarks/results/sample_quality.md]``.
+[--ns 1 4 16 64] [--steps 20] [--reward tracking] [--validate all|picks]
+[--out benchmarks/results/sample_quality.md]``.
 """
 
 from __future__ import annotations
@@ -54,11 +60,14 @@ def motions_for(space: str, count: int) -> list:
     return order[:count]
 
 
-def model_pool(trained, decoder, motion, reward_cfg, n: int, seed: int, steps: int) -> list:
-    """n decoded samples of `trained`'s motion-to-robot task for `motion` (sampling order)."""
+def model_pool(trained, decoder, motion, reward_cfg, n: int, seed: int, steps: int, temperature: float = 1.0) -> list:
+    """n decoded samples of `trained`'s motion-to-robot task for `motion` (sampling order), from
+    starting noise scaled by `temperature`."""
     from tt.guidance.zeroth import CandidateSampler, embodiment_batch
 
-    gen = CandidateSampler(trained, "cpu").run((motion,), reward_cfg, n, seed=seed, num_steps=steps, critic="joint")
+    gen = CandidateSampler(trained, "cpu").run(
+        (motion,), reward_cfg, n, seed=seed, num_steps=steps, critic="joint", temperature=temperature
+    )
     batch = embodiment_batch(trained.layout, trained.normalizer, gen.tokens)
     return [decoder(batch, i).design for i in range(n)]
 
@@ -74,9 +83,22 @@ def main() -> None:
     p.add_argument("--n", type=int, default=64, help="designs per source, seed and motion")
     p.add_argument("--ns", type=int, nargs="+", default=[1, 4, 16, 64], help="budgets of the best-of-n comparisons")
     p.add_argument("--steps", type=int, default=20, help="DDIM steps of each sample")
+    p.add_argument(
+        "--temperatures",
+        type=float,
+        nargs="+",
+        default=[1.0],
+        help="scales of the starting noise; each checkpoint is one source per temperature",
+    )
     p.add_argument("--reward", default="tracking")
     p.add_argument("--critic", default=None, help="dynamics critic of the Zeroth-Order rows (default: the shipped one)")
     p.add_argument("--out", default=str(RESULTS / "sample_quality.md"))
+    p.add_argument(
+        "--validate",
+        choices=("all", "picks"),
+        default="all",
+        help="validate every draw on the oracle, or only the designs the searches pick",
+    )
     p.add_argument("--records", default=None, help="also write every validated draw to this JSON file")
     p.add_argument("--from-records", default=None, help="rewrite the report (and plot) from a --records file; no run")
     args = p.parse_args()
@@ -86,15 +108,18 @@ def main() -> None:
     if args.n < max(args.ns) or min(args.ns) < 1:
         p.error("--ns must lie in 1 .. --n")
 
-    from tt.baselines import evaluate_designs
+    from tt.baselines import CMAES, CMAESConfig, Problem, evaluate_designs
     from tt.dit.checkpoint import default_checkpoint, load_model
     from tt.guidance.predicted import predict_designs
     from tt.guidance.zeroth import DesignDecoder
     from tt.sim.designs import get_space
     from tt.sim.rewards import get_reward
 
-    models = [(Path(c).name, load_model(c, device="cpu")) for c in args.checkpoints]
-    space = models[0][1].space
+    loaded = [(Path(c).name, load_model(c, device="cpu")) for c in args.checkpoints]
+    models = [
+        (name if t == 1.0 else f"{name} T={t:g}", trained, t) for name, trained in loaded for t in args.temperatures
+    ]
+    space = loaded[0][1].space
     sp = get_space(space)
     critic_path = args.critic or default_checkpoint(space, task="dynamics")
     critic = load_model(critic_path, device="cpu")
@@ -112,38 +137,52 @@ def main() -> None:
         t = time.perf_counter()
         pools = {"uniform": sp.sample(args.n, seed=10_000 * seed + mi)}
         draw_s = {"uniform": time.perf_counter() - t}
-        for name, trained in models:
+        for name, trained, temperature in models:
             t = time.perf_counter()
-            pools[name] = model_pool(trained, decoder, motion, reward_cfg, args.n, 10_000 * seed + mi, args.steps)
+            pools[name] = model_pool(
+                trained, decoder, motion, reward_cfg, args.n, 10_000 * seed + mi, args.steps, temperature
+            )
             draw_s[name] = time.perf_counter() - t
         rec = {"seed": seed, "motion": motion.name}
         for name, designs in pools.items():
-            oracle = evaluate_designs(designs, (motion,), args.reward, backend="mujoco")
             t = time.perf_counter()
             sim = evaluate_designs(designs, (motion,), args.reward, backend="warp", threads=1)
             sim_s = time.perf_counter() - t
-            row = {
-                "reward": oracle.reward[:, 0].tolist(),
-                "sim_reward": sim.reward[:, 0].tolist(),
-                "pos_err": np.asarray(oracle.metrics["pos_err"])[:, 0].tolist(),
-                "survival": np.asarray(oracle.metrics["survival"])[:, 0].tolist(),
-                "draw_seconds": draw_s[name],
-                "sim_seconds": sim_s,
-            }
+            row = {"sim_reward": sim.reward[:, 0].tolist(), "draw_seconds": draw_s[name], "sim_seconds": sim_s}
             if name != "uniform":
                 t = time.perf_counter()
                 pred = predict_designs(critic, designs, (motion,), reward_cfg, num_steps=args.steps, seed=seed)
                 row["predicted"] = np.where(np.isfinite(pred.reward[:, 0]), pred.reward[:, 0], -np.inf).tolist()
                 row["critic_seconds"] = time.perf_counter() - t
+            keys = ("sim_reward",) if name == "uniform" else ("sim_reward", "predicted")
+            todo = (
+                range(len(designs))
+                if args.validate == "all"
+                else sorted({_argmax(row[k], n) for k in keys for n in args.ns})
+            )
+            oracle = evaluate_designs([designs[i] for i in todo], (motion,), args.reward, backend="mujoco")
+            for key, metric in (("reward", None), ("pos_err", "pos_err"), ("survival", "survival")):
+                vals = oracle.reward[:, 0] if metric is None else np.asarray(oracle.metrics[metric])[:, 0]
+                full = np.full(len(designs), np.nan)
+                full[list(todo)] = vals
+                row[key] = full.tolist()
             rec[name] = row
+        rec["cmaes"] = {}
+        for n in args.ns:
+            if n < CMAESConfig().popsize * CMAESConfig().generations:
+                continue
+            problem = Problem(space, (motion,), args.reward, budget=n, seed=10_000 * seed + mi, threads=1)
+            res = CMAES().optimize(problem)
+            val = evaluate_designs([res.best], (motion,), args.reward, backend="mujoco")
+            rec["cmaes"][str(n)] = {"reward": float(val.reward[0, 0]), "seconds": res.seconds}
         records.append(rec)
-        summary = {k: round(float(np.median(v["reward"])), 1) for k, v in rec.items() if isinstance(v, dict)}
+        summary = {k: round(float(np.nanmedian(rec[k]["sim_reward"])), 1) for k in pools}
         print(
             json.dumps(
                 {
                     "seed": seed,
                     "motion": motion.name,
-                    "median_reward": summary,
+                    "median_simulated_reward": summary,
                     "seconds": round(time.perf_counter() - t0, 1),
                 }
             ),
@@ -166,8 +205,8 @@ def main() -> None:
 def write_outputs(saved: dict, out: Path) -> None:
     """The report and its plot from a run's record (what ``--records`` writes)."""
     records = saved["records"]
-    args = argparse.Namespace(**saved["args"])
-    names = [k for k in records[0] if k not in ("seed", "motion", "uniform")]
+    args = argparse.Namespace(**{"validate": "all", **saved["args"]})
+    names = [k for k in records[0] if k not in ("seed", "motion", "uniform", "cmaes")]
     out.parent.mkdir(parents=True, exist_ok=True)
     write_report(out, report(records, names, args, saved))
     plot(records, names, args.ns, args.n, out.with_suffix(".png"))
@@ -193,6 +232,12 @@ def plot(records: list, names: list[str], ns: list[int], n_pool: int, path: Path
         style = "-o" if src == "uniform" else ("--s" if key == "predicted" else "-^")
         axes[0].plot(ns, mean, style, label=label)
         axes[1].plot([per * n for n in ns], mean, style, label=label)
+    runs = sorted({int(n) for rec in records for n in rec.get("cmaes", {})})
+    if runs:
+        mean = [np.mean([rec["cmaes"][str(n)]["reward"] for rec in records]) for n in runs]
+        secs = [np.mean([rec["cmaes"][str(n)]["seconds"] for rec in records]) for n in runs]
+        axes[0].plot(runs, mean, "-D", label="CMA-ES")
+        axes[1].plot(secs, mean, "-D", label="CMA-ES")
     axes[0].set(
         xscale="log",
         xlabel="n (designs drawn)",
@@ -206,19 +251,22 @@ def plot(records: list, names: list[str], ns: list[int], n_pool: int, path: Path
     plt.close(fig)
 
 
+def _argmax(score: list, n: int) -> int:
+    """The index of the first n scores' best (first on ties; NaN never wins)."""
+    s = np.asarray(score[:n], float)
+    return int(np.argmax(np.where(np.isnan(s), -np.inf, s)))
+
+
 def _pick(row: dict, key: str, n: int) -> float:
     """The validated reward of the first n designs' best by `key`."""
-    score = np.asarray(row[key][:n], float)
-    return float(row["reward"][int(np.argmax(score))])
+    return float(row["reward"][_argmax(row[key], n)])
 
 
 def report(records: list, names: list[str], args, saved: dict) -> list[str]:
     """The report's lines: `records` of the sources `names` (and "uniform"), the run's `args`
     and the rest of its record `saved` (machine header, loads, minutes, critic)."""
-    from tt.report import mean_ci
-
     motions = list(dict.fromkeys(rec["motion"] for rec in records))
-    sources = ["uniform", *names]
+    temps = list(getattr(args, "temperatures", [1.0]))
     lines = [
         "# Sample quality: generator samples against uniform designs (issue 51)",
         "",
@@ -226,12 +274,26 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
         f"- load (1, 5, 15 min) at start: {saved['load_start']}; at end: {saved['load_end']}",
         f"- {args.seeds} seeds x {len(motions)} validation motions ({', '.join(motions)})"
         f"{' (seed i on motion i only)' if args.paired else ''}, "
-        f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, every design "
-        f"validated on the oracle (MuJoCo C + mink); {saved['minutes']:.1f} min in all",
+        f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, "
+        f"{'every design' if args.validate == 'all' else 'every design a search picks'} validated on the oracle "
+        f"(MuJoCo C + mink); {saved['minutes']:.1f} min in all",
         f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
         f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns "
-        f"{' '.join(map(str, args.ns))} --steps {args.steps}`",
+        f"{' '.join(map(str, args.ns))} --steps {args.steps}"
+        f"{' --validate picks' if args.validate == 'picks' else ''}"
+        f"{'' if temps == [1.0] else ' --temperatures ' + ' '.join(f'{t:g}' for t in temps)}`",
         "",
+    ]
+    if args.validate == "all":
+        lines += distribution_lines(records, names)
+    lines += best_of_n_lines(records, names, args, saved)
+    return lines
+
+
+def distribution_lines(records: list, names: list[str]) -> list[str]:
+    """The pooled and per-motion distributions of every validated draw."""
+    sources = ["uniform", *names]
+    lines = [
         "## Validated reward of the draws, pooled over every seed and motion",
         "",
         "| source | designs | reward p25 | median | p75 | tracks the whole motion | median position error [cm] |",
@@ -278,8 +340,15 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
             surv = np.concatenate([rec[s]["survival"] for rec in recs])
             cells.append(f"{np.median(r):.1f} ({100 * np.mean(surv >= 1):.0f} %)")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
+    return lines + [""]
+
+
+def best_of_n_lines(records: list, names: list[str], args, saved: dict) -> list[str]:
+    """The best-of-n table against Random(n) and the wall times."""
+    from tt.report import mean_ci
+
+    sources = ["uniform", *names]
+    lines = [
         "## Best of n at equal rollouts, validated on the oracle",
         "",
         "Random(n) and zeroth-sim(n) pick the simulator's best of the first n draws of their pool; Zeroth-Order(n) "
@@ -293,6 +362,14 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
         base = np.array([_pick(rec["uniform"], "sim_reward", n) for rec in records])
         m, h = mean_ci(base)
         lines.append(f"| {n} | Random | {m:.1f} ± {h:.1f} | | |")
+        if all(str(n) in rec.get("cmaes", {}) for rec in records):
+            v = np.array([rec["cmaes"][str(n)]["reward"] for rec in records])
+            m, h = mean_ci(v)
+            dm, dh = mean_ci(v - base)
+            lines.append(
+                f"| {n} | CMA-ES | {m:.1f} ± {h:.1f} | {dm:+.1f} ± {dh:.1f} | "
+                f"{int(np.sum(v > base))} / {int(np.sum(v < base))} |"
+            )
         for s in names:
             for label, key in (("zeroth-sim", "sim_reward"), ("Zeroth-Order", "predicted")):
                 v = np.array([_pick(rec[s], key, n) for rec in records])
@@ -319,6 +396,13 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
         sim = np.mean([rec[s]["sim_seconds"] for rec in records])
         crit = np.mean([rec[s].get("critic_seconds", np.nan) for rec in records])
         lines.append(f"| {s} | {draw:.2f} | {sim:.2f} | {'-' if np.isnan(crit) else f'{crit:.2f}'} |")
+    runs = sorted({int(n) for rec in records for n in rec.get("cmaes", {})})
+    if runs:
+        lines += [
+            "",
+            "CMA-ES, seconds per run (batched, one thread, compile excluded): "
+            + ", ".join(f"n = {n}: {np.mean([rec['cmaes'][str(n)]['seconds'] for rec in records]):.2f}" for n in runs),
+        ]
     return lines
 
 

@@ -293,6 +293,7 @@ class CandidateSampler:
         *,
         seed: int = 0,
         num_steps: int | None = None,
+        temperature: float = 1.0,
         eta: float = 0.0,
         placement: str = "even",
         chunk: int | None = None,
@@ -306,7 +307,7 @@ class CandidateSampler:
         dynamics task from the sampled embodiment (deterministic DDIM, same steps), and with
         `critic_samples` k > 1 averages the rewards and metrics of k such draws (the tokens
         returned carry the first). With a `critic_model` the dynamics critic is that model's
-        and "joint" is refused."""
+        and "joint" is refused. temperature: scale of the starting noise (`tt.dit.sample`)."""
         motions = tuple(motions)
         if not motions:
             raise TTError("motions is empty; give at least one target motion")
@@ -367,6 +368,7 @@ class CandidateSampler:
                 composed,
                 tokens,
                 ROBOT,
+                temperature=temperature,
                 scheduler=scheduler,
                 num_steps=num_steps,
                 eta=eta,

@@ -177,12 +177,12 @@ def _tokens(b: int) -> TokenBatch:
     return TokenBatch(values, ids, mask)
 
 
-def _ddim_moments(sched: CosineDDIM, eta: float) -> tuple[float, float]:
+def _ddim_moments(sched: CosineDDIM, eta: float, temperature: float = 1.0) -> tuple[float, float]:
     """Exact mean and std after DDIM sampling of N(MU, STD^2) data with the exact eps, from
-    x_T ~ N(0, 1). With d = x_t - sqrt(ab) MU and v = ab STD^2 + 1 - ab, the step is affine:
+    x_T ~ N(0, temperature^2). With d = x_t - sqrt(ab) MU and v = ab STD^2 + 1 - ab, the step is affine:
     x_t' - sqrt(ab') MU = c d + sigma z, c = (sqrt(ab ab') STD^2 + sqrt((1 - ab)(1 - ab' - sigma^2))) / v."""
     steps = sched.timesteps()
-    mean, var = 0.0, 1.0
+    mean, var = 0.0, temperature**2
     for i, t in enumerate(steps):
         tp = steps[i + 1] if i + 1 < len(steps) else -1
         ab, abp = float(sched.alpha_bar(t)), float(sched.alpha_bar(tp))
@@ -271,3 +271,26 @@ def test_guide_hook_shifts_only_guided_types():
     moved = float(guided.tokens.values["shape"].mean()) - float(plain.tokens.values["shape"].mean())
     assert moved > 0.1, f"guidance toward {target} moved the mean by only {moved}"
     assert torch.equal(guided.tokens.values["goal"], tokens.values["goal"])
+
+
+def test_temperature_scales_the_starting_noise():
+    """Deterministic DDIM is affine in x_T here, so starting from N(0, 0.5^2) narrows the samples
+    by the closed form's factor; temperature 1 is the default's draw, bit for bit."""
+    sched = CosineDDIM(100, clip_x0=None)
+    task = TaskSpec("robot", 100, "random")
+    tokens = _tokens(4000)
+
+    def run(**kw):
+        return sample(
+            GaussianEps(sched), tokens, task, scheduler=sched, generator=torch.Generator().manual_seed(2), **kw
+        )
+
+    cold = run(temperature=0.5)
+    x = torch.cat([cold.tokens.values["shape"].reshape(-1), cold.tokens.values["extra"].reshape(-1)])
+    mean, std = _ddim_moments(sched, 0.0, temperature=0.5)
+    assert std < 0.9 * _ddim_moments(sched, 0.0)[1]
+    assert float(x.mean()) == pytest.approx(mean, abs=4e-3)
+    assert float(x.std()) == pytest.approx(std, rel=0.012)
+    assert torch.equal(run(temperature=1.0).tokens.values["shape"], run().tokens.values["shape"])
+    with pytest.raises(ValueError, match="temperature"):
+        run(temperature=0.0)
