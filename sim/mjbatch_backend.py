@@ -34,7 +34,11 @@ Per control step ``k`` of a world (the oracle's loop, `tt.sim.validate`):
 2. ``q_cmd`` = the whole-body step toward the motion pose ``min(k + lookahead_steps, T - 1)``
    (float64 targets, as the oracle's);
 3. ``ctrl = q_cmd[qpos address of each actuator's joint]``, clipped to ctrlrange where
-   limited;
+   limited; with control perturbation (``action_noise`` sigma > 0) the actuators execute
+   clip(ctrl + sigma n, ctrlrange), n the standard normals of the Warp rollout kernel
+   (`tt.kernels.rollout.action_noise_draws`: a function of (noise_seed, world, step,
+   actuator) only, world = its index in the whole call), and ``Episode.action`` records the
+   clean ctrl (the "warp" backend's perturbation, in float64);
 4. ``substeps`` ``mj_step`` calls, then ``mj_forward`` (``Batch.step(nstep=substeps,
    stage=mjSTAGE_ACC)``), so the recorded site poses and actuator forces belong to the
    recorded state;
@@ -75,7 +79,7 @@ CONTROLLERS = ("kernel", "mink")
 
 #: Episode fields recorded per step from the physics, and which model size pads each.
 _JOINT_FIELDS = {"qpos": "nq", "qvel": "nv", "ctrl": "nu", "act_force": "nu", "act_vel": "nu"}
-#: Fields a terminated world repeats from its last step.
+#: Fields a terminated world repeats from its last step (and ``action`` when perturbed).
 _REPEATED = ("qpos", "qvel", "ctrl", "act_force", "act_vel", "ee_pos", "ee_quat", "fallen")
 
 
@@ -141,9 +145,10 @@ class _Records:
     ee_quat: np.ndarray
     alive: np.ndarray
     fallen: np.ndarray
+    action: np.ndarray | None = None  # the clean commands, under control perturbation only
 
     @classmethod
-    def zeros(cls, W: int, T: int, nq: int, nv: int, nu: int, A: int) -> "_Records":
+    def zeros(cls, W: int, T: int, nq: int, nv: int, nu: int, A: int, perturbed: bool = False) -> "_Records":
         def f(*shape):
             return np.zeros(shape, np.float32)
 
@@ -151,6 +156,7 @@ class _Records:
             qpos=f(W, T, nq), qvel=f(W, T, nv), ctrl=f(W, T, nu), act_force=f(W, T, nu), act_vel=f(W, T, nu),
             ee_pos=f(W, T, A, 3), ee_quat=f(W, T, A, 4),
             alive=np.zeros((W, T), bool), fallen=np.zeros((W, T), bool),
+            action=f(W, T, nu) if perturbed else None,
         )  # fmt: skip
 
 
@@ -185,6 +191,8 @@ def mjbatch_rollout(
     threads: int | None = None,
     progress: bool = False,
     controller: str = "kernel",
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> Episode:
     """Run every robot on every motion with MuJoCo C physics; an Episode of W = D * M
     worlds (design-major: world ``d * M + m`` is design d on motion m), CPU tensors.
@@ -199,13 +207,18 @@ def mjbatch_rollout(
     progress: a tqdm bar over control steps (of every shard).
     controller: "kernel" (tt's batched whole-body kernels) or "mink" (the oracle's
         controller on the host, world by world: the reference, as slow as the oracle's).
+    action_noise: control perturbation, the standard deviation [rad or m] of the Gaussian
+        noise on every executed command (``Episode.ctrl``; ``Episode.action`` holds the clean
+        one); 0: none. noise_seed: its seed, 0..2**31-1; the draws are the "warp" backend's
+        (`tt.kernels.rollout.action_noise_draws`) for the same seed and world.
     Returns the oracle's Episode (`tt.sim.validate.oracle_rollout`): joint fields zero-padded
     to the widest design, records repeated with alive False after a world stopped.
     """
     from mujoco.batch import Batch  # noqa: F401  (fails early where the wheel lacks it)
 
-    from tt.kernels.rollout import cpu_threads, world_slices
+    from tt.kernels.rollout import _check_noise, cpu_threads, world_slices
 
+    _check_noise(action_noise, noise_seed)
     if controller not in CONTROLLERS:
         raise TTError(f"controller = {controller!r}; expected one of {CONTROLLERS}")
     wbc_config = config if isinstance(config, WBCConfig) else WBCConfig()
@@ -229,7 +242,8 @@ def mjbatch_rollout(
         idx = np.minimum(np.arange(T), motion.steps - 1)
         mpos[j], mquat[j] = motion.pos[idx], motion.quat[idx]
     sizes = {k: max(getattr(m, k) for m in models) for k in ("nq", "nv", "nu")}
-    rec = _Records.zeros(W, T, sizes["nq"], sizes["nv"], sizes["nu"], A)
+    perturbed = action_noise > 0.0
+    rec = _Records.zeros(W, T, sizes["nq"], sizes["nv"], sizes["nu"], A, perturbed)
 
     world_model = [models[w // M] for w in range(W)]
     world_motion = np.arange(W) % M
@@ -237,13 +251,18 @@ def mjbatch_rollout(
         _Shard(lo, hi, world_model[lo:hi], world_motion[lo:hi]) for lo, hi in world_slices(W, cpu_threads(threads))
     ]
     logger.debug("mjbatch rollout: %d worlds (%d designs x %d motions), T=%d, %d shard(s)", W, D, M, T, len(shards))
-    if controller == "kernel":
+    if controller == "kernel" or perturbed:
         import warp as wp
 
+        wp.init()
+    if controller == "kernel":
         from tt.kernels.wbc import load_wbc_kernels
 
-        wp.init()
         load_wbc_kernels("cpu")  # once, before the threads launch them
+    if perturbed:
+        from tt.kernels.rollout import _noise_draws
+
+        wp.load_module(_noise_draws.module, device="cpu")
     bar = None
     if progress:
         from tqdm import tqdm
@@ -252,7 +271,7 @@ def mjbatch_rollout(
     lock = threading.Lock()
     run = functools.partial(
         _run_shard, rec=rec, sites=sites, mpos=mpos, mquat=mquat, msteps=msteps, steps=T, config=wbc_config,
-        controller=controller, bar=bar, lock=lock,
+        controller=controller, bar=bar, lock=lock, action_noise=float(action_noise), noise_seed=int(noise_seed),
     )  # fmt: skip
     try:
         if len(shards) == 1:
@@ -269,7 +288,7 @@ def mjbatch_rollout(
     world_index = np.minimum(np.arange(T), msteps[world_motion][:, None] - 1)  # (W, T)
     return Episode(
         **tensors,
-        action=tensors["ctrl"].clone(),
+        action=torch.from_numpy(rec.action) if perturbed else tensors["ctrl"].clone(),
         target_pos=torch.from_numpy(mpos[world_motion[:, None], world_index].astype(np.float32)),
         target_quat=torch.from_numpy(mquat[world_motion[:, None], world_index].astype(np.float32)),
         alive=torch.from_numpy(rec.alive),
@@ -316,6 +335,8 @@ def _run_shard(
     controller: str,
     bar,
     lock: threading.Lock,
+    action_noise: float = 0.0,
+    noise_seed: int = 0,
 ) -> None:
     """The whole episode of one shard's worlds, written into rows [lo, hi) of `rec`."""
     from mujoco.batch import SimulationError
@@ -388,6 +409,12 @@ def _run_shard(
         lay.bound["qpos"][:] = q0[lay.local, : lay.nq]
         lay.bound["qvel"][:] = 0.0
 
+    noise = None
+    if action_noise > 0.0:
+        from tt.kernels.rollout import action_noise_draws
+
+        # The Warp rollout's standard normals of these worlds, keyed by their index in the call.
+        noise = action_noise_draws(noise_seed, rows, steps, NU).astype(np.float64)  # (Ws, T, NU)
     done = 0
     live = np.ones(Ws, bool)
     last = np.full(Ws, steps - 1)
@@ -406,6 +433,7 @@ def _run_shard(
                 m = models[i]
                 q_cmd[i, : m.nq] = controllers[id(m)].step(q[i, : m.nq], tpos[i], tquat[i])
         ctrl = np.clip(np.take_along_axis(q_cmd, act_qpos, axis=1), lo, hi)
+        executed = ctrl if noise is None else np.clip(ctrl + action_noise * noise[:, t], lo, hi)
         target = mpos[shard.motion, np.minimum(t, wsteps - 1)]  # (Ws, A, 3): the current target
         for lay in shard.layouts:
             sim_live = live[lay.local]
@@ -413,7 +441,7 @@ def _run_shard(
                 continue
             local = lay.local[sim_live]
             b = lay.bound
-            b["ctrl"][sim_live] = ctrl[local, : lay.nu]
+            b["ctrl"][sim_live] = executed[local, : lay.nu]
             try:
                 lay.batch.step(ids=sim_live, nstep=substeps, stage=acc)
             except SimulationError as exc:  # MuJoCo raised (mju_error) in some simulations
@@ -423,7 +451,9 @@ def _run_shard(
             qpos = b["qpos"][sim_live]
             rec.qpos[r, t, : lay.nq] = qpos
             rec.qvel[r, t, : lay.nv] = b["qvel"][sim_live]
-            rec.ctrl[r, t, : lay.nu] = ctrl[local, : lay.nu]
+            rec.ctrl[r, t, : lay.nu] = executed[local, : lay.nu]
+            if rec.action is not None:
+                rec.action[r, t, : lay.nu] = ctrl[local, : lay.nu]
             rec.act_force[r, t, : lay.nu] = b["actuator_force"][sim_live]
             rec.act_vel[r, t, : lay.nu] = b["actuator_velocity"][sim_live]
             n = np.arange(len(local))[:, None]
@@ -453,7 +483,7 @@ def _run_shard(
     # A stopped world repeats its last record (alive stays False).
     for i in np.flatnonzero(last < steps - 1):
         w, k = rows[i], last[i]
-        for name in _REPEATED:
+        for name in _REPEATED + (("action",) if rec.action is not None else ()):
             arr = getattr(rec, name)
             arr[w, k + 1 :] = arr[w, k]
 

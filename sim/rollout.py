@@ -16,7 +16,7 @@ zero-padded Episode.
 The Episode's conventions (padding of joint fields to the widest design, repeated records
 after termination or past a motion's end) are the oracle's; see `tt.sim.validate`.
 
-Control perturbation (``action_noise`` > 0, "warp" only): the paper's data generation adds
+Control perturbation (``action_noise`` > 0, "warp" and "mjbatch"): the paper's data generation adds
 noise to the expert's commands and logs the unperturbed ones for supervision. Each step the
 actuators execute ``Episode.ctrl`` = clip(action + sigma n, ctrlrange), n ~ N(0, 1) per
 actuator, a function of (noise_seed, world, step) only; ``Episode.action`` holds the clean
@@ -84,7 +84,7 @@ def rollout(
     progress: show a tqdm bar (control steps for "warp", worlds for "mujoco").
     action_noise: control perturbation, standard deviation [rad or m] of the Gaussian noise
         on every executed command (``Episode.ctrl``; ``Episode.action`` stays the clean
-        command); 0 for none. Only the "warp" backend perturbs.
+        command); 0 for none. The "warp" and "mjbatch" backends perturb.
     noise_seed: seed of that noise, 0..2**31-1; world w's noise depends on (noise_seed, w,
         control step) only, so equal arguments give identical episodes.
     threads: CPU threads the "warp" backend spreads each topology group's worlds over
@@ -106,8 +106,8 @@ def rollout(
         cpu_threads(threads)  # a bad count fails on every backend
     if action_noise != 0.0 and not impl.perturbs:
         raise TTError(
-            f"action_noise = {action_noise!r} needs backend 'warp'; backend {backend!r} executes the "
-            "clean commands (use action_noise=0)"
+            f"action_noise = {action_noise!r} needs backend 'warp' or 'mjbatch'; backend {backend!r} executes "
+            "the clean commands (use action_noise=0)"
         )
     if isinstance(designs, DesignTrees) and backend != "warp":
         raise TTError(

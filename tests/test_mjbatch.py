@@ -18,13 +18,16 @@ import torch
 
 from tt.baselines.evaluate import score_episode
 from tt.kernels.errors import TTError
+from tt.kernels.rollout import action_noise_draws
 from tt.sim.backends import get_backend
+from tt.sim.controller import actuated_qpos
 from tt.sim.designs import get_space
 from tt.sim.mjbatch_backend import layout_key, mat2quat, mjbatch_rollout
 from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
 from tt.sim.validate import oracle_rollout
+from tt.sim.wbc import WBCConfig, WholeBodyController, fallen, free_joint, standing_height
 
 POS_TOL_CM = 0.3  # per-episode mean position error, the issue's measure [cm]
 FIELDS = (
@@ -139,8 +142,93 @@ def test_rejects_fixed_base_arms():
     motion = for_space(motion_set("val", arms=1), "viperx")[0]
     with pytest.raises(TTError, match="no free joint.*'mjbatch' backend runs floating-base"):
         rollout([arm], [motion], backend="mjbatch")
-    with pytest.raises(TTError, match="action_noise"):
-        rollout([get_space("quadruped").nominal()], [motion], backend="mjbatch", action_noise=0.1)
+
+
+def _perturbed_reference(model, sites, motion, steps, world, sigma, seed, config=WBCConfig()):
+    """The oracle's loop (`tt.sim.validate`, MjData and mink) executing the "warp" backend's
+    control perturbation: clip(ctrl + sigma n[world, t], ctrlrange), n of
+    `action_noise_draws`; (qpos, executed ctrl, clean ctrl, alive), (steps, ...) float64."""
+    controller = WholeBodyController(model, config)
+    act = actuated_qpos(model)
+    limited = model.actuator_ctrllimited.astype(bool)
+    lo = np.where(limited, model.actuator_ctrlrange[:, 0], -np.inf)
+    hi = np.where(limited, model.actuator_ctrlrange[:, 1], np.inf)
+    noise = action_noise_draws(seed, [world], steps, model.nu)[0].astype(np.float64)
+    site_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, s) for s in sites]
+    base, height = int(model.jnt_qposadr[free_joint(model)]), standing_height(model)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    data.qpos[:] = controller.initial_q(motion.pos[0], motion.quat[0])
+    data.qvel[:] = 0.0
+    mujoco.mj_forward(model, data)
+    qpos, ctrl_out, action = np.zeros((steps, model.nq)), np.zeros((steps, model.nu)), np.zeros((steps, model.nu))
+    alive, last = np.zeros(steps, bool), None
+    for k in range(steps):
+        if last is not None:
+            qpos[k], ctrl_out[k], action[k] = qpos[last], ctrl_out[last], action[last]
+            continue
+        goal = min(k + config.lookahead_steps, motion.steps - 1)
+        ctrl = np.clip(controller.step(data.qpos.copy(), motion.pos[goal], motion.quat[goal])[act], lo, hi)
+        data.ctrl[:] = np.clip(ctrl + sigma * noise[k], lo, hi)
+        for _ in range(config.substeps(model)):
+            mujoco.mj_step(model, data)
+        mujoco.mj_forward(model, data)
+        qpos[k], ctrl_out[k], action[k] = data.qpos, data.ctrl, ctrl
+        error = np.linalg.norm(data.site_xpos[site_ids] - motion.pos[min(k, motion.steps - 1)], axis=-1).sum()
+        fell = fallen(data.qpos[base : base + 3], data.qpos[base + 3 : base + 7], height, config)
+        alive[k] = np.isfinite(error) and error <= config.termination_pos_error and not fell
+        if not alive[k] or k == motion.steps - 1:
+            last = k
+    return qpos, ctrl_out, action, alive
+
+
+def test_control_perturbation_is_the_warp_backends_on_the_oracles_loop():
+    """action_noise > 0: the actuators execute clip(ctrl + sigma n, ctrlrange) with the Warp
+    rollout kernel's normals n (`action_noise_draws`, keyed by world index and step) and
+    ``Episode.action`` holds the clean command. With the mink controller every world equals
+    the oracle's loop perturbed that way, bit for bit (terminations and padding included), on
+    1 and 2 threads; with the kernel the Episode does not depend on the threads; sigma = 0 is
+    the unperturbed rollout."""
+    space = get_space("quadruped")
+    designs = [*_layout_mates(space, seed=5), *space.sample(1, seed=11)]
+    a, b = _val(24, 2)
+    motions = [a, Motion("b_short", b.pos[:15], b.quat[:15], b.dt)]
+    sigma, seed = 0.05, 1234
+    robots = get_backend("mjbatch").resolve(designs)
+    M, T = len(motions), 24
+    for threads in (1, 2):
+        ep = mjbatch_rollout(robots, motions, threads=threads, controller="mink", action_noise=sigma, noise_seed=seed)
+        for d, model in enumerate(robots.models):
+            for m, motion in enumerate(motions):
+                w = d * M + m
+                qpos, ctrl, action, alive = _perturbed_reference(model, robots.ee_sites, motion, T, w, sigma, seed)
+                assert torch.equal(ep.qpos[w, :, : model.nq], torch.from_numpy(qpos).float()), (threads, w)
+                assert torch.equal(ep.ctrl[w, :, : model.nu], torch.from_numpy(ctrl).float()), (threads, w)
+                assert torch.equal(ep.action[w, :, : model.nu], torch.from_numpy(action).float()), (threads, w)
+                assert torch.equal(ep.alive[w], torch.from_numpy(alive)), (threads, w)
+    clean = mjbatch_rollout(robots, motions, threads=1, controller="mink")
+    assert not torch.equal(clean.qpos, ep.qpos) and not torch.equal(ep.ctrl, ep.action)
+    # The kernel controller through rollout(): the same draws, every thread count.
+    noisy = rollout(designs, motions, backend="mjbatch", threads=2, action_noise=sigma, noise_seed=seed)
+    _equal(rollout(designs, motions, backend="mjbatch", threads=1, action_noise=sigma, noise_seed=seed), noisy)
+    nu = max(m.nu for m in robots.models)
+    n = torch.from_numpy(action_noise_draws(seed, np.arange(noisy.worlds), T, nu))
+    # The stepped records: alive, or the step that failed (before the motion's end).
+    alive_steps = noisy.alive.sum(1, keepdim=True)
+    lengths = torch.tensor([m.steps for m in motions])[noisy.motion_index][:, None]
+    stepped = noisy.alive | ((torch.arange(T) == alive_steps) & (alive_steps < lengths))
+    expect = noisy.action.double() + sigma * n.double()
+    for d, model in enumerate(robots.models):
+        lim = model.actuator_ctrllimited.astype(bool)
+        lo = torch.from_numpy(np.where(lim, model.actuator_ctrlrange[:, 0], -np.inf))
+        hi = torch.from_numpy(np.where(lim, model.actuator_ctrlrange[:, 1], np.inf))
+        rows = slice(d * M, (d + 1) * M)
+        want = torch.clamp(expect[rows, :, : model.nu], lo, hi)[stepped[rows]]
+        torch.testing.assert_close(noisy.ctrl[rows, :, : model.nu][stepped[rows]].double(), want, rtol=0, atol=1e-6)
+    _equal(
+        rollout(designs, motions, backend="mjbatch", action_noise=0.0, noise_seed=seed),
+        rollout(designs, motions, backend="mjbatch"),
+    )
 
 
 @pytest.mark.slow

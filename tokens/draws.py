@@ -41,19 +41,14 @@ _STEP_COUNT = {
 _NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
 
 
-#: The `tt generate` flag of each `GenerateConfig` field that has one (the Python API,
-#: `tt.api.generate_dataset`, takes the field's name as its keyword argument).
+#: The `tt generate` flag of each `GenerateConfig` field that has one (the others are its
+#: --config keys; the Python API, `tt.api.generate_dataset`, takes the field's name as its
+#: keyword argument).
 FLAGS = {
     "space": "--space",
     "designs": "--designs",
     "episodes_per_design": "--episodes-per-design",
     "seed": "--seed",
-    "designs_per_shard": "--designs-per-shard",
-    "bias": "--bias",
-    "min_steps": "--min-steps",
-    "action_noise": "--action-noise",
-    "select": "--select",
-    "uniform_share": "--uniform-share",
 }
 
 
@@ -80,8 +75,8 @@ class GenerateConfig:
     backend: rollout backend (`tt.sim.backends.BACKENDS`). reward: reward stored per
     episode and optimised by CMA-ES (`tt.sim.rewards.REWARDS`).
     action_noise: control perturbation, the standard deviation [rad or m] of the Gaussian
-    noise on every executed command (clean commands are logged); 0: none ("warp" backend
-    only when > 0). CMA-ES biasing scores its candidates without it.
+    noise on every executed command (clean commands are logged); 0: none (> 0 on the
+    "warp" and "mjbatch" backends). CMA-ES biasing scores its candidates without it.
     select: designs screened per kept episode: each group keeps, per motion, the
     ``ceil(group / select)`` episodes `select_episodes` picks by `reward` (the best, and a
     `uniform_share` of them drawn uniformly), so every stored episode's design was chosen for
@@ -108,7 +103,7 @@ class GenerateConfig:
     uniform_share: float = 0.0
 
     def __post_init__(self) -> None:
-        from tt.sim.backends import BACKENDS
+        from tt.sim.backends import BACKENDS, get_backend
         from tt.sim.designs import get_space
         from tt.sim.rewards import REWARDS, reward_name
 
@@ -155,12 +150,11 @@ class GenerateConfig:
                 f"{_named('action_noise')} must be a finite standard deviation >= 0 [rad or m], got {noise!r}"
             )
         check_selection(self.select, self.uniform_share, _named("select"), _named("uniform_share"))
-        if self.action_noise > 0 and self.backend != "warp":
-            contacts = get_space(self.space).has_contacts
-            oracle = f" (the MuJoCo oracle, which --space {self.space} needs for its contacts)" if contacts else ""
+        perturbing = [name for name in BACKENDS if get_backend(name).perturbs]
+        if self.action_noise > 0 and self.backend not in perturbing:
             raise TTError(
-                f"{_named('action_noise')} {self.action_noise} needs backend 'warp', the one that perturbs "
-                f"commands; backend {self.backend!r}{oracle} runs the clean ones: give 0"
+                f"{_named('action_noise')} {self.action_noise} needs backend {' or '.join(map(repr, perturbing))}, "
+                f"the ones that perturb commands; backend {self.backend!r} runs the clean ones: give 0"
             )
 
     @property

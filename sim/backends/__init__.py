@@ -145,7 +145,7 @@ class MjBatchBackend:
     (the quadruped), any mix of structures in one call."""
 
     name = "mjbatch"
-    perturbs = False
+    perturbs = True
 
     def resolve(self, designs: Sequence[Design | mujoco.MjModel]) -> Robots:
         return resolve_designs(designs, who="the 'mjbatch' backend")
@@ -166,7 +166,15 @@ class MjBatchBackend:
     ) -> Episode:
         from tt.sim.mjbatch_backend import mjbatch_rollout
 
-        return mjbatch_rollout(robots, motions, config=config, threads=threads, progress=progress)
+        return mjbatch_rollout(
+            robots,
+            motions,
+            config=config,
+            threads=threads,
+            progress=progress,
+            action_noise=action_noise,
+            noise_seed=noise_seed,
+        )
 
 
 class OracleBackend:
