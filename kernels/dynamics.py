@@ -7,6 +7,8 @@ One physics step of a world (all in thread-local memory, see `dynamics_funcs`):
    float32 lever arms short), and each dof's motion axis s = (w, v) there.
 2. Mass matrix by the composite-rigid-body algorithm, plus armature on the diagonal.
 3. Bias forces C(q, qd) qd + g(q) by recursive Newton-Euler with the base accelerating at -g.
+   Gravity compensation (MuJoCo's body_gravcomp, a passive force) cancels each body's
+   share of its weight in the same pass: body b's wrench gains gravcomp_b (m g, h x g).
 4. Passive forces: -damping qd - stiffness (q - springref).
 5. Actuators (MuJoCo's stateless affine actuators on joint transmissions):
    ctrl clamped to ctrlrange, force = gain ctrl + b0 + b1 gear q + b2 gear qd clamped to
@@ -198,8 +200,12 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         s_lin: T.dof_vec3,
         qd: T.dof_vec,
         gravity: wp.vec3,
+        gravcomp: T.body_scalar,
     ):
-        # RNEA with zero joint accelerations and the base accelerating at -g.
+        # RNEA with zero joint accelerations and the base accelerating at -g. A body's
+        # gravity compensation gravcomp[b] removes that share of its weight's wrench
+        # (m g at the center of mass: force m g, moment h x g about the reference point),
+        # which is MuJoCo's qfrc_gravcomp taken off the bias force.
         v_ang = T.body_vec3()
         v_lin = T.body_vec3()
         a_ang = T.body_vec3()
@@ -232,8 +238,8 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
             # f = I a + V x* (I V), I V = (J w + h x v, m v + w x h).
             L = J @ w + wp.cross(h, v)
             P = m * v + wp.cross(w, h)
-            f_ang[b] = J @ aw + wp.cross(h, av) + wp.cross(w, L) + wp.cross(v, P)
-            f_lin[b] = m * av + wp.cross(aw, h) + wp.cross(w, P)
+            f_ang[b] = J @ aw + wp.cross(h, av) + wp.cross(w, L) + wp.cross(v, P) + gravcomp[b] * wp.cross(h, gravity)
+            f_lin[b] = m * av + wp.cross(aw, h) + wp.cross(w, P) + gravcomp[b] * m * gravity
         for k in range(1, NB):
             b = NB - k
             p = PARENT[b]
@@ -378,7 +384,10 @@ def _dynamics_funcs(topology: Topology, differentiable: bool) -> SimpleNamespace
         M = mass_matrix(bm, bh, bJ, s_ang, s_lin)
         for d in range(NV):
             M[d, d] = M[d, d] + model.dof_armature[mid, d]
-        bias = bias_forces(bm, bh, bJ, s_ang, s_lin, qd, model.gravity[mid % model.gravity.shape[0]])
+        gravcomp = T.body_scalar()
+        for b in range(1, NB):
+            gravcomp[b] = model.body_gravcomp[mid, b]
+        bias = bias_forces(bm, bh, bJ, s_ang, s_lin, qd, model.gravity[mid % model.gravity.shape[0]], gravcomp)
         qfrc = T.dof_vec()
         for d in range(NV):
             qfrc[d] = (

@@ -180,8 +180,15 @@ def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
         raise TTError(f"{where}: jnt_actfrclimited is set; joint-level actuator force limits are not supported")
     if np.any(model.jnt_margin != 0):
         raise TTError(f"{where}: jnt_margin is nonzero; joint limits with margins are not supported")
-    if np.any(model.body_gravcomp != 0):
-        raise TTError(f"{where}: body_gravcomp is nonzero; gravity compensation is not supported")
+    if (
+        np.any(model.body_gravcomp != 0)
+        and np.any(model.jnt_actgravcomp)
+        and model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_ACTUATION
+    ):
+        raise TTError(
+            f"{where}: gravity compensation through actuators (actuatorgravcomp) with the actuation flag "
+            "disabled; MuJoCo then drops those joints' compensation, which the tree kernels do not replicate"
+        )
     for i in range(model.nu):
         if int(model.actuator_trntype[i]) != int(mujoco.mjtTrn.mjTRN_JOINT):
             raise TTError(
@@ -194,6 +201,15 @@ def check_supported(model: mujoco.MjModel, index: int = 0) -> None:
             model.actuator_biastype[i]
         ) not in (int(mujoco.mjtBias.mjBIAS_NONE), int(mujoco.mjtBias.mjBIAS_AFFINE)):
             raise TTError(f"{where}: actuator {i} gain/bias type; only fixed gain with affine or no bias is supported")
+
+
+def _gravcomp_enabled(model: mujoco.MjModel) -> bool:
+    """Whether MuJoCo applies `model`'s body_gravcomp: gravity on, and not both the spring
+    and the damper flag disabled (MuJoCo's passive forces, gravity compensation among them,
+    are skipped then)."""
+    D = mujoco.mjtDisableBit
+    off = int(model.opt.disableflags)
+    return not (off & D.mjDSBL_GRAVITY) and not ((off & D.mjDSBL_SPRING) and (off & D.mjDSBL_DAMPER))
 
 
 @dataclass
@@ -276,6 +292,9 @@ class TreeArrays:
     body_ipos: center of mass in the body frame [m], (W, NB) vec3.
     body_iquat: principal inertia frame in the body frame, (W, NB) vec4.
     body_inertia: principal moments of inertia about the center of mass [kg m^2], (W, NB) vec3.
+    body_gravcomp: gravity compensation, the share of the body's weight cancelled by an
+        upward force at its center of mass (MuJoCo's body_gravcomp, a passive force; 0 where
+        the gravity flag or both the spring and damper flags are disabled), (W, NB) float.
     dof_axis: joint axis in the body frame (unit), (W, NV) vec3.
     dof_pos: joint anchor in the body frame [m], (W, NV) vec3.
     dof_ref: reference position qpos0 (hinge angle or slide offset at which the body sits
@@ -312,6 +331,7 @@ class TreeArrays:
     body_ipos: wp.array2d(dtype=wp.vec3)
     body_iquat: wp.array2d(dtype=wp.vec4)
     body_inertia: wp.array2d(dtype=wp.vec3)
+    body_gravcomp: wp.array2d(dtype=float)
     dof_axis: wp.array2d(dtype=wp.vec3)
     dof_pos: wp.array2d(dtype=wp.vec3)
     dof_ref: wp.array2d(dtype=float)
@@ -472,6 +492,7 @@ def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> Tr
     body_ipos = np.zeros((n, nb, 3))
     body_iquat = np.tile([1.0, 0.0, 0.0, 0.0], (n, nb, 1))
     body_inertia = np.zeros((n, nb, 3))
+    body_gravcomp = np.zeros((n, nb))
     dof_range = np.tile([-UNLIMITED, UNLIMITED], (n, nv, 1))
     act_ctrlrange = np.tile([-UNLIMITED, UNLIMITED], (n, nu, 1))
     act_forcerange = np.tile([-UNLIMITED, UNLIMITED], (n, nu, 1))
@@ -486,6 +507,9 @@ def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> Tr
         body_ipos[i, tail[1:]] = m.body_ipos[1:]
         body_iquat[i, tail[1:]] = m.body_iquat[1:]
         body_inertia[i, tail[1:]] = m.body_inertia[1:]
+        # Every tree body of a split MuJoCo body carries its gravcomp (only the tail has mass).
+        for b in range(1, m.nbody):
+            body_gravcomp[i, head[b] : tail[b] + 1] = m.body_gravcomp[b] * _gravcomp_enabled(m)
         limited = m.jnt_limited.astype(bool)
         dof_range[i, limited] = m.jnt_range[limited]
         clamp = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CLAMPCTRL)
@@ -514,6 +538,7 @@ def tree_fields(models: Sequence[mujoco.MjModel], ee_sites: Sequence[str]) -> Tr
         body_ipos=body_ipos,
         body_iquat=body_iquat,
         body_inertia=body_inertia,
+        body_gravcomp=body_gravcomp,
         dof_axis=np.stack([m.jnt_axis for m in models]),
         dof_pos=np.stack([m.jnt_pos for m in models]),
         dof_ref=np.stack([m.qpos0 for m in models]),

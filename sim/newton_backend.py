@@ -119,8 +119,13 @@ def _check_newton_model(m: mujoco.MjModel, index: int) -> None:
             raise TTError(f"{where}: actuator {u} is not a stateless fixed-gain affine actuator (position servo)")
     if len(set(m.actuator_trnid[:, 0].tolist())) != m.nu:
         raise TTError(f"{where}: several actuators drive one joint; the newton backend applies one force per joint")
-    if np.any(m.body_gravcomp != 0) or np.any(m.dof_frictionloss != 0):
-        raise TTError(f"{where}: gravity compensation and friction loss are not replicated on Newton")
+    if np.any(m.body_gravcomp != 0):
+        raise TTError(
+            f"{where}: body_gravcomp is nonzero; gravity compensation is not replicated on Newton "
+            "(use backend='warp', 'mjwarp' or 'mujoco')"
+        )
+    if np.any(m.dof_frictionloss != 0):
+        raise TTError(f"{where}: dof_frictionloss is nonzero; friction loss is not replicated on Newton")
 
 
 def _design_inputs(designs: Sequence[Design] | Robots) -> tuple[list[mujoco.MjModel], list[str], tuple[str, ...]]:

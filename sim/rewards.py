@@ -53,6 +53,7 @@ import numpy as np
 import torch
 
 from tt.kernels.errors import TTError
+from tt.sim.designs.gravcomp import GRAVCOMP_BASES, gravcomp_name
 
 #: Reward names, in the paper's order.
 REWARDS: tuple[str, ...] = (
@@ -212,8 +213,10 @@ _SPACE_WEIGHTS: dict[str, _SpaceWeights] = {
     "bimanual": _SpaceWeights(threshold=0.5, velocity_alpha=0.5, size_target=5.0, mass_target=15.0),
     "quadruped": _SpaceWeights(threshold=0.8, velocity_alpha=0.005, size_target=6.5, mass_target=15.0),
 }
-# Sub-spaces (`tt.sim.designs.FixedStructureSpace`) score as their full space.
+# Sub-spaces (`tt.sim.designs.FixedStructureSpace`) score as their full space, and
+# gravity-compensated variants (`tt.sim.designs.gravcomp`) as the space they compensate.
 _SPACE_WEIGHTS["viperx-nominal"] = _SPACE_WEIGHTS["viperx"]
+_SPACE_WEIGHTS.update({gravcomp_name(base): _SPACE_WEIGHTS[base] for base in GRAVCOMP_BASES})
 
 #: Design spaces with reward weights.
 REWARD_SPACES: tuple[str, ...] = tuple(_SPACE_WEIGHTS)
