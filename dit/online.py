@@ -1,21 +1,29 @@
 """Training data made while training: ``tt train --online``.
 
 `OnlineTokenSource` is a `tt.dit.data.TokenSource` that generates its episodes with the
-batched Warp sim instead of reading a dataset. Refresh k draws `designs` new designs of the
+batched sim instead of reading a dataset. Refresh k draws `designs` new designs of the
 space and `motions` augmented training motions (the draws of `tt generate`: the same
 augmentation, control perturbation and minimum length), rolls every design out on every
 motion, tokenizes the episodes and adds them to a buffer that holds the last `buffer`
 refreshes; training windows are drawn from that buffer. Training step s reads the
 buffer of refresh ``s // refresh_every``.
 
-No copy between Warp and torch: the rollout kernel's records stay Warp arrays, and the
-Episode the tokenizer reads holds torch views of them (`tt.sim.rollout.group_episode`,
-one per topology group, so designs of different DoF need no padded copy); tokenization
-runs in torch on the sim's device, and only the finished tokens move to the buffer (CPU).
+The rollout backend is the one `tt generate` uses for the space
+(`tt.baselines.problem.default_backend`): tt's Warp kernels for contact-free spaces, and
+for spaces with contacts (the quadruped) ``mjbatch``, MuJoCo C's own physics on every CPU
+thread with the batched whole-body controller, called as `tt generate` calls it
+(`tt.sim.rollout.rollout` on the compiled models), so a refresh's episodes are the ones
+`tt generate` records for the same designs and motions.
 
-Every draw of refresh k is a function of (seed, k), and the Warp rollout is deterministic
-on a device, so a resumed run regenerates exactly the buffer it had (and, with the data
-generator state of its checkpoint, draws the same windows).
+No copy between Warp and torch on the Warp backend: the rollout kernel's records stay Warp
+arrays, and the Episode the tokenizer reads holds torch views of them
+(`tt.sim.rollout.group_episode`, one per topology group, so designs of different DoF need no
+padded copy); tokenization runs in torch on the sim's device, and only the finished tokens
+move to the buffer (CPU). ``mjbatch`` returns one zero-padded Episode of CPU tensors.
+
+Every draw of refresh k is a function of (seed, k), and both rollouts are deterministic
+(mjbatch for every thread count), so a resumed run regenerates exactly the buffer it had
+(and, with the data generator state of its checkpoint, draws the same windows).
 
 Normalisation: a new run fits the normaliser on refresh 0 (`EpisodeTokens.fit_normalizer`);
 ``--init`` keeps the checkpoint's, so fine-tuning a dataset-trained model on online data
@@ -49,11 +57,13 @@ _STREAM_DESIGNS, _STREAM_MOTIONS, _STREAM_NOISE, _STREAM_SELECT = 10, 11, 12, 13
 class OnlineConfig:
     """What `OnlineTokenSource` generates.
 
-    space: design space (contact-free: the Warp sim); designs, motions: designs and
-    augmented training motions per refresh (every design runs every motion);
-    refresh_every: optimizer steps between refreshes; buffer: refreshes whose episodes
-    windows are drawn from; seed: root of every draw; action_noise, min_steps,
-    max_motion_steps: as `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows;
+    space: design space (contact-free spaces roll out on tt's Warp kernels, spaces with
+    contacts on ``mjbatch``: `backend`); designs, motions: designs and augmented training
+    motions per refresh (every design runs every motion); refresh_every: optimizer steps
+    between refreshes; buffer: refreshes whose episodes windows are drawn from; seed: root of
+    every draw; action_noise (None: what `tt generate` gives the space, `DEFAULT_ACTION_NOISE`
+    on Warp and 0 on mjbatch), min_steps, max_motion_steps: as
+    `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows;
     absorbing: a terminated episode stays in the data to the motion's end. The rollout's
     records after termination repeat the terminal state (its end effector already past the
     threshold) beside the motion's true targets (`tt.kernels.rollout`), so windows that reach
@@ -75,7 +85,7 @@ class OnlineConfig:
     refresh_every: int = 50
     buffer: int = 4
     seed: int = 0
-    action_noise: float = DEFAULT_ACTION_NOISE
+    action_noise: float | None = None
     min_steps: int = 100
     max_motion_steps: int | None = None
     max_time: int = 1024
@@ -97,12 +107,19 @@ class OnlineConfig:
             object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
         except TTError:
             raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
-        if get_space(self.space).has_contacts:
-            raise TTError(
-                f"design space {self.space!r} has contacts; online training rolls out with tt's Warp "
-                "kernels (contact-free trees): generate a dataset with `tt generate` instead"
-            )
+        get_space(self.space)  # raises listing the valid spaces
+        if self.action_noise is None:
+            # tt generate's default (tt.generate.generate_cmd): mjbatch datasets are unperturbed.
+            object.__setattr__(self, "action_noise", DEFAULT_ACTION_NOISE if self.backend == "warp" else 0.0)
         self.generate_config()  # validates the shared fields
+
+    @property
+    def backend(self) -> str:
+        """The rollout backend: `tt.baselines.problem.default_backend` of the space (which dit
+        may not import): "warp" for contact-free spaces, "mjbatch" for spaces with contacts."""
+        from tt.sim.designs import get_space
+
+        return "mjbatch" if get_space(self.space).has_contacts else "warp"
 
     def generate_config(self) -> GenerateConfig:
         """The `tt generate` config whose draws (augmentation, noise, filtering) a refresh uses."""
@@ -115,19 +132,23 @@ class OnlineConfig:
             group_designs=self.designs,
             min_steps=self.min_steps,
             max_motion_steps=self.max_motion_steps,
+            backend=self.backend,
             action_noise=self.action_noise,
         )
 
 
 class OnlineTokenSource:
-    """Episodes generated by the batched Warp sim as training goes (see the module docstring).
+    """Episodes generated by the batched sim as training goes (see the module docstring).
 
-    config: what to generate; device: Warp / torch device of the rollouts (None: the default).
+    config: what to generate; device: Warp / torch device of the rollouts (None: the default;
+    mjbatch runs on the CPU whatever the device, and its episodes are tokenized there);
+    threads: CPU threads of the rollouts (None: every core; the episodes are the same for
+    every count).
     ``stats`` counts refreshes, episodes kept and dropped, world-steps simulated and the
     seconds spent generating.
     """
 
-    def __init__(self, config: OnlineConfig, device: str | None = None):
+    def __init__(self, config: OnlineConfig, device: str | None = None, threads: int | None = None):
         from tt.kernels.device import resolve_device
         from tt.sim.designs import get_space
         from tt.tokens.draws import space_token_maxima
@@ -135,6 +156,7 @@ class OnlineTokenSource:
 
         self.config = config
         self.device = resolve_device(device)
+        self.threads = threads
         self.space = get_space(config.space)
         self._generate = config.generate_config()
         self.maxima = {k: int(v) for k, v in space_token_maxima(config.space)["maxima"].items() if int(v) > 0}
@@ -207,12 +229,16 @@ class OnlineTokenSource:
         ]
         return designs, motions
 
+    def noise_seed(self, k: int) -> int:
+        """The seed of refresh `k`'s control perturbation, a function of (seed, k)."""
+        from tt.tokens.draws import _seed_int
+
+        return _seed_int(self.config.seed, k, _STREAM_NOISE)
+
     def _refresh(self, k: int) -> EpisodeTokens:
         if k in self._refreshes:
             return self._refreshes[k]
-        from tt.sim.controller import IKConfig
-        from tt.sim.rollout import group_episode, rollout_records
-        from tt.tokens.draws import _seed_int, finite_worlds
+        from tt.tokens.draws import finite_worlds
 
         cfg, t0 = self.config, time.perf_counter()
         designs, motions = self.draw(k)
@@ -223,27 +249,8 @@ class OnlineTokenSource:
                 "set max_motion_steps"
             )
         models = [self.space.model(d) for d in designs]
-        # The tokenizer reads the models; the rollout simulates the tree fields the space
-        # builds directly where it can, as every warp rollout of Designs does.
-        trees = self.space.trees(designs)
-        records = rollout_records(
-            models if trees is None else trees,
-            self.space.ee_sites(),
-            motions,
-            device=self.device,
-            action_noise=cfg.action_noise,
-            noise_seed=_seed_int(cfg.seed, k, _STREAM_NOISE),
-        )
         parts, dropped, world_steps, groups = [], 0, 0, []
-        for members, arrays in records:
-            ep = group_episode(
-                members,
-                arrays,
-                len(motions),
-                models[members[0]].nu,
-                perturbed=cfg.action_noise > 0,
-                dt=IKConfig().control_dt,
-            )
+        for members, ep in self._rollout(k, designs, models, motions):
             lengths = ep.lengths()
             world_steps += int(lengths.sum())
             if cfg.absorbing:
@@ -284,6 +291,53 @@ class OnlineTokenSource:
         )
         self._refreshes[k] = out
         return out
+
+    def _rollout(self, k: int, designs: list, models: list, motions: list) -> list:
+        """Refresh k's episodes: [(design indices, Episode)], one per Warp topology group
+        (zero-copy views of the kernel's records), or one padded Episode of every design on
+        mjbatch, rolled out as `tt generate` rolls out a group (`tt.generate.generate_shard`)."""
+        from tt.sim.controller import IKConfig
+        from tt.sim.rollout import group_episode, rollout, rollout_records
+
+        cfg = self.config
+        noise_seed = self.noise_seed(k)
+        if cfg.backend != "warp":
+            ep = rollout(
+                models,
+                motions,
+                backend=cfg.backend,
+                device=self.device,
+                action_noise=cfg.action_noise,
+                threads=self.threads,
+                noise_seed=noise_seed,
+            )
+            return [(list(range(len(models))), ep)]
+        # The tokenizer reads the models; the rollout simulates the tree fields the space
+        # builds directly where it can, as every warp rollout of Designs does.
+        trees = self.space.trees(designs)
+        records = rollout_records(
+            models if trees is None else trees,
+            self.space.ee_sites(),
+            motions,
+            device=self.device,
+            action_noise=cfg.action_noise,
+            noise_seed=noise_seed,
+            threads=self.threads,
+        )
+        return [
+            (
+                members,
+                group_episode(
+                    members,
+                    arrays,
+                    len(motions),
+                    models[members[0]].nu,
+                    perturbed=cfg.action_noise > 0,
+                    dt=IKConfig().control_dt,
+                ),
+            )
+            for members, arrays in records
+        ]
 
     def _select(self, k: int, groups: list, motions: list) -> list:
         """The groups' keep masks narrowed to the episodes `select_episodes` picks per motion."""

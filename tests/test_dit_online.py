@@ -165,8 +165,6 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
     assert code != 0 and "--data DATASET or --online" in out
     code, out = tt_cli(["train", "--online", "--data", str(tmp_path), "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "--data DATASET or --online" in out
-    code, out = tt_cli(["train", "--online", "--space", "quadruped", "--out", str(tmp_path / "r"), "--steps", "1"])
-    assert code != 0 and "contacts" in out
     code, out = tt_cli(["train", "--online", "--action-noise", "-1", "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "--action-noise" in out
 
