@@ -98,3 +98,91 @@ def test_motions_are_placed_for_a_space_once():
     once = for_space([raw], quad.name)[0]
     assert (_placed([raw], quad.name)[0].pos == once.pos).all()
     assert (_placed([once], quad.name)[0].pos == once.pos).all()  # already placed: kept
+
+
+def test_save_motion_writes_what_motion_reads(tmp_path):
+    """Arrays (one end effector, default orientation) and a Motion object round-trip through the
+    motion file; reading places the start over the base and resamples to 50 Hz."""
+    import numpy as np
+
+    t = np.linspace(0.0, 1.0, 51)
+    pos = np.stack([0.3 + 0.1 * np.sin(2 * np.pi * t), 0.05 * t, 0.2 + 0.05 * t], axis=1)
+    written = tt.save_motion(tmp_path / "wave.npz", pos)
+    back = tt.motion(tmp_path / "wave.npz")
+    assert back.name == "wave" and back.steps == 51 and written.steps == 51
+    np.testing.assert_allclose(back.pos[:, 0] - back.pos[0, 0], pos - pos[0], atol=1e-12)
+    np.testing.assert_array_equal(back.pos[0, 0, :2], [0.0, 0.0])  # placed over the base, height kept
+    assert back.pos[0, 0, 2] == pos[0, 2]
+    np.testing.assert_array_equal(back.quat[:, 0], np.tile([1.0, 0.0, 0.0, 0.0], (51, 1)))
+    tt.save_motion(tmp_path / "slow.npz", pos, dt=0.04, name="slow")
+    slow = tt.motion(str(tmp_path / "slow.npz"))  # a string naming a file reads it too
+    assert slow.name == "slow" and slow.steps == 101  # 2 s at 50 Hz
+    toss = tt.motion("toss")
+    tt.save_motion(tmp_path / "toss.npz", toss)
+    again = tt.motion(tmp_path / "toss.npz")
+    np.testing.assert_array_equal(again.pos, toss.pos)
+    np.testing.assert_array_equal(again.quat, toss.quat)
+    with pytest.raises(tt.TTError, match="not with a Motion"):
+        tt.save_motion(tmp_path / "x.npz", toss, dt=0.01)
+    with pytest.raises(tt.TTError, match="quat shape"):
+        tt.save_motion(tmp_path / "x.npz", pos, np.ones((3, 4)))
+    with pytest.raises(tt.TTError, match="norm"):
+        tt.save_motion(tmp_path / "x.npz", pos, np.ones((51, 4)))
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_tokenize_and_detokenize_round_trip(tmp_path):
+    """A design, a model and an MJCF file tokenize alike; detokenizing gives back the robot."""
+    import mujoco
+    import numpy as np
+
+    space = tt.get_space("viperx")
+    design = space.sample(1, seed=3)[0]
+    model = space.model(design)
+    emb = tt.tokenize(design)
+    counts = {k: int(v[0]) for k, v in emb.tokens.counts().items()}
+    assert counts == {k: int(v[0]) for k, v in tt.tokenize([model]).tokens.counts().items()}
+    (tmp_path / "arm.xml").write_text(space.to_mjcf(design))
+    assert counts == {k: int(v[0]) for k, v in tt.tokenize(tmp_path / "arm.xml").tokens.counts().items()}
+    emb.tokens.save(tmp_path / "tokens.npz")
+    for source in (emb, emb.tokens, tmp_path / "tokens.npz", str(tmp_path / "tokens.npz")):
+        (result,) = tt.detokenize(source, model="back")
+        assert result.ok, result.error
+        assert 'model="back"' in result.xml
+        assert (result.model.njnt, result.model.nu) == (model.njnt, model.nu)
+        assert np.isclose(result.model.body_mass.sum(), model.body_mass.sum(), rtol=1e-5)
+    back = mujoco.MjModel.from_xml_string(result.xml)
+    assert back.nq == model.nq
+    with pytest.raises(tt.TTError, match="no robots given"):
+        tt.tokenize([])
+    with pytest.raises(tt.TTError, match=r"robots\[0\] is a str"):
+        tt.tokenize(["arm.xml"])
+    with pytest.raises(tt.TTError, match="does not exist"):
+        tt.tokenize(tmp_path / "nope.xml")
+
+
+def test_dataset_info_and_train_reject_bad_input(tmp_path):
+    with pytest.raises(tt.TTError):
+        tt.dataset_info(tmp_path)  # an empty folder is no dataset
+    with pytest.raises(tt.TTError, match="exactly one source of training data"):
+        tt.train(None, tmp_path / "run")
+    with pytest.raises(tt.TTError, match="exactly one source of training data"):
+        tt.train(tmp_path, tmp_path / "run", online=True)
+    with pytest.raises(tt.TTError, match="does not exist"):
+        tt.train(tmp_path / "nope", tmp_path / "run")
+    with pytest.raises(tt.TTError, match="online must be"):
+        tt.train(None, tmp_path / "run", online=5)
+    assert not (tmp_path / "run").exists()
+
+
+def test_train_online_writes_a_checkpoint(tmp_path, single_thread):
+    """`tt.train` with data=None trains on episodes simulated as it goes; the run seed seeds them."""
+    from tt.dit.checkpoint import load_model
+
+    online = dict(space="viperx", designs=4, motions=1, refresh_every=2, min_steps=20, max_motion_steps=40)
+    run = tt.train(
+        None, tmp_path / "run", online=online, size="tiny", steps=2, batch_size=4, device="cpu", progress=False
+    )
+    assert run.step == 2 and len(run.losses) == 2 and run.checkpoint.is_file()
+    assert tmp_path / "run" in run.checkpoint.parents
+    assert load_model(run.checkpoint, device="cpu").tasks == ("robot",)

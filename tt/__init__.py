@@ -10,8 +10,9 @@ The common path in Python (`tt.api`; each name loads its modules on first use, s
     check = tt.validate([best.best], [toss])        # the oracle: MuJoCo C + mink
     tt.view([best.best], motion=toss, html="best.html")
 
-`get_space`, `motion` (`load_motion`), `rollout`, `validate`, `optimize`, `predict`,
-`generate_dataset` and `view` are documented in `tt.api`; the CLI (``tt ...``) calls them.
+`get_space`, `motion` (`load_motion`), `save_motion`, `rollout`, `validate`, `optimize`,
+`predict`, `generate_dataset`, `dataset_info`, `train`, `tokenize`, `detokenize` and `view`
+are documented in `tt.api`; the CLI (``tt ...``) calls the same library functions.
 
 The implementation lives in the subpackages, layered high -> low: the app (`tt.api`,
 `tt.cli`, `tt.demo`, `tt.report`, `tt.generate`, `tt.optimizers`) > `tt.viz` > `tt.guidance`
@@ -19,7 +20,22 @@ The implementation lives in the subpackages, layered high -> low: the app (`tt.a
 """
 
 #: The API's names, each loaded from `tt.api` on first use.
-_API = ("get_space", "motion", "load_motion", "rollout", "validate", "optimize", "predict", "generate_dataset", "view")
+_API = (
+    "get_space",
+    "motion",
+    "load_motion",
+    "save_motion",
+    "rollout",
+    "validate",
+    "optimize",
+    "predict",
+    "generate_dataset",
+    "dataset_info",
+    "train",
+    "tokenize",
+    "detokenize",
+    "view",
+)
 
 __all__ = ["TTError", "__version__", *_API]
 

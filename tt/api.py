@@ -24,11 +24,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence, Union
 
 if TYPE_CHECKING:
+    import mujoco
+
     from tt.baselines import Evaluation, Result
+    from tt.dit.train import TrainResult
     from tt.guidance.predicted import DesignPrediction
     from tt.sim.designs import Design
     from tt.sim.designs.base import DesignSpace
     from tt.sim.motions import Motion
+    from tt.tokens import DetokenizeResult, Embodiments, TokenBatch
     from tt.viz.cli import ViewResult
 
     MotionLike = Union[Motion, str, Path]
@@ -75,6 +79,38 @@ def motion(spec: str | Path) -> Motion:
 
 #: `motion` by its other name: a motion file read from disk.
 load_motion = motion
+
+
+def save_motion(path: str | Path, pos, quat=None, *, dt: float | None = None, name: str | None = None) -> Motion:
+    """Write a target motion as a ``.npz`` motion file that `motion` (and ``tt optimize --motion
+    FILE.npz``) reads, the format of ``tt motions --name NAME --out FILE.npz`` (`tt.sim.motions.io`).
+
+    pos: end-effector positions [m], (T, 3), or (T, 2, 3) for two end effectors; or a `Motion`
+    (then `quat`, `dt` and `name` come from it). quat: unit quaternions (w, x, y, z) of the
+    same (T, 4) / (T, 2, 4) shape; None: (1, 0, 0, 0) throughout, the end effector level with
+    its approach axis (x) along world x. dt: sample period [s] (None: 0.02, tt's 50 Hz); any
+    other rate is resampled to 50 Hz when read. name: the motion's name (None: the file's
+    stem). Reading the file moves the motion's start over the robot's base in (x, y), heights
+    kept, as the library's motions are. Returns the `Motion` written (as given, not yet placed or resampled); bad arrays
+    raise `tt.sim.motions.MotionError` (a `TTError`) naming the field."""
+    import numpy as np
+
+    from tt.sim.motions import MOTION_DT, Motion, save_npz
+
+    if isinstance(pos, Motion):
+        if quat is not None or dt is not None or name is not None:
+            from tt.sim.motions import MotionError
+
+            raise MotionError("save_motion: pass quat, dt and name with position arrays, not with a Motion")
+        m = pos
+    else:
+        pos = np.asarray(pos, dtype=np.float64)
+        if quat is None:
+            quat = np.zeros(pos.shape[:-1] + (4,))
+            quat[..., 0] = 1.0
+        m = Motion(name or Path(path).stem, pos, quat, MOTION_DT if dt is None else dt)
+    save_npz(m, path)
+    return m
 
 
 def rollout(
@@ -291,6 +327,100 @@ def generate_dataset(space: str, designs: int, out: str | Path, **options) -> st
     return generate_cmd(space, designs, out, **options)
 
 
+def dataset_info(path: str | Path) -> dict:
+    """What a RoboToken dataset holds (``tt dataset info --json``): a JSON-ready dict with
+    ``space``, ``config`` (the arguments it was generated with), ``complete``, ``shards``,
+    ``designs``, ``episodes`` (kept; ``episodes_generated`` and ``dropped`` by reason),
+    ``steps``, ``bytes``, token ``maxima`` and per-episode summaries (n, mean, std, min, p50,
+    max) of ``length``, ``reward``, ``pos_err``, ``orn_err`` and ``survival``
+    (`tt.tokens.info.dataset_info`). A folder that is not a dataset raises
+    `tt.tokens.store.DatasetError` (a `TTError`)."""
+    from tt.tokens.info import dataset_info as _dataset_info
+
+    return _dataset_info(path)[0]
+
+
+def train(data: str | Path | None, out: str | Path, *, online=None, **options) -> TrainResult:
+    """Train the diffusion transformer (``tt train``) on the RoboToken dataset `data` (a folder
+    from `generate_dataset`, or an episode token file), or, with ``data=None``, on episodes the
+    batched simulator generates as training goes (`online`: True for `tt.dit.online.OnlineConfig`'s
+    defaults, or a dict of its fields, e.g. ``dict(space="viperx", designs=16, motions=2)``; its
+    seed defaults to the run's, as ``tt train --online``'s does).
+
+    out: the run folder (checkpoints, loss.csv, loss.png); a folder that holds a run of the same
+    arguments is resumed. options: `tt.dit.cli.train_cmd`'s, the CLI's defaults (task "robot";
+    "robot+dynamics" also makes the model a critic for `predict` and ranked optimizers; size
+    "small", "tiny" for a quick run; steps 10,000; batch_size 64; lr None, the paper's for the
+    size; device; seed 0; checkpoint_every 1,000; resume True; init, a checkpoint to fine-tune;
+    progress True, a tqdm bar; and the recipe, `tt.dit.train.TrainConfig`'s fields).
+
+    Returns a `tt.dit.train.TrainResult`: ``step``, ``losses`` (one per step), ``checkpoint``
+    (the last one written: pass it as ``checkpoint=`` to `optimize` or `predict`) and
+    ``parameters``."""
+    from tt.kernels.errors import TTError
+
+    if (data is None) == (online is None or online is False):
+        raise TTError(
+            "train: give exactly one source of training data: data=DATASET_FOLDER, or data=None with "
+            f"online=True / online=dict(...); got data={data!r}, online={online!r}"
+        )
+    if data is not None and not Path(data).exists():
+        raise TTError(f"train: data {str(data)!r} does not exist (a dataset folder from generate_dataset)")
+    config = None
+    if online is not None and online is not False:
+        from tt.dit.online import OnlineConfig
+
+        if isinstance(online, OnlineConfig):
+            config = online
+        elif online is True or isinstance(online, dict):
+            fields = {} if online is True else online
+            config = OnlineConfig(**{"seed": options.get("seed", 0), **fields})  # as tt train: the run's seed
+        else:
+            raise TTError(
+                f"train: online must be True, a dict of OnlineConfig fields or an OnlineConfig, got {online!r}"
+            )
+    from tt.dit.cli import train_cmd
+
+    return train_cmd(data, out=out, online=config, **options)
+
+
+def tokenize(robots, *, ee_sites: Sequence[str] | None = None) -> Embodiments:
+    """RoboTokens of robots (``tt tokenize``): the embodiment tokens (links, joints, actuators)
+    the DiT reads and writes.
+
+    robots: an MJCF or URDF file, a design file spec (``designs.json``, ``designs.json#i``,
+    ``best.json``), a `mujoco.MjModel`, a `Design`, or a list of models and designs.
+    ee_sites: the end-effector sites in order (None: the sites named ``ee_0``, ``ee_1``, ...).
+    What RoboTokens cannot represent exactly is warned about (`tt.tokens.TokenizeWarning`:
+    meshes become boxes, tendons are dropped); a robot they cannot hold raises
+    `tt.tokens.TokenizeError` (a `TTError`).
+
+    Returns `tt.tokens.Embodiments`: ``tokens`` (a `TokenBatch`: ``counts()`` per type,
+    ``save(path)`` the ``.npz`` that ``tt detokenize`` reads) and ``index``, per robot, which
+    MuJoCo element each token came from."""
+    from tt.tokens import TokenizeConfig, tokenize_models
+
+    return tokenize_models(_models(robots), TokenizeConfig(ee_sites=None if ee_sites is None else tuple(ee_sites)))
+
+
+def detokenize(tokens: TokenBatch | Embodiments | str | Path, *, model: str = "robot") -> list[DetokenizeResult]:
+    """Robots back from RoboTokens (``tt detokenize``): MJCF text compiled by MuJoCo.
+
+    tokens: a `TokenBatch`, the `Embodiments` of `tokenize`, or a tokens ``.npz`` file
+    (``tt tokenize --out``, ``TokenBatch.save``). model: the MJCF model name. Returns one
+    `tt.tokens.DetokenizeResult` per robot: ``xml`` (the MJCF), ``model`` (the `mujoco.MjModel`;
+    None when MuJoCo refused it, with the reason in ``error``; ``ok`` says which) and
+    ``notes`` on anything repaired. Bad tokens give a result that is not ``ok``; they do not
+    raise."""
+    from tt.tokens import DetokenizeConfig, TokenBatch
+    from tt.tokens import detokenize as _detokenize
+
+    if isinstance(tokens, (str, Path)):
+        tokens = TokenBatch.load(tokens)
+    tokens = getattr(tokens, "tokens", tokens)
+    return _detokenize(tokens, DetokenizeConfig(model=model))
+
+
 def view(
     source: DesignsLike | Evaluation,
     *,
@@ -361,6 +491,31 @@ def _designs(designs: DesignsLike) -> list[Design]:
     return designs
 
 
+def _models(robots) -> list[mujoco.MjModel]:
+    """MuJoCo models from a robot file / design file spec, a model, a design, or a list of
+    models and designs."""
+    import mujoco
+
+    from tt.kernels.errors import TTError
+    from tt.sim.designs import Design
+
+    if isinstance(robots, (str, Path)):
+        from tt.tokens.cli import _load_robots  # the robots of a file, as `tt tokenize` reads them
+
+        return [m for _, _, m in _load_robots(str(robots))]
+    items = [robots] if isinstance(robots, (mujoco.MjModel, Design)) else list(robots)
+    if not items:
+        raise TTError("tokenize: no robots given; pass an MJCF file, a mujoco.MjModel, a Design or a list of them")
+    out = []
+    for i, r in enumerate(items):
+        if isinstance(r, Design):
+            r = get_space(r.space).model(r)
+        if not isinstance(r, mujoco.MjModel):
+            raise TTError(f"tokenize: robots[{i}] is a {type(r).__name__}; give mujoco.MjModel or Design objects")
+        out.append(r)
+    return out
+
+
 def _one_space(designs: Sequence[Design]) -> str:
     spaces = sorted({d.space for d in designs})
     if len(spaces) > 1:
@@ -391,6 +546,8 @@ __all__ = [
     "DEFAULT_SEED",
     "DEFAULT_SPACE",
     "control_checkpoint",
+    "dataset_info",
+    "detokenize",
     "generate_dataset",
     "get_space",
     "load_motion",
@@ -399,6 +556,9 @@ __all__ = [
     "predict",
     "predict_checkpoint",
     "rollout",
+    "save_motion",
+    "tokenize",
+    "train",
     "validate",
     "view",
 ]
