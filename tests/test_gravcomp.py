@@ -259,3 +259,17 @@ def test_what_stays_refused():
     )
     with pytest.raises(TTError, match="actuatorgravcomp"):
         tree_fields([off], ("ee_0",))
+
+
+@pytest.mark.slow
+def test_rollout_gradients_with_gravcomp_match_float64_finite_differences():
+    """`wp.Tape` gradients through the differentiable rollout of a compensated arm equal
+    float64 finite differences of the oracle's, as `test_kernels_rollout` checks them
+    without compensation (link offsets and mount yaw, relative 1e-2)."""
+    from test_kernels_rollout import _check_design_gradients
+
+    from tt.sim.controller import IKConfig
+    from tt.sim.motions import motion_set
+
+    space = get_space(SPACE)
+    _check_design_gradients(space, space.nominal(), motion_set("train", arms=1)[0], IKConfig())
