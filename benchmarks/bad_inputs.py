@@ -75,8 +75,8 @@ def _resume_fallback(files, work: Path):
         "cpu",
         "--out",
         str(run),
-        "--checkpoint-every",
-        "2",
+        "--config",
+        "checkpoint_every=2",
     ]
     code, out = _invoke(base + ["--steps", "4"])
     if code:

@@ -294,7 +294,7 @@ def _cli(designs_json: Path, backend: str, threads: int | None, motion_file: Pat
     if threads is not None:
         args += ["--threads", str(threads)]
     if motion_file is not None:
-        args += ["--motion-file", str(motion_file)]
+        args += ["--motion", str(motion_file)]
     start = time.perf_counter()
     proc = subprocess.run(args, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - start

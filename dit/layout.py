@@ -144,21 +144,6 @@ class Layout:
         """Length of the concatenated sequence."""
         return sum(s.length for s in self.specs)
 
-    def without(self, names) -> "Layout":
-        """This layout less the token types `names` (the others in order; LayoutError for a
-        name it does not hold, or for dropping every type)."""
-        names = tuple(names)
-        unknown = [n for n in names if n not in self]
-        if unknown:
-            raise LayoutError(f"cannot drop token types {unknown}: the layout has {list(self.names)}")
-        if not names:
-            return self
-        specs = tuple(s for s in self.specs if s.name not in names)
-        used = {k for s in specs for k in s.ids}
-        return Layout(
-            specs, {k: v for k, v in self.id_sizes.items() if k in used or k == "time"}, self.steps, self.schema_version
-        )
-
     def names_with(self, *roles: Role) -> tuple[str, ...]:
         return tuple(s.name for s in self.specs if s.role in roles)
 

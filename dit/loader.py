@@ -213,7 +213,7 @@ class StoreTokenSource:
             raise DatasetError(
                 f"dataset {path} is complete but holds no episodes: all {totals.get('generated', '?')} "
                 f"generated episodes were dropped ({dropped or 'every one'}; it was generated with "
-                f"--min-steps {min_steps}); generate it again into another --out with a lower --min-steps"
+                f"min_steps={min_steps}); generate it again into another --out with a lower min_steps"
             )
         if self.store.episodes == 0:
             raise TTError(f"dataset {path} holds no episodes yet; run its `tt generate` command to generate them")

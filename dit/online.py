@@ -102,11 +102,11 @@ class OnlineConfig:
             raise TTError(
                 f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}"
             )
-        check_selection(self.select, self.uniform_share, "--online-select", "--uniform-share")
+        check_selection(self.select, self.uniform_share, "online.select", "online.uniform_share")
         try:
             object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
         except TTError:
-            raise TTError(f"--select-by {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
+            raise TTError(f"online.reward {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
         get_space(self.space)  # raises listing the valid spaces
         if self.action_noise is None:
             # tt generate's default (tt.generate.generate_cmd): mjbatch datasets are unperturbed.

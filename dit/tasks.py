@@ -15,7 +15,7 @@ sample's coarse outcome (does the end effector reach the targets at all?) is dec
 design is all but hidden. On R0 (`benchmarks/results/dit_recipe.md`, x0 prediction) the
 predicted rewards correlate with the simulated ones at r = 0.97 through this task and 0.30
 through inpainting. Trained beside the robot task (``tt train --task robot+dynamics``),
-one model serves both. With window "start" (``tt train --dynamics-start``) every window
+one model serves both. With window "start" (``tt train dynamics_start``) every window
 holds the episode's first step, whose state and command are a clean condition: the critic
 is then told where the robot starts, which one simulated control step gives it (on R2 the
 start tells failing pairs from tracking ones at AUC 0.96, the design alone at 0.65-0.70:

@@ -63,11 +63,6 @@ class DivergedError(TTError, FloatingPointError):
     """The training loss became NaN or infinite: the run's settings diverge (not a bug in tt)."""
 
 
-#: Per-step token types a run may leave out of its model's sequence (`TrainConfig.drop_types`):
-#: the states and commands no reward reads (`tt.guidance.predicted.PredictedReward` reads the
-#: track-link poses, and the actuator observations for the effort rewards).
-DROPPABLE = ("dyna_joint_obs", "actuator_obs", "control")
-
 #: `tt train`'s flag of each `TrainConfig` field that has one, for messages.
 FLAGS = {
     "data": "--data",
@@ -76,42 +71,41 @@ FLAGS = {
     "size": "--size",
     "steps": "--steps",
     "batch_size": "--batch-size",
-    "lr": "--lr",
-    "warmup_steps": "--warmup-steps",
+    "lr": "lr",
+    "warmup_steps": "warmup_steps",
     "seed": "--seed",
-    "checkpoint_every": "--checkpoint-every",
-    "robot_diffusion_steps": "--robot-diffusion-steps",
-    "control_diffusion_steps": "--control-diffusion-steps",
-    "future_states": "--no-future-states",
-    "prediction": "--prediction",
-    "weighting": "--weighting",
-    "min_snr_gamma": "--min-snr-gamma",
-    "type_weights": "--type-weight",
-    "bf16_cpu": "--bf16-cpu",
-    "anchor_track": "--anchor-track",
-    "anchor_control": "--anchor-control",
-    "known_command": "--known-command",
-    "control_target_offset": "--control-target-offset",
-    "dynamics_start": "--dynamics-start",
-    "time_ids": "--time-ids",
-    "drop_types": "--drop-type",
+    "checkpoint_every": "checkpoint_every",
+    "robot_diffusion_steps": "robot_diffusion_steps",
+    "control_diffusion_steps": "control_diffusion_steps",
+    "future_states": "future_states",
+    "prediction": "prediction",
+    "weighting": "weighting",
+    "min_snr_gamma": "min_snr_gamma",
+    "type_weights": "type_weights",
+    "bf16_cpu": "bf16_cpu",
+    "anchor_track": "anchor_track",
+    "anchor_control": "anchor_control",
+    "known_command": "known_command",
+    "control_target_offset": "control_target_offset",
+    "dynamics_start": "dynamics_start",
+    "time_ids": "time_ids",
     "init": "--init",
     "online": "--online",
 }
 
 #: `tt train`'s flag of each `OnlineConfig` field that has one, for messages.
 ONLINE_FLAGS = {
-    "space": "--space",
-    "designs": "--online-designs",
-    "motions": "--online-motions",
-    "refresh_every": "--refresh-every",
-    "buffer": "--online-buffer",
+    "space": "online.space",
+    "designs": "online.designs",
+    "motions": "online.motions",
+    "refresh_every": "online.refresh_every",
+    "buffer": "online.buffer",
     "seed": "--seed",
-    "action_noise": "--action-noise",
-    "absorbing": "--online-absorbing",
-    "select": "--online-select",
-    "uniform_share": "--uniform-share",
-    "reward": "--select-by",
+    "action_noise": "online.action_noise",
+    "absorbing": "online.absorbing",
+    "select": "online.select",
+    "uniform_share": "online.uniform_share",
+    "reward": "online.reward",
 }
 
 #: Learning rate when none is given: the paper's 5e-3, and 1e-4 for the large model.
@@ -154,12 +148,7 @@ class TrainConfig:
     reference's conditioning, each command beside the target DiffIK aimed it at with the
     offset `IKConfig.lookahead_steps`); dynamics_start: the dynamics task's windows hold
     step 0, its per-step tokens a clean condition (`tt.dit.tasks`, window "start"); time_ids:
-    "sinusoidal" or "learned" time-step ID embeddings (`tt.dit.model.DiTConfig.time_ids`);
-    drop_types: per-step token types left out of the model's sequence (`DROPPABLE`): a lean
-    critic of the dynamics task; without all three, which the tracking reward does not read,
-    the ViperX sequence is 71 tokens instead of 239 (not with the control task, which reads and
-    writes them). Measured as an ablation: on R2 it learns far less than the full sequence
-    (`benchmarks/results/dit_ladder_r2f.md`).
+    "sinusoidal" or "learned" time-step ID embeddings (`tt.dit.model.DiTConfig.time_ids`).
     """
 
     data: str = ""
@@ -199,7 +188,6 @@ class TrainConfig:
     control_target_offset: int = 0
     dynamics_start: bool = False
     time_ids: str = "sinusoidal"
-    drop_types: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         from tt.dit.ddim import PREDICTIONS, WEIGHTINGS
@@ -207,55 +195,45 @@ class TrainConfig:
         if isinstance(self.online, dict):
             self.online = OnlineConfig(**self.online)
         if self.prediction not in PREDICTIONS:
-            raise TTError(f"--prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
+            raise TTError(f"prediction {self.prediction!r} does not exist; predictions: {list(PREDICTIONS)}")
         if self.weighting not in WEIGHTINGS:
-            raise TTError(f"--weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
-        for flag, on in (("--anchor-track", self.anchor_track), ("--anchor-control", self.anchor_control)):
+            raise TTError(f"weighting {self.weighting!r} does not exist; weightings: {list(WEIGHTINGS)}")
+        for flag, on in (("anchor_track", self.anchor_track), ("anchor_control", self.anchor_control)):
             if on and self.prediction != "x0":
-                raise TTError(f"{flag} needs --prediction x0, got {self.prediction!r}")
+                raise TTError(f"{flag} needs prediction x0, got {self.prediction!r}")
         if self.anchor_control not in ("", *CONTROL_BASES):
             raise TTError(
-                f"--anchor-control {self.anchor_control!r} does not exist; use one of "
+                f"anchor_control {self.anchor_control!r} does not exist; use one of "
                 f"{', '.join(CONTROL_BASES)} (or leave it out)"
             )
         if self.anchor_control == "command" and not self.known_command:
-            raise TTError("--anchor-control command needs --known-command: the last command must be given to be a base")
+            raise TTError("anchor_control command needs known_command: the last command must be given to be a base")
         if self.control_target_offset < 0 or (self.control_target_offset and "control" not in task_names(self.task)):
             raise TTError(
-                f"--control-target-offset {self.control_target_offset} must be >= 0 and needs the control "
+                f"control_target_offset {self.control_target_offset} must be >= 0 and needs the control "
                 f"task; the run trains --task {self.task}"
             )
         if self.dynamics_start and "dynamics" not in task_names(self.task):
-            raise TTError(f"--dynamics-start needs the dynamics task; the run trains --task {self.task}")
+            raise TTError(f"dynamics_start needs the dynamics task; the run trains --task {self.task}")
         if not self.min_snr_gamma > 0:
-            raise TTError(f"--min-snr-gamma must be > 0, got {self.min_snr_gamma}")
+            raise TTError(f"min_snr_gamma must be > 0, got {self.min_snr_gamma}")
         self.type_weights = {str(k): float(v) for k, v in dict(self.type_weights).items()}
         bad = {k: v for k, v in self.type_weights.items() if not (math.isfinite(v) and v >= 0)}
         if bad:
             raise TTError(
-                f"--type-weight weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}"
+                f"type_weights weights must be finite and >= 0, got {', '.join(f'{k}={v}' for k, v in bad.items())}"
             )
         if self.robot_diffusion_steps < 1 or self.control_diffusion_steps < 1:
             raise TTError(
-                f"--robot-diffusion-steps and --control-diffusion-steps must be >= 1, got "
+                f"robot_diffusion_steps and control_diffusion_steps must be >= 1, got "
                 f"{self.robot_diffusion_steps}, {self.control_diffusion_steps}"
             )
         if self.online is not None and self.data:
             raise TTError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
-        bad = [str(n) for n in self.drop_types if n not in DROPPABLE]
-        if bad:
-            raise TTError(
-                f"--drop-type {' '.join(bad)} cannot be dropped; droppable types: {', '.join(DROPPABLE)} (the "
-                "embodiment, the targets and the track-link poses the rewards read stay)"
-            )
-        self.drop_types = tuple(n for n in DROPPABLE if n in self.drop_types)  # one order, whatever the flags
-        if self.drop_types and "control" in self.task_names():
-            raise TTError(
-                f"--drop-type {' '.join(self.drop_types)} with --task {self.task}: the control task reads and "
-                "writes every per-step type; drop types for the robot and dynamics tasks only"
-            )
+        if self.lr is not None and not self.lr > 0:
+            raise TTError(f"lr must be > 0, got {self.lr}")
         if self.loss not in ("huber", "mse"):
             raise TTError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
@@ -313,6 +291,46 @@ class TrainConfig:
     def from_dict(d: dict) -> "TrainConfig":
         names = {f.name for f in fields(TrainConfig)}
         return TrainConfig(**{k: v for k, v in d.items() if k in names})
+
+
+#: The `TrainConfig` fields a run started with ``init`` takes from the checkpoint's own run
+#: (`init_settings`): the network, its outputs' anchors and the tasks' token layout.
+INIT_FIELDS = (
+    "size",
+    "time_ids",
+    "prediction",
+    "anchor_track",
+    "anchor_control",
+    "known_command",
+    "future_states",
+    "control_target_offset",
+    "dynamics_start",
+    "robot_diffusion_steps",
+    "control_diffusion_steps",
+)
+
+
+def init_settings(path: str | Path, task: str) -> dict:
+    """The `INIT_FIELDS` of the run that wrote checkpoint `path`, as `TrainConfig` keywords, for
+    a new run of `task` started from it (``tt train --init``): what the network and its token
+    layout were trained with, so a fine-tuning recipe need not repeat them. A field the
+    checkpoint does not record (an older one) is left out; ``dynamics_start`` and
+    ``control_target_offset`` only when `task` trains the task they shape."""
+    path = Path(path)
+    if path.is_dir():
+        found = latest_checkpoint(path)
+        if found is None:
+            raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
+        path = found
+    state = load_checkpoint(path)
+    stored = state.get("train_config") or {}
+    out = {k: stored[k] for k in INIT_FIELDS if stored.get(k) is not None}
+    names = task_names(task)
+    if "dynamics" not in names:
+        out.pop("dynamics_start", None)
+    if "control" not in names:
+        out.pop("control_target_offset", None)
+    return out
 
 
 @dataclass
@@ -419,7 +437,7 @@ RUN_FIELDS = {
     "task": "--task",
     "size": "--size",
     "batch_size": "--batch-size",
-    "lr": "--lr",
+    "lr": "lr",
     "seed": "--seed",
     "online": "--online ...",
     "window": "window",
@@ -430,19 +448,18 @@ RUN_FIELDS = {
     "ema_max_decay": "ema_max_decay",
     "robot_diffusion_steps": "robot_diffusion_steps",
     "control_diffusion_steps": "control_diffusion_steps",
-    "future_states": "--no-future-states",
+    "future_states": "future_states",
     "loss": "loss",
-    "prediction": "--prediction",
-    "weighting": "--weighting",
-    "min_snr_gamma": "--min-snr-gamma",
-    "type_weights": "--type-weight",
-    "anchor_track": "--anchor-track",
-    "anchor_control": "--anchor-control",
-    "known_command": "--known-command",
-    "control_target_offset": "--control-target-offset",
-    "dynamics_start": "--dynamics-start",
-    "time_ids": "--time-ids",
-    "drop_types": "--drop-type",
+    "prediction": "prediction",
+    "weighting": "weighting",
+    "min_snr_gamma": "min_snr_gamma",
+    "type_weights": "type_weights",
+    "anchor_track": "anchor_track",
+    "anchor_control": "anchor_control",
+    "known_command": "known_command",
+    "control_target_offset": "control_target_offset",
+    "dynamics_start": "dynamics_start",
+    "time_ids": "time_ids",
 }
 
 
@@ -531,7 +548,7 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
     if model.layout != layout:
         raise LayoutError(
             f"{where} was trained on other tokens than the data's ({layout_difference(model.layout, layout)}): "
-            "a model trained on another design space, or with other --drop-type"
+            "a model trained on another design space"
         )
     if model.config != config.model_config():
         import dataclasses
@@ -545,14 +562,14 @@ def check_network(model: RoboDiT, layout, config: TrainConfig, where: str) -> No
             else f"a network of {model.config.depth} blocks of width {model.config.hidden}"
         )
         raise TTError(
-            f"{where} holds a {size} model with --time-ids {model.config.time_ids}, this run asks for "
-            f"--size {config.size} with --time-ids {config.time_ids}"
+            f"{where} holds a {size} model with time_ids {model.config.time_ids}, this run asks for "
+            f"--size {config.size} with time_ids {config.time_ids}"
         )
     if model.prediction != config.prediction:
-        raise TTError(f"{where} predicts {model.prediction!r}, this run asks for --prediction {config.prediction}")
+        raise TTError(f"{where} predicts {model.prediction!r}, this run asks for prediction {config.prediction}")
     for flag, name, on in (
-        ("--anchor-track", "track_link_obs", config.anchor_track),
-        ("--anchor-control", "control", bool(config.anchor_control)),
+        ("anchor_track", "track_link_obs", config.anchor_track),
+        ("anchor_control", "control", bool(config.anchor_control)),
     ):
         if (name in model.anchors) != on:
             was = "with" if name in model.anchors else "without"
@@ -686,7 +703,7 @@ def _train(
 
         episodes = open_token_source(config.data, verify="full")  # a chunk failing its CRC is skipped, with a warning
         identity = data_identity(config.data)
-    layout = episodes.layout(config.window).without(config.drop_types)
+    layout = episodes.layout(config.window)
     space = space if space is not None else getattr(episodes, "design_space", None)
     resume_from, state = newest_intact_checkpoint(out) if config.resume else (None, None)
 

@@ -42,7 +42,7 @@ class VerifyConfig:
 
     def __post_init__(self) -> None:
         if self.verify is not None and (not isinstance(self.verify, (int, np.integer)) or self.verify < 1):
-            raise TTError(f"--verify = {self.verify!r}; must be an integer >= 1")
+            raise TTError(f"verify = {self.verify!r}; must be an integer >= 1")
 
 
 class SimVerified(Optimizer):
@@ -60,7 +60,7 @@ class SimVerified(Optimizer):
         n = self.sampler.config.samples or problem.budget
         k = self.config.verify or n
         if k > n:
-            raise TTError(f"--verify {k} is larger than --samples {n}: the simulator can only check sampled candidates")
+            raise TTError(f"verify = {k} is larger than samples = {n}: the simulator can only check sampled candidates")
         start = time.perf_counter()
         gen, decoder, info = self.sampler.generate(problem)
         ranking = self.sampler.rank(gen, decoder, limit=k)

@@ -53,8 +53,6 @@ INTERNAL_NAMES = (
     "DiTConfig",
     "SelectionConfig",
     "SamplerConfig",
-    "drop_types",
-    "type_weights",
     "config.steps",
     "arms must be 1, 2 or None",
 )
@@ -327,50 +325,48 @@ CASES: list[Case] = [
     Case(
         "validate: truncated motion file",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.motion_truncated],
+        lambda f: [*V, f.designs, "--motion", f.motion_truncated],
         ("motion_truncated.npz", "truncated"),
     ),
     Case(
         "validate: motion file holding pickled objects",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.motion_pickle],
+        lambda f: [*V, f.designs, "--motion", f.motion_pickle],
         ("motion_pickle.npz", "Python objects"),
     ),
     Case(
         "validate: motion file that is one .npy array",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.motion_npy],
+        lambda f: [*V, f.designs, "--motion", f.motion_npy],
         ("motion_npy.npz", ".npy"),
     ),
     Case(
         "validate: motion file with two dt values",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.motion_dt],
+        lambda f: [*V, f.designs, "--motion", f.motion_dt],
         ("motion_dt.npz", "'dt'"),
     ),
     Case(
         "validate: motion file with NaN",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.motion_nan],
+        lambda f: [*V, f.designs, "--motion", f.motion_nan],
         ("motion_nan.npz", "NaN"),
     ),
     Case(
         "validate: motion file that does not exist",
         1,
-        lambda f: [*V, f.designs, "--motion-file", f.root + "/nope.npz"],
+        lambda f: [*V, f.designs, "--motion", f.root + "/nope.npz"],
         ("nope.npz", "no such file"),
     ),
     Case(
-        "validate: truncated checkpoint for --controller model",
+        "validate: a truncated checkpoint as --controller",
         1,
         lambda f: [
             *V,
             f.designs,
-            "--motion-file",
+            "--motion",
             f.motion,
             "--controller",
-            "model",
-            "--checkpoint",
             f.ckpt_truncated,
             "--device",
             "cpu",
@@ -386,13 +382,13 @@ CASES: list[Case] = [
     Case(
         "rollout: motion file of garbage",
         1,
-        lambda f: ["rollout", "--n", "1", "--motion-file", f.garbage_xml],
+        lambda f: ["rollout", "--n", "1", "--motion", f.garbage_xml],
         ("garbage.xml", "unknown motion file type"),
     ),
     Case(
         "optimize: pickled motion file",
         1,
-        lambda f: ["optimize", "--motion-file", f.motion_pickle],
+        lambda f: ["optimize", "--motion", f.motion_pickle],
         ("motion_pickle.npz",),
     ),
     Case(
@@ -683,7 +679,7 @@ CASES: list[Case] = [
     Case(
         "validate --json into missing folders",
         3,
-        lambda f: [*V, f.designs + "#0", "--motion-file", f.motion, "--json", f.missing + "/v.json"],
+        lambda f: [*V, f.designs + "#0", "--motion", f.motion, "--json", f.missing + "/v.json"],
         ok=True,
         check=lambda f, out: _strict_json(Path(f.missing, "v.json")),
     ),
@@ -697,7 +693,7 @@ CASES: list[Case] = [
     Case(
         "optimize: no candidate survives a step",
         4,
-        lambda f: ["optimize", "--method", "random", "--budget", "3", "--motion-file", f.motion_far],
+        lambda f: ["optimize", "--method", "random", "--budget", "3", "--motion", f.motion_far],
         ("no candidate", "survived"),
     ),
     Case(
@@ -748,10 +744,10 @@ CASES: list[Case] = [
         ("--budget",),
     ),
     Case(
-        "optimize --popsize 1 names the flag",
+        "optimize --config popsize=1 names the key",
         6,
-        lambda f: ["optimize", "--motion", "toss", "--popsize", "1"],
-        ("--popsize",),
+        lambda f: ["optimize", "--motion", "toss", "--config", "popsize=1"],
+        ("popsize",),
     ),
     Case(
         "optimize --method nope lists the methods",
@@ -760,34 +756,22 @@ CASES: list[Case] = [
         ("random", "cmaes", "zeroth", "dgs"),
     ),
     Case(
-        "optimize --samples 0 names the flag",
+        "optimize --config samples=0 names the key",
         6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--samples", "0"],
-        ("--samples",),
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--config", "samples=0"],
+        ("samples",),
     ),
     Case(
-        "optimize --guide-by nope lists the sources",
+        "optimize --config guide_by=nope lists the sources",
         6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "nope"],
-        ("--guide-by", "model", "critic"),
+        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--config", "guide_by=nope"],
+        ("guide_by", "model", "critic"),
     ),
     Case(
-        "optimize --guide-by critic for cmaes names the flag",
+        "optimize --config guide_by=critic for cmaes names the valid keys",
         6,
-        lambda f: ["optimize", "--motion", "toss", "--guide-by", "critic"],
-        ("--guide-by", "dgs"),
-    ),
-    Case(
-        "optimize --critic-at nope lists the places",
-        6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "nope"],
-        ("--critic-at", "tokens", "design", "project"),
-    ),
-    Case(
-        "optimize --critic-at project without --scale",
-        6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--guide-by", "critic", "--critic-at", "project"],
-        ("--critic-at project", "--scale"),
+        lambda f: ["optimize", "--motion", "toss", "--config", "guide_by=critic"],
+        ("guide_by", "popsize"),
     ),
     Case(
         "optimize --refine below 0 names the flag",
@@ -799,19 +783,13 @@ CASES: list[Case] = [
         "optimize --refine for cmaes names the methods",
         6,
         lambda f: ["optimize", "--motion", "toss", "--refine", "3"],
-        ("--refine", "zeroth or dgs", "cmaes"),
+        ("--refine", "learned methods", "cmaes"),
     ),
     Case(
         "optimize --refine with the joint critic",
         6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic", "joint", "--refine", "3"],
-        ("--refine", "dynamics critic", "--critic joint"),
-    ),
-    Case(
-        "optimize --critic-at design without --guide-by critic",
-        6,
-        lambda f: ["optimize", "--motion", "toss", "--method", "dgs", "--critic-at", "design"],
-        ("--critic-at", "--guide-by critic"),
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--config", "critic=joint", "--refine", "3"],
+        ("refine", "dynamics critic", "critic = 'joint'"),
     ),
     Case("rollout --n 0 names the flag", 6, lambda f: ["rollout", "--n", "0"], ("--n",)),
     Case("designs --n 0 names the flag", 6, lambda f: ["designs", "--n", "0", "--out", f.root + "/d0"], ("--n",)),
@@ -840,10 +818,10 @@ CASES: list[Case] = [
         ("--batch-size",),
     ),
     Case(
-        "train --lr -1 names the flag",
+        "train --config lr=-1 names the key",
         6,
-        lambda f: ["train", "--data", f.episodes, "--lr", "-1", "--out", f.root + "/r0"],
-        ("--lr",),
+        lambda f: ["train", "--data", f.episodes, "--config", "lr=-1", "--out", f.root + "/r0"],
+        ("lr",),
     ),
     Case(
         "train --data that does not exist",
@@ -907,9 +885,9 @@ CASES: list[Case] = [
         ("tokens_v1.npz", "'v1'", "not an integer"),
     ),
     Case(
-        "detokenize --index 3 of a one-robot file",
+        "detokenize tokens.npz#3 of a one-robot file",
         6,
-        lambda f: ["detokenize", f.tokens, "--out", f.root + "/r.xml", "--index", "3"],
+        lambda f: ["detokenize", f.tokens + "#3", "--out", f.root + "/r.xml"],
         ("index 3", "1 robot"),
     ),
     Case(
@@ -990,16 +968,16 @@ CASES: list[Case] = [
     ),
     # -- 14: a flag that does not apply to the method or mode is refused, naming both
     Case(
-        "optimize --critic-checkpoint with --method cmaes",
+        "optimize --config critic_checkpoint with --method cmaes",
         14,
-        lambda f: ["optimize", "--motion", "toss", "--critic-checkpoint", f.ckpt_nokey],
-        ("--critic-checkpoint", "--method cmaes"),
+        lambda f: ["optimize", "--motion", "toss", "--config", f"critic_checkpoint={f.ckpt_nokey}"],
+        ("critic_checkpoint", "popsize"),
     ),
     Case(
-        "optimize --samples with --method random",
+        "optimize --config samples with --method random",
         14,
-        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--samples", "4"],
-        ("--samples", "--method random"),
+        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--config", "samples=4"],
+        ("samples", "valid keys: none"),
     ),
     Case(
         "optimize --num-steps with --method random",
@@ -1008,22 +986,16 @@ CASES: list[Case] = [
         ("--num-steps", "--method random"),
     ),
     Case(
-        "optimize --critic-samples with --method random",
+        "optimize --config popsize with --method zeroth",
         14,
-        lambda f: ["optimize", "--motion", "toss", "--method", "random", "--critic-samples", "2"],
-        ("--critic-samples", "--method random"),
+        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--config", "popsize=4"],
+        ("popsize", "samples"),
     ),
     Case(
-        "optimize --popsize with --method zeroth",
+        "validate --device with --controller ik",
         14,
-        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--popsize", "4"],
-        ("--popsize", "--method zeroth"),
-    ),
-    Case(
-        "validate --checkpoint with --controller ik",
-        14,
-        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--checkpoint", f.ckpt_nokey],
-        ("--checkpoint", "--controller ik"),
+        lambda f: [*V, f.designs + "#0", "--motion", "toss", "--device", "cpu"],
+        ("--device", "--controller ik"),
     ),
     Case(
         "detokenize --project without --space",
@@ -1036,23 +1008,17 @@ CASES: list[Case] = [
         "rollout --n with --design", 14, lambda f: ["rollout", "--design", f.designs, "--n", "3"], ("--n", "--design")
     ),
     Case(
-        "train --online-designs with --data",
+        "train --config online.designs with --data",
         14,
-        lambda f: ["train", "--data", f.episodes, "--online-designs", "8", "--out", f.root + "/r14"],
-        ("--online-designs", "--data"),
-    ),
-    Case(
-        "train --select-motions without --select-designs",
-        14,
-        lambda f: ["train", "--data", f.episodes, "--select-motions", "3", "--out", f.root + "/r14"],
-        ("--select-motions", "--select-designs"),
+        lambda f: ["train", "--data", f.episodes, "--config", "online.designs=8", "--out", f.root + "/r14"],
+        ("--data", "[online]"),
     ),
     # -- 15: messages name flags and files, never Python names (`outcome` checks every case for them)
     Case(
-        "generate --bias nope lists the biases",
+        "generate --config bias=nope lists the biases",
         15,
-        lambda f: ["generate", "--designs", "1", "--bias", "nope", "--out", f.root + "/g15"],
-        ("--bias", "cmaes"),
+        lambda f: ["generate", "--designs", "1", "--config", "bias=nope", "--out", f.root + "/g15"],
+        ("bias", "cmaes"),
     ),
     Case(
         "generate --seed 2**32 names the flag",
@@ -1061,38 +1027,16 @@ CASES: list[Case] = [
         ("--seed",),
     ),
     Case(
-        "generate --action-noise nan names the flag",
+        "generate --config action_noise=nan names the key",
         15,
-        lambda f: ["generate", "--designs", "1", "--action-noise", "nan", "--out", f.root + "/g15"],
-        ("--action-noise",),
+        lambda f: ["generate", "--designs", "1", "--config", "action_noise=nan", "--out", f.root + "/g15"],
+        ("action_noise",),
     ),
     Case(
-        "generate --action-noise on a space with contacts",
+        "train --online --config online.action_noise=nan names the key",
         15,
-        lambda f: [
-            "generate",
-            "--space",
-            "quadruped",
-            "--designs",
-            "1",
-            "--action-noise",
-            "0.1",
-            "--out",
-            f.root + "/g15",
-        ],
-        ("--action-noise", "quadruped"),
-    ),
-    Case(
-        "train --drop-type nope names the flag",
-        15,
-        lambda f: ["train", "--data", f.episodes, "--drop-type", "nope", "--out", f.root + "/r15"],
-        ("--drop-type", "nope"),
-    ),
-    Case(
-        "train --online --action-noise nan names the flag",
-        15,
-        lambda f: ["train", "--online", "--action-noise", "nan", "--out", f.root + "/r15"],
-        ("--action-noise",),
+        lambda f: ["train", "--online", "--config", "online.action_noise=nan", "--out", f.root + "/r15"],
+        ("action_noise",),
     ),
     Case("motions --arms 3 names the flag", 15, lambda f: ["motions", "--arms", "3"], ("--arms", "1 or 2")),
     Case(
@@ -1102,13 +1046,21 @@ CASES: list[Case] = [
         ("--init", "--size tiny", "--size mini"),
     ),
     Case(
-        "optimize: a truncated --critic-checkpoint names that flag",
+        "optimize: a truncated critic_checkpoint names the file",
         15,
-        lambda f: ["optimize", "--motion", "toss", "--method", "zeroth", "--critic-checkpoint", f.ckpt_truncated],
-        ("--critic-checkpoint", "ckpt_truncated.pt"),
+        lambda f: [
+            "optimize",
+            "--motion",
+            "toss",
+            "--method",
+            "zeroth",
+            "--config",
+            f"critic_checkpoint={f.ckpt_truncated}",
+        ],
+        ("ckpt_truncated.pt",),
     ),
     Case(
-        "optimize: a --critic-checkpoint of another space",
+        "optimize: a critic_checkpoint of another space",
         15,
         lambda f: [
             "optimize",
@@ -1118,10 +1070,10 @@ CASES: list[Case] = [
             "toss",
             "--method",
             "zeroth",
-            "--critic-checkpoint",
-            str(_shipped_critic()),
+            "--config",
+            f"critic_checkpoint={_shipped_critic()}",
         ],
-        ("--critic-checkpoint", "'viperx'", "'aloha'"),
+        ("'aloha'",),
     ),
     Case(
         "train: random bytes as --init are not called pickled data",
@@ -1131,15 +1083,15 @@ CASES: list[Case] = [
         check=lambda f, out: "said to hold pickled data" if "pickled data)" in out or "Python objects" in out else None,
     ),
     Case(
-        "train --select-designs over a damaged selection.json",
+        "train selection.designs over a damaged selection.json",
         15,
-        lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_json],
+        lambda f: ["train", "--data", f.episodes, "--config", "selection.designs=3", "--out", f.run_sel_json],
         ("selection.json", "not valid JSON"),
     ),
     Case(
-        "train --select-designs over a damaged selection.csv",
+        "train selection.designs over a damaged selection.csv",
         15,
-        lambda f: ["train", "--data", f.episodes, "--select-designs", "3", "--out", f.run_sel_csv],
+        lambda f: ["train", "--data", f.episodes, "--config", "selection.designs=3", "--out", f.run_sel_csv],
         ("selection.csv", "not text"),
     ),
     Case(
@@ -1450,8 +1402,8 @@ def _train(files, out: Path, steps: int, *extra, data: str | None = None) -> lis
         "cpu",
         "--steps",
         str(steps),
-        "--checkpoint-every",
-        "2",
+        "--config",
+        "checkpoint_every=2",
         "--out",
         out,
         *extra,
@@ -1559,7 +1511,7 @@ def _all_dropped(files, work: Path) -> tuple[str, str]:
         progress=False,
     )
     code, out, err = _cli(_train(files, work / "run", 1, data=str(data)))
-    kind, why = _error(code, out, err, "complete", "--min-steps 100000")
+    kind, why = _error(code, out, err, "complete", "min_steps=100000")
     if kind == "clear" and "first" in out + err:
         return "misleading", "it says to run `tt generate` first"
     return kind, why
@@ -1575,10 +1527,10 @@ def _online_resume_message(files, work: Path) -> tuple[str, str]:
         check_same_run(stored, TrainConfig(online=OnlineConfig(designs=32), out=str(work)), work)
     except ValueError as e:
         text = str(e)
-        if "--online-designs" not in text or "{" in text or any(w in text for w in INTERNAL_NAMES):
+        if "online.designs" not in text or "{" in text or any(w in text for w in INTERNAL_NAMES):
             return "misleading", text
         return "clear", ""
-    return "silent", "resumed with another --online-designs"
+    return "silent", "resumed with another online.designs"
 
 
 def _api_generate_messages(files, work: Path) -> tuple[str, str]:
@@ -1591,14 +1543,13 @@ def _api_generate_messages(files, work: Path) -> tuple[str, str]:
     cases = [
         ({"designs": 0}, "--designs (designs=)"),
         ({"episodes_per_design": 0}, "--episodes-per-design (episodes_per_design=)"),
-        ({"designs_per_shard": 0}, "--designs-per-shard (designs_per_shard=)"),
-        ({"min_steps": 0}, "--min-steps (min_steps=)"),
+        ({"designs_per_shard": 0}, "designs_per_shard="),
+        ({"min_steps": 0}, "min_steps="),
         ({"seed": 2**32}, "--seed (seed=)"),
-        ({"bias": "nope"}, "--bias (bias=)"),
-        ({"action_noise": float("nan")}, "--action-noise (action_noise=)"),
-        ({"select": 0}, "--select (select=)"),
-        ({"uniform_share": 0.5}, "--uniform-share (uniform_share=)"),
-        ({"space": "quadruped", "action_noise": 0.1}, "--action-noise (action_noise=)"),
+        ({"bias": "nope"}, "bias="),
+        ({"action_noise": float("nan")}, "action_noise="),
+        ({"select": 0}, "select="),
+        ({"uniform_share": 0.5}, "uniform_share="),
     ]
     out = work / "g"
     for given, named in cases:
@@ -1651,7 +1602,7 @@ def _short_motions_predicted(files, work: Path) -> tuple[str, str]:
     for T in (1, 2, 3):
         paths.append(work / f"frames_{T}.npz")
         save_npz(Motion(f"frames_{T}", full.pos[:T], full.quat[:T], full.dt), paths[-1])
-    motion_args = [a for p in paths for a in ("--motion-file", p)]
+    motion_args = [a for p in paths for a in ("--motion", p)]
     predicted, validated = work / "predicted.json", work / "validated.json"
     for args, out in (
         (["predict", "--design", files.designs, "--device", "cpu"], predicted),
@@ -1698,12 +1649,12 @@ def _damaged_dataset_root(files, work: Path) -> tuple[str, str]:
         "generate",
         "--designs",
         "2",
-        "--designs-per-shard",
-        "1",
         "--episodes-per-design",
         "1",
-        "--min-steps",
-        "10",
+        "--config",
+        "designs_per_shard=1",
+        "--config",
+        "min_steps=10",
         "--device",
         "cpu",
     ]
@@ -1765,12 +1716,12 @@ def killed_generate_leaves_no_workers(work: Path) -> tuple[str, str]:
             "generate",
             "--designs",
             "40",
-            "--designs-per-shard",
-            "1",
             "--episodes-per-design",
             "1",
-            "--min-steps",
-            "10",
+            "--config",
+            "designs_per_shard=1",
+            "--config",
+            "min_steps=10",
             "--workers",
             "2",
             "--device",
@@ -1827,7 +1778,7 @@ SCENARIOS: list[Scenario] = [
     ),
     Scenario("view --serve --time", 14, _serve_with_time),
     Scenario("train on a dataset whose episodes --min-steps all dropped", 15, _all_dropped),
-    Scenario("train: resume online with another --online-designs", 15, _online_resume_message),
+    Scenario("train: resume online with another online.designs", 15, _online_resume_message),
     Scenario("tt.api.generate_dataset: bad arguments name the flag and the keyword", 15, _api_generate_messages),
     Scenario(
         "predict on motions of 1, 2 and 3 frames counts their steps, as validate does", 16, _short_motions_predicted

@@ -110,8 +110,7 @@ def test_optimize_help_lists_every_method(tt_cli):
     from tt.optimizers import METHODS
 
     code, out = tt_cli(["optimize", "--help"])
-    named = [m for m in METHODS if m != "cmaes-init-model"]  # that one is `--method cmaes --init model`
-    assert code == 0 and all(m in out for m in named) and "--init" in out, out
+    assert code == 0 and all(m in out for m in METHODS), out
 
 
 def test_traceback_only_with_verbose(files, tt_cli):
@@ -149,15 +148,15 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(files, tt_cli, tmp_pa
     from tt.dit.checkpoint import list_checkpoints, load_checkpoint
 
     run = tmp_path / "run"
-    _train(tt_cli, files.episodes, run, "--steps", "4", "--checkpoint-every", "2")
+    _train(tt_cli, files.episodes, run, "--steps", "4", "--config", "checkpoint_every=2")
     latest = list_checkpoints(run)[-1]
     assert latest.name == "step_0000004.pt"
     latest.write_bytes(latest.read_bytes()[:1000])  # a disk that filled up mid-write, say
-    text = _train(tt_cli, files.episodes, run, "--steps", "6", "--checkpoint-every", "2")
+    text = _train(tt_cli, files.episodes, run, "--steps", "6", "--config", "checkpoint_every=2")
     assert "step_0000004.pt" in text and "resuming from the checkpoint before it" in text, text
     assert (run / "checkpoints" / "step_0000004.pt.damaged").exists()
     straight = tmp_path / "straight"
-    _train(tt_cli, files.episodes, straight, "--steps", "6", "--checkpoint-every", "2")
+    _train(tt_cli, files.episodes, straight, "--steps", "6", "--config", "checkpoint_every=2")
     a = load_checkpoint(list_checkpoints(run)[-1])
     b = load_checkpoint(list_checkpoints(straight)[-1])
     assert a["step"] == b["step"] == 6
@@ -168,7 +167,7 @@ def test_resume_falls_back_to_the_newest_intact_checkpoint(files, tt_cli, tmp_pa
 
 def test_resume_with_other_data_or_learning_rate_is_refused(files, tt_cli, tmp_path, single_thread):
     run = tmp_path / "run"
-    _train(tt_cli, files.episodes, run, "--steps", "1", "--lr", "0.001")
+    _train(tt_cli, files.episodes, run, "--steps", "1", "--config", "lr=0.001")
     code, text = tt_cli(
         [
             "train",
@@ -182,13 +181,13 @@ def test_resume_with_other_data_or_learning_rate_is_refused(files, tt_cli, tmp_p
             "cpu",
             "--steps",
             "2",
-            "--lr",
-            "0.002",
+            "--config",
+            "lr=0.002",
             "--out",
             str(run),
         ]
     )
-    assert code == 2 and "--lr" in text and "0.001" in text and "0.002" in text, text
+    assert code == 2 and "lr" in text and "0.001" in text and "0.002" in text, text
     other = Path(files.root) / "episodes_other.npz"
     other.write_bytes(Path(files.episodes).read_bytes())
     code, text = tt_cli(
@@ -204,8 +203,8 @@ def test_resume_with_other_data_or_learning_rate_is_refused(files, tt_cli, tmp_p
             "cpu",
             "--steps",
             "2",
-            "--lr",
-            "0.001",
+            "--config",
+            "lr=0.001",
             "--out",
             str(run),
         ]
@@ -235,7 +234,7 @@ def test_checkpoints_are_fsynced_before_the_rename(tmp_path, monkeypatch):
 def test_json_writes_null_for_nan_and_says_why(files, tt_cli, tmp_path):
     out = tmp_path / "v.json"
     code, text = tt_cli(
-        ["validate", "--design", files.designs + "#0", "--motion-file", files.motion_far, "--json", str(out)]
+        ["validate", "--design", files.designs + "#0", "--motion", files.motion_far, "--json", str(out)]
     )
     assert code == 0, text
     data = json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"bare {c} in {out}"))
@@ -286,7 +285,17 @@ def test_full_disk_during_generation_says_how_to_resume(tt_cli, tmp_path, monkey
 
     monkeypatch.setattr(gen, "generate_shard", full)
     code, text = tt_cli(
-        ["generate", "--designs", "2", "--designs-per-shard", "1", "--out", str(tmp_path / "ds"), "--device", "cpu"]
+        [
+            "generate",
+            "--designs",
+            "2",
+            "--config",
+            "designs_per_shard=1",
+            "--out",
+            str(tmp_path / "ds"),
+            "--device",
+            "cpu",
+        ]
     )
     assert code == 2 and "Traceback" not in text, text
     assert "No space left on device" in text and "0 of 2 shards" in text and "re-run the same command to resume" in text

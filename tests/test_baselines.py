@@ -244,7 +244,7 @@ def test_optimize_cli_writes_design_time_and_validated_metrics(tmp_path, tt_cli)
     code, text = tt_cli(
         [
             "optimize",
-            "--motion-file",
+            "--motion",
             str(motion_file),
             "--reward",
             "tracking_weight",

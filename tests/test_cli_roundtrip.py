@@ -35,7 +35,7 @@ def optimized(tmp_path_factory, motion_file):
             "optimize",
             "--space",
             "viperx",
-            "--motion-file",
+            "--motion",
             str(motion_file),
             "--method",
             "random",
@@ -57,7 +57,7 @@ def test_validate_and_view_accept_optimize_json(optimized, motion_file, tmp_path
     assert load_designs(optimized) == [best] and load_designs(f"{optimized}#0") == [best]
 
     out = tmp_path / "validated.json"
-    code, text = tt_cli(["validate", "--design", str(optimized), "--motion-file", str(motion_file), "--json", str(out)])
+    code, text = tt_cli(["validate", "--design", str(optimized), "--motion", str(motion_file), "--json", str(out)])
     assert code == 0, text
     validated = json.loads(out.read_text())
     assert validated["designs"] == [data["design"]]
@@ -122,7 +122,7 @@ def test_nominal_round_trips_through_validate(motion_file, tmp_path, tt_cli):
 
     out = tmp_path / "v.json"
     code, text = tt_cli(
-        ["validate", "--design", f"{folder / 'designs.json'}#0", "--motion-file", str(motion_file), "--json", str(out)]
+        ["validate", "--design", f"{folder / 'designs.json'}#0", "--motion", str(motion_file), "--json", str(out)]
     )
     assert code == 0, text
     got = json.loads(out.read_text())["per_motion"]

@@ -192,4 +192,4 @@ def test_generate_without_ray_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
     with pytest.raises(Exception) as e:
         _run_ray(None, [], None, "cpu", None, 1, "local", None)
-    assert "--ray" in str(e.value) and "tt[ray]" in str(e.value), str(e.value)
+    assert "ray" in str(e.value) and "tt[ray]" in str(e.value), str(e.value)

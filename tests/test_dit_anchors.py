@@ -83,7 +83,7 @@ def test_descriptions_round_trip_and_bad_anchors_fail(schema_toy):
         Anchor("target_pose", (1.0,) * 3, (0.0,) * 3).check(layout, "track_link_obs")
     from tt.dit.train import TrainConfig
 
-    with pytest.raises(ValueError, match="--anchor-track needs --prediction x0"):
+    with pytest.raises(ValueError, match="anchor_track needs prediction x0"):
         TrainConfig(anchor_track=True, prediction="eps")
 
 
@@ -142,11 +142,11 @@ def test_control_anchor_round_trips_and_refuses_what_it_cannot_anchor(schema_toy
         )
     from tt.dit.train import TrainConfig
 
-    with pytest.raises(ValueError, match="--anchor-control needs --prediction x0"):
+    with pytest.raises(ValueError, match="anchor_control needs prediction x0"):
         TrainConfig(anchor_control="joints", prediction="eps")
-    with pytest.raises(ValueError, match="--anchor-control command needs --known-command"):
+    with pytest.raises(ValueError, match="anchor_control command needs known_command"):
         TrainConfig(anchor_control="command")
-    with pytest.raises(ValueError, match="--anchor-control 'velocity' does not exist"):
+    with pytest.raises(ValueError, match="anchor_control 'velocity' does not exist"):
         TrainConfig(anchor_control="velocity", known_command=True)
 
 

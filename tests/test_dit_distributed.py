@@ -34,10 +34,10 @@ ARGS = [
     "cpu",
     "--seed",
     "3",
-    "--lr",
-    str(LR),
-    "--checkpoint-every",
-    "1",
+    "--config",
+    f"lr={LR}",
+    "--config",
+    "checkpoint_every=1",
 ]
 
 

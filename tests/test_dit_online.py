@@ -165,8 +165,10 @@ def test_cli_needs_exactly_one_data_source(tt_cli, tmp_path):
     assert code != 0 and "--data DATASET or --online" in out
     code, out = tt_cli(["train", "--online", "--data", str(tmp_path), "--out", str(tmp_path / "r"), "--steps", "1"])
     assert code != 0 and "--data DATASET or --online" in out
-    code, out = tt_cli(["train", "--online", "--action-noise", "-1", "--out", str(tmp_path / "r"), "--steps", "1"])
-    assert code != 0 and "--action-noise" in out
+    code, out = tt_cli(
+        ["train", "--online", "--config", "online.action_noise=-1", "--out", str(tmp_path / "r"), "--steps", "1"]
+    )
+    assert code != 0 and "action_noise" in out, out
 
 
 def test_cli_trains_online(tt_cli, tmp_path):
@@ -174,12 +176,12 @@ def test_cli_trains_online(tt_cli, tmp_path):
         [
             "train",
             "--online",
-            "--online-designs",
-            "4",
-            "--online-motions",
-            "2",
-            "--refresh-every",
-            "2",
+            "--config",
+            "online.designs=4",
+            "--config",
+            "online.motions=2",
+            "--config",
+            "online.refresh_every=2",
             "--size",
             "tiny",
             "--task",

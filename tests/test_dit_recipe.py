@@ -154,7 +154,7 @@ def test_defaults_are_the_measured_winners():
         TrainConfig(prediction="score")
     with pytest.raises(ValueError, match="weighting"):
         TrainConfig(weighting="p2")
-    with pytest.raises(ValueError, match="--type-weight"):
+    with pytest.raises(ValueError, match="type_weights"):
         TrainConfig(type_weights={"link": -1.0})
 
 

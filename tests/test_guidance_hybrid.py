@@ -89,9 +89,9 @@ def test_zeroth_sim_returns_the_best_simulated_of_the_top_k(motions, monkeypatch
 def test_verify_larger_than_samples_is_refused(motions):
     problem = Problem(space="viperx", motions=motions, reward="tracking", budget=4, seed=0)
     proposer = FixedProposals(get_space("viperx").sample(4, seed=0), np.zeros(4))
-    with pytest.raises(ValueError, match="--verify 5 is larger than --samples 4"):
+    with pytest.raises(ValueError, match="verify = 5 is larger than samples = 4"):
         SimVerified(proposer, VerifyConfig(5)).optimize(problem)
-    with pytest.raises(ValueError, match="--verify"):
+    with pytest.raises(ValueError, match="verify"):
         VerifyConfig(0)
 
 
@@ -138,18 +138,22 @@ def blank_model():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--method", "zeroth-sim", "--samples", "4", "--verify", "8"], "--verify 8 is larger than --samples 4"),
-        (["--method", "random", "--verify", "2"], "--verify applies to zeroth-sim and dgs-sim"),
-        (["--method", "random", "--init", "model"], "--init model initialises CMA-ES"),
-        (["--method", "cmaes", "--init", "prior"], "--init 'prior'"),
-        (["--method", "zeroth", "--critic", "oracle"], "--critic 'oracle': valid are 'joint' and 'dynamics'"),
         (
-            ["--method", "zeroth", "--critic", "joint", "--critic-samples", "4"],
-            "--critic-samples 4 needs --critic dynamics",
+            ["--method", "zeroth-sim", "--config", "samples=4", "--config", "verify=8"],
+            "verify = 8 is larger than samples = 4",
         ),
-        (["--method", "zeroth", "--critic-samples", "0"], "--critic-samples must be >= 1, got 0"),
+        (["--method", "random", "--config", "verify=2"], "unknown key 'verify'"),
+        (["--method", "cmaes", "--config", "verify=2"], "valid keys: popsize, generations"),
+        (["--method", "cmaes-init-model", "--config", "popsize=one"], "popsize = 'one' is not of type int"),
+        (["--method", "zeroth", "--config", "critic=oracle"], "critic = 'oracle'; valid: ['joint', 'dynamics']"),
         (
-            ["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes", "--init", "model"],
+            ["--method", "zeroth", "--config", "critic=joint", "--config", "critic_samples=4"],
+            "critic_samples = 4 needs the 'dynamics' critic",
+        ),
+        (["--method", "zeroth", "--config", "critic_samples=0"], "critic_samples = 0; must be >= 1"),
+        (["--method", "cmaes", "--refine", "3"], "--refine applies to the learned methods"),
+        (
+            ["--space", "aloha", "--motion", "bi_fling", "--method", "cmaes-init-model"],
             "no shipped DiT checkpoint for design space 'aloha'",
         ),
     ],
@@ -173,7 +177,7 @@ def test_model_init_without_a_checkpoint_is_refused(motions):
 @pytest.mark.slow
 def test_hybrids_with_a_blank_model_fall_back_to_random_and_cmaes(blank_model, motions):
     """With a model that knows nothing, zeroth-sim is best-of-n over scattered designs (Random's
-    performance) and cmaes --init model is CMA-ES with half a random screen: over 5 seeds,
+    performance) and cmaes-init-model is CMA-ES with half a random screen: over 5 seeds,
     neither falls below its baseline, i.e. the 95 % Student-t interval of the paired
     per-seed difference (hybrid minus baseline, as the benchmarks report it) is not wholly
     below 0. (Near the reward's ceiling the baselines' own spread is ~0.1 of ~80, too narrow a

@@ -53,8 +53,8 @@ def _train_args(data, out, steps: int) -> list[str]:
         "cpu",
         "--steps",
         str(steps),
-        "--checkpoint-every",
-        "2",
+        "--config",
+        "checkpoint_every=2",
         "--out",
         str(out),
     ]

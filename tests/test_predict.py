@@ -80,8 +80,6 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
         "tracking_torque",
         "--samples",
         "2",
-        "--num-steps",
-        "3",
         "--json",
         out,
     )
@@ -109,8 +107,6 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
         "toss",
         "--checkpoint",
         checkpoint,
-        "--num-steps",
-        "2",
         "--json",
         out,
     )
@@ -119,7 +115,7 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
 
 
 def test_default_ddim_steps_are_the_critics(checkpoint, designs_file, tmp_path):
-    """Without --num-steps, tt predict samples CRITIC_DDIM_STEPS steps, not all 100."""
+    """tt predict samples CRITIC_DDIM_STEPS steps, not all 100."""
     from tt.dit.checkpoint import load_model
     from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
     from tt.sim.designs import load_designs
@@ -433,13 +429,13 @@ def test_optimize_refuses_a_joint_critic_checkpoint(checkpoint):
             "zeroth",
             "--checkpoint",
             str(checkpoint),
-            "--critic",
-            "joint",
-            "--critic-checkpoint",
-            str(checkpoint),
+            "--config",
+            "critic=joint",
+            "--config",
+            f"critic_checkpoint={str(checkpoint)!r}",
         ],
     )
-    assert result.exit_code != 0 and "does not go with --critic joint" in result.output
+    assert result.exit_code != 0 and "critic = 'joint'" in result.output, result.output
     result = CliRunner().invoke(
         app,
         [
@@ -452,17 +448,17 @@ def test_optimize_refuses_a_joint_critic_checkpoint(checkpoint):
             "zeroth",
             "--checkpoint",
             str(checkpoint),
-            "--critic-checkpoint",
-            "missing.pt",
+            "--config",
+            "critic_checkpoint=missing.pt",
         ],
     )
-    assert result.exit_code != 0 and "--critic-checkpoint missing.pt does not exist" in result.output
+    assert result.exit_code != 0 and "missing.pt" in result.output and "does not exist" in result.output, result.output
 
 
 def test_shipped_dynamics_specialist_critics_the_shipped_generalist():
     """The shipped ViperX dynamics specialist (what `tt predict` uses by default) is a
     dynamics-task model of the generalist's space and layout, so it can be the generalist's
-    Zeroth-Order critic (`tt optimize --critic-checkpoint`)."""
+    Zeroth-Order critic (`tt optimize --config critic_checkpoint=...`)."""
     from tt.dit.checkpoint import default_checkpoint, load_model
     from tt.guidance.zeroth import check_critic
 
@@ -523,10 +519,10 @@ def test_critic_on_designs_ranks_by_tt_predicts_reward_of_the_decoded_designs(ch
             "zeroth",
             "--checkpoint",
             str(checkpoint),
-            "--critic",
-            "joint",
-            "--critic-on",
-            "designs",
+            "--config",
+            "critic=joint",
+            "--config",
+            "critic_on=designs",
         ],
     )
-    assert result.exit_code != 0 and "does not go with --critic joint" in result.output
+    assert result.exit_code != 0 and "does not go with critic = 'joint'" in result.output, result.output

@@ -538,7 +538,7 @@ def test_cli_takes_the_papers_reward_names(tmp_path, tt_cli, monkeypatch):
     monkeypatch.setenv("COLUMNS", "250")  # the table's headers in full
     save_designs([get_space("viperx").nominal()], tmp_path / "designs.json")
     save_npz(_short_toss(), tmp_path / "toss.npz")
-    args = ["validate", "--design", str(tmp_path / "designs.json"), "--motion-file", str(tmp_path / "toss.npz")]
+    args = ["validate", "--design", str(tmp_path / "designs.json"), "--motion", str(tmp_path / "toss.npz")]
     outs = {}
     for spelled in ("Tracking Velocity", "tracking-velocity", "tracking_velocity"):
         code, text = tt_cli([*args, "--reward", spelled, "--json", str(tmp_path / "v.json")])

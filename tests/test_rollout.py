@@ -232,7 +232,7 @@ def test_cli_rollout_reports_the_metrics_of_its_backend(tmp_path, space_name, ba
     else:
         short = Motion("toss[:20]", toss.pos[:motion_steps], toss.quat[:motion_steps], toss.dt)
         save_npz(short, tmp_path / "short.npz")
-        args += ["--motion-file", str(tmp_path / "short.npz")]
+        args += ["--motion", str(tmp_path / "short.npz")]
         motions = for_space([short], space_name)
     code, text = tt_cli(args)
     assert code == 0, text

@@ -124,7 +124,7 @@ def test_cli_rollout_threads_flag(tmp_path, tt_cli, small_slices):
                 "5",
                 "--seed",
                 "2",
-                "--motion-file",
+                "--motion",
                 str(tmp_path / "short.npz"),
                 "--threads",
                 str(k),

@@ -1,4 +1,4 @@
-"""`tt train --select-designs`: every checkpoint scored on held-out designs as `tt predict`
+"""`tt train --config selection.designs=N`: every checkpoint scored on held-out designs as `tt predict`
 uses it, the best kept as RUN/best.pt; the bookkeeping checked against `score_designs` run
 directly on the same checkpoints."""
 
@@ -130,11 +130,11 @@ def test_a_foreign_csv_is_refused(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--select-designs", "2"], "--select-designs must be >= 3"),
-        (["--select-designs", "4", "--task", "control"], "needs --task with robot or dynamics"),
-        (["--select-designs", "4", "--select-reward", "speed"], "--select-reward 'speed' is not a reward"),
-        (["--select-designs", "4", "--select-motions", "0"], "--select-motions must be >= 1"),
-        (["--select-designs", "4", "--select-reward", "tracking_torque", "--drop-type", "actuator_obs"], "leaves out"),
+        (["--config", "selection.designs=2"], "selection.designs = 2; a correlation needs at least 3 designs"),
+        (["--config", "selection.designs=4", "--task", "control"], "needs a task with robot or dynamics"),
+        (["--config", "selection.reward=speed"], "selection.reward = 'speed' is not a reward"),
+        (["--config", "selection.motions=0"], "selection.motions = 0; must be an integer >= 1"),
+        (["--config", "selection.samples=x"], "selection.samples = 'x' is not of type int"),
     ],
 )
 def test_bad_selection_flags_fail_clearly(tmp_path, args, message):

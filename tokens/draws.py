@@ -41,19 +41,14 @@ _STEP_COUNT = {
 _NUMBERS = re.compile(r'"[-+0-9.eE ]*"')
 
 
-#: The `tt generate` flag of each `GenerateConfig` field that has one (the Python API,
-#: `tt.api.generate_dataset`, takes the field's name as its keyword argument).
+#: The `tt generate` flag of each `GenerateConfig` field that has one (the others are its
+#: --config keys; the Python API, `tt.api.generate_dataset`, takes the field's name as its
+#: keyword argument).
 FLAGS = {
     "space": "--space",
     "designs": "--designs",
     "episodes_per_design": "--episodes-per-design",
     "seed": "--seed",
-    "designs_per_shard": "--designs-per-shard",
-    "bias": "--bias",
-    "min_steps": "--min-steps",
-    "action_noise": "--action-noise",
-    "select": "--select",
-    "uniform_share": "--uniform-share",
 }
 
 

@@ -132,24 +132,6 @@ def _at_least(flag: str, value: int | float | None, low: int | float) -> None:
         _fail(f"{flag} must be >= {low}, got {value}")
 
 
-def _draw_flags(space: str, seed: int, action_noise: float | None) -> None:
-    """Refuse, naming the flag, what `tt generate`'s and `tt train --online`'s episode draws
-    (`tt.tokens.draws.GenerateConfig`) cannot take."""
-    import math
-
-    from tt.sim.designs import get_space
-
-    if seed >= 2**32:
-        _fail(f"--seed must be below 2**32 = {2**32}, got {seed}")
-    if action_noise is not None and not math.isfinite(action_noise):
-        _fail(f"--action-noise must be a finite standard deviation >= 0 [rad or m], got {action_noise}")
-    if action_noise and get_space(space).has_contacts:
-        _fail(
-            f"--action-noise perturbs the commands of tt's Warp rollouts; --space {space} has contacts and rolls out "
-            "on MuJoCo C (the mjbatch backend), which runs the clean commands: leave --action-noise out (or give 0)"
-        )
-
-
 def _given(ctx: typer.Context, *names: str) -> list[str]:
     """The flags, among the command's parameters `names`, that the command line gave (a value
     left at its default is not given), in the command's order."""
@@ -168,6 +150,92 @@ def _applies(ctx: typer.Context, names, to: str, chosen: str) -> None:
     given = _given(ctx, *names)
     if given:
         _fail(f"{given[0]} applies to {to}, not {chosen}")
+
+
+def _fields(cls, exclude: tuple[str, ...] = ()) -> dict[str, str]:
+    """A config dataclass's fields (name -> type annotation text), those in `exclude` left out:
+    the keys `_config` accepts."""
+    import dataclasses
+
+    return {f.name: str(f.type) for f in dataclasses.fields(cls) if f.name not in exclude}
+
+
+def _type_ok(value, annotation: str) -> bool:
+    """Whether a config value read from TOML / JSON has the type its field's annotation names
+    (int, float, str, bool, tuple / list, dict, None); anything else (a config object) is the
+    config's own to check."""
+    kinds = {
+        "bool": bool,
+        "int": int,
+        "float": (int, float),
+        "str": str,
+        "tuple": (list, tuple),
+        "list": (list, tuple),
+        "dict": dict,
+        "Mapping": dict,
+    }
+    words = [w.strip() for w in annotation.replace("|", " ").replace("[", " ").split()]
+    named = [kinds[w.split("[")[0]] for w in words if w.split("[")[0] in kinds]
+    if not named:
+        return True
+    if value is None:
+        return "None" in words
+    if isinstance(value, bool):
+        return bool in named
+    return any(isinstance(value, k) for k in named)
+
+
+def _config(items: list[str] | None, keys: dict, flag: str) -> dict:
+    """The settings of a repeatable config option: each item a TOML or JSON file, or
+    KEY=VALUE (VALUE read as a TOML value, a bare word as a string; ``table.KEY=VALUE`` for a
+    table's key); later items override earlier ones, key by key. keys: name -> type annotation
+    text, or -> a dict of such for a table. An unknown key, or a value of the wrong type, is
+    refused naming the key, the item and the valid keys; the configs check the values."""
+    import tomllib
+
+    from tt.kernels.errors import TTError
+
+    out: dict = {}
+    for item in items or []:
+        name, eq, text = item.partition("=")
+        if eq and not Path(item).exists():
+            try:
+                value = tomllib.loads(f"v = {text}")["v"]
+            except tomllib.TOMLDecodeError:
+                value = text
+            table, dot, key = name.strip().rpartition(".")
+            loaded = {table: {key: value}} if dot else {name.strip(): value}
+            where = f"{flag} {item}"
+        else:
+            path = Path(item)
+            if not path.is_file():
+                raise TTError(f"{flag} {item}: no such file, and not KEY=VALUE (a TOML or JSON file, or KEY=VALUE)")
+            try:
+                loaded = json.loads(path.read_text()) if path.suffix == ".json" else tomllib.loads(path.read_text())
+            except (ValueError, UnicodeDecodeError) as e:
+                raise TTError(f"{flag} {item}: not a valid {'JSON' if path.suffix == '.json' else 'TOML'} file ({e})")
+            if not isinstance(loaded, dict):
+                raise TTError(f"{flag} {item}: holds {type(loaded).__name__}, not a table of settings")
+            where = f"{flag} {item}"
+        for key, value in loaded.items():
+            if key not in keys:
+                raise TTError(f"{where}: unknown key {key!r}; valid keys: {', '.join(keys) or 'none'}")
+            if isinstance(keys[key], dict):
+                if not isinstance(value, dict):
+                    raise TTError(f"{where}: {key} is a table ([{key}] or {key}.KEY=VALUE), got {value!r}")
+                for sub, v in value.items():
+                    if sub not in keys[key]:
+                        raise TTError(
+                            f"{where}: unknown key {key}.{sub}; valid keys of [{key}]: {', '.join(keys[key])}"
+                        )
+                    if not _type_ok(v, keys[key][sub]):
+                        raise TTError(f"{where}: {key}.{sub} = {v!r} is not of type {keys[key][sub]}")
+                out[key] = {**out.get(key, {}), **value}
+            else:
+                if not _type_ok(value, keys[key]):
+                    raise TTError(f"{where}: {key} = {value!r} is not of type {keys[key]}")
+                out[key] = tuple(value) if isinstance(value, list) else value
+    return out
 
 
 def _output(path: Path | None, flag: str, *, folder: bool = False) -> None:
@@ -287,16 +355,26 @@ def designs(
     typer.echo(f"wrote {what} to {out}/ (designs.json + {len(ds)} MJCF file{'s' if len(ds) > 1 else ''})")
 
 
-def _motions(names: list[str] | None, files: list[Path] | None, space: str | None = None):
-    """Motions from library names (``toss``, ``toss:7``), files, or the validation split."""
+#: Help of every option that names motions.
+_MOTION_HELP = "Motion: a library name (toss, toss:7; see `tt motions`) or a .npz / UMI .zarr file (repeatable)."
+
+
+def _motions(names: list[str] | None, space: str | None = None):
+    """Motions from library names (``toss``, ``toss:7``) or files (a value naming an existing
+    path, or ending in .npz or .zarr), placed for `space`."""
     from tt.sim.motions import for_space, load_motion_file, resolve_motion
 
-    motions = [resolve_motion(n) for n in names or []] + [load_motion_file(f) for f in files or []]
+    motions = [load_motion_file(n) if _is_motion_file(n) else resolve_motion(n) for n in names or []]
     if space is not None:
         motions = for_space(motions, space)
     if not motions:
-        _fail("no motion given: use --motion NAME (see `tt motions`) or --motion-file FILE")
+        _fail("no motion given: use --motion NAME (see `tt motions`) or --motion FILE.npz")
     return motions
+
+
+def _is_motion_file(value: str) -> bool:
+    """Whether a --motion value names a file rather than a library motion."""
+    return value.endswith((".npz", ".zarr", ".zarr/")) or Path(value).exists()
 
 
 @app.command()
@@ -368,12 +446,9 @@ def motions(
 
 @app.command()
 def validate(
-    ctx: typer.Context,
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
-    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
-    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
-    space: Optional[str] = typer.Option(None, help="Design space; checked against the designs' own."),
     json_out: Optional[Path] = typer.Option(
         None,
         "--json",
@@ -384,26 +459,19 @@ def validate(
     ),
     controller: str = typer.Option(
         DEFAULT_CONTROLLER,
-        help="ik: the MuJoCo + mink oracle; model: the DiT's control task (its mean command, one network call per "
-        "control step, each command the mean of the recent queries' predictions for it: "
-        "`tt.dit.policies.ControllerConfig`) on tt's batched Warp physics.",
-    ),
-    checkpoint: Optional[Path] = typer.Option(
-        None,
-        help="--controller model: DiT checkpoint file or run folder (default: the space's shipped controller, "
-        "<space>_<size>_control.pt, else its shipped checkpoint).",
+        help="ik: the MuJoCo + mink oracle; model: the DiT's control task on tt's batched Warp physics (the "
+        "space's shipped controller), or a DiT checkpoint file or run folder to use as that controller.",
     ),
     device: Optional[str] = typer.Option(
-        None, help="--controller model: Warp/torch device (default: cuda if present, else cpu)."
-    ),
-    ensemble: Optional[int] = typer.Option(
-        None,
-        help="--controller model: queries whose predictions each command averages (default: all whose window "
-        "holds the step, 7 for the shipped models; 1: the paper's single query); measurements: "
-        "docs/results/controller.md.",
+        None, help="The model controller's Warp/torch device (default: cuda if present, else cpu)."
     ),
 ) -> None:
-    """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table."""
+    """Run a controller on designs and motions (the MuJoCo + mink oracle, or the DiT); print the metrics table.
+
+    The model controller (`tt.dit.policies.ControllerConfig`): the DiT's mean command, one
+    network call per control step, each command the mean of the recent queries' predictions
+    for it (docs/results/controller.md); its default checkpoint is the space's shipped
+    controller, <space>_<size>_control.pt, else its shipped checkpoint."""
     from rich.console import Console
 
     from tt.api import control_checkpoint
@@ -416,19 +484,19 @@ def validate(
     quiet = _on_stdout(("--json", json_out), ("--episode", episode))
     designs = load_designs(design)
     spaces = {d.space for d in designs}
-    if space is not None and spaces != {space}:
-        _fail(f"--space {space} but the designs are from {sorted(spaces)}")
     sp_name = designs[0].space
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {sorted(spaces)}")
-    ms = _motions(motion, motion_file, sp_name)
-    if controller not in ("ik", "model"):
-        _fail(f"--controller {controller!r} does not exist; controllers: ik, model")
+    ms = _motions(motion, sp_name)
     if controller == "ik":
-        _applies(ctx, ("checkpoint", "device", "ensemble"), "--controller model", "--controller ik")
-    if controller == "model" and ensemble is not None:
-        _at_least("--ensemble", ensemble, 1)
-    ckpt = control_checkpoint(sp_name, checkpoint) if controller == "model" else None
+        if device is not None:
+            _fail("--device applies to the model controller, not --controller ik (the oracle runs MuJoCo C)")
+        ckpt = None
+    else:
+        if controller != "model" and not Path(controller).exists():
+            _fail(f"--controller {controller!r}: give ik, model, or a DiT checkpoint file or run folder that exists")
+        ckpt = control_checkpoint(sp_name, None if controller == "model" else Path(controller))
+        controller = "model"
     ev = validate_designs(
         designs,
         ms,
@@ -436,7 +504,6 @@ def validate(
         controller=controller,
         checkpoint=ckpt,
         device=device,
-        ensemble=ensemble,
         progress=controller == "model",
     )
     ep = ev.episode
@@ -480,8 +547,7 @@ def rollout(
     n: int = typer.Option(16, help="Random designs of the space (seed --seed); not with --design."),
     seed: int = typer.Option(0, help="Random seed of the designs."),
     design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
-    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable; default: toss); see `tt motions`."),
-    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP[:-1] + "; default: toss."),
     backend: Optional[str] = typer.Option(
         None, help="warp | mjwarp | newton | mjbatch | mujoco (default: warp; mjbatch for spaces with contacts)."
     ),
@@ -495,9 +561,6 @@ def rollout(
         "--threads",
         min=1,
         help="CPU threads of warp / mjbatch rollouts (default: every core); results are the same for any count.",
-    ),
-    graph: Optional[bool] = typer.Option(
-        None, "--graph/--no-graph", help="CUDA graphs for the warp / mjwarp launches (default: on a CUDA device)."
     ),
 ) -> None:
     """Roll out N designs x the motions in one batch (worlds = designs x motions); print the
@@ -524,7 +587,7 @@ def rollout(
     else:
         _at_least("--n", n, 1)
         designs = sp.sample(n, seed)
-    ms = _motions(motion if (motion or motion_file) else ["toss"], motion_file, sp.name)
+    ms = _motions(motion or ["toss"], sp.name)
     backend = backend or default_backend(sp.name)
     if backend not in BACKENDS:
         _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")
@@ -533,9 +596,7 @@ def rollout(
     # design of a space has the space's timestep (`tt.sim.designs.mjcf.header_xml`).
     world_steps = IKConfig().substeps(sp.model(designs[0])) * len(designs) * sum(mo.steps for mo in ms)
     start = time.perf_counter()
-    ev = evaluate_designs(
-        designs, ms, reward, backend=backend, device=device, progress=True, threads=threads, graph=graph
-    )
+    ev = evaluate_designs(designs, ms, reward, backend=backend, device=device, progress=True, threads=threads)
     seconds = time.perf_counter() - start
     ep, metrics = ev.episode, ev.metrics
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
@@ -591,28 +652,6 @@ def rollout(
         )
 
 
-def _check_critic(path: Path, space: str) -> None:
-    """Refuse a --critic-checkpoint that cannot be the dynamics critic of --space's designs,
-    each message naming --critic-checkpoint (the sampling model's --checkpoint is another
-    file): unreadable, of another space, or not trained on the dynamics task."""
-    from tt.dit.checkpoint import load_model
-
-    try:
-        critic = load_model(path, device="cpu")
-    except (ValueError, OSError) as e:
-        _fail(f"--critic-checkpoint: {error_message(e)}")
-    if critic.space is not None and critic.space != space:
-        _fail(
-            f"--critic-checkpoint {path} was trained on design space {critic.space!r}, and --space is {space!r}; "
-            f"give a critic trained on {space!r}"
-        )
-    if not critic.trained_on("dynamics"):
-        _fail(
-            f"--critic-checkpoint {path} was trained on --task {'+'.join(critic.tasks)}, not the dynamics task a "
-            "critic needs (train one with --task dynamics)"
-        )
-
-
 def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dict]:
     """Oracle re-run of each design on every motion, one summary row per design."""
     from tt.baselines.evaluate import evaluate_designs
@@ -624,13 +663,13 @@ def _validated_rows(designs, motions, reward: str, names: list[str]) -> list[dic
 
 @app.command()
 def optimize(
-    ctx: typer.Context,
     space: str = typer.Option(DEFAULT_SPACE, help="Design space."),
-    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
-    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file (repeatable)."),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
-    method: str = typer.Option(DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim."),
-    budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion."),
+    method: str = typer.Option(
+        DEFAULT_METHOD, help="random | cmaes | zeroth | dgs | zeroth-sim | dgs-sim | cmaes-init-model."
+    ),
+    budget: int = typer.Option(DEFAULT_BUDGET, help="Candidate designs per motion (the model's samples too)."),
     seed: int = typer.Option(DEFAULT_SEED, help="Random seed."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present)."),
     json_out: Optional[Path] = typer.Option(
@@ -639,220 +678,89 @@ def optimize(
     checkpoint: Optional[Path] = typer.Option(
         None, help="DiT checkpoint or run folder (default: the shipped one).", rich_help_panel=_MODEL
     ),
-    samples: Optional[int] = typer.Option(
-        None, help="Candidates to sample (default: --budget).", rich_help_panel=_MODEL
-    ),
     num_steps: int = typer.Option(100, help="DDIM steps.", rich_help_panel=_MODEL),
-    critic: Optional[str] = typer.Option(
-        None, help="How candidates are scored: joint (the paper's) | dynamics.", rich_help_panel=_MODEL
-    ),
-    critic_checkpoint: Optional[Path] = typer.Option(
-        None, help="Checkpoint whose dynamics task scores them (default: the shipped critic).", rich_help_panel=_MODEL
-    ),
     refine: int = typer.Option(0, help="Critic-refinement iterations of the winner.", rich_help_panel=_MODEL),
-    scale: Optional[float] = typer.Option(
-        None, help="dgs: guidance scale (default: the space's).", rich_help_panel=_MODEL
-    ),
-    verify: Optional[int] = typer.Option(
-        None, help="zeroth-sim, dgs-sim: candidates simulated (default: all).", rich_help_panel=_MODEL
-    ),
-    init: Optional[str] = typer.Option(
-        None, help="cmaes: 'model' starts from the model's samples.", rich_help_panel=_MODEL
-    ),
-    popsize: int = typer.Option(5, help="CMA-ES population size.", rich_help_panel=_SEARCH),
-    generations: int = typer.Option(3, help="CMA-ES generations per restart.", rich_help_panel=_SEARCH),
-    sequential: bool = typer.Option(
-        False, "--sequential", help="CMA-ES one rollout at a time on the oracle.", rich_help_panel=_SEARCH
-    ),
     backend: Optional[str] = typer.Option(
         None, help="warp | mjwarp | newton | mjbatch | mujoco (default: per space).", rich_help_panel=_SEARCH
     ),
     threads: Optional[int] = typer.Option(
         None, "--threads", min=1, help="CPU threads of warp / mjbatch rollouts (default: all).", rich_help_panel=_SEARCH
     ),
-    critic_samples: int = typer.Option(
-        1, help="Dynamics predictions averaged per candidate.", rich_help_panel=_ABLATIONS
-    ),
-    critic_on: Optional[str] = typer.Option(
-        None, help="What the dynamics critic is asked: tokens | designs.", rich_help_panel=_ABLATIONS
-    ),
-    sim_grad_weight: float = typer.Option(
-        0.0, help="dgs: share of the simulator's gradient (0..1).", rich_help_panel=_ABLATIONS
-    ),
-    guide_by: str = typer.Option("model", help="dgs: model (the paper's) | critic.", rich_help_panel=_ABLATIONS),
-    critic_at: str = typer.Option(
-        "tokens",
-        help="dgs --guide-by critic: tokens | design | project | continuous | start.",
+    config: Optional[List[str]] = typer.Option(
+        None,
+        "--config",
+        help="The method's settings: KEY=VALUE or a TOML / JSON file (repeatable), e.g. popsize=8, critic=joint.",
         rich_help_panel=_ABLATIONS,
     ),
 ) -> None:
     """Optimize a design for motions and a reward; validate the winner on the oracle.
 
-    Methods: random, cmaes (batched, or --sequential on the oracle), zeroth and dgs (the
-    diffusion model's Zeroth-Order search and Dynamics Self-Guidance, on the space's shipped
-    checkpoint unless --checkpoint), and the hybrids, where the model proposes and the batched
-    simulator verifies: zeroth-sim, dgs-sim and cmaes --init model. Each option in full:
-    docs/cli.md.
+    Methods: random, cmaes (batched), zeroth and dgs (the diffusion model's Zeroth-Order search
+    and Dynamics Self-Guidance, on the space's shipped checkpoint unless --checkpoint), and the
+    hybrids, where the model proposes and the batched simulator verifies: zeroth-sim, dgs-sim
+    and cmaes-init-model. Each option in full: docs/cli.md.
     \f
     The options in detail:
 
-    - `--method`: the hybrids zeroth-sim and dgs-sim simulate `--verify` K of the model's best
-      candidates (best predicted first; default: all `--samples`); `--method cmaes --init model`
-      is the third hybrid: CMA-ES started from the model's samples (its screen and step sizes)
-      instead of random designs.
+    - `--method`: the hybrids zeroth-sim and dgs-sim simulate the model's best candidates
+      (best predicted first; `verify=K` of them, default all); cmaes-init-model is CMA-ES
+      started from the model's samples (its screen and step sizes) instead of random designs.
+    - `--budget`: candidate designs per motion; the learned methods sample as many (unless
+      `samples=`), cmaes-init-model screens its samples within it.
     - `--backend`: the batched rollout of candidates: warp, mjwarp, newton, mjbatch or mujoco
       (default: warp, or mjbatch for spaces with contacts: quadruped).
     - `--threads`: CPU threads of the warp and mjbatch backends' rollouts (default: every
       core); results are the same for any count.
-    - `--sequential`: CMA-ES the paper's way, one rollout at a time on the oracle.
     - `--json`: the design, time and metrics as JSON; `-` is stdout, and the tables then go to
       stderr.
     - `--checkpoint` (learned methods): a DiT checkpoint file or run folder; default: the
-      space's shipped one in checkpoints/.
-    - `--samples` (learned methods): candidates to sample; default: `--budget`, or with
-      `--init model` its screen size.
-    - `--critic` (learned methods): how candidates are scored: 'joint' (the paper's: each
-      candidate's co-sampled dynamics) or 'dynamics' (the dynamics task's prediction from its
-      sampled design; the default for models trained on that task).
-    - `--critic-checkpoint` (learned methods): another checkpoint of the same space whose
-      dynamics task scores the candidates (e.g. one trained with `--task dynamics` alone);
-      implies `--critic dynamics`. Default: the space's shipped dynamics specialist when the
-      sampling checkpoint is the shipped one (unless `--critic joint` or `--critic-on tokens`).
+      space's shipped generator in checkpoints/, its samples ranked by the space's shipped
+      dynamics critic.
     - `--refine` (zeroth, dgs): iterations of critic refinement of the returned design: its
       continuous choices climb the dynamics critic's predicted reward along central
       differences, each design's start re-simulated (tt.guidance.refine; 0: none);
       measurements: docs/results/codesign.md.
-    - `--critic-samples` ('dynamics' critic): dynamics predictions averaged per candidate (a
-      better ranking for k times the critic's cost).
-    - `--critic-on` ('dynamics' critic): what it is asked about: 'tokens' (each candidate's
-      sampled embodiment) or 'designs' (the design it decodes to, as tt predict asks; every
-      candidate is decoded first). Default: 'designs' for a critic trained with
-      `--dynamics-start`, else 'tokens'.
-    - `--guide-by` (dgs): what the guidance differentiates: 'model' (the sampling model's own
-      predicted dynamics, the paper's) or 'critic' (the dynamics critic's prediction for each
-      step's design, tt's scale unless `--scale`).
-    - `--critic-at` (dgs `--guide-by critic`): where the critic's gradient is taken: 'tokens'
-      (each step's predicted clean tokens), 'design' (the design they decode to), 'project'
-      (the decoded design's, and each guided step continues from that design; `--scale` is
-      then the RMS token step at full noise), 'continuous' (as 'tokens', moving only the
-      continuous attributes of the sampled structure's tokens) or 'start' (as 'tokens', plus
-      the gradient through the decoded design's simulated start, which a critic told the start
-      otherwise takes as a constant); measurements: docs/experiments.md.
+    - `--config` (the method's settings, what `tt.optimize(..., **options)` takes; each
+      method's config validates them, and an unknown key is refused naming the valid ones):
+      cmaes (`tt.baselines.CMAESConfig`): `popsize` (5), `generations` per restart (3),
+      `sigma0`, `screen`, `sequential=true` (the paper's way: one rollout at a time on the
+      oracle). Learned methods (`tt.guidance.zeroth.SamplerConfig`): `samples`, `eta`,
+      `critic` ("joint", the paper's: each candidate's co-sampled dynamics; "dynamics": the
+      dynamics task's prediction for its design), `critic_checkpoint` (another checkpoint
+      of the space whose dynamics task scores the candidates; default: the shipped critic
+      beside the shipped generator), `critic_samples`, `critic_on`. dgs, dgs-sim
+      (`tt.guidance.selfguide.DGSConfig`): `scale` (default: the space's), `guide_by`
+      ("model", the paper's: the sampling model's own predicted dynamics; "critic": the
+      dynamics critic's prediction for each step's predicted clean tokens, tt's scale),
+      `sim_grad_weight` (share of the simulator's gradient, 0..1; the paper's ablation),
+      `sim_grad_start`. zeroth-sim, dgs-sim: `verify` (candidates simulated; default all).
+      Measurements of each: docs/results/codesign.md, docs/experiments.md.
     """
     import numpy as np
     from rich.console import Console
 
     from tt.baselines import Problem
-    from tt.optimizers import LEARNED, METHODS, run_optimizer
+    from tt.optimizers import LEARNED, METHODS, method_keys, run_optimizer
     from tt.report import columns_for, rich_table
     from tt.sim.designs import get_space
 
-    methods = [m for m in METHODS if m != "cmaes-init-model"]  # that one is --method cmaes --init model
-    if method not in methods:
-        _fail(f"--method {method!r} does not exist; methods: {', '.join(methods)}")
-    if init not in (None, "model"):
-        _fail(f"--init {init!r}: the only initialisation is 'model'")
-    if init is not None and method != "cmaes":
-        _fail(f"--init model initialises CMA-ES; it does not apply to --method {method}")
-    if verify is not None and method not in ("zeroth-sim", "dgs-sim"):
-        _fail(f"--verify applies to zeroth-sim and dgs-sim, not --method {method}")
-    if init == "model":
-        method = "cmaes-init-model"
+    if method not in METHODS:
+        _fail(f"--method {method!r} does not exist; methods: {', '.join(METHODS)}")
+    keys = {k: v for k, v in method_keys(method).items() if k not in ("checkpoint", "num_steps", "refine")}
+    options = _config(config, keys, "--config")
     _at_least("--budget", budget, 1)
     _at_least("--seed", seed, 0)
-    if method in ("cmaes", "cmaes-init-model"):
-        _at_least("--popsize", popsize, 2)
-        _at_least("--generations", generations, 1)
-    if method in LEARNED:
-        _at_least("--samples", samples, 1)
-        _at_least("--num-steps", num_steps, 1)
-        _at_least("--verify", verify, 1)
-        from tt.guidance.zeroth import CRITICS
-
-        if critic is not None and critic not in CRITICS:
-            _fail(f"--critic {critic!r}: valid are {' and '.join(map(repr, CRITICS))}")
-        _at_least("--critic-samples", critic_samples, 1)
-        if critic == "joint" and critic_samples > 1:
-            _fail(
-                f"--critic-samples {critic_samples} needs --critic dynamics: the joint critic scores the one draw "
-                "sampled with each design"
-            )
-        from tt.guidance.zeroth import CRITIC_INPUTS
-
-        if critic_on is not None and critic_on not in CRITIC_INPUTS:
-            _fail(f"--critic-on {critic_on!r}: valid are {' and '.join(map(repr, CRITIC_INPUTS))}")
-        if critic == "joint" and critic_on == "designs":
-            _fail(
-                "--critic-on designs asks the dynamics critic about the decoded designs; it does not go with "
-                "--critic joint"
-            )
-        if critic == "joint" and critic_checkpoint is not None:
-            _fail("--critic-checkpoint is a dynamics critic; it does not go with --critic joint")
-        if critic_checkpoint is not None and not critic_checkpoint.exists():
-            _fail(f"--critic-checkpoint {critic_checkpoint} does not exist")
-        if critic_checkpoint is not None:
-            _check_critic(critic_checkpoint, space)
-        if verify is not None and verify > (samples or budget):
-            _fail(
-                f"--verify {verify} is larger than --samples {samples or budget}: the simulator can only check "
-                "sampled candidates"
-            )
     _at_least("--refine", refine, 0)
-    if refine and method not in ("zeroth", "dgs"):
-        _fail(f"--refine refines the design zeroth or dgs returns; it does not apply to --method {method}")
-    if refine and critic == "joint":
-        _fail("--refine climbs the dynamics critic's prediction; it does not go with --critic joint")
-    if not 0.0 <= sim_grad_weight <= 1.0:
-        _fail(f"--sim-grad-weight must be in [0, 1], got {sim_grad_weight}")
-    from tt.guidance.selfguide import CRITIC_PLACES, GUIDES
-
-    if guide_by not in GUIDES:
-        _fail(f"--guide-by {guide_by!r}: valid are {' and '.join(map(repr, GUIDES))}")
-    chosen = "--method cmaes --init model" if method == "cmaes-init-model" else f"--method {method}"
-    for names, methods in (
-        (("checkpoint", "samples", "num_steps", "critic", "critic_samples", "critic_checkpoint", "critic_on"), LEARNED),
-        (("popsize", "generations", "sequential"), ("cmaes", "cmaes-init-model")),
-        (("scale", "sim_grad_weight", "guide_by"), ("dgs", "dgs-sim")),
-    ):
-        if method not in methods:
-            shown = [("cmaes --init model" if m == "cmaes-init-model" else m) for m in methods]
-            _applies(ctx, names, ", ".join(shown[:-1]) + " and " + shown[-1], chosen)
-    if guide_by != "model" and method not in ("dgs", "dgs-sim"):
-        _fail(f"--guide-by applies to dgs and dgs-sim, not --method {method}")
-    if critic_at not in CRITIC_PLACES:
-        _fail(f"--critic-at {critic_at!r}: valid are {', '.join(map(repr, CRITIC_PLACES))}")
-    if critic_at != "tokens" and guide_by != "critic":
-        _fail(f"--critic-at {critic_at} steers by the critic's gradient; it needs --guide-by critic")
-    if critic_at == "project" and sim_grad_weight > 0:
-        _fail("--critic-at project does not mix in the simulator's gradient (--sim-grad-weight 0)")
-    if critic_at == "project" and scale is None:
-        _fail("--critic-at project needs --scale: the RMS token step at full noise (e.g. 0.1)")
-    _output(json_out, "--json")
-    quiet = _on_stdout(("--json", json_out))
-    ms = _motions(motion, motion_file, space if _space_ok(space) else None)
-    options: dict = {}
-    if method in ("cmaes", "cmaes-init-model"):
-        options = {"popsize": popsize, "generations": generations, "sequential": sequential}
     if method in LEARNED:
-        # checkpoint and critic_checkpoint None: the space's shipped ones (tt.optimizers.learned_defaults)
-        options.update(
-            checkpoint=checkpoint,
-            critic_checkpoint=critic_checkpoint,
-            samples=samples,
-            num_steps=num_steps,
-            critic=critic,
-            critic_samples=critic_samples,
-        )
+        options.update(checkpoint=checkpoint, num_steps=num_steps)
         if refine:
             options.update(refine=refine)
-        if critic_on is not None:
-            options.update(critic_on=critic_on)
-        if method in ("dgs", "dgs-sim"):
-            options.update(scale=scale, sim_grad_weight=sim_grad_weight, guide_by=guide_by)
-            if critic_at != "tokens":
-                options.update(CRITIC_PLACES[critic_at])
-        if method in ("zeroth-sim", "dgs-sim"):
-            options.update(verify=verify)
+    elif checkpoint is not None or refine or num_steps != 100:
+        flag = "--checkpoint" if checkpoint is not None else "--refine" if refine else "--num-steps"
+        _fail(f"{flag} applies to the learned methods ({', '.join(LEARNED)}), not --method {method}")
+    _output(json_out, "--json")
+    quiet = _on_stdout(("--json", json_out))
+    ms = _motions(motion, space if _space_ok(space) else None)
     problem = Problem(
         space=space,
         motions=tuple(ms),
@@ -932,8 +840,7 @@ def optimize(
 @app.command()
 def predict(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
-    motion: Optional[List[str]] = typer.Option(None, help="Motion name (repeatable); see `tt motions`."),
-    motion_file: Optional[List[Path]] = typer.Option(None, help="Motion file .npz / UMI .zarr (repeatable)."),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP),
     checkpoint: Optional[Path] = typer.Option(
         None,
         help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, "
@@ -941,20 +848,10 @@ def predict(
     ),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     samples: int = typer.Option(1, help="Samples per design x motion; their predictions are averaged."),
-    num_steps: Optional[int] = typer.Option(
-        None,
-        help="DDIM steps of the prediction (default: tt.guidance.predicted.CRITIC_DDIM_STEPS, 10 of the 100: "
-        "held-out r is flat from 5 to 100, benchmarks/results/dit_ladder_r2c.md).",
-    ),
     seed: int = typer.Option(DEFAULT_SEED, help="Seed of the sampling noise."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
     json_out: Optional[Path] = typer.Option(
         None, "--json", help="Write the predictions to this JSON file (-: stdout, the table then goes to stderr)."
-    ),
-    via: Optional[str] = typer.Option(
-        None,
-        help="dynamics: the design as the dynamics task's condition; inpaint: inpainted into the robot task "
-        "(default: dynamics when the checkpoint was trained on it).",
     ),
 ) -> None:
     """The model as a critic: predict each design's dynamics on each motion (its embodiment
@@ -967,7 +864,6 @@ def predict(
     from tt.sim.designs import DesignError, load_designs
 
     _at_least("--samples", samples, 1)
-    _at_least("--num-steps", num_steps, 1)
     _output(json_out, "--json")
     quiet = _on_stdout(("--json", json_out))
     try:
@@ -983,14 +879,12 @@ def predict(
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {spaces}")
     space = spaces[0]
-    ms = _motions(motion, motion_file, space)
+    ms = _motions(motion, space)
     from tt.api import predict as predict_designs
     from tt.api import predict_checkpoint
 
     ckpt = predict_checkpoint(space, checkpoint)
-    pred = predict_designs(
-        designs, ms, reward, checkpoint=ckpt, samples=samples, num_steps=num_steps, seed=seed, device=device, via=via
-    )
+    pred = predict_designs(designs, ms, reward, checkpoint=ckpt, samples=samples, seed=seed, device=device)
 
     def clean(v: float) -> float | None:
         return float(v) if math.isfinite(v) else None
@@ -1067,93 +961,29 @@ def view(
 
 @app.command()
 def train(
-    ctx: typer.Context,
     data: Optional[Path] = typer.Option(None, help="Dataset folder from `tt generate` (or an episode token file)."),
-    online: bool = typer.Option(False, "--online", help="Train on episodes simulated as training goes (no --data)."),
-    task: str = typer.Option(
-        "robot", help="robot | dynamics | control, or several joined by '+'; both = robot+control."
+    online: bool = typer.Option(
+        False,
+        "--online",
+        help="Train on episodes simulated as training goes (no --data; settings: --config's \\[online]).",
     ),
-    size: str = typer.Option("small", help="tiny | mini | small | large."),
+    task: Optional[str] = typer.Option(
+        None, help="robot | dynamics | control, or several joined by '+'; both = robot+control (default robot)."
+    ),
+    size: Optional[str] = typer.Option(None, help="tiny | mini | small | large (default small; --init: its own)."),
     out: Path = typer.Option(Path("runs/dit"), help="Run folder: checkpoints, loss.csv, loss.png."),
-    steps: int = typer.Option(10_000, help="Optimizer steps."),
-    batch_size: int = typer.Option(64, help="Episodes per batch."),
-    lr: Optional[float] = typer.Option(None, help="Peak learning rate (default: the paper's for the size)."),
+    steps: Optional[int] = typer.Option(None, help="Optimizer steps (default 10,000)."),
+    batch_size: Optional[int] = typer.Option(None, help="Episodes per batch (default 64)."),
     device: Optional[str] = typer.Option(None, help="torch device (default: cuda if present, else cpu)."),
-    seed: int = typer.Option(0, help="Random seed."),
-    checkpoint_every: int = typer.Option(1000, help="Steps between checkpoints."),
+    seed: Optional[int] = typer.Option(None, help="Random seed (default 0)."),
     resume: bool = typer.Option(True, help="Continue from the run folder's last checkpoint."),
-    init: Optional[Path] = typer.Option(None, help="Start a new run from this checkpoint's weights (fine-tuning)."),
-    space: str = typer.Option("viperx", help="Design space (contact-free).", rich_help_panel=_ONLINE),
-    online_designs: int = typer.Option(64, help="New designs per refresh.", rich_help_panel=_ONLINE),
-    online_motions: int = typer.Option(4, help="Augmented training motions per refresh.", rich_help_panel=_ONLINE),
-    refresh_every: int = typer.Option(50, help="Optimizer steps between refreshes.", rich_help_panel=_ONLINE),
-    online_buffer: int = typer.Option(4, help="Refreshes whose episodes training draws from.", rich_help_panel=_ONLINE),
-    online_absorbing: bool = typer.Option(
-        False, "--online-absorbing", help="Keep terminated episodes to the motion's end.", rich_help_panel=_ONLINE
+    init: Optional[Path] = typer.Option(
+        None, help="Start a new run from this checkpoint's weights and layout (fine-tuning)."
     ),
-    online_select: int = typer.Option(
-        1, help="Designs screened per kept episode (1: unselected).", rich_help_panel=_ONLINE
-    ),
-    uniform_share: float = typer.Option(
-        0.0, help="--online-select: share of kept episodes drawn uniformly.", rich_help_panel=_ONLINE
-    ),
-    select_by: str = typer.Option(
-        "tracking", help="--online-select: the reward designs are ranked by.", callback=_reward, rich_help_panel=_ONLINE
-    ),
-    action_noise: Optional[float] = typer.Option(
-        None, help="Control perturbation std, rad or m (0: none).", rich_help_panel=_ONLINE
-    ),
-    select_designs: int = typer.Option(
-        0, help="Held-out designs each checkpoint is scored on (0: off).", rich_help_panel=_SELECTION
-    ),
-    select_motions: int = typer.Option(5, help="--select-designs: validation motions.", rich_help_panel=_SELECTION),
-    select_reward: str = typer.Option(
-        "tracking",
-        help="--select-designs: the reward predicted and simulated.",
-        callback=_reward,
-        rich_help_panel=_SELECTION,
-    ),
-    prediction: str = typer.Option(
-        "x0", help="What the network predicts: x0 | eps (the paper's) | v.", rich_help_panel=_RECIPE
-    ),
-    weighting: str = typer.Option(
-        "none", help="Noise-level loss weighting: none | min_snr | edm.", rich_help_panel=_RECIPE
-    ),
-    min_snr_gamma: float = typer.Option(5.0, help="--weighting min_snr: gamma.", rich_help_panel=_RECIPE),
-    type_weight: Optional[List[str]] = typer.Option(
-        None, help="Loss weight of a token type, TYPE=W (repeatable).", rich_help_panel=_RECIPE
-    ),
-    robot_diffusion_steps: int = typer.Option(
-        100, help="DDIM training steps T of the robot task.", rich_help_panel=_RECIPE
-    ),
-    control_diffusion_steps: int = typer.Option(
-        5, help="DDIM training steps T of the control task.", rich_help_panel=_RECIPE
-    ),
-    warmup_steps: int = typer.Option(500, help="Learning-rate warm-up steps.", rich_help_panel=_RECIPE),
-    time_ids: str = typer.Option(
-        "sinusoidal", help="Time-step ID embedding: sinusoidal | learned.", rich_help_panel=_RECIPE
-    ),
-    bf16_cpu: bool = typer.Option(
-        False, "--bf16-cpu", help="Autocast to bfloat16 on the CPU too.", rich_help_panel=_RECIPE
-    ),
-    future_states: bool = typer.Option(
-        True, help="Control task: also diffuse later states.", rich_help_panel=_ABLATIONS
-    ),
-    anchor_track: bool = typer.Option(
-        False, "--anchor-track", help="Track-link poses as residuals from targets.", rich_help_panel=_ABLATIONS
-    ),
-    anchor_control: str = typer.Option("", help="Commands as residuals: joints | command.", rich_help_panel=_ABLATIONS),
-    known_command: bool = typer.Option(
-        False, "--known-command", help="Control task: give the last command.", rich_help_panel=_ABLATIONS
-    ),
-    control_target_offset: int = typer.Option(
-        0, help="Control task: targets this many steps later.", rich_help_panel=_ABLATIONS
-    ),
-    dynamics_start: bool = typer.Option(
-        False, "--dynamics-start", help="Dynamics task: condition on the first step.", rich_help_panel=_ABLATIONS
-    ),
-    drop_type: Optional[List[str]] = typer.Option(
-        None, help="A per-step token type left out (repeatable).", rich_help_panel=_ABLATIONS
+    config: Optional[List[str]] = typer.Option(
+        None,
+        "--config",
+        help="Training settings: a TOML / JSON file (checkpoints/recipes/) or KEY=VALUE (repeatable).",
     ),
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes: a dataset (--data) or episodes
@@ -1164,182 +994,68 @@ def train(
     - `--task`: robot, dynamics or control, or several joined by '+' (robot+dynamics: a
       generator that is also a critic for tt predict); both = robot+control.
     - `--init`: start a new run from this checkpoint's EMA weights and normaliser
-      (fine-tuning).
-    - `--online`: train on episodes the batched Warp simulator generates as training goes,
-      instead of `--data`. The online options: `--space` is the (contact-free) design space;
-      each refresh rolls out `--online-designs` new designs on `--online-motions` augmented
-      training motions (every design runs each), every `--refresh-every` optimizer steps, and
-      training draws from the last `--online-buffer` refreshes. `--online-absorbing` keeps
-      terminated episodes to the motion's end (the terminal state repeated), so the model sees
-      designs fail. `--online-select K` screens K designs per kept episode: each motion keeps
-      its `--online-designs` best of `--online-designs` x K screened designs
-      (tt.tokens.draws.select_episodes), so the generator learns which designs suit a motion
-      (1: uniform designs, unselected); `--uniform-share` is the share of each motion's kept
-      episodes drawn uniformly from the screen instead of the best (a critic then still sees
-      failures), and `--select-by` the reward they are ranked by. `--action-noise`: the control
-      perturbation's standard deviation [rad or m] (default: tt generate's,
-      tt.tokens.draws.DEFAULT_ACTION_NOISE; 0: none).
-    - `--select-designs N`: score every checkpoint on N held-out designs x `--select-motions`
-      validation motions (predicted vs simulated `--select-reward`, as tt predict) and keep the
-      best as OUT/best.pt (OUT/selection.csv, selection.png); 0: off. Needs `--task` with robot
-      or dynamics.
-    - `--prediction`: x0 learns what designs do far faster than the paper's eps
-      (benchmarks/results/dit_recipe.md).
-    - `--type-weight TYPE=W`: e.g. track_link_obs=4.
-    - `--time-ids learned`: a lookup table, as checkpoints before the choice.
-    - `--bf16-cpu`: CUDA always autocasts to bfloat16; this autocasts on the CPU too.
-    - `--no-future-states`: the control task diffuses commands only, not the window's later
-      states.
-    - `--anchor-track`: predict track-link poses as residuals from their targets (needs
-      `--prediction x0`).
-    - `--anchor-control`: delta actions: predict commands as residuals from the current joint
-      positions (joints) or from the last command (command, needs `--known-command`); needs
-      `--prediction x0`.
-    - `--known-command`: the control task gives the model the command that led to the current
-      state (a servo's setpoint).
-    - `--control-target-offset K`: the target poses beside each step's command are those K
-      steps later (the reference's conditioning; DiffIK's look-ahead is 2 steps at 50 Hz).
-    - `--dynamics-start`: every dynamics window holds the episode's first step, its state and
-      command a clean condition; tt predict then simulates each design's first control step and
-      tells the model where it starts (benchmarks/results/critic_failures.md).
-    - `--drop-type`: dyna_joint_obs, actuator_obs or control left out of the model's sequence;
-      a lean critic (`--task dynamics`) trains on a shorter sequence, measured to learn far less
-      (benchmarks/results/dit_ladder_r2f.md). Not with the control task.
+      (fine-tuning). The run takes the checkpoint's network and token layout (size, prediction,
+      time IDs, anchors, known command, future states, dynamics start, diffusion steps), so a
+      recipe need not repeat them; a setting given in `--config` or as a flag still wins.
+    - `--config`: the research settings, from TOML or JSON files (the shipped checkpoints'
+      recipes are in checkpoints/recipes/) or `KEY=VALUE` items (VALUE read as TOML: `8`,
+      `5e-4`, `true`, `"x0"`, `{track_link_obs = 4}`; a bare word is a string), later items
+      winning and flags winning over all. Keys: every field of `tt.dit.train.TrainConfig`
+      (prediction, weighting, min_snr_gamma, type_weights, warmup_steps, lr,
+      checkpoint_every, robot_diffusion_steps, control_diffusion_steps, time_ids, bf16_cpu,
+      future_states, anchor_track, anchor_control, known_command, control_target_offset,
+      dynamics_start, ...); the table `[online]` (`online.KEY=VALUE`) of
+      `tt.dit.online.OnlineConfig` (space, designs, motions, refresh_every, buffer, absorbing,
+      select, uniform_share, reward, action_noise, ...), which also turns on online training;
+      and the table `[selection]` of `tt.selection.SelectionConfig` (designs, motions,
+      reward): score every checkpoint on `designs` held-out designs x `motions` validation
+      motions (predicted vs simulated reward, as tt predict) and keep the best as
+      OUT/best.pt (OUT/selection.csv, selection.png); needs a task with robot or dynamics. An
+      unknown key is refused naming the valid ones; each config validates its own values.
+    - Online training (`--online` or an `[online]` table): each refresh rolls out `designs`
+      new designs of `space` (contact-free) on `motions` augmented training motions, every
+      `refresh_every` optimizer steps, and training draws from the last `buffer` refreshes;
+      `absorbing` keeps terminated episodes to the motion's end; `select K` screens K designs
+      per kept episode (each motion keeps its best, tt.tokens.draws.select_episodes; 1:
+      uniform designs), `uniform_share` of them drawn uniformly instead, ranked by `reward`.
     """
     from tt.dit.cli import train_cmd
 
-    if online == (data is not None):
-        _fail("give exactly one source of training data: --data DATASET or --online")
-    if not online:
-        _applies(
-            ctx,
-            (
-                "space",
-                "online_designs",
-                "online_motions",
-                "refresh_every",
-                "online_buffer",
-                "online_absorbing",
-                "online_select",
-                "uniform_share",
-                "select_by",
-                "action_noise",
-            ),
-            "--online training",
-            "--data, whose episodes are generated already",
-        )
-    if not select_designs:
-        _applies(
-            ctx, ("select_motions", "select_reward"), "--select-designs (checkpoint selection)", "a run without it"
-        )
-    for flag, value, low in (
-        ("--steps", steps, 1),
-        ("--batch-size", batch_size, 1),
-        ("--checkpoint-every", checkpoint_every, 1),
-        ("--online-designs", online_designs, 1),
-        ("--online-motions", online_motions, 1),
-        ("--refresh-every", refresh_every, 1),
-        ("--online-buffer", online_buffer, 1),
-        ("--online-select", online_select, 1),
-        ("--action-noise", action_noise, 0.0),
-        ("--seed", seed, 0),
-    ):
-        _at_least(flag, value, low)
-    if lr is not None and not lr > 0:
-        _fail(f"--lr must be > 0, got {lr}")
-    if data is not None and not data.exists():
-        _fail(f"--data {data} does not exist (a dataset folder from `tt generate`, or an episode token file)")
-    weights = {}
-    for item in type_weight or []:
-        name, eq, value = item.partition("=")
-        try:
-            weights[name] = float(value)
-        except ValueError:
-            eq = ""
-        if not eq or not name:
-            _fail(f"--type-weight {item!r} is not TYPE=WEIGHT (e.g. track_link_obs=4)")
-    recipe = dict(
-        prediction=prediction,
-        weighting=weighting,
-        min_snr_gamma=min_snr_gamma,
-        type_weights=weights,
-        bf16_cpu=bf16_cpu,
-        robot_diffusion_steps=robot_diffusion_steps,
-        control_diffusion_steps=control_diffusion_steps,
-        warmup_steps=warmup_steps,
-        anchor_track=anchor_track,
-        anchor_control=anchor_control,
-        known_command=known_command,
-        control_target_offset=control_target_offset,
-        dynamics_start=dynamics_start,
-        future_states=future_states,
-        time_ids=time_ids,
-        drop_types=tuple(drop_type or ()),
-    )
-    _output(out, "--out", folder=True)
-    selector = None
-    if select_designs:
-        _at_least("--select-designs", select_designs, 3)
-        _at_least("--select-motions", select_motions, 1)
-        from tt.dit.tasks import task_names
-        from tt.selection import CheckpointSelector, SelectionConfig
-        from tt.sim.rewards import REWARDS, get_reward
-
-        trained_tasks = task_names(task)  # a TTError names --task
-        if not {"robot", "dynamics"} & set(trained_tasks):
-            _fail(
-                "--select-designs scores the model as a critic, which needs --task with robot or dynamics, "
-                f"got {task!r}"
-            )
-        if select_reward not in REWARDS:
-            _fail(f"--select-reward {select_reward!r} is not a reward; valid: {list(REWARDS)}")
-        reads_actuators = {"act_force", "act_vel"} & set(get_reward(select_reward, space).needs)
-        if reads_actuators and "actuator_obs" in (drop_type or ()):
-            _fail(
-                f"--select-reward {select_reward} reads the predicted actuator observations, which --drop-type "
-                "actuator_obs leaves out"
-            )
-        selector = CheckpointSelector(
-            out,
-            SelectionConfig(designs=select_designs, motions=select_motions, reward=select_reward, device=device),
-            fresh=not resume,
-        )
-    online_config = None
-    if online:
+    flags = {"task": task, "size": size, "steps": steps, "batch_size": batch_size, "seed": seed}
+    settings = train_settings(config, init, **flags)
+    online_table = settings.pop("online", None)
+    selection = settings.pop("selection", None)
+    if online or online_table is not None:
+        if data is not None:
+            _fail("give exactly one source of training data: --data DATASET or --online (an [online] table)")
         from tt.dit.online import OnlineConfig
 
-        _draw_flags(space, seed, action_noise)
-        extra = {} if action_noise is None else {"action_noise": action_noise}
-        online_config = OnlineConfig(
-            space=space,
-            designs=online_designs,
-            motions=online_motions,
-            refresh_every=refresh_every,
-            buffer=online_buffer,
-            seed=seed,
-            absorbing=online_absorbing,
-            select=online_select,
-            uniform_share=uniform_share,
-            reward=select_by,
-            **extra,
-        )
+        online_config = OnlineConfig(**{"seed": settings.get("seed", 0), **(online_table or {})})
+    else:
+        if data is None:
+            _fail("give exactly one source of training data: --data DATASET or --online")
+        if not data.exists():
+            _fail(f"--data {data} does not exist (a dataset folder from `tt generate`, or an episode token file)")
+        online_config = None
+    _output(out, "--out", folder=True)
+    selector = None
+    if selection is not None:
+        from tt.dit.tasks import task_names
+        from tt.selection import CheckpointSelector, SelectionConfig
+
+        if not {"robot", "dynamics"} & set(task_names(settings.get("task", "robot"))):
+            _fail("[selection] scores the model as a critic, which needs a task with robot or dynamics")
+        selector = CheckpointSelector(out, SelectionConfig(**{"device": device, **selection}), fresh=not resume)
     result = train_cmd(
         data,
-        task=task,
-        size=size,
         out=out,
-        steps=steps,
-        batch_size=batch_size,
-        lr=lr,
         device=device,
-        seed=seed,
-        checkpoint_every=checkpoint_every,
         resume=resume,
         init=init,
         online=online_config,
         on_checkpoint=selector,
         on_start_over=selector.start_over if selector is not None else None,
-        **recipe,
+        **settings,
     )
     import os
 
@@ -1355,9 +1071,36 @@ def train(
     if selector is not None and selector.best is not None:
         b = selector.best
         typer.echo(
-            f"best checkpoint on {select_designs} held-out designs: step {b.step}, within-motion r {b.within_r:.3f}, "
-            f"pooled r {b.pooled_r:.3f}: {selector.best_path}"
+            f"best checkpoint on {selector.config.designs} held-out designs: step {b.step}, within-motion r "
+            f"{b.within_r:.3f}, pooled r {b.pooled_r:.3f}: {selector.best_path}"
         )
+
+
+def train_settings(config: list[str] | None, init: Path | None = None, **flags) -> dict:
+    """The settings `tt train` gives `TrainConfig` (plus its ``online`` and ``selection``
+    tables): the --init checkpoint's network and layout (`tt.dit.train.init_settings`), then
+    the --config items in order, then the flags given (None: not given)."""
+    from tt.dit.train import init_settings
+
+    settings = _config(config, _train_keys(), "--config")
+    if init is not None:
+        task = flags.get("task") or settings.get("task", "robot")
+        settings = {**init_settings(init, task), **settings}
+    settings.update({k: v for k, v in flags.items() if v is not None})
+    return settings
+
+
+def _train_keys() -> dict:
+    """`tt train --config`'s keys: `TrainConfig`'s fields but those its flags set, and the
+    tables [online] (`OnlineConfig`) and [selection] (`SelectionConfig`)."""
+    from tt.dit.online import OnlineConfig
+    from tt.dit.train import TrainConfig
+    from tt.selection import SelectionConfig
+
+    keys = _fields(TrainConfig, exclude=("data", "out", "device", "resume", "init", "online"))
+    keys["online"] = _fields(OnlineConfig)
+    keys["selection"] = _fields(SelectionConfig, exclude=("device",))
+    return keys
 
 
 @app.command()
@@ -1371,58 +1114,46 @@ def generate(
     episodes_per_design: int = typer.Option(10, help="Episodes per design K (augmented training motions)."),
     out: Path = typer.Option(..., help="Dataset folder (zarr v3 store); run the same command again to resume it."),
     device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
-    workers: int = typer.Option(1, help="Shards generated at once: worker processes, or the CPUs of --ray local."),
-    bias: Optional[str] = typer.Option(
-        None, help="Data biasing: cmaes (CMA-ES, population 5, 3 generations per training motion)."
-    ),
+    workers: int = typer.Option(1, help="Shards generated at once: worker processes, or the CPUs of ray=local."),
     seed: int = typer.Option(0, help="Random seed; every shard derives its draws from (seed, shard index)."),
-    ray: Optional[str] = typer.Option(
-        None, help="Distribute shards as Ray tasks: a cluster address, or 'local' (pip install 'tt\\[ray]')."
-    ),
-    designs_per_shard: int = typer.Option(1024, help="Designs per shard: the unit of resume and of distribution."),
-    min_steps: int = typer.Option(100, help="Drop episodes shorter than this many control steps (100 = 2 s)."),
-    action_noise: Optional[float] = typer.Option(
+    config: Optional[List[str]] = typer.Option(
         None,
-        help="Control perturbation: std (rad or m) of Gaussian noise on the executed commands, clean ones logged "
-        "(default: tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01; 0: none).",
-    ),
-    threads: Optional[int] = typer.Option(
-        None,
-        "--threads",
-        min=1,
-        help="CPU threads of each worker's warp rollouts (default: the cores shared out over --workers); the "
-        "dataset is the same for any count.",
-    ),
-    select: int = typer.Option(
-        1,
-        help="Designs screened per kept episode: each motion of a rollout group keeps the best 1/K of the group's "
-        "designs on it (--designs counts the screen), so the data pairs motions with designs chosen for "
-        "them. 1: every episode.",
-    ),
-    uniform_share: float = typer.Option(
-        0.0,
-        help="--select: share of each motion's kept episodes drawn uniformly from the screen instead of the best "
-        "(a critic still sees failures).",
+        "--config",
+        help="More settings: KEY=VALUE or a TOML / JSON file (repeatable), e.g. select=32, bias=cmaes.",
     ),
 ) -> None:
-    """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards."""
-    from tt.generate import BIASES, generate_cmd
+    """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards.
+    \f
+    `--config` takes the keyword arguments of `tt.generate.generate_cmd` that have no flag
+    (each checked by `tt.tokens.draws.GenerateConfig`, an unknown key refused naming the valid
+    ones):
 
-    if bias is not None and bias not in BIASES:
-        _fail(f"--bias {bias!r} does not exist; biases: {', '.join(BIASES)}")
-    _draw_flags(space, seed, action_noise)
+    - `select=K`: designs screened per kept episode: each motion of a rollout group keeps the
+      best 1/K of the group's designs on it (`--designs` counts the screen), so the data pairs
+      motions with designs chosen for them; 1 (default): every episode. `uniform_share=F`:
+      the share of each motion's kept episodes drawn uniformly from the screen instead of the
+      best (a critic still sees failures).
+    - `bias="cmaes"`: the paper's data biasing (CMA-ES, population 5, 3 generations per
+      training motion).
+    - `action_noise=SIGMA`: the control perturbation, the standard deviation [rad or m] of
+      Gaussian noise on the executed commands, clean ones logged (default:
+      tt.tokens.draws.DEFAULT_ACTION_NOISE = 0.01 on warp spaces; 0: none).
+    - `ray="local"` or a cluster address: distribute shards as Ray tasks (pip install 'tt[ray]').
+    - `designs_per_shard` (1024): the unit of resume and of distribution; `min_steps` (100 =
+      2 s): shorter episodes are dropped; `max_motion_steps`: cut training motions; `threads`:
+      CPU threads of each worker's warp rollouts (default: the cores shared out over
+      `--workers`; the dataset is the same for any count).
+    """
+    from tt.generate import generate_cmd
 
-    for flag, value, low in (
-        ("--designs", designs, 1),
-        ("--episodes-per-design", episodes_per_design, 1),
-        ("--workers", workers, 1),
-        ("--designs-per-shard", designs_per_shard, 1),
-        ("--min-steps", min_steps, 1),
-        ("--action-noise", action_noise, 0.0),
-        ("--seed", seed, 0),
-        ("--select", select, 1),
-    ):
-        _at_least(flag, value, low)
+    keys = _signature_keys(
+        generate_cmd,
+        exclude=("space", "designs", "out", "episodes_per_design", "device", "workers", "seed", "progress"),
+    )
+    settings = _config(config, keys, "--config")
+    _at_least("--designs", designs, 1)
+    _at_least("--episodes-per-design", episodes_per_design, 1)
+    _at_least("--workers", workers, 1)
     _output(out, "--out", folder=True)
     typer.echo(
         generate_cmd(
@@ -1432,17 +1163,22 @@ def generate(
             episodes_per_design=episodes_per_design,
             device=device,
             workers=workers,
-            bias=bias,
             seed=seed,
-            ray=ray,
-            designs_per_shard=designs_per_shard,
-            min_steps=min_steps,
-            action_noise=action_noise,
-            threads=threads,
-            select=select,
-            uniform_share=uniform_share,
+            **settings,
         )
     )
+
+
+def _signature_keys(fn, exclude: tuple[str, ...] = ()) -> dict[str, str]:
+    """A function's keyword parameters (name -> annotation text), those in `exclude` left out:
+    the keys `_config` accepts for it."""
+    import inspect
+
+    return {
+        n: p.annotation.__name__ if isinstance(p.annotation, type) else str(p.annotation)
+        for n, p in inspect.signature(fn).parameters.items()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY and n not in exclude
+    }
 
 
 dataset_app = typer.Typer(no_args_is_help=True, help="Inspect RoboToken datasets written by `tt generate`.")
@@ -1497,14 +1233,7 @@ def demo(
     reward: Optional[str] = typer.Option(
         None, help=_REWARD_HELP + " Default: the space's, tracking; aloha: tracking_velocity.", callback=_reward
     ),
-    original: Optional[bool] = typer.Option(
-        None,
-        "--original/--no-original",
-        help="Validate the space's nominal design beside the winners (default: aloha).",
-    ),
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
-    samples: int = typer.Option(16, help="Candidates for Zeroth-Order and Self-Guidance."),
-    num_steps: int = typer.Option(20, help="DDIM steps of Zeroth-Order and Self-Guidance (of 100)."),
     checkpoint: Optional[Path] = typer.Option(
         None, help="DiT checkpoint file or run folder (default: the space's shipped one)."
     ),
@@ -1515,8 +1244,9 @@ def demo(
     """The main job: co-design a robot for a motion with every method; validate; show the winners.
 
     Random and batched CMA-ES always run; Zeroth-Order and Dynamics Self-Guidance run when
-    the space has a shipped DiT checkpoint (or --checkpoint is given). --space aloha: the
-    paper's ALOHA experiment on a fling, the original ALOHA against the optimized designs."""
+    the space has a shipped DiT checkpoint (or --checkpoint is given), with `tt.demo.DemoConfig`'s
+    samples and DDIM steps. --space aloha: the paper's ALOHA experiment on a fling, the
+    original ALOHA validated beside the optimized designs."""
     from rich.console import Console
 
     from tt.demo import DemoConfig, run_demo
@@ -1524,8 +1254,6 @@ def demo(
 
     for flag, value, low in (
         ("--budget", budget, 1),
-        ("--samples", samples, 1),
-        ("--num-steps", num_steps, 1),
         ("--seed", seed, 0),
     ):
         _at_least(flag, value, low)
@@ -1534,13 +1262,10 @@ def demo(
         motion=motion,
         reward=reward,
         budget=budget,
-        samples=samples,
-        num_steps=num_steps,
         checkpoint=checkpoint,
         seed=seed,
         out=out,
         device=device,
-        original=original,
     )
     _output(out, "--out", folder=True)
     rows = run_demo(config, echo=typer.echo)
@@ -1573,9 +1298,8 @@ def tokenize(
 
 @app.command()
 def detokenize(
-    path: Path = typer.Argument(..., help="Tokens .npz (from `tt tokenize --out`)."),
+    path: str = typer.Argument(..., help="Tokens .npz (from `tt tokenize --out`), or tokens.npz#i for robot i."),
     out: Path = typer.Option(..., help="Write the robot's MJCF here (-: stdout)."),
-    index: int = typer.Option(0, help="Which robot of the file."),
     space: Optional[str] = typer.Option(
         None, help="Also fit the design choices of this space (writes OUT.design.json)."
     ),
@@ -1592,7 +1316,12 @@ def detokenize(
     quiet = _on_stdout(("--out", out))
     if quiet and space is not None:
         _fail("--space writes OUT.design.json beside --out's file; give --out a file name, not -")
-    typer.echo(detokenize_cmd(str(path), str(out), index=index, space=space, project=project), err=quiet)
+    file, hash_, tail = path.rpartition("#") if "#" in path else (path, "", "0")
+    try:
+        index = int(tail)
+    except ValueError:
+        _fail(f"{path}: the robot after '#' must be an integer index (tokens.npz#i), got {tail!r}")
+    typer.echo(detokenize_cmd(file, str(out), index=index, space=space, project=project), err=quiet)
 
 
 def _space_ok(space: str) -> bool:

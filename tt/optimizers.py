@@ -66,6 +66,35 @@ def learned_defaults(method: str, space: str, options: dict) -> dict:
     return out
 
 
+def method_keys(method: str) -> dict[str, str]:
+    """The options `get_optimizer(method, ...)` takes (`tt optimize --config`'s keys): each
+    field of the method's config(s) and its type annotation text (`tt.baselines.CMAESConfig`,
+    `tt.guidance.zeroth.SamplerConfig`, `tt.guidance.selfguide.DGSConfig`, and ``verify`` for
+    the -sim hybrids); none for random."""
+    from dataclasses import fields
+
+    from tt.baselines import CMAESConfig
+    from tt.kernels.errors import TTError
+
+    if method not in METHODS:
+        raise TTError(f"unknown method {method!r}; valid: {list(METHODS)}")
+    configs = []
+    if method in ("cmaes", "cmaes-init-model"):
+        configs.append(CMAESConfig)
+    if method in ("zeroth", "zeroth-sim", "cmaes-init-model"):
+        from tt.guidance.zeroth import SamplerConfig
+
+        configs.append(SamplerConfig)
+    if method in ("dgs", "dgs-sim"):
+        from tt.guidance.selfguide import DGSConfig
+
+        configs.append(DGSConfig)
+    keys = {f.name: str(f.type) for c in configs for f in fields(c)}
+    if method.endswith("-sim"):
+        keys["verify"] = "int | None"
+    return keys
+
+
 def get_optimizer(method: str, *, space: str | None = None, **options) -> Optimizer:
     """An optimizer by name; options go to its config (e.g. popsize=8 for cmaes).
 

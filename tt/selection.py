@@ -3,7 +3,7 @@
 The training loss does not say when the model stops improving as a critic. On the full
 ViperX space (`benchmarks/results/dit_ladder_r2c.md`) the dynamics task's held-out r peaked
 at step 2,000-2,500 and then fell to a third of that by step 6,000 while the loss kept
-falling. `tt train --select-designs N` therefore scores every checkpoint the run writes as
+falling. `tt train selection.designs N` therefore scores every checkpoint the run writes as
 `tt predict` would use it (`tt.ladder.score_designs`: predicted against simulated reward of
 N held-out designs x validation motions) and keeps the best one as ``RUN/best.pt``.
 
@@ -68,9 +68,15 @@ class SelectionConfig:
         for name in ("designs", "motions", "num_steps", "samples"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
-                raise TTError(f"SelectionConfig.{name} = {value!r}; must be an integer >= 1")
+                raise TTError(f"selection.{name} = {value!r}; must be an integer >= 1")
         if self.designs < 3:
-            raise TTError(f"SelectionConfig.designs = {self.designs}; a correlation needs at least 3 designs")
+            raise TTError(f"selection.designs = {self.designs}; a correlation needs at least 3 designs")
+        from tt.sim.rewards import REWARDS, reward_name
+
+        try:
+            object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
+        except TTError:
+            raise TTError(f"selection.reward = {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
 
 
 @dataclass(frozen=True)
