@@ -102,10 +102,11 @@ class DesignSpace(ABC):
     #: origin) into this robot's workspace; see `tt.sim.motions.for_space`.
     motion_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: Whether the library's placement at the base (`tt.sim.motions.place_at_base`, the
-    #: paper's convention) holds for this robot. False for the moving-base robots
-    #: (quadruped, mobile bimanual): their motions stay where the skills were written,
-    #: moved by `motion_offset` to the working height; the base placement is not yet tuned
-    #: for a base that walks or rolls.
+    #: paper's convention) holds for this robot. False for the quadruped: its motions stay
+    #: where the skills were written, moved by `motion_offset` to the working height; the
+    #: base placement is not yet tuned for a base that walks. The mobile bimanual robot,
+    #: whose base rolls, keeps it and moves the placed motions in front of its base to its
+    #: hands' height (`motion_offset`).
     places_motions: bool = True
 
     @property

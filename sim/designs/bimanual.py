@@ -56,6 +56,7 @@ from tt.sim.designs.mjcf import (
     servo,
     stiffen_for_gravity,
 )
+from tt.sim.motions.workspace import BIMANUAL_CENTER
 
 SPINES = ("fixed", "sliding", "bending")
 TORSO_PITCH = ("no", "yes")
@@ -100,12 +101,20 @@ _NOMINAL = {
 }
 
 #: Centre of the nominal robot's two-arm workspace in the world frame [m]: the midpoint
-#: of its two home end-effector positions, (0.32, +-0.13, 0.82). Two-arm motions authored
-#: for a fixed station on a table (two arms at y = +-0.3 m on the table top z = 0, as in
-#: ``tt.sim.designs.aloha``, centred near (0.33, 0, 0.25)) are translated by
-#: ``WORKSPACE_CENTER - their centre`` to suit this robot: its base and spine carry the
-#: arms to the targets, which stand at counter height instead of on a low table.
+#: of its two home end-effector positions, (0.32, +-0.13, 0.82): 0.22 m forearm and 0.10 m
+#: hand in front of the shoulders, at 0.20 m base top + 0.80 m spine + 0.04 m shoulder
+#: height - 0.22 m upper arm.
 WORKSPACE_CENTER = (0.32, 0.0, 0.82)
+
+#: Where this robot's motions go (`BimanualSpace.motion_offset`) [m]. Motions are placed as
+#: for every robot, as the paper places its demonstrations (`tt.sim.motions.place_at_base`:
+#: the first pose's mean (x, y) over both hands over the base's centre, heights kept), then
+#: moved forward to where the nominal robot's hands rest, in front of its base, and up from
+#: the library's table (two-arm skills written for two arms at y = +-0.3 m on a table top
+#: z = 0, as in ``tt.sim.designs.aloha``, their region centred at `BIMANUAL_CENTER`) to its
+#: hands' counter height. A demonstration starts with the hands in front of the robot at the
+#: height it was recorded at; the base rolls and the spine carries the arms to it.
+MOTION_OFFSET = (WORKSPACE_CENTER[0], 0.0, WORKSPACE_CENTER[2] - BIMANUAL_CENTER[2])
 
 #: Base and trunk joints: (axis, range, kp, force, armature, damping), kind.
 #: Base slides [m, N/m, N, kg, N s/m]; hinges [rad, N m/rad, N m, kg m^2, N m s/rad]. The
@@ -169,9 +178,7 @@ class BimanualSpace(DesignSpace):
 
     name = "bimanual"
     ee_count = 2
-    # Library two-arm motions are centred at (0.33, 0, 0.25) for table-top arms.
-    motion_offset = tuple(float(c - t) for c, t in zip(WORKSPACE_CENTER, (0.33, 0.0, 0.25)))
-    places_motions = False
+    motion_offset = MOTION_OFFSET
 
     def discrete_params(self, discrete: Sequence[int]) -> tuple[DiscreteParam, ...]:
         return (DiscreteParam("spine", SPINES), DiscreteParam("torso_pitch", TORSO_PITCH))

@@ -388,9 +388,11 @@ def for_space(motions: Sequence[Motion], space: str) -> list[Motion]:
     """Library motions moved into the workspace of design space `space` (its `motion_offset`).
 
     Motions start over the base (`place_at_base`); a space that does not use that placement
-    (`DesignSpace.places_motions`, the moving-base robots) gets them back where they were
-    written, for table-top arms at the origin. A robot whose hands work at counter height (the
-    mobile bimanual) declares the translation that puts them there.
+    (`DesignSpace.places_motions`, the quadruped) gets them back where they were written, for
+    table-top arms at the origin. A robot whose hands work in front of its base at counter
+    height (the mobile bimanual, `tt.sim.designs.bimanual.MOTION_OFFSET`) declares the
+    translation that puts them there, recorded in ``meta["space_offset"]``: the motion as
+    written is ``pos - space_offset - placed_shift``.
     """
     from tt.sim.designs import get_space
 
