@@ -99,10 +99,11 @@ def score_episode(
 
 
 def _models(
-    sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None
+    sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None, progress: bool = False
 ) -> list[mujoco.MjModel]:
     """`sp.models(designs)`, one worker process per rollout thread for large batches; on
-    "warp", this process meanwhile loads the rollout kernels of the batch's structures.
+    "warp", this process meanwhile loads the rollout kernels of the batch's structures
+    (progress: with the bar of `tt.sim.rollout.load_rollout_kernels` where some compile).
 
     A cached module loads in milliseconds, but one missing from Warp's kernel cache takes
     seconds to build (about 12 s per fused rollout module here), and the workers leave this
@@ -126,7 +127,15 @@ def _models(
 
     def preload() -> None:
         try:
-            preload_rollout_kernels([sp.model(d) for d in firsts.values()], sp.ee_sites(), device)
+            models = [sp.model(d) for d in firsts.values()]
+            if progress:  # compiles counted on a bar; the preload below then finds them loaded
+                from tt.kernels.model import topology_of
+                from tt.kernels.rollout import rollout_kernels
+                from tt.sim.rollout import load_rollout_kernels
+
+                modules = [rollout_kernels(topology_of(m, sp.ee_sites())).module for m in models]
+                load_rollout_kernels(modules, device, progress=True)
+            preload_rollout_kernels(models, sp.ee_sites(), device)
         except Exception:  # the rollout loads the same modules next and reports the error there
             logger.debug("preloading the rollout kernels failed", exc_info=True)
 
@@ -170,7 +179,7 @@ def evaluate_designs(
     # worker processes, one per rollout thread.
     models = sp.trees(designs) if backend == "warp" else None
     if models is None:
-        models = _models(sp, designs, backend=backend, device=device, threads=threads)
+        models = _models(sp, designs, backend=backend, device=device, threads=threads, progress=progress)
     ep = run_rollout(
         # "warp" and "mjbatch" run the models built here; the others import MJCF or build their own.
         models if backend in ("warp", "mjbatch") else designs,
@@ -192,6 +201,7 @@ def warm_up(
     reward: str = "tracking",
     backend: str = "warp",
     device: str | None = None,
+    progress: bool = False,
 ) -> float:
     """Compile (or load from Warp's kernel cache) what evaluating `designs` needs; seconds taken.
 
@@ -202,6 +212,8 @@ def warm_up(
     reward); in a warm process it costs the models' build (milliseconds per design).
     Candidates that keep a design's discrete choices share its topology. The "mujoco" oracle
     compiles nothing; one short episode takes its first-call costs out of the timings.
+    progress: tqdm bars on stderr, among them, on "warp", one counting the topologies whose
+    kernels are compiled (none when all are in the kernel cache; see `tt.sim.rollout.rollout_records`).
     """
     start = time.perf_counter()
     if not designs or not motions:
@@ -220,7 +232,7 @@ def warm_up(
         for d in by_discrete.values():
             by_topology.setdefault(topology_key(sp.model(d), sp.ee_sites()), d)
         chosen = list(by_topology.values())
-    evaluate_designs(chosen, [short], reward, backend=backend, device=device)
+    evaluate_designs(chosen, [short], reward, backend=backend, device=device, progress=progress)
     return time.perf_counter() - start
 
 

@@ -337,6 +337,31 @@ def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequen
             wp.load_module(rollout_kernels(topology_of(model, ee_sites)).module, device=device)
 
 
+def module_built(module: str, device: str) -> bool:
+    """Whether Warp module `module` loads on `device` without a compile: it is loaded there
+    already, or its binary and metadata are in Warp's kernel cache (``wp.config.kernel_cache_dir``).
+
+    Costs the module's hash, which its first load computes anyway and keeps (no code
+    generation for tt's modules, see `tt.kernels.generated`), and two file checks. The cache
+    paths are Warp's own (``Module.load``'s): the variant a plain launch loads (block_dim 1 on
+    the CPU, the module's default on CUDA). Where this Warp names its files otherwise, the
+    module counts as built: the answer only decides whether to show a compile's progress.
+    """
+    wp.init()
+    dev = wp.get_device(device)
+    m = wp.get_module(module)
+    block_dim = 1 if dev.is_cpu else m.options["block_dim"]
+    if (dev.context, block_dim) in m.execs:
+        return True
+    try:
+        folder = os.path.join(wp.config.kernel_cache_dir, m.get_module_identifier(block_dim))
+        binary = m._get_compile_output_name(dev, block_dim=block_dim)
+        meta = m._get_meta_name(block_dim=block_dim)
+    except (AttributeError, TypeError):  # another Warp's private API
+        return True
+    return os.path.exists(os.path.join(folder, binary)) and os.path.exists(os.path.join(folder, meta))
+
+
 def load_differentiable(topology: Topology, device: str) -> SimpleNamespace:
     """`grad_kernels(topology)`, built and loaded on `device`.
 

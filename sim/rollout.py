@@ -180,6 +180,18 @@ def rollout_records(
         pos[j], quat[j] = motion.pos[idx], motion.quat[idx]
     marrays = motion_arrays(pos, quat, [motion.steps for motion in motions], device=device)
     logger.debug("warp rollout: %d designs in %d topology group(s), %d motions, T=%d", len(models), len(groups), M, T)
+    import warp as wp
+
+    workers = cpu_threads(threads)
+    at_once = GROUPS_AT_ONCE and len(groups) > 1 and workers > 1 and not graph and not wp.get_device(device).is_cuda
+    modules = [rollout_kernels(fields.topology).module for _, fields in groups]
+    compiling = _compile_bar(modules, device) if progress else None
+    if compiling is not None and not at_once:
+        # One group after another: every compile first, so that its bar ends before stepping.
+        for module in modules:
+            _load(module, device, compiling)
+        _close(compiling)
+        compiling = None
     bar = None
     if progress:
         from tqdm import tqdm
@@ -200,10 +212,7 @@ def rollout_records(
         )  # fmt: skip
         return list(members), arrays
 
-    import warp as wp
-
-    workers = cpu_threads(threads)
-    if GROUPS_AT_ONCE and len(groups) > 1 and workers > 1 and not graph and not wp.get_device(device).is_cuda:
+    if at_once:
         # Several topologies on several CPU threads: every group runs at once from its own
         # driver thread, its slices queued on one shared pool of `workers` threads, so that one
         # group's Python work (model upload, allocation) and its chunk barriers overlap the
@@ -216,15 +225,76 @@ def rollout_records(
             ThreadPoolExecutor(len(groups), thread_name_prefix="tt-group") as drivers,
         ):
             started = []
-            for group in groups:
-                wp.load_module(rollout_kernels(group[1].topology).module, device=device)
+            for group, module in zip(groups, modules):
+                _load(module, device, compiling)
                 started.append(drivers.submit(run, group, pool))
+            _close(compiling)
             results = [future.result() for future in started]
     else:
         results = [run(group) for group in groups]
     if bar is not None:
         bar.close()
     return results
+
+
+#: The line above the compile bar: what is compiled and that it happens once.
+COMPILE_NOTE = (
+    "compiling Warp kernels for {pending} of {total} robot structure(s) on {device}: once per structure "
+    "(topology), then loaded from Warp's kernel cache ({cache})"
+)
+
+
+def load_rollout_kernels(modules: Sequence[str], device: str, *, progress: bool = False) -> None:
+    """Build (or load from Warp's kernel cache) the fused rollout modules `modules`
+    (`tt.kernels.rollout.rollout_kernels(topology).module`) on `device`, as a first launch would.
+
+    progress: where some are neither loaded nor cached (`tt.kernels.rollout.module_built`),
+    `COMPILE_NOTE` and a tqdm bar counting their compiles on stderr (a compile takes one to two
+    minutes on a loaded 2-core CPU, loading a cached module milliseconds). Checking costs each
+    module's hash, which its load computes anyway.
+    """
+    compiling = _compile_bar(modules, device) if progress else None
+    try:
+        for module in dict.fromkeys(modules):
+            _load(module, device, compiling)
+    finally:
+        _close(compiling)
+
+
+def _compile_bar(modules: Sequence[str], device: str):
+    """None where every module in `modules` is built (`module_built`); else `COMPILE_NOTE` and
+    a tqdm bar (stderr) over those that are not, their names in its ``pending`` attribute."""
+    import sys
+
+    import warp as wp
+    from tqdm import tqdm
+
+    from tt.kernels.rollout import module_built
+
+    names = set(modules)
+    pending = {name for name in names if not module_built(name, device)}
+    if not pending:
+        return None
+    note = COMPILE_NOTE.format(pending=len(pending), total=len(names), device=device, cache=wp.config.kernel_cache_dir)
+    tqdm.write(note, file=sys.stderr)
+    bar = tqdm(total=len(pending), desc="compiling kernels", unit="topology", file=sys.stderr)
+    bar.pending = pending
+    return bar
+
+
+def _load(module: str, device: str, compiling) -> None:
+    """Build or load `module` on `device`, counting a pending build on the compile bar."""
+    import warp as wp
+
+    wp.load_module(module, device=device)
+    if compiling is not None and module in compiling.pending:
+        compiling.pending.discard(module)
+        compiling.update(1)
+
+
+def _close(compiling) -> None:
+    if compiling is not None:
+        compiling.close()
 
 
 def _tree_groups(models: "Sequence[mujoco.MjModel] | DesignTrees", sites: tuple[str, ...]) -> list:
@@ -352,4 +422,4 @@ def _rollout_warp(
     )
 
 
-__all__ = ["DEFAULT_CHUNK", "group_episode", "rollout", "rollout_records"]
+__all__ = ["COMPILE_NOTE", "DEFAULT_CHUNK", "group_episode", "load_rollout_kernels", "rollout", "rollout_records"]
