@@ -232,8 +232,8 @@ class TrainConfig:
             raise TTError(f"give training data either as a dataset (--data {self.data}) or --online, not both")
         self.task_names()  # validates
         self.model_config()  # validates size and time_ids
-        if self.lr is not None and not self.lr > 0:
-            raise TTError(f"lr must be > 0, got {self.lr}")
+        if self.lr is not None and not self.lr >= 0:
+            raise TTError(f"lr must be >= 0 (0: the weights stay), got {self.lr}")
         if self.loss not in ("huber", "mse"):
             raise TTError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
