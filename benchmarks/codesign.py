@@ -134,7 +134,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     if method in (CMAES_B, CMAES_T):
         return CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
     from tt.guidance.hybrid import ModelInitCMAES, SimVerified, VerifyConfig
-    from tt.guidance.selfguide import CRITIC_PLACES, DGSConfig, DynamicsSelfGuidance
+    from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
     def zeroth() -> ZerothOrder:
@@ -155,19 +155,21 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
     variants = {critic_label(*v): v for v in guidance_variants(args)}
     if method in variants:
-        scale, eta, at, first, refine, form = variants[method]
+        scale, eta, _, _, refine, _ = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
-            first = args.steps
+            return ZerothOrder(
+                SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples, eta=eta, refine=refine),
+                model=learned.trained,
+                decoder=learned.decoder,
+                critic_model=learned.critic,
+            )
         config = DGSConfig(
             num_steps=args.steps,
             critic_samples=args.critic_samples,
             guide_by="critic",
             scale=scale,
             eta=eta,
-            guide_start=first,
             refine=refine,
-            refine_form=form,
-            **CRITIC_PLACES[at],
         )
         return DynamicsSelfGuidance(config, model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
@@ -203,11 +205,8 @@ def guidance_variants(args) -> list[tuple[float, float, str, int, int, str]]:
     guides only the decoded design (one variant per eta and refinement, whatever the place
     and first step)."""
     out = [
-        (s, e, a, f, r, args.guidance_refine_form)
+        (s, e, "tokens", 0, r, "reward")
         for r in _ints(args.guidance_refine)
-        for f in _ints(args.guidance_starts)
-        for a in args.guidance_at.split(",")
-        if a
         for e in _floats(args.guidance_etas)
         for s in _floats(args.guidance_scales)
         if s != 0 or r > 0
@@ -876,7 +875,6 @@ def _floats(text: str) -> list[float]:
 
 
 def main() -> None:
-    from tt.guidance.critic_grad import FORMS
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
@@ -933,33 +931,11 @@ def main() -> None:
         "--guidance-etas", default="1", help="guidance: DDIM eta of critic-steered Self-Guidance (each scale)"
     )
     ap.add_argument(
-        "--guidance-at",
-        default="tokens",
-        help="guidance: where the critic's gradient is taken (each scale and eta): comma-separated: "
-        "tokens (x0_hat's), design (the decoded design's), project (the decoded design's, and each "
-        "guided step continues from it), continuous (x0_hat's, moving only the continuous attributes "
-        "of its real tokens), start (x0_hat's, plus the term through the decoded design's simulated "
-        "start)",
-    )
-    ap.add_argument(
-        "--guidance-starts",
-        default="0",
-        help="guidance: comma-separated first guided DDIM steps (0 = noisiest; the steps before sample "
-        "unguided, `DGSConfig.guide_start`), each with every scale, eta and place",
-    )
-    ap.add_argument(
         "--guidance-refine",
         default="0",
         help="guidance: comma-separated iterations of critic refinement of the returned design "
         "(`tt.guidance.refine`, `SamplerConfig.refine`; 0: none), each with every other setting; "
         "scale 0 in --guidance-scales guides no token step, only the decoded design",
-    )
-    ap.add_argument(
-        "--guidance-refine-form",
-        choices=FORMS,
-        default="reward",
-        help="guidance: what refinement climbs (`SamplerConfig.refine_form`): the critic's predicted "
-        "reward, or its smooth stand-in (log; `tt.sim.rewards.log_reward`)",
     )
     ap.add_argument(
         "--critic-samples",
@@ -1004,13 +980,6 @@ def main() -> None:
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
     if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
         sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
-    from tt.guidance.selfguide import CRITIC_PLACES
-
-    if sorted(set(a for a in args.guidance_at.split(",") if a) - set(CRITIC_PLACES)) or not args.guidance_at.strip(","):
-        sys.exit(f"--guidance-at: {args.guidance_at!r}; valid: {', '.join(CRITIC_PLACES)}")
-    starts = _ints(args.guidance_starts)
-    if not starts or any(not 0 <= f < args.steps for f in starts):
-        sys.exit(f"--guidance-starts: {args.guidance_starts!r}; each must be a DDIM step in 0..{args.steps - 1}")
     if args.critic_samples < 1:
         sys.exit(f"--critic-samples {args.critic_samples}: must be >= 1")
     refines = _ints(args.guidance_refine)

@@ -23,31 +23,11 @@ decodes to (projected onto the nearest structure when it has none exactly). By d
 start is a constant of the gradient: it moves with the design, but not differentiably.
 Candidates that do not decode get a zero gradient and are counted.
 
-Through the start (``through_start``): most of what a change of the design does to the
-reward goes through where the design starts (on R1, critic differences along random design
-directions follow the simulator's at r = 0.82 with the start re-simulated and 0.28 with it
-held fixed, `benchmarks/results/critic_start.md`). So the gradient adds the start's term,
-
-    d R / d c  +=  (d R / d start) (d start / d c),
-
-with d R / d start by autograd through the critic, d start / d c by central differences of
-the simulated start over the design's continuous choices c (`START_REL_STEP` of each range;
-one batched one-step rollout for all of them), carried to x0_hat's tokens as the simulator's
-gradient is (`tt.guidance.simgrad.tokens_from_choice_gradient`: the least-squares decode,
-linearised). Candidates that decode to a design of exactly their token structure get
-it on their own slots; a candidate projected onto another structure gets it on the slots that
-structure uses, by position, as the gradient at the decoded design lands (counted).
-
-Where the gradient is taken (`AT`): by default at x0_hat's own tokens (in the critic's units
-when its normaliser differs from the sampler's), so it is the gradient of the tokens the
-sampler moves. With ``at="design"`` it is taken at the tokens of the design x0_hat decodes
-to, the question the critic ranks designs by (its held-out r is measured there), and lands
-on x0_hat's slots: the direction in which the nearest real design's tokens improve. Noisy
-x0_hat lie off the designs' token manifold (most winners are projected onto a structure
-edit distances of ~20 away), where the critic was never trained. On ViperX at n = 1 it did
-worse than the default (validated reward 29 against 142 over 9 seeds,
-benchmarks/results/codesign_guidance_design.md): the designs noisy x0_hat decode to are poor
-places to take the gradient.
+The gradient is taken at x0_hat's own tokens (in the critic's units when its normaliser
+differs from the sampler's), so it is the gradient of the tokens the sampler moves. Taking
+it at the decoded design's tokens, moving x0_hat onto that design, moving only the
+continuous attributes, or adding a term through the simulated start all lost on ViperX and
+were taken out (docs/experiments.md).
 """
 
 from __future__ import annotations
@@ -55,11 +35,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
 from tt.dit.checkpoint import TrainedModel
-from tt.dit.layout import robot_embodiment
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, PredictedReward, build_query, start_tokens, with_start
 from tt.kernels.errors import TTError
 from tt.sim.designs import get_space
@@ -79,15 +57,6 @@ NO_TERMINATION = 1e6
 #: most sampled designs are predicted to have, its log is not); "reward", the predicted reward.
 FORMS = ("log", "reward")
 
-#: Where the gradient is taken: "tokens", at x0_hat's own embodiment tokens; "design", at the
-#: tokens of the design x0_hat decodes to (module docstring).
-AT = ("tokens", "design")
-
-#: Central-difference step of the start's derivative along each continuous choice, as a share
-#: of the choice's range: the start is one float32 control step after an iterative IK, so a
-#: step much smaller would difference its rounding.
-START_REL_STEP = 1e-2
-
 
 @dataclass
 class CriticStats:
@@ -95,17 +64,13 @@ class CriticStats:
     differentiated; decode_failures: candidate-steps whose x0_hat did not decode (a start-aware
     critic needs the design; zero gradient); nonfinite_entries: gradient entries set to 0;
     objective_trace: per step of the last call, the mean over candidates of the critic's
-    objective at x0_hat (the form's, guidance alphas, no termination unless asked);
-    start_terms / start_projected: candidate-steps that got the start's term / of them, the
-    ones decoded by projection onto another structure (``through_start``)."""
+    objective at x0_hat (the form's, guidance alphas, no termination unless asked)."""
 
     steps: int = 0
     candidates: int = 0
     decode_failures: int = 0
     nonfinite_entries: int = 0
     objective_trace: list[float] = field(default_factory=list)
-    start_terms: int = 0
-    start_projected: int = 0
 
 
 class CriticGradient:
@@ -118,9 +83,7 @@ class CriticGradient:
     (`tt.guidance.zeroth.Decoder`), needed by a start-aware critic; num_steps: the critic's
     DDIM steps; seed: of the critic's sampling noise, the same at every step so the objective
     does not jitter; terminate: keep the reward's termination (default off: every query step
-    counts, see `NO_TERMINATION`); form: what is differentiated (`FORMS`); at: where (`AT`;
-    "design" needs the decoder); through_start: add the start's term (module docstring; a
-    start-aware critic, at="tokens"); start_rel_step: its central-difference step.
+    counts, see `NO_TERMINATION`); form: what is differentiated (`FORMS`).
     """
 
     def __init__(
@@ -134,9 +97,6 @@ class CriticGradient:
         seed: int = 0,
         terminate: bool = False,
         form: str = "log",
-        at: str = "tokens",
-        through_start: bool = False,
-        start_rel_step: float = START_REL_STEP,
     ):
         if not critic.trained_on("dynamics"):
             raise TTError(
@@ -152,28 +112,10 @@ class CriticGradient:
             raise TTError(f"num_steps = {num_steps}; must be >= 1")
         if form not in FORMS:
             raise TTError(f"form = {form!r}; valid: {list(FORMS)}")
-        if at not in AT:
-            raise TTError(f"at = {at!r}; valid: {list(AT)}")
-        if at == "design" and decoder is None:
-            raise TTError("the critic's gradient at the decoded design needs a decoder")
-        if through_start and not critic.dynamics_start:
-            raise TTError(
-                "through_start differentiates the critic's start: it needs a critic trained told the start "
-                "(--dynamics-start)"
-            )
-        if through_start and at != "tokens":
-            raise TTError(f"through_start adds to the gradient at x0_hat's tokens, not at={at!r}")
-        if not 0 < start_rel_step < 0.5:
-            raise TTError(f"start_rel_step = {start_rel_step}; must be in (0, 0.5)")
-        self.through_start, self.start_rel_step = bool(through_start), float(start_rel_step)
         # A design predicted to terminate at its first counted step scores a flat 0 around it, so
         # its gradient says nothing; without termination it still points to smaller error.
         self.cfg = cfg if terminate else dataclasses.replace(cfg, threshold=NO_TERMINATION)
-        self.critic, self.decoder, self.form, self.at = critic, decoder, form, at
-        #: at="design": (rows, tokens) of the last call, the candidates that decoded and their
-        #: designs' embodiment tokens (type -> (len(rows), L, D), `normalizer`'s units), which
-        #: `SelfGuidance(project=True)` moves x0_hat to.
-        self.anchor: tuple[list[int], dict[str, torch.Tensor]] | None = None
+        self.critic, self.decoder, self.form = critic, decoder, form
         self.normalizer = critic.normalizer if normalizer is None else normalizer
         self.num_steps, self.seed = int(num_steps), int(seed)
         self.stats = CriticStats()
@@ -186,8 +128,6 @@ class CriticGradient:
             "decode_failures": s.decode_failures,
             "nonfinite_grad_entries": s.nonfinite_entries,
             "objective_trace": list(s.objective_trace),
-            "start_terms": s.start_terms,
-            "start_projected": s.start_projected,
         }
 
     def reset(self) -> None:
@@ -260,8 +200,8 @@ class CriticGradient:
         n = x0[names[0]].shape[0]
         device = x0[names[0]].device
         ok = list(range(n))
-        first = models = None
-        if critic.dynamics_start or self.at == "design":
+        first = None
+        if critic.dynamics_start:
             decoded = decode_x0(layout, self.normalizer, x0, ctx.queries[0].tokens, self.decoder)
             ok = [i for i in range(n) if decoded[i].design is not None]
             self.stats.decode_failures += n - len(ok)
@@ -269,28 +209,15 @@ class CriticGradient:
                 designs = [decoded[i].design for i in ok]
                 space = get_space(designs[0].space)
                 models = [space.model(d) for d in designs]
-                if critic.dynamics_start:
-                    first = start_tokens(layout, critic.normalizer, designs, ctx.motions, models=models, device=device)
+                first = start_tokens(layout, critic.normalizer, designs, ctx.motions, models=models, device=device)
         self.stats.steps += 1
-        self.anchor = ([], {})
         if not ok:
             return out
         rows = torch.as_tensor(ok, dtype=torch.long, device=device)
-        if self.at == "design":
-            tokens, _ = robot_embodiment(layout, self.normalizer, models, device)
-            point = {k: tokens.values[k].detach().to(x0[k].dtype) for k in names}
-            self.anchor = (ok, point)
-        else:
-            point = {k: x0[k].detach()[rows] for k in names}
-        leaf = {k: point[k].clone().requires_grad_(True) for k in names}
-        starts = {k: v.clone().requires_grad_(True) for k, v in first.items()} if self.through_start else {}
+        leaf = {k: x0[k].detach()[rows].clone().requires_grad_(True) for k in names}
         with torch.enable_grad():
-            value = self.objective(ctx, leaf, starts or first)
-            grads = torch.autograd.grad(
-                value.sum(), [leaf[k] for k in names] + list(starts.values()), allow_unused=True
-            )
-        start_grads = dict(zip(starts, grads[len(names) :]))
-        grads = grads[: len(names)]
+            value = self.objective(ctx, leaf, first)
+            grads = torch.autograd.grad(value.sum(), [leaf[k] for k in names], allow_unused=True)
         self.stats.objective_trace.append(float(value.detach().mean()))
         for k, g in zip(names, grads):
             if g is None:
@@ -301,68 +228,7 @@ class CriticGradient:
                 g = torch.where(bad, torch.zeros_like(g), g)
             out[k][rows] = g.to(out[k].dtype)
         self.stats.candidates += len(ok)
-        if start_grads:
-            self._add_start_term(ctx, out, x0, ok, decoded, models, start_grads)
         return out
 
-    def _add_start_term(
-        self,
-        ctx,
-        out: dict[str, torch.Tensor],
-        x0: dict[str, torch.Tensor],
-        ok: list[int],
-        decoded,
-        models,
-        start_grads: dict[str, torch.Tensor | None],
-    ) -> None:
-        """Add (dR/dstart)(dstart/dc), carried to tokens, to `out` for the candidates of `ok`
-        (all decoded; models: their designs' compiled models). start_grads: type -> (M,
-        len(ok), P, D), dR/d(step-0 tokens)."""
-        from tt.guidance.simgrad import (
-            design_stencil,
-            place_token_gradient,
-            token_jacobian,
-            tokens_from_choice_gradient,
-        )
 
-        pairs = list(enumerate(ok))
-        designs = [decoded[i].design for _, i in pairs]
-        space = get_space(designs[0].space)
-        # Each design's own token slots: x0_hat's where it decoded exactly; where it was
-        # projected onto another structure, the term lands on the slots that structure uses
-        # (by position, as the gradient at="design" does).
-        device = next(iter(x0.values())).device
-        own, _ = robot_embodiment(self.critic.layout, self.normalizer, models, device)
-        self.stats.start_projected += sum(decoded[i].distance > 0 for i in ok)
-        stencils = [design_stencil(space, d, self.start_rel_step) for d in designs]
-        moved = start_tokens(
-            self.critic.layout,
-            self.critic.normalizer,
-            [d for st, _ in stencils for d in st],
-            ctx.motions,
-            device=device,
-        )  # type -> (M, sum of 2 p, P, D)
-        at = 0
-        for (r, i), design, (_, span) in zip(pairs, designs, stencils):
-            real = {n: own.mask[n][r].bool() for n in own.mask if n in out}
-            p = len(span)
-            grad_c = np.zeros(p)
-            for name, g in start_grads.items():
-                if g is None:
-                    continue
-                s = moved[name][:, at : at + 2 * p].double()
-                ds_dc = (s[:, 0::2] - s[:, 1::2]) / torch.as_tensor(span, dtype=torch.float64)[None, :, None, None]
-                grad_c += torch.einsum("mjpd,mpd->j", ds_dc, g[:, r].double()).cpu().numpy()
-            at += 2 * p
-            place_token_gradient(
-                out,
-                i,
-                tokens_from_choice_gradient(token_jacobian(space, design), grad_c),
-                self.normalizer,
-                real,
-                add=True,
-            )
-        self.stats.start_terms += len(pairs)
-
-
-__all__ = ["AT", "FORMS", "NO_TERMINATION", "START_REL_STEP", "CriticGradient", "CriticStats"]
+__all__ = ["FORMS", "NO_TERMINATION", "CriticGradient", "CriticStats"]

@@ -10,10 +10,6 @@ c (link lengths, masses, gains, mount offsets, in units of each choice's range) 
 
     J(c) = the critic's predicted reward of the design, mean over the problem's motions
 
-(or, with ``form`` "log", its smooth stand-in `tt.sim.rewards.log_reward`: minus the summed
-squared errors, each over its sigma, less the effort and embodiment penalties, which still has
-a slope where the reward's exp(-e^2 / sigma) terms have all but vanished; `critic_grad.FORMS`)
-
 (`tt.guidance.predicted.predict_designs`, each design's first control step re-simulated,
 as `tt predict` asks), with its gradient by central differences over c (half step
 ``rel_step``, `tt.guidance.stencil`: a step that would leave the range is cut at the bound), and a line search
@@ -42,7 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from tt.dit.checkpoint import TrainedModel
-from tt.guidance.critic_grad import FORMS, NO_TERMINATION
+from tt.guidance.critic_grad import NO_TERMINATION
 from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
 from tt.guidance.stencil import central_points, choice_bounds
 from tt.kernels.errors import TTError
@@ -60,10 +56,8 @@ class RefineConfig:
     critic's DDIM steps; terminate: keep the reward's termination in J (False: every query
     step counts, as critic guidance's gradient does, `tt.guidance.critic_grad.NO_TERMINATION`;
     a design predicted to stop at its first step then still has a slope); check: a step must
-    also raise J under a second noise draw (module docstring); form: what J is
-    (`tt.guidance.critic_grad.FORMS`): "reward", the predicted reward, or "log", its smooth
-    stand-in (module docstring), which only goes without termination (its per-step terms are
-    negative, so an episode that stops early would score higher).
+    also raise J under a second noise draw (module docstring). (Climbing the reward's smooth
+    log stand-in instead lost to the reward: docs/experiments.md.)
     """
 
     iterations: int = 5
@@ -73,16 +67,8 @@ class RefineConfig:
     num_steps: int = CRITIC_DDIM_STEPS
     terminate: bool = False
     check: bool = True
-    form: str = "reward"
 
     def __post_init__(self) -> None:
-        if self.form not in FORMS:
-            raise TTError(f"form = {self.form!r}; must be one of {list(FORMS)}")
-        if self.form == "log" and self.terminate:
-            raise TTError(
-                "form 'log' with terminate: the log form's steps are negative, so the climb would "
-                "favour designs predicted to stop early; climb it without termination"
-            )
         if self.iterations < 1:
             raise TTError(f"iterations = {self.iterations}; must be >= 1")
         if not 0 < self.rel_step < 0.5:
@@ -182,9 +168,8 @@ def refine_designs(
             device=device,
             via="dynamics",
             common_noise=True,
-            log=config.form == "log",
         )
-        value = (pred.log_reward if config.form == "log" else pred.reward).mean(axis=1)
+        value = pred.reward.mean(axis=1)
         return np.where(np.isfinite(value), value, -np.inf)
 
     n = len(designs)

@@ -32,8 +32,10 @@ simulator gradient.
 
 Critic guidance (``guide_by="critic"``): R's gradient comes from a dynamics critic's
 prediction for x0_hat's embodiment instead of the sampling model's own jointly sampled
-dynamics (`tt.guidance.critic_grad`): grad = (1 - lambda) grad R_critic + lambda grad R_sim.
-``guide_start`` skips guidance at the noisiest steps, where x0_hat is no design yet.
+dynamics (`tt.guidance.critic_grad`): grad = (1 - lambda) grad R_critic + lambda grad R_sim,
+the critic's gradient taken at x0_hat's own tokens. The other places tried (at the decoded
+design, projected onto it, the continuous attributes only, through the simulated start) and
+a late guidance start lost on ViperX and were taken out (docs/experiments.md).
 
 At the decoded design (``refine``, `SamplerConfig`'s): once sampling has ended, the
 returned design's continuous choices climb the critic's prediction along its central
@@ -57,35 +59,6 @@ from tt.kernels.errors import TTError
 
 #: What the guidance gradient differentiates (`DGSConfig.guide_by`).
 GUIDES = ("model", "critic")
-
-#: Where critic guidance steers (`tt optimize --critic-at`, `benchmarks/codesign.py
-#: --guidance-at`), as `DGSConfig` options: at x0_hat's tokens, at the design x0_hat decodes
-#: to, from that design (every guided step continues from it), at x0_hat's tokens with
-#: the structure left as sampled (only continuous attributes of real tokens steered), or at
-#: x0_hat's tokens and through the decoded design's simulated start.
-CRITIC_PLACES: dict[str, dict] = {
-    "tokens": {"critic_at": "tokens", "project": False, "continuous_only": False},
-    "design": {"critic_at": "design", "project": False, "continuous_only": False},
-    "project": {"critic_at": "design", "project": True, "continuous_only": False},
-    "continuous": {"critic_at": "tokens", "project": False, "continuous_only": True},
-    "start": {"critic_at": "tokens", "project": False, "continuous_only": False, "through_start": True},
-}
-
-
-def continuous_columns(name: str, width: int, device=None) -> torch.Tensor:
-    """(width,) bool: the value columns of embodiment type `name` that are not binary codes
-    (`tt.tokens.schema.Encoding.BINARY`: geometry and joint types, contact, IDs), i.e. what
-    can change without changing the design's structure."""
-    from tt.tokens.schema import SCHEMA, Encoding
-
-    spec = SCHEMA[name]
-    if spec.width != width:
-        raise TTError(f"token type {name!r} has {width} values here; its schema has {spec.width}")
-    cols = torch.ones(width, dtype=torch.bool, device=device)
-    for a in spec.attributes:
-        if a.encoding is Encoding.BINARY:
-            cols[spec.slice(a.name)] = False
-    return cols
 
 
 # ------------------------------------------------------------------------------ scales
@@ -168,57 +141,18 @@ class SelfGuidance:
     scale: s; sim: a `tt.guidance.simgrad.SimGradient` (or anything with its
     ``token_gradient``), required when sim_weight > 0; sim_weight: lambda in [0, 1];
     critic: a `tt.guidance.critic_grad.CriticGradient` (or anything with its
-    ``token_gradient``) whose gradient replaces the model's own objective's; start_step:
-    first guided step (0 = noisiest; the earlier ones keep the model's eps); project: move
-    x0_hat onto the design it decodes to before the step (the critic's ``anchor``, a
-    `CriticGradient` with at="design"), plus a step along the critic's x0-gradient g0 at
-    that design, normalised per candidate to unit RMS:
-
-        x0' = e_design + s (1 - abar_t) g0 / rms(g0),   eps' = (x_t - sqrt(abar_t) x0') / sqrt(1 - abar_t)
-
-    so every guided step continues from a real design, whose tokens the critic was trained
-    on. Here s is the RMS token change (normalised units) of a step at full noise, shrinking
-    to 0 at the clean end; the gradient is normalised because its size in x0 has no scale
-    the sampler knows (without projection the network's Jacobian damps the noisy steps).
-    Candidates that do not decode move from x0_hat itself. Measured on ViperX at n = 1 it
-    loses to guidance at x0_hat's tokens (benchmarks/results/codesign_guidance_project.md).
-
-    continuous_only: the guided eps moves only the continuous attributes of the tokens x0_hat
-    holds as real (`continuous_columns`; `tt.tokens.is_padding`), so guidance tunes the
-    sampled structure's lengths, masses and gains and never adds, drops or recodes a token
-    (at n = 1 even small unrestricted steps change, on some seeds, which structure the
-    sample decodes to: benchmarks/results/codesign_guidance_eta0.md).
+    ``token_gradient``) whose gradient replaces the model's own objective's.
     """
 
-    def __init__(
-        self,
-        scale: float,
-        *,
-        sim=None,
-        sim_weight: float = 0.0,
-        critic=None,
-        start_step: int = 0,
-        project: bool = False,
-        continuous_only: bool = False,
-    ):
+    def __init__(self, scale: float, *, sim=None, sim_weight: float = 0.0, critic=None):
         if not 0.0 <= sim_weight <= 1.0:
             raise TTError(f"sim_weight = {sim_weight}; must be in [0, 1]")
         if sim_weight > 0 and sim is None:
             raise TTError("sim_weight > 0 needs a simulator gradient (sim=SimGradient(...))")
-        if project and (critic is None or getattr(critic, "at", None) != "design" or sim_weight > 0):
-            raise TTError(
-                "project needs a critic whose gradient is taken at the decoded design (at='design') "
-                "and no simulator gradient"
-            )
         self.scale = float(scale)
         self.sim = sim
         self.sim_weight = float(sim_weight)
         self.critic = critic
-        self.start_step = int(start_step)
-        if project and continuous_only:
-            raise TTError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
-        self.project = bool(project)
-        self.continuous_only = bool(continuous_only)
         self.stats = GuidanceStats()
 
     def summary(self) -> dict:
@@ -235,7 +169,6 @@ class SelfGuidance:
         if self.critic is not None and hasattr(self.critic, "reset"):
             self.critic.reset()
         lam = self.sim_weight
-        columns: dict[str, torch.Tensor] = {}  # continuous_only: each type's continuous columns, built once per call
 
         def x0_gradient(source, step, x0, names) -> dict[str, torch.Tensor]:
             """The source's x0-gradient (critic or simulator), in x0's dtype, non-finite entries
@@ -256,10 +189,6 @@ class SelfGuidance:
         ) -> dict[str, torch.Tensor]:
             t = ctx.timesteps[step]
             names = [n for n in ctx.embodiment if n in x_t and x_t[n].requires_grad]
-            if step < self.start_step:
-                return {}
-            if self.project:
-                return projected(step, t, x_t, eps, x0)
             by_critic = self.critic is not None
             with torch.set_grad_enabled(not by_critic):  # guided by the critic, the own objective is only traced
                 objective = ctx.objective(x0, True).mean(1)  # (n,)
@@ -286,40 +215,8 @@ class SelfGuidance:
                     stats.nonfinite_entries += int(bad.sum())
                     flagged |= bad.flatten(1).any(1)
                     g = torch.where(bad, torch.zeros_like(g), g)
-                if self.continuous_only:
-                    from tt.tokens.normalize import is_padding
-
-                    if n not in columns:
-                        columns[n] = continuous_columns(n, g.shape[-1], g.device)
-                    real = ~is_padding(x0[n].detach())  # (N, L): the tokens x0_hat holds
-                    g = g * (real[..., None] & columns[n]).to(g.dtype)
                 out[n] = ctx.scheduler.guided_eps(eps[n], g, self.scale, t)
             stats.nonfinite_candidates += int(flagged.sum())
-            stats.steps += 1
-            return out
-
-        def projected(step, t, x_t, eps, x0) -> dict[str, torch.Tensor]:
-            names = [n for n in ctx.embodiment if n in x_t]
-            with torch.no_grad():
-                stats.objective_trace.append(float(ctx.objective(x0, True).mean(1).nanmean()))
-            grads = x0_gradient(self.critic, step, x0, names)
-            rows, anchor = self.critic.anchor
-            ab = float(ctx.scheduler.alpha_bar(t))
-            square = sum(g.flatten(1).square().sum(1) for g in grads.values())
-            entries = sum(g[0].numel() for g in grads.values())
-            rms = (square / entries).sqrt().clamp_min(1e-12)  # (n,)
-            shift = self.scale * (1.0 - ab)
-            out = {}
-            for n in names:
-                g = grads[n] / rms.view(-1, *([1] * (grads[n].dim() - 1)))
-                # Undecodable candidates move from x0_hat itself.
-                target = x0[n].detach() + shift * g
-                if rows:
-                    idx = torch.as_tensor(rows, dtype=torch.long, device=x0[n].device)
-                    target[idx] = anchor[n].to(target.device) + shift * g[idx]
-                if ctx.scheduler.clip_x0 is not None:
-                    target = target.clamp(-ctx.scheduler.clip_x0, ctx.scheduler.clip_x0)
-                out[n] = ctx.scheduler.predict_eps(x_t[n].detach(), target, t).to(eps[n].dtype)
             stats.steps += 1
             return out
 
@@ -337,15 +234,7 @@ class DGSConfig(SamplerConfig):
     before it x0_hat is too noisy to decode to a design. guide_by: "model" (the sampling
     model's own jointly sampled dynamics, the paper's) or "critic" (the dynamics critic's
     prediction for x0_hat's embodiment: ``critic_checkpoint`` / ``critic_model``, else the
-    sampling model's own dynamics task; `tt.guidance.critic_grad`). guide_start: first guided
-    step (0 = noisiest); the earlier steps sample unguided. critic_at: where the critic's
-    gradient is taken, "tokens" (x0_hat's own) or "design" (the design x0_hat decodes to;
-    `tt.guidance.critic_grad.AT`). project: every guided step continues from the design
-    x0_hat decodes to (`SelfGuidance`'s ``project``; needs critic_at="design").
-    continuous_only: guidance moves only the continuous attributes of x0_hat's real tokens
-    (`SelfGuidance`'s ``continuous_only``; not with project). through_start: the critic's
-    gradient also goes through the simulated start of the decoded design
-    (`tt.guidance.critic_grad`; a critic trained told the start, critic_at "tokens").
+    sampling model's own dynamics task; `tt.guidance.critic_grad`, at x0_hat's tokens).
     """
 
     eta: float = 1.0
@@ -354,34 +243,11 @@ class DGSConfig(SamplerConfig):
     sim_grad_weight: float = 0.0
     sim_grad_start: int = 0
     guide_by: str = "model"
-    guide_start: int = 0
-    critic_at: str = "tokens"
-    project: bool = False
-    continuous_only: bool = False
-    through_start: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.guide_by not in GUIDES:
             raise TTError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
-        from tt.guidance.critic_grad import AT
-
-        if self.critic_at not in AT:
-            raise TTError(f"critic_at = {self.critic_at!r}; valid: {list(AT)}")
-        if self.project and (self.guide_by != "critic" or self.critic_at != "design" or self.sim_grad_weight > 0):
-            raise TTError("project needs guide_by='critic', critic_at='design' and no simulator gradient")
-        if self.project and self.scale is None:
-            # Its scale is a token step, not a gradient multiplier: the spaces' defaults do not apply.
-            raise TTError(
-                "project needs an explicit scale: the RMS token step at full noise (0.1 and 0.3 measured "
-                "on ViperX, benchmarks/results/codesign_guidance_project.md)"
-            )
-        if self.project and self.continuous_only:
-            raise TTError("continuous_only restricts the guided eps; project replaces x0_hat: choose one")
-        if self.through_start and (self.guide_by != "critic" or self.critic_at != "tokens"):
-            raise TTError("through_start needs guide_by='critic' and critic_at='tokens'")
-        if self.guide_start < 0:
-            raise TTError(f"guide_start = {self.guide_start}; must be >= 0")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
             raise TTError(f"sim_grad_weight = {self.sim_grad_weight}; must be in [0, 1]")
         if self.sim_grad_start < 0:
@@ -431,18 +297,8 @@ class DynamicsSelfGuidance(ZerothOrder):
                 normalizer=self._trained.normalizer,
                 decoder=decoder,
                 seed=problem.seed,
-                at=c.critic_at,
-                through_start=c.through_start,
             )
-        guidance = SelfGuidance(
-            scale,
-            sim=sim,
-            sim_weight=c.sim_grad_weight,
-            critic=guide_critic,
-            start_step=c.guide_start,
-            project=c.project,
-            continuous_only=c.continuous_only,
-        )
+        guidance = SelfGuidance(scale, sim=sim, sim_weight=c.sim_grad_weight, critic=guide_critic)
         critic = self.critic()
         gen, decoder = self.sample_scored(sampler, decoder, problem, cfg, n, guidance=guidance)
         summary = guidance.summary()
@@ -457,10 +313,6 @@ class DynamicsSelfGuidance(ZerothOrder):
             "scale": scale,
             "sim_grad_weight": c.sim_grad_weight,
             "guide_by": c.guide_by,
-            "guide_start": c.guide_start,
-            "critic_at": c.critic_at,
-            "project": c.project,
-            "continuous_only": c.continuous_only,
             **summary,
             "rollouts": rollouts,
         }
@@ -468,9 +320,7 @@ class DynamicsSelfGuidance(ZerothOrder):
 
 
 __all__ = [
-    "CRITIC_PLACES",
     "GUIDES",
-    "continuous_columns",
     "DGSConfig",
     "DynamicsSelfGuidance",
     "GuidanceScales",

@@ -55,7 +55,6 @@ from tt.dit.layout import Layout, LayoutError
 from tt.dit.sampling import GuideFn, sample
 from tt.dit.tasks import DYNAMICS, ROBOT
 from tt.guidance.compose import ComposedModel, compose_tokens, split_tokens, split_values
-from tt.guidance.critic_grad import FORMS
 from tt.guidance.predicted import PLACEMENTS, PredictedReward, build_query, predicted_metrics
 from tt.guidance.refine import RefineConfig, refine_designs
 from tt.kernels.errors import TTError
@@ -102,8 +101,6 @@ class SamplerConfig:
         decoded design has), else "tokens". refine: iterations of critic refinement of the
         returned design (`tt.guidance.refine`: its continuous choices climb the dynamics
         critic's predicted reward along central differences, the start re-simulated; 0: none).
-        refine_form: what refinement climbs, "reward" (the predicted reward) or "log" (its
-        smooth stand-in; `tt.guidance.refine.RefineConfig.form`).
     """
 
     checkpoint: str | Path | None = None
@@ -118,13 +115,10 @@ class SamplerConfig:
     critic_checkpoint: str | Path | None = None
     critic_on: str | None = None
     refine: int = 0
-    refine_form: str = "reward"
 
     def __post_init__(self) -> None:
         if self.refine < 0:
             raise TTError(f"refine = {self.refine}; must be >= 0")
-        if self.refine_form not in FORMS:
-            raise TTError(f"refine_form = {self.refine_form!r}; must be one of {list(FORMS)}")
         if self.samples is not None and self.samples < 1:
             raise TTError(f"samples = {self.samples}; must be >= 1")
         if self.num_steps is not None and not 1 <= self.num_steps <= ROBOT.diffusion_steps:
@@ -152,6 +146,10 @@ class SamplerConfig:
             raise TTError(
                 "critic_on = 'designs' asks the dynamics critic about the decoded designs; it does not go "
                 "with critic = 'joint'"
+            )
+        if self.critic == "joint" and self.refine:
+            raise TTError(
+                f"refine = {self.refine} climbs the dynamics critic's prediction; it does not go with critic = 'joint'"
             )
         if self.critic == "joint" and self.critic_checkpoint is not None:
             raise TTError("critic_checkpoint is a dynamics critic; it does not go with critic = 'joint'")
@@ -293,13 +291,13 @@ class CandidateSampler:
         *,
         seed: int = 0,
         num_steps: int | None = None,
-        temperature: float = 1.0,
         eta: float = 0.0,
         placement: str = "even",
         chunk: int | None = None,
         guidance: Guidance | None = None,
         critic: str = "joint",
         critic_samples: int = 1,
+        temperature: float = 1.0,
     ) -> Generation:
         """n = `samples` candidates for `motions`, scored by reward `cfg`; `guidance` steers
         the embodiment tokens (None: plain sampling, Zeroth-Order); `critic`: "joint" scores
@@ -368,13 +366,13 @@ class CandidateSampler:
                 composed,
                 tokens,
                 ROBOT,
-                temperature=temperature,
                 scheduler=scheduler,
                 num_steps=num_steps,
                 eta=eta,
                 generator=generator,
                 guide=hook,
                 guided=embodiment if hook is not None else None,
+                temperature=temperature,
             )
             draws, scoring = [res.tokens], scorers
             if critic == "dynamics":
@@ -833,14 +831,13 @@ class ZerothOrder(Optimizer):
             [result.best],
             problem.motions,
             cfg,
-            RefineConfig(iterations=c.refine, samples=c.critic_samples, form=c.refine_form),
+            RefineConfig(iterations=c.refine, samples=c.critic_samples),
             seed=problem.seed,
             device=problem.device,
         )
         record = {
             **out.summary(),
             "iterations": c.refine,
-            "form": c.refine_form,
             "ranked_objective": result.best_reward,
         }
         if out.steps[0] == 0:

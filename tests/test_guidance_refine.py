@@ -140,23 +140,6 @@ def test_log_prediction_scores_the_same_samples_with_the_smooth_stand_in(critic,
     assert np.all(both.log_reward < 0) and both.log_reward[0, 0] != both.log_reward[0, 1]
 
 
-def test_log_objective_climbs_the_smooth_stand_in(critic, motion):
-    design = _middle(get_space("viperx").sample(1, seed=11)[0], seed=2)
-    cfg = get_reward("tracking", "viperx")
-    out = refine_designs(
-        critic, [design], (motion,), cfg, RefineConfig(iterations=1, num_steps=STEPS, check=False, form="log"), seed=4
-    )
-    smooth = dataclasses.replace(cfg, threshold=NO_TERMINATION)
-    before, after = (
-        predict_designs(
-            critic, [d], (motion,), smooth, num_steps=STEPS, seed=4, common_noise=True, log=True
-        ).log_reward[0, 0]
-        for d in (design, out.designs[0])
-    )
-    assert out.steps[0] == 1 and out.after[0] > out.before[0]
-    assert out.before[0] == pytest.approx(before, rel=1e-4) and out.after[0] == pytest.approx(after, rel=1e-4)
-
-
 def test_zeroth_order_returns_the_refined_design(critic, motion):
     space = get_space("viperx")
     design = _middle(space.sample(1, seed=11)[0], seed=2)
@@ -169,7 +152,6 @@ def test_zeroth_order_returns_the_refined_design(critic, motion):
     )
     assert out.best == expected.designs[0] != design
     assert out.designs == [out.best, design] and out.info["refine"]["ranked_objective"] == 1.0
-    assert out.info["refine"]["form"] == "reward"
     # Both re-predicted in one call with common noise: the same as each alone.
     before, after = (
         predict_designs(
@@ -224,15 +206,11 @@ def test_bad_refine_settings_are_refused(critic, motion):
         dict(step_sizes=(0.1, 1.5)),
         dict(samples=0),
         dict(num_steps=0),
-        dict(form="rank"),
-        dict(form="log", terminate=True),
     ):
         with pytest.raises(ValueError):
             RefineConfig(**bad)
     with pytest.raises(ValueError, match="refine"):
         SamplerConfig(refine=-1)
-    with pytest.raises(ValueError, match="refine_form"):
-        SamplerConfig(refine=1, refine_form="rank")
     cfg = get_reward("tracking", "viperx")
     with pytest.raises(ValueError, match="at least one design"):
         refine_designs(critic, [], (motion,), cfg)
@@ -258,8 +236,6 @@ def test_tt_optimize_refine_reports_the_climb(tmp_path):
             "zeroth",
             "--motion",
             "reach_place",
-            "--samples",
-            "1",
             "--budget",
             "1",
             "--num-steps",
