@@ -136,7 +136,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--space", default="viperx-nominal")
     p.add_argument("--refreshes", type=int, default=16, help="online refreshes whose episodes train the regressor")
-    p.add_argument("--designs", type=int, default=64, help="designs per refresh (tt train --online-designs)")
+    p.add_argument("--designs", type=int, default=64, help="designs per refresh (tt train --config online.designs)")
     p.add_argument("--motions", type=int, default=4, help="motions per refresh (tt train --online-motions)")
     p.add_argument("--seed", type=int, default=0, help="the online run's seed")
     p.add_argument("--heldout", type=int, default=32, help="held-out designs")
@@ -201,8 +201,9 @@ def main() -> None:
                 "",
                 machine_header("cpu"),
                 f"Training: {len(y)} episodes, refreshes 0..{args.refreshes - 1} of `tt train --online "
-                f"--space {args.space} "
-                f"--online-designs {args.designs} --online-motions {args.motions} --seed {args.seed}`. Held out: "
+                f"--config online.space={args.space} "
+                f"--config online.designs={args.designs} --config online.motions={args.motions} --seed {args.seed}`. "
+                "Held out: "
                 f"{len(designs)} designs (`tt.ladder.heldout_designs`) x {len(motions)} validation motions. MLP "
                 f"{args.hidden}x2, {args.epochs} epochs (kept: {info['best_epoch']}).",
                 "",

@@ -29,13 +29,14 @@ TRAIN_SECONDS=${TRAIN_SECONDS:-90}
 # one did (52 %, `control_ceiling_nominal21m.md`). The DiT's run on that structure (without
 # the last command: given it, the DiT feeds its own commands back and falls in closed loop,
 # 11.8 % against 21.9 % at 256,000 windows, docs/experiments.md):
-#   TRAIN_ARGS="--space viperx-nominal --task control --size mini --batch-size 1024 --online-designs 256
-#     --online-motions 4 --refresh-every 20 --no-future-states --anchor-control joints --no-known-command
-#     --control-target-offset 2 --prediction x0" bash benchmarks/gpu_call.sh run
+#   TRAIN_ARGS="--task control --size mini --batch-size 1024 --config online.space=viperx-nominal
+#     --config online.designs=256 --config online.motions=4 --config online.refresh_every=20
+#     --config future_states=false --config anchor_control=joints --config control_target_offset=2
+#     --config prediction=x0" bash benchmarks/gpu_call.sh run
 # and score the EMA weights that come back on the CPU with `python benchmarks/dit_control.py
 # r1=$OUT/viperx_mini_online_ema.pt` (tt's controller: mean command, 7 queries averaged per
 # command; 31.9 % of the oracle at 256,000 windows on 2 CPU cores, `dit_control_r1_ensemble.md`).
-TRAIN_ARGS=${TRAIN_ARGS:---space viperx --task both --size mini --batch-size 256 --online-designs 256 --online-motions 4 --refresh-every 50}
+TRAIN_ARGS=${TRAIN_ARGS:---task both --size mini --batch-size 256 --config online.designs=256 --config online.motions=4 --config online.refresh_every=50}
 mkdir -p "$OUT" "$STAGE"
 export PYTHONUNBUFFERED=1
 
@@ -68,7 +69,7 @@ timeout 520 $PY benchmarks/gpu.py --device cuda --out "$OUT/gpu.md" 2>&1 | tee "
 # 2. Online training on the GPU, stopped at TRAIN_SECONDS; checkpoints every 100 steps.
 RUN=/tmp/tt_run_online
 # shellcheck disable=SC2086  # TRAIN_ARGS is a list of flags
-timeout "$TRAIN_SECONDS" tt train --online --device cuda $TRAIN_ARGS --steps 100000 --checkpoint-every 100 \
+timeout "$TRAIN_SECONDS" tt train --online --device cuda $TRAIN_ARGS --steps 100000 --config checkpoint_every=100 \
   --out "$RUN" > "$OUT/train.log" 2>&1 || echo "training stopped at ${TRAIN_SECONDS} s (expected)" >> "$OUT/train.log"
 tail -c 4000 "$OUT/train.log" | tr '\r' '\n' | tail -5
 
@@ -84,7 +85,7 @@ from tt.dit.model import RoboDiT
 run, out = Path(sys.argv[1]), Path(sys.argv[2])
 last = latest_checkpoint(run)
 if last is None:
-    sys.exit(f"no checkpoint in {run}: training did not reach --checkpoint-every")
+    sys.exit(f"no checkpoint in {run}: training did not reach checkpoint_every")
 state = load_checkpoint(last)
 model = RoboDiT.from_description(state["model"])
 model.load_state_dict(state["state_dict"])
