@@ -178,7 +178,7 @@ def test_every_backend_implements_the_interface_and_resolves_designs_like_their_
     for name in BACKENDS:
         impl = get_backend(name)
         assert isinstance(impl, RolloutBackend) and impl.name == name
-        assert impl.perturbs == (name == "warp")
+        assert impl.perturbs == (name in ("warp", "mjbatch"))  # the two that add action noise (test_mjbatch.py)
     viperx, quadruped = get_space("viperx"), get_space("quadruped")
     designs = viperx.sample(3, seed=4)
     robots = resolve_designs(designs)
