@@ -100,10 +100,16 @@ def main() -> None:
         help="validate every draw on the oracle, or only the designs the searches pick",
     )
     p.add_argument("--records", default=None, help="also write every validated draw to this JSON file")
-    p.add_argument("--from-records", default=None, help="rewrite the report (and plot) from a --records file; no run")
+    p.add_argument(
+        "--from-records",
+        nargs="+",
+        default=None,
+        help="rewrite the report (and plot) from --records files (several: runs of the same seeds, motions and "
+        "pools merged, each checkpoint a source); no run",
+    )
     args = p.parse_args()
     if args.from_records is not None:
-        write_outputs(json.loads(Path(args.from_records).read_text()), Path(args.out))
+        write_outputs(merge_records([json.loads(Path(f).read_text()) for f in args.from_records]), Path(args.out))
         return
     if args.n < max(args.ns) or min(args.ns) < 1:
         p.error("--ns must lie in 1 .. --n")
@@ -202,6 +208,51 @@ def main() -> None:
     write_outputs(saved, Path(args.out))
 
 
+def merge_records(runs: list[dict]) -> dict:
+    """One record of several runs over the same (seed, motion) pairs and settings: the union of
+    their sources. The uniform pools and CMA-ES runs depend only on (seed, motion), so they must
+    agree; each run's command is kept for the report."""
+    if len(runs) == 1:
+        return runs[0]
+    first = runs[0]
+    same = ("seeds", "motions", "paired", "n", "ns", "steps", "reward", "validate")
+    for other in runs[1:]:
+        diff = [k for k in same if first["args"].get(k) != other["args"].get(k)]
+        keys = [(r["seed"], r["motion"]) for r in first["records"]]
+        if diff or keys != [(r["seed"], r["motion"]) for r in other["records"]]:
+            raise SystemExit(f"--from-records: runs differ in {diff or 'their (seed, motion) pairs'}")
+        for a, b in zip(first["records"], other["records"]):
+            if a["uniform"]["reward"] != b["uniform"]["reward"]:
+                raise SystemExit("--from-records: the runs' uniform pools differ")
+    records = [dict(r) for r in first["records"]]
+    for other in runs[1:]:
+        for rec, extra in zip(records, other["records"]):
+            rec.update({k: v for k, v in extra.items() if k not in rec})
+    args = dict(first["args"])
+    args["checkpoints"] = [c for r in runs for c in r["args"]["checkpoints"]]
+    args["temperatures"] = sorted({t for r in runs for t in r["args"].get("temperatures", [1.0])}, reverse=True)
+    return {
+        **first,
+        "args": args,
+        "records": records,
+        "minutes": sum(r["minutes"] for r in runs),
+        "load_end": runs[-1]["load_end"],
+        "commands": [command_line(argparse.Namespace(**{"validate": "all", **r["args"]})) for r in runs],
+    }
+
+
+def command_line(args) -> str:
+    """The command that ran (or would rerun) a run with `args`."""
+    temps = list(getattr(args, "temperatures", [1.0]))
+    return (
+        f"python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
+        f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns "
+        f"{' '.join(map(str, args.ns))} --steps {args.steps}"
+        f"{' --validate picks' if args.validate == 'picks' else ''}"
+        f"{'' if temps == [1.0] else ' --temperatures ' + ' '.join(f'{t:g}' for t in temps)}"
+    )
+
+
 def write_outputs(saved: dict, out: Path) -> None:
     """The report and its plot from a run's record (what ``--records`` writes)."""
     records = saved["records"]
@@ -266,7 +317,6 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
     """The report's lines: `records` of the sources `names` (and "uniform"), the run's `args`
     and the rest of its record `saved` (machine header, loads, minutes, critic)."""
     motions = list(dict.fromkeys(rec["motion"] for rec in records))
-    temps = list(getattr(args, "temperatures", [1.0]))
     lines = [
         "# Sample quality: generator samples against uniform designs (issue 51)",
         "",
@@ -277,11 +327,7 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
         f"{args.n} designs per source each, reward `{args.reward}`, {args.steps} DDIM steps, "
         f"{'every design' if args.validate == 'all' else 'every design a search picks'} validated on the oracle "
         f"(MuJoCo C + mink); {saved['minutes']:.1f} min in all",
-        f"- command: `python benchmarks/sample_quality.py {' '.join(args.checkpoints)} --seeds {args.seeds} "
-        f"--motions {args.motions}{' --paired' if args.paired else ''} --n {args.n} --ns "
-        f"{' '.join(map(str, args.ns))} --steps {args.steps}"
-        f"{' --validate picks' if args.validate == 'picks' else ''}"
-        f"{'' if temps == [1.0] else ' --temperatures ' + ' '.join(f'{t:g}' for t in temps)}`",
+        *(f"- command: `{c}`" for c in saved.get("commands", [command_line(args)])),
         "",
     ]
     if args.validate == "all":

@@ -39,6 +39,7 @@ from tt.guidance.zeroth import (
     embodiment_batch,
     rank_candidates,
 )
+from tt.kernels.errors import TTError
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, get_motion
 from tt.sim.rewards import get_reward
@@ -90,6 +91,21 @@ def test_scale_zero_equals_plain_sampling(tiny, motions):
     # A nonzero scale does move the embodiment (so the comparison above can fail).
     moved = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS, eta=1.0, guidance=SelfGuidance(50.0))
     assert not torch.equal(plain.tokens.values["link"], moved.tokens.values["link"])
+
+
+def test_temperature_reaches_the_sampler_and_one_is_the_default(tiny, motions):
+    """The sampler's starting noise scale (`tt.dit.sample`'s temperature, checked against the
+    closed form in test_dit_ddim.py) is what SamplerConfig.temperature sets."""
+    sampler = CandidateSampler(tiny, "cpu")
+    cfg = get_reward("tracking", "viperx")
+    plain = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS)
+    same = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS, temperature=1.0)
+    cold = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS, temperature=0.5)
+    assert torch.equal(plain.tokens.values["link"], same.tokens.values["link"])
+    assert not torch.equal(plain.tokens.values["link"], cold.tokens.values["link"])
+    assert SamplerConfig().temperature == 1.0
+    with pytest.raises(TTError, match="temperature"):
+        SamplerConfig(temperature=0.0)
 
 
 def test_sign_of_guidance_moves_a_toy_reward(tiny, motions):
