@@ -221,12 +221,12 @@ def test_tasks_split_the_batch():
 
 def test_resume_check_skips_fields_newer_than_the_run(tmp_path):
     """A run stored before a TrainConfig field existed resumes (its network's description is
-    checked instead); a stored field that differs is refused, naming its flag."""
+    checked instead); a stored field that differs is refused, naming its setting."""
     from tt.dit.train import check_same_run
 
     config = TrainConfig(task="dynamics", prediction="x0", anchor_track=True)
     stored = config.to_dict()
     del stored["time_ids"], stored["anchor_track"]
     check_same_run(stored, config, tmp_path)
-    with pytest.raises(ValueError, match="trained with --prediction 'eps'"):
+    with pytest.raises(ValueError, match="trained with prediction 'eps'"):
         check_same_run({**stored, "prediction": "eps"}, config, tmp_path)
