@@ -318,7 +318,9 @@ def report(records: list, names: list[str], args, saved: dict) -> list[str]:
     and the rest of its record `saved` (machine header, loads, minutes, critic)."""
     motions = list(dict.fromkeys(rec["motion"] for rec in records))
     lines = [
-        "# Sample quality: generator samples against uniform designs (issue 51)",
+        "# Sample quality: generator samples against uniform designs (issue 51)"
+        if args.validate == "all"
+        else "# Test-time scaling: the best of n draws at equal rollouts (issue 51)",
         "",
         saved["header"],
         f"- load (1, 5, 15 min) at start: {saved['load_start']}; at end: {saved['load_end']}",
