@@ -69,6 +69,17 @@ def latest_checkpoint(run: str | Path) -> Path | None:
     return found[-1] if found else None
 
 
+def checkpoint_file(path: str | Path) -> Path:
+    """A checkpoint file: `path` itself, or a run folder's latest checkpoint."""
+    path = Path(path)
+    if not path.is_dir():
+        return path
+    found = latest_checkpoint(path)
+    if found is None:
+        raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
+    return found
+
+
 def shipped_folder() -> Path:
     """The folder of shipped checkpoints: ``checkpoints/`` beside the package's ``dit/``
     (the repository root in an editable install, ``tt/checkpoints`` in an installed one)."""
@@ -223,12 +234,7 @@ class TrainedModel:
 
 def load_model(path: str | Path, *, ema: bool = True, device: str | torch.device = "cpu") -> TrainedModel:
     """The network of a checkpoint (a file, or a run folder: its latest checkpoint)."""
-    path = Path(path)
-    if path.is_dir():
-        found = latest_checkpoint(path)
-        if found is None:
-            raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
-        path = found
+    path = checkpoint_file(path)
     state = load_checkpoint(path, need=SAMPLE_KEYS)
     try:
         model = RoboDiT.from_description(state["model"])

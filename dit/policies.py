@@ -139,14 +139,9 @@ class ControllerConfig:
 def control_task(checkpoint: str | Path) -> TaskSpec:
     """The control task a checkpoint was trained on (its diffusion steps and whether it
     diffused the future states), `tt.dit.tasks.CONTROL` when the checkpoint does not say."""
-    path = Path(checkpoint)
-    if path.is_dir():
-        from tt.dit.checkpoint import latest_checkpoint
+    from tt.dit.checkpoint import checkpoint_file
 
-        found = latest_checkpoint(path)
-        if found is None:
-            raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
-        path = found
+    path = checkpoint_file(checkpoint)
     return control_task_of(load_checkpoint(path).get("train_config"), f"checkpoint {path}")
 
 

@@ -38,6 +38,7 @@ import torch
 from tt.dit.anchors import CONTROL_BASES, control_anchors, pose_anchors
 from tt.dit.checkpoint import (
     RESUME_KEYS,
+    checkpoint_file,
     checkpoint_path,
     latest_checkpoint,
     list_checkpoints,
@@ -63,7 +64,8 @@ class DivergedError(TTError, FloatingPointError):
     """The training loss became NaN or infinite: the run's settings diverge (not a bug in tt)."""
 
 
-#: `tt train`'s flag of each `TrainConfig` field that has one, for messages.
+#: `tt train`'s flag of each `TrainConfig` field that has one, for messages; the others are
+#: `--config` keys, named as themselves (`flag_of`).
 FLAGS = {
     "data": "--data",
     "out": "--out",
@@ -71,27 +73,16 @@ FLAGS = {
     "size": "--size",
     "steps": "--steps",
     "batch_size": "--batch-size",
-    "lr": "lr",
-    "warmup_steps": "warmup_steps",
     "seed": "--seed",
-    "checkpoint_every": "checkpoint_every",
-    "robot_diffusion_steps": "robot_diffusion_steps",
-    "control_diffusion_steps": "control_diffusion_steps",
-    "future_states": "future_states",
-    "prediction": "prediction",
-    "weighting": "weighting",
-    "min_snr_gamma": "min_snr_gamma",
-    "type_weights": "type_weights",
-    "bf16_cpu": "bf16_cpu",
-    "anchor_track": "anchor_track",
-    "anchor_control": "anchor_control",
-    "known_command": "known_command",
-    "control_target_offset": "control_target_offset",
-    "dynamics_start": "dynamics_start",
-    "time_ids": "time_ids",
     "init": "--init",
     "online": "--online",
 }
+
+
+def flag_of(name: str) -> str:
+    """How a message names `TrainConfig` field `name`: its flag, or its `--config` key."""
+    return FLAGS.get(name, name)
+
 
 #: `tt train`'s flag of each `OnlineConfig` field that has one, for messages.
 ONLINE_FLAGS = {
@@ -238,7 +229,7 @@ class TrainConfig:
             raise TTError(f"loss {self.loss!r} does not exist; losses: huber, mse")
         for name in ("steps", "batch_size", "window", "checkpoint_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
-                raise TTError(f"{FLAGS.get(name, name)} must be >= 1, got {getattr(self, name)}")
+                raise TTError(f"{flag_of(name)} must be >= 1, got {getattr(self, name)}")
         if self.batch_size < len(self.task_names()):
             raise TTError(
                 f"--task {self.task} trains {len(self.task_names())} tasks, so it needs --batch-size >= "
@@ -316,12 +307,7 @@ def init_settings(path: str | Path, task: str) -> dict:
     layout were trained with, so a fine-tuning recipe need not repeat them. A field the
     checkpoint does not record (an older one) is left out; ``dynamics_start`` and
     ``control_target_offset`` only when `task` trains the task they shape."""
-    path = Path(path)
-    if path.is_dir():
-        found = latest_checkpoint(path)
-        if found is None:
-            raise FileNotFoundError(f"run folder {path} has no checkpoints under {path / 'checkpoints'}")
-        path = found
+    path = checkpoint_file(path)
     state = load_checkpoint(path)
     stored = state.get("train_config") or {}
     out = {k: stored[k] for k in INIT_FIELDS if stored.get(k) is not None}
@@ -430,37 +416,37 @@ def _resolve_device(device: str | None) -> torch.device:
     return torch.device(device)
 
 
-#: TrainConfig fields a resumed run must share with the run it continues, and their flags.
+#: TrainConfig fields a resumed run must share with the run it continues (named by `flag_of`).
 #: (steps may grow, checkpoints and devices may change: none of these change a step's result.)
-RUN_FIELDS = {
-    "data": "--data",
-    "task": "--task",
-    "size": "--size",
-    "batch_size": "--batch-size",
-    "lr": "lr",
-    "seed": "--seed",
-    "online": "--online ...",
-    "window": "window",
-    "warmup_steps": "warmup_steps",
-    "weight_decay": "weight_decay",
-    "grad_clip": "grad_clip",
-    "ema_power": "ema_power",
-    "ema_max_decay": "ema_max_decay",
-    "robot_diffusion_steps": "robot_diffusion_steps",
-    "control_diffusion_steps": "control_diffusion_steps",
-    "future_states": "future_states",
-    "loss": "loss",
-    "prediction": "prediction",
-    "weighting": "weighting",
-    "min_snr_gamma": "min_snr_gamma",
-    "type_weights": "type_weights",
-    "anchor_track": "anchor_track",
-    "anchor_control": "anchor_control",
-    "known_command": "known_command",
-    "control_target_offset": "control_target_offset",
-    "dynamics_start": "dynamics_start",
-    "time_ids": "time_ids",
-}
+RUN_FIELDS = (
+    "data",
+    "task",
+    "size",
+    "batch_size",
+    "lr",
+    "seed",
+    "online",
+    "window",
+    "warmup_steps",
+    "weight_decay",
+    "grad_clip",
+    "ema_power",
+    "ema_max_decay",
+    "robot_diffusion_steps",
+    "control_diffusion_steps",
+    "future_states",
+    "loss",
+    "prediction",
+    "weighting",
+    "min_snr_gamma",
+    "type_weights",
+    "anchor_track",
+    "anchor_control",
+    "known_command",
+    "control_target_offset",
+    "dynamics_start",
+    "time_ids",
+)
 
 
 def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
@@ -469,7 +455,8 @@ def check_same_run(stored: dict, config: TrainConfig, out: Path) -> None:
     if not stored:
         return
     saved = TrainConfig.from_dict(stored)
-    for name, flag in RUN_FIELDS.items():
+    for name in RUN_FIELDS:
+        flag = "--online ..." if name == "online" else flag_of(name)
         if name not in stored and name != "lr":
             continue  # a field newer than the run: the network's own description is checked instead
         before, now = getattr(saved, name), getattr(config, name)

@@ -157,9 +157,9 @@ def test_the_uniform_share_holds_in_a_dataset(tmp_path):
 
 
 def test_selection_settings_are_checked():
-    with pytest.raises(ValueError, match=r"--select \(select=\) must be an integer >= 1"):
+    with pytest.raises(ValueError, match=r"select= must be an integer >= 1"):
         GenerateConfig(space="viperx", designs=8, select=0)
-    with pytest.raises(ValueError, match=r"--uniform-share \(uniform_share=\) applies only with --select"):
+    with pytest.raises(ValueError, match=r"uniform_share= applies only with select= above 1"):
         GenerateConfig(space="viperx", designs=8, uniform_share=0.2)
     assert "select" not in GenerateConfig(space="viperx", designs=8).to_dict()  # unselected roots unchanged
 
