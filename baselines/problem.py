@@ -19,23 +19,12 @@ import numpy as np
 
 from tt.kernels.errors import TTError
 from tt.sim.backends import BACKENDS as _ROLLOUT_BACKENDS
+from tt.sim.backends import default_backend
 from tt.sim.designs import Design, get_space
 from tt.sim.motions.base import Motion
 
 #: Rollout backends an optimizer may evaluate candidates with (those `tt.sim.rollout` has).
 BACKENDS: tuple[str, ...] = tuple(_ROLLOUT_BACKENDS)
-
-
-def default_backend(space: str) -> str:
-    """The backend candidates of `space` are evaluated with when a problem names none:
-    ``"warp"`` (tt's kernels) for contact-free spaces, ``"mjbatch"`` for spaces with contacts
-    (the quadruped), which ``"warp"`` cannot simulate: the oracle's own MuJoCo C physics on
-    every thread with tt's batched whole-body controller, whose episodes agree with the
-    oracle's (tests/test_mjbatch.py) at several times its speed
-    (benchmarks/results/quadruped_batched.md). ``"mujoco"`` is the oracle itself;
-    ``"mjwarp"`` simulates contacts too but on a CPU ran random quadruped designs at 0.03x
-    the oracle (benchmarks/results/quadruped.md): name it to use it, e.g. on a GPU."""
-    return "mjbatch" if get_space(space).has_contacts else "warp"
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ refreshes; training windows are drawn from that buffer. Training step s reads th
 buffer of refresh ``s // refresh_every``.
 
 The rollout backend is the one `tt generate` uses for the space
-(`tt.baselines.problem.default_backend`): tt's Warp kernels for contact-free spaces, and
+(`tt.sim.backends.default_backend`): tt's Warp kernels for contact-free spaces, and
 for spaces with contacts (the quadruped) ``mjbatch``, MuJoCo C's own physics on every CPU
 thread with the batched whole-body controller, called as `tt generate` calls it
 (`tt.sim.rollout.rollout` on the compiled models), so a refresh's episodes are the ones
@@ -43,7 +43,7 @@ from tt.dit.data import EpisodeTokens
 from tt.dit.layout import Layout, LayoutError
 from tt.kernels.errors import TTError
 from tt.tokens.batch import TokenBatch
-from tt.tokens.draws import DEFAULT_ACTION_NOISE, GenerateConfig, check_selection
+from tt.tokens.draws import GenerateConfig, check_selection, default_action_noise
 from tt.tokens.normalize import Normalizer
 
 log = logging.getLogger(__name__)
@@ -61,8 +61,8 @@ class OnlineConfig:
     contacts on ``mjbatch``: `backend`); designs, motions: designs and augmented training
     motions per refresh (every design runs every motion); refresh_every: optimizer steps
     between refreshes; buffer: refreshes whose episodes windows are drawn from; seed: root of
-    every draw; action_noise (None: what `tt generate` gives the space, `DEFAULT_ACTION_NOISE`
-    on Warp and 0 on mjbatch), min_steps, max_motion_steps: as
+    every draw; action_noise (None: what `tt generate` gives the space,
+    `tt.tokens.draws.default_action_noise`), min_steps, max_motion_steps: as
     `tt.tokens.draws.GenerateConfig`; max_time: time-ID rows;
     absorbing: a terminated episode stays in the data to the motion's end. The rollout's
     records after termination repeat the terminal state (its end effector already past the
@@ -109,17 +109,15 @@ class OnlineConfig:
             raise TTError(f"online.reward {self.reward!r} is not a reward; valid: {', '.join(REWARDS)}") from None
         get_space(self.space)  # raises listing the valid spaces
         if self.action_noise is None:
-            # tt generate's default (tt.generate.generate_cmd): mjbatch datasets are unperturbed.
-            object.__setattr__(self, "action_noise", DEFAULT_ACTION_NOISE if self.backend == "warp" else 0.0)
+            object.__setattr__(self, "action_noise", default_action_noise(self.backend))
         self.generate_config()  # validates the shared fields
 
     @property
     def backend(self) -> str:
-        """The rollout backend: `tt.baselines.problem.default_backend` of the space (which dit
-        may not import): "warp" for contact-free spaces, "mjbatch" for spaces with contacts."""
-        from tt.sim.designs import get_space
+        """The rollout backend, `tt generate`'s for the space (`tt.sim.backends.default_backend`)."""
+        from tt.sim.backends import default_backend
 
-        return "mjbatch" if get_space(self.space).has_contacts else "warp"
+        return default_backend(self.space)
 
     def generate_config(self) -> GenerateConfig:
         """The `tt generate` config whose draws (augmentation, noise, filtering) a refresh uses."""

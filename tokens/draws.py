@@ -27,6 +27,15 @@ BIASES = ("cmaes",)
 _STREAM_DESIGNS, _STREAM_EPISODES, _STREAM_CMAES, _STREAM_NOISE, _STREAM_SELECT = 0, 1, 2, 3, 4
 #: Default control perturbation [rad or m] (measured, see the module docstring).
 DEFAULT_ACTION_NOISE = 0.01
+
+
+def default_action_noise(backend: str) -> float:
+    """The control perturbation a dataset or online run gets when none is given:
+    `DEFAULT_ACTION_NOISE` on "warp" (measured on ViperX), 0 elsewhere (quadruped datasets on
+    "mjbatch" stay unperturbed unless asked)."""
+    return DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
+
+
 #: Which robot count (`tt.tokens.tokenize.RobotIndex.counts`) sets each per-step type's tokens per step.
 _STEP_COUNT = {
     "free_link_obs": "free_link",

@@ -897,20 +897,20 @@ def generate_cmd(
     [--workers W] [threads T] [bias cmaes] [--seed S] [ray ADDRESS|local] [action_noise SIGMA]
     [select K [uniform_share F]]``.
 
-    The rollout backend is `tt.baselines.problem.default_backend` of the space: "warp" for
+    The rollout backend is `tt.sim.backends.default_backend` of the space: "warp" for
     contact-free spaces, "mjbatch" (the oracle's MuJoCo C physics on every thread) for the
-    quadruped. action_noise None: `DEFAULT_ACTION_NOISE` on "warp", 0 on "mjbatch" (the default
-    was measured on ViperX; mjbatch perturbs when given a sigma). Generates or resumes the
+    quadruped. action_noise None: `tt.tokens.draws.default_action_noise` of the backend (mjbatch perturbs
+    when given a sigma). Generates or resumes the
     dataset and returns the summary text. Raises ValueError for bad arguments and
     `DatasetError` when DATASET holds a dataset of other arguments.
     """
-    from tt.baselines.problem import default_backend
+    from tt.sim.backends import default_backend
+    from tt.tokens.draws import default_action_noise
 
     # tt's kernels for contact-free spaces, MuJoCo C batched for spaces with contacts (the quadruped).
     backend = default_backend(space)
     if action_noise is None:
-        # The measured default is ViperX's; quadruped datasets stay unperturbed unless asked.
-        action_noise = DEFAULT_ACTION_NOISE if backend == "warp" else 0.0
+        action_noise = default_action_noise(backend)
     config = GenerateConfig(
         space=space,
         designs=designs,

@@ -221,6 +221,18 @@ def get_backend(name: str) -> RolloutBackend:
     return _REGISTRY[name]
 
 
+def default_backend(space: str) -> str:
+    """The backend a space's designs roll out on when a caller names none (optimizers, `tt
+    generate`, online training): ``"warp"`` (tt's kernels) for contact-free spaces, ``"mjbatch"``
+    for spaces with contacts (the quadruped), which ``"warp"`` cannot simulate: the oracle's own
+    MuJoCo C physics on every thread with tt's batched whole-body controller, whose episodes
+    agree with the oracle's (tests/test_mjbatch.py) at several times its speed
+    (benchmarks/results/quadruped_batched.md). ``"mujoco"`` is the oracle itself; ``"mjwarp"``
+    simulates contacts too but on a CPU ran random quadruped designs at 0.03x the oracle
+    (benchmarks/results/quadruped.md): name it to use it, e.g. on a GPU."""
+    return "mjbatch" if get_space(space).has_contacts else "warp"
+
+
 __all__ = [
     "BACKENDS",
     "MjBatchBackend",
@@ -231,6 +243,7 @@ __all__ = [
     "RolloutBackend",
     "WarpBackend",
     "check_motions",
+    "default_backend",
     "get_backend",
     "resolve_designs",
 ]
