@@ -128,14 +128,15 @@ def _models(
     def preload() -> None:
         try:
             models = [sp.model(d) for d in firsts.values()]
-            if progress:  # compiles counted on a bar; the preload below then finds them loaded
+            if progress:  # the same loads, their compiles counted on a bar
                 from tt.kernels.model import topology_of
                 from tt.kernels.rollout import rollout_kernels
                 from tt.sim.rollout import load_rollout_kernels
 
                 modules = [rollout_kernels(topology_of(m, sp.ee_sites())).module for m in models]
                 load_rollout_kernels(modules, device, progress=True)
-            preload_rollout_kernels(models, sp.ee_sites(), device)
+            else:
+                preload_rollout_kernels(models, sp.ee_sites(), device)
         except Exception:  # the rollout loads the same modules next and reports the error there
             logger.debug("preloading the rollout kernels failed", exc_info=True)
 

@@ -185,13 +185,12 @@ def rollout_records(
     workers = cpu_threads(threads)
     at_once = GROUPS_AT_ONCE and len(groups) > 1 and workers > 1 and not graph and not wp.get_device(device).is_cuda
     modules = [rollout_kernels(fields.topology).module for _, fields in groups]
-    compiling = _compile_bar(modules, device) if progress else None
-    if compiling is not None and not at_once:
+    compiling = None
+    if progress and at_once:  # counted as each group's driver loads its module, below
+        compiling = _compile_bar(modules, device)
+    elif progress:
         # One group after another: every compile first, so that its bar ends before stepping.
-        for module in modules:
-            _load(module, device, compiling)
-        _close(compiling)
-        compiling = None
+        load_rollout_kernels(modules, device, progress=True)
     bar = None
     if progress:
         from tqdm import tqdm
