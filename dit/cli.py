@@ -26,6 +26,7 @@ def train_cmd(
     progress: bool = True,
     on_checkpoint=None,
     on_start_over=None,
+    episodes=None,
     **recipe,
 ) -> TrainResult:
     """``tt train``: train a DiT on an episode token file, with a tqdm bar showing the loss.
@@ -37,7 +38,9 @@ def train_cmd(
     run (step 0) from this checkpoint's EMA weights and normaliser; online: generate the
     training episodes with the batched sim instead of reading `data` (`tt.dit.online`);
     on_checkpoint: called with (step, path) after each checkpoint, on_start_over: when a run
-    started over has emptied its folder (`tt.dit.train.train`);
+    started over has emptied its folder (`tt.dit.train.train`); episodes: the training data
+    in memory or a token source built by the caller (`tt.dit.train.train`; the online source
+    with proposals, `tt.guidance.proposer.online_source`);
     recipe: further `TrainConfig` fields (prediction, weighting, type_weights, bf16_cpu,
     robot_diffusion_steps, ...).
     Raises ValueError (bad arguments, mismatched run folder), FileNotFoundError and
@@ -76,6 +79,8 @@ def train_cmd(
             bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
 
     try:
-        return train(config, on_step=on_step, on_checkpoint=on_checkpoint, on_start_over=on_start_over)
+        return train(
+            config, episodes=episodes, on_step=on_step, on_checkpoint=on_checkpoint, on_start_over=on_start_over
+        )
     finally:
         bar.close()

@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 
 # Random streams of a refresh (the third SeedSequence entry), apart from tt generate's
 # shard streams (0..3) so an online run and a dataset with the same seed differ.
-_STREAM_DESIGNS, _STREAM_MOTIONS, _STREAM_NOISE, _STREAM_SELECT = 10, 11, 12, 13
+_STREAM_DESIGNS, _STREAM_MOTIONS, _STREAM_NOISE, _STREAM_SELECT, _STREAM_PROPOSE = 10, 11, 12, 13, 14
 
 
 @dataclass(frozen=True)
@@ -77,6 +77,13 @@ class OnlineConfig:
     them drawn uniformly), so each episode's design was chosen for that episode's motion and
     the motion-to-robot task learns which designs suit a motion, not the prior. 1: every
     design on every motion, unselected (``designs * motions`` episodes a refresh).
+    propose: self-improvement (issue 51): designs per motion that the generator `proposer` (a
+    checkpoint with the motion-to-robot task) samples for each of the refresh's motions, in
+    `propose_steps` DDIM steps; they join the screen (and run every motion, as its uniform
+    designs do), so the selection keeps the best of both. A frozen proposer keeps refresh k a
+    function of (seed, k, proposer); a next round proposes with the run this one trains. The
+    source needs the sampler built above dit (`tt.guidance.proposer.online_source`). 0: no
+    proposals.
     """
 
     space: str = "viperx"
@@ -93,6 +100,9 @@ class OnlineConfig:
     select: int = 1
     uniform_share: float = 0.0
     reward: str = "tracking"
+    propose: int = 0
+    proposer: str = ""
+    propose_steps: int = 10
 
     def __post_init__(self) -> None:
         from tt.sim.designs import get_space
@@ -103,6 +113,17 @@ class OnlineConfig:
                 f"online training needs refresh_every >= 1 and buffer >= 1, got {self.refresh_every}, {self.buffer}"
             )
         check_selection(self.select, self.uniform_share, "online.select", "online.uniform_share")
+        if not (isinstance(self.propose, int) and self.propose >= 0) or self.propose_steps < 1:
+            raise TTError(
+                f"online.propose must be an integer >= 0 and online.propose_steps >= 1, got {self.propose!r}, "
+                f"{self.propose_steps!r}"
+            )
+        if self.propose and (not self.proposer or self.select == 1):
+            raise TTError(
+                "online.propose adds a generator's designs to the selection's screen: it needs online.proposer "
+                f"(a checkpoint with the robot task) and online.select above 1, got proposer {self.proposer!r}, "
+                f"select {self.select}"
+            )
         try:
             object.__setattr__(self, "reward", reward_name(self.reward))  # the paper's names too
         except TTError:
@@ -141,12 +162,20 @@ class OnlineTokenSource:
     config: what to generate; device: Warp / torch device of the rollouts (None: the default;
     mjbatch runs on the CPU whatever the device, and its episodes are tokenized there);
     threads: CPU threads of the rollouts (None: every core; the episodes are the same for
-    every count).
+    every count); proposer: with ``config.propose``, ``proposer(motions, n, seed)`` -> per
+    motion a list of at most n designs sampled for it (`tt.guidance.proposer.ModelProposer`;
+    dit cannot import the sampler's decoding).
     ``stats`` counts refreshes, episodes kept and dropped, world-steps simulated and the
-    seconds spent generating.
+    seconds spent generating (and, with proposals, the designs proposed, the episodes of
+    them the selection kept and the seconds spent sampling).
     """
 
-    def __init__(self, config: OnlineConfig, device: str | None = None, threads: int | None = None):
+    def __init__(self, config: OnlineConfig, device: str | None = None, threads: int | None = None, proposer=None):
+        if config.propose and proposer is None:
+            raise TTError(
+                "online.propose needs the generator's sampler: build the source with "
+                "tt.guidance.proposer.online_source (tt train does)"
+            )
         from tt.kernels.device import resolve_device
         from tt.sim.designs import get_space
         from tt.tokens.draws import space_token_maxima
@@ -155,6 +184,7 @@ class OnlineTokenSource:
         self.config = config
         self.device = resolve_device(device)
         self.threads = threads
+        self.proposer = proposer
         self.space = get_space(config.space)
         self._generate = config.generate_config()
         self.maxima = {k: int(v) for k, v in space_token_maxima(config.space)["maxima"].items() if int(v) > 0}
@@ -162,6 +192,9 @@ class OnlineTokenSource:
         self._refreshes: dict[int, EpisodeTokens] = {}
         #: refresh -> the (design, motion) pairs its selection kept (``select`` > 1), before the filters.
         self.selected: dict[int, list[tuple[int, int]]] = {}
+        #: refresh -> how many of its screen's designs (the last ones) were proposed.
+        self.proposed: dict[int, int] = {}
+        self._propose_seconds = 0.0
         self._data: EpisodeTokens | None = None
         self._current: int | None = None
         self.stats = {"refreshes": 0, "episodes": 0, "dropped": 0, "world_steps": 0, "seconds": 0.0}
@@ -212,8 +245,9 @@ class OnlineTokenSource:
 
     # -------------------------------------------------------------- one refresh
     def draw(self, k: int) -> tuple[list, list]:
-        """The designs (``designs * select``: the screen) and augmented, placed training motions
-        of refresh `k` (every design runs every motion), a function of (seed, k)."""
+        """The designs (``designs * select`` uniform ones, then any proposed per motion: the
+        screen) and augmented, placed training motions of refresh `k` (every design runs every
+        motion), a function of (seed, k) and the proposer."""
         from tt.tokens.draws import _rng, _seed_int, episode_motion, training_motions
 
         cfg = self.config
@@ -225,6 +259,14 @@ class OnlineTokenSource:
             episode_motion(self._generate, base[m], s)
             for m, s in zip(motion_ids, rng.integers(0, 2**31, size=cfg.motions))
         ]
+        if cfg.propose:
+            t0 = time.perf_counter()
+            proposed = [
+                d for per in self.proposer(motions, cfg.propose, _seed_int(cfg.seed, k, _STREAM_PROPOSE)) for d in per
+            ]
+            self.proposed[k] = len(proposed)
+            self._propose_seconds = time.perf_counter() - t0
+            designs = [*designs, *proposed]
         return designs, motions
 
     def noise_seed(self, k: int) -> int:
@@ -240,6 +282,9 @@ class OnlineTokenSource:
 
         cfg, t0 = self.config, time.perf_counter()
         designs, motions = self.draw(k)
+        if cfg.propose:
+            self.stats["proposed"] = self.stats.get("proposed", 0) + self.proposed[k]
+            self.stats["propose_seconds"] = self.stats.get("propose_seconds", 0.0) + self._propose_seconds
         too_long = max(m.steps for m in motions)
         if too_long > cfg.max_time:
             raise LayoutError(
@@ -370,6 +415,10 @@ class OnlineTokenSource:
         self.stats["screened"] = self.stats.get("screened", 0) + start
         design_of = np.concatenate([ep.design_index.cpu().numpy() for _, ep, _, _ in groups])
         self.selected[k] = [(int(design_of[w]), int(motion_of[w])) for w in np.nonzero(chosen)[0]]
+        if self.proposed.get(k):
+            kept = sum(d >= cfg.designs * cfg.select for d, _ in self.selected[k])  # proposals come last
+            self.stats["proposed_kept"] = self.stats.get("proposed_kept", 0) + kept
+            log.info("online refresh %d: %d of %d kept episodes were proposed", k, kept, len(self.selected[k]))
         return out
 
 

@@ -1017,7 +1017,9 @@ def train(
       `refresh_every` optimizer steps, and training draws from the last `buffer` refreshes;
       `absorbing` keeps terminated episodes to the motion's end; `select K` screens K designs
       per kept episode (each motion keeps its best, tt.tokens.draws.select_episodes; 1:
-      uniform designs), `uniform_share` of them drawn uniformly instead, ranked by `reward`.
+      uniform designs), `uniform_share` of them drawn uniformly instead, ranked by `reward`;
+      `propose N` adds N designs per motion that the generator `proposer` samples for it
+      (`propose_steps` DDIM steps) to the screen: iterated self-improvement.
     """
     from tt.dit.cli import train_cmd
 
@@ -1031,6 +1033,8 @@ def train(
         from tt.dit.online import OnlineConfig
 
         online_config = OnlineConfig(**{"seed": settings.get("seed", 0), **(online_table or {})})
+        if online_config.propose and not Path(online_config.proposer).exists():
+            _fail(f"online.proposer {online_config.proposer} does not exist (a checkpoint with the robot task)")
     else:
         if data is None:
             _fail("give exactly one source of training data: --data DATASET or --online")
@@ -1046,9 +1050,16 @@ def train(
         if not {"robot", "dynamics"} & set(task_names(settings.get("task", "robot"))):
             _fail("[selection] scores the model as a critic, which needs a task with robot or dynamics")
         selector = CheckpointSelector(out, SelectionConfig(**{"device": device, **selection}), fresh=not resume)
+    episodes = None
+    if online_config is not None and online_config.propose:
+        from tt.guidance.proposer import online_source
+        from tt.kernels.device import resolve_device
+
+        episodes = online_source(online_config, device=str(resolve_device(device)))
     result = train_cmd(
         data,
         out=out,
+        episodes=episodes,
         device=device,
         resume=resume,
         init=init,
