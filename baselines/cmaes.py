@@ -204,6 +204,7 @@ class CMAES(Optimizer):
             reward=problem.reward,
             backend=backend,
             device=problem.device,
+            progress=problem.progress,
         )
 
         start = time.perf_counter()

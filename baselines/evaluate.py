@@ -98,6 +98,17 @@ def score_episode(
     return out["reward"], out
 
 
+def _load_counted(sp, models: Sequence[mujoco.MjModel], device) -> None:
+    """Load the rollout kernels of `models`' topologies, a note and a bar counting those
+    that compile (`tt.sim.rollout.load_rollout_kernels`)."""
+    from tt.kernels.model import topology_of
+    from tt.kernels.rollout import rollout_kernels
+    from tt.sim.rollout import load_rollout_kernels
+
+    modules = [rollout_kernels(topology_of(m, sp.ee_sites())).module for m in models]
+    load_rollout_kernels(modules, device, progress=True)
+
+
 def _models(
     sp, designs: Sequence[Design], *, backend: str, device: str | None, threads: int | None, progress: bool = False
 ) -> list[mujoco.MjModel]:
@@ -129,12 +140,7 @@ def _models(
         try:
             models = [sp.model(d) for d in firsts.values()]
             if progress:  # the same loads, their compiles counted on a bar
-                from tt.kernels.model import topology_of
-                from tt.kernels.rollout import rollout_kernels
-                from tt.sim.rollout import load_rollout_kernels
-
-                modules = [rollout_kernels(topology_of(m, sp.ee_sites())).module for m in models]
-                load_rollout_kernels(modules, device, progress=True)
+                _load_counted(sp, models, device)
             else:
                 preload_rollout_kernels(models, sp.ee_sites(), device)
         except Exception:  # the rollout loads the same modules next and reports the error there
@@ -213,8 +219,8 @@ def warm_up(
     reward); in a warm process it costs the models' build (milliseconds per design).
     Candidates that keep a design's discrete choices share its topology. The "mujoco" oracle
     compiles nothing; one short episode takes its first-call costs out of the timings.
-    progress: tqdm bars on stderr, among them, on "warp", one counting the topologies whose
-    kernels are compiled (none when all are in the kernel cache; see `tt.sim.rollout.rollout_records`).
+    progress: on "warp", a note and a tqdm bar on stderr counting the topologies whose kernels
+    compile (none when all are in the kernel cache; `tt.sim.rollout.load_rollout_kernels`).
     """
     start = time.perf_counter()
     if not designs or not motions:
@@ -229,11 +235,16 @@ def warm_up(
         by_discrete: dict[tuple[int, ...], Design] = {}
         for d in designs:
             by_discrete.setdefault(d.discrete, d)
-        by_topology: dict[tuple, Design] = {}
+        by_topology: dict[tuple, tuple[Design, mujoco.MjModel]] = {}
         for d in by_discrete.values():
-            by_topology.setdefault(topology_key(sp.model(d), sp.ee_sites()), d)
-        chosen = list(by_topology.values())
-    evaluate_designs(chosen, [short], reward, backend=backend, device=device, progress=progress)
+            m = sp.model(d)
+            by_topology.setdefault(topology_key(m, sp.ee_sites()), (d, m))
+        chosen = [d for d, _ in by_topology.values()]
+        if progress and backend == "warp":
+            from tt.kernels.device import resolve_device
+
+            _load_counted(sp, [m for _, m in by_topology.values()], resolve_device(device))
+    evaluate_designs(chosen, [short], reward, backend=backend, device=device)
     return time.perf_counter() - start
 
 

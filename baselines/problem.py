@@ -37,6 +37,8 @@ class Problem:
     seed. backend: rollout backend used to evaluate candidates in batches. device:
     Warp/torch device, None for the default.
     threads: CPU threads of the "warp" and "mjbatch" backends' batched rollouts, None for every core.
+    progress: say so, with a bar on stderr, when the candidates' kernels must compile before
+    the search (`tt.baselines.warm_up`); the CLI's searches do.
     """
 
     space: str
@@ -47,6 +49,7 @@ class Problem:
     backend: str | None = None
     device: str | None = None
     threads: int | None = None
+    progress: bool = False
 
     def __post_init__(self) -> None:
         from tt.sim.rewards import get_reward, reward_name

@@ -16,7 +16,12 @@ class RandomSearch(Optimizer):
     def optimize(self, problem: Problem) -> Result:
         designs = problem.design_space.sample(problem.budget, seed=problem.seed)
         warmup_seconds = warm_up(
-            designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device
+            designs,
+            problem.motions,
+            reward=problem.reward,
+            backend=problem.backend,
+            device=problem.device,
+            progress=problem.progress,
         )
         start = time.perf_counter()
         ev = evaluate_designs(

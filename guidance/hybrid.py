@@ -73,7 +73,12 @@ class SimVerified(Optimizer):
         # Compiling the verified designs' kernels is a one-off cost of the process, as for
         # CMA-ES and Random; it is reported, not counted in the optimize time.
         compile_seconds = warm_up(
-            designs, problem.motions, reward=problem.reward, backend=problem.backend, device=problem.device
+            designs,
+            problem.motions,
+            reward=problem.reward,
+            backend=problem.backend,
+            device=problem.device,
+            progress=problem.progress,
         )
         verify_start = time.perf_counter()
         ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)

@@ -127,3 +127,21 @@ def test_cli_rollout_shows_the_compile_bar(tmp_path):
     assert "compiling Warp kernels for" in run.stderr
     assert "once per structure (topology)" in run.stderr
     assert "compiling kernels" in run.stderr
+
+
+@pytest.mark.slow
+def test_cli_optimize_says_it_compiles_before_the_search(tmp_path):
+    """``tt optimize --method random`` with a fresh kernel cache: Random's warm-up compiles its
+    candidates' topologies with the note and the bar on stderr, before the search's clock."""
+    run = subprocess.run(
+        [sys.executable, "-m", "tt.cli", "optimize", "--space", "viperx", "--motion", "toss", "--method", "random"]
+        + ["--budget", "2", "--json", str(tmp_path / "result.json")],
+        env=_env(tmp_path / "warp_cache"),
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "compiling Warp kernels for" in run.stderr
+    assert "once per structure (topology)" in run.stderr
+    assert "compiling kernels" in run.stderr

@@ -770,6 +770,7 @@ def optimize(
         backend=backend,
         device=device,
         threads=threads,
+        progress=True,
     )
     result = run_optimizer(problem, method, **options)  # what tt.optimize runs
     rewards = np.asarray(result.rewards, dtype=np.float64)

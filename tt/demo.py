@@ -253,6 +253,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
             budget=budget,
             seed=config.seed,
             device=config.device,
+            progress=True,  # a note and a bar where the candidates' kernels compile first
         )  # the space's default backend
         what = f"{budget} samples, {config.num_steps} DDIM steps" if method in LEARNED else f"{budget} candidates"
         echo(f"[{method}] optimizing ({what}) ...")
