@@ -36,6 +36,7 @@ from tt.guidance.zeroth import (
     DesignDecoder,
     SamplerConfig,
     ZerothOrder,
+    default_temperature,
     embodiment_batch,
     rank_candidates,
 )
@@ -93,9 +94,10 @@ def test_scale_zero_equals_plain_sampling(tiny, motions):
     assert not torch.equal(plain.tokens.values["link"], moved.tokens.values["link"])
 
 
-def test_temperature_reaches_the_sampler_and_one_is_the_default(tiny, motions):
+def test_temperature_reaches_the_sampler_and_its_default_follows_the_samples(tiny, motions, monkeypatch):
     """The sampler's starting noise scale (`tt.dit.sample`'s temperature, checked against the
-    closed form in test_dit_ddim.py) is what SamplerConfig.temperature sets."""
+    closed form in test_dit_ddim.py) is what SamplerConfig.temperature sets; unset, a search of
+    at most four samples samples at 0.3 and a larger one at 1 (`default_temperature`)."""
     sampler = CandidateSampler(tiny, "cpu")
     cfg = get_reward("tracking", "viperx")
     plain = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS)
@@ -103,7 +105,18 @@ def test_temperature_reaches_the_sampler_and_one_is_the_default(tiny, motions):
     cold = sampler.run(motions[:1], cfg, 3, seed=1, num_steps=STEPS, temperature=0.5)
     assert torch.equal(plain.tokens.values["link"], same.tokens.values["link"])
     assert not torch.equal(plain.tokens.values["link"], cold.tokens.values["link"])
-    assert SamplerConfig().temperature == 1.0
+    assert [default_temperature(n) for n in (1, 4, 5, 64)] == [0.3, 0.3, 1.0, 1.0]
+    seen, run = [], CandidateSampler.run
+
+    def spy(self, *args, **kwargs):
+        seen.append(kwargs["temperature"])
+        return run(self, *args, **kwargs)
+
+    monkeypatch.setattr(CandidateSampler, "run", spy)
+    for n, t in ((3, None), (5, None), (5, 0.7)):
+        problem = Problem(space="viperx", motions=tuple(motions[:1]), reward="tracking", budget=n, seed=0)
+        ZerothOrder(SamplerConfig(num_steps=STEPS, temperature=t), model=tiny, decoder=ListDecoder(n)).optimize(problem)
+    assert seen == [0.3, 1.0, 0.7]
     with pytest.raises(TTError, match="temperature"):
         SamplerConfig(temperature=0.0)
 
