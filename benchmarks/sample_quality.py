@@ -74,7 +74,7 @@ def model_pool(trained, decoder, motion, reward_cfg, n: int, seed: int, steps: i
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("checkpoints", nargs="+", help="generators to compare (checkpoint files)")
+    p.add_argument("checkpoints", nargs="*", help="generators to compare (checkpoint files)")
     p.add_argument("--seeds", type=int, default=9)
     p.add_argument("--motions", type=int, default=9, help="validation motions per seed (one per skill first)")
     p.add_argument(
@@ -111,6 +111,8 @@ def main() -> None:
     if args.from_records is not None:
         write_outputs(merge_records([json.loads(Path(f).read_text()) for f in args.from_records]), Path(args.out))
         return
+    if not args.checkpoints:
+        p.error("give the checkpoints to compare (or --from-records)")
     if args.n < max(args.ns) or min(args.ns) < 1:
         p.error("--ns must lie in 1 .. --n")
 

@@ -83,11 +83,12 @@ def default_temperature(samples: int) -> float:
 
     A low temperature narrows the generator's draws onto the designs it rates best; a search
     that keeps the best of many wants their spread. Measured with the shipped ViperX generator
-    (`benchmarks/results/sample_quality.md`, 9 seeds x motions, 64 draws each, validated):
-    at 0.3 its draws track the whole motion in 98.3 % of episodes (90.6 % at 1) with median
-    reward 183.9 (167.7), and one sample scores 180 against 136; by four samples the two are
-    level, and at 16 the best by the critic falls from 258 to 226 (by the simulator from 284
-    to 273). So 0.3 up to four samples, 1 from there.
+    (`benchmarks/results/sample_quality.md`, 9 seeds x motions, 64 draws each, validated on
+    the oracle): at 0.3 its draws track the whole motion in 99.5 % of episodes against 94.6 %
+    at 1 (median reward 202 against 213), one or four samples score level with those at 1
+    (159 / 160 at n = 1), and at 16 the critic's best falls from 247 to 236 (the first shipped
+    generator: 226 against 258). So 0.3 up to four samples, for draws that rarely fail, and 1
+    from there.
     """
     return 0.3 if samples <= 4 else 1.0
 

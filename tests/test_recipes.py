@@ -41,7 +41,7 @@ FIELDS = (
     "control_diffusion_steps",
     "type_weights",
 )
-ONLINE = ("space", "designs", "motions", "refresh_every", "buffer", "absorbing", "select")
+ONLINE = ("space", "designs", "motions", "refresh_every", "buffer", "absorbing", "select", "propose", "propose_steps")
 
 
 def test_every_recipe_is_a_shipped_checkpoints():
