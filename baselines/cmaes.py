@@ -25,7 +25,7 @@ from typing import NamedTuple, Sequence
 import cma
 import numpy as np
 
-from tt.baselines.evaluate import evaluate_designs, warm_up
+from tt.baselines.evaluate import evaluate_designs, warm_up_problem
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 from tt.kernels.errors import TTError
 from tt.sim.designs import Design, DesignSpace
@@ -198,14 +198,7 @@ class CMAES(Optimizer):
                 raise TTError(f"CMA-ES proposals must be designs of space {space.name!r}")
             take = min(len(proposals), -(-plan.screen // 2))
             screened = (proposals[:take] + screened)[: plan.screen]
-        warmup_seconds = warm_up(
-            list(screened) + list(fallback),
-            problem.motions,
-            reward=problem.reward,
-            backend=backend,
-            device=problem.device,
-            progress=problem.progress,
-        )
+        warmup_seconds = warm_up_problem(problem, list(screened) + list(fallback), backend=backend)
 
         start = time.perf_counter()
         all_designs: list[Design] = list(screened)

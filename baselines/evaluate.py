@@ -248,4 +248,17 @@ def warm_up(
     return time.perf_counter() - start
 
 
-__all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up"]
+def warm_up_problem(problem, designs: Sequence[Design], *, backend: str | None = None) -> float:
+    """`warm_up` of `designs` for a `tt.baselines.Problem`: its motions, reward, device and
+    progress, and its backend unless `backend` is given; seconds taken."""
+    return warm_up(
+        designs,
+        problem.motions,
+        reward=problem.reward,
+        backend=backend or problem.backend,
+        device=problem.device,
+        progress=problem.progress,
+    )
+
+
+__all__ = ["Evaluation", "evaluate_designs", "run_rollout", "score_episode", "warm_up", "warm_up_problem"]

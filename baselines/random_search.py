@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from tt.baselines.evaluate import evaluate_designs, warm_up
+from tt.baselines.evaluate import evaluate_designs, warm_up_problem
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 
 
@@ -15,14 +15,7 @@ class RandomSearch(Optimizer):
 
     def optimize(self, problem: Problem) -> Result:
         designs = problem.design_space.sample(problem.budget, seed=problem.seed)
-        warmup_seconds = warm_up(
-            designs,
-            problem.motions,
-            reward=problem.reward,
-            backend=problem.backend,
-            device=problem.device,
-            progress=problem.progress,
-        )
+        warmup_seconds = warm_up_problem(problem, designs)
         start = time.perf_counter()
         ev = evaluate_designs(
             designs,

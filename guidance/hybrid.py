@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from tt.baselines.cmaes import CMAES, CMAESConfig
-from tt.baselines.evaluate import evaluate_designs, warm_up
+from tt.baselines.evaluate import evaluate_designs, warm_up_problem
 from tt.baselines.problem import Optimizer, Problem, Result, best_of
 from tt.guidance.zeroth import ZerothOrder, learned_result
 from tt.kernels.errors import TTError
@@ -72,14 +72,7 @@ class SimVerified(Optimizer):
         sample_seconds = time.perf_counter() - start
         # Compiling the verified designs' kernels is a one-off cost of the process, as for
         # CMA-ES and Random; it is reported, not counted in the optimize time.
-        compile_seconds = warm_up(
-            designs,
-            problem.motions,
-            reward=problem.reward,
-            backend=problem.backend,
-            device=problem.device,
-            progress=problem.progress,
-        )
+        compile_seconds = warm_up_problem(problem, designs)
         verify_start = time.perf_counter()
         ev = evaluate_designs(designs, problem.motions, problem.reward, backend=problem.backend, device=problem.device)
         seconds = sample_seconds + time.perf_counter() - verify_start

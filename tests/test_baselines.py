@@ -51,7 +51,7 @@ def test_cmaes_update_moves_to_a_known_optimum(monkeypatch):
     """With a synthetic objective (minus the squared distance of the normalised continuous
     values to a target) the restart's mean converges to the target: the sign of the update,
     the [0, 1] normalisation and the decoding are right."""
-    monkeypatch.setattr("tt.baselines.cmaes.warm_up", lambda *a, **k: 0.0)
+    monkeypatch.setattr("tt.baselines.cmaes.warm_up_problem", lambda *a, **k: 0.0)
     space = get_space("viperx")
     start = space.sample(1, seed=3)[0]
     lo = np.array([q.low for q in space.continuous_params(start.discrete)])
@@ -212,7 +212,7 @@ def test_budget_below_population_fails_before_any_rollout(monkeypatch):
     def no_work(*args, **kwargs):
         raise AssertionError("a rollout ran before the budget was checked")
 
-    monkeypatch.setattr("tt.baselines.cmaes.warm_up", no_work)
+    monkeypatch.setattr("tt.baselines.cmaes.warm_up_problem", no_work)
     monkeypatch.setattr("tt.baselines.cmaes.evaluate_designs", no_work)
     p = _problem([_motion("toss", steps=10)], budget=4)
     with pytest.raises(ValueError, match="budget 4 is below the CMA-ES population size 5"):
