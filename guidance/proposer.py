@@ -14,7 +14,9 @@ since dit sits below the sampler's decoding and cannot build it itself.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
 
 from tt.kernels.errors import TTError
 
@@ -36,54 +38,54 @@ class ModelProposer:
     steps: int = 10
     reward: str = "tracking"
     device: str | None = None
-    _state: dict = field(default_factory=dict, init=False, repr=False)
 
-    def _loaded(self):
-        if not self._state:
-            from tt.dit.checkpoint import load_model
-            from tt.guidance.zeroth import CandidateSampler, DesignDecoder
-            from tt.sim.designs import get_space
-            from tt.sim.rewards import get_reward
+    @cached_property
+    def _parts(self) -> tuple:
+        """(model, its sampler, the space's decoder, the reward), loaded at the first call."""
+        from tt.dit.checkpoint import load_model
+        from tt.guidance.zeroth import CandidateSampler, DesignDecoder
+        from tt.sim.designs import get_space
+        from tt.sim.rewards import get_reward
 
-            trained = load_model(self.checkpoint, device=self.device)
-            if not trained.trained_on("robot"):
-                raise TTError(
-                    f"online.proposer {self.checkpoint} was trained on {list(trained.tasks)}; proposing designs "
-                    "needs the robot task"
-                )
-            if trained.space is not None and trained.space != self.space:
-                raise TTError(
-                    f"online.proposer {self.checkpoint} is a model of space {trained.space!r}; this run trains "
-                    f"on {self.space!r}"
-                )
-            self._state.update(
-                trained=trained,
-                sampler=CandidateSampler(trained, self.device),
-                decoder=DesignDecoder(get_space(self.space)),
-                reward=get_reward(self.reward, self.space),
+        trained = load_model(self.checkpoint, device=self.device)
+        if not trained.trained_on("robot"):
+            raise TTError(
+                f"online.proposer {self.checkpoint} was trained on {list(trained.tasks)}; proposing designs "
+                "needs the robot task"
             )
-        return self._state
+        if trained.space is not None and trained.space != self.space:
+            raise TTError(
+                f"online.proposer {self.checkpoint} is a model of space {trained.space!r}; this run trains "
+                f"on {self.space!r}"
+            )
+        sampler = CandidateSampler(trained, self.device)
+        return trained, sampler, DesignDecoder(get_space(self.space)), get_reward(self.reward, self.space)
 
     def __call__(self, motions: Sequence, n: int, seed: int) -> list[list]:
         from tt.guidance.zeroth import embodiment_batch
 
-        st = self._loaded()
+        trained, sampler, decoder, reward = self._parts
         out = []
         for i, motion in enumerate(motions):
-            gen = st["sampler"].run((motion,), st["reward"], n, seed=seed + i, num_steps=self.steps, critic="joint")
-            batch = embodiment_batch(st["trained"].layout, st["trained"].normalizer, gen.tokens)
-            decoded = [st["decoder"](batch, j) for j in range(n)]
+            gen = sampler.run((motion,), reward, n, seed=seed + i, num_steps=self.steps, critic="joint")
+            batch = embodiment_batch(trained.layout, trained.normalizer, gen.tokens)
+            decoded = [decoder(batch, j) for j in range(n)]
             out.append([d.design for d in decoded if d.design is not None])
         return out
 
 
 def online_source(config, device: str | None = None, threads: int | None = None):
-    """The `tt.dit.online.OnlineTokenSource` of `config` (an `OnlineConfig`), with a
-    `ModelProposer` of ``config.proposer`` when ``config.propose`` asks for proposals."""
+    """The `tt.dit.online.OnlineTokenSource` of `config` (an `OnlineConfig`) on `device` (None:
+    the default), with a `ModelProposer` of ``config.proposer`` when ``config.propose`` asks for
+    proposals. Raises TTError when the proposer's checkpoint does not exist."""
     from tt.dit.online import OnlineTokenSource
+    from tt.kernels.device import resolve_device
 
+    device = str(resolve_device(device))
     proposer = None
     if config.propose:
+        if not Path(config.proposer).exists():
+            raise TTError(f"online.proposer {config.proposer} does not exist (a checkpoint with the robot task)")
         proposer = ModelProposer(
             config.proposer, config.space, steps=config.propose_steps, reward=config.reward, device=device
         )

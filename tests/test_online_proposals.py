@@ -29,6 +29,10 @@ def test_propose_is_refused_without_a_proposer_or_selection():
         OnlineConfig(space="viperx", select=4, propose=-1, proposer="x.pt")
     with pytest.raises(ValueError, match="online_source"):
         OnlineTokenSource(OnlineConfig(**SMALL, propose=2, proposer="x.pt"), device="cpu")
+    from tt.guidance.proposer import online_source
+
+    with pytest.raises(ValueError, match="online.proposer missing.pt does not exist"):
+        online_source(OnlineConfig(**SMALL, propose=2, proposer="missing.pt"), device="cpu")
 
 
 def test_proposals_join_the_screen_and_the_best_of_both_are_kept():

@@ -381,11 +381,10 @@ def train(data: str | Path | None, out: str | Path, *, online=None, **options) -
             )
     from tt.dit.cli import train_cmd
 
-    if config is not None and config.propose and "episodes" not in options:
+    if config is not None and config.propose and "episodes" not in options:  # as tt train
         from tt.guidance.proposer import online_source
-        from tt.kernels.device import resolve_device
 
-        options["episodes"] = online_source(config, device=str(resolve_device(options.get("device"))))
+        options["episodes"] = online_source(config, options.get("device"))
     return train_cmd(data, out=out, online=config, **options)
 
 

@@ -1034,8 +1034,6 @@ def train(
         from tt.dit.online import OnlineConfig
 
         online_config = OnlineConfig(**{"seed": settings.get("seed", 0), **(online_table or {})})
-        if online_config.propose and not Path(online_config.proposer).exists():
-            _fail(f"online.proposer {online_config.proposer} does not exist (a checkpoint with the robot task)")
     else:
         if data is None:
             _fail("give exactly one source of training data: --data DATASET or --online")
@@ -1052,11 +1050,10 @@ def train(
             _fail("[selection] scores the model as a critic, which needs a task with robot or dynamics")
         selector = CheckpointSelector(out, SelectionConfig(**{"device": device, **selection}), fresh=not resume)
     episodes = None
-    if online_config is not None and online_config.propose:
+    if online_config is not None and online_config.propose:  # the generator's sampler lives above dit
         from tt.guidance.proposer import online_source
-        from tt.kernels.device import resolve_device
 
-        episodes = online_source(online_config, device=str(resolve_device(device)))
+        episodes = online_source(online_config, device)
     result = train_cmd(
         data,
         out=out,
