@@ -41,7 +41,7 @@ At the decoded design (``refine``, `SamplerConfig`'s): once sampling has ended, 
 returned design's continuous choices climb the critic's prediction along its central
 differences, each design's start re-simulated (`tt.guidance.refine`). Token-space guidance
 acts on an x0_hat that decodes only by projection and on a start the gradient cannot see;
-the decoded design has neither problem (benchmarks/results/codesign_guidance_refine.md).
+the decoded design has neither problem (codesign_guidance_refine.md, in git: docs/experiments.md).
 """
 
 from __future__ import annotations
@@ -71,8 +71,9 @@ def _paper_multi() -> dict[str, float]:
 
 
 def _critic_scales() -> dict[str, float]:
-    # tt's, the better of 0.5 and 5 on ViperX at n = 1 (benchmarks/results/codesign_guidance.md,
-    # 9 seeds: validated reward 142 against 79; on 9 fresh seeds 79, codesign_guidance_fresh.md).
+    # tt's, the better of 0.5 and 5 on ViperX at n = 1 with the old generalist as generator
+    # (9 seeds: validated reward 142 against 79; 79 on 9 fresh seeds; codesign_guidance.md and
+    # codesign_guidance_fresh.md, in git: docs/experiments.md, "Results files in git").
     # ALOHA is two ViperX arms.
     return {"viperx": 5.0, "aloha": 5.0}
 

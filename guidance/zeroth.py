@@ -23,7 +23,8 @@ critic can instead be asked about the designs the candidates decode to (``critic
 "designs"``): every candidate is decoded first, and each design's tokens are given to the
 critic as `tt predict` gives them (`tt.guidance.predicted.predict_designs`). It costs a
 decode per candidate (about 0.1 s each for ViperX on this CPU, `benchmarks/results/decode.md`)
-and ranks what will be built (`benchmarks/results/zeroth_ranking_dynamics_critic.md`).
+and ranks what will be built (`zeroth_ranking_dynamics_critic.md`, in git: docs/experiments.md,
+"Results files in git").
 
 Candidates are ranked by that objective and decoded to designs of the problem's space
 (`tt.tokens.design_from_tokens`: the embodiment tokens are matched against every discrete
