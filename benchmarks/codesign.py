@@ -1,12 +1,16 @@
-"""Co-design on ViperX with the diffusion model vs the baselines: the paper's tables, test-time
-scaling and the simulator-gradient (lambda) ablation.
+"""Co-design with the diffusion model vs the baselines: the paper's tables, test-time scaling
+and the simulator-gradient (lambda) ablation, on ViperX or any other design space (`--space`).
 
-Methods, each on the same problem (design space ViperX, target motions, reward, seed):
+Methods, each on the same problem (design space, target motions, reward, seed):
 Random (the best of `--budget` random designs, one batched Warp rollout), CMA-ES batched
 (tt's default CMA-ES, every generation one Warp rollout, budget `--budget`), Zeroth-Order
 (`--n` model samples ranked by the model's own reward prediction, no simulator) and Dynamics
 Self-Guidance (`--dgs-n` guided samples, ranked the same way). The MuJoCo + mink oracle
-re-runs every winner on its run's motions: the tables show those validated numbers.
+re-runs every winner on its run's motions: the tables show those validated numbers. A space
+that ships no generator (`tt.dit.checkpoint.default_checkpoint`; ALOHA, the mobile bimanual
+robot and the quadruped today) runs the baselines only, unless `--checkpoint` names one;
+`--methods` picks the table's methods. Rollouts use the space's default backend (tt's Warp
+kernels; MuJoCo C batches for the quadruped, whose contacts they need), validation the oracle.
 
 Parts (``--parts``, run in this order, the tracking reward first):
 * table: per setting and reward, every method on every seed; mean and 95% CI (Student t)
@@ -30,7 +34,7 @@ Parts (``--parts``, run in this order, the tracking reward first):
 Timing. Every optimize time is the optimizer's wall time for its problem; validation is
 excluded. One-time costs are excluded and reported: the Warp kernel compile (or cache
 load) and first calls of the rollout backends (a warm-up before anything is timed, as in
-benchmarks/optimize.py), loading the checkpoint and building ViperX's decoding table
+benchmarks/optimize.py), loading the checkpoint and building the space's decoding table
 (`tt.tokens.design_fit.CandidateTable`), once per process, shared by the learned methods.
 
 Prints one JSON line per run, the script's own run time, and writes
@@ -56,6 +60,7 @@ import numpy as np
 
 from tt.baselines import CMAES, CMAESConfig, Problem, RandomSearch, evaluate_designs, warm_up
 from tt.report import REWARD_METRIC, markdown_table, mean_ci, plot_method_bars, summary_row
+from tt.sim.backends import default_backend
 from tt.sim.designs import get_space
 from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
@@ -67,7 +72,8 @@ except ImportError:  # run as a module from the repository root
     from benchmarks.machine import machine_header
 
 RESULTS = Path(__file__).parent / "results"
-SPACE = "viperx"
+#: The design spaces' names in the report.
+SPACE_NAMES = {"viperx": "ViperX", "aloha": "ALOHA", "bimanual": "mobile bimanual", "quadruped": "Quadruped"}
 RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
 ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT = "Zeroth + sim", "Zeroth + sim (top k)", "CMA-ES init model"
 #: Self-Guidance steered by the dynamics critic's gradient (part "guidance"), one label per scale.
@@ -80,19 +86,63 @@ HYBRIDS = (ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 SINGLE, MULTI = "single trajectory", "multi trajectory"
 PARTS = ("table", "scaling", "lambda", "hybrid", "guidance")
 
-#: The paper's ViperX tracking tables (RTX 4090, its own budgets), for orientation only.
+#: The paper's tables (RTX 4090, its own budgets), for orientation only, by (space, setting,
+#: reward): (method, pos err cm, orn err deg, survival %, the reward's metric or None, optimize s).
+#: The paper's Random is one random design of the space, not the best of a budget.
 PAPER = {
-    SINGLE: [
-        ("Random", 19.4, 8.9, 72.2, None),
-        ("CMA-ES", 5.0, 5.7, 98.3, 47.5),
-        ("Zeroth", 4.1, 4.2, 96.1, 0.5),
-        ("DGS", 4.1, 3.9, 99.4, 2.8),
+    ("viperx", SINGLE, "tracking"): [
+        ("Random", 19.4, 8.9, 72.2, None, None),
+        ("CMA-ES", 5.0, 5.7, 98.3, None, 47.5),
+        ("Zeroth", 4.1, 4.2, 96.1, None, 0.5),
+        ("DGS", 4.1, 3.9, 99.4, None, 2.8),
     ],
-    MULTI: [
-        ("Random", 17.0, 9.4, 80.6, None),
-        ("CMA-ES", 7.1, 6.1, 86.7, 663.8),
-        ("Zeroth", 3.4, 3.9, 95.6, 1.2),
-        ("DGS", 2.4, 3.5, 98.9, 43.5),
+    ("viperx", MULTI, "tracking"): [
+        ("Random", 17.0, 9.4, 80.6, None, None),
+        ("CMA-ES", 7.1, 6.1, 86.7, None, 663.8),
+        ("Zeroth", 3.4, 3.9, 95.6, None, 1.2),
+        ("DGS", 2.4, 3.5, 98.9, None, 43.5),
+    ],
+    ("quadruped", SINGLE, "tracking"): [
+        ("Random", 3.4, 8.4, 96.1, None, None),
+        ("CMA-ES", 1.9, 5.8, 100.0, None, 265.5),
+        ("Zeroth", 2.6, 7.4, 99.4, None, 0.8),
+        ("DGS", 2.6, 7.4, 99.4, None, 5.0),
+    ],
+    ("quadruped", SINGLE, "tracking_torque"): [
+        ("Random", 3.4, 8.4, 96.1, 4.6, None),
+        ("CMA-ES", 2.0, 6.0, 100.0, 3.2, 250.0),
+        ("Zeroth", 2.5, 7.1, 99.4, 3.1, 3.3),
+        ("DGS", 2.5, 7.0, 98.9, 3.2, 5.5),
+    ],
+    ("quadruped", SINGLE, "tracking_velocity"): [
+        ("Random", 3.4, 8.4, 96.1, 0.561, None),
+        ("CMA-ES", 2.1, 5.9, 100.0, 0.376, 251.1),
+        ("Zeroth", 2.8, 8.0, 98.9, 0.450, 1.1),
+        ("DGS", 3.5, 9.0, 99.4, 0.455, 9.1),
+    ],
+    ("quadruped", SINGLE, "tracking_size"): [
+        ("Random", 3.4, 8.4, 96.1, 9.25, None),
+        ("CMA-ES", 2.3, 7.2, 100.0, 7.28, 263.3),
+        ("Zeroth", 4.2, 11.6, 94.4, 7.40, 3.2),
+        ("DGS", 4.6, 12.6, 94.4, 7.17, 9.0),
+    ],
+    ("bimanual", MULTI, "tracking"): [
+        ("Random", 2.8, 4.4, 99.6, None, None),
+        ("CMA-ES", 1.7, 2.5, 100.0, None, 11505.2),
+        ("Zeroth", 1.8, 2.5, 99.6, None, 20.7),
+        ("DGS", 1.7, 2.7, 99.1, None, 30.8),
+    ],
+    ("bimanual", MULTI, "tracking_velocity"): [
+        ("Random", 2.8, 4.4, 99.6, 0.252, None),
+        ("CMA-ES", 1.8, 2.4, 99.6, 0.188, 11505.2),
+        ("Zeroth", 1.9, 2.9, 99.1, 0.271, 61.95),
+        ("DGS", 1.9, 2.9, 98.7, 0.247, 53.5),
+    ],
+    ("bimanual", MULTI, "tracking_size"): [
+        ("Random", 2.8, 4.4, 99.6, 4.84, None),
+        ("CMA-ES", 1.8, 2.7, 100.0, 4.79, 11505.2),
+        ("Zeroth", 1.7, 2.7, 99.1, 4.71, 10.7),
+        ("DGS", 1.6, 2.8, 99.6, 4.73, 58.9),
     ],
 }
 
@@ -109,7 +159,7 @@ class Learned:
     critic: object = None
 
 
-def load_learned(checkpoint: Path, critic_checkpoint: Path | None = None) -> Learned:
+def load_learned(space_name: str, checkpoint: Path, critic_checkpoint: Path | None = None) -> Learned:
     from tt.dit.checkpoint import load_model
     from tt.guidance.zeroth import DesignDecoder
     from tt.tokens.design_fit import CandidateTable
@@ -123,7 +173,7 @@ def load_learned(checkpoint: Path, critic_checkpoint: Path | None = None) -> Lea
         critic = load_model(critic_checkpoint, device="cpu")
         # Here, not at the first optimize: the runs count a ValueError as a run that returned no design.
         check_critic(trained, critic)
-    space = get_space(SPACE)
+    space = get_space(space_name)
     decoder = DesignDecoder(space, table=CandidateTable(space))
     return Learned(trained, decoder, Path(checkpoint), time.perf_counter() - start, critic)
 
@@ -228,7 +278,7 @@ def run_group(
     """Every (method, n, lambda) of `entries` on one problem, winners validated in one oracle call."""
     results = []
     for method, n, lam in entries:
-        problem = Problem(SPACE, motions, reward, n, seed=seed, backend="warp", device="cpu")
+        problem = Problem(args.space, motions, reward, n, seed=seed, device="cpu")
         start = time.perf_counter()
         try:
             results.append((method, n, lam, optimizer(method, args, learned, lam=lam).optimize(problem), None))
@@ -268,7 +318,7 @@ def run_group(
                 critic_grad=info.get("critic_grad"),
                 refine=info.get("refine"),
                 **summary_row(ev.metrics, k),
-                design=get_space(SPACE).to_dict(res.best),
+                design=get_space(args.space).to_dict(res.best),
             )
             k += 1
         records.append(rec)
@@ -368,7 +418,7 @@ def scaling_series(records: list[dict]) -> dict[str, list[tuple[int, tuple, tupl
     return out
 
 
-def plot_scaling(records: list[dict], path: Path) -> None:
+def plot_scaling(records: list[dict], path: Path, space: str = "ViperX") -> None:
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for method, pts in scaling_series(records).items():
@@ -388,7 +438,7 @@ def plot_scaling(records: list[dict], path: Path) -> None:
         ax.set_ylabel("validated reward (oracle)")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
-    fig.suptitle("ViperX single trajectory, tracking: test-time scaling (mean ± 95% CI over seeds)")
+    fig.suptitle(f"{space} single trajectory, tracking: test-time scaling (mean ± 95% CI over seeds)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -609,9 +659,25 @@ def targets(tables: dict[str, list[dict]], scaling: list[dict], info: dict) -> l
     return lines
 
 
+def space_name(info: dict) -> str:
+    """The report's name of the run's design space (runs before `--space` were ViperX's)."""
+    return SPACE_NAMES.get(info.get("space", "viperx"), info.get("space", "viperx"))
+
+
 def notes(records: list[dict], info: dict) -> str:
     """What the numbers mean and what was cut; the decode statistics of this run."""
     learned = [r for r in records if r["method"] in LEARNED]
+    if not learned:
+        return (
+            "## Notes\n\n"
+            "- Random is the best of its budget of random designs, each simulated; the paper's Random row is one "
+            "random design of the space, with no search.\n"
+            "- Timing. Random and CMA-ES times are candidate sampling and batched rollouts on the space's default "
+            f"backend ({default_backend(info.get('space', 'viperx'))}); the paper's CMA-ES times are its own budgets "
+            "on a GPU.\n"
+            "- Other jobs shared the machine (see the load averages above); the methods of one run ran back to back, "
+            "so they saw similar load.\n"
+        )
     candidates = sum(r["n"] for r in learned)
     undecoded = sum(r["n"] for r in learned if not r["ok"]) + sum(r.get("decode_failures") or 0 for r in _ok(learned))
     winners = [r for r in _ok(learned) if r.get("distance") is not None]
@@ -621,7 +687,7 @@ def notes(records: list[dict], info: dict) -> str:
     lines = [
         "## Notes",
         "",
-        f"- Decoding. A learned method's winner is its best-ranked candidate, decoded to a ViperX design "
+        f"- Decoding. A learned method's winner is its best-ranked candidate, decoded to a {space_name(info)} design "
         f"(`tt.tokens.design_from_tokens`): a candidate whose embodiment tokens have the token structure of a discrete "
         f"choice of the space (token counts and every binary attribute) decodes to it; otherwise it is projected onto "
         f"the nearest structure (edit distance over the token sequences, counted in binary attributes); continuous "
@@ -673,7 +739,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     lam = [r for r in records if r["part"] == "lambda"]
     sections = []
     for name, rs in tables.items():
-        head = f"## ViperX, {name}\n\n"
+        head = f"## {space_name(info)}, {name}\n\n"
         if name == SINGLE:
             first = [r for r in rs if r["method"] == rs[0]["method"] and r["reward_name"] == rs[0]["reward_name"]]
             head += f"- run i (seed i) optimizes for motion i of: {', '.join(r['motions'][0] for r in first)}\n"
@@ -701,26 +767,32 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             )
             seeds = sorted({r["seed"] for r in sub})
             head += f"\n### {reward} ({len(seeds)} runs: seeds {', '.join(map(str, seeds))})\n\n{table}\n"
-        paper = PAPER.get(name)
-        if paper and any(r["reward_name"] == "tracking" for r in rs):
-            prow = [
-                {"name": p[0], "pos_err": p[1], "orn_err": p[2], "survival_pct": p[3], "seconds": p[4]} for p in paper
-            ]
-            head += (
-                "\nThe paper's table (RTX 4090, 3.8M-episode dataset, 11.6M-parameter model, its own budgets; "
-                "not comparable run for run):\n\n"
-                + markdown_table(
-                    prow,
-                    [
-                        ("pos_err", "pos err (cm)"),
-                        ("orn_err", "orn err (deg)"),
-                        ("survival_pct", "survival (%)"),
-                        ("seconds", "optimize (s)"),
-                    ],
-                    first=("name", "method"),
+            paper = PAPER.get((info.get("space", "viperx"), name, reward))
+            if paper:
+                metric = REWARD_METRIC.get(reward)
+                prow = [
+                    {
+                        "name": p[0],
+                        "pos_err": p[1],
+                        "orn_err": p[2],
+                        "survival_pct": p[3],
+                        "metric": p[4],
+                        "seconds": p[5],
+                    }
+                    for p in paper
+                ]
+                head += (
+                    "\nThe paper's table (RTX 4090, its own dataset, model and budgets; its Random is one random "
+                    "design; not comparable run for run):\n\n"
+                    + markdown_table(
+                        prow,
+                        [("pos_err", "pos err (cm)"), ("orn_err", "orn err (deg)"), ("survival_pct", "survival (%)")]
+                        + ([("metric", metric[1])] if metric else [])
+                        + [("seconds", "optimize (s)")],
+                        first=("name", "method"),
+                    )
+                    + "\n"
                 )
-                + "\n"
-            )
         sections.append(head)
     if scaling:
         rows = []
@@ -754,7 +826,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             )
             + "\n"
         )
-        plot_scaling(scaling, out.parent / f"{out.stem}_scaling.png")
+        plot_scaling(scaling, out.parent / f"{out.stem}_scaling.png", space_name(info))
     if lam:
         rows = []
         for value in sorted({r["lambda"] for r in lam}):
@@ -786,18 +858,24 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         sections.append(section)
         goal += lines
     skipped = info.get("skipped", [])
+    in_table = [m for m in METHODS if any(r["method"] == m and r["part"] == "table" for r in records)]
+    title = ", ".join(in_table) if in_table else "Random, CMA-ES, Zeroth-Order and Self-Guidance"
     text = (
-        "# Co-design: Random, CMA-ES, Zeroth-Order and Self-Guidance on ViperX\n\n"
+        f"# Co-design: {title} on {space_name(info)}\n\n"
         + info["machine"]
         + f"- load average (1, 5, 15 min) at start {info['load_start']}, at end {info.get('load_end', '-')}\n"
         f"- command: `{info['command']}`\n"
         f"- run time {info.get('wall_seconds', float('nan')):.0f} s wall; before any timing: warm-up (kernel "
         "compile or "
-        f"cache load, first calls) {info['warmup_seconds']:.0f} s, checkpoint load and decoding table "
-        f"{info['learned_seconds']:.1f} s\n"
-        f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} parameters, "
-        f"EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for Self-Guidance, "
-        f"guidance scale the paper's (50 single, 500 multi-trajectory)\n"
+        f"cache load, first calls) {info['warmup_seconds']:.0f} s"
+        + (
+            f", checkpoint load and decoding table {info['learned_seconds']:.1f} s\n"
+            f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} "
+            f"parameters, EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for "
+            "Self-Guidance, guidance scale the paper's (50 single, 500 multi-trajectory)\n"
+            if info.get("checkpoint")
+            else f"\n- no learned method: {info.get('no_checkpoint', 'not asked for')}\n"
+        )
         + (
             f"- critic: `{info['critic_checkpoint']}`'s dynamics task ranks the samples of Zeroth-Order, "
             "Self-Guidance and the hybrids (asked about the decoded designs when it was trained told the "
@@ -816,14 +894,19 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             if hybrid
             else ""
         )
-        + f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory {info['multi_n']} "
-        f"and {info['multi_dgs_n']}); Random and CMA-ES budget {info['budget']} candidates per motion (multi "
+        + (
+            f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory "
+            f"{info['multi_n']} and {info['multi_dgs_n']}); "
+            if info.get("checkpoint")
+            else "- "
+        )
+        + f"Random and CMA-ES budget {info['budget']} candidates per motion (multi "
         f"trajectory {info['multi_budget']}); CMA-ES population {info['popsize']}, {info['generations']} generations "
         f"per restart, half the budget screened first (tt's default)\n"
         "- one row: mean ± 95% CI (Student t) over runs (seed i). Errors, survival, the reward's metric and the "
         "reward are the oracle's (MuJoCo C + mink) re-run of each winner on its run's motions; a learned method "
-        "returns no design when none of its candidates decodes to a ViperX design (counted in 'runs with a "
-        "design'; its time still counts)\n"
+        f"returns no design when none of its candidates decodes to a {space_name(info)} design (counted in "
+        "'runs with a design'; its time still counts)\n"
         + ("- skipped (over --max-minutes): " + "; ".join(skipped) + "\n" if skipped else "")
         + "\n## The issue's targets\n\n"
         + ("\n".join(goal) if goal else "- not measured in this run")
@@ -877,7 +960,16 @@ def _floats(text: str) -> list[float]:
 def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the shipped ViperX one)")
+    ap.add_argument("--space", default="viperx", choices=sorted(SPACE_NAMES), help="design space")
+    ap.add_argument(
+        "--checkpoint", type=Path, default=None, help="DiT checkpoint (default: the space's shipped generator, if any)"
+    )
+    ap.add_argument(
+        "--methods",
+        default=None,
+        help="table: comma-separated of random, cmaes, zeroth, dgs (default: all four, or random and cmaes for a "
+        "space that ships no generator)",
+    )
     ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
@@ -973,8 +1065,25 @@ def main() -> None:
     t0 = time.perf_counter()
     from tt.dit.checkpoint import default_checkpoint
 
-    checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(SPACE, task="robot")
     parts = [p for p in args.parts.split(",") if p]
+
+    from tt.dit.checkpoint import NoCheckpointError
+
+    no_checkpoint = None
+    try:
+        checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(args.space, task="robot")
+    except NoCheckpointError:
+        checkpoint, no_checkpoint = None, f"tt ships no generator for {args.space!r} (and no --checkpoint was given)"
+    method_names = {"random": RANDOM, "cmaes": CMAES_B, "zeroth": ZEROTH, "dgs": DGS}
+    asked = (args.methods or ("random,cmaes" if checkpoint is None else ",".join(method_names))).split(",")
+    unknown_methods = sorted(set(asked) - set(method_names))
+    if unknown_methods:
+        sys.exit(f"--methods: unknown {unknown_methods}; valid: {', '.join(method_names)}")
+    table_methods = {method_names[m] for m in asked}
+    if checkpoint is None and (table_methods & set(LEARNED) or set(parts) - {"table"}):
+        sys.exit(f"{no_checkpoint}: only --parts table with --methods random,cmaes can run")
+    if checkpoint is not None and not table_methods & set(LEARNED) and set(parts) == {"table"}:
+        checkpoint, no_checkpoint = None, "--methods asked for none"
     hybrid_settings = [s for s in args.hybrid_settings.split(",") if s]
     if sorted(set(hybrid_settings) - {"single", "multi"}):
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
@@ -1000,7 +1109,8 @@ def main() -> None:
     for names in (rewards, multi_rewards, hybrid_rewards):
         names.sort(key=lambda r: r != "tracking")
 
-    val = for_space(motion_set("val", arms=1), SPACE)
+    space = get_space(args.space)
+    val = for_space(motion_set("val", arms=len(space.ee_sites())), args.space)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
     seeds_needed = max(
         args.seeds,
@@ -1017,7 +1127,9 @@ def main() -> None:
         "machine": machine_header("cpu"),
         "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
         "command": command,
-        "checkpoint": str(checkpoint),
+        "space": args.space,
+        "checkpoint": str(checkpoint) if checkpoint is not None else None,
+        "no_checkpoint": no_checkpoint,
         "hybrid_verify": args.hybrid_verify,
         "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None,
         "steps": args.steps,
@@ -1033,27 +1145,31 @@ def main() -> None:
         "lambda_start": args.lambda_start,
         "guidance_n": args.guidance_n,
     }
-    # One-time costs, before any timing: the model and decoding table, every ViperX topology's
-    # kernels (rollout, and the differentiable rollout for the lambda part), first calls.
-    learned = load_learned(checkpoint, args.critic_checkpoint)
-    info.update(
-        learned_seconds=learned.seconds,
-        checkpoint_step=learned.trained.step,
-        parameters=sum(p.numel() for p in learned.trained.model.parameters()),
-    )
+    # One-time costs, before any timing: the model and decoding table, every topology's kernels
+    # (rollout, and the differentiable rollout for the lambda part), first calls.
+    learned = None
+    if checkpoint is not None:
+        learned = load_learned(args.space, checkpoint, args.critic_checkpoint)
+        info.update(
+            learned_seconds=learned.seconds,
+            checkpoint_step=learned.trained.step,
+            parameters=sum(p.numel() for p in learned.trained.model.parameters()),
+        )
     t = time.perf_counter()
-    space = get_space(SPACE)
     for reward in dict.fromkeys(rewards + multi_rewards + hybrid_rewards + ["tracking"]):
-        warm_up(space.sample(200, seed=12345), val[:1], reward=reward, backend="warp", device="cpu")
+        warm_up(
+            space.sample(200, seed=12345), val[:1], reward=reward, backend=default_backend(args.space), device="cpu"
+        )
         warm_up(space.sample(1, seed=12345), val[:1], reward=reward, backend="mujoco")
     short = (Motion(val[0].name, val[0].pos[:20], val[0].quat[:20], val[0].dt),)
-    first_calls = [m for m in LEARNED if m != ZEROTH_SIM_TOP]  # the same first calls as Zeroth + sim
+    # The same first calls as Zeroth + sim.
+    first_calls = [m for m in LEARNED if m != ZEROTH_SIM_TOP] if learned is not None else []
     if "guidance" in parts:
         first_calls += list(dict.fromkeys(critic_label(*v) for v in guidance_variants(args)))
     for method in first_calls:
         try:
             optimizer(method, argparse.Namespace(**{**vars(args), "steps": 2}), learned).optimize(
-                Problem(SPACE, short, "tracking", 2, seed=0, device="cpu")
+                Problem(args.space, short, "tracking", 2, seed=0, device="cpu")
             )
         except ValueError:  # two candidates after two steps need not decode; the first calls are what counts
             pass
@@ -1065,7 +1181,9 @@ def main() -> None:
         by_topology = {}
         for d in space.sample(200, seed=12345):
             by_topology.setdefault(topology_key(space.model(d), space.ee_sites()), d)
-        design_reward_gradient(space, list(by_topology.values()), short, get_reward("tracking", SPACE), device="cpu")
+        design_reward_gradient(
+            space, list(by_topology.values()), short, get_reward("tracking", args.space), device="cpu"
+        )
     info["warmup_seconds"] = time.perf_counter() - t
     print(json.dumps({"bench": "codesign", "config": info}), flush=True)
 
@@ -1083,16 +1201,24 @@ def main() -> None:
         records.extend(run_group(part, setting, motions, reward, seed, entries, args, learned))
 
     single_entries = [
-        (RANDOM, args.budget, 0.0),
-        (CMAES_B, args.budget, 0.0),
-        (ZEROTH, args.n, 0.0),
-        (DGS, args.dgs_n, 0.0),
+        e
+        for e in [
+            (RANDOM, args.budget, 0.0),
+            (CMAES_B, args.budget, 0.0),
+            (ZEROTH, args.n, 0.0),
+            (DGS, args.dgs_n, 0.0),
+        ]
+        if e[0] in table_methods
     ]
     multi_entries = [
-        (RANDOM, args.multi_budget, 0.0),
-        (CMAES_B, args.multi_budget, 0.0),
-        (ZEROTH, args.multi_n, 0.0),
-        (DGS, args.multi_dgs_n, 0.0),
+        e
+        for e in [
+            (RANDOM, args.multi_budget, 0.0),
+            (CMAES_B, args.multi_budget, 0.0),
+            (ZEROTH, args.multi_n, 0.0),
+            (DGS, args.multi_dgs_n, 0.0),
+        ]
+        if e[0] in table_methods
     ]
     jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
     if "table" in parts:
@@ -1174,7 +1300,8 @@ def main() -> None:
     print(text)
     print(
         f"codesign benchmark: {time.perf_counter() - t0:.0f} s in all ({info['wall_seconds']:.0f} s of timed runs, "
-        f"{info['warmup_seconds']:.0f} s warm-up, {learned.seconds:.0f} s model and decoding table)",
+        f"{info['warmup_seconds']:.0f} s warm-up"
+        + (f", {learned.seconds:.0f} s model and decoding table)" if learned is not None else ")"),
         flush=True,
     )
 
