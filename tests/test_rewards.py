@@ -487,6 +487,22 @@ def test_registry():
     assert get_reward("tracking_size", "viperx").needs == ("size",)
 
 
+@pytest.mark.parametrize("space", ["viperx", "aloha", "bimanual", "quadruped"])
+def test_mass_target_is_the_median_uniform_design(space):
+    """Every space's mass target is the median mass of its uniform designs, the paper's ViperX
+    rule (3.2 kg): within 3 % over 300 draws, strictly inside the 5th-95th percentile band, so
+    the weight term neither always acts (a search would prefer designs that fail early) nor never."""
+    from tt.sim.designs import get_space
+    from tt.sim.rewards import robot_mass
+
+    sp = get_space(space)
+    masses = robot_mass([sp.model(d) for d in sp.sample(300, seed=1)], dtype=torch.float64).numpy()
+    target = get_reward("tracking_weight", space).mass_target
+    assert abs(target - np.median(masses)) <= 0.03 * np.median(masses)
+    lo, hi = np.percentile(masses, [5, 95])
+    assert lo < target < hi
+
+
 def test_the_papers_reward_names_are_aliases():
     """Every alias names its reward in any case, with spaces, hyphens or underscores between words;
     tt's names stay; the paper's appendix sections ("Tracking Only" ... "Tracking Weight") are all there."""
