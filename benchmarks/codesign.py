@@ -1063,12 +1063,9 @@ def main() -> None:
         return
 
     t0 = time.perf_counter()
-    from tt.dit.checkpoint import default_checkpoint
+    from tt.dit.checkpoint import NoCheckpointError, default_checkpoint
 
     parts = [p for p in args.parts.split(",") if p]
-
-    from tt.dit.checkpoint import NoCheckpointError
-
     no_checkpoint = None
     try:
         checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(args.space, task="robot")
@@ -1200,26 +1197,12 @@ def main() -> None:
             return
         records.extend(run_group(part, setting, motions, reward, seed, entries, args, learned))
 
-    single_entries = [
-        e
-        for e in [
-            (RANDOM, args.budget, 0.0),
-            (CMAES_B, args.budget, 0.0),
-            (ZEROTH, args.n, 0.0),
-            (DGS, args.dgs_n, 0.0),
-        ]
-        if e[0] in table_methods
-    ]
-    multi_entries = [
-        e
-        for e in [
-            (RANDOM, args.multi_budget, 0.0),
-            (CMAES_B, args.multi_budget, 0.0),
-            (ZEROTH, args.multi_n, 0.0),
-            (DGS, args.multi_dgs_n, 0.0),
-        ]
-        if e[0] in table_methods
-    ]
+    def table_entries(budget: int, n: int, dgs_n: int) -> list[tuple[str, int, float]]:
+        sizes = ((RANDOM, budget), (CMAES_B, budget), (ZEROTH, n), (DGS, dgs_n))
+        return [(method, k, 0.0) for method, k in sizes if method in table_methods]
+
+    single_entries = table_entries(args.budget, args.n, args.dgs_n)
+    multi_entries = table_entries(args.multi_budget, args.multi_n, args.multi_dgs_n)
     jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
     if "table" in parts:
         for reward in rewards:
