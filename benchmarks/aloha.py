@@ -1,11 +1,10 @@
-"""The paper's ALOHA experiment with the baselines: the original ALOHA against Random and
-CMA-ES on the bimanual validation flings, reward "Tracking Velocity", winners on the oracle.
+"""The paper's ALOHA experiment: the original ALOHA against Random, CMA-ES and the learned
+methods on the bimanual validation flings, reward "Tracking Velocity", winners on the oracle.
 
 The paper fabricated an ALOHA optimized by its model for the "Tracking Velocity" reward on a
 bimanual cloth fling and reports, against the original design, tracking error 13.0 -> 3.5 cm
 (-73 %) and max joint speed 2.57 -> 1.82 rad/s (-30 %), measured on the real robots. This
-runs the same comparison in simulation with tt's baselines (no learned method: tt ships no
-ALOHA checkpoint yet):
+runs the same comparison in simulation:
 
 * Problems: run i (seed i, i = 0 .. --seeds - 1) optimizes one design for the i-th fling of
   the bimanual validation set (``motion_set("val", arms=2)``, the ``bi_fling`` ones, i mod
@@ -15,7 +14,11 @@ ALOHA checkpoint yet):
 * Methods: Random (the best of `--budget` random designs, one batched rollout) and batched
   CMA-ES (tt optimize's default configuration, `--budget` rollouts), and Random again at
   CMA-ES's wall time on the same run ("Random (= time)": its budget scaled by the ratio of
-  the two methods' times at `--budget`), for the comparison at equal wall time.
+  the two methods' times at `--budget`), for the comparison at equal wall time. Where the
+  space ships a generator (`checkpoints/aloha_mini_robot.pt`, or `--checkpoint`), also the
+  paper's Zeroth-Order (`--budget` samples ranked by the shipped critic, the best one
+  returned) and tt's best hybrid, CMA-ES started from the model's samples (`--budget`
+  rollouts), with Random at the hybrid's wall time ("Random (= model time)").
 * Validation: the original design (the space's nominal one, `tt designs --space aloha
   --nominal`) and every winner re-run on the MuJoCo + mink oracle on the run's fling, in
   one call per run.
@@ -58,7 +61,13 @@ RESULTS = Path(__file__).parent / "results"
 RUNS = Path(__file__).resolve().parents[1] / "runs" / "benchmarks"
 SPACE = "aloha"
 ORIGINAL, RANDOM, CMAES_B, RANDOM_T = "Original ALOHA", "Random", "CMA-ES batched", "Random (= time)"
-METHODS = (RANDOM, CMAES_B, RANDOM_T)
+#: The learned methods (with a generator for the space): the paper's Zeroth-Order (the critic
+#: ranks the model's samples, one rollout) and tt's best hybrid (CMA-ES started from the model's
+#: samples, benchmarks/results/codesign_hybrid9.md), and Random at the hybrid's wall time.
+ZEROTH, CMAES_INIT, RANDOM_TM = "Zeroth-Order", "CMA-ES from the model", "Random (= model time)"
+BASELINES = (RANDOM, CMAES_B, RANDOM_T)
+LEARNED = (ZEROTH, CMAES_INIT, RANDOM_TM)
+METHODS = BASELINES + LEARNED
 #: The paper's ALOHA result (real robots, the original design against the model's optimized
 #: one): (original, optimized, the paper's relative change in %).
 PAPER = {"pos_err": (13.0, 3.5, -73), "max_joint_speed": (2.57, 1.82, -30)}
@@ -73,8 +82,10 @@ def fling_motions() -> list:
     return for_space(flings, SPACE)
 
 
-def run_one(seed: int, motion, args) -> list[dict]:
-    """Random, CMA-ES and Random at CMA-ES's time on one fling; the original and the winners
+def run_one(seed: int, motion, args, learned=None, quiet: bool = False) -> list[dict]:
+    """Random, CMA-ES and Random at CMA-ES's time on one fling, and with `learned` (a loaded
+    generator and critic, `benchmarks/codesign.py`'s `load_learned`) Zeroth-Order, CMA-ES from
+    the model's samples and Random at the latter's time; the original and the winners
     validated on the oracle in one call. One record per design."""
     space = get_space(SPACE)
 
@@ -83,18 +94,38 @@ def run_one(seed: int, motion, args) -> list[dict]:
 
     cmaes = CMAES(CMAESConfig(popsize=args.popsize, generations=args.generations))
     results = {RANDOM: RandomSearch().optimize(problem(args.budget)), CMAES_B: cmaes.optimize(problem(args.budget))}
-    t_random, t_cmaes = results[RANDOM].seconds, results[CMAES_B].seconds
-    equal = max(1, int(round(args.budget * t_cmaes / max(t_random, 1e-9))))
-    results[RANDOM_T] = RandomSearch().optimize(problem(equal))
-    designs = [space.nominal()] + [results[m].best for m in METHODS]
+    t_random = results[RANDOM].seconds
+
+    def at_time(seconds: float):  # Random given `seconds`: its budget scaled by the time ratio
+        return RandomSearch().optimize(problem(max(1, int(round(args.budget * seconds / max(t_random, 1e-9))))))
+
+    results[RANDOM_T] = at_time(results[CMAES_B].seconds)
+    if learned is not None:
+        from tt.guidance.hybrid import ModelInitCMAES
+        from tt.guidance.zeroth import SamplerConfig, ZerothOrder
+
+        def zeroth() -> ZerothOrder:
+            return ZerothOrder(
+                SamplerConfig(num_steps=args.ddim_steps),
+                model=learned.trained,
+                decoder=learned.decoder,
+                critic_model=learned.critic,
+            )
+
+        results[ZEROTH] = zeroth().optimize(problem(args.budget))
+        init = ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
+        results[CMAES_INIT] = init.optimize(problem(args.budget))
+        results[RANDOM_TM] = at_time(results[CMAES_INIT].seconds)
+    labels = [m for m in METHODS if m in results]
+    designs = [space.nominal()] + [results[m].best for m in labels]
     ev = evaluate_designs(designs, [motion], args.reward, backend="mujoco")
     records = []
-    for k, (label, design) in enumerate(zip((ORIGINAL,) + METHODS, designs)):
+    for k, (label, design) in enumerate(zip([ORIGINAL] + labels, designs)):
         rec = {"bench": "aloha", "seed": seed, "motion": motion.name, "reward_name": args.reward, "method": label}
         if label != ORIGINAL:
             res = results[label]
             rec.update(
-                budget=len(res.designs),
+                budget=args.budget if label == ZEROTH else len(res.designs),  # Zeroth-Order returns its best sample
                 rollouts=res.rollouts,
                 seconds=res.seconds,
                 warmup_seconds=res.info.get("warmup_seconds", 0.0),
@@ -102,7 +133,8 @@ def run_one(seed: int, motion, args) -> list[dict]:
             )
         rec.update(summary_row(ev.metrics, k), design=space.to_dict(design))
         records.append(rec)
-        print(json.dumps(rec), flush=True)
+        if not quiet:
+            print(json.dumps(rec), flush=True)
     return records
 
 
@@ -168,15 +200,50 @@ def _pct_ci(values) -> tuple[float, float, float]:
     return 100 * m, 100 * (m - h), 100 * (m + h)
 
 
+def equal_time(records: list[dict], a: str, b: str, budget) -> list[str]:
+    """Method `a` against Random given `a`'s wall time (`b`), paired per run: which wins."""
+    t_a = [r["seconds"] for r in records if r["method"] == a]
+    t_b = [r["seconds"] for r in records if r["method"] == b]
+    d_rew = paired(records, a, b, "reward")
+    if not d_rew:
+        return [f"- {a}: no paired runs"]
+    m, h = mean_ci(d_rew)
+    wins = sum(d > 0 for d in d_rew)
+    if math.isfinite(h) and m - h > 0:
+        verdict = f"{a} wins"
+    elif math.isfinite(h) and m + h < 0:
+        verdict = "Random wins"
+    elif not math.isfinite(h):
+        verdict = (a if m > 0 else "Random") + " ahead (one run: no interval)"
+    else:
+        verdict = "neither wins clearly (the interval holds 0); " + (a if m > 0 else "Random") + " ahead"
+    d_err, d_spd = paired(records, a, b, "pos_err"), paired(records, a, b, "max_joint_speed")
+    out = [
+        f"{a} against Random given its wall time (Random's budget scaled by the ratio of their times at {budget} "
+        f"candidates: {_ci([r['budget'] for r in records if r['method'] == b], 4)} candidates in {_ci(t_b)} s, "
+        f"{a} {_ci(t_a)} s), paired per run, {a} minus Random:",
+        "",
+        f"- validated reward: {_ci(d_rew)} ({a} higher in {wins} of {len(d_rew)} run(s)): **{verdict}**",
+        f"- position error: {_ci(d_err)} cm{_holds0(d_err)}; max joint speed: {_ci(d_spd)} rad/s{_holds0(d_spd)}",
+    ]
+    d_eq = paired(records, a, RANDOM, "reward")
+    if d_eq:
+        out.append(
+            f"- at equal candidates ({budget} each), {a} minus Random: validated reward {_ci(d_eq)}{_holds0(d_eq)}"
+        )
+    return out + [""]
+
+
 # ------------------------------------------------------------------------------ report
 def report(records: list[dict], info: dict, out: Path) -> str:
     runs = sorted({r["seed"] for r in records})
     methods = [m for m in (ORIGINAL,) + METHODS if any(r["method"] == m for r in records)]
     lines = [
-        "# ALOHA: the original design against Random and CMA-ES on the bimanual flings",
+        "# ALOHA: the original design against Random, CMA-ES and the learned methods on the bimanual flings",
         "",
         'The paper\'s ALOHA result (optimized for the "Tracking Velocity" reward on a bimanual cloth fling) '
-        "with tt's baselines; `python benchmarks/aloha.py` (the module docstring says what it runs).",
+        "with tt's baselines and, where a generator was given, its learned methods; `python benchmarks/aloha.py` "
+        "(the module docstring says what it runs).",
         "",
         machine_header("cpu").rstrip("\n"),
         f"- runs measured {info.get('date', '?')}",
@@ -219,27 +286,28 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         ]
         lines.append("| " + " | ".join(cells) + " |")
 
+    beside = [m for m in (CMAES_B, RANDOM, ZEROTH, CMAES_INIT) if m in methods]
     lines += ["", "## Beside the paper", ""]
     lines += [
         "The paper's numbers are the fabricated robots' (its model's optimized design, measured in the real "
         "world); tt's are simulated (the baselines' winners on the oracle). Original → optimized, the means over "
         "the runs, and the mean paired relative change with its 95 % interval.",
         "",
-        "| metric | paper (real robots) | tt, CMA-ES batched | tt, Random |",
-        "|---|---|---|---|",
+        "| metric | paper (real robots) | " + " | ".join(f"tt, {m}" for m in beside) + " |",
+        "|---|---|" + "---|" * len(beside),
     ]
     orig = [r for r in records if r["method"] == ORIGINAL]
     for key, name, unit in METRICS:
         p0, p1, pct = PAPER[key]
         row = [f"{name} ({unit})", f"{p0:.2f} → {p1:.2f} ({pct:+d} %)"]
-        for m in (CMAES_B, RANDOM):
+        for m in beside:
             rs = [r for r in records if r["method"] == m]
             o, w = mean_ci([r.get(key) for r in orig])[0], mean_ci([r.get(key) for r in rs])[0]
             row.append(f"{o:.2f} → {w:.2f}: {_span(relative_changes(records, m, key))}" if rs else "-")
         lines.append("| " + " | ".join(row) + " |")
 
     lines += ["", "## Targets", ""]
-    for m in (CMAES_B, RANDOM, RANDOM_T):
+    for m in methods[1:]:
         parts = []
         for key, name, _ in METRICS:
             ch = relative_changes(records, m, key)
@@ -257,42 +325,12 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             parts.append(f"{name} {_span(ch)} (target ≤ {goal:+.0f} %): {verdict}")
         lines.append(f"- {m}: " + "; ".join(parts))
 
-    lines += ["", "## Random or CMA-ES at equal wall time", ""]
-    t_c = [r["seconds"] for r in records if r["method"] == CMAES_B]
-    t_r = [r["seconds"] for r in records if r["method"] == RANDOM_T]
-    d_rew = paired(records, CMAES_B, RANDOM_T, "reward")
-    d_err = paired(records, CMAES_B, RANDOM_T, "pos_err")
-    d_spd = paired(records, CMAES_B, RANDOM_T, "max_joint_speed")
-    if d_rew:
-        m, h = mean_ci(d_rew)
-        wins = sum(d > 0 for d in d_rew)
-        if math.isfinite(h) and m - h > 0:
-            verdict = "CMA-ES wins"
-        elif math.isfinite(h) and m + h < 0:
-            verdict = "Random wins"
-        elif not math.isfinite(h):
-            verdict = ("CMA-ES" if m > 0 else "Random") + " ahead (one run: no interval)"
-        else:
-            verdict = "neither wins clearly (the interval holds 0); " + ("CMA-ES" if m > 0 else "Random") + " ahead"
-        lines += [
-            f"Random given CMA-ES's wall time (its budget scaled by the ratio of their times at {info.get('budget')} "
-            f"candidates: {_ci([r['budget'] for r in records if r['method'] == RANDOM_T], 4)} candidates in "
-            f"{_ci(t_r)} s, CMA-ES {_ci(t_c)} s), paired per run, CMA-ES minus Random (= time):",
-            "",
-            f"- validated reward: {_ci(d_rew)} (CMA-ES higher in {wins} of {len(d_rew)} run(s)): **{verdict}**",
-            f"- position error: {_ci(d_err)} cm{_holds0(d_err)}; max joint speed: {_ci(d_spd)} rad/s{_holds0(d_spd)}",
-        ]
-        d_eq = paired(records, CMAES_B, RANDOM, "reward")
-        if d_eq:
-            lines.append(
-                f"- at equal candidates ({info.get('budget')} each), CMA-ES minus Random: validated reward {_ci(d_eq)}"
-                f"{_holds0(d_eq)}"
-            )
-    else:
-        lines.append("no paired runs")
-
+    lines += ["", "## At equal wall time", ""]
+    for a, b in ((CMAES_B, RANDOM_T), (CMAES_INIT, RANDOM_TM)):
+        if a in methods and b in methods:
+            lines += equal_time(records, a, b, info.get("budget"))
     lines += ["", "## Reading", ""]
-    for m in (CMAES_B, RANDOM):
+    for m in beside:
         v, j = relative_changes(records, m, "velocity"), relative_changes(records, m, "max_joint_speed")
         if v and j:
             lines.append(
@@ -330,6 +368,26 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     return str(path)
 
 
+def load_generator(args):
+    """The generator and critic of the learned methods (`--checkpoint`, default the space's
+    shipped pair), loaded once; None where the space ships no generator."""
+    from tt.dit.checkpoint import NoCheckpointError, default_checkpoint, shipped_critic
+
+    try:
+        from codesign import load_learned
+    except ImportError:  # run as a module from the repository root
+        from benchmarks.codesign import load_learned
+
+    if args.checkpoint is None:
+        try:
+            args.checkpoint = default_checkpoint(SPACE, task="robot")
+        except NoCheckpointError:
+            return None
+    if args.critic_checkpoint is None:
+        args.critic_checkpoint = shipped_critic(SPACE, args.checkpoint)
+    return load_learned(SPACE, args.checkpoint, args.critic_checkpoint)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--seeds", type=int, default=9, help="runs: seed i on fling i mod the flings' count")
@@ -342,6 +400,17 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS / "aloha.md", help="report")
     ap.add_argument("--log", type=Path, default=RUNS / "aloha.jsonl", help="the runs as JSON lines")
     ap.add_argument("--from-log", type=Path, default=None, help="rewrite the report from a .jsonl of runs")
+    ap.add_argument(
+        "--checkpoint",
+        type=Path,
+        default=None,
+        help="the learned methods' generator (default: the space's shipped one; none shipped: baselines only)",
+    )
+    ap.add_argument(
+        "--critic-checkpoint", type=Path, default=None, help="Zeroth-Order's critic (default: the shipped one)"
+    )
+    ap.add_argument("--ddim-steps", type=int, default=20, help="DDIM steps of the learned methods (of 100)")
+    ap.add_argument("--baselines-only", action="store_true", help="skip the learned methods")
     args = ap.parse_args()
     args.reward = reward_name(args.reward)
     if args.from_log is not None:
@@ -369,9 +438,25 @@ def main() -> None:
         "seeds": args.seeds,
         "steps": args.steps,
     }
+    learned = None if args.baselines_only else load_generator(args)
+    if learned is not None:
+        info.update(
+            checkpoint=str(learned.checkpoint),
+            critic=None if learned.critic is None else str(args.critic_checkpoint),
+            ddim_steps=args.ddim_steps,
+            learned_seconds=learned.seconds,
+        )
+        # First calls (model warm-up, decoder, kernels) outside the timed runs.
+        run_one(
+            0,
+            motions[0],
+            argparse.Namespace(**{**vars(args), "budget": 4 * args.popsize, "ddim_steps": 2}),
+            learned,
+            quiet=True,
+        )
     records: list[dict] = []
     for seed in range(args.seeds):
-        records += run_one(seed, motions[seed % len(motions)], args)
+        records += run_one(seed, motions[seed % len(motions)], args, learned)
     info["wall_seconds"] = time.perf_counter() - t0
     info["warmup_seconds"] = sum(r.get("warmup_seconds", 0.0) for r in records)
     info["load_end"] = load_line()

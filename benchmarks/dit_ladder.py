@@ -126,7 +126,9 @@ def main() -> None:
     p.add_argument("--num-steps", type=int, default=20, help="DDIM steps of the prediction")
     p.add_argument("--chunk", type=int, default=None, help="sequences per sampling call")
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--backend", default="warp")
+    p.add_argument(
+        "--backend", default=None, help="simulator of the rewards (default: the space's, mjbatch for contacts)"
+    )
     p.add_argument("--device", default="cpu")
     p.add_argument(
         "--via",
@@ -154,6 +156,10 @@ def main() -> None:
     space = args.space or trained.space
     if space is None:
         p.error("the checkpoint records no design space; give --space")
+    if args.backend is None:
+        from tt.sim.backends import default_backend
+
+        args.backend = default_backend(space)
     if args.online_refresh is None:
         designs = heldout_designs(space, args.designs, args.design_seed)
         motions = validation_motions(space, args.motions)

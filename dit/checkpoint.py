@@ -154,11 +154,13 @@ def shipped_critic(space: str, checkpoint: str | Path, folder: str | Path | None
     specialist) and a dynamics specialist ships beside it, else None (the sampling model's own
     dynamics task; a user's own checkpoint is not paired with a shipped critic it was not
     trained beside)."""
+    shipped = set()
+    for task in (None, "robot"):  # a space may ship a generator without a generalist (ALOHA)
+        try:
+            shipped.add(default_checkpoint(space, folder, task=task).resolve())
+        except NoCheckpointError:
+            pass
     try:
-        shipped = {
-            default_checkpoint(space, folder).resolve(),
-            default_checkpoint(space, folder, task="robot").resolve(),
-        }
         critic = default_checkpoint(space, folder, task="dynamics")
     except NoCheckpointError:
         return None

@@ -235,6 +235,18 @@ def design_query(
     return query, known
 
 
+def _mjbatch_first_step(models, motions):
+    """The mjbatch episodes of every model on every motion, cut after the first control step's
+    look-ahead target (`tt.sim.wbc.WBCConfig.lookahead_steps`): step 0 is the full episode's
+    (the controller's start posture and first target are the same), at a few steps' cost."""
+    from tt.sim.rollout import rollout
+    from tt.sim.wbc import WBCConfig
+
+    keep = WBCConfig().lookahead_steps + 2
+    cut = [Motion(m.name, m.pos[:keep], m.quat[:keep], m.dt) for m in motions]
+    return rollout(models, cut, backend="mjbatch", device="cpu")
+
+
 def start_tokens(
     layout: Layout, normalizer: Normalizer, designs, motions, *, models=None, device: str | torch.device = "cpu"
 ) -> dict[str, torch.Tensor]:
@@ -243,7 +255,8 @@ def start_tokens(
     model predicts (P: the layout's slots per step; padding at PAD_VALUE).
 
     One batched warp rollout runs one control step of every design on every motion (the
-    controller looking ahead along the whole motion, as in the full episode), and the records
+    controller looking ahead along the whole motion, as in the full episode; for a space with
+    contacts, the quadruped, mjbatch on the motions cut after the first look-ahead), and the records
     go through the training data's path (`tt.tokens.episodes.episode_tokens`,
     `tt.dit.data.EpisodeTokens`, `with_slot_ids`, the normaliser), so the tokens are those of
     the full episodes' step 0.
@@ -256,8 +269,10 @@ def start_tokens(
 
     from tt.dit.data import EpisodeTokens
     from tt.dit.layout import with_slot_ids
+    from tt.sim.backends import default_backend
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space
+    from tt.sim.episode import Episode
     from tt.sim.rollout import group_episode, rollout_records
     from tt.tokens.episodes import episode_tokens
     from tt.tokens.tokenize import Tokenizer, TokenizeWarning
@@ -268,16 +283,27 @@ def start_tokens(
     trees = space.trees(designs)
     D, M = len(designs), len(motions)
     wp.init()  # mapping the torch device needs Warp's runtime, which this may be the first to use
-    records = rollout_records(
-        models if trees is None else trees, space.ee_sites(), motions, device=str(wp.device_from_torch(device)), steps=1
-    )
+    if default_backend(space.name) == "warp":
+        records = rollout_records(
+            models if trees is None else trees,
+            space.ee_sites(),
+            motions,
+            device=str(wp.device_from_torch(device)),
+            steps=1,
+        )
+    else:  # contacts: MuJoCo C's own physics (mjbatch), one padded episode of every design
+        records = [(list(range(D)), _mjbatch_first_step(models, motions))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TokenizeWarning)
         emb = Tokenizer()(models)
     counts = {s.name: s.per_step if s.role in STEP_ROLES else s.length for s in layout.specs}
     parts, worlds = [], []
     for members, arrays in records:
-        ep = group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
+        ep = (
+            arrays
+            if isinstance(arrays, Episode)
+            else group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
+        )
         first = torch.zeros((ep.worlds, 1), dtype=torch.long, device=ep.qpos.device)
         dynamics = episode_tokens(ep, emb.index, step_index=first)
         tokens = EpisodeTokens.from_token_batches(

@@ -197,3 +197,23 @@ def test_zeroth_order_asks_a_start_aware_critic_about_decoded_designs(start_mode
     # A critic not told the start keeps the tokens default.
     plain = dataclasses.replace(start_model, dynamics_start=False)
     assert ZerothOrder(SamplerConfig(), model=sampler, critic_model=plain).critic_input() == "tokens"
+
+
+def test_quadruped_start_is_the_full_mjbatch_episodes_first_step():
+    """A space with contacts takes its start from mjbatch on motions cut after the first
+    look-ahead target; step 0 of every recorded field equals the full episode's."""
+    from tt.guidance.predicted import _mjbatch_first_step
+    from tt.sim.motions import motion_set
+    from tt.sim.rollout import rollout
+
+    space = get_space("quadruped")
+    designs = space.sample(3, seed=2)  # three structures
+    models = [space.model(d) for d in designs]
+    placed = for_space(motion_set("val", arms=1)[:2], "quadruped")
+    motions = [type(m)(m.name, m.pos[:30], m.quat[:30], m.dt) for m in placed]
+    full = rollout(models, motions, backend="mjbatch", device="cpu")
+    first = _mjbatch_first_step(models, motions)
+    assert first.qpos.shape[1] < 10
+    for name in ("qpos", "qvel", "ctrl", "action", "act_force", "ee_pos", "ee_quat", "target_pos", "alive"):
+        x, y = getattr(full, name)[:, 0], getattr(first, name)[:, 0]
+        assert torch.equal(x, y), name

@@ -51,8 +51,8 @@ class SelectionConfig:
     designs: held-out designs (seed `SELECTION_SEED`); motions: validation motions spread
     over the skills (`tt.ladder.validation_motions`); reward: the reward predicted and
     simulated; num_steps: DDIM steps of the prediction (the critic's default); samples: predictions averaged per
-    pair; backend: the simulator's (None: ``warp``, or the MuJoCo oracle for a space with
-    contacts); device: the model's during scoring (None: the default
+    pair; backend: the simulator's (None: the space's default, ``warp``, or ``mjbatch`` for a
+    space with contacts); device: the model's during scoring (None: the default
     device, CUDA when present).
     """
 
