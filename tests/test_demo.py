@@ -77,7 +77,9 @@ def test_default_checkpoint_prefers_the_largest_model_and_names_what_exists(tmp_
     # A space that ships a generator and a critic but no generalist (ALOHA) pairs them too.
     for name in ("aloha_mini_robot.pt", "aloha_mini_dynamics.pt"):
         (tmp_path / name).write_bytes(b"")
-    assert ckpt.shipped_critic("aloha", tmp_path / "aloha_mini_robot.pt", tmp_path) == tmp_path / "aloha_mini_dynamics.pt"
+    assert (
+        ckpt.shipped_critic("aloha", tmp_path / "aloha_mini_robot.pt", tmp_path) == tmp_path / "aloha_mini_dynamics.pt"
+    )
     assert ckpt.shipped_critic("aloha", tmp_path / "aloha_mini_control.pt", tmp_path) is None
     # The default folder is the repository's checkpoints/ (tt/checkpoints when installed).
     assert (

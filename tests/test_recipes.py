@@ -19,6 +19,8 @@ SHIPPED = {
     "viperx_mini_robot.toml": ("viperx_mini_robot.pt", "viperx_mini.pt"),
     "viperx_mini_dynamics.toml": ("viperx_mini_dynamics.pt", None),
     "viperx-nominal_mini_dynamics.toml": ("viperx-nominal_mini_dynamics.pt", None),
+    "aloha_mini_dynamics.toml": ("aloha_mini_dynamics.pt", None),
+    "aloha_mini_robot.toml": ("aloha_mini_robot.pt", None),
 }
 
 #: The recorded fields a recipe must reproduce (device, out and data paths aside).
