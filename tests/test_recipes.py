@@ -21,6 +21,7 @@ SHIPPED = {
     "viperx-nominal_mini_dynamics.toml": ("viperx-nominal_mini_dynamics.pt", None),
     "aloha_mini_dynamics.toml": ("aloha_mini_dynamics.pt", None),
     "aloha_mini_robot.toml": ("aloha_mini_robot.pt", None),
+    "quadruped_mini_dynamics.toml": ("quadruped_mini_dynamics.pt", None),
 }
 
 #: The recorded fields a recipe must reproduce (device, out and data paths aside).
