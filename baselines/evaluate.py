@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from tt.kernels.errors import TTError
+from tt.sim.backends import default_backend
 from tt.sim.designs import Design, get_space
 from tt.sim.designs.trees import DesignTrees
 from tt.sim.episode import Episode
@@ -159,15 +160,16 @@ def evaluate_designs(
     motions: Sequence[Motion],
     reward: str,
     *,
-    backend: str = "warp",
+    backend: str | None = None,
     device: str | None = None,
     progress: bool = False,
     threads: int | None = None,
     graph: bool | None = None,
 ) -> Evaluation:
     """Roll out every design on every motion in one batch and score it with `reward`
-    (progress: a tqdm bar over the rollout; threads: CPU threads of the "warp" backend,
-    None for every core; graph: CUDA graphs, see `tt.sim.rollout.rollout`)."""
+    (backend: None for the space's, `tt.sim.backends.default_backend`: "warp", or "mjbatch"
+    for a space with contacts; progress: a tqdm bar over the rollout; threads: CPU threads of
+    the "warp" backend, None for every core; graph: CUDA graphs, see `tt.sim.rollout.rollout`)."""
     if not designs:
         raise TTError("evaluate_designs needs at least one design")
     spaces = {d.space for d in designs}
@@ -175,6 +177,8 @@ def evaluate_designs(
         raise TTError(f"designs from several spaces in one evaluation: {sorted(spaces)}")
     sp = get_space(designs[0].space)
     get_reward(reward, sp.name)  # an unknown reward fails before the rollout
+    if backend is None:
+        backend = default_backend(sp.name)
     if backend == "warp" and sp.has_contacts:
         raise TTError(
             f"design space {sp.name!r} has contacts; backend 'warp' simulates contact-free trees only, "

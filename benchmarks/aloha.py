@@ -52,8 +52,14 @@ from tt.sim.motions import for_space, motion_set
 from tt.sim.rewards import reward_name
 
 try:
+    from codesign import CMAES_INIT as CODESIGN_INIT
+    from codesign import ZEROTH as CODESIGN_ZEROTH
+    from codesign import load_learned, optimizer
     from machine import load_line, machine_header, write_report
 except ImportError:  # run as a module from the repository root
+    from benchmarks.codesign import CMAES_INIT as CODESIGN_INIT
+    from benchmarks.codesign import ZEROTH as CODESIGN_ZEROTH
+    from benchmarks.codesign import load_learned, optimizer
     from benchmarks.machine import load_line, machine_header, write_report
 
 RESULTS = Path(__file__).parent / "results"
@@ -100,21 +106,12 @@ def run_one(seed: int, motion, args, learned=None, quiet: bool = False) -> list[
         return RandomSearch().optimize(problem(max(1, int(round(args.budget * seconds / max(t_random, 1e-9))))))
 
     results[RANDOM_T] = at_time(results[CMAES_B].seconds)
-    if learned is not None:
-        from tt.guidance.hybrid import ModelInitCMAES
-        from tt.guidance.zeroth import SamplerConfig, ZerothOrder
-
-        def zeroth() -> ZerothOrder:
-            return ZerothOrder(
-                SamplerConfig(num_steps=args.ddim_steps),
-                model=learned.trained,
-                decoder=learned.decoder,
-                critic_model=learned.critic,
-            )
-
-        results[ZEROTH] = zeroth().optimize(problem(args.budget))
-        init = ModelInitCMAES(zeroth(), CMAESConfig(popsize=args.popsize, generations=args.generations))
-        results[CMAES_INIT] = init.optimize(problem(args.budget))
+    if learned is not None:  # built as benchmarks/codesign.py builds them
+        cfg = argparse.Namespace(
+            steps=args.ddim_steps, critic_samples=1, popsize=args.popsize, generations=args.generations
+        )
+        results[ZEROTH] = optimizer(CODESIGN_ZEROTH, cfg, learned).optimize(problem(args.budget))
+        results[CMAES_INIT] = optimizer(CODESIGN_INIT, cfg, learned).optimize(problem(args.budget))
         results[RANDOM_TM] = at_time(results[CMAES_INIT].seconds)
     labels = [m for m in METHODS if m in results]
     designs = [space.nominal()] + [results[m].best for m in labels]
@@ -372,11 +369,6 @@ def load_generator(args):
     """The generator and critic of the learned methods (`--checkpoint`, default the space's
     shipped pair), loaded once; None where the space ships no generator."""
     from tt.dit.checkpoint import NoCheckpointError, default_checkpoint, shipped_critic
-
-    try:
-        from codesign import load_learned
-    except ImportError:  # run as a module from the repository root
-        from benchmarks.codesign import load_learned
 
     if args.checkpoint is None:
         try:

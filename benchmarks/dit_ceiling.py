@@ -75,11 +75,9 @@ def features(space, designs, motions, steps: int = 8) -> np.ndarray:
 
 def simulate(designs, motions, reward: str) -> np.ndarray:
     from tt.baselines.evaluate import evaluate_designs
-    from tt.sim.backends import default_backend
 
     # The space's own backend: tt's kernels, or mjbatch for contacts (the quadruped).
-    backend = default_backend(designs[0].space)
-    return evaluate_designs(designs, motions, reward, backend=backend, device="cpu").reward  # (D, M)
+    return evaluate_designs(designs, motions, reward, device="cpu").reward  # (D, M)
 
 
 def fit_mlp(

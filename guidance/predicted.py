@@ -272,7 +272,6 @@ def start_tokens(
     from tt.sim.backends import default_backend
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space
-    from tt.sim.episode import Episode
     from tt.sim.rollout import group_episode, rollout_records
     from tt.tokens.episodes import episode_tokens
     from tt.tokens.tokenize import Tokenizer, TokenizeWarning
@@ -291,19 +290,19 @@ def start_tokens(
             device=str(wp.device_from_torch(device)),
             steps=1,
         )
+        dt = IKConfig().control_dt
+        groups = [
+            (members, group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=dt))
+            for members, arrays in records
+        ]
     else:  # contacts: MuJoCo C's own physics (mjbatch), one padded episode of every design
-        records = [(list(range(D)), _mjbatch_first_step(models, motions))]
+        groups = [(list(range(D)), _mjbatch_first_step(models, motions))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TokenizeWarning)
         emb = Tokenizer()(models)
     counts = {s.name: s.per_step if s.role in STEP_ROLES else s.length for s in layout.specs}
     parts, worlds = [], []
-    for members, arrays in records:
-        ep = (
-            arrays
-            if isinstance(arrays, Episode)
-            else group_episode(members, arrays, M, models[members[0]].nu, perturbed=False, dt=IKConfig().control_dt)
-        )
+    for members, ep in groups:
         first = torch.zeros((ep.worlds, 1), dtype=torch.long, device=ep.qpos.device)
         dynamics = episode_tokens(ep, emb.index, step_index=first)
         tokens = EpisodeTokens.from_token_batches(

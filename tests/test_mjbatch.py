@@ -245,3 +245,19 @@ def test_agrees_with_the_oracle_on_100_random_designs_x_5_motions():
     gap, same = _agreement(ep, ref, designs, motions)
     assert np.mean(gap <= POS_TOL_CM) >= 0.95, np.sort(gap)[-10:]
     assert np.mean(same) >= 0.97, np.flatnonzero(~same)
+
+
+def test_evaluate_designs_defaults_to_the_spaces_backend():
+    """Without a backend, evaluate_designs rolls the quadruped out on mjbatch (the space's
+    default), the same rewards as naming it; naming "warp" is still refused for contacts."""
+    from tt.baselines.evaluate import evaluate_designs
+
+    space = get_space("quadruped")
+    designs = space.sample(2, seed=4)
+    placed = for_space(motion_set("val", arms=1)[:1], "quadruped")
+    motions = [Motion(m.name, m.pos[:20], m.quat[:20], m.dt) for m in placed]
+    default = evaluate_designs(designs, motions, "tracking", device="cpu")
+    named = evaluate_designs(designs, motions, "tracking", backend="mjbatch", device="cpu")
+    np.testing.assert_array_equal(default.reward, named.reward)
+    with pytest.raises(TTError, match="has contacts; backend 'warp'"):
+        evaluate_designs(designs, motions, "tracking", backend="warp", device="cpu")

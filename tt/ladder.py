@@ -155,7 +155,7 @@ def score_designs(
     num_steps: int | None = CRITIC_DDIM_STEPS,
     seed: int = 0,
     chunk: int | None = None,
-    backend: str = "warp",
+    backend: str | None = None,
     device: str | None = None,
     via: str | None = None,
 ) -> LadderScore:
@@ -163,7 +163,7 @@ def score_designs(
 
     trained: `tt.dit.checkpoint.TrainedModel`; designs: of the checkpoint's space; motions:
     placed for it; samples, num_steps, seed, chunk, via: `tt.guidance.predicted.predict_designs`;
-    backend, device: the simulator's (`tt.baselines.evaluate.evaluate_designs`).
+    backend, device: the simulator's (`tt.baselines.evaluate.evaluate_designs`; backend None: the space's).
     """
     import time
 

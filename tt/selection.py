@@ -204,13 +204,8 @@ class CheckpointSelector:
             raise TTError(f"checkpoint {checkpoint} records no design space; selection needs one to draw designs")
         designs, motions = self._pairs_for(trained.space)
         cfg = self.config
-        backend = cfg.backend
-        if backend is None:
-            from tt.baselines.problem import default_backend
-
-            backend = default_backend(trained.space)
-        score = score_designs(
-            trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps, backend=backend
+        score = score_designs(  # backend None: the space's (evaluate_designs)
+            trained, designs, motions, cfg.reward, samples=cfg.samples, num_steps=cfg.num_steps, backend=cfg.backend
         )
         # A motion whose predictions do not spread has no r; it counts 0, not left out, so a
         # degenerate checkpoint is not ranked on the motions where it happens to vary.
