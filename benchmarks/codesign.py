@@ -231,6 +231,18 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
     )
 
 
+def guidance_text(info: dict) -> str:
+    """How the report's Self-Guidance was guided (runs logged before guide_by was recorded
+    followed the model's own dynamics at the paper's ViperX scales)."""
+    single, multi = info.get("guidance_scales", (50.0, 500.0))
+    if info.get("guide_by") == "critic":
+        return (
+            f"Self-Guidance follows the critic's gradient (the generator was trained on the robot task alone), "
+            f"scale {single:g}"
+        )
+    return f"guidance scale the paper's ({single:g} single, {multi:g} multi-trajectory)"
+
+
 def critic_label(
     scale: float, eta: float, at: str = "tokens", first: int = 0, refine: int = 0, form: str = "reward"
 ) -> str:
@@ -664,13 +676,25 @@ def space_name(info: dict) -> str:
     return SPACE_NAMES.get(info.get("space", "viperx"), info.get("space", "viperx"))
 
 
+def controller_note(info: dict) -> str:
+    """What the report's controller does differently from the paper's, where it matters."""
+    if info.get("space") != "quadruped":
+        return ""
+    return (
+        "- Controller. tt's quadruped controller (`tt.sim.wbc`, the oracle's mink IK and its batched kernel) "
+        "holds the four feet on their stance points and tracks with the base and the arm; it never steps. The "
+        "paper's quadruped rows come from RL whole-body controllers that walk. The tables are not like for like.\n"
+    )
+
+
 def notes(records: list[dict], info: dict) -> str:
     """What the numbers mean and what was cut; the decode statistics of this run."""
     learned = [r for r in records if r["method"] in LEARNED]
     if not learned:
         return (
             "## Notes\n\n"
-            "- Random is the best of its budget of random designs, each simulated; the paper's Random row is one "
+            + controller_note(info)
+            + "- Random is the best of its budget of random designs, each simulated; the paper's Random row is one "
             "random design of the space, with no search.\n"
             "- Timing. Random and CMA-ES times are candidate sampling and batched rollouts on the space's default "
             f"backend ({default_backend(info.get('space', 'viperx'))}); the paper's CMA-ES times are its own budgets "
@@ -687,6 +711,7 @@ def notes(records: list[dict], info: dict) -> str:
     lines = [
         "## Notes",
         "",
+        *([controller_note(info).rstrip("\n")] if controller_note(info) else []),
         f"- Decoding. A learned method's winner is its best-ranked candidate, decoded to a {space_name(info)} design "
         f"(`tt.tokens.design_from_tokens`): a candidate whose embodiment tokens have the token structure of a discrete "
         f"choice of the space (token counts and every binary attribute) decodes to it; otherwise it is projected onto "
@@ -700,7 +725,8 @@ def notes(records: list[dict], info: dict) -> str:
         "simulated reward) on their own.",
         "- Timing. Zeroth-Order and Self-Guidance times are the whole `optimize` call: sampling (n sequences of one "
         "motion, or n x M for M motions, through the DiT at every DDIM step; Self-Guidance adds a backward pass per "
-        "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched Warp rollouts. On "
+        "step), ranking and decoding. Random and CMA-ES times are candidate sampling and batched rollouts on the "
+        f"space's default backend ({default_backend(info.get('space', 'viperx'))}). On "
         "this 2-core CPU, with a critic asked about the decoded designs (one trained told the start), decoding every "
         "candidate is a large share of the learned methods' time (about 0.1 s per candidate: a chord fit of the "
         "continuous choices through MuJoCo compiles, `tt.tokens.design_fit`); otherwise the DiT's forward pass over "
@@ -872,7 +898,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             f", checkpoint load and decoding table {info['learned_seconds']:.1f} s\n"
             f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} "
             f"parameters, EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for "
-            "Self-Guidance, guidance scale the paper's (50 single, 500 multi-trajectory)\n"
+            f"Self-Guidance, {guidance_text(info)}\n"
             if info.get("checkpoint")
             else f"\n- no learned method: {info.get('no_checkpoint', 'not asked for')}\n"
         )
@@ -923,8 +949,10 @@ def report(records: list[dict], info: dict, out: Path) -> str:
 
 def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
     """Records and run info of one run's printed lines, or of several runs that continue one
-    another (e.g. more rewards later): the first run's config describes the report; the
-    others' commands are listed, their wall times added and their skipped runs kept."""
+    another (e.g. more rewards, or the learned methods once a generator ships): the first
+    run's config describes the report, a later run's fills in what the first did not record
+    (its checkpoint and critic); the others' commands are listed, their wall times added and
+    their skipped runs kept."""
     records, info = [], {}
     for k, path in enumerate(paths):
         run: dict = {}
@@ -941,6 +969,12 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
         if k == 0:
             info.update(run)
             continue
+        if info.get("checkpoint") is None and run.get("checkpoint") is not None:
+            # The first run had no learned method: this one's settings describe them.
+            info.update({k: run[k] for k in ("n", "dgs_n", "multi_n", "multi_dgs_n", "steps") if k in run})
+        for key, value in run.items():
+            if info.get(key) is None:
+                info[key] = value
         info["command"] += f"`, then `{run['command']}"
         info["wall_seconds"] = info.get("wall_seconds", 0.0) + run.get("wall_seconds", 0.0)
         info["skipped"] = info.get("skipped", []) + run.get("skipped", [])
@@ -1120,6 +1154,12 @@ def main() -> None:
     step = max(1, len(val) // args.multi_motions)
     multi_motions = tuple(val[::step][: args.multi_motions])
 
+    critic_checkpoint = args.critic_checkpoint
+    if critic_checkpoint is None and checkpoint is not None:
+        from tt.dit.checkpoint import shipped_critic
+
+        # As `tt optimize` (tt.optimizers.learned_defaults): the shipped generator's critic.
+        critic_checkpoint = shipped_critic(args.space, checkpoint)
     info = {
         "machine": machine_header("cpu"),
         "load_start": ", ".join(f"{x:.2f}" for x in os.getloadavg()),
@@ -1128,7 +1168,7 @@ def main() -> None:
         "checkpoint": str(checkpoint) if checkpoint is not None else None,
         "no_checkpoint": no_checkpoint,
         "hybrid_verify": args.hybrid_verify,
-        "critic_checkpoint": str(args.critic_checkpoint) if args.critic_checkpoint is not None else None,
+        "critic_checkpoint": str(critic_checkpoint) if critic_checkpoint is not None else None,
         "steps": args.steps,
         "n": args.n,
         "dgs_n": args.dgs_n,
@@ -1146,8 +1186,15 @@ def main() -> None:
     # (rollout, and the differentiable rollout for the lambda part), first calls.
     learned = None
     if checkpoint is not None:
-        learned = load_learned(args.space, checkpoint, args.critic_checkpoint)
+        learned = load_learned(args.space, checkpoint, critic_checkpoint)
+        from tt.guidance.selfguide import GuidanceScales
+
+        # DGSConfig.guide_by's default: a generator trained on the robot task alone follows the critic.
+        guide_by = "critic" if learned.critic is not None and not learned.trained.trained_on("dynamics") else "model"
+        scales = GuidanceScales()
         info.update(
+            guide_by=guide_by,
+            guidance_scales=[scales.scale(args.space, m, guide_by) for m in (1, 2)],
             learned_seconds=learned.seconds,
             checkpoint_step=learned.trained.step,
             parameters=sum(p.numel() for p in learned.trained.model.parameters()),

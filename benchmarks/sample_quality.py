@@ -16,7 +16,8 @@ points above uniform's.
 The same pools give the test-time comparisons at equal rollouts, each pick validated on the
 oracle, for n in ``--ns`` (the first n draws of each pool):
 
-* ``Random(n)``: the uniform pool's best by the batched simulator (tt's ``warp`` backend);
+* ``Random(n)``: the uniform pool's best by the batched simulator (the space's default backend:
+  ``warp``, or ``mjbatch`` for the quadruped);
 * ``zeroth-sim(n)``: a checkpoint's pool, best by the same simulator;
 * ``Zeroth-Order(n)``: a checkpoint's pool, best by the shipped dynamics critic's prediction
   (`tt.guidance.predicted.predict_designs`, no rollout).
@@ -154,7 +155,7 @@ def main() -> None:
         rec = {"seed": seed, "motion": motion.name}
         for name, designs in pools.items():
             t = time.perf_counter()
-            sim = evaluate_designs(designs, (motion,), args.reward, backend="warp", threads=1)
+            sim = evaluate_designs(designs, (motion,), args.reward, threads=1)  # the space's default backend
             sim_s = time.perf_counter() - t
             row = {"sim_reward": sim.reward[:, 0].tolist(), "draw_seconds": draw_s[name], "sim_seconds": sim_s}
             if name != "uniform":

@@ -74,8 +74,10 @@ def _critic_scales() -> dict[str, float]:
     # tt's, the better of 0.5 and 5 on ViperX at n = 1 with the old generalist as generator
     # (9 seeds: validated reward 142 against 79; 79 on 9 fresh seeds; codesign_guidance.md and
     # codesign_guidance_fresh.md, in git: docs/experiments.md, "Results files in git").
-    # ALOHA is two ViperX arms.
-    return {"viperx": 5.0, "aloha": 5.0}
+    # ALOHA is two ViperX arms. The mobile bimanual robot and the quadruped take ViperX's
+    # scale untuned (their generators, trained on the robot task alone, are guided by their
+    # critics: `DGSConfig.guide_by`); a sweep there has not been run.
+    return {"viperx": 5.0, "aloha": 5.0, "bimanual": 5.0, "quadruped": 5.0}
 
 
 @dataclass(frozen=True)
@@ -235,7 +237,11 @@ class DGSConfig(SamplerConfig):
     before it x0_hat is too noisy to decode to a design. guide_by: "model" (the sampling
     model's own jointly sampled dynamics, the paper's) or "critic" (the dynamics critic's
     prediction for x0_hat's embodiment: ``critic_checkpoint`` / ``critic_model``, else the
-    sampling model's own dynamics task; `tt.guidance.critic_grad`, at x0_hat's tokens).
+    sampling model's own dynamics task; `tt.guidance.critic_grad`, at x0_hat's tokens);
+    None: "critic" when a critic is given and the sampling model was not trained on the
+    dynamics task (a generator trained on the robot task alone, as ALOHA's, the mobile
+    bimanual robot's and the quadruped's are, has no trained dynamics of its own to follow),
+    else "model".
     """
 
     eta: float = 1.0
@@ -243,11 +249,11 @@ class DGSConfig(SamplerConfig):
     scales: GuidanceScales = field(default_factory=GuidanceScales)
     sim_grad_weight: float = 0.0
     sim_grad_start: int = 0
-    guide_by: str = "model"
+    guide_by: str | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.guide_by not in GUIDES:
+        if self.guide_by is not None and self.guide_by not in GUIDES:
             raise TTError(f"guide_by = {self.guide_by!r}; valid: {list(GUIDES)}")
         if not 0.0 <= self.sim_grad_weight <= 1.0:
             raise TTError(f"sim_grad_weight = {self.sim_grad_weight}; must be in [0, 1]")
@@ -259,7 +265,7 @@ class DynamicsSelfGuidance(ZerothOrder):
     """The paper's Dynamics Self-Guidance optimizer: n guided samples, best ranked by the model.
 
     config: `DGSConfig`; model, decoder, critic_model: as `ZerothOrder` (the critic ranks the
-    guided samples; the guidance follows the sampling model's own dynamics).
+    guided samples; the guidance follows `DGSConfig.guide_by`).
     """
 
     name = "dgs"
@@ -274,7 +280,10 @@ class DynamicsSelfGuidance(ZerothOrder):
         and, under "rollouts", the simulator-gradient rollouts it ran)."""
         c: DGSConfig = self.config
         sampler, decoder, cfg, n = self._setup(problem)
-        scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions), c.guide_by)
+        guide_by = c.guide_by or (
+            "critic" if self._critic is not None and not self._trained.trained_on("dynamics") else "model"
+        )
+        scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions), guide_by)
         sim = None
         if c.sim_grad_weight > 0:
             from tt.guidance.simgrad import SimGradient
@@ -285,7 +294,7 @@ class DynamicsSelfGuidance(ZerothOrder):
                 problem.space, cfg, self._trained, decoder=exact, start_step=c.sim_grad_start, device=problem.device
             )
         guide_critic = None
-        if c.guide_by == "critic":
+        if guide_by == "critic":
             from tt.guidance.critic_grad import CriticGradient
             from tt.guidance.zeroth import check_critic
 
@@ -313,7 +322,7 @@ class DynamicsSelfGuidance(ZerothOrder):
             "critic_on": self.critic_input(),
             "scale": scale,
             "sim_grad_weight": c.sim_grad_weight,
-            "guide_by": c.guide_by,
+            "guide_by": guide_by,
             **summary,
             "rollouts": rollouts,
         }

@@ -222,6 +222,20 @@ def test_guide_by_critic_config(critic, motions):
         CriticGradient(robot_only, get_reward("tracking", "viperx"))
 
 
+def test_dgs_guides_by_the_critic_when_the_generator_has_no_dynamics(critic, motions):
+    """guide_by None: the critic's gradient for a robot-only generator given a critic (its own
+    dynamics tokens are untrained noise to follow), else the model's own dynamics (the paper's)."""
+    problem = Problem("viperx", tuple(motions[:1]), "tracking", 2, seed=0, device="cpu")
+    robot_only = dataclasses.replace(critic, tasks=("robot",))
+    _, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=2), model=robot_only, critic_model=critic).generate(problem)
+    assert info["guide_by"] == "critic" and info["scale"] == GuidanceScales().critic["viperx"]
+    assert info["critic_grad"]["steps"] == 2
+    for model in (critic, robot_only):  # trained on dynamics; or robot-only with no critic to follow
+        _, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=2), model=model).generate(problem)
+        assert info["guide_by"] == "model" and info["scale"] == GuidanceScales().single["viperx"]
+        assert "critic_grad" not in info
+
+
 def test_dgs_guided_by_a_critic_records_its_gradient(critic, motions):
     problem = Problem("viperx", tuple(motions[:1]), "tracking", 2, seed=0, device="cpu")
     gen, _, info = DynamicsSelfGuidance(DGSConfig(num_steps=3, guide_by="critic"), model=critic).generate(problem)
@@ -231,7 +245,7 @@ def test_dgs_guided_by_a_critic_records_its_gradient(critic, motions):
     assert info["scale"] == scales.critic["viperx"] != scales.single["viperx"]
     assert scales.scale("viperx", 3, "critic") == scales.scale("viperx", 1, "critic")
     with pytest.raises(ValueError, match="no critic guidance scale"):
-        scales.scale("bimanual", 1, "critic")
+        GuidanceScales(critic={"viperx": 5.0}).scale("bimanual", 1, "critic")
     grad = info["critic_grad"]
     assert grad["steps"] == 3 and grad["candidates"] == 6 and len(grad["objective_trace"]) == 3
     assert gen.objective.shape == (2,)

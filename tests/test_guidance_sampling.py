@@ -299,13 +299,17 @@ def test_rank_candidates_puts_nan_objectives_last():
 
 def test_dgs_optimizer_scales_and_statistics(tiny, motions):
     problem = Problem(space="viperx", motions=tuple(motions[:1]), reward="tracking_size", budget=3, seed=0)
-    result = DynamicsSelfGuidance(DGSConfig(num_steps=STEPS), model=tiny, decoder=ListDecoder(3)).optimize(problem)
+    # The paper's guidance by the model's own dynamics (tiny is a robot-task model: its default is the critic's).
+    paper = DGSConfig(num_steps=STEPS, guide_by="model")
+    result = DynamicsSelfGuidance(paper, model=tiny, decoder=ListDecoder(3)).optimize(problem)
     assert result.method == "dgs"
     assert result.info["scale"] == 50.0 and result.info["eta"] == 1.0
     assert result.info["guided_steps"] == STEPS and len(result.info["objective_trace"]) == STEPS
     assert result.info["nonfinite_grad_entries"] == 0
     two = dataclasses.replace(problem, motions=tuple(motions))
-    result = DynamicsSelfGuidance(DGSConfig(num_steps=2), model=tiny, decoder=ListDecoder(3)).optimize(two)
+    result = DynamicsSelfGuidance(dataclasses.replace(paper, num_steps=2), model=tiny, decoder=ListDecoder(3)).optimize(
+        two
+    )
     assert result.info["scale"] == 500.0
     assert np.asarray(result.info["predicted_reward_per_motion"]).shape == (3, 2)
     scales = GuidanceScales()

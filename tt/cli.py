@@ -731,7 +731,9 @@ def optimize(
       beside the shipped generator), `critic_samples`, `critic_on`. dgs, dgs-sim
       (`tt.guidance.selfguide.DGSConfig`): `scale` (default: the space's), `guide_by`
       ("model", the paper's: the sampling model's own predicted dynamics; "critic": the
-      dynamics critic's prediction for each step's predicted clean tokens, tt's scale),
+      dynamics critic's prediction for each step's predicted clean tokens, tt's scale;
+      default: "critic" for a generator trained without dynamics when a critic ships or is
+      given, else "model"),
       `sim_grad_weight` (share of the simulator's gradient, 0..1; the paper's ablation),
       `sim_grad_start`. zeroth-sim, dgs-sim: `verify` (candidates simulated; default all).
       Measurements of each: docs/results/codesign.md, docs/experiments.md.
