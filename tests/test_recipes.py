@@ -22,6 +22,7 @@ SHIPPED = {
     "aloha_mini_dynamics.toml": ("aloha_mini_dynamics.pt", None),
     "aloha_mini_robot.toml": ("aloha_mini_robot.pt", None),
     "quadruped_mini_dynamics.toml": ("quadruped_mini_dynamics.pt", None),
+    "quadruped_mini_robot.toml": ("quadruped_mini_robot.pt", None),
 }
 
 #: The recorded fields a recipe must reproduce (device, out and data paths aside).
