@@ -7,9 +7,10 @@ Random (the best of `--budget` random designs, one batched Warp rollout), CMA-ES
 (`--n` model samples ranked by the model's own reward prediction, no simulator) and Dynamics
 Self-Guidance (`--dgs-n` guided samples, ranked the same way). The MuJoCo + mink oracle
 re-runs every winner on its run's motions: the tables show those validated numbers. A space
-that ships no generator (`tt.dit.checkpoint.default_checkpoint`; ALOHA, the mobile bimanual
-robot and the quadruped today) runs the baselines only, unless `--checkpoint` names one;
-`--methods` picks the table's methods. Rollouts use the space's default backend (tt's Warp
+that ships no generator (`tt.dit.checkpoint.default_checkpoint`) runs the baselines only,
+unless `--checkpoint` names one; `--methods` picks the table's methods. The learned methods
+rank by the space's shipped critic when the generator is the shipped one (`--critic-checkpoint`
+names another). Rollouts use the space's default backend (tt's Warp
 kernels; MuJoCo C batches for the quadruped, whose contacts they need), validation the oracle.
 
 Parts (``--parts``, run in this order, the tracking reward first):
