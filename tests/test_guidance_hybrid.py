@@ -153,8 +153,8 @@ def blank_model():
         (["--method", "zeroth", "--config", "critic_samples=0"], "critic_samples = 0; must be >= 1"),
         (["--method", "cmaes", "--refine", "3"], "--refine applies to the learned methods"),
         (
-            ["--space", "bimanual", "--motion", "bi_fling", "--method", "cmaes-init-model"],
-            "no shipped DiT checkpoint for design space 'bimanual'",
+            ["--space", "viperx-gravcomp", "--method", "cmaes-init-model"],
+            "no shipped DiT checkpoint for design space 'viperx-gravcomp'",
         ),
     ],
 )
