@@ -22,6 +22,8 @@ SHIPPED = {
     "aloha_mini_dynamics.toml": ("aloha_mini_dynamics.pt", None),
     "aloha_mini_robot.toml": ("aloha_mini_robot.pt", None),
     "quadruped_mini_dynamics.toml": ("quadruped_mini_dynamics.pt", None),
+    "bimanual_mini_dynamics.toml": ("bimanual_mini_dynamics.pt", None),
+    "bimanual_mini_robot.toml": ("bimanual_mini_robot.pt", None),
     "quadruped_mini_robot.toml": ("quadruped_mini_robot.pt", None),
 }
 
