@@ -712,7 +712,7 @@ def notes(records: list[dict], info: dict) -> str:
     lines = [
         "## Notes",
         "",
-        *([controller_note(info).rstrip("\n")] if controller_note(info) else []),
+        *controller_note(info).splitlines(),
         f"- Decoding. A learned method's winner is its best-ranked candidate, decoded to a {space_name(info)} design "
         f"(`tt.tokens.design_from_tokens`): a candidate whose embodiment tokens have the token structure of a discrete "
         f"choice of the space (token counts and every binary attribute) decodes to it; otherwise it is projected onto "
@@ -1188,10 +1188,9 @@ def main() -> None:
     learned = None
     if checkpoint is not None:
         learned = load_learned(args.space, checkpoint, critic_checkpoint)
-        from tt.guidance.selfguide import GuidanceScales
+        from tt.guidance.selfguide import GuidanceScales, default_guide
 
-        # DGSConfig.guide_by's default: a generator trained on the robot task alone follows the critic.
-        guide_by = "critic" if learned.critic is not None and not learned.trained.trained_on("dynamics") else "model"
+        guide_by = default_guide(learned.trained, learned.critic)  # what the Self-Guidance rows follow
         scales = GuidanceScales()
         info.update(
             guide_by=guide_by,

@@ -226,6 +226,13 @@ class SelfGuidance:
         return guide
 
 
+def default_guide(trained, critic=None) -> str:
+    """`DGSConfig.guide_by`'s default for sampling model `trained` and critic model `critic`
+    (`tt.dit.checkpoint.TrainedModel`s, critic None: none given): "critic" when a critic is
+    given and `trained` was not trained on the dynamics task, else "model"."""
+    return "critic" if critic is not None and not trained.trained_on("dynamics") else "model"
+
+
 # ------------------------------------------------------------------------------ optimizer
 @dataclass(frozen=True)
 class DGSConfig(SamplerConfig):
@@ -280,9 +287,7 @@ class DynamicsSelfGuidance(ZerothOrder):
         and, under "rollouts", the simulator-gradient rollouts it ran)."""
         c: DGSConfig = self.config
         sampler, decoder, cfg, n = self._setup(problem)
-        guide_by = c.guide_by or (
-            "critic" if self._critic is not None and not self._trained.trained_on("dynamics") else "model"
-        )
+        guide_by = c.guide_by or default_guide(self._trained, self._critic)
         scale = c.scale if c.scale is not None else c.scales.scale(problem.space, len(problem.motions), guide_by)
         sim = None
         if c.sim_grad_weight > 0:
@@ -336,4 +341,5 @@ __all__ = [
     "GuidanceScales",
     "GuidanceStats",
     "SelfGuidance",
+    "default_guide",
 ]
