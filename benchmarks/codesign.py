@@ -27,7 +27,8 @@ Parts (``--parts``, run in this order, the tracking reward first):
   with `--lambda-n` samples; the simulator gradient runs from guided step `--lambda-start`.
 * guidance: single trajectory, tracking, `--guidance-seeds` seeds from `--guidance-first-seed`, n =
   `--guidance-n`: Zeroth-Order, Self-Guidance as the paper has it (the sampling model's own
-  dynamics, scale 50) and Self-Guidance steered by the dynamics critic's gradient
+  dynamics at the paper's scale for the space, whatever the generator's default guide) and
+  Self-Guidance steered by the dynamics critic's gradient
   (``guide_by="critic"``, `tt.guidance.critic_grad`; the `--critic-checkpoint`, else the
   sampling model's own dynamics task) at each scale of `--guidance-scales` and DDIM eta of
   `--guidance-etas`, with paired differences against Zeroth-Order.
@@ -179,7 +180,8 @@ def load_learned(space_name: str, checkpoint: Path, critic_checkpoint: Path | No
     return Learned(trained, decoder, Path(checkpoint), time.perf_counter() - start, critic)
 
 
-def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
+def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, guide_by: str | None = None):
+    """The optimizer of `method`; guide_by: Self-Guidance's (`DGSConfig.guide_by`, None: its default)."""
     if method in (RANDOM, RANDOM_T):
         return RandomSearch()
     if method in (CMAES_B, CMAES_T):
@@ -225,7 +227,13 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0):
         return DynamicsSelfGuidance(config, model=learned.trained, decoder=learned.decoder, critic_model=learned.critic)
     start = args.lambda_start if lam > 0 else 0
     return DynamicsSelfGuidance(
-        DGSConfig(num_steps=args.steps, critic_samples=args.critic_samples, sim_grad_weight=lam, sim_grad_start=start),
+        DGSConfig(
+            num_steps=args.steps,
+            critic_samples=args.critic_samples,
+            sim_grad_weight=lam,
+            sim_grad_start=start,
+            guide_by=guide_by,
+        ),
         model=learned.trained,
         decoder=learned.decoder,
         critic_model=learned.critic,
@@ -294,7 +302,11 @@ def run_group(
         problem = Problem(args.space, motions, reward, n, seed=seed, device="cpu")
         start = time.perf_counter()
         try:
-            results.append((method, n, lam, optimizer(method, args, learned, lam=lam).optimize(problem), None))
+            # Part "guidance" compares the critic's gradient with the paper's Self-Guidance, which
+            # follows the sampling model's own dynamics whatever the generator's default guide.
+            guide = "model" if part == "guidance" and method == DGS else None
+            opt = optimizer(method, args, learned, lam=lam, guide_by=guide)
+            results.append((method, n, lam, opt.optimize(problem), None))
         except ValueError as e:  # a learned method whose candidates all fail to decode returns no design
             results.append((method, n, lam, None, (str(e), time.perf_counter() - start)))
     done = [r for r in results if r[3] is not None]
@@ -555,7 +567,8 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
     Self-Guidance at the same n on the same seeds; paired differences against Zeroth-Order.
     Returns (section, the issue's target lines)."""
     n = records[0]["n"]
-    methods = [ZEROTH, DGS] + list(dict.fromkeys(r["method"] for r in records if r["method"].startswith(DGS_CRITIC)))
+    paper = [DGS] if any(r["method"] == DGS for r in records) else []
+    methods = [ZEROTH] + paper + list(dict.fromkeys(r["method"] for r in records if r["method"].startswith(DGS_CRITIC)))
     rows, goal = [], []
     for method in methods:
         mr = [r for r in records if r["method"] == method]
@@ -567,12 +580,17 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
     lines = [
         f"## Self-Guidance steered by the dynamics critic (single trajectory, tracking; n = {n}; seeds "
         f"{', '.join(map(str, seeds))})\n",
-        "Self-Guidance: the paper's, the sampling model's own dynamics differentiated, scale 50. Self-Guidance, "
-        "critic: the dynamics critic's prediction for each step's x0_hat differentiated instead (the log of the "
-        "tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. At the decoded design "
-        "(only, or after the guided steps): once sampling has ended, the returned design's continuous choices "
-        "climb the critic's predicted reward (no termination; where the label says so, its log form, "
-        "`tt.sim.rewards.log_reward`) along its central differences, each design's start "
+        (
+            "Self-Guidance: the paper's, the sampling model's own dynamics differentiated, at the paper's scale for "
+            "the space. "
+            if paper
+            else ""
+        )
+        + "Self-Guidance, critic: the dynamics critic's prediction for each step's x0_hat differentiated "
+        "(the log of the tracking terms, no termination; `tt.guidance.critic_grad`), at the scale given. At the "
+        "decoded design (only, or after the guided steps): once sampling has ended, the returned design's "
+        "continuous choices climb the critic's predicted reward (no termination; where the label says so, its "
+        "log form, `tt.sim.rewards.log_reward`) along its central differences, each design's start "
         "re-simulated, a step kept only when it also raises the prediction under a second noise draw "
         "(`tt.guidance.refine`, `SamplerConfig.refine` iterations at most); with eta 0 and no guided token step "
         "the design it starts from is Zeroth-Order's own. Paired differences are "
