@@ -11,9 +11,9 @@ whether any design of the space gets there, whatever the optimizer:
 * From the screen, per fling: the reward's best design; the lowest position error of any
   design that survives the whole episode; the lowest max joint speed of any surviving design;
   and the lowest max joint speed among the surviving designs whose position error is at
-  least `--err-cut` (70 %) below the original's, i.e. the designs that meet the position
-  target. Each pick and the original are re-run on the MuJoCo + mink oracle; the table gives
-  the oracle's values and their relative change from the original's.
+  least the issue's 70 % (`aloha.TARGETS`) below the original's, i.e. the designs that meet
+  the position target. Each pick and the original are re-run on the MuJoCo + mink oracle;
+  the table gives the oracle's values and their relative change from the original's.
 * Max joint speed: the largest |qdot| of any actuator at any counted step
   (`tt.sim.rewards.metrics`); which actuator sets it is counted over the screen.
 
@@ -99,7 +99,7 @@ def main() -> None:
     for j, motion in enumerate(motions):
         chosen = picks(reward[1:, j], err[1:, j], speed[1:, j], surv[1:, j] >= 1.0, err_cut * err[0, j])
         chosen = {k: (None if i is None else i + 1) for k, i in chosen.items()}  # screen index -> design index
-        valid = [0] + [i for i in chosen.values() if i is not None]
+        valid = [0] + sorted({i for i in chosen.values() if i is not None})  # a design picked twice runs once
         oracle = evaluate_designs([designs[i] for i in valid], [motion], args.reward, backend="mujoco")
         o_err = np.asarray(oracle.metrics["pos_err"], dtype=np.float64).reshape(-1)
         o_spd = np.asarray(oracle.metrics["max_joint_speed"], dtype=np.float64).reshape(-1)
