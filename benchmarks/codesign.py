@@ -812,6 +812,18 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             )
             seeds = sorted({r["seed"] for r in sub})
             head += f"\n### {reward} ({len(seeds)} runs: seeds {', '.join(map(str, seeds))})\n\n{table}\n"
+            against = []
+            for method in METHODS:
+                d_rew = paired(sub, (method, None), (RANDOM, None), "reward")
+                if method == RANDOM or not d_rew:
+                    continue
+                d_err = [x for x in paired(sub, (method, None), (RANDOM, None), "pos_err") if math.isfinite(x)]
+                against.append(
+                    f"- {method}: position error {_fmt(*mean_ci(d_err))} cm, reward {_fmt(*mean_ci(d_rew))} "
+                    f"(higher in {sum(x > 0 for x in d_rew)} of {len(d_rew)})"
+                )
+            if against:
+                head += "\nMinus Random on the same seeds (paired, mean ± 95% CI):\n\n" + "\n".join(against) + "\n"
             paper = PAPER.get((info.get("space", "viperx"), name, reward))
             if paper:
                 metric = REWARD_METRIC.get(reward)
