@@ -1010,6 +1010,11 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
         info["wall_seconds"] = info.get("wall_seconds", 0.0) + run.get("wall_seconds", 0.0)
         info["skipped"] = info.get("skipped", []) + run.get("skipped", [])
         info["load_end"] = run.get("load_end", info.get("load_end"))
+    # A run cut by --max-minutes and continued by a later one (--first-seed): what the later
+    # run did is no longer skipped. Labels are `group`'s, e.g. "table multi trajectory tracking seed 5".
+    done = {f"{r['part']} {r['setting']} {r['reward_name']} seed {r['seed']}" for r in records}
+    if "skipped" in info:
+        info["skipped"] = [label for label in info["skipped"] if label not in done]
     return records, info
 
 
@@ -1037,6 +1042,13 @@ def main() -> None:
     )
     ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
+    ap.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="table: first seed (seeds first .. first + --seeds - 1; e.g. to continue a run cut by --max-minutes, "
+        "then --from-log both logs)",
+    )
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
     ap.add_argument(
         "--multi-rewards", default="tracking", help="table, multi trajectory: rewards, 'all', or '' for none"
@@ -1175,7 +1187,7 @@ def main() -> None:
     val = for_space(motion_set("val", arms=len(space.ee_sites())), args.space)
     skills = len(val) // 3  # the validation split holds 3 variants of each skill
     seeds_needed = max(
-        args.seeds,
+        args.first_seed + args.seeds,
         args.scaling_seeds,
         args.lambda_seeds,
         args.hybrid_seeds,
@@ -1282,8 +1294,9 @@ def main() -> None:
     multi_entries = table_entries(args.multi_budget, args.multi_n, args.multi_dgs_n)
     jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
     if "table" in parts:
+        table_seeds = range(args.first_seed, args.first_seed + args.seeds)
         for reward in rewards:
-            for i in range(args.seeds):
+            for i in table_seeds:
                 jobs.append(
                     (
                         0 if reward == "tracking" else 3,
@@ -1299,7 +1312,7 @@ def main() -> None:
                     )
                 )
         for reward in multi_rewards:
-            for i in range(args.seeds):
+            for i in table_seeds:
                 jobs.append(
                     (
                         2 if reward == "tracking" else 4,
@@ -1312,7 +1325,7 @@ def main() -> None:
         for i in range(args.scaling_seeds):
             have = (
                 {(m, n) for m, n, _ in single_entries}
-                if ("table" in parts and "tracking" in rewards and i < args.seeds)
+                if ("table" in parts and "tracking" in rewards and args.first_seed <= i < args.first_seed + args.seeds)
                 else set()
             )
             entries = [(m, b, 0.0) for b in budgets for m in (RANDOM, CMAES_B)]
