@@ -1010,6 +1010,12 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
         info["wall_seconds"] = info.get("wall_seconds", 0.0) + run.get("wall_seconds", 0.0)
         info["skipped"] = info.get("skipped", []) + run.get("skipped", [])
         info["load_end"] = run.get("load_end", info.get("load_end"))
+    # A run measured again by a later log (e.g. hybrid seeds a capped run reached and a hybrid-only
+    # run repeated): the later record replaces the earlier, so no run counts twice.
+    latest = {}
+    for r in records:
+        latest[(r["part"], r["setting"], r["reward_name"], r["seed"], r["method"], r["n"], r.get("lambda"))] = r
+    records = list(latest.values())
     # A run cut by --max-minutes and continued by a later one (--first-seed): what the later
     # run did is no longer skipped. Labels are `group`'s, e.g. "table multi trajectory tracking seed 5".
     done = {f"{r['part']} {r['setting']} {r['reward_name']} seed {r['seed']}" for r in records}
