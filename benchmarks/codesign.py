@@ -1011,16 +1011,18 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
         info["skipped"] = info.get("skipped", []) + run.get("skipped", [])
         info["load_end"] = run.get("load_end", info.get("load_end"))
     # A run measured again by a later log (e.g. hybrid seeds a capped run reached and a hybrid-only
-    # run repeated): the later record replaces the earlier, so no run counts twice.
+    # run repeated): the later record replaces the earlier, so no run counts twice. Only the
+    # scaling part runs one method at several n (an equal-time baseline's n varies per run).
     latest = {}
     for r in records:
-        latest[(r["part"], r["setting"], r["reward_name"], r["seed"], r["method"], r["n"], r.get("lambda"))] = r
+        n = r["n"] if r["part"] == "scaling" else None
+        latest[(r["part"], r["setting"], r["reward_name"], r["seed"], r["method"], n, r.get("lambda"))] = r
     records = list(latest.values())
     # A run cut by --max-minutes and continued by a later one (--first-seed): what the later
     # run did is no longer skipped. Labels are `group`'s, e.g. "table multi trajectory tracking seed 5".
     done = {f"{r['part']} {r['setting']} {r['reward_name']} seed {r['seed']}" for r in records}
     if "skipped" in info:
-        info["skipped"] = [label for label in info["skipped"] if label not in done]
+        info["skipped"] = [label for label in dict.fromkeys(info["skipped"]) if label not in done]
     return records, info
 
 
