@@ -1054,8 +1054,8 @@ def main() -> None:
         "--first-seed",
         type=int,
         default=0,
-        help="table: first seed (seeds first .. first + --seeds - 1; e.g. to continue a run cut by --max-minutes, "
-        "then --from-log both logs)",
+        help="table and hybrid: first seed (seeds first .. first + --seeds - 1, or + --hybrid-seeds - 1; e.g. to "
+        "continue a run cut by --max-minutes, then --from-log both logs)",
     )
     ap.add_argument("--rewards", default="tracking", help="table, single trajectory: comma-separated rewards or 'all'")
     ap.add_argument(
@@ -1198,7 +1198,7 @@ def main() -> None:
         args.first_seed + args.seeds,
         args.scaling_seeds,
         args.lambda_seeds,
-        args.hybrid_seeds,
+        args.first_seed + args.hybrid_seeds,
         args.guidance_first_seed + args.guidance_seeds,
     )
     single_motions = [val[3 * (i % skills) + i % 3] for i in range(seeds_needed)]
@@ -1351,7 +1351,7 @@ def main() -> None:
             jobs.append((1, ("guidance", SINGLE, (single_motions[i],), "tracking", i, entries, f"guidance seed {i}")))
     if "hybrid" in parts:
         for reward in hybrid_rewards:
-            for i in range(args.hybrid_seeds):
+            for i in range(args.first_seed, args.first_seed + args.hybrid_seeds):
                 for setting, motions in ((SINGLE, (single_motions[i],)), (MULTI, multi_motions)):
                     if setting.split()[0] not in hybrid_settings:
                         continue
