@@ -978,6 +978,11 @@ def report(records: list[dict], info: dict, out: Path) -> str:
     return text
 
 
+def run_label(part: str, setting: str, reward: str, seed: int) -> str:
+    """How a table or hybrid run is named in the skipped list, e.g. "table multi trajectory tracking seed 5"."""
+    return f"{part} {setting} {reward} seed {seed}"
+
+
 def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
     """Records and run info of one run's printed lines, or of several runs that continue one
     another (e.g. more rewards, or the learned methods once a generator ships): the first
@@ -1019,8 +1024,8 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
         latest[(r["part"], r["setting"], r["reward_name"], r["seed"], r["method"], n, r.get("lambda"))] = r
     records = list(latest.values())
     # A run cut by --max-minutes and continued by a later one (--first-seed): what the later
-    # run did is no longer skipped. Labels are `group`'s, e.g. "table multi trajectory tracking seed 5".
-    done = {f"{r['part']} {r['setting']} {r['reward_name']} seed {r['seed']}" for r in records}
+    # run did is no longer skipped.
+    done = {run_label(r["part"], r["setting"], r["reward_name"], r["seed"]) for r in records}
     if "skipped" in info:
         info["skipped"] = [label for label in dict.fromkeys(info["skipped"]) if label not in done]
     return records, info
@@ -1301,8 +1306,8 @@ def main() -> None:
     single_entries = table_entries(args.budget, args.n, args.dgs_n)
     multi_entries = table_entries(args.multi_budget, args.multi_n, args.multi_dgs_n)
     jobs = []  # (order, thunk args); tracking first, then the scaling and lambda parts, then the other rewards
+    table_seeds = range(args.first_seed, args.first_seed + args.seeds)
     if "table" in parts:
-        table_seeds = range(args.first_seed, args.first_seed + args.seeds)
         for reward in rewards:
             for i in table_seeds:
                 jobs.append(
@@ -1315,7 +1320,7 @@ def main() -> None:
                             reward,
                             i,
                             single_entries,
-                            f"table {SINGLE} {reward} seed {i}",
+                            run_label("table", SINGLE, reward, i),
                         ),
                     )
                 )
@@ -1324,7 +1329,7 @@ def main() -> None:
                 jobs.append(
                     (
                         2 if reward == "tracking" else 4,
-                        ("table", MULTI, multi_motions, reward, i, multi_entries, f"table {MULTI} {reward} seed {i}"),
+                        ("table", MULTI, multi_motions, reward, i, multi_entries, run_label("table", MULTI, reward, i)),
                     )
                 )
     if "scaling" in parts:
@@ -1333,7 +1338,7 @@ def main() -> None:
         for i in range(args.scaling_seeds):
             have = (
                 {(m, n) for m, n, _ in single_entries}
-                if ("table" in parts and "tracking" in rewards and args.first_seed <= i < args.first_seed + args.seeds)
+                if ("table" in parts and "tracking" in rewards and i in table_seeds)
                 else set()
             )
             entries = [(m, b, 0.0) for b in budgets for m in (RANDOM, CMAES_B)]
@@ -1358,7 +1363,7 @@ def main() -> None:
                     jobs.append(
                         (
                             1 if reward == "tracking" else 3,
-                            ("hybrid", setting, motions, reward, i, None, f"hybrid {setting} {reward} seed {i}"),
+                            ("hybrid", setting, motions, reward, i, None, run_label("hybrid", setting, reward, i)),
                         )
                     )
     for _, job in sorted(jobs, key=lambda j: j[0]):
