@@ -52,3 +52,22 @@ def test_r0_a_small_model_memorizes_64_episodes(tmp_path):
     score = score_designs(trained, designs, motions, num_steps=20)
     assert score.estimator_pooled > 0.99  # the 8-step estimate itself is not what limits r
     assert score.pooled >= 0.95, f"R0: pooled r {score.pooled:.3f}, within-motion {np.round(score.within, 2)}"
+
+
+@pytest.mark.parametrize("reward", ["tracking_velocity", "tracking_torque", "tracking_size"])
+def test_estimator_of_an_effort_or_size_reward_is_the_simulated_one_on_a_window_long_motion(reward):
+    """The 8-step estimator reads the effort and size terms of the same steps and designs as
+    the poses (`score_designs`): on a motion no longer than the critic's window every step is
+    a query step, so the estimate is the simulated reward itself (float32 rollouts scored in
+    float64 against float32: 1e-4 relative)."""
+    from tt.dit.checkpoint import default_checkpoint, load_model
+    from tt.ladder import heldout_designs, score_designs, validation_motions
+    from tt.sim.motions.base import Motion
+
+    trained = load_model(default_checkpoint("viperx", task="dynamics"), device="cpu")
+    S = trained.layout.steps
+    m = validation_motions("viperx", 1)[0]
+    short = Motion(m.name + f"[:{S}]", m.pos[:S], m.quat[:S], m.dt)
+    score = score_designs(trained, heldout_designs("viperx", 4), [short], reward, num_steps=2)
+    assert np.all(np.isfinite(score.predicted))
+    np.testing.assert_allclose(score.estimator, score.simulated, rtol=1e-4, atol=1e-4)

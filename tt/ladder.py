@@ -192,11 +192,20 @@ def score_designs(
         n = scored_steps(m.steps, S)  # a motion shorter than the window: its own steps only
         st = query_steps(m.steps, S, 1)[0][:n].to(ep.ee_pos.device)
         w = world[:, j].to(ep.ee_pos.device)
+        # The effort and size terms read the same steps and designs as the poses.
+        steps_of = {k: getattr(ep, k)[w][:, st].double() for k in ("act_force", "act_vel") if k in cfg.needs}
+        design_of = {
+            k: torch.as_tensor(ev.metrics[k][:, j], dtype=torch.float64, device=ep.ee_pos.device)
+            for k in ("size", "mass")
+            if k in cfg.needs
+        }
         inputs = RewardInputs(
             ep.ee_pos[w][:, st].double(),
             ep.ee_quat[w][:, st].double(),
             ep.target_pos[w][:, st].double(),
             ep.target_quat[w][:, st].double(),
+            **steps_of,
+            **design_of,
         )
         estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
