@@ -62,7 +62,15 @@ def failure_split(predicted: np.ndarray, simulated: np.ndarray) -> dict:
 def summary(folder: Path, note: str, out: Path | None = None) -> Path:
     """`out` (default DIR.md): one row per result JSON in `folder`, by step then samples and DDIM steps."""
     results = [json.loads(p.read_text()) | {"file": p.name} for p in folder.glob("*.json")]
-    results.sort(key=lambda r: (r.get("pairs", "held-out") != "held-out", r["step"], r["samples"], r["num_steps"]))
+    results.sort(
+        key=lambda r: (
+            r.get("pairs", "held-out") != "held-out",
+            r["step"],
+            r.get("reward", "tracking"),
+            r["samples"],
+            r["num_steps"],
+        )
+    )
     lines = [
         f"# Ladder over a run: {folder.name}",
         "",
@@ -74,10 +82,10 @@ def summary(folder: Path, note: str, out: Path | None = None) -> Path:
         "of the mean end-effector position error at the 8 query steps, counted or not, predicted / simulated [cm] "
         "(results written since 2026-12-03 evening).",
         "",
-        "| step | pairs | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per "
-        "motion | failing (%) "
+        "| step | pairs | reward | samples | DDIM steps | pooled r | mean within-motion r | within-motion r per "
+        "motion | effort term r, pooled / within | failing (%) "
         "| AUC failing | r tracking | error failing (cm) | error tracking (cm) | predict (s) | file |",
-        "|---:|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---|",
+        "|---:|---|---|---:|---:|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---|",
     ]
     for r in results:
         per = " / ".join(f"{v:.2f}" for v in r["within_r"])
@@ -96,10 +104,11 @@ def summary(folder: Path, note: str, out: Path | None = None) -> Path:
             errors = " | ".join(
                 f"{np.median(pe[m]):.0f} / {np.median(se[m]):.0f}" if m.any() else "-" for m in (failed, ~failed)
             )
+        term = f"{r['term']}: {r['term_pooled_r']:.2f} / {np.nanmean(r['term_within_r']):.2f}" if r.get("term") else "-"
         lines.append(
-            f"| {r['step']} | {r.get('pairs', 'held-out')} | {r['samples']} | {r['num_steps']} | "
-            f"{r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
-            f"{per} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |"
+            f"| {r['step']} | {r.get('pairs', 'held-out')} | {r.get('reward', 'tracking')} | {r['samples']} | "
+            f"{r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
+            f"{per} | {term} | {split} | {errors} | {r['seconds']['predict']:.0f} | `{r['file']}` |"
         )
     out = Path(out) if out is not None else folder.with_suffix(".md")
     out.write_text("\n".join(lines + [""]))
@@ -208,6 +217,8 @@ def main() -> None:
         "estimator_pooled_r": sc.estimator_pooled,
         "seconds": sc.seconds,
     }
+    if sc.term is not None:
+        result |= {"term": sc.term, "term_pooled_r": sc.term_pooled, "term_within_r": sc.term_within}
     print(json.dumps(result), flush=True)
     suffix = "" if args.online_refresh is None else f"_online{args.online_refresh}"
     out = Path(args.out) if args.out else RUNS / f"dit_ladder_{space}{suffix}.md"
@@ -240,6 +251,15 @@ def main() -> None:
                 f"- pooled Pearson r: **{sc.pooled:.2f}** (estimator on the simulated poses: "
                 f"{sc.estimator_pooled:.2f})",
                 f"- mean within-motion r: **{sc.within_mean:.2f}**",
+                *(
+                    []
+                    if sc.term is None
+                    else [
+                        f"- the reward's {sc.term} term (mean actuator {sc.term} norm), predicted against simulated: "
+                        f"pooled r **{sc.term_pooled:.2f}**, mean within-motion r "
+                        f"**{np.nanmean(sc.term_within):.2f}**"
+                    ]
+                ),
                 "",
                 "| motion | predicted mean | simulated mean | within-motion r | estimator r |",
                 "|---|---:|---:|---:|---:|",

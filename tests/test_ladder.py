@@ -71,3 +71,11 @@ def test_estimator_of_an_effort_or_size_reward_is_the_simulated_one_on_a_window_
     score = score_designs(trained, heldout_designs("viperx", 4), [short], reward, num_steps=2)
     assert np.all(np.isfinite(score.predicted))
     np.testing.assert_allclose(score.estimator, score.simulated, rtol=1e-4, atol=1e-4)
+    term = {"tracking_velocity": "velocity", "tracking_torque": "torque"}.get(reward)
+    assert score.term == term
+    if term is not None:  # the simulated term is the metric of the same episodes
+        from tt.baselines.evaluate import evaluate_designs
+
+        ev = evaluate_designs(heldout_designs("viperx", 4), [short], reward)
+        np.testing.assert_allclose(score.simulated_term, ev.metrics[term], rtol=1e-6)
+        assert np.all(np.isfinite(score.predicted_term)) and np.all(score.predicted_term >= 0)

@@ -107,7 +107,11 @@ class LadderScore:
     simulated_error: (D, M) mean position error [cm] at the query's steps, counted or not,
     of the predicted and the simulated end effector; motions: names;
     pooled: r over all pairs; within: r per motion; estimator_pooled / estimator_within: the
-    same for the estimator; seconds: predict and simulate wall times.
+    same for the estimator; seconds: predict and simulate wall times; term: the reward's
+    effort metric (``torque`` or ``velocity``: mean actuator force or speed norm over the
+    counted steps, `tt.sim.rewards.metrics`) or None, with its predicted and simulated
+    values, (D, M): whether the model knows the effort, apart from the tracking that
+    dominates the reward.
     """
 
     predicted: np.ndarray
@@ -121,6 +125,19 @@ class LadderScore:
     predicted_error: np.ndarray
     simulated_error: np.ndarray
     seconds: dict[str, float] = field(default_factory=dict)
+    term: str | None = None
+    predicted_term: np.ndarray | None = None
+    simulated_term: np.ndarray | None = None
+
+    @property
+    def term_pooled(self) -> float:
+        """Pooled r of the predicted against the simulated effort term (nan without one)."""
+        return float("nan") if self.term is None else pearson(self.predicted_term, self.simulated_term)
+
+    @property
+    def term_within(self) -> list[float]:
+        """Within-motion r of the effort term (empty without one)."""
+        return [] if self.term is None else within_motion(self.predicted_term, self.simulated_term)
 
     @property
     def within_mean(self) -> float:
@@ -142,7 +159,17 @@ class LadderScore:
             "predicted_error_cm": self.predicted_error.tolist(),
             "simulated_error_cm": self.simulated_error.tolist(),
             "seconds": self.seconds,
-        }
+        } | (
+            {}
+            if self.term is None
+            else {
+                "term": self.term,
+                "term_pooled_r": self.term_pooled,
+                "term_within_r": self.term_within,
+                "predicted_term": self.predicted_term.tolist(),
+                "simulated_term": self.simulated_term.tolist(),
+            }
+        )
 
 
 def score_designs(
@@ -209,6 +236,7 @@ def score_designs(
         )
         estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
+    term = {"act_force": "torque", "act_vel": "velocity"}.get(next((k for k in cfg.needs if k.startswith("act_")), ""))
     return LadderScore(
         pred.reward,
         ev.reward,
@@ -221,6 +249,9 @@ def score_designs(
         pred.metrics["query_pos_err"],
         simulated_error,
         {"predict": t1 - t0, "simulate": t2 - t1},
+        term,
+        None if term is None else pred.metrics[term],
+        None if term is None else ev.metrics[term],
     )
 
 
