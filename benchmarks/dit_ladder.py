@@ -218,7 +218,12 @@ def main() -> None:
         "seconds": sc.seconds,
     }
     if sc.term is not None:
-        result |= {"term": sc.term, "term_pooled_r": sc.term_pooled, "term_within_r": sc.term_within}
+        result |= {
+            "term": sc.term,
+            "term_pooled_r": sc.term_pooled,
+            "term_within_r": sc.term_within,
+            "estimator_term_within_r": sc.estimator_term_within,
+        }
     print(json.dumps(result), flush=True)
     suffix = "" if args.online_refresh is None else f"_online{args.online_refresh}"
     out = Path(args.out) if args.out else RUNS / f"dit_ladder_{space}{suffix}.md"
@@ -257,7 +262,8 @@ def main() -> None:
                     else [
                         f"- the reward's {sc.term} term (mean actuator {sc.term} norm), predicted against simulated: "
                         f"pooled r **{sc.term_pooled:.2f}**, mean within-motion r "
-                        f"**{np.nanmean(sc.term_within):.2f}**"
+                        f"**{np.nanmean(sc.term_within):.2f}** (the 8-step estimate on the simulated episode: "
+                        f"{np.nanmean(sc.estimator_term_within):.2f} within-motion)"
                     ]
                 ),
                 "",

@@ -79,3 +79,5 @@ def test_estimator_of_an_effort_or_size_reward_is_the_simulated_one_on_a_window_
         ev = evaluate_designs(heldout_designs("viperx", 4), [short], reward)
         np.testing.assert_allclose(score.simulated_term, ev.metrics[term], rtol=1e-6)
         assert np.all(np.isfinite(score.predicted_term)) and np.all(score.predicted_term >= 0)
+        # Every step is a query step: the 8-step estimate of the term is the whole episode's.
+        np.testing.assert_allclose(score.estimator_term, score.simulated_term, rtol=1e-4)

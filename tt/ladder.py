@@ -110,8 +110,8 @@ class LadderScore:
     same for the estimator; seconds: predict and simulate wall times; term: the reward's
     effort metric (``torque`` or ``velocity``: mean actuator force or speed norm over the
     counted steps, `tt.sim.rewards.metrics`) or None, with its predicted and simulated
-    values, (D, M): whether the model knows the effort, apart from the tracking that
-    dominates the reward.
+    values and its 8-step estimate on the simulated poses (the ceiling), (D, M): whether the
+    model knows the effort, apart from the tracking that dominates the reward.
     """
 
     predicted: np.ndarray
@@ -128,6 +128,7 @@ class LadderScore:
     term: str | None = None
     predicted_term: np.ndarray | None = None
     simulated_term: np.ndarray | None = None
+    estimator_term: np.ndarray | None = None
 
     @property
     def term_pooled(self) -> float:
@@ -138,6 +139,12 @@ class LadderScore:
     def term_within(self) -> list[float]:
         """Within-motion r of the effort term (empty without one)."""
         return [] if self.term is None else within_motion(self.predicted_term, self.simulated_term)
+
+    @property
+    def estimator_term_within(self) -> list[float]:
+        """Within-motion r of the effort term's 8-step estimate on the simulated episode
+        against the whole episode's: the ceiling of `term_within` (empty without a term)."""
+        return [] if self.term is None else within_motion(self.estimator_term, self.simulated_term)
 
     @property
     def within_mean(self) -> float:
@@ -168,6 +175,9 @@ class LadderScore:
                 "term_within_r": self.term_within,
                 "predicted_term": self.predicted_term.tolist(),
                 "simulated_term": self.simulated_term.tolist(),
+                "estimator_term": self.estimator_term.tolist(),
+                "estimator_term_pooled_r": pearson(self.estimator_term, self.simulated_term),
+                "estimator_term_within_r": self.estimator_term_within,
             }
         )
 
@@ -198,7 +208,7 @@ def score_designs(
 
     from tt.baselines.evaluate import evaluate_designs
     from tt.guidance.predicted import predict_designs, query_position_error, query_steps, scored_steps
-    from tt.sim.rewards import RewardInputs, evaluate, get_reward
+    from tt.sim.rewards import RewardInputs, evaluate, get_reward, metrics
 
     designs, motions = list(designs), list(motions)
     cfg = get_reward(reward, designs[0].space)
@@ -211,6 +221,8 @@ def score_designs(
     t2 = time.perf_counter()
     ep, D = ev.episode, len(designs)
     estimator = np.zeros((D, len(motions)))
+    term = {"act_force": "torque", "act_vel": "velocity"}.get(next((k for k in cfg.needs if k.startswith("act_")), ""))
+    estimator_term = np.zeros((D, len(motions)))
     simulated_error = np.zeros((D, len(motions)))
     S = trained.layout.steps
     world = torch.full((D, len(motions)), -1, dtype=torch.long)
@@ -235,8 +247,9 @@ def score_designs(
             **design_of,
         )
         estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
+        if term is not None:
+            estimator_term[:, j] = metrics(inputs, cfg)[term].cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
-    term = {"act_force": "torque", "act_vel": "velocity"}.get(next((k for k in cfg.needs if k.startswith("act_")), ""))
     return LadderScore(
         pred.reward,
         ev.reward,
@@ -252,6 +265,7 @@ def score_designs(
         term,
         None if term is None else pred.metrics[term],
         None if term is None else ev.metrics[term],
+        None if term is None else estimator_term,
     )
 
 
