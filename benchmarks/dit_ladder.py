@@ -105,6 +105,8 @@ def summary(folder: Path, note: str, out: Path | None = None) -> Path:
                 f"{np.median(pe[m]):.0f} / {np.median(se[m]):.0f}" if m.any() else "-" for m in (failed, ~failed)
             )
         term = f"{r['term']}: {r['term_pooled_r']:.2f} / {np.nanmean(r['term_within_r']):.2f}" if r.get("term") else "-"
+        if r.get("estimator_term_within_r"):
+            term += f" (8-step estimate on the simulated episode: {np.nanmean(r['estimator_term_within_r']):.2f})"
         lines.append(
             f"| {r['step']} | {r.get('pairs', 'held-out')} | {r.get('reward', 'tracking')} | {r['samples']} | "
             f"{r['num_steps']} | {r['pooled_r']:.2f} | {r['within_r_mean']:.2f} | "
