@@ -208,6 +208,7 @@ def score_designs(
 
     from tt.baselines.evaluate import evaluate_designs
     from tt.guidance.predicted import predict_designs, query_position_error, query_steps, scored_steps
+    from tt.report import REWARD_METRIC
     from tt.sim.rewards import RewardInputs, evaluate, get_reward, metrics
 
     designs, motions = list(designs), list(motions)
@@ -221,7 +222,8 @@ def score_designs(
     t2 = time.perf_counter()
     ep, D = ev.episode, len(designs)
     estimator = np.zeros((D, len(motions)))
-    term = {"act_force": "torque", "act_vel": "velocity"}.get(next((k for k in cfg.needs if k.startswith("act_")), ""))
+    metric = REWARD_METRIC.get(cfg.name)
+    term = metric[0] if metric and metric[0] in ("torque", "velocity") else None  # what the model predicts
     estimator_term = np.zeros((D, len(motions)))
     simulated_error = np.zeros((D, len(motions)))
     S = trained.layout.steps
