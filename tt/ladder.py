@@ -209,7 +209,7 @@ def score_designs(
     from tt.baselines.evaluate import evaluate_designs
     from tt.guidance.predicted import predict_designs, query_position_error, query_steps, scored_steps
     from tt.report import REWARD_METRIC
-    from tt.sim.rewards import RewardInputs, evaluate, get_reward, metrics
+    from tt.sim.rewards import RewardInputs, get_reward, metrics
 
     designs, motions = list(designs), list(motions)
     cfg = get_reward(reward, designs[0].space)
@@ -248,9 +248,10 @@ def score_designs(
             **steps_of,
             **design_of,
         )
-        estimator[:, j] = (m.steps / n) * evaluate(inputs, cfg).reward.cpu().numpy()
+        estimate = metrics(inputs, cfg)  # the reward and its effort term from one evaluation
+        estimator[:, j] = (m.steps / n) * estimate["reward"].cpu().numpy()
         if term is not None:
-            estimator_term[:, j] = metrics(inputs, cfg)[term].cpu().numpy()
+            estimator_term[:, j] = estimate[term].cpu().numpy()
         simulated_error[:, j] = query_position_error(inputs.ee_pos, inputs.target_pos).cpu().numpy()
     return LadderScore(
         pred.reward,
