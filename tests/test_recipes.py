@@ -24,6 +24,7 @@ SHIPPED = {
     "quadruped_mini_dynamics.toml": ("quadruped_mini_dynamics.pt", None),
     "bimanual_mini_dynamics.toml": ("bimanual_mini_dynamics.pt", None),
     "bimanual_mini_robot.toml": ("bimanual_mini_robot.pt", None),
+    "bimanual_mini_control.toml": ("bimanual_mini_control.pt", None),
     "quadruped_mini_robot.toml": ("quadruped_mini_robot.pt", None),
 }
 
