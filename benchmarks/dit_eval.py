@@ -66,12 +66,11 @@ def emit(**fields) -> dict:
 
 
 def validation_motions(count: int):
-    """`count` validation motions of different skills, spread over the split, placed for ViperX."""
-    from tt.sim.motions import for_space, motion_set
+    """`count` validation motions of different skills, spread over the split, placed for ViperX
+    (`tt.ladder.validation_motions`)."""
+    from tt.ladder import validation_motions as space_validation_motions
 
-    val = motion_set("val", arms=1)
-    stride = max(1, len(val) // count)
-    return for_space(val[::stride][:count], SPACE)
+    return space_validation_motions(SPACE, count)
 
 
 def cut(motions, steps: int | None):
