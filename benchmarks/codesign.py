@@ -240,14 +240,25 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
     )
 
 
-def guidance_text(info: dict) -> str:
+def guidance_text(info: dict, records: list[dict] = ()) -> str:
     """How the report's Self-Guidance was guided (runs logged before guide_by was recorded
-    followed the model's own dynamics at the paper's ViperX scales)."""
+    followed the model's own dynamics at the paper's ViperX scales). records: the table's;
+    a merged log's Self-Guidance records carry their own run's single-trajectory scale
+    (`read_log`), named per reward where the runs differ."""
     single, multi = info.get("guidance_scales", (50.0, 500.0))
     if info.get("guide_by") == "critic":
+        by_scale: dict[float, list[str]] = {}
+        for r in records:
+            if r["method"] == DGS and r["part"] == "table" and r["setting"] == SINGLE:
+                rewards = by_scale.setdefault(float(r.get("guidance_scale", single)), [])
+                if r["reward_name"] not in rewards:
+                    rewards.append(r["reward_name"])
+        scales = (
+            ", ".join(f"{s:g} ({', '.join(rs)})" for s, rs in by_scale.items()) if len(by_scale) > 1 else f"{single:g}"
+        )
         return (
             f"Self-Guidance follows the critic's gradient (the generator was trained on the robot task alone), "
-            f"scale {single:g}"
+            f"scale {scales}"
         )
     return f"guidance scale the paper's ({single:g} single, {multi:g} multi-trajectory)"
 
@@ -929,7 +940,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
             f", checkpoint load and decoding table {info['learned_seconds']:.1f} s\n"
             f"- checkpoint: `{info['checkpoint']}` (step {info['checkpoint_step']}, {info['parameters']:,} "
             f"parameters, EMA weights); DDIM steps {info['steps']} of 100 (strided), eta 0 for Zeroth-Order and 1 for "
-            f"Self-Guidance, {guidance_text(info)}\n"
+            f"Self-Guidance, {guidance_text(info, records)}\n"
             if info.get("checkpoint")
             else f"\n- no learned method: {info.get('no_checkpoint', 'not asked for')}\n"
         )
@@ -997,6 +1008,8 @@ def read_log(paths: list[Path]) -> tuple[list[dict], dict]:
                 continue
             rec = json.loads(line)
             if "method" in rec:
+                if rec["method"] == DGS and "guidance_scales" in run:
+                    rec.setdefault("guidance_scale", run["guidance_scales"][0])  # this run's, for guidance_text
                 records.append(rec)
             elif "config" in rec:
                 run.update(rec["config"])
