@@ -242,7 +242,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
 
 def guidance_text(info: dict, records: list[dict] = ()) -> str:
     """How the report's Self-Guidance was guided (runs logged before guide_by was recorded
-    followed the model's own dynamics at the paper's ViperX scales). records: the table's;
+    followed the model's own dynamics at the paper's ViperX scales). records: the report's;
     a merged log's Self-Guidance records carry their own run's single-trajectory scale
     (`read_log`), named per reward where the runs differ."""
     single, multi = info.get("guidance_scales", (50.0, 500.0))
