@@ -78,12 +78,14 @@ RESULTS = Path(__file__).parent / "results"
 SPACE_NAMES = {"viperx": "ViperX", "aloha": "ALOHA", "bimanual": "mobile bimanual", "quadruped": "Quadruped"}
 RANDOM, CMAES_B, ZEROTH, DGS = "Random", "CMA-ES batched", "Zeroth-Order", "Self-Guidance"
 ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT = "Zeroth + sim", "Zeroth + sim (top k)", "CMA-ES init model"
+#: Zeroth-Order whose returned design then climbs the dynamics critic (`--refine` iterations).
+ZEROTH_REFINE = "Zeroth-Order + critic refinement"
 #: Self-Guidance steered by the dynamics critic's gradient (part "guidance"), one label per scale.
 DGS_CRITIC = "Self-Guidance, critic"
 #: The baselines again, at the hybrids' wall time (part "hybrid").
 RANDOM_T, CMAES_T = "Random (= time)", "CMA-ES batched (= time)"
-METHODS = (RANDOM, CMAES_B, ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT, RANDOM_T, CMAES_T)
-LEARNED = (ZEROTH, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
+METHODS = (RANDOM, CMAES_B, ZEROTH, ZEROTH_REFINE, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT, RANDOM_T, CMAES_T)
+LEARNED = (ZEROTH, ZEROTH_REFINE, DGS, ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 HYBRIDS = (ZEROTH_SIM, ZEROTH_SIM_TOP, CMAES_INIT)
 SINGLE, MULTI = "single trajectory", "multi trajectory"
 PARTS = ("table", "scaling", "lambda", "hybrid", "guidance")
@@ -200,6 +202,13 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
 
     if method == ZEROTH:
         return zeroth()
+    if method == ZEROTH_REFINE:  # eta 0: the design it refines is Zeroth-Order's own on the same seed
+        return ZerothOrder(
+            SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples, refine=args.refine),
+            model=learned.trained,
+            decoder=learned.decoder,
+            critic_model=learned.critic,
+        )
     if method == ZEROTH_SIM:
         return SimVerified(zeroth())
     if method == ZEROTH_SIM_TOP:
@@ -654,6 +663,31 @@ def guidance_section(records: list[dict]) -> tuple[str, list[str]]:
 
 
 # ------------------------------------------------------------------------------ report
+def refine_lines(records: list[dict]) -> str:
+    """Critic refinement against the Zeroth-Order design it started from (same seeds): the
+    validated differences, the critic's own climb and what it cost."""
+    d_rew = paired(records, (ZEROTH_REFINE, None), (ZEROTH, None), "reward")
+    if not d_rew:
+        return ""
+    d_err = [x for x in paired(records, (ZEROTH_REFINE, None), (ZEROTH, None), "pos_err") if math.isfinite(x)]
+    climbs = [r["refine"] for r in _ok(records) if r["method"] == ZEROTH_REFINE and r.get("refine")]
+    moved = sum(1 for c in climbs if sum(c.get("steps", [0])) > 0)
+    gain = [c["after"][0] - c["before"][0] for c in climbs if c.get("after") and c.get("before")]
+    extra = [
+        r["seconds"] - z["seconds"]
+        for r in _ok(records)
+        if r["method"] == ZEROTH_REFINE
+        for z in _ok(records)
+        if z["method"] == ZEROTH and z["seed"] == r["seed"]
+    ]
+    return (
+        f"\nCritic refinement minus Zeroth-Order on the same seeds (the design it refines is Zeroth-Order's own): "
+        f"position error {_fmt(*mean_ci(d_err))} cm, validated reward {_fmt(*mean_ci(d_rew))} (higher in "
+        f"{sum(x > 0 for x in d_rew)} of {len(d_rew)}); the design moved in {moved} of {len(climbs)} runs, the "
+        f"critic's predicted reward rose by {_fmt(*mean_ci(gain))}; {_fmt(*mean_ci(extra))} s more per run.\n"
+    )
+
+
 def targets(tables: dict[str, list[dict]], scaling: list[dict], info: dict) -> list[str]:
     """The issue's two targets, each with its numbers and a verdict."""
     lines = []
@@ -835,6 +869,7 @@ def report(records: list[dict], info: dict, out: Path) -> str:
                 )
             if against:
                 head += "\nMinus Random on the same seeds (paired, mean ± 95% CI):\n\n" + "\n".join(against) + "\n"
+            head += refine_lines(sub)
             paper = PAPER.get((info.get("space", "viperx"), name, reward))
             if paper:
                 metric = REWARD_METRIC.get(reward)
@@ -965,6 +1000,12 @@ def report(records: list[dict], info: dict, out: Path) -> str:
         + (
             f"- n: Zeroth-Order {info['n']} samples, Self-Guidance {info['dgs_n']} (multi trajectory "
             f"{info['multi_n']} and {info['multi_dgs_n']}); "
+            + (
+                f"critic refinement: Zeroth-Order's design, then at most {info['refine']} iterations up the critic's "
+                "prediction (`tt.guidance.refine`); "
+                if any(r["method"] == ZEROTH_REFINE for r in records)
+                else ""
+            )
             if info.get("checkpoint")
             else "- "
         )
@@ -1063,8 +1104,16 @@ def main() -> None:
     ap.add_argument(
         "--methods",
         default=None,
-        help="table: comma-separated of random, cmaes, zeroth, dgs (default: all four, or random and cmaes for a "
-        "space that ships no generator)",
+        help="table: comma-separated of random, cmaes, zeroth, dgs, refine (Zeroth-Order's design refined by the "
+        "critic, --refine iterations) (default: the first four, or random and cmaes for a space that ships no "
+        "generator)",
+    )
+    ap.add_argument(
+        "--refine",
+        type=int,
+        default=10,
+        help="table method refine: iterations of critic refinement of Zeroth-Order's returned design "
+        "(`tt.guidance.refine`, `SamplerConfig.refine`)",
     )
     ap.add_argument("--parts", default="table,scaling,lambda", help=f"comma-separated: {', '.join(PARTS)}")
     ap.add_argument("--seeds", type=int, default=3, help="table: runs per setting and reward")
@@ -1174,8 +1223,8 @@ def main() -> None:
         checkpoint = args.checkpoint if args.checkpoint is not None else default_checkpoint(args.space, task="robot")
     except NoCheckpointError:
         checkpoint, no_checkpoint = None, f"tt ships no generator for {args.space!r} (and no --checkpoint was given)"
-    method_names = {"random": RANDOM, "cmaes": CMAES_B, "zeroth": ZEROTH, "dgs": DGS}
-    asked = (args.methods or ("random,cmaes" if checkpoint is None else ",".join(method_names))).split(",")
+    method_names = {"random": RANDOM, "cmaes": CMAES_B, "zeroth": ZEROTH, "dgs": DGS, "refine": ZEROTH_REFINE}
+    asked = (args.methods or ("random,cmaes" if checkpoint is None else "random,cmaes,zeroth,dgs")).split(",")
     unknown_methods = sorted(set(asked) - set(method_names))
     if unknown_methods:
         sys.exit(f"--methods: unknown {unknown_methods}; valid: {', '.join(method_names)}")
@@ -1189,6 +1238,8 @@ def main() -> None:
         sys.exit(f"--hybrid-settings: {args.hybrid_settings!r}; valid: single, multi")
     if args.hybrid_verify is not None and not 1 <= args.hybrid_verify <= args.hybrid_budget:
         sys.exit(f"--hybrid-verify {args.hybrid_verify}: must be in 1 .. --hybrid-budget ({args.hybrid_budget})")
+    if args.refine < 1 and ZEROTH_REFINE in table_methods:
+        sys.exit(f"--refine {args.refine}: must be >= 1 with --methods refine")
     if args.critic_samples < 1:
         sys.exit(f"--critic-samples {args.critic_samples}: must be >= 1")
     refines = _ints(args.guidance_refine)
@@ -1250,6 +1301,7 @@ def main() -> None:
         "scaling_seeds": args.scaling_seeds if "scaling" in parts else 0,
         "lambda_start": args.lambda_start,
         "guidance_n": args.guidance_n,
+        "refine": args.refine,
     }
     # One-time costs, before any timing: the model and decoding table, every topology's kernels
     # (rollout, and the differentiable rollout for the lambda part), first calls.
@@ -1313,7 +1365,7 @@ def main() -> None:
         records.extend(run_group(part, setting, motions, reward, seed, entries, args, learned))
 
     def table_entries(budget: int, n: int, dgs_n: int) -> list[tuple[str, int, float]]:
-        sizes = ((RANDOM, budget), (CMAES_B, budget), (ZEROTH, n), (DGS, dgs_n))
+        sizes = ((RANDOM, budget), (CMAES_B, budget), (ZEROTH, n), (ZEROTH_REFINE, n), (DGS, dgs_n))
         return [(method, k, 0.0) for method, k in sizes if method in table_methods]
 
     single_entries = table_entries(args.budget, args.n, args.dgs_n)
