@@ -5,7 +5,9 @@ Methods, each on the same problem (design space, target motions, reward, seed):
 Random (the best of `--budget` random designs, one batched Warp rollout), CMA-ES batched
 (tt's default CMA-ES, every generation one Warp rollout, budget `--budget`), Zeroth-Order
 (`--n` model samples ranked by the model's own reward prediction, no simulator) and Dynamics
-Self-Guidance (`--dgs-n` guided samples, ranked the same way). The MuJoCo + mink oracle
+Self-Guidance (`--dgs-n` guided samples, ranked the same way); on request (`--methods ...,refine`)
+Zeroth-Order + critic refinement (Zeroth-Order's design, whose continuous choices then climb
+the dynamics critic's prediction for `--refine` iterations, `tt.guidance.refine`). The MuJoCo + mink oracle
 re-runs every winner on its run's motions: the tables show those validated numbers. A space
 that ships no generator (`tt.dit.checkpoint.default_checkpoint`) runs the baselines only,
 unless `--checkpoint` names one; `--methods` picks the table's methods. The learned methods
