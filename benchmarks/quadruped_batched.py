@@ -488,8 +488,10 @@ def report(raw: dict, command: str) -> list[str]:
             f"{_fmt(oracle)} world-steps/s is its rate in this run (loads above); benchmarks/results/quadruped.md "
             f"measured 3.1-6.0 k at load averages of 5-8, against which this would read {top / 6.0e3:.1f}-"
             f"{top / 3.1e3:.1f}x. More "
-            "than the ceiling needs cheaper physics than the oracle's (fewer solver iterations, another integrator "
-            "or timestep), which would no longer be the oracle's episodes.",
+            "than the ceiling needs cheaper physics than the oracle's, and its solver has little to give: the "
+            "warm-started Newton solver converges in about one iteration per step, and no other solver option "
+            "that keeps the episodes costs less (benchmarks/results/quadruped_solver.md); another integrator, "
+            "timestep or contact model would no longer give the oracle's episodes.",
         ]
     lines += [
         "",
