@@ -194,9 +194,9 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
     from tt.guidance.selfguide import DGSConfig, DynamicsSelfGuidance
     from tt.guidance.zeroth import SamplerConfig, ZerothOrder
 
-    def zeroth() -> ZerothOrder:
+    def zeroth(eta: float = 0.0, refine: int = 0) -> ZerothOrder:
         return ZerothOrder(
-            SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples),
+            SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples, eta=eta, refine=refine),
             model=learned.trained,
             decoder=learned.decoder,
             critic_model=learned.critic,
@@ -205,12 +205,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
     if method == ZEROTH:
         return zeroth()
     if method == ZEROTH_REFINE:  # eta 0: the design it refines is Zeroth-Order's own on the same seed
-        return ZerothOrder(
-            SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples, refine=args.refine),
-            model=learned.trained,
-            decoder=learned.decoder,
-            critic_model=learned.critic,
-        )
+        return zeroth(refine=args.refine)
     if method == ZEROTH_SIM:
         return SimVerified(zeroth())
     if method == ZEROTH_SIM_TOP:
@@ -221,12 +216,7 @@ def optimizer(method: str, args, learned: Learned | None, *, lam: float = 0.0, g
     if method in variants:
         scale, eta, _, _, refine, _ = variants[method]
         if scale == 0:  # no guided token step: the critic's gradient acts on the decoded design only
-            return ZerothOrder(
-                SamplerConfig(num_steps=args.steps, critic_samples=args.critic_samples, eta=eta, refine=refine),
-                model=learned.trained,
-                decoder=learned.decoder,
-                critic_model=learned.critic,
-            )
+            return zeroth(eta=eta, refine=refine)
         config = DGSConfig(
             num_steps=args.steps,
             critic_samples=args.critic_samples,
@@ -675,13 +665,7 @@ def refine_lines(records: list[dict]) -> str:
     climbs = [r["refine"] for r in _ok(records) if r["method"] == ZEROTH_REFINE and r.get("refine")]
     moved = sum(1 for c in climbs if sum(c.get("steps", [0])) > 0)
     gain = [c["after"][0] - c["before"][0] for c in climbs if c.get("after") and c.get("before")]
-    extra = [
-        r["seconds"] - z["seconds"]
-        for r in _ok(records)
-        if r["method"] == ZEROTH_REFINE
-        for z in _ok(records)
-        if z["method"] == ZEROTH and z["seed"] == r["seed"]
-    ]
+    extra = paired(records, (ZEROTH_REFINE, None), (ZEROTH, None), "seconds")
     return (
         f"\nCritic refinement minus Zeroth-Order on the same seeds (the design it refines is Zeroth-Order's own): "
         f"position error {_fmt(*mean_ci(d_err))} cm, validated reward {_fmt(*mean_ci(d_rew))} (higher in "

@@ -91,8 +91,6 @@ def episode(model, steps: int, *, timers: bool = False) -> dict:
 
 
 def run(args) -> dict:
-    import mujoco
-
     from tt.sim.designs import get_space
 
     space = get_space(SPACE)
@@ -115,7 +113,7 @@ def run(args) -> dict:
     timed = min(
         (episode(models[0].__copy__(), steps, timers=True)["timers"] for _ in range(2)), key=lambda t: t["step"]
     )
-    out = {"designs": args.designs, "steps": steps, "variants": [], "timers": timed, "mj_version": mujoco.__version__}
+    out = {"designs": args.designs, "steps": steps, "variants": [], "timers": timed}
     for label, _ in sets:
         rounds = per[label]
         best = min(float(np.mean([r["step_s"] for r in rows])) for rows in rounds)
