@@ -24,6 +24,8 @@ from tt.sim.motions import (
     MotionError,
     augment_motion,
     augment_se2,
+    default_motion,
+    for_space,
     get_motion,
     list_motions,
     load_motion_file,
@@ -112,6 +114,20 @@ def test_library_covers_the_required_skills():
     assert {"toss", "scrub", "drawer_open", "screw", "wipe", "pour", "reach_place", "fling"} <= set(single)
     assert len(single) >= 8 and len(bimanual) >= 4
     assert all(n.startswith("bi_") for n in bimanual)
+
+
+def test_every_space_has_a_default_motion_it_can_run():
+    """`tt rollout` and the API's functions without motions run `default_motion` of the
+    space's end-effector count: it must exist for every space and place there."""
+    from tt.sim.designs import SPACE_NAMES, get_space
+
+    for name in SPACE_NAMES:
+        sp = get_space(name)
+        m = get_motion(default_motion(sp.ee_count))
+        assert m.arms == sp.ee_count
+        assert for_space([m], name)[0].arms == sp.ee_count
+    with pytest.raises(MotionError, match="3 end effectors"):
+        default_motion(3)
 
 
 @pytest.mark.parametrize("name", list(SKILLS))

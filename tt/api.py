@@ -43,8 +43,6 @@ DEFAULT_SPACE = "viperx"
 #: Reward when none is named (`tt.sim.rewards.REWARDS` lists them; every function here also
 #: takes the paper's names, `tt.sim.rewards.REWARD_ALIASES`, e.g. "Tracking Velocity").
 DEFAULT_REWARD = "tracking"
-#: Motion of `tt rollout` and `tt demo` when none is named.
-DEFAULT_MOTION = "toss"
 #: Optimizer of `optimize` (`tt.optimizers.METHODS` lists them).
 DEFAULT_METHOD = "cmaes"
 #: Candidate designs per motion of `optimize`.
@@ -130,8 +128,9 @@ def rollout(
     """Roll out every design on every motion in one batch and score it (``tt rollout``).
 
     designs: designs of one space (None: `n` random designs of `space`, seed `seed`).
-    motions: None: the toss. backend: "warp" (tt's kernels), "mjwarp", "newton", "mjbatch" or
-    "mujoco" (None: "warp", or "mjbatch" for spaces with contacts: `tt.baselines.default_backend`).
+    motions: None: the toss (bi_fling for two-arm spaces). backend: "warp" (tt's kernels),
+    "mjwarp", "newton", "mjbatch" or "mujoco" (None: "warp", or "mjbatch" for spaces with
+    contacts: `tt.baselines.default_backend`).
     threads: CPU threads of the warp backend (None: every core; results are the same).
     Returns a `tt.baselines.Evaluation`: ``objective`` (D,), ``reward`` (D, M), ``metrics``
     name -> (D, M) (units in `tt.sim.rewards.METRIC_UNITS`: position error in cm, ...) and the
@@ -140,7 +139,7 @@ def rollout(
 
     designs = _designs(designs) if designs is not None else get_space(space).sample(n, seed)
     sp = _one_space(designs)
-    ms = _placed(motions if motions is not None else [DEFAULT_MOTION], sp)
+    ms = _placed(motions if motions is not None else [_default_motion(sp)], sp)
     return evaluate_designs(
         designs,
         ms,
@@ -179,7 +178,7 @@ def validate(
     controller: "ik", the oracle (MuJoCo C + mink DiffIK, one world at a time: the reference
     every result is validated on), or "model", the DiT's control task on tt's batched Warp
     physics (`control_checkpoint`; ensemble: queries each command averages, None for all whose
-    window holds the step; `tt.dit.policies.ControllerConfig`). motions: None, the toss.
+    window holds the step; `tt.dit.policies.ControllerConfig`). motions: None, the toss (bi_fling for two-arm spaces).
     Returns a `tt.baselines.Evaluation` (see `rollout`)."""
     from tt.baselines import Evaluation, evaluate_designs
 
@@ -189,7 +188,7 @@ def validate(
         raise TTError(f"controller {controller!r} does not exist; controllers: {', '.join(CONTROLLERS)}")
     designs = _designs(designs)
     sp = _one_space(designs)
-    ms = _placed(motions if motions is not None else [DEFAULT_MOTION], sp)
+    ms = _placed(motions if motions is not None else [_default_motion(sp)], sp)
     if controller == "ik":
         return evaluate_designs(designs, ms, reward, backend="mujoco")
     from tt.baselines.evaluate import score_episode
@@ -291,7 +290,8 @@ def predict(
     checkpoint: `predict_checkpoint`. samples: predictions averaged per design x motion.
     num_steps: DDIM steps (None: `tt.guidance.predicted.CRITIC_DDIM_STEPS`). via: how the
     design is given, "dynamics" or "inpaint" (None: "dynamics" when the checkpoint was trained
-    on that task). motions: None, the toss. Returns a `tt.guidance.predicted.DesignPrediction`:
+    on that task). motions: None, the toss (bi_fling for two-arm spaces). Returns a
+    `tt.guidance.predicted.DesignPrediction`:
     ``reward`` (D, M) and ``metrics`` name -> (D, M)."""
     from tt.dit.checkpoint import load_model
     from tt.guidance.predicted import CRITIC_DDIM_STEPS, predict_designs
@@ -300,7 +300,7 @@ def predict(
 
     designs = _designs(designs)
     sp = _one_space(designs)
-    ms = _placed(motions if motions is not None else [DEFAULT_MOTION], sp)
+    ms = _placed(motions if motions is not None else [_default_motion(sp)], sp)
     cfg = get_reward(reward, sp)
     trained = load_model(predict_checkpoint(sp, checkpoint), device=device or default_device())
     return predict_designs(
@@ -529,6 +529,13 @@ def _one_space(designs: Sequence[Design]) -> str:
     return spaces[0]
 
 
+def _default_motion(space: str) -> str:
+    """The motion run when none is named: the toss, or the bimanual fling for two-arm spaces."""
+    from tt.sim.motions import default_motion
+
+    return default_motion(get_space(space).ee_count)
+
+
 def _placed(motions: Sequence[MotionLike], space: str) -> list[Motion]:
     """Motions (objects or specs) moved into `space`'s workspace, each once: a motion already
     moved by an offset (`for_space` records it in ``meta["space_offset"]``) is kept as it is."""
@@ -545,7 +552,6 @@ __all__ = [
     "DEFAULT_BUDGET",
     "DEFAULT_CONTROLLER",
     "DEFAULT_METHOD",
-    "DEFAULT_MOTION",
     "DEFAULT_REWARD",
     "DEFAULT_SEED",
     "DEFAULT_SPACE",

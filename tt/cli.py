@@ -547,7 +547,9 @@ def rollout(
     n: int = typer.Option(16, help="Random designs of the space (seed --seed); not with --design."),
     seed: int = typer.Option(0, help="Random seed of the designs."),
     design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
-    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP[:-1] + "; default: toss."),
+    motion: Optional[List[str]] = typer.Option(
+        None, help=_MOTION_HELP[:-1] + "; default: toss, or bi_fling for two-arm spaces."
+    ),
     backend: Optional[str] = typer.Option(
         None, help="warp | mjwarp | newton | mjbatch | mujoco (default: warp; mjbatch for spaces with contacts)."
     ),
@@ -575,6 +577,7 @@ def rollout(
     from tt.sim.backends import BACKENDS
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space, load_designs
+    from tt.sim.motions import default_motion
 
     _output(out, "--out", folder=True)
     sp = get_space(space)
@@ -587,7 +590,7 @@ def rollout(
     else:
         _at_least("--n", n, 1)
         designs = sp.sample(n, seed)
-    ms = _motions(motion or ["toss"], sp.name)
+    ms = _motions(motion or [default_motion(sp.ee_count)], sp.name)
     backend = backend or default_backend(sp.name)
     if backend not in BACKENDS:
         _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")

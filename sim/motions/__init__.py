@@ -28,7 +28,15 @@ from tt.sim.motions.io import (
     save_npz,
     umi_episode_count,
 )
-from tt.sim.motions.registry import SKILLS, MotionInfo, get_motion, list_motions, motion_set
+from tt.sim.motions.registry import (
+    DEFAULT_MOTIONS,
+    SKILLS,
+    MotionInfo,
+    default_motion,
+    get_motion,
+    list_motions,
+    motion_set,
+)
 from tt.sim.motions.skills import SPLITS, TRAIN_SEEDS, VAL_SEEDS, Skill, SkillParam, split_of
 from tt.sim.motions.stats import MotionStats, motion_stats
 from tt.sim.motions.workspace import (
@@ -42,6 +50,8 @@ from tt.sim.motions.workspace import (
 )
 
 __all__ = [
+    "DEFAULT_MOTIONS",
+    "default_motion",
     "motion_stats",
     "BIMANUAL",
     "BIMANUAL_CENTER",

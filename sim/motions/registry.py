@@ -204,6 +204,18 @@ def get_motion(name: str, seed: int | None = None) -> Motion:
     return SKILLS[skill].motion(0 if seed is None else seed)
 
 
+#: The motion a command runs when none is named, by end-effector count: the toss for one arm,
+#: the bimanual fling for two.
+DEFAULT_MOTIONS = {1: "toss", 2: "bi_fling"}
+
+
+def default_motion(arms: int) -> str:
+    """Name of the motion to run for a robot with `arms` end effectors when none is named."""
+    if arms not in DEFAULT_MOTIONS:
+        raise MotionError(f"no library motion for {arms} end effectors; the library has {sorted(DEFAULT_MOTIONS)}")
+    return DEFAULT_MOTIONS[arms]
+
+
 def motion_set(split: str, arms: int | None = None) -> list[Motion]:
     """All motions of a split: every skill (with `arms` end effectors, or all) at every split seed.
 
@@ -218,6 +230,7 @@ def motion_set(split: str, arms: int | None = None) -> list[Motion]:
 
 
 __all__ = [
+    "DEFAULT_MOTIONS",
     "SKILLS",
     "MotionInfo",
     "bi_fling",
@@ -225,6 +238,7 @@ __all__ = [
     "bi_handover",
     "bi_jar",
     "bi_lift",
+    "default_motion",
     "drawer_open",
     "fling",
     "get_motion",
