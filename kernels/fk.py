@@ -6,8 +6,8 @@ rotates by q - qpos0 about its axis through its anchor, a slide translates by q 
 along its axis. An end-effector Jacobian is 6 x NV in the world frame: rows 0-2 map joint
 velocities to the site's linear velocity, rows 3-5 to the body's angular velocity.
 
-The per-world functions (`kinematics_funcs`) are specialised to a `Topology` (loops over
-bodies and dofs unrolled, parents and joint types compiled in) and shared by the fused
+The per-world functions (`kinematics_funcs`) are specialised to a `Topology` (short loops
+over bodies and dofs unrolled, parents and joint types compiled in) and shared by the fused
 dynamics, IK and rollout kernels; the kernels here expose them for testing and for users
 who need poses without simulating.
 """
@@ -58,8 +58,9 @@ def _kinematics_funcs(topology: Topology, dtype) -> SimpleNamespace:
         at world point `point` (its site position).
 
     The topology enters as constant index vectors (`topology_constants`), indexed by the
-    unrolled loop counters; the C++ compiler folds them and the branches on them, and Warp
-    hashes them as constants (no per-process code generation, see `tt.kernels.generated`).
+    loop counters; where a loop is unrolled (up to `MODULE_OPTIONS`' max_unroll iterations)
+    the C++ compiler folds them and the branches on them, and Warp hashes them as constants
+    (no per-process code generation, see `tt.kernels.generated`).
     The site functions are inlined so that a constant `e` folds too.
     """
     T = local_types(topology, dtype)

@@ -7,7 +7,7 @@ tested against MuJoCo's compile). Everything that may differ between designs of 
 pose, joint axes, masses, gains) is a per-world array; the topology itself (which body
 hangs from which, joint types, which joints the actuators drive, which bodies carry the
 end-effector sites) is a `Topology`, and kernels are compiled once per topology with it
-unrolled into straight-line code.
+compiled in as constants (short loops unrolled into straight-line code, `MODULE_OPTIONS`).
 
 The per-world arrays are one flat `@wp.struct`, `TreeArrays`: every tree kernel and
 `wp.func` takes it as its ``model`` parameter (passed in, never returned from a
@@ -771,8 +771,9 @@ MAX_DOFS = 31
 
 @dataclass(frozen=True)
 class TopologyConstants:
-    """A topology's index lists as Warp int32 vectors, for kernels to index with their
-    unrolled loop counters (each at least one entry long; padding is 0).
+    """A topology's index lists as Warp int32 vectors, for kernels to index with their loop
+    counters (each at least one entry long; padding is 0): constants the C++ compiler folds
+    where the loop is unrolled (`MODULE_OPTIONS`), loads from a constant table where not.
 
     body_parent, body_dof: (body_count,); dof_type, dof_body: (dof_count,);
     actuator_dof: (actuator_count,); ee_body: (ee_count,).
@@ -822,6 +823,12 @@ def module_name(topology: Topology, family: str) -> str:
     return f"tt_tree_{topology.digest}_{family}"
 
 
-#: Module options of tt's per-topology kernels: loops over bodies and dofs are unrolled
-#: (robots have up to ~20 dofs), forward-only unless a differentiable kernel is built.
-MODULE_OPTIONS = {"max_unroll": 64, "enable_backward": False}
+#: Module options of tt's per-topology forward kernels. Loops of up to 8 iterations are
+#: unrolled (a 6-dof arm's bodies and dofs, vector components); longer ones, over a 12-15-dof
+#: bimanual robot's dofs, stay loops. Unrolling every loop (64) gave the same records bit for
+#: bit, 2.5-3.8x the C++ to compile and 3-4x the compile time on ALOHA and the mobile bimanual
+#: robot, and stepped 4-10 % slower there (benchmarks/results/compile_cost.md).
+MODULE_OPTIONS = {"max_unroll": 8, "enable_backward": False}
+#: Module options of the differentiable rollout (`tt.kernels.rollout.grad_kernels`): every loop
+#: unrolled, so Warp's adjoint replays the fixed joint-limit sweeps exactly (`tt.kernels.dynamics`).
+DIFFERENTIABLE_MODULE_OPTIONS = {"max_unroll": 64, "enable_backward": True}

@@ -67,6 +67,7 @@ from tt.kernels.fk import kinematics_funcs
 from tt.kernels.ik import IKWeights, ik_funcs
 from tt.kernels.lie import wxyz
 from tt.kernels.model import (
+    DIFFERENTIABLE_MODULE_OPTIONS,
     MODULE_OPTIONS,
     Kinematics64,
     Topology,
@@ -309,7 +310,7 @@ def grad_kernels(topology: Topology) -> SimpleNamespace:
     when the module is built with ``enable_vector_component_overwrites``.
     """
     module = module_name(topology, "rollout_grad")
-    wp.set_module_options({**MODULE_OPTIONS, "enable_backward": True}, module)
+    wp.set_module_options(DIFFERENTIABLE_MODULE_OPTIONS, module)
     return SimpleNamespace(
         module=module,
         initial_posture=make_initial_posture_kernel(topology, module),
@@ -321,8 +322,9 @@ def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequen
     """Hash and build (or load from the kernel cache) the forward rollout module of each
     distinct topology of `models` on `device`, as the first `rollout_tree` launch would.
 
-    A module missing from the kernel cache takes seconds to build (about 12 s per fused
-    rollout module on a 2-core CPU; a cached one loads in milliseconds, its hash needs no
+    A module missing from the kernel cache takes seconds to build (10-12 s per fused
+    rollout module of a 6-15-dof robot on one core of a 2-core CPU,
+    benchmarks/results/compile_cost.md; a cached one loads in milliseconds, its hash needs no
     code generation, see `tt.kernels.generated`), so a caller with idle time, e.g. while
     worker processes compile models, can take the build off the rollout's critical path.
     Loading twice is a no-op.
