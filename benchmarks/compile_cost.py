@@ -39,15 +39,14 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections import Counter
 from pathlib import Path
 
 try:
+    from kernel_cost import common_topology_models
     from machine import load_line, machine_header, write_report
 except ImportError:  # run as a module from the repository root
+    from benchmarks.kernel_cost import common_topology_models
     from benchmarks.machine import load_line, machine_header, write_report
-
-SUBSTEPS = 10
 
 
 def _child(cfg: dict) -> dict:
@@ -60,7 +59,7 @@ def _child(cfg: dict) -> dict:
 
     # Before any tt kernel is declared: rollout_kernels reads the dict when it registers a module.
     km.MODULE_OPTIONS["max_unroll"] = cfg["max_unroll"]
-    from tt.kernels.model import build_tree_model, topology_key, topology_of
+    from tt.kernels.model import build_tree_model, topology_of
     from tt.kernels.rollout import motion_arrays, rollout_kernels, rollout_tree
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space
@@ -68,10 +67,7 @@ def _child(cfg: dict) -> dict:
 
     space = get_space(cfg["space"])
     sites = space.ee_sites()
-    pool = space.models(space.sample(4 * cfg["worlds"], seed=0))
-    keys = [topology_key(m, sites) for m in pool]
-    key, _ = Counter(keys).most_common(1)[0]
-    models = [m for m, k in zip(pool, keys) if k == key][: cfg["worlds"]]
+    models = common_topology_models(space, cfg["worlds"])
     W = len(models)
     topo = topology_of(models[0], sites)
     tree = build_tree_model(models, sites, device="cpu")
@@ -86,7 +82,8 @@ def _child(cfg: dict) -> dict:
     sources = list(Path(wp.config.kernel_cache_dir).rglob(f"*{kernels.module}_*.cpp"))
     source_bytes = sum(p.stat().st_size for p in sources) if sources else None
 
-    args = IKConfig().rollout_args()
+    config = IKConfig()
+    args = config.rollout_args()
     # Untimed first call: it loads the other modules a rollout launches (start posture, noise).
     out = rollout_tree(tree, marrays, W, steps, **args, threads=1, chunk=None, device="cpu")
     best = float("inf")
@@ -108,7 +105,7 @@ def _child(cfg: dict) -> dict:
         "compile_s": compile_s,
         "source_bytes": source_bytes,
         "rollout_s": best,
-        "rate": W * steps * SUBSTEPS / best,
+        "rate": W * steps * config.substeps(models[0]) / best,
         "checksum": digest.hexdigest()[:16],
     }
 
@@ -278,10 +275,8 @@ def main() -> None:
         return
     if args.from_raw:
         records, cli, meta = _read_raw(args.from_raw)
-        meta = {
-            **meta,
-            **{k: v for k, v in vars(args).items() if k in ("worlds", "rounds", "repeats") and k not in meta},
-        }
+        for key in ("worlds", "rounds", "repeats"):
+            meta.setdefault(key, getattr(args, key))
         meta.setdefault("command", "python benchmarks/compile_cost.py")
         meta.setdefault("loads", ("-", "-"))
         out = write_report(args.out, _report(records, cli, meta).splitlines())

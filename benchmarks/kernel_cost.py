@@ -118,6 +118,18 @@ def _kernels(topology):
     return module, fk_only, physics_only, controller_only
 
 
+def common_topology_models(space, worlds: int) -> list:
+    """MuJoCo models of up to `worlds` random designs of `space` (a `DesignSpace`) that share
+    the most common topology among 4 x `worlds` draws (seed 0)."""
+    from tt.kernels.model import topology_key
+
+    sites = space.ee_sites()
+    pool = space.models(space.sample(4 * worlds, seed=0))
+    keys = [topology_key(m, sites) for m in pool]
+    key, _ = Counter(keys).most_common(1)[0]
+    return [m for m, k in zip(pool, keys) if k == key][:worlds]
+
+
 def _best(fn, repeats: int) -> float:
     """The least CPU time of this process over `repeats` calls of `fn`: every kernel runs on
     this one thread, so CPU time is the per-core cost, and other jobs on the machine (which
@@ -141,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
     import warp as wp
 
     wp.config.quiet = True
-    from tt.kernels.model import build_tree_model, topology_key, topology_of
+    from tt.kernels.model import build_tree_model, topology_of
     from tt.kernels.rollout import motion_arrays, rollout_tree
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space
@@ -150,11 +162,7 @@ def main(argv: list[str] | None = None) -> None:
     load_before = os.getloadavg()
     space = get_space("viperx")
     sites = space.ee_sites()
-    # The most common topology among random designs; W designs of it.
-    pool = [space.model(d) for d in space.sample(4 * args.worlds, seed=0)]
-    keys = [topology_key(m, sites) for m in pool]
-    key, _ = Counter(keys).most_common(1)[0]
-    models = [m for m, k in zip(pool, keys) if k == key][: args.worlds]
+    models = common_topology_models(space, args.worlds)
     W = len(models)
     topo = topology_of(models[0], sites)
     tree = build_tree_model(models, sites, device="cpu")

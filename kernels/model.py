@@ -824,10 +824,11 @@ def module_name(topology: Topology, family: str) -> str:
 
 
 #: Module options of tt's per-topology forward kernels. Loops of up to 8 iterations are
-#: unrolled (a 6-dof arm's bodies and dofs, vector components); longer ones, over a 12-15-dof
-#: bimanual robot's dofs, stay loops. Unrolling every loop (64) gave the same records bit for
-#: bit, 2.5-3.8x the C++ to compile and 3-4x the compile time on ALOHA and the mobile bimanual
-#: robot, and stepped 4-10 % slower there (benchmarks/results/compile_cost.md).
+#: unrolled (a ViperX arm's bodies and dofs, vector components: its three topologies get the
+#: same C++ as with every loop unrolled); longer ones, over a 12-17-dof bimanual robot's dofs,
+#: stay loops. Unrolling every loop (64) gave the same records bit for bit, 2.5-2.8x the C++
+#: and 3.2-3.8x the compile time on ALOHA and the mobile bimanual robot, and stepped 4.5-9.4 %
+#: slower there (benchmarks/results/compile_cost.md).
 MODULE_OPTIONS = {"max_unroll": 8, "enable_backward": False}
 #: Module options of the differentiable rollout (`tt.kernels.rollout.grad_kernels`): every loop
 #: unrolled, so Warp's adjoint replays the fixed joint-limit sweeps exactly (`tt.kernels.dynamics`).

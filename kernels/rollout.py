@@ -322,7 +322,7 @@ def preload_rollout_kernels(models: Sequence["mujoco.MjModel"], ee_sites: Sequen
     """Hash and build (or load from the kernel cache) the forward rollout module of each
     distinct topology of `models` on `device`, as the first `rollout_tree` launch would.
 
-    A module missing from the kernel cache takes seconds to build (10-12 s per fused
+    A module missing from the kernel cache takes seconds to build (9-12 s per fused
     rollout module of a 6-15-dof robot on one core of a 2-core CPU,
     benchmarks/results/compile_cost.md; a cached one loads in milliseconds, its hash needs no
     code generation, see `tt.kernels.generated`), so a caller with idle time, e.g. while

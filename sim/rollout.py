@@ -248,7 +248,7 @@ def load_rollout_kernels(modules: Sequence[str], device: str, *, progress: bool 
     (`tt.kernels.rollout.rollout_kernels(topology).module`) on `device`, as a first launch would.
 
     progress: where some are neither loaded nor cached (`tt.kernels.rollout.module_built`),
-    `COMPILE_NOTE` and a tqdm bar counting their compiles on stderr (a compile takes 10-12 s on
+    `COMPILE_NOTE` and a tqdm bar counting their compiles on stderr (a compile takes 9-12 s on
     an idle 2-core CPU, more under load; loading a cached module milliseconds). Checking costs each
     module's hash, which its load computes anyway.
     """
