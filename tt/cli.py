@@ -1242,7 +1242,7 @@ def dataset_verify(path: Path = typer.Argument(..., help="Dataset folder.")) -> 
 def demo(
     space: str = typer.Option("viperx", help="Design space."),
     motion: Optional[str] = typer.Option(
-        None, help="Target motion (library name or file; default: the space's, toss; aloha: bi_fling:100)."
+        None, help="Target motion (library name or file; default: the space's, toss or bi_fling; aloha: bi_fling:100)."
     ),
     reward: Optional[str] = typer.Option(
         None, help=_REWARD_HELP + " Default: the space's, tracking; aloha: tracking_velocity.", callback=_reward

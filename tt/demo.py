@@ -64,13 +64,15 @@ SPACE_DEFAULTS: dict[str, tuple[str, str, bool]] = {
 
 
 def space_defaults(space: str) -> tuple[str, str, bool]:
-    """(motion, reward, original) of `space`'s demo: `SPACE_DEFAULTS`, else the toss (one end
-    effector) or the first bimanual validation fling (two), the tracking reward, no original."""
+    """(motion, reward, original) of `space`'s demo: `SPACE_DEFAULTS`, else the space's default
+    motion (`tt.sim.motions.default_motion`: the toss, or the bimanual fling for two-arm
+    spaces), the tracking reward, no original."""
     if space in SPACE_DEFAULTS:
         return SPACE_DEFAULTS[space]
     from tt.sim.designs import get_space
+    from tt.sim.motions import default_motion
 
-    return ("toss" if get_space(space).ee_count == 1 else "bi_fling:100"), "tracking", False
+    return default_motion(get_space(space).ee_count), "tracking", False
 
 
 @dataclass(frozen=True)
