@@ -48,8 +48,7 @@ def train_cmd(
     """
     from tqdm import tqdm
 
-    dp = DataParallel.from_env()
-    progress = progress and (dp is None or dp.rank == 0)  # one bar for a data-parallel run
+    progress = progress and DataParallel.reports()  # one bar for a data-parallel run
 
     config = TrainConfig(
         data=str(data) if data is not None else "",

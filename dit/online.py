@@ -164,13 +164,21 @@ class OnlineTokenSource:
     threads: CPU threads of the rollouts (None: every core; the episodes are the same for
     every count); proposer: with ``config.propose``, ``proposer(motions, n, seed)`` -> per
     motion a list of at most n designs sampled for it (`tt.guidance.proposer.ModelProposer`;
-    dit cannot import the sampler's decoding).
+    dit cannot import the sampler's decoding); progress: a tqdm bar over each refresh's
+    rollout (its control steps), so the minutes a refresh takes show on screen.
     ``stats`` counts refreshes, episodes kept and dropped, world-steps simulated and the
     seconds spent generating (and, with proposals, the designs proposed, the episodes of
     them the selection kept and the seconds spent sampling).
     """
 
-    def __init__(self, config: OnlineConfig, device: str | None = None, threads: int | None = None, proposer=None):
+    def __init__(
+        self,
+        config: OnlineConfig,
+        device: str | None = None,
+        threads: int | None = None,
+        proposer=None,
+        progress: bool = False,
+    ):
         if config.propose and proposer is None:
             raise TTError(
                 "online.propose needs the generator's sampler: build the source with "
@@ -185,6 +193,7 @@ class OnlineTokenSource:
         self.device = resolve_device(device)
         self.threads = threads
         self.proposer = proposer
+        self.progress = progress
         self.space = get_space(config.space)
         self._generate = config.generate_config()
         self.maxima = {k: int(v) for k, v in space_token_maxima(config.space)["maxima"].items() if int(v) > 0}
@@ -353,6 +362,7 @@ class OnlineTokenSource:
                 action_noise=cfg.action_noise,
                 threads=self.threads,
                 noise_seed=noise_seed,
+                progress=self.progress,
             )
             return [(list(range(len(models))), ep)]
         # The tokenizer reads the models; the rollout simulates the tree fields the space
@@ -366,6 +376,7 @@ class OnlineTokenSource:
             action_noise=cfg.action_noise,
             noise_seed=noise_seed,
             threads=self.threads,
+            progress=self.progress,
         )
         return [
             (

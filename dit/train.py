@@ -388,6 +388,12 @@ class DataParallel:
             return None
         return DataParallel(int(os.environ["RANK"]), size, int(os.environ.get("LOCAL_RANK", os.environ["RANK"])))
 
+    @staticmethod
+    def reports() -> bool:
+        """Whether this process draws the progress bars: the only one, or rank 0 of a run."""
+        dp = DataParallel.from_env()
+        return dp is None or dp.rank == 0
+
     def share(self, n: int, what: str) -> tuple[int, int]:
         """(first, last + 1) of this rank's windows among a task's n."""
         if n % self.world_size:

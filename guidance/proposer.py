@@ -28,9 +28,9 @@ class ModelProposer:
     checkpoint: a model trained on the robot task (its EMA weights); steps: DDIM steps of
     each sample; reward: the reward the sampler's joint critic scores with (unused by the
     proposals, which are taken as sampled); device: where the model samples (None: the
-    default device). Calling it with (motions, n, seed) returns, per motion, the designs of
-    n samples conditioned on that motion alone (seed + the motion's index), those whose
-    tokens failed to decode left out.
+    default device); progress: a tqdm bar over the motions sampled for. Calling it with
+    (motions, n, seed) returns, per motion, the designs of n samples conditioned on that
+    motion alone (seed + the motion's index), those whose tokens failed to decode left out.
     """
 
     checkpoint: str
@@ -38,6 +38,7 @@ class ModelProposer:
     steps: int = 10
     reward: str = "tracking"
     device: str | None = None
+    progress: bool = False
 
     @cached_property
     def _parts(self) -> tuple:
@@ -62,11 +63,16 @@ class ModelProposer:
         return trained, sampler, DesignDecoder(get_space(self.space)), get_reward(self.reward, self.space)
 
     def __call__(self, motions: Sequence, n: int, seed: int) -> list[list]:
+        from tqdm import tqdm
+
         from tt.guidance.zeroth import embodiment_batch
 
         trained, sampler, decoder, reward = self._parts
         out = []
-        for i, motion in enumerate(motions):
+        bar = tqdm(
+            motions, desc=f"proposing {n} designs per motion", unit="motion", leave=False, disable=not self.progress
+        )
+        for i, motion in enumerate(bar):
             gen = sampler.run((motion,), reward, n, seed=seed + i, num_steps=self.steps, critic="joint")
             batch = embodiment_batch(trained.layout, trained.normalizer, gen.tokens)
             decoded = [decoder(batch, j) for j in range(n)]
@@ -74,10 +80,11 @@ class ModelProposer:
         return out
 
 
-def online_source(config, device: str | None = None, threads: int | None = None):
+def online_source(config, device: str | None = None, threads: int | None = None, progress: bool = False):
     """The `tt.dit.online.OnlineTokenSource` of `config` (an `OnlineConfig`) on `device` (None:
     the default), with a `ModelProposer` of ``config.proposer`` when ``config.propose`` asks for
-    proposals. Raises TTError when the proposer's checkpoint does not exist."""
+    proposals; progress: tqdm bars over each refresh's proposals and rollout. Raises TTError
+    when the proposer's checkpoint does not exist."""
     from tt.dit.online import OnlineTokenSource
     from tt.kernels.device import resolve_device
 
@@ -87,9 +94,14 @@ def online_source(config, device: str | None = None, threads: int | None = None)
         if not Path(config.proposer).exists():
             raise TTError(f"online.proposer {config.proposer} does not exist (a checkpoint with the robot task)")
         proposer = ModelProposer(
-            config.proposer, config.space, steps=config.propose_steps, reward=config.reward, device=device
+            config.proposer,
+            config.space,
+            steps=config.propose_steps,
+            reward=config.reward,
+            device=device,
+            progress=progress,
         )
-    return OnlineTokenSource(config, device=device, threads=threads, proposer=proposer)
+    return OnlineTokenSource(config, device=device, threads=threads, proposer=proposer, progress=progress)
 
 
 __all__ = ["ModelProposer", "online_source"]

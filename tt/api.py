@@ -381,10 +381,12 @@ def train(data: str | Path | None, out: str | Path, *, online=None, **options) -
             )
     from tt.dit.cli import train_cmd
 
-    if config is not None and config.propose and "episodes" not in options:  # as tt train
+    if config is not None and "episodes" not in options:  # as tt train
+        from tt.dit.train import DataParallel
         from tt.guidance.proposer import online_source
 
-        options["episodes"] = online_source(config, options.get("device"))
+        progress = options.get("progress", True) and DataParallel.reports()
+        options["episodes"] = online_source(config, options.get("device"), progress=progress)
     return train_cmd(data, out=out, online=config, **options)
 
 

@@ -1055,10 +1055,11 @@ def train(
             _fail("[selection] scores the model as a critic, which needs a task with robot or dynamics")
         selector = CheckpointSelector(out, SelectionConfig(**{"device": device, **selection}), fresh=not resume)
     episodes = None
-    if online_config is not None and online_config.propose:  # the generator's sampler lives above dit
+    if online_config is not None:  # built here: the generator's sampler (proposals) lives above dit
+        from tt.dit.train import DataParallel
         from tt.guidance.proposer import online_source
 
-        episodes = online_source(online_config, device)
+        episodes = online_source(online_config, device, progress=DataParallel.reports())
     result = train_cmd(
         data,
         out=out,
