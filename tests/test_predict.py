@@ -56,7 +56,8 @@ def designs_file(tmp_path_factory):
 
 
 def _invoke(*args):
-    return CliRunner().invoke(app, ["predict", *map(str, args)])
+    # Wide enough that the table's columns are not cut.
+    return CliRunner().invoke(app, ["predict", *map(str, args)], env={"COLUMNS": "240"})
 
 
 def test_checkpoint_records_its_design_space(checkpoint):
@@ -99,6 +100,16 @@ def test_json_schema(checkpoint, designs_file, tmp_path):
             assert p["metrics"]["query_pos_err"] == pytest.approx(p["metrics"]["pos_err"], rel=1e-5)
         assert p["metrics"]["query_pos_err"] >= 0
     assert "design" in r.output and "toss" in r.output  # the table
+    # Its percent columns hold the JSON's shares x 100 (within 2 cm used to show "-").
+    header = next(line for line in r.output.splitlines() if "within 2 cm (%)" in line)
+    col = [c.strip() for c in header.split("┃")].index("within 2 cm (%)")
+    cells = [
+        float(line.split("│")[col])
+        for line in r.output.splitlines()
+        if line.startswith("│") and line.split("│")[2].strip() in ("toss", "scrub")
+    ]
+    shares = [100.0 * p["metrics"]["within_2cm"] for p in d["predictions"]]
+    assert cells == pytest.approx(shares, rel=5e-3, abs=0.05)
     # designs.json#i reports the index in the file.
     r = _invoke(
         "--design",

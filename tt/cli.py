@@ -868,6 +868,7 @@ def predict(
 
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, load_designs
+    from tt.sim.rewards import PERCENT_METRICS
 
     _at_least("--samples", samples, 1)
     _output(json_out, "--json")
@@ -903,8 +904,9 @@ def predict(
                 {"design": i, "motion": m.name, "reward": clean(float(pred.reward[a, j])), "metrics": values}
             )
             row = {"name": str(i), "motion": m.name, **{k: v for k, v in values.items() if v is not None}}
-            if values.get("survival") is not None:
-                row["survival_pct"] = 100.0 * values["survival"]
+            for key, pct in PERCENT_METRICS.items():  # shares, shown in percent as validate shows them
+                if values.get(key) is not None:
+                    row[pct] = 100.0 * values[key]
             rows.append(row)
     Console(stderr=quiet).print(
         rich_table(
