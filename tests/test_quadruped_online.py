@@ -123,3 +123,28 @@ def test_tiny_online_run_trains_refreshes_and_checkpoints(tmp_path):
     source = OnlineTokenSource(CONFIG, device="cpu")
     source.start_step(4)
     assert sorted(source._refreshes) == [1, 2]
+
+
+def test_tt_train_online_space_quadruped(tmp_path):
+    """The command the issue names, `tt train --online --space quadruped`, trains on quadruped
+    episodes (the flag wins over --config's online.space); --space without --online is refused."""
+    from typer.testing import CliRunner
+
+    from tt.cli import app
+    from tt.dit.checkpoint import load_checkpoint
+    from tt.dit.train import TrainConfig
+
+    small = [
+        f"online.{k}={v}"
+        for k, v in dict(designs=2, motions=1, refresh_every=2, min_steps=20, max_motion_steps=40).items()
+    ]
+    args = ["train", "--online", "--space", "quadruped", "--size", "tiny", "--steps", "2", "--batch-size", "4"]
+    args += ["--device", "cpu", "--out", str(tmp_path / "run"), "--config", "online.space=viperx"]
+    args += [x for item in small for x in ("--config", item)]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    state = load_checkpoint(tmp_path / "run" / "checkpoints" / "step_0000002.pt")
+    assert state["space"] == "quadruped"
+    assert TrainConfig.from_dict(state["train_config"]).online.space == "quadruped"
+    r = CliRunner().invoke(app, ["train", "--space", "quadruped", "--out", str(tmp_path / "other")])
+    assert r.exit_code != 0 and "--space picks the design space of online training" in r.output

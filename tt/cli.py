@@ -975,6 +975,9 @@ def train(
         "--online",
         help="Train on episodes simulated as training goes (no --data; settings: --config's \\[online]).",
     ),
+    space: Optional[str] = typer.Option(
+        None, help="Design space of --online's episodes (online.space; default viperx); a dataset has its own."
+    ),
     task: Optional[str] = typer.Option(
         None, help="robot | dynamics | control, or several joined by '+'; both = robot+control (default robot)."
     ),
@@ -1021,7 +1024,8 @@ def train(
       OUT/best.pt (OUT/selection.csv, selection.png); needs a task with robot or dynamics. An
       unknown key is refused naming the valid ones; each config validates its own values.
     - Online training (`--online` or an `[online]` table): each refresh rolls out `designs`
-      new designs of `space` (contact-free) on `motions` augmented training motions, every
+      new designs of `space` (`--space`; the quadruped on mjbatch, the others on tt's
+      kernels) on `motions` augmented training motions, every
       `refresh_every` optimizer steps, and training draws from the last `buffer` refreshes;
       `absorbing` keeps terminated episodes to the motion's end; `select K` screens K designs
       per kept episode (each motion keeps its best, tt.tokens.draws.select_episodes; 1:
@@ -1035,6 +1039,10 @@ def train(
     settings = train_settings(config, init, **flags)
     online_table = settings.pop("online", None)
     selection = settings.pop("selection", None)
+    if space is not None:
+        if not online and online_table is None:
+            _fail("--space picks the design space of online training: add --online (a dataset has its own space)")
+        online_table = {**(online_table or {}), "space": space}  # a flag wins over --config
     if online or online_table is not None:
         if data is not None:
             _fail("give exactly one source of training data: --data DATASET or --online (an [online] table)")
