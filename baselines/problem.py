@@ -38,7 +38,8 @@ class Problem:
     Warp/torch device, None for the default.
     threads: CPU threads of the "warp" and "mjbatch" backends' batched rollouts, None for every core.
     progress: say so, with a bar on stderr, when the candidates' kernels must compile before
-    the search (`tt.baselines.warm_up`); the CLI's searches do.
+    the search (`tt.baselines.warm_up`), and show the learned methods' sampling steps; the
+    CLI's searches do.
     """
 
     space: str

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, Mapping
 
 import torch
+from tqdm import tqdm
 
 from tt.dit.ddim import CosineDDIM
 from tt.dit.model import RoboDiT
@@ -101,6 +102,7 @@ def sample(
     spacing: str = "leading",
     init_noise: Mapping[str, torch.Tensor] | None = None,
     temperature: float = 1.0,
+    progress: bool = False,
 ) -> SampleResult:
     """Denoise the tokens `task` diffuses, conditioned on the others.
 
@@ -117,7 +119,8 @@ def sample(
     noise of diffused types, in place of `generator`'s draw (types left out are drawn), so
     callers can give several sequences the same noise (common random numbers); temperature:
     scale of the drawn starting noise (1: the model's distribution; below 1 moves deterministic
-    DDIM's samples towards the modes, a common trade of diversity for quality).
+    DDIM's samples towards the modes, a common trade of diversity for quality); progress: a
+    tqdm bar over the sampling steps.
     """
     layout = model.layout
     layout.check(tokens)
@@ -174,7 +177,8 @@ def sample(
     use_grad = (guide is not None and guide_grad) or differentiable
     prediction = getattr(model, "prediction", "eps")
     autocast = torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=bf16 and device.type == "cuda")
-    for i, t in enumerate(steps):
+    bar = tqdm(steps, desc=f"sampling {b} sequences", unit="step", leave=False, disable=not progress)
+    for i, t in enumerate(bar):
         t_prev = steps[i + 1] if i + 1 < len(steps) else -1
         time = torch.full((b,), float(scheduler.model_time(t)), device=device)
         for n, (m, x0_given) in given.items():

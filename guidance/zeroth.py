@@ -276,13 +276,18 @@ class CandidateSampler:
 
     trained: the model (EMA weights), its normaliser and layout; device: where to run;
     critic_model: another model whose dynamics task scores the samples (`check_critic`;
-    None: `trained`'s own).
+    None: `trained`'s own); progress: a tqdm bar over each sampling call's DDIM steps.
     """
 
     def __init__(
-        self, trained: TrainedModel, device: str | torch.device | None = None, critic_model: TrainedModel | None = None
+        self,
+        trained: TrainedModel,
+        device: str | torch.device | None = None,
+        critic_model: TrainedModel | None = None,
+        progress: bool = False,
     ):
         self.trained = trained
+        self.progress = progress
         if device is None:
             held = next(iter([*trained.model.parameters(), *trained.model.buffers()]), None)
             device = held.device if held is not None else "cpu"
@@ -394,6 +399,7 @@ class CandidateSampler:
                 guide=hook,
                 guided=embodiment if hook is not None else None,
                 temperature=temperature,
+                progress=self.progress,
             )
             draws, scoring = [res.tokens], scorers
             if critic == "dynamics":
@@ -677,7 +683,10 @@ class ZerothOrder(Optimizer):
             self._critic = resolve_model(None, c.critic_checkpoint, problem.device)
         # On designs, `judge_designs` asks the critic model itself; the sampler only samples.
         sampler = CandidateSampler(
-            self._trained, problem.device, critic_model=self._critic if self.critic_input() == "tokens" else None
+            self._trained,
+            problem.device,
+            critic_model=self._critic if self.critic_input() == "tokens" else None,
+            progress=problem.progress,
         )
         if c.refine:
             self._refine_critic()  # before any sampling, not after it

@@ -146,3 +146,28 @@ def test_nominal_refuses_sampling_flags(flag, tmp_path, tt_cli):
     code, text = tt_cli(["designs", "--nominal", *flag, "--out", str(tmp_path / "d")])
     assert code == 2 and "--nominal" in text and flag[0] in text, text
     assert not (tmp_path / "d").exists()
+
+
+def test_validate_without_a_motion_runs_the_spaces_default(tmp_path, tt_cli):
+    """As `tt rollout` and `tt.validate` do: the toss for the one-arm ViperX (the same numbers
+    as --motion toss)."""
+    folder = tmp_path / "nominal"
+    assert tt_cli(["designs", "--space", "viperx", "--nominal", "--out", str(folder)])[0] == 0
+    runs = {}
+    for name, extra in (("default", []), ("toss", ["--motion", "toss"])):
+        out = tmp_path / f"{name}.json"
+        code, text = tt_cli(["validate", "--design", str(folder / "designs.json"), *extra, "--json", str(out)])
+        assert code == 0, text
+        runs[name] = json.loads(out.read_text())
+    assert runs["default"] == runs["toss"]
+
+
+def test_rollout_takes_the_space_of_its_design_file(tmp_path, tt_cli):
+    """`tt rollout --design FILE` without --space rolls out the file's space (as validate and
+    predict do); a --space that disagrees with the file is refused."""
+    folder = tmp_path / "aloha"
+    assert tt_cli(["designs", "--space", "aloha", "--nominal", "--out", str(folder)])[0] == 0
+    code, text = tt_cli(["rollout", "--design", str(folder / "designs.json")])
+    assert code == 0 and "bi_fling" in text and "1 world," in text, text
+    code, text = tt_cli(["rollout", "--design", str(folder / "designs.json"), "--space", "viperx"])
+    assert code != 0 and "are from ['aloha']" in text, text

@@ -357,13 +357,20 @@ def designs(
 
 #: Help of every option that names motions.
 _MOTION_HELP = "Motion: a library name (toss, toss:7; see `tt motions`) or a .npz / UMI .zarr file (repeatable)."
+#: The same, for the commands that run the space's default motion when none is given.
+_MOTION_HELP_DEFAULT = _MOTION_HELP[:-1] + "; default: toss, or bi_fling for two-arm spaces."
 
 
-def _motions(names: list[str] | None, space: str | None = None):
+def _motions(names: list[str] | None, space: str | None = None, default: bool = False):
     """Motions from library names (``toss``, ``toss:7``) or files (a value naming an existing
-    path, or ending in .npz or .zarr), placed for `space`."""
-    from tt.sim.motions import for_space, load_motion_file, resolve_motion
+    path, or ending in .npz or .zarr), placed for `space`; with `default` and no names, the
+    space's default motion (`tt.sim.motions.default_motion`), as the Python API runs."""
+    from tt.sim.motions import default_motion, for_space, load_motion_file, resolve_motion
 
+    if default and not names and space is not None:
+        from tt.sim.designs import get_space
+
+        names = [default_motion(get_space(space).ee_count)]
     motions = [load_motion_file(n) if _is_motion_file(n) else resolve_motion(n) for n in names or []]
     if space is not None:
         motions = for_space(motions, space)
@@ -447,7 +454,7 @@ def motions(
 @app.command()
 def validate(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
-    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP_DEFAULT),
     reward: str = typer.Option(DEFAULT_REWARD, help=_REWARD_HELP, callback=_reward),
     json_out: Optional[Path] = typer.Option(
         None,
@@ -487,7 +494,7 @@ def validate(
     sp_name = designs[0].space
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {sorted(spaces)}")
-    ms = _motions(motion, sp_name)
+    ms = _motions(motion, sp_name, default=True)
     if controller == "ik":
         if device is not None:
             _fail("--device applies to the model controller, not --controller ik (the oracle runs MuJoCo C)")
@@ -543,13 +550,13 @@ def validate(
 @app.command()
 def rollout(
     ctx: typer.Context,
-    space: str = typer.Option("viperx", help="Design space: viperx, aloha, bimanual, quadruped."),
+    space: str = typer.Option(
+        "viperx", help="Design space: viperx, aloha, bimanual, quadruped (with --design: the file's)."
+    ),
     n: int = typer.Option(16, help="Random designs of the space (seed --seed); not with --design."),
     seed: int = typer.Option(0, help="Random seed of the designs."),
     design: Optional[str] = typer.Option(None, help="designs.json or designs.json#i instead of random designs."),
-    motion: Optional[List[str]] = typer.Option(
-        None, help=_MOTION_HELP[:-1] + "; default: toss, or bi_fling for two-arm spaces."
-    ),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP_DEFAULT),
     backend: Optional[str] = typer.Option(
         None, help="warp | mjwarp | newton | mjbatch | mujoco (default: warp; mjbatch for spaces with contacts)."
     ),
@@ -577,20 +584,21 @@ def rollout(
     from tt.sim.backends import BACKENDS
     from tt.sim.controller import IKConfig
     from tt.sim.designs import get_space, load_designs
-    from tt.sim.motions import default_motion
 
     _output(out, "--out", folder=True)
-    sp = get_space(space)
     if design is not None:
         _applies(ctx, ("n", "seed"), "random designs", "--design, which reads them from a file")
         designs = load_designs(design)
         spaces = {d.space for d in designs}
+        if not _given(ctx, "space") and len(spaces) == 1:
+            space = designs[0].space  # the file's, as validate and predict take it
         if spaces != {space}:
             _fail(f"--space {space} but the designs of {design} are from {sorted(spaces)}")
-    else:
+    sp = get_space(space)
+    if design is None:
         _at_least("--n", n, 1)
         designs = sp.sample(n, seed)
-    ms = _motions(motion or [default_motion(sp.ee_count)], sp.name)
+    ms = _motions(motion, sp.name, default=True)
     backend = backend or default_backend(sp.name)
     if backend not in BACKENDS:
         _fail(f"--backend {backend!r} does not exist; backends: {', '.join(BACKENDS)}")
@@ -620,7 +628,8 @@ def rollout(
 
         used = cpu_threads(threads)
     typer.echo(
-        f"{worlds} worlds, {world_steps:,} world-steps in {seconds:.2f} s: {rate:,.0f} world-steps/s "
+        f"{worlds} world{'s' if worlds != 1 else ''}, {world_steps:,} world-steps in {seconds:.2f} s: "
+        f"{rate:,.0f} world-steps/s "
         f"(backend {backend}, device {ep.qpos.device}{f', {used} threads' if used else ''}; "
         "model building, kernel compile or cache load and scoring included)"
     )
@@ -789,8 +798,10 @@ def optimize(
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds
     console = Console(stderr=quiet)
+    # With no rollout the objective is the critic's prediction, which the oracle's table below checks.
+    objective = "best objective" if result.rollouts else "best predicted objective (not simulated)"
     console.print(
-        f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; best objective "
+        f"[bold]{result.method}[/bold]: {result.rollouts} rollouts in {result.seconds:.2f} s; {objective} "
         f"{result.best_reward:.2f}"
     )
     if "verified_simulated" in result.info:
@@ -846,7 +857,7 @@ def optimize(
 @app.command()
 def predict(
     design: str = typer.Option(..., help="designs.json or designs.json#i."),
-    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP),
+    motion: Optional[List[str]] = typer.Option(None, help=_MOTION_HELP_DEFAULT),
     checkpoint: Optional[Path] = typer.Option(
         None,
         help="DiT checkpoint file or run folder (default: the designs' space's shipped dynamics specialist, "
@@ -886,7 +897,7 @@ def predict(
     if len(spaces) > 1:
         _fail(f"designs from several spaces in one call: {spaces}")
     space = spaces[0]
-    ms = _motions(motion, space)
+    ms = _motions(motion, space, default=True)
     from tt.api import predict as predict_designs
     from tt.api import predict_checkpoint
 
