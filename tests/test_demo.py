@@ -260,3 +260,20 @@ def test_optimize_uses_the_shipped_checkpoint_by_default(tmp_path, monkeypatch, 
     saved = json.loads(out.read_text())
     assert saved["method"] == "zeroth" and saved["info"]["samples"] == 2 and saved["info"]["num_steps"] == 2
     assert saved["validated"]["survival_pct"] == 100.0
+
+
+def test_demo_cli_runs_the_methods_asked_for(tmp_path):
+    """tt demo --config methods=[...]: only those run (samples, num_steps, checkpoint, seed and
+    device are DemoConfig's keys too); an unknown method or key is refused naming the valid ones."""
+    from tt.cli import app
+
+    out = tmp_path / "demo"
+    args = ["demo", "--budget", "4", "--out", str(out), "--config", 'methods=["random"]', "--config", "seed=2"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    saved = json.loads((out / "demo.json").read_text())
+    assert [r["name"] for r in saved["rows"]] == ["Random"] and saved["budget"] == 4
+    result = CliRunner().invoke(app, ["demo", "--config", 'methods=["random", "nope"]', "--out", str(out)])
+    assert result.exit_code != 0 and "unknown methods ['nope']" in result.output
+    result = CliRunner().invoke(app, ["demo", "--config", "steps=3", "--out", str(out)])
+    assert result.exit_code != 0 and "valid keys: " in result.output and "num_steps" in result.output

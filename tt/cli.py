@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import inspect
 import json
 import logging
 import sys
@@ -62,10 +63,37 @@ def is_bug(e: BaseException) -> bool:
 _TYPER_CLICK_ERROR = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "ClickException")
 
 
+def _reflow(text: str) -> str:
+    """A docstring's paragraphs as single lines ('- ' items each their own), up to a ``\\f``
+    line (the part after it, which --help does not show, kept): rich help keeps every line
+    break of a docstring, so wrapped source lines would break mid-sentence on screen."""
+    shown, cut, rest = text.partition("\f")
+    paragraphs = []
+    for para in shown.strip("\n").split("\n\n"):
+        items: list[str] = []
+        for line in para.splitlines():
+            line = line.strip()
+            if line.startswith("- ") or not items:
+                items.append(line)
+            else:
+                items[-1] += " " + line
+        paragraphs.append("\n".join(items))
+    return "\n\n".join(paragraphs) + ("\n\n" + cut + rest if cut else "")
+
+
 class _Commands(TyperGroup):
     """The one error handler of every command: ``error: ...`` on stderr, exit code 2. Bad input
     (`tt.TTError`, a file's OSError) is that one line, its traceback only with ``tt -v``; any
     other exception is a bug in tt, shown with its traceback and a request to report it."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        for command in [
+            *self.commands.values(),
+            *(c for g in self.commands.values() for c in getattr(g, "commands", {}).values()),
+        ]:
+            if command.help:
+                command.help = _reflow(inspect.cleandoc(command.help))
 
     def invoke(self, ctx: typer.Context):
         try:
@@ -711,6 +739,7 @@ def optimize(
     and Dynamics Self-Guidance, on the space's shipped checkpoint unless --checkpoint), and the
     hybrids, where the model proposes and the batched simulator verifies: zeroth-sim, dgs-sim
     and cmaes-init-model. Each option in full: docs/cli.md.
+
     \f
     The options in detail:
 
@@ -1010,6 +1039,7 @@ def train(
 ) -> None:
     """Train the diffusion transformer on RoboToken episodes: a dataset (--data) or episodes
     simulated as training goes (--online). Each option in full: docs/cli.md.
+
     \f
     The options in detail:
 
@@ -1159,6 +1189,7 @@ def generate(
     ),
 ) -> None:
     """Generate a RoboToken dataset: sample designs, roll out, filter, tokenize, write shards.
+
     \f
     `--config` takes the keyword arguments of `tt.generate.generate_cmd` that have no flag
     (each checked by `tt.tokens.draws.GenerateConfig`, an unknown key refused naming the valid
@@ -1270,39 +1301,30 @@ def demo(
         None, help=_REWARD_HELP + " Default: the space's, tracking; aloha: tracking_velocity.", callback=_reward
     ),
     budget: int = typer.Option(64, help="Candidate designs for Random and CMA-ES."),
-    checkpoint: Optional[Path] = typer.Option(
-        None, help="DiT checkpoint file or run folder (default: the space's shipped one)."
-    ),
-    seed: int = typer.Option(0, help="Random seed."),
     out: Path = typer.Option(Path("tt_demo"), help="Folder for demo.json and demo.html."),
-    device: Optional[str] = typer.Option(None, help="Warp/torch device (default: cuda if present, else cpu)."),
+    config: Optional[List[str]] = typer.Option(
+        None,
+        "--config",
+        help="More settings (`tt.demo.DemoConfig`): KEY=VALUE or a TOML / JSON file (repeatable), e.g. "
+        '\'methods=["random", "zeroth"]\', samples=8, num_steps=10, checkpoint=PATH, seed=1, device=cuda.',
+    ),
 ) -> None:
     """The main job: co-design a robot for a motion with every method; validate; show the winners.
 
-    Random and batched CMA-ES always run; Zeroth-Order and Dynamics Self-Guidance run when
-    the space has a shipped DiT checkpoint (or --checkpoint is given), with `tt.demo.DemoConfig`'s
-    samples and DDIM steps. --space aloha: the paper's ALOHA experiment on a fling, the
-    original ALOHA validated beside the optimized designs."""
+    Random and batched CMA-ES run; Zeroth-Order, Dynamics Self-Guidance and Zeroth + sim
+    run when the space has a shipped DiT checkpoint (or --config checkpoint=PATH is given),
+    with `samples` candidates of `num_steps` DDIM steps (`methods` picks which run). --space
+    aloha: the paper's ALOHA experiment on a fling, the original ALOHA validated beside the
+    optimized designs (its Self-Guidance follows the critic through every candidate's decoded
+    design at every step: minutes on a CPU)."""
     from rich.console import Console
 
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 
-    for flag, value, low in (
-        ("--budget", budget, 1),
-        ("--seed", seed, 0),
-    ):
-        _at_least(flag, value, low)
-    config = DemoConfig(
-        space=space,
-        motion=motion,
-        reward=reward,
-        budget=budget,
-        checkpoint=checkpoint,
-        seed=seed,
-        out=out,
-        device=device,
-    )
+    _at_least("--budget", budget, 1)
+    settings = _config(config, _fields(DemoConfig, exclude=("space", "motion", "reward", "budget", "out")), "--config")
+    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, out=out, **settings)
     _output(out, "--out", folder=True)
     rows = run_demo(config, echo=typer.echo)
     space, motion, reward = config.space, config.motion, config.reward

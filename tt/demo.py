@@ -113,6 +113,10 @@ class DemoConfig:
             raise TTError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")
         if self.samples < 1:
             raise TTError(f"DemoConfig.samples = {self.samples}; must be >= 1")
+        if self.seed < 0:
+            raise TTError(f"DemoConfig.seed = {self.seed}; must be >= 0")
+        if self.checkpoint is not None:
+            object.__setattr__(self, "checkpoint", Path(self.checkpoint))  # a --config value is a str
         from tt.dit.tasks import ROBOT
 
         if not 1 <= self.num_steps <= ROBOT.diffusion_steps:
