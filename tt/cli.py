@@ -1324,10 +1324,10 @@ def demo(
 
     _at_least("--budget", budget, 1)
     settings = _config(config, _fields(DemoConfig, exclude=("space", "motion", "reward", "budget", "out")), "--config")
-    config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, out=out, **settings)
+    demo_config = DemoConfig(space=space, motion=motion, reward=reward, budget=budget, out=out, **settings)
     _output(out, "--out", folder=True)
-    rows = run_demo(config, echo=typer.echo)
-    space, motion, reward = config.space, config.motion, config.reward
+    rows = run_demo(demo_config, echo=typer.echo)
+    space, motion, reward = demo_config.space, demo_config.motion, demo_config.reward
     extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + (
         [("note", "note")] if any("note" in r for r in rows) else []
     )

@@ -281,7 +281,7 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
                 }
             )
             continue
-        kind = "predicted objective" if method in ("zeroth", "dgs") else "objective"
+        kind = "objective" if result.rollouts else "predicted objective"  # no rollout: the critic's
         echo(f"[{method}] {result.rollouts} rollouts, {result.seconds:.1f} s, {kind} {result.best_reward:.1f}")
         results.append(result)
         labels.append(LABELS[method])
