@@ -186,6 +186,16 @@ class CMAES(Optimizer):
         """
         c = self.config
         plan = self.plan(problem)
+        if plan.generations < c.generations:
+            log.warning(
+                "budget %d is below one CMA-ES restart (%d generations of %d): this run makes %d generation(s), "
+                "close to a random search; give a budget of at least %d",
+                problem.budget,
+                c.generations,
+                c.popsize,
+                plan.generations,
+                c.generations * c.popsize,
+            )
         space = problem.design_space
         backend = "mujoco" if c.sequential else problem.backend
         # Every candidate keeps the discrete choice of a design drawn here (a topology), so

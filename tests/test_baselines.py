@@ -9,6 +9,7 @@ validation motions, cut short where a test needs speed only.
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -83,6 +84,26 @@ def test_plan_spends_the_budget():
     # Left-over candidates go to the screening batch; nothing exceeds the budget.
     plan = CMAES(cfg).plan(_problem(p.motions, budget=47))
     assert plan.screen + plan.restarts * plan.generations * cfg.popsize == 47
+
+
+def test_budget_below_one_restart_warns(caplog):
+    """Below popsize x generations CMA-ES runs a cut-short restart, close to a random search:
+    the run says so and names the budget that buys a whole one; a whole restart runs silent."""
+
+    class Synthetic(CMAES):
+        def evaluate(self, problem, designs):
+            return -np.array([np.sum(np.square(d.continuous)) for d in designs])
+
+    motions = [_motion("toss", steps=10)]
+    with caplog.at_level(logging.WARNING, logger="tt.baselines.cmaes"):
+        res = Synthetic().optimize(_problem(motions, budget=10))
+    assert res.info["generations"] == 2
+    assert [r.levelno for r in caplog.records] == [logging.WARNING]
+    assert "budget 10 is below one CMA-ES restart" in caplog.text and "at least 15" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="tt.baselines.cmaes"):
+        Synthetic().optimize(_problem(motions, budget=15))
+    assert not caplog.records
 
 
 # ------------------------------------------------------------------------------ determinism

@@ -56,3 +56,19 @@ def test_cli_stats_lists_every_skill(tt_cli):
     for info in list_motions(arms=1):
         assert info.name in out
     assert "peak speed (m/s)" in out and "bi_fling" not in out
+
+
+def test_piped_table_keeps_whole_rows():
+    """Piped (``tt motions | tee``), rich would fold each cell into 80 columns; each motion's
+    row, its summary included, stays on one line."""
+    from typer.testing import CliRunner
+
+    from tt.cli import app
+    from tt.sim.motions import list_motions
+
+    res = CliRunner().invoke(app, ["motions", "--arms", "1"], env={"COLUMNS": None})
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    for info in list_motions(arms=1):
+        row = [line for line in lines if f"│ {info.name} " in line]
+        assert len(row) == 1 and info.summary in row[0], (info.name, row)

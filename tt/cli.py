@@ -274,6 +274,19 @@ def _output(path: Path | None, flag: str, *, folder: bool = False) -> None:
         prepare_output(path, flag, folder=folder)
 
 
+def _console(stderr: bool = False, width: int | None = None):
+    """A rich console for tables. Piped or redirected (``| tee log``), rich would lay tables out
+    in 80 columns and fold every cell; there it takes 200 unless ``COLUMNS`` says otherwise."""
+    import os
+
+    from rich.console import Console
+
+    console = Console(stderr=stderr, width=width)
+    if width is None and not console.is_terminal and "COLUMNS" not in os.environ:
+        console = Console(stderr=stderr, width=200)
+    return console
+
+
 def _on_stdout(*outputs: tuple[str, Path | None]) -> bool:
     """Whether one of the (flag, path) outputs goes to stdout (``-``, or ``/dev/stdout``): then
     the command's tables and messages go to stderr, so stdout holds the output alone. Two
@@ -426,7 +439,6 @@ def motions(
     ),
 ) -> None:
     """List the motion library, or export one motion to .npz."""
-    from rich.console import Console
     from rich.table import Table
 
     from tt.sim.motions import list_motions, motion_set, motion_stats, resolve_motion, save_npz
@@ -459,7 +471,7 @@ def motions(
                 v = [getattr(r, key) for r in rows]
                 cells.append(f"{min(v):.3g}-{max(v):.3g}")
             table.add_row(skill, str(len(rows)), *cells)
-        Console(width=200).print(table)
+        _console(width=200).print(table)
         return
     if name is None:
         table = Table(title="tt motion library (50 Hz)")
@@ -468,7 +480,7 @@ def motions(
             table.add_column(key)
         for r in rows:
             table.add_row(*[str(r[k]) for k in ("name", "arms", "duration_s", "train", "val", "summary")])
-        Console().print(table)
+        _console().print(table)
         return
     if out is None:
         _fail("--name needs --out FILE.npz")
@@ -507,8 +519,6 @@ def validate(
     network call per control step, each command the mean of the recent queries' predictions
     for it (docs/results/controller.md); its default checkpoint is the space's shipped
     controller, <space>_<size>_control.pt, else its shipped checkpoint."""
-    from rich.console import Console
-
     from tt.api import control_checkpoint
     from tt.api import validate as validate_designs
     from tt.report import columns_for, rich_table, summary_row
@@ -548,7 +558,7 @@ def validate(
         rows.append({"name": f"design {i}", **summary_row(ev.metrics, i)})
     if len(designs) > 1:
         rows.append({"name": "mean", **summary_row(ev.metrics)})
-    Console(stderr=quiet).print(
+    _console(stderr=quiet).print(
         rich_table(rows, columns_for(reward), title=f"{title}, {reward}, motions: {', '.join(m.name for m in ms)}")
     )
     if json_out is not None:
@@ -604,8 +614,6 @@ def rollout(
     metrics per motion and the world-steps per second."""
     import time
 
-    from rich.console import Console
-
     from tt.baselines.evaluate import evaluate_designs
     from tt.baselines.problem import default_backend
     from tt.report import columns_for, rich_table, summary_row
@@ -641,7 +649,7 @@ def rollout(
     rows = [{"name": mo.name, **summary_row({k: v[:, j] for k, v in metrics.items()})} for j, mo in enumerate(ms)]
     if len(ms) > 1:
         rows.append({"name": "all", **summary_row(metrics)})
-    Console().print(
+    _console().print(
         rich_table(
             rows,
             columns_for(reward),
@@ -780,7 +788,6 @@ def optimize(
       Measurements of each: docs/results/codesign.md, docs/experiments.md.
     """
     import numpy as np
-    from rich.console import Console
 
     from tt.baselines import Problem
     from tt.optimizers import LEARNED, METHODS, method_keys, run_optimizer
@@ -826,7 +833,7 @@ def optimize(
     sp = get_space(space)
     rows = _validated_rows([result.best], ms, reward, [f"{result.method} best"])
     rows[0]["seconds"] = result.seconds
-    console = Console(stderr=quiet)
+    console = _console(stderr=quiet)
     # With no rollout the objective is the critic's prediction, which the oracle's table below checks.
     objective = "best objective" if result.rollouts else "best predicted objective (not simulated)"
     console.print(
@@ -904,8 +911,6 @@ def predict(
     given to the model) and the reward of those dynamics, without simulating."""
     import math
 
-    from rich.console import Console
-
     from tt.report import columns_for, rich_table
     from tt.sim.designs import DesignError, load_designs
     from tt.sim.rewards import PERCENT_METRICS
@@ -948,7 +953,7 @@ def predict(
                 if values.get(key) is not None:
                     row[pct] = 100.0 * values[key]
             rows.append(row)
-    Console(stderr=quiet).print(
+    _console(stderr=quiet).print(
         rich_table(
             rows,
             [("motion", "motion")] + columns_for(reward),
@@ -1317,8 +1322,6 @@ def demo(
     aloha: the paper's ALOHA experiment on a fling, the original ALOHA validated beside the
     optimized designs (its Self-Guidance follows the critic through every candidate's decoded
     design at every step: minutes on a CPU)."""
-    from rich.console import Console
-
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 
@@ -1331,7 +1334,7 @@ def demo(
     extra = [("seconds", "optimize (s)"), ("rollouts", "rollouts")] + (
         [("note", "note")] if any("note" in r for r in rows) else []
     )
-    Console().print(
+    _console().print(
         rich_table(
             rows, columns_for(reward, extra), title=f"{space}, {motion}, {reward}: winners validated on the oracle"
         )
