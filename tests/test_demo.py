@@ -204,7 +204,7 @@ def test_aloha_demo_shows_the_original_against_the_optimized_designs(tmp_path, m
     (the space's nominal design) is the table's first row, validated as tt validate would, and
     the scene's first robot; each winner's change from it is printed."""
     from tt.baselines.evaluate import evaluate_designs
-    from tt.demo import ALL_METHODS, DemoConfig, run_demo
+    from tt.demo import DemoConfig, run_demo
     from tt.report import summary_row
     from tt.sim.designs import get_space
     from tt.sim.motions import for_space, get_motion
@@ -213,14 +213,9 @@ def test_aloha_demo_shows_the_original_against_the_optimized_designs(tmp_path, m
     config = DemoConfig(space="aloha", budget=16, out=tmp_path / "demo")
     assert (config.motion, config.reward, config.original) == ("bi_fling:100", "tracking_velocity", True)
     assert DemoConfig().original is False and DemoConfig(space="aloha", reward="tracking").reward == "tracking"
-    # Self-Guidance (minutes on ALOHA) runs only when named; elsewhere every method runs.
-    assert "dgs" not in config.methods and "zeroth" in config.methods
-    assert DemoConfig().methods == ALL_METHODS
-    assert DemoConfig(space="aloha", methods=["random", "dgs"]).methods == ("random", "dgs")
     lines: list[str] = []
     rows = run_demo(config, echo=lines.append)
     assert [r["name"] for r in rows] == ["Original ALOHA", "Random", "CMA-ES"]
-    assert any(line.startswith("[dgs] not run: Self-Guidance follows the critic") for line in lines)
     assert any(
         line.startswith("the learned methods (Zeroth-Order, Self-Guidance, Zeroth + sim) skipped") for line in lines
     )

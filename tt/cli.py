@@ -1320,8 +1320,8 @@ def demo(
     run when the space has a shipped DiT checkpoint (or --config checkpoint=PATH is given),
     with `samples` candidates of `num_steps` DDIM steps (`methods` picks which run). --space
     aloha: the paper's ALOHA experiment on a fling, the original ALOHA validated beside the
-    optimized designs; its Self-Guidance, which follows the critic through every candidate's
-    decoded design at every step (minutes on a CPU), runs only when `methods` names it."""
+    optimized designs (its Self-Guidance follows the critic through every candidate's decoded
+    design at every step: about 2 minutes on a 2-core CPU)."""
     from tt.demo import DemoConfig, run_demo
     from tt.report import columns_for, rich_table
 

@@ -9,9 +9,11 @@ The ALOHA (``tt demo --space aloha``) runs the paper's ALOHA experiment on one m
 bimanual validation fling (bi_fling:100) for the "Tracking Velocity" reward, the original
 ALOHA (the space's nominal design) validated beside the winners, first in the table and the
 scene, and each winner's change in position error and max joint speed from it printed
-(`SPACE_DEFAULTS`; benchmarks/aloha.py runs it over 9 seeds). Self-Guidance runs there only
-when `methods` names it (`SKIPPED_BY_DEFAULT`: minutes on a CPU, and it loses to Random on
-ALOHA); the output says so.
+(`SPACE_DEFAULTS`; benchmarks/aloha.py runs it over 9 seeds). With the shipped ALOHA model and
+critic it took 2.7 min on the repository's 2-core CPU when idle (Intel Xeon, 2026-12-07): 34 s
+for Random, CMA-ES, Zeroth-Order and Zeroth + sim, and 128 s for Self-Guidance, which follows
+the critic through every candidate's decoded design at every DDIM step (`--config
+'methods=[...]'` leaves it out).
 
 Methods: Random and batched CMA-ES (budget candidates each, scored by tt's batched Warp
 rollout), and, when the design space has a shipped DiT checkpoint
@@ -63,25 +65,6 @@ SPACE_DEFAULTS: dict[str, tuple[str, str, bool]] = {
 }
 
 
-#: Methods a space's demo leaves out unless `DemoConfig.methods` names them, and why. On ALOHA,
-#: Self-Guidance follows the dynamics critic: every DDIM step decodes each candidate, builds
-#: and simulates its design's first step and differentiates the critic's own DDIM sampling.
-SKIPPED_BY_DEFAULT: dict[str, dict[str, str]] = {
-    "aloha": {
-        "dgs": (
-            "Self-Guidance follows the critic through every candidate's decoded design at every DDIM step "
-            "(minutes on a CPU) and loses to Random on ALOHA (benchmarks/results/aloha.md)"
-        )
-    },
-}
-
-
-def default_methods(space: str) -> tuple[str, ...]:
-    """The methods `space`'s demo runs when none are named: `ALL_METHODS` less `SKIPPED_BY_DEFAULT`."""
-    skipped = SKIPPED_BY_DEFAULT.get(space, {})
-    return tuple(m for m in ALL_METHODS if m not in skipped)
-
-
 def space_defaults(space: str) -> tuple[str, str, bool]:
     """(motion, reward, original) of `space`'s demo: `SPACE_DEFAULTS`, else the space's default
     motion (`tt.sim.motions.default_motion`: the toss, or the bimanual fling for two-arm
@@ -100,8 +83,7 @@ class DemoConfig:
     candidates per motion for the rollout-based methods. samples: candidates for the learned
     methods; num_steps: their DDIM steps. checkpoint: DiT checkpoint file or run folder for
     the learned methods (None: the space's shipped one; where there is none they are
-    skipped). methods: which to run, in order (None: `default_methods`, every one but those
-    the space skips by default, `SKIPPED_BY_DEFAULT`). original: also validate the space's nominal
+    skipped). methods: which to run, in order. original: also validate the space's nominal
     design (the robot it is built around: the original ALOHA), first in the table and the
     scene, with each winner's change from it (None: the space's default). out: folder for
     demo.json and demo.html. device: Warp/torch device (None: default)."""
@@ -113,7 +95,7 @@ class DemoConfig:
     samples: int = 16
     num_steps: int = 20
     seed: int = 0
-    methods: tuple[str, ...] | None = None
+    methods: tuple[str, ...] = ALL_METHODS
     checkpoint: Path | None = None
     out: Path = Path("tt_demo")
     device: str | None = None
@@ -128,8 +110,6 @@ class DemoConfig:
         reward = reward if self.reward is None else self.reward
         object.__setattr__(self, "reward", reward_name(reward))  # the paper's names become tt's
         object.__setattr__(self, "original", original if self.original is None else bool(self.original))
-        methods = default_methods(self.space) if self.methods is None else tuple(self.methods)
-        object.__setattr__(self, "methods", methods)
         unknown = [m for m in self.methods if m not in ALL_METHODS]
         if unknown:
             raise TTError(f"DemoConfig.methods has unknown methods {unknown}; valid: {list(ALL_METHODS)}")
@@ -257,9 +237,6 @@ def run_demo(config: DemoConfig, echo=print) -> list[dict]:
     space = get_space(config.space)
     config.out.mkdir(parents=True, exist_ok=True)  # before the work: a folder that cannot be made fails now
     methods = list(config.methods)
-    for method, why in SKIPPED_BY_DEFAULT.get(config.space, {}).items():
-        if method not in methods:
-            echo(f"[{method}] not run: {why}; --config 'methods=[..., \"{method}\"]' runs it")
     learned = None
     checkpoint_note = None
     if any(m in LEARNED for m in methods):
