@@ -283,7 +283,7 @@ def _console(stderr: bool = False, width: int | None = None):
 
     console = Console(stderr=stderr, width=width)
     if width is None and not console.is_terminal and "COLUMNS" not in os.environ:
-        console = Console(stderr=stderr, width=200)
+        console.width = 200
     return console
 
 
@@ -405,13 +405,13 @@ _MOTION_HELP_DEFAULT = _MOTION_HELP[:-1] + "; default: toss, or bi_fling for two
 def _motions(names: list[str] | None, space: str | None = None, default: bool = False):
     """Motions from library names (``toss``, ``toss:7``) or files (a value naming an existing
     path, or ending in .npz or .zarr), placed for `space`; with `default` and no names, the
-    space's default motion (`tt.sim.motions.default_motion`), as the Python API runs."""
-    from tt.sim.motions import default_motion, for_space, load_motion_file, resolve_motion
+    space's default motion (`tt.api`'s, the one the Python API runs)."""
+    from tt.sim.motions import for_space, load_motion_file, resolve_motion
 
     if default and not names and space is not None:
-        from tt.sim.designs import get_space
+        from tt.api import _default_motion
 
-        names = [default_motion(get_space(space).ee_count)]
+        names = [_default_motion(space)]
     motions = [load_motion_file(n) if _is_motion_file(n) else resolve_motion(n) for n in names or []]
     if space is not None:
         motions = for_space(motions, space)

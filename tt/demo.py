@@ -71,10 +71,9 @@ def space_defaults(space: str) -> tuple[str, str, bool]:
     spaces), the tracking reward, no original."""
     if space in SPACE_DEFAULTS:
         return SPACE_DEFAULTS[space]
-    from tt.sim.designs import get_space
-    from tt.sim.motions import default_motion
+    from tt.api import _default_motion
 
-    return default_motion(get_space(space).ee_count), "tracking", False
+    return _default_motion(space), "tracking", False
 
 
 @dataclass(frozen=True)
