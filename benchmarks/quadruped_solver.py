@@ -68,23 +68,35 @@ def variants():
     ]
 
 
+def home_key(model) -> int:
+    """The index of `model`'s ``home`` keyframe, where every measurement starts."""
+    import mujoco
+
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+
+
+def swing(model, k: int, dt: float) -> np.ndarray:
+    """Every actuator's target at step `k` of `dt` seconds: its home value plus a sine of amplitude SWING at
+    SWING_HZ, phases spread over the actuators, clipped to ctrlrange; (nu,)."""
+    home = model.key_ctrl[home_key(model)]
+    phase = np.linspace(0.0, np.pi, model.nu)
+    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
+    return np.clip(home + SWING * np.sin(2 * np.pi * SWING_HZ * k * dt + phase), lo, hi)
+
+
 def episode(model, steps: int, *, timers: bool = False) -> dict:
     """One swing episode of `model` from its home keyframe: seconds per mj_step, mean solver
     iterations and constraint rows, the end pose; with timers, MuJoCo's per-stage seconds."""
     import mujoco
 
     d = mujoco.MjData(model)
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    mujoco.mj_resetDataKeyframe(model, d, key)
-    home = model.key_ctrl[key].copy()
-    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    phase = np.linspace(0.0, np.pi, model.nu)
+    mujoco.mj_resetDataKeyframe(model, d, home_key(model))
     ee = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "ee_0")
     iters = nefc = 0
     spent = 0.0
     before = [(d.timer[i].duration, d.timer[i].number) for i in range(len(d.timer))]
     for k in range(steps):
-        d.ctrl[:] = np.clip(home + SWING * np.sin(2 * np.pi * SWING_HZ * k * model.opt.timestep + phase), lo, hi)
+        d.ctrl[:] = swing(model, k, model.opt.timestep)
         t = time.perf_counter()
         mujoco.mj_step(model, d)
         spent += time.perf_counter() - t
@@ -108,20 +120,14 @@ def control_steps(model, worlds: int, calls: int, *, persistent: bool, stage: in
     """`calls` control steps (10 physics steps each) of `worlds` copies of `model` in one
     `mujoco.batch.Batch` on this thread, from the ``home`` keyframe, every actuator's target
     swinging as in `episode`: seconds per world-step and the end qpos, (worlds, nq)."""
-    import mujoco
     from mujoco.batch import Batch
 
     b = Batch(model, nsim=worlds, nthread=1, persistent=persistent)
     ctrl, qpos = b.bind("ctrl"), b.bind("qpos")
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    b.reset(keyframe=np.full(worlds, key, np.int32))
-    home = model.key_ctrl[key].copy()
-    lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-    phase = np.linspace(0.0, np.pi, model.nu)
-    dt = 10 * model.opt.timestep
+    b.reset(keyframe=np.full(worlds, home_key(model), np.int32))
     spent = 0.0
     for k in range(calls):
-        ctrl[:] = np.clip(home + SWING * np.sin(2 * np.pi * SWING_HZ * k * dt + phase), lo, hi)
+        ctrl[:] = swing(model, k, 10 * model.opt.timestep)
         t = time.perf_counter()
         b.step(nstep=10, stage=stage)
         spent += time.perf_counter() - t
