@@ -39,9 +39,14 @@ Per control step ``k`` of a world (the oracle's loop, `tt.sim.validate`):
    (`tt.kernels.rollout.action_noise_draws`: a function of (noise_seed, world, step,
    actuator) only, world = its index in the whole call), and ``Episode.action`` records the
    clean ctrl (the "warp" backend's perturbation, in float64);
-4. ``substeps`` ``mj_step`` calls, then ``mj_forward`` (``Batch.step(nstep=substeps,
-   stage=mjSTAGE_ACC)``), so the recorded site poses and actuator forces belong to the
-   recorded state;
+4. ``substeps`` ``mj_step`` calls, then the forward of the state they reach, so the recorded
+   site poses and actuator forces belong to the recorded state: up to the velocity stage
+   (``Batch.step(nstep=substeps, stage=mjSTAGE_VEL)``) where every actuator is an affine
+   servo (the quadruped's), whose forces `actuator_forces` computes from the actuator
+   lengths and velocities as ``mj_fwdActuation`` does, bit for bit; otherwise the whole
+   forward (``mjSTAGE_ACC``). The next step recomputes every stage, so the physics is the
+   same either way; the velocity stage spares the constraint solve, about 7 % of a
+   control step's physics (benchmarks/results/quadruped_solver.md);
 5. records, the termination test (summed end-effector position error over
    ``termination_pos_error``, or a fall, `tt.sim.wbc.fallen`) and the oracle's padding: a
    world stops at its first failing step or at its motion's last one (it is no longer
@@ -170,6 +175,9 @@ class _Layout:
     nv: int
     nu: int
     bound: dict = field(default_factory=dict)
+    #: (gain, bias0, bias1, bias2, force_lo, force_hi), each (nsim, nu), where every actuator of
+    #: the layout's models is MuJoCo's affine servo (`affine_actuators`); None steps to stage ACC.
+    force: tuple | None = None
 
 
 @dataclass
@@ -312,14 +320,51 @@ def _build_layouts(shard: _Shard) -> None:
         batch = Batch(ms[0], nsim=len(ms), nthread=1)  # runs on the shard's own thread
         batch.set_models(ms)
         # Outputs are bound before the first call, so every call copies them out.
+        force = affine_actuators(ms)
+        # The actuator forces come from the step's acceleration stage, or, for affine servos,
+        # from their length and velocity (stage VEL), which spares the constraint solve.
+        forces = ("actuator_length",) if force is not None else ("actuator_force",)
         bound = {
             name: batch.bind(name)
-            for name in ("qpos", "qvel", "ctrl", "actuator_force", "actuator_velocity", "site_xpos", "site_xmat")
+            for name in ("qpos", "qvel", "ctrl", *forces, "actuator_velocity", "site_xpos", "site_xmat")
         }
         # The home pose's kinematics: its foot sites are the stance points.
         keys = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY) for m in ms])
         batch.reset(keyframe=keys, stage=mujoco.mjtStage.mjSTAGE_POS.value)
-        shard.layouts.append(_Layout(batch, np.array(local), ms[0].nq, ms[0].nv, ms[0].nu, bound))
+        shard.layouts.append(_Layout(batch, np.array(local), ms[0].nq, ms[0].nv, ms[0].nu, bound, force))
+
+
+def affine_actuators(models: Sequence[mujoco.MjModel]) -> tuple | None:
+    """(gain, bias0, bias1, bias2, force_lo, force_hi), each (len(models), nu), of models whose
+    actuators are all stateless with a fixed gain and an affine or no bias (MuJoCo's position
+    and velocity servos, the quadruped's); None if any actuator of any model is another kind.
+
+    With these, `actuator_forces` gives what MuJoCo's ``mj_fwdActuation`` computes."""
+    fixed, affine, none = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE, mujoco.mjtBias.mjBIAS_NONE
+    for m in models:
+        if m.na or not (
+            np.all(m.actuator_dyntype == mujoco.mjtDyn.mjDYN_NONE)
+            and np.all(m.actuator_gaintype == fixed)
+            and np.all((m.actuator_biastype == affine) | (m.actuator_biastype == none))
+        ):
+            return None
+    bias = np.stack(
+        [np.where((m.actuator_biastype == affine)[:, None], m.actuator_biasprm[:, :3], 0.0) for m in models]
+    )
+    limited = np.stack([m.actuator_forcelimited.astype(bool) for m in models])
+    frange = np.stack([m.actuator_forcerange for m in models])
+    return (
+        np.stack([m.actuator_gainprm[:, 0] for m in models]), bias[..., 0], bias[..., 1], bias[..., 2],
+        np.where(limited, frange[..., 0], -np.inf), np.where(limited, frange[..., 1], np.inf),
+    )  # fmt: skip
+
+
+def actuator_forces(force: tuple, ctrl: np.ndarray, length: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Actuator forces (n, nu) of `affine_actuators`' servos at controls `ctrl` (within their
+    ctrlrange), actuator lengths and velocities (n, nu): ``mj_fwdActuation``'s arithmetic in
+    its order (gain * ctrl, then + (b0 + b1 * length + b2 * velocity), then the force range)."""
+    gain, b0, b1, b2, lo, hi = force
+    return np.clip(gain * ctrl + (b0 + b1 * length + b2 * velocity), lo, hi)
 
 
 def _run_shard(
@@ -347,7 +392,7 @@ def _run_shard(
     substeps = config.substeps(models[0])
     lookahead = config.lookahead_steps
     threshold = config.termination_pos_error
-    acc = mujoco.mjtStage.mjSTAGE_ACC.value
+    acc, vel = mujoco.mjtStage.mjSTAGE_ACC.value, mujoco.mjtStage.mjSTAGE_VEL.value
     rows = np.arange(shard.lo, shard.hi)
     wsteps = msteps[shard.motion]
 
@@ -443,7 +488,7 @@ def _run_shard(
             b = lay.bound
             b["ctrl"][sim_live] = executed[local, : lay.nu]
             try:
-                lay.batch.step(ids=sim_live, nstep=substeps, stage=acc)
+                lay.batch.step(ids=sim_live, nstep=substeps, stage=acc if lay.force is None else vel)
             except SimulationError as exc:  # MuJoCo raised (mju_error) in some simulations
                 worlds = [int(rows[lay.local[i]]) for i in exc.ids[:5]]
                 raise TTError(f"MuJoCo raised at control step {t} in worlds {worlds}: {exc}") from exc
@@ -454,7 +499,13 @@ def _run_shard(
             rec.ctrl[r, t, : lay.nu] = executed[local, : lay.nu]
             if rec.action is not None:
                 rec.action[r, t, : lay.nu] = ctrl[local, : lay.nu]
-            rec.act_force[r, t, : lay.nu] = b["actuator_force"][sim_live]
+            if lay.force is None:
+                rec.act_force[r, t, : lay.nu] = b["actuator_force"][sim_live]
+            else:
+                force = tuple(p[sim_live] for p in lay.force)
+                rec.act_force[r, t, : lay.nu] = actuator_forces(
+                    force, executed[local, : lay.nu], b["actuator_length"][sim_live], b["actuator_velocity"][sim_live]
+                )
             rec.act_vel[r, t, : lay.nu] = b["actuator_velocity"][sim_live]
             n = np.arange(len(local))[:, None]
             ee_pos = b["site_xpos"][sim_live][n, site_ids[local]]  # (n, A, 3)
@@ -488,4 +539,4 @@ def _run_shard(
             arr[w, k + 1 :] = arr[w, k]
 
 
-__all__ = ["CONTROLLERS", "layout_key", "mat2quat", "mjbatch_rollout"]
+__all__ = ["CONTROLLERS", "actuator_forces", "affine_actuators", "layout_key", "mat2quat", "mjbatch_rollout"]

@@ -22,7 +22,7 @@ from tt.kernels.rollout import action_noise_draws
 from tt.sim.backends import get_backend
 from tt.sim.controller import actuated_qpos
 from tt.sim.designs import get_space
-from tt.sim.mjbatch_backend import layout_key, mat2quat, mjbatch_rollout
+from tt.sim.mjbatch_backend import actuator_forces, affine_actuators, layout_key, mat2quat, mjbatch_rollout
 from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
@@ -135,6 +135,37 @@ def test_mat2quat_is_mujocos():
         mujoco.mju_mat2Quat(ref[i], mats[i])
     np.testing.assert_allclose(mat2quat(mats), ref, rtol=0, atol=1e-15)
     np.testing.assert_allclose(mat2quat(mats.reshape(100, 4, 9)), ref.reshape(100, 4, 4), rtol=0, atol=1e-15)
+
+
+def test_actuator_forces_are_mujocos():
+    """The forces the backend computes at stage VEL (no constraint solve) equal the ones
+    MuJoCo's forward computes, bit for bit in float64, at random states and commands, some
+    past the force range; a model with a stateful actuator is left to the forward."""
+    space = get_space("quadruped")
+    models = [space.model(d) for d in _layout_mates(space, seed=5)]
+    force = affine_actuators(models)
+    assert force is not None
+    rng = np.random.default_rng(0)
+    for i, m in enumerate(models):
+        data = mujoco.MjData(m)
+        for _ in range(20):
+            mujoco.mj_resetDataKeyframe(m, data, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+            data.qpos[7:] += rng.normal(0.0, 0.3, m.nq - 7)
+            data.qvel[:] = rng.normal(0.0, 3.0, m.nv)
+            lo, hi = m.actuator_ctrlrange.T
+            data.ctrl[:] = np.clip(data.qpos[actuated_qpos(m)] + rng.normal(0.0, 0.2, m.nu), lo, hi)
+            mujoco.mj_forward(m, data)
+            got = actuator_forces(
+                tuple(p[i : i + 1] for p in force), data.ctrl[None], data.actuator_length[None],
+                data.actuator_velocity[None],
+            )[0]  # fmt: skip
+            assert np.array_equal(got, data.actuator_force)
+        assert np.any(np.abs(got) == m.actuator_forcerange[:, 1])  # the range clips some
+    stateful = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint name="j"/><geom size=".1"/></body></worldbody>'
+        '<actuator><position joint="j" kp="10" timeconst="0.1"/></actuator></mujoco>'
+    )
+    assert affine_actuators([*models, stateful]) is None
 
 
 def test_rejects_fixed_base_arms():
