@@ -16,8 +16,9 @@ are loaded by a 2-step warm-up first.
 * mjbatch: `tt.sim.mjbatch_backend` on all D designs at each ``--threads`` count.
 The calls alternate over ``--repeats`` rounds and the best of each is reported, per wall
 second and per CPU second of the process (the latter least disturbed by other jobs).
-Then: the cost of one ``mj_step``, one ``mj_forward`` and one whole-body kernel step per
-world (why a core tops out where it does); the agreement of the mjbatch episodes with the
+Then: the cost of one ``mj_step``, one forward to the velocity stage (what mjbatch runs after a
+control step's ``mj_step``s: ``mj_fwdPosition`` and ``mj_fwdVelocity``) and one whole-body
+kernel step per world (why a core tops out where it does); the agreement of the mjbatch episodes with the
 oracle's on the common designs (per-episode mean position error, survived / fell); that
 every thread count gave the same Episode; and, with ``--cli``, `tt rollout --space
 quadruped --backend mjbatch` on the same designs and the whole motion in a subprocess
@@ -76,7 +77,8 @@ def _timed(fn) -> tuple[object, float, float]:
 
 
 def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) -> dict:
-    """Mean cost [us] of one mj_step and one mj_forward per world (standing, home keyframe,
+    """Mean cost [us] of one mj_step and one forward to the velocity stage (mj_fwdPosition,
+    mj_fwdVelocity: what mjbatch runs after a control step's mj_steps) per world (standing, home keyframe,
     the first `samples` designs) and of one whole-body kernel step per world (a launch over
     the first `wbc_worlds` designs: fewer would measure Python's launch overhead)."""
     import mujoco
@@ -101,7 +103,8 @@ def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) 
         step_s.append((time.perf_counter() - t) / steps)
         t = time.perf_counter()
         for _ in range(steps):
-            mujoco.mj_forward(m, d)
+            mujoco.mj_fwdPosition(m, d)
+            mujoco.mj_fwdVelocity(m, d)
         fwd_s.append((time.perf_counter() - t) / steps)
     W = len(models)
     wbc = build_wbc_model(models, WBCConfig(), device="cpu")
@@ -122,7 +125,7 @@ def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) 
     return {
         "mj_step_us": 1e6 * float(np.mean(step_s)),
         "mj_step_us_range": [1e6 * float(np.min(step_s)), 1e6 * float(np.max(step_s))],
-        "mj_forward_us": 1e6 * float(np.mean(fwd_s)),
+        "forward_vel_us": 1e6 * float(np.mean(fwd_s)),
         "wbc_step_us": 1e6 * wbc_s,
         "designs": min(samples, W),
         "wbc_worlds": W,
@@ -131,7 +134,8 @@ def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) 
 
 def _physics_scaling(seconds: float = 12.0, sims: int = 64) -> dict:
     """What two cores give MuJoCo C alone, with no Python in the loop: `sims` standing
-    nominal quadrupeds in a `mujoco.batch.Batch` stepped (10 steps and mj_forward per call)
+    nominal quadrupeds in a `mujoco.batch.Batch` stepped as mjbatch steps them (10 steps, then the
+    forward to the velocity stage, per call)
     for `seconds` on one thread, then two such batches for `seconds` on two threads at once;
     world-steps/s of each."""
     import threading
@@ -144,7 +148,7 @@ def _physics_scaling(seconds: float = 12.0, sims: int = 64) -> dict:
     sp = get_space(SPACE)
     model = sp.model(sp.nominal())
     key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
-    acc = mujoco.mjtStage.mjSTAGE_ACC.value
+    vel = mujoco.mjtStage.mjSTAGE_VEL.value
     batches = []
     for _ in range(2):
         b = Batch(model, nsim=sims, nthread=1)
@@ -155,7 +159,7 @@ def _physics_scaling(seconds: float = 12.0, sims: int = 64) -> dict:
     def work(i: int) -> None:
         start, n = time.perf_counter(), 0
         while time.perf_counter() - start < seconds:
-            batches[i].step(nstep=10, stage=acc)
+            batches[i].step(nstep=10, stage=vel)
             n += 1
         done[i] = sims * 10 * n / (time.perf_counter() - start)
 
@@ -366,9 +370,10 @@ def _round_row(runs: dict, k: int, thread_counts: list[int]) -> str:
 def physics_ceiling(raw: dict) -> tuple[float, float]:
     """(world-steps/s one core tops out at with the oracle's physics alone, that rate over the
     oracle's best rate times the most threads timed): the substeps' ``mj_step``s and one
-    ``mj_forward`` per control step at their measured costs, a free controller, perfect scaling."""
+    forward to the velocity stage per control step at their measured costs, a free controller,
+    perfect scaling."""
     c, runs = raw["costs"], raw["runs"]
-    physics_core = 1e6 / (c["mj_step_us"] + c["mj_forward_us"] / raw["substeps"])
+    physics_core = 1e6 / (c["mj_step_us"] + c["forward_vel_us"] / raw["substeps"])
     oracle = max(r["world_steps_per_s"] for r in runs["oracle"])
     threads = max(int(n.split("/")[1]) for n in runs if n != "oracle")
     return physics_core, threads * physics_core / oracle
@@ -463,7 +468,7 @@ def report(raw: dict, command: str) -> list[str]:
             f"the batches, the controller arrays, the start postures and one control step): {parts}.",
         ]
     c = raw["costs"]
-    per_core = 1e6 / (c["mj_step_us"] + (c["mj_forward_us"] + c["wbc_step_us"]) / raw["substeps"])
+    per_core = 1e6 / (c["mj_step_us"] + (c["forward_vel_us"] + c["wbc_step_us"]) / raw["substeps"])
     if len(thread_counts) > 1:
         top = best[f"mjbatch/{max(thread_counts)}"]["world_steps_per_s"]
         physics_core, cap = physics_ceiling(raw)
@@ -492,16 +497,17 @@ def report(raw: dict, command: str) -> list[str]:
             f"| 1 -> 2 thread speed-up >= 1.7x | {min(per_round):.2f}-{max(per_round):.2f}x per round{nc} | "
             f"{'met' if rounds_met == len(per_round) else f'met in {rounds_met} of {len(per_round)} rounds'} |",
             "",
-            f"Why not 10x: the physics is the oracle's own, and it alone (10 `mj_step`s and one `mj_forward` per "
-            f"control step, below) caps a core near {_fmt(physics_core)} world-steps/s, so {max(thread_counts)} "
-            f"cores cap at {_fmt(ceiling)}, "
+            f"Why not 10x: the physics is the oracle's own, and it alone (10 `mj_step`s and one forward to the "
+            f"velocity stage per control step, below) caps a core near {_fmt(physics_core)} world-steps/s, "
+            f"so {max(thread_counts)} cores cap at {_fmt(ceiling)}, "
             f"{cap:.1f}x this oracle, even with a free controller and perfect scaling. The oracle's "
             f"{_fmt(oracle)} world-steps/s is its rate in this run (loads above); benchmarks/results/quadruped.md "
             f"measured 3.1-6.0 k at load averages of 5-8, against which this would read {top / 6.0e3:.1f}-"
             f"{top / 3.1e3:.1f}x. More "
             "than the ceiling needs cheaper physics than the oracle's, and its solver has little to give: the "
             "warm-started Newton solver converges in about one iteration per step, and no other solver option "
-            "that keeps the episodes costs less (benchmarks/results/quadruped_solver.md); another integrator, "
+            "that keeps the episodes costs less, and the forward after each control step stops at the velocity "
+            "stage already (benchmarks/results/quadruped_solver.md); another integrator, "
             "timestep or contact model would no longer give the oracle's episodes.",
         ]
     lines += [
@@ -510,9 +516,9 @@ def report(raw: dict, command: str) -> list[str]:
         "",
         f"Measured on {c['designs']} of the designs ({c.get('wbc_worlds', c['designs'])} in one launch for the "
         f"kernel), standing: one `mj_step` {c['mj_step_us']:.1f} us (per design "
-        f"{c['mj_step_us_range'][0]:.1f}-{c['mj_step_us_range'][1]:.1f} us), one `mj_forward` "
-        f"{c['mj_forward_us']:.1f} us, one whole-body kernel step {c['wbc_step_us']:.1f} us per world. A control "
-        f"step is {raw['substeps']} `mj_step`s, one `mj_forward` and one controller step, so one core tops out near "
+        f"{c['mj_step_us_range'][0]:.1f}-{c['mj_step_us_range'][1]:.1f} us), one forward to the velocity stage "
+        f"{c['forward_vel_us']:.1f} us, one whole-body kernel step {c['wbc_step_us']:.1f} us per world. A control "
+        f"step is {raw['substeps']} `mj_step`s, one such forward and one controller step, so one core tops out near "
         f"{_fmt(per_core)} world-steps/s; the oracle's mink controller costs far more than its physics "
         f"({_fmt(oracle_cpu)} world-steps per CPU second).",
     ]

@@ -229,22 +229,21 @@ def _report(raw: dict) -> list[str]:
         "Same episodes: " + _agreement(new, old) + ".",
         "",
         f"Why not 10x: the rollout is nearly all of the time on both paths. Per CPU second mjbatch makes "
-        f"{cpu_ratio:.1f}x the oracle's episodes: it runs the oracle's own physics (MuJoCo C, 10 `mj_step`s and one "
-        "`mj_forward` per control step, which alone cap a core near 40 k world-steps/s) and only its controller is "
-        "cheaper than mink. The rest of the gain is its threads: on an idle machine two give 1.5-2.0x "
-        "(benchmarks/results/quadruped_batched.md, where mjbatch made 3.4-6.6x the oracle's world-steps/s per round "
-        "and the physics alone caps two cores at about 6.5x); "
+        f"{cpu_ratio:.1f}x the oracle's episodes: it runs the oracle's own physics (MuJoCo C, 10 `mj_step`s and a "
+        "forward to the velocity stage per control step) and only its controller is cheaper than mink. The rest of "
+        "the gain is its threads: on an idle machine two give 1.5-2.0x (benchmarks/results/quadruped_batched.md "
+        "gives mjbatch's rate against the oracle's per round and the cap the physics alone sets); "
         + (
             f"under this run's load mjbatch got {cores_new:.2f} cores and the oracle {cores_old:.2f}, so the wall "
             "ratios above say little. An estimate for an idle machine, not a measurement: the per-CPU-second ratio "
-            f"times 1.5-2.0x from the second thread, {1.5 * cpu_ratio:.1f}-{2.0 * cpu_ratio:.1f}x, in line with the "
-            "4.3x (world-steps/s, between the bests) of quadruped_batched.md. "
+            f"times 1.5-2.0x from the second thread, {1.5 * cpu_ratio:.1f}-{2.0 * cpu_ratio:.1f}x, to set beside the "
+            "world-steps/s ratio between the bests in quadruped_batched.md. "
             if contended
             else f"here mjbatch used {cores_new:.2f} cores and the oracle {cores_old:.2f}, so the wall ratio, "
             f"{new['episodes_per_s'] / old['episodes_per_s']:.1f}x, is what a user of `tt generate` gets on this "
             "machine. "
         )
-        + "More than the physics' 6.5x needs cheaper physics than the oracle's, whose episodes would no longer be "
+        + "More than the physics' cap needs cheaper physics than the oracle's, whose episodes would no longer be "
         "the oracle's.",
     ]
     return lines

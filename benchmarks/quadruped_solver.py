@@ -15,10 +15,12 @@ option's change to the episode). For the default options, the share of the step 
 takes (MuJoCo's own timers).
 
 It also measures the one cost mjbatch adds to the physics: after each control step's 10
-``mj_step`` calls its ``mujoco.batch.Batch`` runs ``mj_forward`` (``stage=mjSTAGE_ACC``), so the
-records' site poses and actuator forces belong to the recorded state. A persistent batch stepped
-to ``mjSTAGE_VEL`` instead computes the position and velocity stages once and its next step
-reuses them. Per design, ``--batch-worlds`` worlds of one batch on one thread, ``--batch-calls``
+``mj_step`` calls its ``mujoco.batch.Batch`` runs the forward of the state they reach, so the
+records' site poses and actuator forces belong to the recorded state. The whole forward
+(``mj_forward``, ``stage=mjSTAGE_ACC``; mjbatch before 2026-12-08) against the same batch
+stepped to ``mjSTAGE_VEL`` (mjbatch now, where every actuator is an affine servo: their forces
+follow from the actuator lengths and velocities, `tt.sim.mjbatch_backend.actuator_forces`).
+Per design, ``--batch-worlds`` worlds of one batch on one thread, ``--batch-calls``
 control steps with the same swinging targets: microseconds per world-step of each (alternating,
 best of ``--repeats``) and whether their qpos end bit for bit the same.
 
@@ -116,13 +118,13 @@ def episode(model, steps: int, *, timers: bool = False) -> dict:
     return out
 
 
-def control_steps(model, worlds: int, calls: int, *, persistent: bool, stage: int) -> tuple[float, np.ndarray]:
+def control_steps(model, worlds: int, calls: int, *, stage: int) -> tuple[float, np.ndarray]:
     """`calls` control steps (10 physics steps each) of `worlds` copies of `model` in one
-    `mujoco.batch.Batch` on this thread, from the ``home`` keyframe, every actuator's target
+    `mujoco.batch.Batch` on this thread (as mjbatch makes them), from the ``home`` keyframe, every actuator's target
     swinging as in `episode`: seconds per world-step and the end qpos, (worlds, nq)."""
     from mujoco.batch import Batch
 
-    b = Batch(model, nsim=worlds, nthread=1, persistent=persistent)
+    b = Batch(model, nsim=worlds, nthread=1)
     ctrl, qpos = b.bind("ctrl"), b.bind("qpos")
     b.reset(keyframe=np.full(worlds, home_key(model), np.int32))
     spent = 0.0
@@ -135,8 +137,8 @@ def control_steps(model, worlds: int, calls: int, *, persistent: bool, stage: in
 
 
 def run_forward(args) -> dict:
-    """mjbatch's step (10 mj_step, then mj_forward) against a persistent batch stepped to
-    mjSTAGE_VEL, per design."""
+    """10 mj_step then mj_forward (mjbatch before 2026-12-08) against 10 mj_step then the
+    forward to mjSTAGE_VEL (mjbatch now), per design."""
     import mujoco
 
     from tt.sim.designs import get_space
@@ -148,8 +150,8 @@ def run_forward(args) -> dict:
     for m in models:
         best = {"acc": np.inf, "vel": np.inf}
         for _ in range(args.repeats):
-            s_acc, q_acc = control_steps(m, args.batch_worlds, args.batch_calls, persistent=False, stage=acc)
-            s_vel, q_vel = control_steps(m, args.batch_worlds, args.batch_calls, persistent=True, stage=vel)
+            s_acc, q_acc = control_steps(m, args.batch_worlds, args.batch_calls, stage=acc)
+            s_vel, q_vel = control_steps(m, args.batch_worlds, args.batch_calls, stage=vel)
             best = {"acc": min(best["acc"], s_acc), "vel": min(best["vel"], s_vel)}
         rows.append(
             {"acc_us": 1e6 * best["acc"], "vel_us": 1e6 * best["vel"], "same": bool(np.array_equal(q_acc, q_vel))}
@@ -272,7 +274,7 @@ def report(raw: dict, command: str, load_start: str, load_end: str) -> list[str]
             "swinging targets above; "
             "microseconds per world-step, the best of the rounds (the two alternate within each round).",
             "",
-            "| design | mjbatch today: 10 mj_step + mj_forward (us) | persistent, stage VEL (us) | ratio "
+            "| design | stage ACC: 10 mj_step + mj_forward (us) | stage VEL, mjbatch now (us) | ratio "
             "| same qpos bit for bit |",
             "|---:|---:|---:|---:|---|",
         ]
@@ -280,12 +282,12 @@ def report(raw: dict, command: str, load_start: str, load_end: str) -> list[str]
             lines.append(f"| {i} | {r['acc_us']:.1f} | {r['vel_us']:.1f} | {q:.3f} | {'yes' if r['same'] else 'no'} |")
         lines += [
             "",
-            f"- Stepping to `mjSTAGE_VEL` in a persistent batch costs {min(ratios):.2f}-{max(ratios):.2f}x "
-            f"(mean {mean:.2f}x) of what mjbatch's physics costs today, with the same qpos in {same} of "
-            f"{len(ratios)} designs: it would move the physics' cap from about {cap:.1f}x to about "
-            f"{cap / mean:.1f}x the oracle's closed-loop rate, "
-            + ("enough for 10x." if cap / mean >= 10 else "short of 10x.")
-            + " mjbatch keeps the forward: the records' actuator forces come from its acceleration stage.",
+            f"- Stepping to `mjSTAGE_VEL` costs {min(ratios):.2f}-{max(ratios):.2f}x "
+            f"(mean {mean:.2f}x) of the whole forward's physics, with the same qpos in {same} of "
+            f"{len(ratios)} designs. mjbatch steps to the velocity stage since 2026-12-08, computing the "
+            "actuator forces from the actuator lengths and velocities as `mj_fwdActuation` does "
+            "(`tt.sim.mjbatch_backend.actuator_forces`, equal to MuJoCo's bit for bit in tests/test_mjbatch.py); "
+            "the physics' cap in benchmarks/results/quadruped_batched.md counts that forward.",
         ]
     return lines
 
