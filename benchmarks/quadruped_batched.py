@@ -6,8 +6,9 @@ motion (``--motion``, placed by the space's ``motion_offset``; its first ``--ste
 control steps, 0 for all). A world-step is one physics step (0.002 s) of one world, the
 50 Hz whole-body controller included, counted over the motion's length (as `tt rollout`
 counts them). Every timed call includes its setup: compiling the designs' MuJoCo models in
-this process (the backend's `resolve`; `tt rollout` builds 512 or more in worker processes,
-whose start costs more than it saves on 2 cores: 5.6 s against 3.0 s for 1,024 designs) and
+this process (the backend's `resolve`; `tt rollout` builds 512 or more in 2 worker processes,
+which on 2 cores about break even for the quadruped: 2.8-3.0 s against 2.9-3.2 s in-process
+for 1,024 designs, `DesignSpace.models`, Intel Xeon, 2026-12-08) and
 the rollout's own (batches, controller arrays, start postures); Warp's whole-body kernels
 are loaded by a 2-step warm-up first.
 
