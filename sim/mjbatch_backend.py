@@ -45,8 +45,9 @@ Per control step ``k`` of a world (the oracle's loop, `tt.sim.validate`):
    servo (the quadruped's), whose forces `actuator_forces` computes from the actuator
    lengths and velocities as ``mj_fwdActuation`` does, bit for bit; otherwise the whole
    forward (``mjSTAGE_ACC``). The next step recomputes every stage, so the physics is the
-   same either way; the velocity stage spares the constraint solve, about 7 % of a
-   control step's physics (benchmarks/results/quadruped_solver.md);
+   same either way; the velocity stage spares the acceleration stage and its constraint
+   solve, about 4 % of a control step's physics (0.94-1.02x over 8 designs,
+   benchmarks/results/quadruped_solver.md);
 5. records, the termination test (summed end-effector position error over
    ``termination_pos_error``, or a fall, `tt.sim.wbc.fallen`) and the oracle's padding: a
    world stops at its first failing step or at its motion's last one (it is no longer
@@ -337,15 +338,20 @@ def _build_layouts(shard: _Shard) -> None:
 def affine_actuators(models: Sequence[mujoco.MjModel]) -> tuple | None:
     """(gain, bias0, bias1, bias2, force_lo, force_hi), each (len(models), nu), of models whose
     actuators are all stateless with a fixed gain and an affine or no bias (MuJoCo's position
-    and velocity servos, the quadruped's); None if any actuator of any model is another kind.
+    and velocity servos, the quadruped's); None if any actuator of any model is another kind
+    or a model disables actuation.
 
     With these, `actuator_forces` gives what MuJoCo's ``mj_fwdActuation`` computes."""
     fixed, affine, none = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE, mujoco.mjtBias.mjBIAS_NONE
     for m in models:
-        if m.na or not (
-            np.all(m.actuator_dyntype == mujoco.mjtDyn.mjDYN_NONE)
-            and np.all(m.actuator_gaintype == fixed)
-            and np.all((m.actuator_biastype == affine) | (m.actuator_biastype == none))
+        if (
+            m.na
+            or m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_ACTUATION
+            or not (
+                np.all(m.actuator_dyntype == mujoco.mjtDyn.mjDYN_NONE)
+                and np.all(m.actuator_gaintype == fixed)
+                and np.all((m.actuator_biastype == affine) | (m.actuator_biastype == none))
+            )
         ):
             return None
     bias = np.stack(
