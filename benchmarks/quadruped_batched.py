@@ -87,7 +87,7 @@ def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) 
 
     from tt.kernels.wbc import make_wbc_data, wbc_step
     from tt.sim.designs import get_space
-    from tt.sim.wbc import WBCConfig
+    from tt.sim.wbc import HOME_KEY, WBCConfig
     from tt.sim.wbc_model import build_wbc_model
 
     sp = get_space(SPACE)
@@ -95,7 +95,7 @@ def _costs(designs, samples: int = 64, steps: int = 200, wbc_worlds: int = 256) 
     step_s, fwd_s = [], []
     for m in models[:samples]:
         d = mujoco.MjData(m)
-        mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+        mujoco.mj_resetDataKeyframe(m, d, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY))
         for _ in range(20):
             mujoco.mj_step(m, d)
         t = time.perf_counter()
@@ -145,10 +145,11 @@ def _physics_scaling(seconds: float = 12.0, sims: int = 64) -> dict:
     from mujoco.batch import Batch
 
     from tt.sim.designs import get_space
+    from tt.sim.wbc import HOME_KEY
 
     sp = get_space(SPACE)
     model = sp.model(sp.nominal())
-    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
     vel = mujoco.mjtStage.mjSTAGE_VEL.value
     batches = []
     for _ in range(2):

@@ -71,10 +71,12 @@ def variants():
 
 
 def home_key(model) -> int:
-    """The index of `model`'s ``home`` keyframe, where every measurement starts."""
+    """The index of `model`'s ``home`` keyframe (`tt.sim.wbc.HOME_KEY`), where every measurement starts."""
     import mujoco
 
-    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
+    from tt.sim.wbc import HOME_KEY
+
+    return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY)
 
 
 def swing(model, k: int, dt: float) -> np.ndarray:

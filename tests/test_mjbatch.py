@@ -27,7 +27,7 @@ from tt.sim.motions import for_space, motion_set
 from tt.sim.motions.base import Motion
 from tt.sim.rollout import rollout
 from tt.sim.validate import oracle_rollout
-from tt.sim.wbc import WBCConfig, WholeBodyController, fallen, free_joint, standing_height
+from tt.sim.wbc import HOME_KEY, WBCConfig, WholeBodyController, fallen, free_joint, standing_height
 
 POS_TOL_CM = 0.3  # per-episode mean position error, the measure [cm]
 FIELDS = (
@@ -149,7 +149,7 @@ def test_actuator_forces_are_mujocos():
     for i, m in enumerate(models):
         data = mujoco.MjData(m)
         for _ in range(20):
-            mujoco.mj_resetDataKeyframe(m, data, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home"))
+            mujoco.mj_resetDataKeyframe(m, data, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY))
             data.qpos[7:] += rng.normal(0.0, 0.3, m.nq - 7)
             data.qvel[:] = rng.normal(0.0, 3.0, m.nv)
             lo, hi = m.actuator_ctrlrange.T
@@ -188,7 +188,7 @@ def _perturbed_reference(model, sites, motion, steps, world, sigma, seed, config
     site_ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, s) for s in sites]
     base, height = int(model.jnt_qposadr[free_joint(model)]), standing_height(model)
     data = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home"))
+    mujoco.mj_resetDataKeyframe(model, data, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, HOME_KEY))
     data.qpos[:] = controller.initial_q(motion.pos[0], motion.quat[0])
     data.qvel[:] = 0.0
     mujoco.mj_forward(model, data)
